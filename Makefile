@@ -1,0 +1,17 @@
+# The two commands the README shows: `make demo` and `make test`.
+# Both run the idempotent set-up first (LLVM 19, .venv/, the tree library).
+
+.PHONY: setup demo test bench
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	.venv/bin/forest scatter configs/demo.toml -o out/demo_trees.npz
+	.venv/bin/forest render configs/demo.toml -o out/demo.exr
+
+test: setup
+	.venv/bin/python -m pytest -q -p no:cacheprovider tests
+
+bench: setup
+	.venv/bin/python bench/run_all.py

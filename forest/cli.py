@@ -1,0 +1,53 @@
+"""The ``forest`` command line.
+
+Sub-commands live in :mod:`forest.commands`, one module each; every one calls
+the same public functions the service and the tests call.  User mistakes
+(:class:`~forest.errors.ForestError`) print one line and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import typer
+
+from .errors import ForestError
+
+app = typer.Typer(
+    name="forest",
+    help="Grow, render, export and look-dev forests of 100 000 to 1 000 000+ trees.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+# Each module defines ``register(app)``.
+COMMAND_MODULES = (
+    "scatter",
+)
+
+for _name in COMMAND_MODULES:
+    importlib.import_module(f".commands.{_name}", __package__).register(app)
+
+
+def fail(message: str, code: int = 2) -> None:
+    """Print one line to stderr and exit."""
+    typer.echo(f"forest: error: {message}", err=True)
+    raise SystemExit(code)
+
+
+def main(argv: list[str] | None = None) -> None:
+    try:
+        app(args=argv, prog_name="forest")
+    except ForestError as e:
+        fail(str(e), e.exit_code)
+    except KeyboardInterrupt:
+        fail("interrupted", 130)
+    except MemoryError:
+        fail("out of memory", 1)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

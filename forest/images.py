@@ -1,0 +1,213 @@
+"""Image I/O through OpenImageIO, and colour-space conversion through colour-science.
+
+Maps are painted images: read as sRGB-encoded (8/16-bit PNG, TIFF, JPEG) and
+converted to linear; EXR/HDR inputs are already linear.  Renders are written
+as linear EXR (half or float) and sRGB-encoded 8-bit PNG, always atomically.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .atomic import atomic_path
+from .errors import ForestError
+
+MAX_IMAGE_BYTES = 512 * 1024 * 1024
+MAX_IMAGE_PIXELS = 16384 * 16384
+LINEAR_FORMATS = (".exr", ".hdr", ".pfm")
+
+
+def _oiio():
+    import OpenImageIO as oiio
+    return oiio
+
+
+def read_image(path: str | Path, *, what: str = "image", max_bytes: int = MAX_IMAGE_BYTES,
+               max_pixels: int = MAX_IMAGE_PIXELS) -> np.ndarray:
+    """Read an image as float32 ``(H, W, C)`` with the file's own encoding (no conversion).
+
+    8/16-bit integer images are normalised to [0, 1].  Raises :class:`ForestError`
+    naming the file for a missing, oversized, unreadable or non-finite image.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ForestError(f"{path}: {what} not found")
+    size = path.stat().st_size
+    if size == 0:
+        raise ForestError(f"{path}: {what} is empty")
+    if size > max_bytes:
+        raise ForestError(f"{path}: {what} is {size / 2**20:.0f} MiB, over the {max_bytes / 2**20:.0f} MiB limit")
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ForestError(f"{path}: cannot read {what}: {oiio.geterror() or 'unknown format'}")
+    try:
+        spec = inp.spec()
+        if spec.width * spec.height > max_pixels:
+            raise ForestError(f"{path}: {what} is {spec.width}x{spec.height}, over the {max_pixels} pixel limit")
+        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        if data is None or not hasattr(data, "shape"):
+            raise ForestError(f"{path}: cannot read {what}: {inp.geterror() or 'corrupt data'}")
+    finally:
+        inp.close()
+    data = np.asarray(data, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    if not np.isfinite(data).all():
+        raise ForestError(f"{path}: {what} contains NaN or infinite values")
+    return data
+
+
+def is_linear_file(path: str | Path) -> bool:
+    return Path(path).suffix.lower() in LINEAR_FORMATS
+
+
+def srgb_to_linear(a: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 sRGB decoding (colour-science's ``eotf_sRGB``)."""
+    import colour
+    return np.asarray(colour.models.eotf_sRGB(np.clip(a, 0.0, 1.0)), dtype=np.float32)
+
+
+def linear_to_srgb(a: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 sRGB encoding (colour-science's ``eotf_inverse_sRGB``)."""
+    import colour
+    return np.asarray(colour.models.eotf_inverse_sRGB(np.clip(a, 0.0, 1.0)), dtype=np.float32)
+
+
+def read_map_rgb(path: str | Path, *, what: str = "map") -> np.ndarray:
+    """Read a painted map as linear RGB float32 ``(H, W, 3)``."""
+    img = read_image(path, what=what)
+    rgb = to_rgb(img)
+    return rgb if is_linear_file(path) else srgb_to_linear(rgb)
+
+
+def read_map_grey(path: str | Path, *, what: str = "map", linearise: bool = False) -> np.ndarray:
+    """Read a painted map as one float32 channel ``(H, W)`` in the file's encoding.
+
+    Grey maps (presence, density, height) are used as painted: a mid-grey
+    painted value means one half, so no sRGB decoding unless asked.
+    """
+    img = read_image(path, what=what)
+    if img.shape[2] >= 3:
+        g = img[..., :3].mean(axis=2)
+    else:
+        g = img[..., 0]
+    if linearise and not is_linear_file(path):
+        g = srgb_to_linear(g)
+    return g.astype(np.float32)
+
+
+def to_rgb(img: np.ndarray) -> np.ndarray:
+    c = img.shape[2]
+    if c == 1 or c == 2:
+        return np.repeat(img[..., :1], 3, axis=2)
+    return img[..., :3]
+
+
+def write_image(path: str | Path, pixels: np.ndarray, *, attributes: dict | None = None,
+                half: bool = True) -> Path:
+    """Write ``pixels`` ``(H, W, C)`` atomically.
+
+    EXR receives linear values (half float unless ``half=False``) and any
+    ``attributes`` as header metadata; PNG/JPEG/TIFF receive sRGB-encoded 8-bit
+    values converted from linear.  Single-channel data (depth, ids) goes to EXR
+    as float with channel name ``Z`` or ``Y``.
+    """
+    oiio = _oiio()
+    path = Path(path)
+    pixels = np.asarray(pixels, dtype=np.float32)
+    if pixels.ndim == 2:
+        pixels = pixels[..., None]
+    h, w, c = pixels.shape
+    ext = path.suffix.lower()
+    if ext == ".exr":
+        fmt = oiio.HALF if half else oiio.FLOAT
+        data = pixels
+    elif ext in (".png", ".jpg", ".jpeg", ".tif", ".tiff"):
+        fmt = oiio.UINT8
+        rgb = pixels.copy()
+        rgb[..., : min(c, 3)] = linear_to_srgb(rgb[..., : min(c, 3)])
+        data = np.round(np.clip(rgb, 0.0, 1.0) * 255.0).astype(np.uint8)
+    else:
+        raise ForestError(f"{path}: unsupported image format {ext or '(none)'}; use .exr or .png")
+    spec = oiio.ImageSpec(w, h, c, fmt)
+    if c == 1:
+        spec.channelnames = ("Y",)
+    elif c == 4:
+        spec.channelnames = ("R", "G", "B", "A")
+        spec.alpha_channel = 3
+    if ext == ".exr":
+        spec.attribute("compression", "zip")
+    if ext == ".png":
+        spec.attribute("png:compressionLevel", 6)
+    # Keep files byte-identical across runs: no timestamps or software strings.
+    for key, value in sorted((attributes or {}).items()):
+        if isinstance(value, bool):
+            value = int(value)
+        if isinstance(value, (int, np.integer)):
+            spec.attribute(key, int(value))
+        elif isinstance(value, (float, np.floating)):
+            spec.attribute(key, float(value))
+        else:
+            spec.attribute(key, str(value))
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None:
+            raise ForestError(f"{path}: cannot write image: {oiio.geterror()}")
+        try:
+            if not out.open(str(tmp), spec):
+                raise ForestError(f"{path}: cannot write image: {out.geterror()}")
+            if not out.write_image(np.ascontiguousarray(data)):
+                raise ForestError(f"{path}: cannot write image: {out.geterror()}")
+        finally:
+            out.close()
+    return path
+
+
+def write_multilayer_exr(path: str | Path, layers: dict[str, np.ndarray], *, attributes: dict | None = None) -> Path:
+    """Write several named layers (``{"": rgb, "depth": z, …}``) into one float EXR, atomically."""
+    oiio = _oiio()
+    path = Path(path)
+    names, chans = [], []
+    for layer, arr in layers.items():
+        arr = np.asarray(arr, dtype=np.float32)
+        if arr.ndim == 2:
+            arr = arr[..., None]
+        base = ("R", "G", "B", "A")[: arr.shape[2]] if arr.shape[2] in (3, 4) else (
+            ("Z",) if arr.shape[2] == 1 else tuple(f"c{i}" for i in range(arr.shape[2])))
+        for i, b in enumerate(base):
+            names.append(f"{layer}.{b}" if layer else b)
+            chans.append(arr[..., i])
+    data = np.stack(chans, axis=2)
+    h, w, c = data.shape
+    spec = oiio.ImageSpec(w, h, c, oiio.FLOAT)
+    spec.channelnames = tuple(names)
+    spec.attribute("compression", "zip")
+    for key, value in sorted((attributes or {}).items()):
+        if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+            spec.attribute(key, int(value))
+        elif isinstance(value, (float, np.floating)):
+            spec.attribute(key, float(value))
+        else:
+            spec.attribute(key, str(value))
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None or not out.open(str(tmp), spec) or not out.write_image(np.ascontiguousarray(data)):
+            raise ForestError(f"{path}: cannot write image: {oiio.geterror()}")
+        out.close()
+    return path
+
+
+def resample(img: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Area-average / bilinear resize of a float image with OpenImageIO's ImageBufAlgo."""
+    oiio = _oiio()
+    img = np.asarray(img, dtype=np.float32)
+    if img.ndim == 2:
+        img = img[..., None]
+    src = oiio.ImageBuf(np.ascontiguousarray(img))
+    dst = oiio.ImageBufAlgo.resize(src, roi=oiio.ROI(0, width, 0, height, 0, 1, 0, img.shape[2]))
+    return np.asarray(dst.get_pixels(oiio.FLOAT), dtype=np.float32).reshape(height, width, img.shape[2])
+
+
+os.environ.setdefault("OPENIMAGEIO_THREADS", "2")
