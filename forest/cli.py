@@ -23,6 +23,21 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
+
+
+def _version(value: bool):
+    if value:
+        from . import __version__
+        typer.echo(f"forest {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                       help="Print the version and exit.")):
+    """Grow, render, export and look-dev forests of 100 000 to 1 000 000+ trees."""
+
+
 # Each module defines ``register(app)``.
 COMMAND_MODULES = (
     "scatter",

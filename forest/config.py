@@ -264,6 +264,7 @@ class RenderConfig:
     haze_colour: tuple[float, float, float] | None = None
     terrain_colour: tuple[float, float, float] = (0.18, 0.16, 0.11)
     seed: int = 0
+    terrain_texture: Path | None = None   # image over the extent (map convention); overrides terrain_colour
 
 
 @dataclass(frozen=True)
@@ -481,7 +482,7 @@ class Config:
     @cached_property
     def render(self) -> RenderConfig:
         f = self.root.sub("render", ("width", "height", "spp", "variant", "max_depth", "subframes", "haze",
-                                     "haze_colour", "terrain_colour", "seed"))
+                                     "haze_colour", "terrain_colour", "seed", "terrain_texture"))
         return RenderConfig(width=f.integer("width", 1280, lo=1, hi=16384),
                             height=f.integer("height", 720, lo=1, hi=16384),
                             spp=f.integer("spp", 64, lo=1, hi=65536),
@@ -491,7 +492,8 @@ class Config:
                             haze=f.number("haze", 0.0, lo=0.0),
                             haze_colour=f.colour("haze_colour") if f.has("haze_colour") else None,
                             terrain_colour=f.colour("terrain_colour", (0.18, 0.16, 0.11)),
-                            seed=f.integer("seed", 0, lo=0))
+                            seed=f.integer("seed", 0, lo=0),
+                            terrain_texture=f.file("terrain_texture"))
 
     @cached_property
     def lod(self) -> LodConfig:

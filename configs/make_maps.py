@@ -1,0 +1,70 @@
+"""Regenerate the example maps under configs/maps/ (deterministic; the PNGs are committed).
+
+    .venv/bin/python configs/make_maps.py
+
+Map convention: column → +X, row → +Z (row 0 at the smallest Z), laid over the
+terrain's X/Z extent.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+
+from forest.terrain import fbm_heights
+
+HERE = Path(__file__).resolve().parent / "maps"
+N = 256
+
+
+def save(name: str, img: np.ndarray, bits: int = 8) -> None:
+    img = np.clip(img, 0.0, 1.0)
+    if img.ndim == 2:
+        img = img[..., None]
+    fmt = oiio.UINT16 if bits == 16 else oiio.UINT8
+    data = np.round(img * (65535 if bits == 16 else 255)).astype(np.uint16 if bits == 16 else np.uint8)
+    spec = oiio.ImageSpec(img.shape[1], img.shape[0], img.shape[2], fmt)
+    out = oiio.ImageOutput.create(str(HERE / name))
+    out.open(str(HERE / name), spec)
+    out.write_image(data)
+    out.close()
+
+
+def river_mask(n: int, seed: int, width: float) -> np.ndarray:
+    """Distance (in map units) to a meandering river running along +Z."""
+    rng = np.random.default_rng(seed)
+    z = np.linspace(0, 1, n)
+    centre = 0.5 + sum(a * np.sin(2 * np.pi * (f * z + p))
+                       for a, f, p in zip(rng.uniform(0.03, 0.09, 3), (0.7, 1.6, 3.1), rng.random(3)))
+    x = np.linspace(0, 1, n)
+    return np.abs(x[None, :] - centre[:, None]) / width
+
+
+def main() -> None:
+    HERE.mkdir(parents=True, exist_ok=True)
+    height = fbm_heights(N, 6, 0.5, seed=11)
+    dist = river_mask(N, 5, 0.03)
+    valley = np.clip(dist / 3.0, 0, 1) ** 0.7            # the river runs in a valley
+    height = 0.15 + 0.85 * height * (0.35 + 0.65 * valley)
+    save("height.png", height, bits=16)
+    save("presence.png", (dist > 1.0).astype(np.float32))
+    dens = fbm_heights(N, 4, 0.6, seed=23)
+    save("density.png", 0.25 + 0.75 * dens)
+    # Colour: autumn patches over green.
+    t = fbm_heights(N, 5, 0.55, seed=31)[..., None]
+    green = np.array([0.45, 0.62, 0.32])
+    warm = np.array([0.85, 0.55, 0.25])
+    save("colour.png", green * (1 - t ** 2) + warm * t ** 2)
+    # Partitions by distance from the camera side (-Z): foreground, midground, background.
+    zz = np.linspace(0, 1, N)[:, None] * np.ones((1, N))
+    part = np.zeros((N, N, 3))
+    part[zz < 0.33] = (1, 0, 0)
+    part[(zz >= 0.33) & (zz < 0.66)] = (0, 1, 0)
+    part[zz >= 0.66] = (0, 0, 1)
+    save("partition.png", part)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,157 @@
+"""Painted maps laid over the terrain's X/Z extent, sampled at tree positions.
+
+All maps follow the convention in :mod:`forest.terrain`: column → +X, row → +Z,
+row 0 at the smallest Z, each pixel a cell of the extent.
+
+* presence  — binary: grey ≥ threshold allows trees (nearest pixel).
+* density   — grey level = relative density in [0, 1] (bilinear).
+* colour    — sRGB image → linear RGB tint (bilinear, in linear light).
+* partition — label colours → region index, nearest pixel, matched within a
+  tolerance (max per-channel difference in 8-bit sRGB units).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .config import Config, Partition
+from .errors import ForestError
+from .images import read_image, read_map_grey, read_map_rgb
+
+
+def pixel_coords(u: np.ndarray, v: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Map coordinates in [0, 1] → continuous pixel coordinates (row, col) of pixel centres."""
+    h, w = shape[:2]
+    return np.asarray(v) * h - 0.5, np.asarray(u) * w - 0.5
+
+
+def sample_nearest(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    h, w = img.shape[:2]
+    i = np.clip(np.floor(np.asarray(v) * h).astype(np.int64), 0, h - 1)
+    j = np.clip(np.floor(np.asarray(u) * w).astype(np.int64), 0, w - 1)
+    return img[i, j]
+
+
+def sample_bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear lookup with clamp-to-edge; ``img`` (H, W) or (H, W, C)."""
+    h, w = img.shape[:2]
+    r, c = pixel_coords(u, v, img.shape)
+    r = np.clip(r, 0.0, h - 1.0)
+    c = np.clip(c, 0.0, w - 1.0)
+    i0 = np.minimum(r.astype(np.int64), max(h - 2, 0))
+    j0 = np.minimum(c.astype(np.int64), max(w - 2, 0))
+    i1 = np.minimum(i0 + 1, h - 1)
+    j1 = np.minimum(j0 + 1, w - 1)
+    tr = (r - i0).astype(np.float32)
+    tc = (c - j0).astype(np.float32)
+    if img.ndim == 3:
+        tr = tr[:, None]
+        tc = tc[:, None]
+    top = img[i0, j0] * (1 - tc) + img[i0, j1] * tc
+    bot = img[i1, j0] * (1 - tc) + img[i1, j1] * tc
+    return top * (1 - tr) + bot * tr
+
+
+@dataclass
+class PartitionMap:
+    """Partition labels per pixel: index into ``names``; ``unlabelled`` index for others."""
+    labels: np.ndarray             # (H, W) int16
+    names: list[str]
+    unlabelled_pixels: int
+    unlabelled_colours: list[tuple[int, int, int]]
+
+    @property
+    def unlabelled(self) -> int:
+        return self.names.index("unlabelled") if "unlabelled" in self.names else -1
+
+
+def label_partitions(img8: np.ndarray, partitions: tuple[Partition, ...], tolerance: int) -> PartitionMap:
+    """Assign each pixel the nearest label colour within ``tolerance`` (Chebyshev, 8-bit)."""
+    h, w = img8.shape[:2]
+    flat = img8.reshape(-1, 3).astype(np.int16)
+    # Work on unique colours: painted maps have few.
+    colours, inverse = np.unique(flat, axis=0, return_inverse=True)
+    labels_u = np.full(len(colours), -1, dtype=np.int16)
+    best = np.full(len(colours), 10**6)
+    for k, p in enumerate(partitions):
+        d = np.abs(colours - np.array(p.colour, dtype=np.int16)).max(axis=1)
+        take = (d <= tolerance) & (d < best)
+        labels_u[take] = k
+        best[take] = d[take]
+    names = [p.name for p in partitions]
+    unl = labels_u < 0
+    counts = np.bincount(inverse.ravel(), minlength=len(colours))
+    n_unl = int(counts[unl].sum())
+    if n_unl:
+        names.append("unlabelled")
+        labels_u[unl] = len(names) - 1
+    order = np.argsort(-counts[unl], kind="stable")
+    unl_cols = [tuple(int(x) for x in c) for c in colours[unl][order][:5]]
+    return PartitionMap(labels_u[inverse.ravel()].reshape(h, w), names, n_unl, unl_cols)
+
+
+class MapSet:
+    """The ``[maps]`` of a config, loaded once and sampled many times."""
+
+    def __init__(self, config: Config):
+        m = config.maps
+        self.config = config
+        self.presence_threshold = m.presence_threshold
+        where = f"{config.path}: maps" if config.path else "maps"
+
+        def load(fn, key, path, **kw):
+            if path is None:
+                return None
+            try:
+                return fn(path, what=f"{key} map", **kw)
+            except ForestError as e:
+                raise ForestError(f"{where}.{key}: {e}") from None
+
+        self.presence = load(read_map_grey, "presence", m.presence)
+        self.density = load(read_map_grey, "density", m.density)
+        self.colour = load(read_map_rgb, "colour", m.colour)
+        self.partition: PartitionMap | None = None
+        if m.partition is not None:
+            raw = load(read_image, "partition", m.partition)
+            rgb = np.repeat(raw[..., :1], 3, axis=2) if raw.shape[2] < 3 else raw[..., :3]
+            img8 = np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8)
+            parts = config.partitions
+            if not parts:
+                raise ForestError(f"{config.path}: partitions: [maps] partition is given but no "
+                                  f"[partitions] label colours")
+            self.partition = label_partitions(img8, parts, config.partition_tolerance)
+        if self.presence is not None and not (self.presence >= self.presence_threshold).any():
+            raise ForestError(f"{where}.presence: {m.presence} allows no trees anywhere (all below "
+                              f"{self.presence_threshold:g})")
+
+    @property
+    def partition_names(self) -> list[str]:
+        return self.partition.names if self.partition is not None else ["default"]
+
+    def present(self, u, v) -> np.ndarray:
+        if self.presence is None:
+            return np.ones(len(u), dtype=bool)
+        return sample_nearest(self.presence, u, v) >= self.presence_threshold
+
+    def density_at(self, u, v) -> np.ndarray:
+        if self.density is None:
+            return np.ones(len(u), dtype=np.float32)
+        return np.clip(sample_bilinear(self.density, u, v), 0.0, 1.0)
+
+    def tint_at(self, u, v) -> np.ndarray:
+        if self.colour is None:
+            return np.ones((len(u), 3), dtype=np.float32)
+        return sample_bilinear(self.colour, u, v).astype(np.float32)
+
+    def partition_at(self, u, v) -> np.ndarray:
+        if self.partition is None:
+            return np.zeros(len(u), dtype=np.int16)
+        return sample_nearest(self.partition.labels, u, v)
+
+
+def load_colour_grid(path: Path) -> np.ndarray:
+    """The colour map as linear RGB (H, W, 3): what renderers and look-dev tint with."""
+    return read_map_rgb(path, what="colour map")
