@@ -168,7 +168,17 @@ def yaw_tilt_quaternion(yaw: np.ndarray, normal: np.ndarray, align: np.ndarray) 
     """
     yaw = np.asarray(yaw, dtype=np.float64)
     half = 0.5 * yaw
-    qy = np.stack([np.cos(half), np.zeros_like(half), np.sin(half), np.zeros_like(half)], axis=1)
+    qy = np.zeros((len(yaw), 4))
+    qy[:, 0] = np.cos(half)
+    qy[:, 2] = np.sin(half)
+    align = np.asarray(align, dtype=np.float64)
+    tilted = np.flatnonzero(align > 0)
+    if len(tilted) == 0:
+        return qy.astype(np.float32)
+    if len(tilted) < len(yaw):
+        out = qy.astype(np.float32)
+        out[tilted] = yaw_tilt_quaternion(yaw[tilted], np.asarray(normal)[tilted], align[tilted])
+        return out
     n = np.asarray(normal, dtype=np.float64)
     up = np.array([0.0, 1.0, 0.0])
     target = up + (n - up) * np.asarray(align, dtype=np.float64)[:, None]

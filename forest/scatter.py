@@ -99,12 +99,12 @@ def scatter(config: Config, progress=None, terrain: Terrain | None = None) -> tu
 
     step(0.3, "candidates")
     u = rng["position"].random((3, n))
-    s = terrain.sample(u[0], u[1], u[2])
+    position, face, bary = terrain.sample_points(u[0], u[1], u[2])
     idx = np.arange(n, dtype=np.int64)
     rejected = {"presence": 0, "density": 0, "empty ground": 0, "slope": 0, "altitude": 0, "min_distance": 0}
 
     # 1. presence (binary) and density (probabilistic), in map space.
-    mu, mv = terrain.to_uv(s.position[:, 0], s.position[:, 2])
+    mu, mv = terrain.to_uv(position[:, 0], position[:, 2])
     keep = maps.present(mu, mv)
     rejected["presence"] = int(n - keep.sum())
     d_u = rng["density"].random(n)
@@ -124,35 +124,40 @@ def scatter(config: Config, progress=None, terrain: Terrain | None = None) -> tu
     keep &= ~empty
     sp_idx = np.minimum(sp_idx, len(species) - 1)
 
-    # 3. per-species slope and altitude windows.
-    slope = s.slope_degrees
-    smin = np.array([sp.slope_min for sp in species])[sp_idx]
-    smax = np.array([sp.slope_max for sp in species])[sp_idx]
-    bad_slope = keep & ((slope < smin - 1e-9) | (slope > smax + 1e-9))
-    alt_lo = np.array([sp.altitude[0] if sp.altitude else -np.inf for sp in species])[sp_idx]
-    alt_hi = np.array([sp.altitude[1] if sp.altitude else np.inf for sp in species])[sp_idx]
-    y = s.position[:, 1]
-    bad_alt = keep & ~bad_slope & ((y < alt_lo) | (y > alt_hi))
-    rejected["slope"] = int(bad_slope.sum())
-    rejected["altitude"] = int(bad_alt.sum())
+    # 3. per-species slope and altitude windows (normals only where still needed).
+    live = np.flatnonzero(keep)
+    normal_live = terrain.normals_at(face[live], bary[live])
+    slope = np.degrees(np.arccos(np.clip(normal_live[:, 1], -1.0, 1.0)))
+    k_live = sp_idx[live]
+    smin = np.array([sp.slope_min for sp in species])[k_live]
+    smax = np.array([sp.slope_max for sp in species])[k_live]
+    bad_slope_l = (slope < smin - 1e-9) | (slope > smax + 1e-9)
+    alt_lo = np.array([sp.altitude[0] if sp.altitude else -np.inf for sp in species])[k_live]
+    alt_hi = np.array([sp.altitude[1] if sp.altitude else np.inf for sp in species])[k_live]
+    y = position[live, 1]
+    bad_alt_l = ~bad_slope_l & ((y < alt_lo) | (y > alt_hi))
+    rejected["slope"] = int(bad_slope_l.sum())
+    rejected["altitude"] = int(bad_alt_l.sum())
     by_species = {}
     for k, nm in enumerate(names):
-        m = sp_idx == k
+        m = k_live == k
         by_species[f"{nm}" if names.count(nm) == 1 else f"{nm}[{k}]"] = {
-            "slope": int((bad_slope & m).sum()), "altitude": int((bad_alt & m).sum())}
-    keep &= ~(bad_slope | bad_alt)
+            "slope": int((bad_slope_l & m).sum()), "altitude": int((bad_alt_l & m).sum())}
+    ok_l = ~(bad_slope_l | bad_alt_l)
+    keep[live[~ok_l]] = False
+    live, normal_live = live[ok_l], normal_live[ok_l]
 
     # 4. Poisson-disk spacing among the survivors, in candidate order.
     if config.scatter.min_distance > 0 and keep.any():
         step(0.6, "min_distance")
         from .poisson import poisson_thin
-        kept_idx = np.flatnonzero(keep)
-        ok = poisson_thin(s.position[kept_idx], config.scatter.min_distance)
+        ok = poisson_thin(position[live], config.scatter.min_distance)
         rejected["min_distance"] = int((~ok).sum())
-        keep[kept_idx[~ok]] = False
+        keep[live[~ok]] = False
+        live, normal_live = live[ok], normal_live[ok]
 
     step(0.8, "attributes")
-    sel = np.flatnonzero(keep)
+    sel = live
     yaw = rng["yaw"].random(n)[sel] * (2 * np.pi)
     scale_u = rng["scale"].random(n)[sel]
     phase = rng["phase"].random(n)[sel] * (2 * np.pi)
@@ -160,10 +165,10 @@ def scatter(config: Config, progress=None, terrain: Terrain | None = None) -> tu
     lo = np.array([sp.scale[0] for sp in species])[k]
     hi = np.array([sp.scale[1] for sp in species])[k]
     align = np.array([config.scatter.align_to_normal if sp.align is None else sp.align for sp in species])[k]
-    normal = s.normal[sel]
+    normal = normal_live
     inst = InstanceSet(
         id=idx[sel].astype(np.uint64),
-        position=s.position[sel],
+        position=position[sel],
         rotation=yaw_tilt_quaternion(yaw, normal, align),
         yaw=yaw,
         scale=lo + (hi - lo) * scale_u,

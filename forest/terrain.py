@@ -96,9 +96,25 @@ class Terrain:
         return float(self.face_areas.sum())
 
     @cached_property
-    def _cdf(self) -> np.ndarray:
+    def _guide(self) -> tuple[np.ndarray, np.ndarray]:
+        """Area CDF over faces and a guide table (Chen & Asau 1974) for O(1) inverse-CDF lookups."""
         c = np.cumsum(self.face_areas)
-        return c / c[-1]
+        cdf = c / c[-1]
+        m = len(cdf)
+        guide = np.searchsorted(cdf, np.arange(m) / m, side="right")
+        return cdf, guide
+
+    def pick_faces(self, u: np.ndarray) -> np.ndarray:
+        """Faces with probability ∝ area from uniform ``u`` (guide-table inverse CDF, exact)."""
+        cdf, guide = self._guide
+        m = len(cdf)
+        i = guide[np.minimum((u * m).astype(np.int64), m - 1)]
+        # Walk forward while cdf[i] <= u; on average under one step per sample.
+        todo = np.flatnonzero((cdf[i] <= u) & (i < m - 1))
+        while len(todo):
+            i[todo] += 1
+            todo = todo[(cdf[i[todo]] <= u[todo]) & (i[todo] < m - 1)]
+        return i
 
     @cached_property
     def uv(self) -> np.ndarray:
@@ -111,27 +127,38 @@ class Terrain:
         return (np.asarray(x) - xmin) / max(xmax - xmin, 1e-12), (np.asarray(z) - zmin) / max(zmax - zmin, 1e-12)
 
     # -- sampling ----------------------------------------------------------------
-    def sample(self, u_face: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> SurfaceSamples:
-        """Area-uniform points from three uniform variates per point.
+    def sample_points(self, u_face: np.ndarray, u1: np.ndarray, u2: np.ndarray):
+        """Area-uniform points: returns (positions (N, 3), faces (N,), barycentrics (N, 3)).
 
-        A triangle is chosen with probability proportional to its area (inverse
-        CDF on ``u_face``), then a point in it by the square-root warp
-        (Osada et al. 2002): b0 = 1 − √u1, b1 = √u1 (1 − u2), b2 = √u1 u2.
+        A triangle is chosen with probability proportional to its area, then a
+        point in it by the square-root warp (Osada et al. 2002):
+        b0 = 1 − √u1, b1 = √u1 (1 − u2), b2 = √u1 u2.
         """
         if len(self.faces) == 0 or self.area <= 0:
             raise ForestError("terrain has no area")
-        face = np.minimum(np.searchsorted(self._cdf, u_face, side="right"), len(self.faces) - 1)
+        face = self.pick_faces(u_face)
         su = np.sqrt(u1)
-        b0 = 1.0 - su
-        b1 = su * (1.0 - u2)
-        b2 = su * u2
+        b = np.empty((len(face), 3))
+        b[:, 1] = su * (1.0 - u2)
+        b[:, 2] = su * u2
+        b[:, 0] = 1.0 - su
         f = self.faces[face]
         v = self.vertices
-        pos = v[f[:, 0]] * b0[:, None] + v[f[:, 1]] * b1[:, None] + v[f[:, 2]] * b2[:, None]
+        pos = v[f[:, 0]] * b[:, :1] + v[f[:, 1]] * b[:, 1:2] + v[f[:, 2]] * b[:, 2:]
+        return pos, face, b
+
+    def normals_at(self, face: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Interpolated (smooth) unit normals at barycentric points."""
+        f = self.faces[face]
         vn = self.vertex_normals
-        nrm = vn[f[:, 0]] * b0[:, None] + vn[f[:, 1]] * b1[:, None] + vn[f[:, 2]] * b2[:, None]
+        nrm = vn[f[:, 0]] * b[:, :1] + vn[f[:, 1]] * b[:, 1:2] + vn[f[:, 2]] * b[:, 2:]
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
-        return SurfaceSamples(pos, nrm, face)
+        return nrm
+
+    def sample(self, u_face: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> SurfaceSamples:
+        """Area-uniform points with their normals (see :meth:`sample_points`)."""
+        pos, face, b = self.sample_points(u_face, u1, u2)
+        return SurfaceSamples(pos, self.normals_at(face, b), face)
 
     # -- queries -------------------------------------------------------------------
     def height_at(self, x, z) -> np.ndarray:

@@ -1,0 +1,139 @@
+"""Scatter benchmark: 1 000 000 trees with presence, density, colour and partition maps
+and a slope rule; the same with Poisson-disk spacing; and the original's method (one
+surface query per tree in a Python loop) on a sample, for the speed-up ratio.
+
+    .venv/bin/python bench/bench_scatter.py [--trees 1000000]
+
+Targets (2-core machine): ≤ 1 s without spacing, ≤ 10 s with, ≥ 300× the per-tree loop.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from forest.config import load_config  # noqa: E402
+from forest.maps import MapSet  # noqa: E402
+from forest.scatter import scatter  # noqa: E402
+from forest.terrain import load_terrain  # noqa: E402
+
+MAPS = ROOT / "configs" / "maps"
+
+SCENE = """
+seed = 1
+[terrain]
+heightmap = "{maps}/height.png"
+size = [4000.0, 4000.0]
+height = 300.0
+[maps]
+presence = "{maps}/presence.png"
+density = "{maps}/density.png"
+colour = "{maps}/colour.png"
+partition = "{maps}/partition.png"
+[partitions]
+"#ff0000" = "foreground"
+"#00ff00" = "midground"
+"#0000ff" = "background"
+[scatter]
+count = {count}
+min_distance = {min_distance}
+[[species]]
+model = "broadleaf"
+percent = 60
+slope_max = 30.0
+[[species]]
+model = "conifer"
+percent = 40
+"""
+
+
+def make_config(folder: Path, count: int, min_distance: float = 0.0):
+    p = folder / f"bench_{count}_{min_distance}.toml"
+    p.write_text(SCENE.format(maps=MAPS, count=count, min_distance=min_distance))
+    return load_config(p)
+
+
+def original_loop(config, terrain, maps, n: int, seed: int = 0) -> int:
+    """The 2005 method: per tree, pick a random (u, v), query the surface and every map."""
+    rng = np.random.default_rng(seed)
+    xmin, zmin, xmax, zmax = terrain.extent
+    pct = np.cumsum([s.percent for s in config.species])
+    kept = 0
+    for _ in range(n):
+        u, v = rng.random(), rng.random()
+        x, z = xmin + u * (xmax - xmin), zmin + v * (zmax - zmin)
+        y = terrain.height_at(x, z)[0]
+        e = 0.5
+        hx = (terrain.height_at(x + e, z)[0] - terrain.height_at(x - e, z)[0]) / (2 * e)
+        hz = (terrain.height_at(x, z + e)[0] - terrain.height_at(x, z - e)[0]) / (2 * e)
+        slope = math.degrees(math.atan(math.hypot(hx, hz)))
+        uu, vv = np.array([u]), np.array([v])
+        if not maps.present(uu, vv)[0]:
+            continue
+        if rng.random() >= maps.density_at(uu, vv)[0]:
+            continue
+        k = int(np.searchsorted(pct, rng.random() * 100, side="right"))
+        if k >= len(pct) or slope > config.species[k].slope_max:
+            continue
+        maps.tint_at(uu, vv)
+        maps.partition_at(uu, vv)
+        _ = (x, y, z, rng.random() * 2 * math.pi)
+        kept += 1
+    return kept
+
+
+def timed(fn, repeat=3):
+    best = math.inf
+    out = None
+    for _ in range(repeat):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--trees", type=int, default=1_000_000)
+    ap.add_argument("--sample", type=int, default=3000)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        probe, _ = scatter(make_config(tmp, 200_000))
+        keep = len(probe) / 200_000
+        count = int(args.trees / keep)
+        cfg = make_config(tmp, count)
+        t_plain, (inst, rep) = timed(lambda: scatter(cfg))
+        print(f"scatter, 4 maps + slope rule: {len(inst):,} trees ({count:,} candidates) in {t_plain:.3f} s "
+              f"(target ≤ 1 s)")
+        # Poisson-disk: spacing chosen so that ~the same number of trees survives thinning.
+        area = rep.area_m2
+        r = 0.58 * math.sqrt(area * keep / (args.trees * 1.6))
+        cfg_p = make_config(tmp, int(count * 1.6), r)
+        t_pd, (inst_p, rep_p) = timed(lambda: scatter(cfg_p), repeat=1)
+        print(f"scatter + Poisson-disk (min_distance {r:.2f} m): {len(inst_p):,} trees "
+              f"({rep_p.candidates:,} candidates) in {t_pd:.3f} s (target ≤ 10 s)")
+        terrain = load_terrain(cfg.terrain, cfg.path)
+        maps = MapSet(cfg)
+        t0 = time.perf_counter()
+        original_loop(cfg, terrain, maps, args.sample)
+        per_cand = (time.perf_counter() - t0) / args.sample
+        t_loop = per_cand * count
+        print(f"original per-tree loop: {per_cand * 1e6:.1f} µs per candidate, {t_loop:.0f} s extrapolated "
+              f"to {count:,} candidates (sample of {args.sample:,})")
+        print(f"speed-up vs per-tree loop: {t_loop / t_plain:.0f}× (target ≥ 300×)")
+        print(f"machine: {platform.machine()}, {__import__('os').cpu_count()} cores, {platform.python_version()}")
+
+
+if __name__ == "__main__":
+    main()
