@@ -178,6 +178,7 @@ class MapsConfig:
     colour: Path | None = None
     partition: Path | None = None
     presence_threshold: float = 0.5
+    moisture: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -349,9 +350,10 @@ class Config:
 
     @cached_property
     def maps(self) -> MapsConfig:
-        f = self.root.sub("maps", ("presence", "density", "colour", "partition", "presence_threshold"))
+        f = self.root.sub("maps", ("presence", "density", "colour", "partition", "presence_threshold",
+                                   "moisture"))
         return MapsConfig(presence=f.file("presence"), density=f.file("density"), colour=f.file("colour"),
-                          partition=f.file("partition"),
+                          partition=f.file("partition"), moisture=f.file("moisture"),
                           presence_threshold=f.number("presence_threshold", 0.5, lo=0.0, hi=1.0))
 
     @cached_property

@@ -58,6 +58,7 @@ class ScatterReport:
     unlabelled_colours: list = field(default_factory=list)
     seconds: float = 0.0
     warnings: list[str] = field(default_factory=list)
+    columns: dict = field(default_factory=dict)    # method-specific per-tree arrays (e.g. canopy radius)
 
     def lines(self) -> list[str]:
         out = [f"{self.kept:,} trees from {self.candidates:,} candidates over {self.area_m2 / 1e6:.3f} km² "
