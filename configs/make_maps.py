@@ -65,6 +65,43 @@ def main() -> None:
     part[zz >= 0.66] = (0, 0, 1)
     save("partition.png", part)
 
+    jungle()
+    city()
+
+
+def jungle() -> None:
+    """Jungle with river paths: a braided river carved out by the presence map."""
+    height = fbm_heights(N, 6, 0.55, seed=41)
+    d1 = river_mask(N, 7, 0.025)
+    d2 = river_mask(N, 13, 0.015).T               # a tributary running along +X
+    dist = np.minimum(d1, d2)
+    save("jungle_height.png", 0.2 + 0.8 * height * np.clip(dist / 4.0, 0.2, 1.0), bits=16)
+    save("jungle_presence.png", (dist > 1.0).astype(np.float32))
+    t = fbm_heights(N, 6, 0.6, seed=43)[..., None]
+    deep = np.array([0.18, 0.42, 0.12])
+    lime = np.array([0.55, 0.75, 0.20])
+    save("jungle_colour.png", deep * (1 - t) + lime * t)
+
+
+def city() -> None:
+    """City: a street grid (presence), density rising towards the centre, district partitions."""
+    x = np.linspace(-1, 1, N)
+    X, Z = np.meshgrid(x, x)
+    block = 16                                     # pixels per block, 3-pixel streets
+    streets = ((np.arange(N) % block) < 3)
+    presence = ~(streets[None, :] | streets[:, None])
+    avenue = np.abs(X + 0.15 * np.sin(3 * Z)) < 0.03   # a diagonal-ish avenue
+    presence &= ~avenue
+    save("city_presence.png", presence.astype(np.float32))
+    r = np.sqrt(X ** 2 + Z ** 2)
+    save("city_density.png", np.clip(1.0 - 0.8 * r, 0.15, 1.0))
+    part = np.zeros((N, N, 3))
+    part[r < 0.35] = (1, 0, 0)
+    part[(r >= 0.35) & (r < 0.75)] = (0, 1, 0)
+    part[r >= 0.75] = (0, 0, 1)
+    save("city_partition.png", part)
+    save("city_colour.png", np.stack([0.75 + 0.1 * X, 0.72 + 0.0 * X, 0.68 - 0.1 * Z], axis=2))
+
 
 if __name__ == "__main__":
     main()
