@@ -41,6 +41,8 @@ def _root(version: bool = typer.Option(False, "--version", callback=_version, is
 # Each module defines ``register(app)``.
 COMMAND_MODULES = (
     "scatter",
+    "library",
+    "export",
 )
 
 for _name in COMMAND_MODULES:

@@ -26,11 +26,13 @@ def _oiio():
 
 
 def read_image(path: str | Path, *, what: str = "image", max_bytes: int = MAX_IMAGE_BYTES,
-               max_pixels: int = MAX_IMAGE_PIXELS) -> np.ndarray:
+               max_pixels: int = MAX_IMAGE_PIXELS, unassociated: bool = False) -> np.ndarray:
     """Read an image as float32 ``(H, W, C)`` with the file's own encoding (no conversion).
 
     8/16-bit integer images are normalised to [0, 1].  Raises :class:`ForestError`
     naming the file for a missing, oversized, unreadable or non-finite image.
+    With ``unassociated``, RGBA colour comes back as stored (straight alpha)
+    instead of OpenImageIO's default of multiplying it by alpha on read.
     """
     path = Path(path)
     if not path.is_file():
@@ -41,7 +43,12 @@ def read_image(path: str | Path, *, what: str = "image", max_bytes: int = MAX_IM
     if size > max_bytes:
         raise ForestError(f"{path}: {what} is {size / 2**20:.0f} MiB, over the {max_bytes / 2**20:.0f} MiB limit")
     oiio = _oiio()
-    inp = oiio.ImageInput.open(str(path))
+    if unassociated:
+        config = oiio.ImageSpec()
+        config.attribute("oiio:UnassociatedAlpha", 1)
+        inp = oiio.ImageInput.open(str(path), config)
+    else:
+        inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise ForestError(f"{path}: cannot read {what}: {oiio.geterror() or 'unknown format'}")
     try:
@@ -139,6 +146,7 @@ def write_image(path: str | Path, pixels: np.ndarray, *, attributes: dict | None
         spec.alpha_channel = 3
     if ext == ".exr":
         spec.attribute("compression", "zip")
+        spec.attribute("DateTime", "")   # OpenEXR output otherwise stamps the time: not byte-identical
     if ext == ".png":
         spec.attribute("png:compressionLevel", 6)
     # Keep files byte-identical across runs: no timestamps or software strings.
@@ -184,6 +192,7 @@ def write_multilayer_exr(path: str | Path, layers: dict[str, np.ndarray], *, att
     spec = oiio.ImageSpec(w, h, c, oiio.FLOAT)
     spec.channelnames = tuple(names)
     spec.attribute("compression", "zip")
+    spec.attribute("DateTime", "")       # no time stamp: byte-identical files
     for key, value in sorted((attributes or {}).items()):
         if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
             spec.attribute(key, int(value))

@@ -1,0 +1,221 @@
+"""What the RIB and USD exporters share: frames, the sun, species and their levels of detail.
+
+Conventions (both exporters, and the same as the Mitsuba renderer):
+
+* World space is the scene's: metres, **Y up, right-handed**; trees stand on
+  the terrain with their base at the object origin.
+* **Sun direction.**  ``[lights.sun]`` gives an elevation θ above the horizon
+  and an azimuth φ measured clockwise, seen from above, from +Z (north) towards
+  +X (east).  The unit vector from the ground *towards* the sun is
+
+      d = (cos θ · sin φ,  sin θ,  cos θ · cos φ)
+
+  so φ = 0 puts the sun over +Z, φ = 90° over +X; sunlight travels along −d.
+* **Levels of detail.**  ``[lod] distances = [d₁, …, dₙ]`` split the distance
+  from the camera into n + 1 bands; band i (0 = nearest) uses the species'
+  i-th level (high, medium, low, far).  A species with fewer levels keeps its
+  last level for the remaining bands.  Without ``[lod]`` every tree uses the
+  first level.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import parse_frames
+from ..config import Config, ConfigError, SunConfig
+from ..errors import ForestError
+from ..instances import InstanceSet
+
+EXPORT_KEYS = ("lod_transition", "usd_lod", "rib_lod")
+
+
+def sun_direction(sun: SunConfig) -> np.ndarray:
+    """Unit vector from the ground towards the sun (see the module docstring)."""
+    el = math.radians(sun.elevation)
+    az = math.radians(sun.azimuth)
+    return np.array([math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)])
+
+
+def export_frames(config: Config, frames: str | list[int] | None = None) -> list[int]:
+    """The frames to export: ``frames`` (a spec such as ``"1-120"`` or a list), else the
+    whole keyed range of the camera (first to last key, whole frames), else frame 1."""
+    if frames is not None:
+        out = parse_frames(frames) if isinstance(frames, str) else sorted({int(f) for f in frames})
+        if not out:
+            raise ForestError("--frames: no frames selected")
+        return out
+    keys = config.camera.keys
+    if keys:
+        a, b = math.ceil(keys[0].frame), math.floor(keys[-1].frame)
+        return list(range(a, b + 1)) if b >= a else [int(round(keys[0].frame))]
+    return [1]
+
+
+def slug(name: str) -> str:
+    """A file-name-safe form of a species or partition name (a path gives its stem)."""
+    s = str(name)
+    if "/" in s or "\\" in s or re.search(r"\.(ply|obj|glb|gltf|stl|off)$", s, re.I):
+        s = Path(s.replace("\\", "/")).stem
+    s = re.sub(r"[^A-Za-z0-9_-]+", "_", s).strip("_")
+    return s or "species"
+
+
+def export_options(config: Config) -> dict:
+    """The ``[export]`` section:
+
+    * ``lod_transition`` — fraction of a LOD distance over which RIB levels
+      cross-fade (default 0.1);
+    * ``rib_lod`` — where RIB's ``Detail``/``DetailRange`` go: ``"inline"``
+      (default: in every tree's block of the instance files) or ``"archive"``
+      (once per species in ``archives/<species>_lod.rib``, which each tree
+      reads — the same switch in the tree's object space, instance files a third
+      the size);
+    * ``usd_lod`` — the ``lod`` variant the USD prototypes select (default each
+      species' first level).
+    """
+    f = config.section("export", EXPORT_KEYS)
+    return {"lod_transition": f.number("lod_transition", 0.1, lo=0.0, hi=0.9),
+            "rib_lod": f.string("rib_lod", "inline", choices=("inline", "archive")),
+            "usd_lod": f.string("usd_lod", None)}
+
+
+@dataclass
+class Band:
+    """One level of detail used for a band of camera distances [near, far) metres."""
+    lod: object
+    near: float
+    far: float          # math.inf for the last band
+
+
+@dataclass
+class SpeciesPlan:
+    """A species of the InstanceSet as the exporters write it."""
+    index: int                      # index into InstanceSet.species_names
+    model: str                      # the config's ``model`` string
+    name: str                       # unique file-safe name
+    species: object                 # forest.library species
+    bands: list[Band] = field(default_factory=list)
+
+    @property
+    def lods(self) -> list:
+        """The distinct levels used, in band order."""
+        out = []
+        for b in self.bands:
+            if all(b.lod is not o for o in out):
+                out.append(b.lod)
+        return out
+
+
+def open_default_library():
+    try:
+        from ..library import open_library
+    except ImportError as e:               # pragma: no cover - only while the library is missing
+        raise ForestError(f"the tree library is not available ({e}); run scripts/setup.sh") from None
+    return open_library()
+
+
+def species_plans(config: Config, instances: InstanceSet, library=None, *, used_only: bool = True) -> list[SpeciesPlan]:
+    """Resolve every species with trees through the library and plan its LOD bands.
+
+    Species are matched to ``[[species]]`` by their ``model`` string; a model the
+    library cannot resolve raises :class:`ConfigError` naming ``species[i].model``.
+    """
+    if library is None:
+        library = open_default_library()
+    models = [s.model for s in config.species]
+    counts = np.bincount(instances.species, minlength=len(instances.species_names))
+    distances = list(config.lod.distances) if config.lod.enabled else []
+    plans: list[SpeciesPlan] = []
+    taken: set[str] = set()
+    for i, model in enumerate(instances.species_names):
+        if used_only and counts[i] == 0:
+            continue
+        field_name = f"species[{models.index(model)}].model" if model in models else "species"
+        try:
+            sp = library.resolve(model, config.base_dir)
+        except ForestError as e:
+            raise ConfigError(config.path, field_name, str(e)) from None
+        except (OSError, KeyError, ValueError) as e:
+            raise ConfigError(config.path, field_name, f"cannot resolve tree model {model!r}: {e}") from None
+        lods = list(sp.lods)
+        if not lods:
+            raise ConfigError(config.path, field_name, f"tree model {model!r} has no levels of detail")
+        name = slug(getattr(sp, "name", model))
+        base, n = name, 2
+        while name in taken:
+            name, n = f"{base}_{n}", n + 1
+        taken.add(name)
+        edges = [0.0] + distances + [math.inf]
+        bands = []
+        for b in range(len(edges) - 1):
+            lod = lods[min(b, len(lods) - 1)]
+            if bands and bands[-1].lod is lod:
+                bands[-1].far = edges[b + 1]
+            else:
+                bands.append(Band(lod, edges[b], edges[b + 1]))
+        plans.append(SpeciesPlan(i, model, name, sp, bands))
+    return plans
+
+
+def lod_mesh(lod):
+    """All parts of one level as ``[(part, MeshData)]`` with float32/uint32 arrays checked."""
+    out = []
+    for part in lod.parts:
+        m = part.load()
+        v = np.asarray(m.vertices, dtype=np.float32)
+        f = np.asarray(m.faces, dtype=np.int64)
+        if len(f) and (f.min() < 0 or f.max() >= len(v)):
+            raise ForestError(f"{part.path}: face indices out of range")
+        out.append((part, m))
+    return out
+
+
+def measured_bounds(lod, meshes=None) -> np.ndarray:
+    """The level's object-space bound ``(2, 3)`` [min, max]: the library's measured
+    ``lod.bounds`` grown, if need be, to contain every vertex actually written."""
+    b = np.array(lod.bounds, dtype=np.float64).reshape(2, 3)
+    if meshes:
+        pts = [np.asarray(m.vertices, dtype=np.float64)[np.unique(np.asarray(m.faces).ravel())]
+               for _, m in meshes if len(m.faces)]
+        if pts:
+            p = np.concatenate(pts)
+            b = np.stack([np.minimum(b[0], p.min(axis=0)), np.maximum(b[1], p.max(axis=0))])
+    return b
+
+
+def check_instances(config: Config, instances: InstanceSet) -> None:
+    """The InstanceSet belongs to this config and holds finite numbers (one line otherwise)."""
+    if list(instances.species_names) != [s.model for s in config.species]:
+        raise ForestError(f"instances: species {instances.species_names} do not match the config's "
+                          f"[[species]] models {[s.model for s in config.species]}; scatter again")
+    for col in ("position", "rotation", "scale", "tint"):
+        a = getattr(instances, col)
+        if a.size and not np.isfinite(a).all():
+            raise ForestError(f"instances: column {col!r} holds NaN or infinite values")
+    if len(instances) and (instances.scale <= 0).any():
+        raise ForestError("instances: column 'scale' must be positive")
+    if len(instances.species) and int(instances.species.max()) >= len(instances.species_names):
+        raise ForestError("instances: a species index is out of range of species_names")
+
+
+def partition_rows(instances: InstanceSet) -> list[tuple[int, str, np.ndarray]]:
+    """``(index, name, rows)`` for every partition that holds trees; rows in id order."""
+    part = instances.partition.astype(np.int64)
+    out = []
+    if len(part) == 0:
+        return out
+    order = np.argsort(part, kind="stable")
+    counts = np.bincount(part, minlength=len(instances.partition_names))
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    for p, name in enumerate(instances.partition_names):
+        if counts[p]:
+            out.append((p, name, order[starts[p]: starts[p + 1]]))
+    if part.max() >= len(instances.partition_names) or part.min() < 0:
+        raise ForestError("instances: partition index out of range of partition_names")
+    return out

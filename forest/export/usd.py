@@ -1,0 +1,423 @@
+"""USD export: terrain, camera, sun and sky, and one PointInstancer per partition.
+
+Stage layout (Y up, metres: ``upAxis = "Y"``, ``metersPerUnit = 1``)::
+
+    /World                          Xform, the default prim
+    /World/Terrain                  Mesh (points, normals, st, displayColor)
+    /World/Camera                   Camera, time-sampled over the frames when keyed
+    /World/Lights/Sun               DistantLight
+    /World/Lights/Sky               DomeLight
+    /World/Forest/<partition>       PointInstancer, one per partition that has trees
+        Prototypes/<species>        Xform referencing <stem>_species/<species>.<ext>,
+                                    with its ``lod`` variant selected
+
+Each species is a layer of its own (``<stem>_species/<name>.usda|usdc`` beside
+the stage) whose default prim carries a variant set ``lod`` with one variant per
+level of the library (high, medium, low, far); each variant holds a Mesh per
+part.  ``[export] usd_lod`` picks the variant the prototypes select (default:
+each species' first level).
+
+**Instances.**  Row i of a PointInstancer is a tree: ``protoIndices`` (its
+species among the instancer's prototypes), ``ids`` (the InstanceSet id),
+``positions``, ``orientationsf`` (float quaternions, so rotations keep float
+precision; USD stores them imaginary-first) and ``orientations`` (the same in
+half precision, for readers older than ``orientationsf``), ``scales`` (s, s, s) and
+``primvars:displayColor`` (the colour-map tint, linear RGB, ``vertex``
+interpolation = one value per instance).  USD composes a point instancer's
+transform as scale, then rotation, then translation — the InstanceSet's
+M = T·R·S exactly, so no conversion is needed: the scene is already right-
+handed with Y up.
+
+**Colour.**  An untinted part (bark) authors its own ``displayColor`` (its base
+colour).  A tinted part (leaves) authors none, so it shows the instance's
+tint, and carries its base colour as ``primvars:forest:baseColor`` for a
+material that multiplies the two (the product is the reflectance the Mitsuba
+render uses).
+
+**Camera and lights.**  USD cameras look down −Z with +Y up: the camera's
+transform has columns (right, up, −forward, position).  Its apertures keep the
+config's horizontal field of view: focalLength = (horizontalAperture / 2) /
+tan(fov / 2).  A DistantLight emits along its local −Z; its transform turns
+local +Z onto d, the direction towards the sun (see
+:func:`forest.export.common.sun_direction`), so the light travels along −d.
+
+**Texture coordinates.**  USD's st has t = 0 at the bottom of an image; the
+library's uv and the terrain's map coordinates have v = 0 at the top row, so
+st = (u, 1 − v).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..atomic import atomic_dir
+from ..camera import camera_at, look_at_matrix
+from ..config import Config, ConfigError
+from ..errors import ForestError
+from ..instances import InstanceSet
+from .common import (SpeciesPlan, check_instances, export_frames, export_options, lod_mesh, measured_bounds,
+                     partition_rows, species_plans, sun_direction)
+
+SUFFIXES = (".usda", ".usdc", ".usd")
+HORIZONTAL_APERTURE = 36.0       # the camera's film width; only its ratio to focalLength matters
+
+
+@dataclass
+class UsdExport:
+    """What :func:`export_usd` wrote and how long it took."""
+    path: Path
+    species_layers: list[Path] = field(default_factory=list)
+    textures: list[Path] = field(default_factory=list)
+    instancers: dict[str, str] = field(default_factory=dict)     # partition → prim path
+    trees: int = 0
+    seconds: float = 0.0
+    instance_seconds: float = 0.0
+
+    @property
+    def files(self) -> list[Path]:
+        return [self.path] + list(self.species_layers) + list(self.textures)
+
+
+def _pxr():
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, Vt
+    return Gf, Sdf, Usd, UsdGeom, UsdLux, Vt
+
+
+def prim_name(name: str) -> str:
+    """A valid USD prim name (letters, digits, underscores; not starting with a digit)."""
+    s = "".join(c if c.isalnum() or c == "_" else "_" for c in str(name))
+    return s if s and not s[0].isdigit() else f"_{s}"
+
+
+def gf_matrix(m: np.ndarray):
+    """A column-vector 4×4 (p' = M·p) as a GfMatrix4d (USD transforms row vectors: Mᵀ)."""
+    Gf = _pxr()[0]
+    return Gf.Matrix4d(np.asarray(m, dtype=np.float64).T.tolist())
+
+
+def usd_camera_matrix(position, target, up) -> np.ndarray:
+    """Camera-to-world for USD: columns (right, up, back, position), back = −forward."""
+    return look_at_matrix(position, target, up) @ np.diag([-1.0, 1.0, -1.0, 1.0])
+
+
+def sun_matrix(d: np.ndarray) -> np.ndarray:
+    """Rotation turning local +Z onto ``d``: a DistantLight (emitting along −Z) then shines along −d."""
+    z = np.asarray(d, float) / np.linalg.norm(d)
+    ref = np.array([0.0, 1.0, 0.0]) if abs(z[1]) < 0.99 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(ref, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2] = x, y, z
+    return m
+
+
+def _set_mesh(UsdGeom, Vt, Sdf, mesh, vertices, faces, normals, uv):
+    v = np.ascontiguousarray(vertices, dtype=np.float32)
+    f = np.ascontiguousarray(faces, dtype=np.int32)
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(v))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(f), 3, dtype=np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(f.ravel()))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    n = np.ascontiguousarray(normals, dtype=np.float32)
+    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(n))
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    uv = np.asarray(uv, dtype=np.float32).reshape(-1, 2)
+    st = np.ascontiguousarray(np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1), dtype=np.float32)
+    pv = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    pv.Set(Vt.Vec2fArray.FromNumpy(st))
+    if len(v):
+        mesh.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([v.min(axis=0), v.max(axis=0)])))
+
+
+def part_material(stage, path: str, part, texture: str | None):
+    """A UsdPreviewSurface for one part: diffuse = colour × texture.rgb, opacity = texture alpha.
+
+    The texture (sRGB-encoded RGB detail factor, alpha = card mask) is read
+    through ``st`` and scaled by the part's linear base colour (UsdUVTexture's
+    ``scale``); cards are cut out at alpha 0.5.  A tinted part's per-tree tint
+    is the instancer's ``displayColor``, which such a material leaves to the
+    renderer (see the module docstring, *Colour*).
+    """
+    from pxr import Sdf, UsdShade
+    Gf = _pxr()[0]
+    mat = UsdShade.Material.Define(stage, path)
+    surf = UsdShade.Shader.Define(stage, f"{path}/Surface")
+    surf.CreateIdAttr("UsdPreviewSurface")
+    surf.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.8)
+    colour = [float(c) for c in part.colour]
+    if texture:
+        reader = UsdShade.Shader.Define(stage, f"{path}/ST")
+        reader.CreateIdAttr("UsdPrimvarReader_float2")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+        tex = UsdShade.Shader.Define(stage, f"{path}/Texture")
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(texture))
+        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
+        tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*colour, 1.0))
+        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
+            reader.ConnectableAPI(), "result")
+        rgb = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+        alpha = tex.CreateOutput("a", Sdf.ValueTypeNames.Float)
+        surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(rgb)
+        surf.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(alpha)
+        surf.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
+    else:
+        surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*colour))
+    mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
+    return mat
+
+
+def write_species_layer(path: Path, plan: SpeciesPlan) -> dict:
+    """One species as a layer: default prim ``/<name>`` with a ``lod`` variant per level.
+
+    Part textures are copied to ``textures/`` beside the layer (so the export
+    is self-contained) and bound through :func:`part_material`.  Returns
+    {lod name: bound (2, 3)} of the levels written.
+    """
+    from pxr import UsdShade
+    Gf, Sdf, Usd, UsdGeom, UsdLux, Vt = _pxr()
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    root_path = f"/{prim_name(plan.name)}"
+    root = UsdGeom.Xform.Define(stage, root_path)
+    stage.SetDefaultPrim(root.GetPrim())
+    Usd.ModelAPI(root.GetPrim()).SetKind("component")
+    root.GetPrim().SetCustomDataByKey("forest:model", plan.model)
+    vset = root.GetPrim().GetVariantSets().AddVariantSet("lod")
+    bounds = {}
+    lods = list(plan.species.lods)
+    for lod in lods:
+        meshes = lod_mesh(lod)
+        bound = measured_bounds(lod, meshes)
+        bounds[lod.name] = bound
+        vset.AddVariant(lod.name)
+        vset.SetVariantSelection(lod.name)
+        with vset.GetVariantEditContext():
+            geom = UsdGeom.Scope.Define(stage, f"{root_path}/Geom")
+            for k, (part, m) in enumerate(meshes):
+                kind = getattr(part, "kind", "surface")
+                mesh = UsdGeom.Mesh.Define(stage, f"{geom.GetPath()}/{prim_name(kind)}{k}")
+                _set_mesh(UsdGeom, Vt, Sdf, mesh, m.vertices, m.faces, m.normals, m.uv)
+                if kind == "leaf":
+                    mesh.CreateDoubleSidedAttr(True)
+                pv = UsdGeom.PrimvarsAPI(mesh)
+                base = Gf.Vec3f(*[float(c) for c in part.colour])
+                pv.CreatePrimvar("forest:baseColor", Sdf.ValueTypeNames.Color3f,
+                                 UsdGeom.Tokens.constant).Set(base)
+                pv.CreatePrimvar("forest:tinted", Sdf.ValueTypeNames.Bool,
+                                 UsdGeom.Tokens.constant).Set(bool(getattr(part, "tinted", False)))
+                if not getattr(part, "tinted", False):
+                    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([base]))
+                texture = _copy_texture(getattr(part, "texture", None), path.parent, plan.name)
+                mat = part_material(stage, f"{root_path}/Geom/Materials/{prim_name(kind)}{k}", part, texture)
+                UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
+            geom.GetPrim().SetCustomDataByKey("forest:triangles", int(sum(len(m.faces) for _, m in meshes)))
+            UsdGeom.ModelAPI(root.GetPrim()).SetExtentsHint(Vt.Vec3fArray.FromNumpy(bound.astype(np.float32)))
+    vset.SetVariantSelection(lods[0].name)
+    stage.GetRootLayer().Save()
+    del stage
+    return bounds
+
+
+def _copy_texture(texture, layer_dir: Path, species: str) -> str | None:
+    """Copy a part's texture next to the species layer; the asset path relative to the layer."""
+    if not texture:
+        return None
+    src = Path(texture)
+    if not src.is_file():
+        raise ForestError(f"{src}: texture of species {species!r} not found")
+    rel = f"textures/{species}_{src.name}"
+    dest = layer_dir / rel
+    if not dest.exists():
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, dest)
+    return "./" + rel
+
+
+def _terrain(stage, terrain, colour):
+    Gf, Sdf, Usd, UsdGeom, UsdLux, Vt = _pxr()
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Terrain")
+    _set_mesh(UsdGeom, Vt, Sdf, mesh, terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv)
+    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*colour)]))
+    return mesh
+
+
+def _camera(stage, config: Config, frames: list[int]):
+    Gf, Sdf, Usd, UsdGeom, UsdLux, Vt = _pxr()
+    cam_cfg = config.camera
+    r = config.render
+    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
+    cam.CreateProjectionAttr(UsdGeom.Tokens.perspective)
+    cam.CreateHorizontalApertureAttr(HORIZONTAL_APERTURE)
+    cam.CreateVerticalApertureAttr(HORIZONTAL_APERTURE * r.height / r.width)
+    cam.CreateClippingRangeAttr(Gf.Vec2f(cam_cfg.near, cam_cfg.far))
+    if cam_cfg.shutter > 0:
+        cam.CreateShutterOpenAttr(-cam_cfg.shutter / 2)
+        cam.CreateShutterCloseAttr(cam_cfg.shutter / 2)
+    op = cam.AddTransformOp()
+    focal = cam.CreateFocalLengthAttr()
+    animated = bool(cam_cfg.keys) and len(frames) > 1
+
+    def focal_length(fov):
+        return (HORIZONTAL_APERTURE / 2) / math.tan(math.radians(fov) / 2)
+
+    if animated:
+        for f in frames:
+            s = camera_at(cam_cfg, f)
+            op.Set(gf_matrix(usd_camera_matrix(s.position, s.target, s.up)), Usd.TimeCode(f))
+            focal.Set(focal_length(s.fov), Usd.TimeCode(f))
+    else:
+        s = camera_at(cam_cfg, frames[0])
+        op.Set(gf_matrix(usd_camera_matrix(s.position, s.target, s.up)))
+        focal.Set(focal_length(s.fov))
+    return cam
+
+
+def _lights(stage, config: Config, out_dir: Path):
+    Gf, Sdf, Usd, UsdGeom, UsdLux, Vt = _pxr()
+    UsdGeom.Scope.Define(stage, "/World/Lights")
+    lights = config.lights
+    if lights.sun is not None and lights.sun.elevation > 0 and lights.sun.irradiance > 0:
+        s = lights.sun                      # (a sun at or below the horizon lights nothing, as in the render)
+        sun = UsdLux.DistantLight.Define(stage, "/World/Lights/Sun")
+        sun.CreateIntensityAttr(float(s.irradiance))
+        sun.CreateColorAttr(Gf.Vec3f(*s.colour))
+        sun.CreateAngleAttr(0.53)
+        sun.AddTransformOp().Set(gf_matrix(sun_matrix(sun_direction(s))))
+    if lights.sky is not None:
+        k = lights.sky
+        sky = UsdLux.DomeLight.Define(stage, "/World/Lights/Sky")
+        if k.kind == "constant":
+            sky.CreateIntensityAttr(float(k.radiance))
+            sky.CreateColorAttr(Gf.Vec3f(*k.colour))
+        elif k.kind == "envmap":
+            sky.CreateIntensityAttr(float(k.scale))
+            try:
+                ref = os.path.relpath(k.envmap, out_dir)
+            except ValueError:
+                ref = str(k.envmap)
+            sky.CreateTextureFileAttr(Sdf.AssetPath(Path(ref).as_posix()))
+            sky.CreateTextureFormatAttr(UsdLux.Tokens.latlong)
+        else:                                   # physical sun-sky: a neutral blue dome stands in
+            sky.CreateIntensityAttr(0.35 * float(k.scale))
+            sky.CreateColorAttr(Gf.Vec3f(0.6, 0.75, 1.0))
+
+
+def write_instancer(stage, path: str, instances: InstanceSet, rows: np.ndarray, prototypes: list[tuple[int, str]],
+                    lod_selection: dict[int, str]):
+    """A PointInstancer for ``rows``; ``prototypes`` = [(species index, layer path relative to the stage)]."""
+    Gf, Sdf, Usd, UsdGeom, UsdLux, Vt = _pxr()
+    inst = UsdGeom.PointInstancer.Define(stage, path)
+    UsdGeom.Scope.Define(stage, f"{path}/Prototypes")
+    targets = []
+    remap = np.full(len(instances.species_names), -1, dtype=np.int32)
+    for k, (sp, layer) in enumerate(prototypes):
+        p = stage.DefinePrim(f"{path}/Prototypes/{prim_name(Path(layer).stem)}", "Xform")
+        p.GetReferences().AddReference(layer)
+        p.GetVariantSets().GetVariantSet("lod").SetVariantSelection(lod_selection[sp])
+        targets.append(p.GetPath())
+        remap[sp] = k
+    inst.CreatePrototypesRel().SetTargets(targets)
+    proto = remap[instances.species[rows].astype(np.int64)]
+    inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(proto, dtype=np.int32)))
+    inst.CreateIdsAttr(Vt.Int64Array.FromNumpy(np.ascontiguousarray(instances.id[rows].astype(np.int64))))
+    inst.CreatePositionsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(instances.position[rows])))
+    q = np.ascontiguousarray(instances.rotation[rows][:, [1, 2, 3, 0]])       # (w,x,y,z) → USD's (x,y,z,w)
+    inst.CreateOrientationsfAttr(Vt.QuatfArray.FromNumpy(q))                  # used in preference …
+    inst.CreateOrientationsAttr(Vt.QuathArray.FromNumpy(q.astype(np.float16)))  # … by readers that know it
+    s = instances.scale[rows]
+    inst.CreateScalesAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(np.repeat(s[:, None], 3, axis=1))))
+    pv = UsdGeom.PrimvarsAPI(inst).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray,
+                                                UsdGeom.Tokens.vertex)
+    pv.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(instances.tint[rows])))
+    return inst
+
+
+def export_usd(config: Config, instances: InstanceSet, path: str | Path, *, frames: str | list[int] | None = None,
+               library=None, terrain=None, progress=None) -> UsdExport:
+    """Write the USD stage of ``instances`` to ``path`` (``.usda``, ``.usdc`` or ``.usd`` = crate).
+
+    The species layers go to ``<stem>_species/`` beside it.  Everything is
+    written into a temporary folder and moved into place only when complete.
+    """
+    t0 = time.perf_counter()
+    path = Path(path)
+    if path.suffix.lower() not in SUFFIXES:
+        raise ForestError(f"{path}: a USD file name must end in .usda, .usdc or .usd")
+    if path.is_dir():
+        raise ForestError(f"{path}: is a folder; give the stage's file name")
+    config.camera, config.lights, config.render
+    opts = export_options(config)
+    frame_list = export_frames(config, frames)
+    check_instances(config, instances)
+    plans = species_plans(config, instances, library)
+    lod_selection = {}
+    for plan in plans:
+        names = [l.name for l in plan.species.lods]
+        want = opts["usd_lod"] or names[0]
+        if want not in names:
+            raise ConfigError(config.path, "export.usd_lod",
+                              f"{want!r} is not a level of {plan.model!r} (levels: {', '.join(names)})")
+        lod_selection[plan.index] = want
+    if terrain is None:
+        from ..terrain import load_terrain
+        terrain = load_terrain(config.terrain, config.path)
+    report = progress or (lambda f, m="": None)
+    Gf, Sdf, Usd, UsdGeom, UsdLux, Vt = _pxr()
+    from pxr import Tf
+    ext = ".usda" if path.suffix.lower() == ".usda" else ".usdc"
+    species_dir = f"{path.stem}_species"
+    result = UsdExport(path=path, trees=len(instances))
+    try:
+        with atomic_dir(path.parent) as tmp:
+            (tmp / species_dir).mkdir()
+            layers = {}
+            for plan in plans:
+                rel = f"{species_dir}/{plan.name}{ext}"
+                write_species_layer(tmp / rel, plan)
+                layers[plan.index] = "./" + rel
+                result.species_layers.append(path.parent / rel)
+            result.textures = sorted(path.parent / p.relative_to(tmp) for p in (tmp / species_dir).rglob("*")
+                                     if p.is_file() and p.parent.name == "textures")
+            report(0.2, "species")
+            main = tmp / (path.stem + (".usda" if ext == ".usda" else path.suffix))
+            layer = Sdf.Layer.CreateNew(str(main), args={"format": "usda" if ext == ".usda" else "usdc"})
+            stage = Usd.Stage.Open(layer)
+            UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+            UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+            world = UsdGeom.Xform.Define(stage, "/World")
+            stage.SetDefaultPrim(world.GetPrim())
+            if config.camera.keys and len(frame_list) > 1:
+                stage.SetStartTimeCode(frame_list[0])
+                stage.SetEndTimeCode(frame_list[-1])
+            stage.SetTimeCodesPerSecond(config.camera.fps)
+            stage.SetFramesPerSecond(config.camera.fps)
+            _terrain(stage, terrain, config.render.terrain_colour)
+            _camera(stage, config, frame_list)
+            _lights(stage, config, path.parent)
+            UsdGeom.Xform.Define(stage, "/World/Forest")
+            report(0.4, "instances")
+            t1 = time.perf_counter()
+            for _, pname, rows in partition_rows(instances):
+                used = np.unique(instances.species[rows])
+                protos = [(int(i), layers[int(i)]) for i in used]
+                prim = f"/World/Forest/{prim_name(pname)}"
+                write_instancer(stage, prim, instances, rows, protos, lod_selection)
+                result.instancers[pname] = prim
+            layer.Save()
+            result.instance_seconds = time.perf_counter() - t1
+            del stage, layer
+            report(1.0, "done")
+    except (OSError, Tf.ErrorException) as e:   # disk full, permissions: one line, nothing left behind
+        raise ForestError(f"{path}: cannot write the export: {getattr(e, 'strerror', None) or e}") from None
+    result.seconds = time.perf_counter() - t0
+    return result

@@ -1,0 +1,124 @@
+"""Turn a recipe into a species' files: PLY per part per level of detail, textures, metadata.
+
+A species' asset folder holds ``<lod>_<part>.ply``, ``leaf.png`` (single-leaf
+card), ``cluster.png`` (leaf-cluster card of the lower levels), ``far.png`` (the
+crossed-card impostor atlas) and ``species.json`` — the measured triangle
+counts and bounds that :class:`forest.library.Library` reads without opening
+any mesh.  ``species.json`` is written last, so a folder with it is complete.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..atomic import atomic_path
+from . import lod as lodmod
+from .generator import grow, validate_recipe
+from .mesh import MeshData, mesh_bounds, write_ply
+from .textures import cluster_rgba, leaf_rgba, write_texture
+
+_CODE_FILES = ("generator.py", "lod.py", "mesh.py", "textures.py", "build.py", "preview.py")
+
+
+def code_hash() -> str:
+    """Hash of the generator's source: a change to it invalidates every cached species."""
+    h = hashlib.sha256()
+    here = Path(__file__).parent
+    for name in _CODE_FILES:
+        h.update(name.encode())
+        h.update((here / name).read_bytes())
+    return h.hexdigest()
+
+
+def recipe_hash(recipe: dict, seed: int) -> str:
+    """``sha256(code hash, canonical JSON of the validated recipe, seed)`` as hex."""
+    payload = json.dumps({"recipe": recipe, "seed": int(seed)}, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256((code_hash() + payload).encode()).hexdigest()
+
+
+def write_json(path: Path, data: dict) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+
+
+def part_entry(kind: str, file: str, mesh: MeshData, colour, texture: str | None, tinted: bool,
+               translucency: float) -> dict:
+    return {"kind": kind, "file": file, "colour": [round(float(c), 6) for c in colour], "texture": texture,
+            "tinted": bool(tinted), "translucency": float(translucency), "triangles": mesh.triangles,
+            "bounds": mesh_bounds(mesh.vertices, mesh.faces).tolist()}
+
+
+def lod_entry(name: str, parts: list[dict]) -> dict:
+    b = np.array([p["bounds"] for p in parts])
+    return {"name": name, "triangles": int(sum(p["triangles"] for p in parts)),
+            "bounds": [b[:, 0].min(axis=0).tolist(), b[:, 1].max(axis=0).tolist()], "parts": parts}
+
+
+def ground(mesh: MeshData) -> MeshData:
+    """Clamp vertices to ``y ≥ 0``: drooping fronds and enlarged low-level cards lie on the ground."""
+    if len(mesh.vertices) and float(mesh.vertices[:, 1].min()) < 0.0:
+        v = mesh.vertices.copy()
+        v[:, 1] = np.maximum(v[:, 1], 0.0)
+        return MeshData(v, mesh.faces, mesh.normals, mesh.uv)
+    return mesh
+
+
+def far_coverage(folder: Path, high: dict, bounds: np.ndarray, res: int = 128) -> np.ndarray:
+    """Render the high level's exact coverage along each far card's normal (Mitsuba)."""
+    from types import SimpleNamespace
+    from .preview import card_view_alpha
+    parts = [SimpleNamespace(kind=p["kind"], path=folder / p["file"], colour=tuple(p["colour"]),
+                             texture=(folder / p["texture"]) if p["texture"] else None) for p in high["parts"]]
+    return card_view_alpha(parts, bounds, lodmod.FAR_VIEWS, res)
+
+
+def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "recipe") -> dict:
+    """Grow ``recipe`` with ``seed`` and write every level of detail into folder ``out``.
+
+    Returns the ``species.json`` dictionary (also written into ``out``).
+    """
+    recipe = validate_recipe(recipe, where)
+    tree = recipe["tree"]
+    sk = grow(recipe, seed)
+    out.mkdir(parents=True, exist_ok=True)
+    shape = tree["leaf_shape"]
+    leaf_tex = leaf_rgba(shape)
+    cluster_tex = cluster_rgba(shape)
+    write_texture(out / "leaf.png", leaf_tex)
+    write_texture(out / "cluster.png", cluster_tex)
+    cov_leaf = float(leaf_tex[..., 3].mean())
+    cov_cluster = float(cluster_tex[..., 3].mean())
+    leaf_colour, bark_colour = tree["leaf_colour"], tree["bark_colour"]
+    transl = tree["translucency"]
+    lods = []
+    high_meshes = None
+    for lod in ("high", "medium", "low"):
+        target = lodmod.TARGETS[lod]
+        bark = ground(lodmod.bark_mesh(sk, lod, target * lodmod.BARK_SHARE[lod]))
+        cards_budget = max(target // 8, (target - bark.triangles) // 2)
+        leaves, clustered = lodmod.leaf_meshes(sk, lod, cards_budget, seed, cov_leaf, cov_cluster)
+        leaves = ground(leaves)
+        parts = []
+        if bark.triangles:
+            write_ply(out / f"{lod}_bark.ply", bark)
+            parts.append(part_entry("bark", f"{lod}_bark.ply", bark, bark_colour, None, False, 0.0))
+        write_ply(out / f"{lod}_leaf.ply", leaves)
+        parts.append(part_entry("leaf", f"{lod}_leaf.ply", leaves, leaf_colour,
+                                "cluster.png" if clustered else "leaf.png", True, transl))
+        lods.append(lod_entry(lod, parts))
+        if lod == "high":
+            high_meshes = [(bark, np.asarray(bark_colour), None), (leaves, np.asarray(leaf_colour), leaf_tex)]
+    bounds = np.array(lods[0]["bounds"])
+    coverage = far_coverage(out, lods[0], bounds)
+    far, atlas, scale = lodmod.impostor(high_meshes, bounds, seed=seed, coverage=coverage)
+    write_texture(out / "far.png", atlas)
+    write_ply(out / "far_cards.ply", far)
+    lods.append(lod_entry("far", [part_entry("leaf", "far_cards.ply", far, scale, "far.png", True, transl)]))
+    meta = {"name": name, "source": "generated", "seed": int(seed), "hash": recipe_hash(recipe, seed),
+            "leaf_shape": shape, "lods": lods}
+    write_json(out / "species.json", meta)
+    return meta

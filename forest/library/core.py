@@ -1,0 +1,330 @@
+"""The tree library: species, levels of detail and parts, read from ``library/manifest.toml``.
+
+``open_library()`` reads the manifest; species are built (generated species)
+into ``library/cache/<name>-<hash>/`` on first use, where ``hash`` covers the
+recipe, the seed and the generator's code — editing a recipe or the generator
+therefore gives a fresh folder and a fresh preview, and a stale folder is never
+read.  Building writes into a temporary folder and renames it into place, so
+processes that build the same species at once never see a half-built one.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import tempfile
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError, ForestError
+from .mesh import MeshData, read_ply
+
+REPO_LIBRARY = Path(__file__).resolve().parents[2] / "library"
+MANIFEST = "manifest.toml"
+NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]{0,63}$")
+MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb", ".stl", ".off")
+
+
+@dataclass(frozen=True)
+class Part:
+    """One material's mesh within a level of detail.
+
+    ``kind`` is ``"leaf"`` (two-sided, alpha from ``texture``'s alpha channel,
+    ``translucency`` share of diffuse transmission), ``"bark"`` (diffuse) or
+    ``"surface"`` (an imported material, diffuse).  Reflectance is
+    ``colour × texture.rgb`` (texture sRGB-decoded; 1 without a texture),
+    multiplied by the colour map's tint where ``tinted``.
+    """
+
+    kind: str
+    path: Path
+    colour: tuple[float, float, float]
+    texture: Path | None
+    tinted: bool
+    translucency: float
+    triangles: int
+    bounds: np.ndarray
+
+    def load(self) -> MeshData:
+        """Read the part's PLY into numpy arrays."""
+        return read_ply(self.path)
+
+
+@dataclass(frozen=True)
+class Lod:
+    """One level of detail: ``name`` in high/medium/low/far, exact object-space bounds."""
+
+    name: str
+    triangles: int
+    bounds: np.ndarray            # (2, 3) float64 [min, max]
+    parts: tuple[Part, ...]
+
+
+@dataclass
+class Species:
+    """A species of the library with its levels of detail (ordered high, medium, low, far)."""
+
+    name: str
+    source: str                   # "generated" | "imported"
+    folder: Path
+    lods: list[Lod]
+    hash: str
+    library: "Library" = field(repr=False, compare=False)
+    description: str = ""
+
+    def lod(self, name: str) -> Lod:
+        for lod in self.lods:
+            if lod.name == name:
+                return lod
+        raise ForestError(f"species {self.name!r} has no level of detail {name!r}")
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """Bounds of the highest level of detail."""
+        return self.lods[0].bounds
+
+    @property
+    def preview_path(self) -> Path:
+        return self.library.cache / "previews" / f"{self.name}-{self.hash[:16]}.png"
+
+    @property
+    def preview(self) -> Path:
+        """Path of the preview PNG, rendered with Mitsuba on first use (cached by the species' hash)."""
+        p = self.preview_path
+        if not p.is_file():
+            from .preview import render_preview_file
+            render_preview_file(self, p)
+        return p
+
+
+def _load_meta(folder: Path) -> dict | None:
+    f = folder / "species.json"
+    if not f.is_file():
+        return None
+    try:
+        return json.loads(f.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _species_from_meta(lib: "Library", meta: dict, folder: Path, description: str = "") -> Species:
+    lods = []
+    for L in meta["lods"]:
+        parts = tuple(Part(kind=p["kind"], path=folder / p["file"], colour=tuple(p["colour"]),
+                           texture=(folder / p["texture"]) if p.get("texture") else None,
+                           tinted=bool(p["tinted"]), translucency=float(p["translucency"]),
+                           triangles=int(p["triangles"]), bounds=np.array(p["bounds"], dtype=np.float64))
+                      for p in L["parts"])
+        lods.append(Lod(L["name"], int(L["triangles"]), np.array(L["bounds"], dtype=np.float64), parts))
+    return Species(meta["name"], meta["source"], folder, lods, meta["hash"], lib, description)
+
+
+class Library:
+    """A folder with ``manifest.toml``, ``presets/``, ``imported/`` and the ``cache/``."""
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+        self.manifest_path = self.root / MANIFEST
+        self.cache = self.root / "cache"
+        self._species: dict[str, Species] = {}
+
+    # -- manifest -----------------------------------------------------------
+    @property
+    def manifest(self) -> dict:
+        if not self.manifest_path.is_file():
+            return {"version": 1, "species": {}}
+        try:
+            data = tomllib.loads(self.manifest_path.read_text())
+        except tomllib.TOMLDecodeError as e:
+            raise ConfigError(self.manifest_path, None, f"invalid TOML: {e}") from None
+        sp = data.get("species", {})
+        if not isinstance(sp, dict):
+            raise ConfigError(self.manifest_path, "species", "must be a table of [species.NAME] tables")
+        return data
+
+    def entry(self, name: str) -> dict:
+        sp = self.manifest.get("species", {})
+        if name not in sp:
+            raise ForestError(f"unknown species {name!r}: the library has {', '.join(sorted(sp)) or 'no species'}")
+        e = sp[name]
+        if not isinstance(e, dict):
+            raise ConfigError(self.manifest_path, f"species.{name}", "must be a table")
+        return e
+
+    def names(self) -> list[str]:
+        """Species names in the manifest, sorted."""
+        return sorted(self.manifest.get("species", {}))
+
+    # -- species --------------------------------------------------------------
+    def recipe(self, name: str) -> tuple[dict, int]:
+        """The raw recipe table and seed of a generated species."""
+        e = self.entry(name)
+        field_ = f"species.{name}"
+        rel = e.get("recipe")
+        if not isinstance(rel, str) or not rel:
+            raise ConfigError(self.manifest_path, f"{field_}.recipe", "must name a preset file")
+        path = self.root / rel
+        if not path.is_file():
+            raise ConfigError(self.manifest_path, f"{field_}.recipe", f"file not found: {rel}")
+        try:
+            recipe = tomllib.loads(path.read_text())
+        except tomllib.TOMLDecodeError as e2:
+            raise ConfigError(path, None, f"invalid TOML: {e2}") from None
+        seed = e.get("seed", 0)
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ConfigError(self.manifest_path, f"{field_}.seed", f"must be a whole number >= 0, got {seed!r}")
+        return recipe, seed
+
+    def get(self, name: str, *, seed: int | None = None, build: bool = True) -> Species:
+        """The species ``name`` (built into the cache if needed); ``seed`` overrides the manifest's."""
+        key = name if seed is None else f"{name}@{seed}"
+        if key in self._species:
+            return self._species[key]
+        e = self.entry(name)
+        source = e.get("source", "generated")
+        desc = str(e.get("description", ""))
+        if source == "generated":
+            sp = self._generated(name, seed, desc, build)
+        elif source == "imported":
+            if seed is not None:
+                raise ForestError(f"{name}@{seed}: only generated species take a seed")
+            rel = e.get("path")
+            if not isinstance(rel, str):
+                raise ConfigError(self.manifest_path, f"species.{name}.path", "must name the species' folder")
+            folder = self.root / rel
+            meta = _load_meta(folder)
+            if meta is None:
+                raise ConfigError(self.manifest_path, f"species.{name}.path",
+                                  f"{rel}/species.json is missing or unreadable; re-import with `forest library add`")
+            sp = _species_from_meta(self, meta, folder, desc)
+        else:
+            raise ConfigError(self.manifest_path, f"species.{name}.source",
+                              f"must be generated or imported, got {source!r}")
+        self._species[key] = sp
+        return sp
+
+    def _generated(self, name: str, seed: int | None, desc: str, build: bool) -> Species:
+        from .build import generate, recipe_hash
+        from .generator import validate_recipe
+        raw, manifest_seed = self.recipe(name)
+        seed = manifest_seed if seed is None else seed
+        e = self.entry(name)
+        recipe = validate_recipe(raw, str(self.root / e["recipe"]))
+        h = recipe_hash(recipe, seed)
+        label = name if seed == manifest_seed else f"{name}@{seed}"
+        folder = self.cache / f"{label}-{h[:16]}"
+        meta = _load_meta(folder)
+        if meta is None:
+            if not build:
+                raise ForestError(f"species {label!r} is not built; run `forest library build`")
+            self.cache.mkdir(parents=True, exist_ok=True)
+            tmp = Path(tempfile.mkdtemp(prefix=f".{label}.", suffix=".tmp", dir=self.cache))
+            try:
+                generate(raw, seed, tmp, name=label, where=str(self.root / e["recipe"]))
+                os.chmod(tmp, 0o755)              # mkdtemp makes it private
+                try:
+                    os.rename(tmp, folder)
+                except OSError:
+                    if _load_meta(folder) is None:   # someone else won the race with a complete folder, or fail
+                        raise
+            finally:
+                shutil.rmtree(tmp, ignore_errors=True)
+            meta = _load_meta(folder)
+        return _species_from_meta(self, meta, folder, desc)
+
+    def is_fresh(self, name: str) -> bool:
+        """True when ``name``'s cached files match its recipe (or it is imported and complete)."""
+        try:
+            self.get(name, build=False)
+            return True
+        except ForestError:
+            return False
+
+    def resolve(self, model: str, base_dir: str | Path | None = None) -> Species:
+        """A species for a scene's ``model``: a library name, ``NAME@SEED``, or a mesh file path.
+
+        Mesh paths are relative to ``base_dir`` (a config's folder) and are
+        imported into the cache on first use (keyed by the file's content).
+        """
+        if not isinstance(model, str) or not model:
+            raise ForestError(f"species model must be a non-empty string, got {model!r}")
+        names = set(self.names())
+        if model in names:
+            return self.get(model)
+        m = re.fullmatch(r"(.+)@(\d+)", model)
+        if m and m.group(1) in names:
+            return self.get(m.group(1), seed=int(m.group(2)))
+        p = Path(model).expanduser()
+        if p.suffix.lower() in MESH_SUFFIXES:
+            if not p.is_absolute() and base_dir is not None:
+                p = Path(base_dir) / p
+            from .importer import import_cached
+            return import_cached(self, p)
+        raise ForestError(f"unknown species {model!r}: not in the library "
+                          f"({', '.join(sorted(names)) or 'empty'}) and not a mesh file "
+                          f"({', '.join(MESH_SUFFIXES)})")
+
+    def species(self) -> list[Species]:
+        return [self.get(n) for n in self.names()]
+
+    def build(self, names: list[str] | None = None, *, previews: bool = True, progress=None,
+              prune: bool = True) -> list[Species]:
+        """Build (if stale) every species in ``names`` (all by default) and their previews.
+
+        With ``prune``, cache folders of generated species that no longer match
+        any recipe are removed.
+        """
+        names = self.names() if names is None else names
+        out = []
+        for i, n in enumerate(names):
+            if progress:
+                progress(i / max(len(names), 1), n)
+            sp = self.get(n)
+            if previews:
+                sp.preview  # noqa: B018 - renders when missing
+            out.append(sp)
+        if prune and names == self.names():
+            self.prune({sp.folder.name for sp in out}, {sp.preview_path.name for sp in out})
+        if progress:
+            progress(1.0, "done")
+        return out
+
+    def prune(self, keep_dirs: set[str], keep_previews: set[str], *, stale_tmp_s: float = 600.0) -> None:
+        """Remove cache folders and previews not in the keep sets (and temporary folders
+        left over ten minutes ago by interrupted builds)."""
+        if not self.cache.is_dir():
+            return
+        import time
+        now = time.time()
+        for p in self.cache.glob(".*.tmp"):
+            try:
+                if p.is_dir() and now - p.stat().st_mtime > stale_tmp_s:
+                    shutil.rmtree(p, ignore_errors=True)
+            except OSError:
+                pass
+        for p in self.cache.iterdir():
+            if p.is_dir() and p.name in keep_dirs and (p.stat().st_mode & 0o777) != 0o755:
+                os.chmod(p, 0o755)
+            if p.is_dir() and p.name not in ("previews", "imported") and not p.name.startswith(".") \
+                    and p.name not in keep_dirs and "@" not in p.name:
+                shutil.rmtree(p, ignore_errors=True)
+        pv = self.cache / "previews"
+        if pv.is_dir():
+            for p in pv.iterdir():
+                if p.suffix == ".png" and p.name not in keep_previews and "@" not in p.name:
+                    p.unlink(missing_ok=True)
+
+
+def open_library(root: str | Path | None = None) -> Library:
+    """Open the library at ``root``, else ``$FOREST_LIBRARY``, else ``library/`` of the checkout."""
+    if root is None:
+        root = os.environ.get("FOREST_LIBRARY") or REPO_LIBRARY
+    root = Path(root).expanduser()
+    if root.exists() and not root.is_dir():
+        raise ForestError(f"{root}: the tree library must be a folder")
+    return Library(root)

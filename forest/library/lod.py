@@ -1,0 +1,378 @@
+"""Levels of detail: meshes at triangle budgets, leaf-cluster cards and far impostors.
+
+* **Bark** — each stem is a tube: rings of ``sides`` vertices around the
+  polyline, ring ``j`` at ``p_j + r_j (cos α · n̂₁ + sin α · n̂₂)`` with ``n̂₁, n̂₂``
+  a frame ⟂ the heading; ``2·sides·segments`` triangles a stem.  Lower levels
+  of detail use fewer sides, fewer rings (a subset of the polyline's points, so
+  the skeleton and its bounds stay) and drop the thinnest levels first.
+* **Leaves** — the high level has one card per leaf.  Lower levels keep a
+  random subset of ``m`` of the ``N`` leaves and draw each as a *cluster card*
+  (a texture holding several leaves) scaled about its centre so the projected
+  leaf area is preserved: ``m · A_card · c_cluster = N · A_leaf · c_leaf``, with
+  ``c`` the texture's alpha coverage.  Equal area spread over the same volume
+  keeps the crown's alpha coverage and colour (checked on rendered previews).
+* **Far** — three vertical cards crossed at 60° through the trunk axis, each
+  textured with an orthographic impostor of the high level seen along the
+  card's normal (a z-buffered splat of area-weighted surface samples; with ``a``
+  the covered share of a pixel's 4×4 sub-pixels, the card's alpha is
+  ``1 − (1 − a)^γ`` where ``γ`` is chosen so the stacked cards cover as much as
+  the high level does, :func:`calibrate_opacity`).  Six triangles.  The far form
+  is one tinted leaf part: its texture holds bark and leaves alike.
+
+UV convention (Mitsuba's): ``v = 0`` is the image's first (top) row.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .generator import Skeleton, Level, _norm, _perpendicular
+from .mesh import MeshData
+
+LODS = ("high", "medium", "low", "far")
+BUDGETS = {"high": (50_000, 200_000), "medium": (5_000, 20_000), "low": (500, 2_000), "far": (2, 64)}
+TARGETS = {"high": 180_000, "medium": 12_000, "low": 1_500}
+BARK_SHARE = {"high": 1.0, "medium": 0.4, "low": 0.35}
+TAG_LOD = 0x10D
+
+
+def tubes(level: Level, sides: int, rows: np.ndarray) -> MeshData:
+    """Tubes around ``level``'s polylines using the points ``rows`` and ``sides`` per ring.
+
+    UV: ``u = α/2π`` around (a seam column duplicates ``u = 1``), ``v`` = arc
+    length / (2π r₀) along, so bark texels stay roughly square.
+    """
+    pts = level.points[:, rows]
+    tan = level.tangents[:, rows]
+    rad = level.radii[:, rows]
+    S, R = rad.shape
+    K = sides
+    n1 = _perpendicular(tan, level.side[:, None, :].repeat(R, axis=1))
+    n2 = _norm(np.cross(tan, n1))
+    a = np.linspace(0.0, 2.0 * np.pi, K + 1)
+    ca, sa = np.cos(a), np.sin(a)
+    nrm = ca[None, None, :, None] * n1[:, :, None, :] + sa[None, None, :, None] * n2[:, :, None, :]
+    pos = pts[:, :, None, :] + rad[:, :, None, None] * nrm
+    arc = np.concatenate([np.zeros((S, 1)), np.cumsum(np.linalg.norm(np.diff(pts, axis=1), axis=2), axis=1)], axis=1)
+    v = arc / (2 * np.pi * np.maximum(rad[:, :1], 1e-4))
+    uv = np.stack(np.broadcast_arrays(np.broadcast_to((a / (2 * np.pi))[None, None, :], (S, R, K + 1)),
+                                      v[:, :, None]), axis=-1)
+    # Faces: quad (j, k) → (j,k) (j+1,k) (j+1,k+1) and (j,k) (j+1,k+1) (j,k+1); winding outward.
+    j, k = np.meshgrid(np.arange(R - 1), np.arange(K), indexing="ij")
+    i00 = j * (K + 1) + k
+    i10 = (j + 1) * (K + 1) + k
+    i11 = (j + 1) * (K + 1) + k + 1
+    i01 = j * (K + 1) + k + 1
+    tmpl = np.concatenate([np.stack([i00, i01, i11], -1).reshape(-1, 3),
+                           np.stack([i00, i11, i10], -1).reshape(-1, 3)])
+    faces = (tmpl[None, :, :] + (np.arange(S) * R * (K + 1))[:, None, None]).reshape(-1, 3)
+    return MeshData(pos.reshape(-1, 3).astype(np.float32), faces.astype(np.uint32),
+                    nrm.reshape(-1, 3).astype(np.float32), uv.reshape(-1, 2).astype(np.float32))
+
+
+def cards(base: np.ndarray, direction: np.ndarray, width: np.ndarray, size: np.ndarray,
+          scale: float = 1.0) -> MeshData:
+    """Quads of ``size = [length, width]`` from ``base`` along ``direction``, scaled about their centre.
+
+    Vertices: ``c ± ½·s·len·d̂ ± ½·s·wid·ŵ`` with ``c = base + ½·len·d̂``; normals
+    ``d̂ × ŵ`` flipped to face up (+Y), uv: u across, v from stalk (0) to tip (1).
+    """
+    n = len(base)
+    c = base + 0.5 * size[:, :1] * direction
+    hl = 0.5 * scale * size[:, :1] * direction
+    hw = 0.5 * scale * size[:, 1:] * width
+    quad = np.stack([c - hl - hw, c - hl + hw, c + hl + hw, c + hl - hw], axis=1)
+    nrm = _norm(np.cross(width, direction))
+    nrm = np.where(nrm[:, 1:2] < 0, -nrm, nrm)
+    nrms = np.repeat(nrm[:, None, :], 4, axis=1)
+    uv = np.tile(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]), (n, 1, 1))
+    faces = (np.array([[0, 1, 2], [0, 2, 3]])[None] + 4 * np.arange(n)[:, None, None]).reshape(-1, 3)
+    return MeshData(quad.reshape(-1, 3).astype(np.float32), faces.astype(np.uint32),
+                    nrms.reshape(-1, 3).astype(np.float32), uv.reshape(-1, 2).astype(np.float32))
+
+
+def bent_cards(base: np.ndarray, direction: np.ndarray, width: np.ndarray, size: np.ndarray,
+               segments: int, bend: float) -> MeshData:
+    """Cards split into ``segments`` strips along their length, drooping by ``bend`` degrees.
+
+    The centreline heading at arc parameter ``s ∈ [0, 1]`` is ``d̂`` rotated
+    towards −Y about ``ŵ`` by ``bend·s``; points are the running sum of headings
+    times ``len/segments``.  ``2·segments`` triangles a card.
+    """
+    if segments <= 1 and bend == 0:
+        return cards(base, direction, width, size)
+    n = len(base)
+    K = segments
+    s = np.linspace(0.0, 1.0, K + 1)
+    down = np.array([0.0, -1.0, 0.0])
+    # Bend axis: ŵ oriented so that positive rotation turns d̂ towards −Y.
+    axis = width * np.sign(np.sum(np.cross(width, direction) * down, axis=1, keepdims=True) + 1e-12)
+    from .generator import _rotate
+    heads = np.stack([_rotate(direction, axis, np.full(n, np.radians(bend) * si)) for si in s[:-1]], axis=1)
+    steps = heads * (size[:, :1, None] / K)
+    centre = np.concatenate([base[:, None, :], base[:, None, :] + np.cumsum(steps, axis=1)], axis=1)
+    tangent = np.concatenate([heads, heads[:, -1:]], axis=1)
+    hw = 0.5 * size[:, 1:, None] * width[:, None, :]
+    left, right = centre - hw, centre + hw
+    pos = np.stack([left, right], axis=2)                       # (n, K+1, 2, 3)
+    nrm = _norm(np.cross(np.broadcast_to(width[:, None, :], tangent.shape), tangent))
+    flip = nrm[:, K // 2 : K // 2 + 1, 1:2] < 0
+    nrm = np.where(flip, -nrm, nrm)
+    nrm = np.repeat(nrm[:, :, None, :], 2, axis=2)
+    uv = np.stack(np.broadcast_arrays(np.array([0.0, 1.0])[None, None, :], s[None, :, None]), axis=-1)
+    uv = np.broadcast_to(uv, (n, K + 1, 2, 2))
+    j = np.arange(K)
+    i0, i1, i2, i3 = 2 * j, 2 * j + 1, 2 * j + 3, 2 * j + 2
+    tmpl = np.concatenate([np.stack([i0, i1, i2], -1), np.stack([i0, i2, i3], -1)])
+    faces = (tmpl[None] + (np.arange(n) * 2 * (K + 1))[:, None, None]).reshape(-1, 3)
+    return MeshData(pos.reshape(-1, 3).astype(np.float32), faces.astype(np.uint32),
+                    nrm.reshape(-1, 3).astype(np.float32), uv.reshape(-1, 2).astype(np.float32))
+
+
+def _tube_plan(sk: Skeleton, lod: str, budget: float) -> list[tuple[int, int, np.ndarray]]:
+    """Choose (level index, sides, ring rows) per level for ``lod`` within ``budget`` bark triangles."""
+    plan = []
+    used = 0
+    for i, lv in enumerate(sk.levels):
+        P = lv.points.shape[1]
+        n = P - 1
+        if lod == "high":
+            sides, segs = lv.sides, n
+        elif lod == "medium":
+            sides, segs = max(3, (lv.sides + 1) // 2), max(1 if i else 2, math.ceil(n / 2))
+        else:
+            sides, segs = max(3, lv.sides // 3 + (1 if i == 0 else 0)), max(1 if i else 2, math.ceil(n / 4))
+        rows = np.unique(np.round(np.linspace(0, n, segs + 1)).astype(np.int64))
+        cost = 2 * sides * (len(rows) - 1) * lv.points.shape[0]
+        if i == 0 and cost > budget and lod != "high":
+            # Many thin stems (a grass clump): the coarsest tubes, or none at all.
+            sides, rows = 3, np.array([0, n])
+            cost = 6 * lv.points.shape[0]
+            if cost > budget:
+                break
+        if i > 0 and used + cost > budget:
+            break
+        plan.append((i, sides, rows))
+        used += cost
+    return plan
+
+
+def bark_mesh(sk: Skeleton, lod: str, budget: float) -> MeshData:
+    from .mesh import merge_meshes
+    return merge_meshes([tubes(sk.levels[i], sides, rows) for i, sides, rows in _tube_plan(sk, lod, budget)])
+
+
+def leaf_meshes(sk: Skeleton, lod: str, budget_cards: int, seed: int, cov_leaf: float,
+                cov_cluster: float) -> tuple[MeshData, bool]:
+    """Leaf cards for ``lod``: every leaf at the high level, an area-preserving subset below.
+
+    Returns the mesh and whether it uses the cluster texture.
+    """
+    N = len(sk.leaf_base)
+    tree = sk.recipe["tree"]
+    if lod == "high" and N * tree["leaf_segments"] <= budget_cards:
+        return bent_cards(sk.leaf_base, sk.leaf_dir, sk.leaf_width, sk.leaf_size,
+                          tree["leaf_segments"], tree["leaf_bend"]), False
+    m = max(1, min(N, budget_cards))
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, TAG_LOD, LODS.index(lod)])))
+    keep = np.sort(rng.permutation(N)[:m])
+    if lod == "high":
+        # Too many leaves for the budget: fewer single-leaf cards, same total area.
+        return cards(sk.leaf_base[keep], sk.leaf_dir[keep], sk.leaf_width[keep], sk.leaf_size[keep],
+                     scale=math.sqrt(N / m)), False
+    area_leaf = float(np.sum(sk.leaf_size[:, 0] * sk.leaf_size[:, 1])) * cov_leaf
+    area_kept = float(np.sum(sk.leaf_size[keep, 0] * sk.leaf_size[keep, 1])) * cov_cluster
+    s = math.sqrt(area_leaf / max(area_kept, 1e-12))
+    return cards(sk.leaf_base[keep], sk.leaf_dir[keep], sk.leaf_width[keep], sk.leaf_size[keep], scale=s), True
+
+
+# ---------------------------------------------------------------------------
+# Far impostor
+# ---------------------------------------------------------------------------
+
+FAR_VIEWS = 3
+MAX_SAMPLES = 2_500_000
+
+
+def _sample_surface(mesh: MeshData, density: float, rng) -> tuple[np.ndarray, np.ndarray]:
+    """Area-weighted random points on ``mesh``: ``ceil(area·density)`` per triangle (≥ 1).
+
+    Barycentrics ``(1−√r₁, √r₁(1−r₂), √r₁ r₂)`` are uniform over a triangle
+    (Osada et al. 2002).  Returns positions and interpolated uv.
+    """
+    v = mesh.vertices.astype(np.float64)
+    f = mesh.faces.astype(np.int64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    cnt = np.minimum(np.ceil(area * density).astype(np.int64), 4096)
+    cnt = np.maximum(cnt, 1)
+    tri = np.repeat(np.arange(len(f)), cnt)
+    r1 = np.sqrt(rng.uniform(0, 1, len(tri)))
+    r2 = rng.uniform(0, 1, len(tri))
+    w = np.stack([1 - r1, r1 * (1 - r2), r1 * r2], axis=1)
+    ft = f[tri]
+    pos = (v[ft] * w[:, :, None]).sum(axis=1)
+    uv = (mesh.uv.astype(np.float64)[ft] * w[:, :, None]).sum(axis=1)
+    return pos, uv
+
+
+def card_coverage(alpha: np.ndarray) -> np.ndarray:
+    """Mean coverage of the crossed cards seen along each card's normal, orthographically.
+
+    ``alpha (K, H, W)`` is card ``k``'s opacity over its width ``s ∈ [−R, R]``
+    (column ``j`` ↔ ``s = −R + (j + ½)·2R/W``).  Seen from view ``j`` (direction
+    ``d = −n̂_j``, lateral axis ``ê_j``), the ray at lateral offset ``a`` meets card
+    ``k`` at ``t = −a (ê_j·n̂_k)/(d·n̂_k)``, i.e. at card coordinate
+    ``s = a (ê_j·û_k) + t (d·û_k)``; the cards compose as ``1 − Π_k (1 − α_k)``.
+    """
+    K, H, W = alpha.shape
+    a = (np.arange(W) + 0.5) / W * 2.0 - 1.0          # in units of R
+    out = np.zeros(K)
+    for j in range(K):
+        phi = math.pi * j / K
+        e = np.array([math.cos(phi), math.sin(phi)])
+        n = np.array([-math.sin(phi), math.cos(phi)])
+        d = -n
+        through = np.ones((H, W))
+        for k in range(K):
+            ang = math.pi * k / K
+            u = np.array([math.cos(ang), math.sin(ang)])
+            nk = np.array([-math.sin(ang), math.cos(ang)])
+            dn = float(d @ nk)
+            if abs(dn) < 1e-6:
+                continue                              # edge-on: invisible
+            t = -a * float(e @ nk) / dn
+            sk = a * float(e @ u) + t * float(d @ u)
+            col = np.floor((sk + 1.0) / 2.0 * W).astype(np.int64)
+            ok = (col >= 0) & (col < W)
+            ak = np.zeros((H, W))
+            ak[:, ok] = alpha[k][:, col[ok]]
+            through *= 1.0 - ak
+        out[j] = float((1.0 - through).mean())
+    return out
+
+
+def calibrate_opacity(cov: np.ndarray) -> float:
+    """Exponent ``γ`` for card opacity ``α = 1 − (1 − a)^γ`` matching the high level's coverage.
+
+    ``cov (K, H, W)`` is the high level's coverage ``a`` seen along each card's
+    normal.  Crossed cards stack, so raw ``a`` over-covers; ``γ`` is bisected
+    in ``[0.05, 2]`` until the cards' mean coverage over the ``K`` views
+    (:func:`card_coverage`) equals the high level's mean coverage.
+    """
+    target = float(cov.mean())
+    if target <= 0:
+        return 1.0
+    lo, hi = 0.05, 2.0
+    for _ in range(24):
+        mid = 0.5 * (lo + hi)
+        if card_coverage(1.0 - (1.0 - cov) ** mid).mean() > target:
+            hi = mid
+        else:
+            lo = mid
+    return 0.5 * (lo + hi)
+
+
+def impostor(parts: list[tuple[MeshData, np.ndarray, np.ndarray | None]], bounds: np.ndarray, *,
+             res: int = 128, seed: int = 0, coverage: np.ndarray | None = None
+             ) -> tuple[MeshData, np.ndarray, np.ndarray]:
+    """Crossed-card far form of ``parts`` (mesh, linear colour, RGBA texture or None).
+
+    ``coverage (FAR_VIEWS, res, res)``, when given, is the exact coverage of
+    each view (rendered, :func:`forest.library.preview.card_view_alpha`); the
+    splat's own estimate over-covers thin geometry by up to half a sub-pixel
+    per edge, so it serves only when no rendering is at hand.  Colour always
+    comes from the splat (albedo of the nearest surface).
+
+    Returns the card mesh, the RGBA atlas (``res`` high, ``FAR_VIEWS·res`` wide;
+    RGB = albedo / colour scale) and the colour scale (per-channel maximum
+    albedo), so that ``colour × texture.rgb`` reproduces the albedo.
+    """
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, TAG_LOD, 77])))
+    lo, hi = bounds
+    radius = float(max(np.abs(lo[[0, 2]]).max(), np.abs(hi[[0, 2]]).max(), 1e-3))
+    height = float(max(hi[1] - lo[1], 1e-3))
+    # With a rendered coverage the splat only supplies colour: one sub-pixel per
+    # pixel and fewer samples do; without, 4×4 sub-pixels estimate the coverage.
+    ss = 1 if coverage is not None else 4
+    max_samples = MAX_SAMPLES // 4 if coverage is not None else MAX_SAMPLES
+    sub = ss * res
+    px = 2 * radius / sub
+    py = height / sub
+    # Two samples per sub-pixel of surface, but at most max_samples in all: dense
+    # crowns (many layers deep) saturate the coverage long before that.
+    total_area = 0.0
+    for mesh, _, _ in parts:
+        if len(mesh.faces):
+            v = mesh.vertices.astype(np.float64)
+            f = mesh.faces.astype(np.int64)
+            total_area += 0.5 * float(np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum())
+    density = min(2.0 / (px * py), max_samples / max(total_area, 1e-12))
+    samples_p, samples_c = [], []
+    for mesh, colour, tex in parts:
+        if len(mesh.faces) == 0:
+            continue
+        pos, uv = _sample_surface(mesh, density, rng)
+        col = np.broadcast_to(np.asarray(colour, dtype=np.float64), (len(pos), 3)).copy()
+        if tex is not None:
+            h, w = tex.shape[:2]
+            ix = np.clip((uv[:, 0] % 1.0) * w, 0, w - 1).astype(np.int64)
+            iy = np.clip((uv[:, 1] % 1.0) * h, 0, h - 1).astype(np.int64)
+            texel = tex[iy, ix]
+            keep = texel[:, 3] >= 0.5
+            pos, col = pos[keep], col[keep] * texel[keep, :3]
+        samples_p.append(pos)
+        samples_c.append(col)
+    P = np.concatenate(samples_p) if samples_p else np.zeros((0, 3))
+    C = np.concatenate(samples_c) if samples_c else np.zeros((0, 3))
+    atlas = np.zeros((res, FAR_VIEWS * res, 4), dtype=np.float64)
+    verts, uvs, nrms, covs = [], [], [], []
+    for k in range(FAR_VIEWS):
+        ang = math.pi * k / FAR_VIEWS
+        axis = np.array([math.cos(ang), 0.0, math.sin(ang)])
+        normal = np.array([-math.sin(ang), 0.0, math.cos(ang)])
+        a = P @ axis
+        depth = P @ normal
+        ix = np.clip(((a + radius) / (2 * radius) * sub).astype(np.int64), 0, sub - 1)
+        iy = np.clip(((hi[1] - P[:, 1]) / height * sub).astype(np.int64), 0, sub - 1)   # row 0 = top
+        cell = iy * sub + ix
+        # One sort on cell + (normalised distance from the viewer): per cell, the nearest sample first.
+        dn = (depth.max() - depth) / max(float(np.ptp(depth)), 1e-9) * 0.999 if len(depth) else depth
+        order = np.argsort(cell + dn, kind="stable")
+        cs = cell[order]
+        first = np.ones(len(cs), dtype=bool)
+        first[1:] = cs[1:] != cs[:-1]
+        grid = np.zeros((sub * sub, 4))
+        grid[cs[first], :3] = C[order][first]
+        grid[cs[first], 3] = 1.0
+        grid = grid.reshape(res, ss, res, ss, 4)
+        cov = grid[..., 3].mean(axis=(1, 3))
+        hits = grid[..., 3].sum(axis=(1, 3))
+        rgb = grid[..., :3].sum(axis=(1, 3)) / np.maximum(hits, 1)[..., None]
+        if coverage is not None:
+            # Pixels the rendering covers but no sample reached take the mean colour.
+            mean_rgb = C.mean(axis=0) if len(C) else np.full(3, 0.5)
+            rgb = np.where(hits[..., None] > 0, rgb, mean_rgb)
+            cov = np.asarray(coverage[k], dtype=np.float64)
+        atlas[:, k * res:(k + 1) * res, :3] = rgb
+        covs.append(cov)
+        u0, u1 = k / FAR_VIEWS, (k + 1) / FAR_VIEWS
+        quad = np.array([-radius * axis + [0, lo[1], 0], radius * axis + [0, lo[1], 0],
+                         radius * axis + [0, hi[1], 0], -radius * axis + [0, hi[1], 0]])
+        verts.append(quad)
+        uvs.append(np.array([[u0, 1.0], [u1, 1.0], [u1, 0.0], [u0, 0.0]]))
+        nrms.append(np.repeat(normal[None], 4, axis=0))
+    cov = np.stack(covs)
+    gamma = calibrate_opacity(cov)
+    for k in range(FAR_VIEWS):
+        atlas[:, k * res:(k + 1) * res, 3] = 1.0 - (1.0 - cov[k]) ** gamma
+    covered = atlas[..., 3] > 0
+    scale = atlas[..., :3][covered].max(axis=0) if covered.any() else np.ones(3)
+    scale = np.maximum(scale, 1e-4)
+    atlas[..., :3] = np.where(covered[..., None], atlas[..., :3] / scale, 1.0)
+    faces = (np.array([[0, 1, 2], [0, 2, 3]])[None] + 4 * np.arange(FAR_VIEWS)[:, None, None]).reshape(-1, 3)
+    mesh = MeshData(np.concatenate(verts).astype(np.float32), faces.astype(np.uint32),
+                    np.concatenate(nrms).astype(np.float32), np.concatenate(uvs).astype(np.float32))
+    return mesh, atlas.astype(np.float32), scale

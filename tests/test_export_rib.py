@@ -1,0 +1,339 @@
+"""RIB export: every file passes the RI 3.2 checker, and the trees read back exactly."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import ribcheck
+from export_support import FakeLibrary, make_config, make_instances
+from forest.camera import camera_at
+from forest.errors import ConfigError, ForestError
+from forest.export.common import sun_direction
+from forest.export.rib import export_rib
+
+LOD = "\n[lod]\ndistances = [40.0, 120.0, 300.0]\n"
+FLY = """
+[[camera.keys]]
+frame = 1
+position = [0.0, 40.0, -150.0]
+target = [0.0, 5.0, 0.0]
+[[camera.keys]]
+frame = 3
+position = [60.0, 30.0, -120.0]
+target = [10.0, 5.0, 0.0]
+fov = 35.0
+"""
+
+
+@pytest.fixture(scope="module")
+def lib():
+    return FakeLibrary()
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory, lib):
+    """An export with LOD, a fly-through with motion blur and an empty partition."""
+    tmp = tmp_path_factory.mktemp("rib")
+    cfg = make_config(tmp, LOD + FLY)
+    cfg.data["camera"]["shutter"] = 0.5
+    inst = make_instances(700)
+    res = export_rib(cfg, inst, tmp / "out", library=lib)
+    return cfg, inst, res, tmp / "out"
+
+
+def test_every_file_passes_the_checker(exported):
+    cfg, inst, res, out = exported
+    calls = ribcheck.check_export(out)
+    assert set(calls) == {p.relative_to(out).as_posix() for p in res.files}
+    assert all(p.stat().st_size > 0 for p in out.rglob("*") if p.is_file())
+
+
+def test_no_file_for_an_empty_partition_and_no_strays(exported):
+    cfg, inst, res, out = exported
+    assert sorted(res.instance_files) == ["north", "south"]
+    assert not (out / "instances_east.rib").exists()
+    assert sorted(p.name for p in out.glob("instances_*")) == ["instances_north.rib", "instances_south.rib"]
+    assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]      # no temp folders left
+    scenes = sorted(p.name for p in out.glob("scene_*.rib"))
+    assert scenes == ["scene_0001.rib", "scene_0002.rib", "scene_0003.rib"]
+
+
+def test_trees_read_back_to_float_precision(exported, lib):
+    cfg, inst, res, out = exported
+    M = inst.matrices()
+    by_id = {int(i): k for k, i in enumerate(inst.id)}
+    seen = []
+    for pname, path in res.instance_files.items():
+        trees = ribcheck.read_trees(ribcheck.parse(path.read_bytes()))
+        p_index = inst.partition_names.index(pname)
+        assert len(trees) == int((inst.partition == p_index).sum())
+        for t in trees:
+            k = by_id[int(t["name"][5:])]
+            seen.append(k)
+            assert inst.partition[k] == p_index
+            scale = max(1.0, float(np.abs(M[k]).max()))
+            np.testing.assert_allclose(t["matrix"], M[k], rtol=0, atol=1e-6 * scale)
+            np.testing.assert_allclose(t["color"], inst.tint[k], rtol=0, atol=1e-7)
+            sp = lib.resolve(inst.species_names[inst.species[k]])
+            # a level of detail per band; each archive is this species' level with its measured bound
+            names = [Path(a).stem for a, _ in t["archives"]]
+            levels = [l.name for l in sp.lods][: len(t["archives"])]
+            assert names == [f"{sp.name}_{l}" for l in levels]
+            for (_, bound), lvl in zip(t["archives"], sp.lods):
+                b = np.asarray(lvl.bounds)
+                want = np.array([b[0, 0], b[1, 0], b[0, 1], b[1, 1], b[0, 2], b[1, 2]])
+                assert np.all(bound[0::2] <= want[0::2]) and np.all(bound[1::2] >= want[1::2])
+                np.testing.assert_allclose(bound, want, atol=1.01e-6)
+            assert len(t["ranges"]) == len(t["archives"])
+    assert sorted(seen) == list(range(len(inst)))
+
+
+def test_detail_ranges_switch_levels_at_the_configured_distances(exported):
+    """Level k hands over to level k+1 where the detail bound's raster area is A(d_k) = h·w·(f/d_k)²,
+    cross-fading between A(d_k (1+τ)) and A(d_k (1−τ))."""
+    cfg, inst, res, out = exported
+    tau = 0.1
+    trees = ribcheck.read_trees(ribcheck.parse(res.instance_files["north"].read_bytes()))
+    t = next(t for t in trees if len(t["archives"]) == 4)
+    d = t["detail"]
+    area = (d[3] - d[2]) * max(d[1] - d[0], d[5] - d[4])
+    f = (cfg.render.width / 2) / math.tan(math.radians(cfg.camera.fov) / 2)
+
+    def A(dist):
+        return area * (f / dist) ** 2
+
+    ranges = np.array(t["ranges"])              # [minvisible, lowertransition, uppertransition, maxvisible]
+    for k, dist in enumerate(cfg.lod.distances):
+        near, far = ranges[k], ranges[k + 1]
+        assert near[0] == pytest.approx(A(dist * (1 + tau)), rel=1e-5)
+        assert near[1] == pytest.approx(A(dist * (1 - tau)), rel=1e-5)
+        assert (far[2], far[3]) == pytest.approx((near[0], near[1]), rel=1e-9)
+        assert near[0] < A(dist) < near[1]
+    assert ranges[0][2] >= 1e37 and ranges[-1][0] == ranges[-1][1] == 0
+
+
+def test_archives_hold_the_library_meshes_inside_their_bounds(exported, lib):
+    cfg, inst, res, out = exported
+    for path in res.archives:
+        name, level = path.stem.rsplit("_", 1)
+        lod = next(l for l in lib.resolve(name).lods if l.name == level)
+        meshes = ribcheck.points_polygons(ribcheck.check_file(path, in_world=True))
+        assert len(meshes) == len(lod.parts)
+        b = np.asarray(lod.bounds)
+        for m, part in zip(meshes, lod.parts):
+            src = part.load()
+            np.testing.assert_array_equal(m["faces"], src.faces)
+            np.testing.assert_allclose(m["P"], src.vertices, atol=1e-6)
+            np.testing.assert_allclose(m["N"], src.normals, atol=1e-6)
+            np.testing.assert_allclose(m["st"], src.uv, atol=1e-6)
+            assert np.all(m["P"] >= b[0] - 1e-6) and np.all(m["P"] <= b[1] + 1e-6)
+    # archives are written once per species × level, however many trees and partitions use them
+    text = "".join(p.read_text() for p in res.instance_files.values())
+    for path in res.archives:
+        assert text.count(f'"archives/{path.name}"') == int(
+            (inst.species == inst.species_names.index(path.stem.rsplit("_", 1)[0])).sum())
+
+
+def test_camera_is_left_handed_and_blurred(exported):
+    cfg, inst, res, out = exported
+    for frame in (1, 2, 3):
+        calls = ribcheck.parse((out / f"scene_{frame:04d}.rib").read_bytes())
+        names = [c.name for c in calls]
+        assert names.index("Shutter") < names.index("MotionBegin") < names.index("WorldBegin")
+        motion = next(c for c in calls if c.name == "MotionBegin")
+        k = len(motion.args[0])
+        mats = [np.array(c.args[0]).reshape(4, 4).T for c in calls if c.name == "Transform"]
+        assert k == len(mats) == max(2, cfg.render.subframes)
+        s = cfg.camera.shutter
+        for t, W in zip(motion.args[0], mats):
+            st = camera_at(cfg.camera, frame - s / 2 + t)
+            assert np.linalg.det(W[:3, :3]) == pytest.approx(-1.0)
+            target = W @ np.append(st.target, 1.0)
+            assert abs(target[0]) < 1e-6 and abs(target[1]) < 1e-6 and target[2] > 0     # straight ahead
+            fwd = st.target - st.position
+            right = np.cross(fwd, st.up)
+            assert (W @ np.append(st.target + right, 1.0))[0] > 0                         # right is +x
+            assert (W @ np.append(st.target + st.up, 1.0))[1] > 0                         # up is +y
+        if frame > 1:
+            assert not np.allclose(mats[0], mats[-1])
+        proj = next(c for c in calls if c.name == "Projection")
+        fov = camera_at(cfg.camera, frame).fov
+        want = math.degrees(2 * math.atan(math.tan(math.radians(fov) / 2) * cfg.render.height / cfg.render.width))
+        assert proj.args[2][0] == pytest.approx(want, rel=1e-7)
+        reads = [c.args[0] for c in calls if c.name == "ReadArchive"]
+        assert reads == ["terrain.rib", "instances_north.rib", "instances_south.rib"]
+
+
+def test_sun_direction_convention(tmp_path, lib):
+    cfg = make_config(tmp_path, "")
+    cfg.data["lights"]["sun"].update({"azimuth": 90.0, "elevation": 30.0})
+    d = sun_direction(cfg.lights.sun)
+    np.testing.assert_allclose(d, [math.cos(math.radians(30)), 0.5, 0.0], atol=1e-12)     # east = +X
+    cfg.data["lights"]["sun"]["azimuth"] = 0.0
+    cfg.__dict__.pop("lights", None)
+    np.testing.assert_allclose(sun_direction(cfg.lights.sun), [0.0, 0.5, math.cos(math.radians(30))], atol=1e-12)
+    res = export_rib(cfg, make_instances(20), tmp_path / "a", library=lib)
+    calls = ribcheck.parse(res.scenes[0].read_bytes())
+    sun = next(c for c in calls if c.name == "LightSource" and c.args[0] == "distantlight")
+    params = dict(zip(sun.args[2::2], sun.args[3::2]))
+    light_travel = np.array(params["to"]) - np.array(params["from"])
+    np.testing.assert_allclose(-light_travel, sun_direction(cfg.lights.sun), atol=1e-8)
+
+
+def test_renderman22_output(tmp_path, lib):
+    cfg = make_config(tmp_path, LOD)
+    inst = make_instances(200)
+    res = export_rib(cfg, inst, tmp_path / "r22", library=lib, renderman22=True)
+    calls = ribcheck.check_export(tmp_path / "r22")
+    assert not (tmp_path / "r22" / "shaders").exists()
+    scene = calls["scene_0001.rib"]
+    lights = {c.args[0]: c for c in scene if c.name == "Light"}
+    assert set(lights) == {"PxrDistantLight", "PxrDomeLight"}
+    # the distant light's +Z (its direction of emission) is turned onto the sunlight's direction −d
+    i = scene.index(lights["PxrDistantLight"])
+    R = np.array(next(c for c in reversed(scene[:i]) if c.name == "ConcatTransform").args[0]).reshape(4, 4).T
+    np.testing.assert_allclose(R[:3, 2], -sun_direction(cfg.lights.sun), atol=1e-8)
+    trees = ribcheck.read_trees(calls["instances_north.rib"])
+    assert trees and all(len(t["archives"]) >= 2 for t in trees)
+    assert not any(c.name == "Procedural" for c in calls["instances_north.rib"])
+    arch = calls[next(k for k in calls if k.startswith("archives/oak_high"))]
+    prim = [c for c in arch if c.name == "Pattern" and c.args[0] == "PxrPrimvar"]
+    assert prim and all(c.args[c.args.index("string varname") + 1] == ["Cs"] for c in prim)
+    assert any(c.name == "Bxdf" and "reference color diffuseColor" in c.args for c in arch)
+
+
+def test_same_input_gives_identical_bytes(tmp_path, lib):
+    cfg = make_config(tmp_path, LOD)
+    inst = make_instances(300, seed=11)
+    a = export_rib(cfg, inst, tmp_path / "a", library=lib)
+    b = export_rib(cfg, inst, tmp_path / "b", library=lib)
+    fa = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
+    fb = sorted(p.relative_to(tmp_path / "b") for p in (tmp_path / "b").rglob("*") if p.is_file())
+    assert fa == fb and len(fa) == len(a.files) + 1          # + the RSL shader source
+    for rel in fa:
+        assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes(), rel
+
+
+def test_large_partitions_stream_in_chunks(tmp_path, lib, monkeypatch):
+    import forest.export.rib as rib
+    cfg = make_config(tmp_path, "")
+    inst = make_instances(1000, seed=5)
+    whole = export_rib(cfg, inst, tmp_path / "whole", library=lib)
+    monkeypatch.setattr(rib, "CHUNK", 7)
+    chunked = export_rib(cfg, inst, tmp_path / "chunked", library=lib)
+    for p in whole.instance_files:
+        assert whole.instance_files[p].read_bytes() == chunked.instance_files[p].read_bytes()
+
+
+def test_failure_leaves_nothing_behind(tmp_path, lib):
+    class Broken(FakeLibrary):
+        def resolve(self, model, base_dir=None):
+            sp = super().resolve(model, base_dir)
+            if model == "pine":
+                part = sp.lods[0].parts[0]
+
+                class Bad(type(part)):
+                    def load(self):
+                        raise ForestError(f"{self.path}: corrupt PLY")
+                sp.lods[0].parts = (Bad(**{k: getattr(part, k) for k in part.__dataclass_fields__}),)
+            return sp
+
+    cfg = make_config(tmp_path, "")
+    with pytest.raises(ForestError, match="corrupt PLY"):
+        export_rib(cfg, make_instances(50), tmp_path / "out", library=Broken())
+    assert not (tmp_path / "out").exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["scene.toml"]
+
+
+def test_bad_input_names_the_field(tmp_path, lib):
+    cfg = make_config(tmp_path, "")
+    inst = make_instances(20, species=("oak", "birch"))
+    cfg.data["species"][1]["model"] = "birch"
+    cfg.__dict__.pop("species", None)
+    with pytest.raises(ConfigError, match=r"scene.toml: species\[1\].model: unknown tree model 'birch'"):
+        export_rib(cfg, inst, tmp_path / "x", library=lib)
+    cfg = make_config(tmp_path, "[export]\nlod_transition = 0.6\n" + LOD)
+    with pytest.raises(ConfigError, match="export.lod_transition"):
+        export_rib(cfg, make_instances(20), tmp_path / "x", library=lib)
+    with pytest.raises(ConfigError, match=r"scene.toml: export.colour: unknown key"):
+        export_rib(make_config(tmp_path, "[export]\ncolour = 1\n"), make_instances(20), tmp_path / "x", library=lib)
+    assert not (tmp_path / "x").exists()
+
+
+def test_no_trees_still_gives_a_scene(tmp_path, lib):
+    from forest.instances import InstanceSet
+    cfg = make_config(tmp_path, "")
+    res = export_rib(cfg, InstanceSet.empty(["oak", "pine"]), tmp_path / "e", library=lib)
+    assert res.instance_files == {} and res.archives == []
+    calls = ribcheck.check_export(tmp_path / "e")
+    assert [c.args[0] for c in calls["scene_0001.rib"] if c.name == "ReadArchive"] == ["terrain.rib"]
+
+
+def test_memory_stays_bounded_as_the_forest_grows(tmp_path, lib, monkeypatch):
+    """Instance files stream: 4× the trees → 4× the bytes on disk, about the same peak memory."""
+    import tracemalloc
+    import forest.export.rib as rib
+    from forest.terrain import load_terrain
+    monkeypatch.setattr(rib, "CHUNK", 2048)
+    cfg = make_config(tmp_path, "")
+    terrain = load_terrain(cfg.terrain, cfg.path)
+    peaks, sizes = [], []
+    for n in (15000, 60000):
+        inst = make_instances(n, seed=n)
+        export_rib(cfg, inst, tmp_path / "warm", library=lib, terrain=terrain)     # scratch buffers, imports
+        tracemalloc.start()
+        res = export_rib(cfg, inst, tmp_path / f"n{n}", library=lib, terrain=terrain)
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+        sizes.append(sum(p.stat().st_size for p in res.instance_files.values()))
+    assert sizes[1] > 3.5 * sizes[0]
+    assert peaks[1] - peaks[0] < 0.25 * (sizes[1] - sizes[0])
+
+
+def test_corrupt_instances_are_refused(tmp_path, lib):
+    cfg = make_config(tmp_path, "")
+    inst = make_instances(10)
+    inst.position[3, 1] = np.nan
+    with pytest.raises(ForestError, match="instances: column 'position' holds NaN"):
+        export_rib(cfg, inst, tmp_path / "out", library=lib)
+    inst = make_instances(10, species=("pine", "oak"))
+    with pytest.raises(ForestError, match="do not match the config's"):
+        export_rib(cfg, inst, tmp_path / "out", library=lib)
+    assert not (tmp_path / "out").exists()
+
+
+def test_lod_switch_can_live_in_one_archive_per_species(tmp_path, lib):
+    inst = make_instances(400, seed=21)
+    inline = export_rib(make_config(tmp_path, LOD), inst, tmp_path / "inline", library=lib)
+    cfg = make_config(tmp_path, LOD + '[export]\nrib_lod = "archive"\n', name="archive.toml")
+    res = export_rib(cfg, inst, tmp_path / "arch", library=lib)
+    calls = ribcheck.check_export(tmp_path / "arch")
+    assert sorted(k for k in calls if k.endswith("_lod.rib")) == ["archives/oak_lod.rib", "archives/pine_lod.rib"]
+    for part, path in res.instance_files.items():
+        per_tree = ribcheck.read_trees(calls[path.name])
+        inline_calls = ribcheck.parse(inline.instance_files[part].read_bytes())
+        inline_trees = {t["name"]: t for t in ribcheck.read_trees(inline_calls)}
+        assert path.stat().st_size < 0.5 * inline.instance_files[part].stat().st_size
+        for t in per_tree:
+            ref = inline_trees[t["name"]]
+            np.testing.assert_array_equal(t["matrix"], ref["matrix"])
+            (arch, bound), = t["archives"]
+            assert t["detail"] is None and arch.endswith("_lod.rib")
+            np.testing.assert_allclose(bound, ref["detail"], atol=1e-9)       # the union of the levels
+            # the archive holds exactly the inline switch: Detail, then DetailRange + level per band
+            switch = calls[arch]
+            assert [c.args[0] for c in switch if c.name == "Detail"] == [list(ref["detail"])]
+            ranges = [c.args[0] for c in switch if c.name == "DetailRange"]
+            np.testing.assert_allclose(ranges, ref["ranges"], rtol=1e-12)
+            levels = [(c.args[1][0], c.args[2]) for c in switch if c.name == "Procedural"]
+            assert [a for a, _ in levels] == [a for a, _ in ref["archives"]]
+
+
+def test_output_in_the_way_is_a_user_error(tmp_path, lib):
+    cfg = make_config(tmp_path, "")
+    (tmp_path / "taken").write_text("not a folder")
+    with pytest.raises(ForestError, match="exists and is not a folder"):
+        export_rib(cfg, make_instances(10), tmp_path / "taken", library=lib)
+    assert (tmp_path / "taken").read_text() == "not a folder"
