@@ -198,6 +198,7 @@ class SpeciesConfig:
     slope_min: float = 0.0
     altitude: tuple[float, float] | None = None
     align: float | None = None     # overrides scatter.align_to_normal for this species
+    yaw_step: float = 0.0          # degrees; > 0 snaps yaw to multiples (street-aligned buildings)
     extra: dict = field(default_factory=dict, compare=False)
 
 
@@ -266,6 +267,7 @@ class RenderConfig:
     terrain_colour: tuple[float, float, float] = (0.18, 0.16, 0.11)
     seed: int = 0
     terrain_texture: Path | None = None   # image over the extent (map convention); overrides terrain_colour
+    alpha_shadows: bool = False           # shadow rays see through leaf-card alpha (volpath; slower)
 
 
 @dataclass(frozen=True)
@@ -399,7 +401,7 @@ class Config:
         if not isinstance(items, list) or not items:
             raise ConfigError(self.path, "species", "must be an array of tables ([[species]])")
         out = []
-        known = ("model", "percent", "scale", "slope_max", "slope_min", "altitude", "align", "name",
+        known = ("model", "percent", "scale", "slope_max", "slope_min", "altitude", "align", "name", "yaw_step",
                  "moisture", "radius", "growth", "shade_tolerance", "lifespan", "vigour")
         for i, item in enumerate(items):
             f = Fields(item, f"species[{i}]", self, known)
@@ -411,8 +413,9 @@ class Config:
                 slope_min=f.number("slope_min", 0.0, lo=0.0, hi=90.0),
                 altitude=f.range("altitude", None),
                 align=f.number("align", 0.0, lo=0.0, hi=1.0) if f.has("align") else None,
+                yaw_step=f.number("yaw_step", 0.0, lo=0.0, hi=360.0),
                 extra={k: v for k, v in item.items() if k not in ("model", "percent", "scale", "slope_max",
-                                                                 "slope_min", "altitude", "align")},
+                                                                 "slope_min", "altitude", "align", "yaw_step")},
             ))
             if out[-1].scale[0] <= 0:
                 f.fail("scale", f"must be positive, got {list(out[-1].scale)}")
@@ -484,7 +487,8 @@ class Config:
     @cached_property
     def render(self) -> RenderConfig:
         f = self.root.sub("render", ("width", "height", "spp", "variant", "max_depth", "subframes", "haze",
-                                     "haze_colour", "terrain_colour", "seed", "terrain_texture"))
+                                     "haze_colour", "terrain_colour", "seed", "terrain_texture",
+                                     "alpha_shadows"))
         return RenderConfig(width=f.integer("width", 1280, lo=1, hi=16384),
                             height=f.integer("height", 720, lo=1, hi=16384),
                             spp=f.integer("spp", 64, lo=1, hi=65536),
@@ -495,7 +499,8 @@ class Config:
                             haze_colour=f.colour("haze_colour") if f.has("haze_colour") else None,
                             terrain_colour=f.colour("terrain_colour", (0.18, 0.16, 0.11)),
                             seed=f.integer("seed", 0, lo=0),
-                            terrain_texture=f.file("terrain_texture"))
+                            terrain_texture=f.file("terrain_texture"),
+                            alpha_shadows=f.boolean("alpha_shadows", False))
 
     @cached_property
     def lod(self) -> LodConfig:

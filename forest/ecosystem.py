@@ -167,7 +167,8 @@ def ecosystem_scatter(config: Config, progress=None, terrain: Terrain | None = N
     live, k, P, normal, r = live[alive], k[alive], P[alive], normal[alive], r[alive]
 
     step(0.95, "attributes")
-    yaw = rng["yaw"].random(n)[live] * 2 * np.pi
+    from .scatter import snap_yaw
+    yaw = snap_yaw(rng["yaw"].random(n)[live] * 2 * np.pi, np.array([s.yaw_step for s in species])[k])
     phase = rng["phase"].random(n)[live] * 2 * np.pi
     rel = np.clip(r / par["radius"][k], 0.0, 1.0)
     lo = np.array([s.scale[0] for s in species])[k]

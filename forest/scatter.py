@@ -163,6 +163,7 @@ def scatter(config: Config, progress=None, terrain: Terrain | None = None) -> tu
     scale_u = rng["scale"].random(n)[sel]
     phase = rng["phase"].random(n)[sel] * (2 * np.pi)
     k = sp_idx[sel]
+    yaw = snap_yaw(yaw, np.array([sp.yaw_step for sp in species])[k])
     lo = np.array([sp.scale[0] for sp in species])[k]
     hi = np.array([sp.scale[1] for sp in species])[k]
     align = np.array([config.scatter.align_to_normal if sp.align is None else sp.align for sp in species])[k]
@@ -199,6 +200,13 @@ def scatter(config: Config, progress=None, terrain: Terrain | None = None) -> tu
     report.seconds = time.perf_counter() - t0
     step(1.0, "done")
     return inst, report
+
+
+def snap_yaw(yaw: np.ndarray, step_deg: np.ndarray) -> np.ndarray:
+    """Round yaw to multiples of ``step_deg`` where it is > 0 (e.g. 90° for street-aligned blocks)."""
+    step = np.radians(step_deg)
+    snapped = np.round(yaw / np.where(step > 0, step, 1.0)) * step
+    return np.where(step > 0, np.mod(snapped, 2 * np.pi), yaw)
 
 
 def scene_instances(config: Config, instances_path: str | Path | None = None, progress=None) -> InstanceSet:

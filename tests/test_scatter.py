@@ -342,3 +342,20 @@ def test_procedural_and_16bit_heightmap_terrains(tmp_path):
     # 16-bit precision survives: heights step by 1 m exactly per column.
     np.testing.assert_allclose(np.diff(t.vertices[:256, 1]), 1.0, atol=1e-3)
     np.testing.assert_allclose(t.height_at([0.0, 100.0], [0.0, 0.0]), [127.5, 227.5], atol=1e-3)
+
+
+def test_yaw_step_snaps_rotations(flat_scene):
+    inst, _ = scatter(load_config(flat_scene(species="""
+        [[species]]
+        model = "tower"
+        percent = 50
+        yaw_step = 90.0
+        [[species]]
+        model = "broadleaf"
+        percent = 50
+    """)))
+    blocks = inst.species == 0
+    q = np.degrees(inst.yaw[blocks]) / 90.0
+    np.testing.assert_allclose(q, np.round(q), atol=1e-4)
+    assert len(np.unique(np.round(q) % 4)) == 4
+    assert len(np.unique(inst.yaw[~blocks])) == (~blocks).sum()

@@ -214,6 +214,11 @@ class Library:
         raw, manifest_seed = self.recipe(name)
         seed = manifest_seed if seed is None else seed
         e = self.entry(name)
+        kind = raw.get("kind", "tree")
+        if kind == "building":            # procedural buildings (forest.library.buildings)
+            from .buildings import generate, recipe_hash, validate_recipe
+        elif kind != "tree":
+            raise ConfigError(self.root / e["recipe"], "kind", f"must be tree or building, got {kind!r}")
         recipe = validate_recipe(raw, str(self.root / e["recipe"]))
         h = recipe_hash(recipe, seed)
         label = name if seed == manifest_seed else f"{name}@{seed}"
