@@ -199,6 +199,7 @@ class SpeciesConfig:
     altitude: tuple[float, float] | None = None
     align: float | None = None     # overrides scatter.align_to_normal for this species
     yaw_step: float = 0.0          # degrees; > 0 snaps yaw to multiples (street-aligned buildings)
+    partitions: tuple[str, ...] | None = None   # regions this species may grow in (None = all)
     extra: dict = field(default_factory=dict, compare=False)
 
 
@@ -401,7 +402,7 @@ class Config:
         if not isinstance(items, list) or not items:
             raise ConfigError(self.path, "species", "must be an array of tables ([[species]])")
         out = []
-        known = ("model", "percent", "scale", "slope_max", "slope_min", "altitude", "align", "name", "yaw_step",
+        known = ("model", "percent", "scale", "slope_max", "slope_min", "altitude", "align", "name", "yaw_step", "partitions",
                  "moisture", "radius", "growth", "shade_tolerance", "lifespan", "vigour")
         for i, item in enumerate(items):
             f = Fields(item, f"species[{i}]", self, known)
@@ -414,8 +415,10 @@ class Config:
                 altitude=f.range("altitude", None),
                 align=f.number("align", 0.0, lo=0.0, hi=1.0) if f.has("align") else None,
                 yaw_step=f.number("yaw_step", 0.0, lo=0.0, hi=360.0),
+                partitions=self._species_partitions(f),
                 extra={k: v for k, v in item.items() if k not in ("model", "percent", "scale", "slope_max",
-                                                                 "slope_min", "altitude", "align", "yaw_step")},
+                                                                 "slope_min", "altitude", "align", "yaw_step",
+                                                                 "partitions")},
             ))
             if out[-1].scale[0] <= 0:
                 f.fail("scale", f"must be positive, got {list(out[-1].scale)}")
@@ -425,6 +428,18 @@ class Config:
         if total > 100.0 + 1e-9:
             raise ConfigError(self.path, "species", f"percentages add up to {total:g}, more than 100")
         return tuple(out)
+
+    def _species_partitions(self, f: Fields) -> tuple[str, ...] | None:
+        if not f.has("partitions"):
+            return None
+        v = f.table["partitions"]
+        if not isinstance(v, list) or not v or not all(isinstance(x, str) for x in v):
+            f.fail("partitions", f"must be a list of region names, got {v!r}")
+        known = [p.name for p in self.partitions] + (["unlabelled"] if self.partitions else [])
+        for name in v:
+            if name not in known:
+                f.fail("partitions", f"unknown region {name!r} (regions: {', '.join(known) or 'none'})")
+        return tuple(v)
 
     # -- render inputs -----------------------------------------------------
     @cached_property

@@ -15,6 +15,7 @@ The model (one pass, fully vectorised):
    * **density**  — rejected with probability 1 − density (grey level);
    * **empty ground** — its species draw fell in the part of 100 % that no
      species claims;
+   * **partition** — its species is limited to other regions (``partitions``);
    * **slope** / **altitude** — outside its species' window;
    * **min_distance** — Poisson-disk thinning (:mod:`forest.poisson`) among
      the survivors, in candidate order.
@@ -102,7 +103,8 @@ def scatter(config: Config, progress=None, terrain: Terrain | None = None) -> tu
     u = rng["position"].random((3, n))
     position, face, bary = terrain.sample_points(u[0], u[1], u[2])
     idx = np.arange(n, dtype=np.int64)
-    rejected = {"presence": 0, "density": 0, "empty ground": 0, "slope": 0, "altitude": 0, "min_distance": 0}
+    rejected = {"presence": 0, "density": 0, "empty ground": 0, "partition": 0, "slope": 0, "altitude": 0,
+                "min_distance": 0}
 
     # 1. presence (binary) and density (probabilistic), in map space.
     mu, mv = terrain.to_uv(position[:, 0], position[:, 2])
@@ -124,6 +126,19 @@ def scatter(config: Config, progress=None, terrain: Terrain | None = None) -> tu
     rejected["empty ground"] = int((keep & empty).sum())
     keep &= ~empty
     sp_idx = np.minimum(sp_idx, len(species) - 1)
+
+    # 2b. species restricted to some partitions.
+    if any(sp.partitions is not None for sp in species) and maps.partition is not None:
+        live = np.flatnonzero(keep)
+        part_live = maps.partition_at(mu[live], mv[live])
+        pn = maps.partition_names
+        allowed = np.ones((len(species), len(pn)), dtype=bool)
+        for i, sp in enumerate(species):
+            if sp.partitions is not None:
+                allowed[i] = [name in sp.partitions for name in pn]
+        bad = ~allowed[sp_idx[live], part_live]
+        rejected["partition"] = int(bad.sum())
+        keep[live[bad]] = False
 
     # 3. per-species slope and altitude windows (normals only where still needed).
     live = np.flatnonzero(keep)

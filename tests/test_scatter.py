@@ -359,3 +359,36 @@ def test_yaw_step_snaps_rotations(flat_scene):
     np.testing.assert_allclose(q, np.round(q), atol=1e-4)
     assert len(np.unique(np.round(q) % 4)) == 4
     assert len(np.unique(inst.yaw[~blocks])) == (~blocks).sum()
+
+
+def test_species_limited_to_partitions(tmp_path):
+    part = np.zeros((4, 4, 3))
+    part[:, :2] = (1.0, 0.0, 0.0)
+    part[:, 2:] = (0.0, 1.0, 0.0)
+    write_png(tmp_path / "part.png", part)
+    cfg = write_scene(tmp_path, """
+        [terrain]
+        flat = { size = 100.0 }
+        [maps]
+        partition = "part.png"
+        [partitions]
+        "#ff0000" = "foreground"
+        "#00ff00" = "background"
+        [scatter]
+        count = 4000
+        [[species]]
+        model = "broadleaf"
+        percent = 50
+        partitions = ["foreground"]
+        [[species]]
+        model = "conifer"
+        percent = 50
+    """)
+    inst, rep = scatter(load_config(cfg))
+    x = inst.position[:, 0]
+    assert (x[inst.species == 0] < 0).all()
+    assert (x[inst.species == 1] > 0).any() and (x[inst.species == 1] < 0).any()
+    assert rep.rejected["partition"] == pytest.approx(1000, rel=0.15)
+    bad = write_scene(tmp_path, cfg.read_text().replace('["foreground"]', '["nowhere"]'), "bad.toml")
+    with pytest.raises(Exception, match=r"species\[0\]\.partitions: unknown region 'nowhere'"):
+        scatter(load_config(bad))
