@@ -41,7 +41,9 @@ def _root(version: bool = typer.Option(False, "--version", callback=_version, is
 # Each module defines ``register(app)``.
 COMMAND_MODULES = (
     "scatter",
+    "render",
     "library",
+    "serve",
     "export",
 )
 

@@ -8,7 +8,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
 PY=${PYTHON:-python3}
-EXTRAS=${FOREST_EXTRAS:-service,test}
+EXTRAS=${FOREST_EXTRAS:-service,test,ray}
 
 say() { printf '\033[1m[setup]\033[0m %s\n' "$*"; }
 
@@ -31,6 +31,17 @@ if ! LLVM=$(find_llvm); then
     LLVM=$(find_llvm) || { echo "setup: LLVM 19 not found and could not be installed; install libllvm19 and set DRJIT_LIBLLVM_PATH" >&2; exit 2; }
 fi
 say "LLVM 19: $LLVM"
+
+# --- Chromium + chromedriver (the job service's page tests drive a headless browser) ----
+if ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; then
+    say "installing Chromium and chromedriver (Debian packages chromium, chromium-driver)"
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    if command -v apt-get >/dev/null; then
+        $SUDO apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium chromium-driver >/dev/null
+    fi
+    command -v chromedriver >/dev/null || { echo "setup: chromium-driver not found and could not be installed" >&2; exit 2; }
+fi
 
 # --- virtual environment -----------------------------------------------------
 if [ ! -x .venv/bin/python ]; then

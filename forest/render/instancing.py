@@ -1,0 +1,162 @@
+"""Instanced forests: level of detail, wind sway and the shapegroup/instance scene graph.
+
+One ``shapegroup`` per (species, level of detail) holds that LOD's parts; each
+tree is one ``instance`` record (a 4×4 transform and a reference), so memory
+grows with the number of trees by the instance record only, never by their
+triangles — the role ``DelayedReadArchive`` played in the original pipeline.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ForestError
+from ..instances import InstanceSet
+from ..runtime import mitsuba
+from .materials import MaterialBuilder
+
+LOD_NAMES = ("high", "medium", "low", "far")
+
+
+def lod_levels(position: np.ndarray, camera: np.ndarray, distances, n_lods: np.ndarray) -> np.ndarray:
+    """Level of detail per tree from its distance to the camera.
+
+    With boundaries d₀ < d₁ < d₂ (``[lod] distances``), a tree at distance
+    r = |p − c| gets level k = #{dᵢ ≤ r} (0 = high … 3 = far), clamped to the
+    species' last LOD (``n_lods − 1``).  No boundaries: every tree is level 0.
+    """
+    position = np.asarray(position, dtype=np.float64)
+    n_lods = np.asarray(n_lods)
+    if len(distances) == 0 or len(position) == 0:
+        return np.zeros(len(position), dtype=np.int64)
+    r = np.linalg.norm(position - np.asarray(camera, dtype=np.float64)[None, :], axis=1)
+    k = np.searchsorted(np.asarray(distances, dtype=np.float64), r, side="right")
+    return np.minimum(k, n_lods - 1).astype(np.int64)
+
+
+def sway_angles(phase: np.ndarray, time_s: float, wind) -> np.ndarray:
+    """Sway angle per tree, radians: θᵢ(t) = A · sin(2π f t + φᵢ).
+
+    A = ``[wind] strength`` (degrees), f = ``frequency`` (Hz), φᵢ the tree's
+    random phase (``InstanceSet.phase``), so neighbours do not move in lockstep.
+    """
+    if wind.strength <= 0:
+        return np.zeros(len(phase))
+    return np.radians(wind.strength) * np.sin(2.0 * np.pi * wind.frequency * time_s + phase.astype(np.float64))
+
+
+def sway_rotation(theta: np.ndarray, direction_deg: float) -> np.ndarray:
+    """(N, 3, 3) rotations tilting +Y towards the wind by θ (Rodrigues' formula).
+
+    The wind blows towards w = (sin D, 0, cos D) (D clockwise from +Z, like the
+    sun's azimuth); the axis is k = Y × w = (w_z, 0, −w_x) and
+    R = I cos θ + sin θ [k]ₓ + (1 − cos θ) k kᵀ, which takes +Y to
+    Y cos θ + w sin θ.
+    """
+    d = np.radians(direction_deg)
+    k = np.array([np.cos(d), 0.0, -np.sin(d)])
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    c, s = np.cos(theta)[:, None, None], np.sin(theta)[:, None, None]
+    return c * np.eye(3) + s * kx + (1.0 - c) * np.outer(k, k)
+
+
+def tree_matrices(instances: InstanceSet, time_s: float, wind) -> np.ndarray:
+    """Object→world (N, 4, 4): T(p) · R_sway(θ(t)) · R(q) · S(s); the sway pivots at the trunk base."""
+    m = instances.matrices()
+    if wind.strength > 0 and len(instances):
+        r = sway_rotation(sway_angles(instances.phase, time_s, wind), wind.direction)
+        m[:, :3, :3] = r @ m[:, :3, :3]
+    return m
+
+
+@dataclass
+class ForestGraph:
+    """A forest as scene-dict entries plus what it cost."""
+    entries: dict                 # shapegroups, shared BSDFs and instances, ready for a scene dict
+    instance_rows: np.ndarray     # row of the InstanceSet behind each instance key tree_<k>
+    trees: int
+    instanced_triangles: int
+    unique_triangles: int
+    shapegroups: int
+    lod_counts: dict = field(default_factory=dict)
+
+
+class ForestBuilder:
+    """Resolves species once, then builds per-frame instance graphs for one variant."""
+
+    def __init__(self, config, instances: InstanceSet, library, materials: MaterialBuilder):
+        self.config = config
+        self.instances = instances
+        self.materials = materials
+        self.variant = materials.variant
+        self.species = []
+        for i, model in enumerate(instances.species_names):
+            try:
+                sp = library.resolve(model, config.base_dir)
+            except ForestError as e:
+                raise ForestError(f"{config.path}: species model {model!r}: {e}") from None
+            if not sp.lods:
+                raise ForestError(f"{config.path}: species model {model!r} has no levels of detail")
+            self.species.append(sp)
+        self.n_lods = np.array([len(sp.lods) for sp in self.species] or [1], dtype=np.int64)
+        self._bsdf_ids: dict = {}
+        self._bsdfs: dict = {}
+
+    def levels(self, camera_position) -> np.ndarray:
+        inst = self.instances
+        if not len(inst):
+            return np.zeros(0, dtype=np.int64)
+        return lod_levels(inst.position, camera_position, self.config.lod.distances,
+                          self.n_lods[inst.species.astype(np.int64)])
+
+    def _bsdf_ref(self, part) -> dict:
+        key = (part.kind, tuple(np.round(np.asarray(part.colour, float), 6)), str(getattr(part, "texture", None)),
+               bool(getattr(part, "tinted", False)), round(float(getattr(part, "translucency", 0.0) or 0.0), 6))
+        if key not in self._bsdf_ids:
+            bid = f"bsdf_{len(self._bsdf_ids)}"
+            self._bsdf_ids[key] = bid
+            self._bsdfs[bid] = self.materials.part_bsdf(part)
+        return {"type": "ref", "id": self._bsdf_ids[key]}
+
+    def shapegroup(self, s: int, level: int) -> dict:
+        lod = self.species[s].lods[level]
+        group = {"type": "shapegroup"}
+        for k, part in enumerate(lod.parts):
+            group[f"part_{k}"] = {"type": "ply", "filename": str(part.path), "bsdf": self._bsdf_ref(part)}
+        if len(group) == 1:
+            raise ForestError(f"species {self.instances.species_names[s]!r} LOD {lod.name} has no parts")
+        return group
+
+    def graph(self, levels: np.ndarray, matrices: np.ndarray) -> ForestGraph:
+        """Scene entries for every tree: ``sg_<species>_<lod>`` shapegroups and ``tree_<row>`` instances."""
+        mi = mitsuba(self.variant)
+        inst = self.instances
+        species = inst.species.astype(np.int64)
+        entries: dict = {}
+        tris = {}
+        lod_counts: dict = {}
+        keys = species * 8 + levels
+        used = np.unique(keys)
+        for key in used.tolist():
+            s, level = divmod(key, 8)
+            entries[f"sg_{s}_{level}"] = self.shapegroup(s, level)
+            tris[key] = int(self.species[s].lods[level].triangles)
+        counts = np.bincount(levels, minlength=4) if len(levels) else np.zeros(4, np.int64)
+        lod_counts = {LOD_NAMES[i] if i < 4 else str(i): int(c) for i, c in enumerate(counts) if c}
+        tri_per_key = np.zeros(int(keys.max()) + 1 if len(keys) else 1, dtype=np.int64)
+        for key, t in tris.items():
+            tri_per_key[key] = t
+        instanced = int(tri_per_key[keys].sum()) if len(keys) else 0
+        refs = {key: {"type": "ref", "id": f"sg_{key // 8}_{key % 8}"} for key in used.tolist()}
+        T, M4 = mi.ScalarTransform4f, mi.ScalarMatrix4f      # T(M4(array)): 3× faster than T(array)
+        mats = np.ascontiguousarray(matrices, dtype=np.float64)
+        for row, (key, m) in enumerate(zip(keys.tolist(), mats)):
+            entries[f"tree_{row}"] = {"type": "instance", "shapegroup": refs[key], "to_world": T(M4(m))}
+        # Shared BSDFs go first so references resolve.
+        out = dict(self._bsdfs)
+        out.update(entries)
+        return ForestGraph(entries=out, instance_rows=np.arange(len(inst)), trees=len(inst),
+                           instanced_triangles=instanced, unique_triangles=int(sum(tris.values())),
+                           shapegroups=len(used), lod_counts=lod_counts)

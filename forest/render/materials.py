@@ -1,0 +1,120 @@
+"""Materials of library parts, per Mitsuba variant.
+
+For a part with base colour c (linear RGB), optional texture (RGB = a linear
+*detail factor*, alpha = card mask; see ``forest.library.textures``), tint
+flag and translucency τ, the surface albedo at a hit x with uv (u, v) is
+
+    a(x) = c · detail(u, v) · M(x)        (M = colour map at x's world position,
+                                           1 where the part is not tinted)
+
+Leaves split it into reflection R = (1 − τ)·a and diffuse transmission T = τ·a
+with the ``forest_leaf`` plugin (``plugins/leaf.py``); bark and imported
+surfaces are two-sided Lambertian.  Opacity is the texture's alpha (``mask``).
+
+Per variant:
+
+* JIT variants (``llvm_ad_rgb``, ``cuda_ad_rgb``) — exact: ``forest_leaf`` and
+  ``forest_product`` (detail × map) are Python plugins traced once per kernel.
+* ``scalar_rgb`` — Python plugins run once per sample there: measured
+  ~3 µs per sample, 30× a native two-sided ``diffuse`` on a card scene
+  (``bench/bench_render_plugins.py``), which would turn a 3-minute frame into
+  an hour and a half.  So leaves are native two-sided
+  Lambertian with albedo a (transmission folded into reflection), and a
+  tinted textured part takes the map × c × mean(detail over the card) —
+  the texture's alpha still cuts the card; its detail modulation is averaged.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from ..images import read_image, srgb_to_linear
+from ..runtime import mitsuba
+from .scene import colour_grid_texture
+
+
+def uses_python_plugins(variant: str) -> bool:
+    """True where forest's Python plugins are cheap (traced once): the JIT variants."""
+    return not variant.startswith("scalar")
+
+
+@lru_cache(maxsize=64)
+def _texture_arrays(path: str) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """(detail RGB linear (H, W, 3), alpha (H, W, 1) or None, mean detail where alpha ≥ ½)."""
+    img = read_image(path, what="leaf texture", unassociated=True)   # straight alpha, as stored
+    c = img.shape[2]
+    rgb = img[..., :3] if c >= 3 else np.repeat(img[..., :1], 3, axis=2)
+    rgb = srgb_to_linear(rgb) if Path(path).suffix.lower() not in (".exr", ".hdr") else rgb
+    alpha = img[..., 3:4] if c == 4 else (img[..., 1:2] if c == 2 else None)
+    mask = (alpha[..., 0] >= 0.5) if alpha is not None else np.ones(rgb.shape[:2], bool)
+    mean = rgb[mask].mean(axis=0) if mask.any() else rgb.reshape(-1, 3).mean(axis=0)
+    return np.ascontiguousarray(rgb, np.float32), (None if alpha is None else np.ascontiguousarray(alpha, np.float32)), mean
+
+
+def _bitmap(mi, array: np.ndarray) -> dict:
+    return {"type": "bitmap", "bitmap": mi.Bitmap(np.ascontiguousarray(array, dtype=np.float32)),
+            "raw": True, "filter_type": "bilinear", "wrap_mode": "repeat"}
+
+
+class MaterialBuilder:
+    """Builds (and caches) the BSDF dict of each part for one variant and one colour map.
+
+    ``colour_grid`` is the colour map as (H, W, 3) linear RGB in the map
+    convention (None: no map, tints are 1); ``extent``/``height_range`` place
+    it over the terrain.
+    """
+
+    def __init__(self, variant: str, colour_grid: np.ndarray | None, extent, height_range):
+        self.variant = variant
+        self.mi = mitsuba(variant)
+        self.exact = uses_python_plugins(variant)
+        self.grid = None if colour_grid is None else np.asarray(colour_grid, np.float32)
+        self.extent = extent
+        self.height_range = height_range
+        self.leaf_model = "forest_leaf" if self.exact else "twosided-diffuse"
+
+    # -- albedo textures ---------------------------------------------------------
+    def _albedo(self, colour, tinted: bool, texture: Path | None, share: float) -> dict:
+        mi = self.mi
+        c = np.asarray(colour, np.float32) * np.float32(share)
+        detail = alpha = None
+        if texture is not None:
+            detail, alpha, mean = _texture_arrays(str(texture))
+        if tinted and self.grid is not None:
+            if detail is not None and self.exact:
+                return {"type": "forest_product", "a": _bitmap(mi, detail),
+                        "b": colour_grid_texture(self.grid * c, self.extent, self.height_range, self.variant)}
+            scale = c * (mean if detail is not None else 1.0)
+            return colour_grid_texture(self.grid * scale, self.extent, self.height_range, self.variant)
+        if detail is not None:
+            return _bitmap(mi, detail * c)
+        return {"type": "rgb", "value": [float(x) for x in c]}
+
+    def _opacity(self, texture: Path | None) -> dict | None:
+        if texture is None:
+            return None
+        _, alpha, _ = _texture_arrays(str(texture))
+        if alpha is None or float(alpha.min()) >= 1.0:
+            return None
+        return _bitmap(self.mi, alpha)
+
+    # -- BSDFs -------------------------------------------------------------------
+    def part_bsdf(self, part) -> dict:
+        """The BSDF dict of one library part (see the module docstring)."""
+        texture = getattr(part, "texture", None)
+        tinted = bool(getattr(part, "tinted", False))
+        tau = float(getattr(part, "translucency", 0.0) or 0.0)
+        if part.kind == "leaf" and self.exact and tau > 0:
+            bsdf = {"type": "forest_leaf",
+                    "reflectance": self._albedo(part.colour, tinted, texture, 1.0 - tau),
+                    "transmittance": self._albedo(part.colour, tinted, texture, tau)}
+        else:
+            bsdf = {"type": "twosided",
+                    "material": {"type": "diffuse", "reflectance": self._albedo(part.colour, tinted, texture, 1.0)}}
+        opacity = self._opacity(texture)
+        if opacity is not None:
+            bsdf = {"type": "mask", "opacity": opacity, "material": bsdf}
+        return bsdf

@@ -1,0 +1,281 @@
+"""Scene-building pieces shared by the renderer and look-dev: camera, lights, colour grid, terrain.
+
+Every function returns a plain Mitsuba scene-description dict (``mi.load_dict``
+input), so callers can nest them, swap pieces or traverse their parameters.
+
+Conventions (see DESIGN.md): metres, Y up; the camera looks along +Z of its
+frame with +X to the left (:func:`forest.camera.look_at_matrix`); the field of
+view is horizontal (``fov_axis = "x"``).  Sun azimuth is measured clockwise
+from +Z (north) towards +X (east), elevation above the horizon, so the unit
+vector towards the sun is
+
+    s = (sin A · cos E,  sin E,  cos A · cos E)
+
+and the ``directional`` emitter's propagation direction is −s.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..camera import camera_at, look_at_matrix
+from ..errors import ForestError
+from ..runtime import mitsuba
+
+#: Height margin (metres) added above and below the terrain's height range for the
+#: colour-grid box.  The grid is constant along Y and clamps outside its box, so
+#: any margin is exact; a wide one keeps tall trees and overhangs inside.
+GRID_Y_MARGIN = 10_000.0
+
+OVERRIDE_KEYS = ("sun_irradiance", "sun_colour", "sky_radiance", "sky_colour", "envmap_scale")
+
+
+def _is_scalar(variant: str) -> bool:
+    return variant.startswith("scalar")
+
+
+def transform(variant: str, matrix) -> object:
+    """A ``ScalarTransform4f`` from a 4×4 array (scene dicts always take scalar transforms)."""
+    mi = mitsuba(variant)
+    return mi.ScalarTransform4f(np.asarray(matrix, dtype=np.float64))
+
+
+def _rgb(value) -> dict:
+    v = [float(x) for x in value]
+    return {"type": "rgb", "value": v}
+
+
+# ---------------------------------------------------------------------------
+# Camera
+# ---------------------------------------------------------------------------
+
+def sensor_dict(config, frame: float = 1.0, width: int | None = None, height: int | None = None,
+                spp: int | None = None, variant: str = "scalar_rgb", *, seed: int | None = None,
+                rfilter: str = "box") -> dict:
+    """A ``perspective`` sensor at ``frame`` of the config's camera path.
+
+    The camera-to-world matrix comes from :func:`forest.camera.look_at_matrix`
+    of the interpolated position/target (:func:`forest.camera.camera_at`).
+    ``width``/``height``/``spp`` default to ``[render]``; the sampler is
+    ``independent`` seeded with ``seed`` (default ``[render] seed``) so a render
+    is reproducible.  The default ``box`` pixel filter keeps every sample inside
+    its own pixel, so ``scalar_rgb``'s threads never add into the same pixel
+    and the image is bit-identical run to run (a wider filter makes the sum
+    order, hence the last bits, depend on thread timing).
+    """
+    cam = config.camera
+    rc = config.render
+    state = camera_at(cam, frame)
+    m = look_at_matrix(state.position, state.target, state.up)
+    return {
+        "type": "perspective",
+        "fov": float(state.fov),
+        "fov_axis": "x",
+        "near_clip": float(cam.near),
+        "far_clip": float(cam.far),
+        "to_world": transform(variant, m),
+        "film": {
+            "type": "hdrfilm",
+            "width": int(width or rc.width),
+            "height": int(height or rc.height),
+            "pixel_format": "rgb",
+            "component_format": "float32",
+            "rfilter": {"type": rfilter},
+        },
+        "sampler": {"type": "independent", "sample_count": int(spp or rc.spp),
+                    "seed": int(rc.seed if seed is None else seed)},
+    }
+
+
+# ---------------------------------------------------------------------------
+# Lights
+# ---------------------------------------------------------------------------
+
+def sun_vector(elevation: float, azimuth: float) -> np.ndarray:
+    """Unit vector towards the sun: (sin A cos E, sin E, cos A cos E), degrees in."""
+    e, a = math.radians(elevation), math.radians(azimuth)
+    return np.array([math.sin(a) * math.cos(e), math.sin(e), math.cos(a) * math.cos(e)])
+
+
+def _check_overrides(overrides: dict | None) -> dict:
+    o = dict(overrides or {})
+    unknown = sorted(set(o) - set(OVERRIDE_KEYS))
+    if unknown:
+        raise ForestError(f"light overrides: unknown key {unknown[0]!r} (expected one of {', '.join(OVERRIDE_KEYS)})")
+    for k in ("sun_irradiance", "sky_radiance", "envmap_scale"):
+        if k in o and (not isinstance(o[k], (int, float)) or not math.isfinite(o[k]) or o[k] < 0):
+            raise ForestError(f"light overrides: {k} must be a number >= 0, got {o[k]!r}")
+    for k in ("sun_colour", "sky_colour"):
+        if k in o:
+            v = np.asarray(o[k], dtype=np.float64).ravel()
+            if v.shape != (3,) or not np.isfinite(v).all() or (v < 0).any():
+                raise ForestError(f"light overrides: {k} must be 3 numbers >= 0, got {o[k]!r}")
+            o[k] = v
+    return o
+
+
+def emitter_dicts(config, variant: str, overrides: dict | None = None) -> dict[str, dict]:
+    """Emitters for ``[lights]``: ``{"sun": directional, "sky": constant | envmap | sunsky}``.
+
+    * sun — ``directional`` with irradiance = ``irradiance · colour`` (W/m² per
+      RGB channel) travelling along −s (see the module docstring); left out
+      when the sun is at or below the horizon.
+    * sky — ``constant`` radiance ``radiance · colour``; or an ``envmap``
+      (latitude–longitude, +Y up) scaled by ``scale``; or Mitsuba's ``sunsky``
+      (Hosek–Wilkie sky + sun) pointed at the ``[lights.sun]`` direction, which
+      then replaces the directional sun.
+
+    ``overrides`` (look-dev) replaces ``sun_irradiance`` (float), ``sun_colour``
+    (3), ``sky_radiance`` (float), ``sky_colour`` (3), ``envmap_scale`` (float).
+    """
+    mitsuba(variant)
+    o = _check_overrides(overrides)
+    lights = config.lights
+    out: dict[str, dict] = {}
+    sun = lights.sun
+    sky = lights.sky
+    if sky is not None and sky.kind == "sunsky":
+        el, az = (sun.elevation, sun.azimuth) if sun is not None else (35.0, 120.0)
+        # The physical sun's strength comes from the model; an irradiance override scales it
+        # relative to the configured irradiance.
+        sun_scale = 1.0
+        if "sun_irradiance" in o and sun is not None and sun.irradiance > 0:
+            sun_scale = float(o["sun_irradiance"]) / sun.irradiance
+        out["sky"] = {"type": "sunsky", "sun_direction": [float(x) for x in sun_vector(el, az)],
+                      "turbidity": float(sky.turbidity), "albedo": float(sky.albedo),
+                      "sky_scale": float(o.get("envmap_scale", sky.scale)),
+                      "sun_scale": float(sky.scale * sun_scale)}
+        return out
+    if sun is not None:
+        irr = float(o.get("sun_irradiance", sun.irradiance))
+        col = np.asarray(o.get("sun_colour", sun.colour), dtype=np.float64)
+        if sun.elevation > 0 and irr > 0:
+            d = -sun_vector(sun.elevation, sun.azimuth)
+            out["sun"] = {"type": "directional", "direction": [float(x) for x in d],
+                          "irradiance": _rgb(irr * col)}
+    if sky is not None:
+        if sky.kind == "envmap":
+            out["sky"] = {"type": "envmap", "filename": str(sky.envmap),
+                          "scale": float(o.get("envmap_scale", sky.scale))}
+        else:
+            rad = float(o.get("sky_radiance", sky.radiance))
+            col = np.asarray(o.get("sky_colour", sky.colour), dtype=np.float64)
+            out["sky"] = {"type": "constant", "radiance": _rgb(rad * col)}
+    if not out:
+        raise ForestError(f"{config.path}: lights: no light left (sun below the horizon and no sky)")
+    return out
+
+
+# ---------------------------------------------------------------------------
+# Colour grid: a map evaluated at each hit's world position
+# ---------------------------------------------------------------------------
+
+def grid_to_world(extent, height_range) -> np.ndarray:
+    """4×4 matrix mapping the grid's unit cube onto the terrain box.
+
+    Local (x, y, z) ∈ [0, 1]³ → world (xmin + x·(xmax−xmin), y0 + y·(y1−y0),
+    zmin + z·(zmax−zmin)), with y0/y1 the height range widened by
+    :data:`GRID_Y_MARGIN`.
+    """
+    xmin, zmin, xmax, zmax = (float(v) for v in extent)
+    y0 = float(height_range[0]) - GRID_Y_MARGIN
+    y1 = float(height_range[1]) + GRID_Y_MARGIN
+    m = np.eye(4)
+    m[0, 0], m[1, 1], m[2, 2] = max(xmax - xmin, 1e-9), y1 - y0, max(zmax - zmin, 1e-9)
+    m[:3, 3] = (xmin, y0, zmin)
+    return m
+
+
+def colour_grid_texture(grid, extent, height_range, variant: str, *, filter_type: str = "trilinear") -> dict:
+    """A ``volume`` texture over a ``gridvolume`` laid on the terrain's box.
+
+    ``grid`` is (H, W, 3) linear RGB in the map convention (row i → +Z with
+    row 0 at ``zmin``, column j → +X).  Mitsuba's grid layout is (z, y, x, c),
+    so the data is ``grid[:, None, :, :]`` — one cell along Y, which the
+    texture clamps, making the colour independent of height.  Texel centres
+    sit at pixel centres, x = xmin + (j + ½)·Δx, z = zmin + (i + ½)·Δz, as in
+    the map convention; ``trilinear`` interpolates between them, ``nearest``
+    returns the pixel's own value.  Lookups outside the box clamp to the edge.
+
+    Every shape using this texture as a reflectance takes its colour from the
+    map at the hit's *world* position, so all instances of one shapegroup are
+    tinted where they stand.  In JIT variants the data is a differentiable
+    ``TensorXf`` (parameter ``….volume.data``).
+    """
+    mi = mitsuba(variant)
+    g = np.asarray(grid, dtype=np.float32)
+    if g.ndim != 3 or g.shape[2] != 3 or g.shape[0] < 1 or g.shape[1] < 1:
+        raise ForestError(f"colour grid must be (H, W, 3), got shape {g.shape}")
+    if not np.isfinite(g).all():
+        raise ForestError("colour grid contains NaN or infinite values")
+    data = np.ascontiguousarray(g[:, None, :, :])
+    vol = {"type": "gridvolume", "filter_type": filter_type, "wrap_mode": "clamp",
+           "to_world": transform(variant, grid_to_world(extent, height_range))}
+    if _is_scalar(variant):
+        vol["grid"] = mi.VolumeGrid(data)
+    else:
+        vol["data"] = mi.TensorXf(data)
+    return {"type": "volume", "volume": vol}
+
+
+# ---------------------------------------------------------------------------
+# Terrain
+# ---------------------------------------------------------------------------
+
+def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "terrain"):
+    """The terrain as a Mitsuba ``Mesh`` object (positions, faces, smooth normals, uv) with ``bsdf``."""
+    mi = mitsuba(variant)
+    v = np.asarray(terrain.vertices, dtype=np.float32)
+    f = np.asarray(terrain.faces, dtype=np.uint32)
+    props = mi.Properties()
+    if bsdf is not None:
+        props["bsdf"] = mi.load_dict(bsdf)
+    mesh = mi.Mesh(name, vertex_count=len(v), face_count=len(f), has_vertex_normals=True,
+                   has_vertex_texcoords=True, props=props)
+    params = mi.traverse(mesh)
+    conv = (lambda a: a.ravel()) if _is_scalar(variant) else (lambda a: mi.Float(a.ravel()))
+    params["vertex_positions"] = conv(v)
+    params["faces"] = f.ravel() if _is_scalar(variant) else mi.UInt32(f.ravel())
+    params["vertex_normals"] = conv(np.asarray(terrain.vertex_normals, dtype=np.float32))
+    params["vertex_texcoords"] = conv(np.asarray(terrain.uv, dtype=np.float32))
+    params.update()
+    return mesh
+
+
+def terrain_reflectance(config, terrain, variant: str, colour_grid: np.ndarray | None = None) -> dict:
+    """The terrain's reflectance: its own texture, else ``terrain_colour`` × the colour map.
+
+    ``[render] terrain_texture`` (an image laid over the extent in the map
+    convention, evaluated by world position like the colour grid) wins;
+    otherwise ``terrain_colour`` multiplies the colour map (``colour_grid``,
+    linear RGB, white = untinted) when there is one, else a constant
+    ``terrain_colour``.
+    """
+    rc = config.render
+    tex_path = getattr(rc, "terrain_texture", None)
+    base = np.asarray(rc.terrain_colour, dtype=np.float32)
+    if tex_path is not None:
+        from ..images import read_map_rgb
+        grid = read_map_rgb(tex_path, what="terrain texture")
+        return colour_grid_texture(grid, terrain.extent, terrain.height_range, variant)
+    if colour_grid is not None:
+        return colour_grid_texture(np.asarray(colour_grid, np.float32) * base, terrain.extent,
+                                   terrain.height_range, variant)
+    return _rgb(base)
+
+
+def terrain_dict(config, terrain, variant: str, colour_grid: np.ndarray | None = None):
+    """The terrain as a scene child: a ``Mesh`` object with a diffuse BSDF.
+
+    The returned object goes into a scene dict like any shape dict
+    (``scene["terrain"] = terrain_dict(...)``).  Reflectance: see
+    :func:`terrain_reflectance`; when ``colour_grid`` is None and ``[maps]
+    colour`` is set, the map is read here (linear RGB, map convention).
+    """
+    if colour_grid is None and config.maps.colour is not None:
+        from ..images import read_map_rgb
+        colour_grid = read_map_rgb(config.maps.colour, what="colour map")
+    bsdf = {"type": "diffuse", "reflectance": terrain_reflectance(config, terrain, variant, colour_grid)}
+    return terrain_mesh(terrain, variant, bsdf)

@@ -1,0 +1,237 @@
+"""The data folder, asset names and upload checks.
+
+Layout of a data folder::
+
+    jobs.sqlite3            the store (WAL)
+    assets/                 uploaded maps, meshes and reference photos (flat names)
+    configs/                example scene configs offered by the web page (optional)
+    jobs/<id>/              one folder per job: its config, linked assets, outputs, log
+
+A job's config names its assets by paths relative to its own folder, exactly as a
+config on disk names paths relative to the file.  At submission every string in the
+config that looks like a file path is checked: it must be relative, must not climb
+(``..``), and must name a file inside ``assets/`` (after resolving symlinks).  The file
+is then hard-linked (or copied) into the job's folder under the same relative path, so
+each job is self-contained and later uploads cannot change it.
+
+Uploads are accepted only when OpenImageIO reads them as an image or trimesh reads them
+as a mesh with at least one triangle; anything else is refused before it is stored.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import tempfile
+from pathlib import Path, PurePosixPath
+from typing import Any, Iterator
+
+IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr")
+MESH_EXTS = (".ply", ".obj", ".stl", ".glb", ".gltf", ".off")
+ASSET_EXTS = IMAGE_EXTS + MESH_EXTS
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+
+
+class AssetError(Exception):
+    """A bad asset name, path or upload; ``status`` is the HTTP status to answer with."""
+
+    def __init__(self, message: str, status: int = 422):
+        super().__init__(message)
+        self.status = status
+
+
+class DataDir:
+    """Paths inside the service's data folder."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root).resolve()
+        self.assets = self.root / "assets"
+        self.jobs = self.root / "jobs"
+        self.configs = self.root / "configs"
+        for p in (self.root, self.assets, self.jobs):
+            p.mkdir(parents=True, exist_ok=True)
+        self.db = self.root / "jobs.sqlite3"
+
+    def lock(self):
+        """Hold an exclusive lock on the data folder (one service per folder); None if another holds it.
+
+        Returns the open lock file; the lock lasts while it stays open (and dies with the process).
+        """
+        import fcntl
+        f = open(self.root / "service.lock", "a+")
+        try:
+            fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            f.close()
+            return None
+        return f
+
+    def job_dir(self, job_id: str) -> Path:
+        if not re.fullmatch(r"[0-9a-f]{32}", job_id):
+            raise AssetError(f"bad job id {job_id!r}", 404)
+        return self.jobs / job_id
+
+    def asset_path(self, name: str, *, field: str = "asset") -> Path:
+        """Resolve an asset path strictly inside ``assets/``; raise :class:`AssetError` otherwise."""
+        rel = check_relative(name, field=field)
+        p = (self.assets / rel).resolve()
+        if not is_inside(p, self.assets):
+            raise AssetError(f"{field}: {name!r} resolves outside the data folder")
+        if not p.is_file():
+            raise AssetError(f"{field}: asset {name!r} not found; upload it first (PUT /assets/{name})")
+        return p
+
+    def list_assets(self) -> list[dict]:
+        out = []
+        for p in sorted(self.assets.rglob("*")):
+            if p.is_file() and not p.name.startswith("."):
+                out.append({"name": p.relative_to(self.assets).as_posix(), "bytes": p.stat().st_size,
+                            "kind": asset_kind(p.name)})
+        return out
+
+
+def is_inside(path: Path, root: Path) -> bool:
+    try:
+        path.relative_to(root)
+        return True
+    except ValueError:
+        return False
+
+
+def check_relative(name: str, *, field: str) -> PurePosixPath:
+    """A relative POSIX path without ``..``, empty parts or drive letters."""
+    if not isinstance(name, str) or not name or len(name) > 512 or "\x00" in name:
+        raise AssetError(f"{field}: must be a non-empty relative path")
+    if "\\" in name or name.startswith(("/", "~")) or re.match(r"^[A-Za-z]:", name):
+        raise AssetError(f"{field}: {name!r} must be a relative path inside the data folder")
+    p = PurePosixPath(name)
+    if any(part in ("..", "") for part in p.parts) or name.endswith("/"):
+        raise AssetError(f"{field}: {name!r} must not contain '..'")
+    if p.parts and p.parts[0] == ".":
+        p = PurePosixPath(*p.parts[1:]) if len(p.parts) > 1 else p
+    return p
+
+
+def asset_kind(name: str) -> str | None:
+    ext = Path(name).suffix.lower()
+    if ext in IMAGE_EXTS:
+        return "image"
+    if ext in MESH_EXTS:
+        return "mesh"
+    return None
+
+
+def path_strings(data: Any, where: str = "") -> Iterator[tuple[str, str]]:
+    """Every string value in a TOML tree, with its dotted field name."""
+    if isinstance(data, dict):
+        for k, v in data.items():
+            yield from path_strings(v, f"{where}.{k}" if where else str(k))
+    elif isinstance(data, list):
+        for i, v in enumerate(data):
+            yield from path_strings(v, f"{where}[{i}]")
+    elif isinstance(data, str):
+        yield where, data
+
+
+def looks_like_path(s: str) -> bool:
+    return ("/" in s or "\\" in s or s.startswith("~") or Path(s).suffix.lower() in ASSET_EXTS
+            or bool(re.match(r"^[A-Za-z]:", s)))
+
+
+def collect_assets(data: dict, datadir: DataDir) -> dict[str, Path]:
+    """Check every path-like string of a parsed config; return ``{relative name: asset file}``."""
+    out: dict[str, Path] = {}
+    for field, s in path_strings(data):
+        if not looks_like_path(s):
+            continue
+        rel = check_relative(s, field=f"config: {field}")
+        if Path(s).suffix.lower() not in ASSET_EXTS:
+            raise AssetError(f"config: {field}: {s!r} is not an image or mesh asset "
+                             f"(expected one of {', '.join(ASSET_EXTS)})")
+        out[rel.as_posix()] = datadir.asset_path(rel.as_posix(), field=f"config: {field}")
+    return out
+
+
+def link_into(job_dir: Path, assets: dict[str, Path]) -> None:
+    """Hard-link (or copy) each asset into the job folder under its relative name."""
+    for rel, src in assets.items():
+        dst = job_dir / rel
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        if dst.exists():
+            continue
+        try:
+            os.link(src, dst)
+        except OSError:
+            shutil.copyfile(src, dst)
+
+
+# -- uploads --------------------------------------------------------------------
+
+def check_image(path: Path) -> dict:
+    """Open with OpenImageIO and read the pixels; raise :class:`AssetError` if it is not an image."""
+    import numpy as np
+    import OpenImageIO as oiio
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()
+        raise AssetError("upload is not a readable image", 415)
+    try:
+        spec = inp.spec()
+        if spec.width <= 0 or spec.height <= 0 or spec.width * spec.height > 16384 * 16384:
+            raise AssetError(f"image size {spec.width}x{spec.height} is out of range", 422)
+        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        if data is None or not hasattr(data, "shape"):
+            inp.geterror()
+            raise AssetError("upload is a corrupt image", 415)
+        if not np.isfinite(np.asarray(data)).all():
+            raise AssetError("image contains NaN or infinite values", 422)
+        return {"width": spec.width, "height": spec.height, "channels": spec.nchannels}
+    finally:
+        inp.close()
+
+
+def check_mesh(path: Path) -> dict:
+    """Load with trimesh; refuse anything without finite vertices and at least one face."""
+    import numpy as np
+    import trimesh
+    try:
+        m = trimesh.load(str(path), force="mesh", process=False)
+    except Exception as e:  # noqa: BLE001 - any parser failure means "not a mesh"
+        raise AssetError(f"upload is not a readable mesh: {type(e).__name__}", 415) from None
+    faces = getattr(m, "faces", None)
+    verts = getattr(m, "vertices", None)
+    if faces is None or verts is None or len(faces) == 0:
+        raise AssetError("upload is not a mesh with triangles", 415)
+    if not np.isfinite(np.asarray(verts)).all():
+        raise AssetError("mesh has NaN or infinite vertices", 422)
+    return {"vertices": int(len(verts)), "triangles": int(len(faces))}
+
+
+def store_upload(datadir: DataDir, name: str, chunks: Iterator[bytes], max_bytes: int) -> dict:
+    """Stream an upload to a temporary file, check it, and move it to ``assets/name`` atomically."""
+    if not NAME_RE.fullmatch(name or "") or name in (".", ".."):
+        raise AssetError(f"asset name {name!r}: use letters, digits, '.', '-' or '_' (up to 128)", 422)
+    kind = asset_kind(name)
+    if kind is None:
+        raise AssetError(f"asset name {name!r}: extension must be one of {', '.join(ASSET_EXTS)}", 415)
+    fd, tmp = tempfile.mkstemp(prefix=".upload.", suffix=Path(name).suffix.lower(), dir=datadir.assets)
+    tmp_path = Path(tmp)
+    try:
+        size = 0
+        with os.fdopen(fd, "wb") as f:
+            for chunk in chunks:
+                size += len(chunk)
+                if size > max_bytes:
+                    raise AssetError(f"upload is larger than the {max_bytes} byte limit", 413)
+                f.write(chunk)
+        if size == 0:
+            raise AssetError("upload is empty", 422)
+        info = check_image(tmp_path) if kind == "image" else check_mesh(tmp_path)
+        os.chmod(tmp_path, 0o644)
+        dest = datadir.assets / name
+        os.replace(tmp_path, dest)
+        return {"name": name, "kind": kind, "bytes": size, **info}
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
