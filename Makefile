@@ -8,7 +8,7 @@ setup:
 
 demo: setup
 	.venv/bin/forest scatter configs/demo.toml -o out/demo_trees.npz
-	.venv/bin/forest render configs/demo.toml -o out/demo.exr
+	.venv/bin/forest render configs/demo.toml --instances out/demo_trees.npz -o out/demo.exr
 
 test: setup
 	.venv/bin/python -m pytest -q -p no:cacheprovider tests

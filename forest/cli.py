@@ -45,6 +45,7 @@ COMMAND_MODULES = (
     "library",
     "serve",
     "export",
+    "match",
 )
 
 for _name in COMMAND_MODULES:

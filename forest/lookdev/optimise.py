@@ -1,0 +1,278 @@
+"""The optimiser: Adam on the look's parameters through Mitsuba's ``prb`` integrator.
+
+Each iteration k renders the proxy at ``spp`` samples with its own seed
+(decorrelated noise from one iteration to the next; Mitsuba also draws the
+adjoint pass with a seed decorrelated from the primal one, so the gradient of
+a squared loss is unbiased), evaluates the loss, back-propagates, and takes
+one Adam step (Kingma & Ba 2015) on
+
+* ``grid``        — the colour grid, clamped to [0, 1] after every step
+                    (aligned mode), or a global ``tint`` (statistics mode);
+* ``sun_log``, ``sun_chroma`` — log irradiance and a free positive 3-vector
+                    whose unit-luminance normalisation is the sun colour;
+* ``sky_log``, ``sky_chroma`` — the same for a constant sky, or ``env_log``
+                    for an environment map's scale.
+
+**Schedule.**  The learning rate follows a cosine from its base value down to
+2 % of it, η_k = η₀ (0.02 + 0.98 · ½ (1 + cos π k/K)); with Adam's
+normalised steps this shrinks the noise-driven jitter of the iterates in
+proportion.  The result is the **average of the iterates** over the last
+quarter of the run (Polyak & Juditsky 1992) — logs averaged for
+intensities — which removes most of the remaining Monte-Carlo jitter, so a
+few samples per pixel per iteration reach the accuracy of a high-spp fit.
+
+**Sun direction.**  Mitsuba 3.9.1's ``prb`` gives no gradient for a
+``directional`` emitter's direction, so with ``sun_direction`` among the
+parameters a coarse-to-fine search runs once, a third of the way in: a 3×3
+pattern of (elevation, azimuth) offsets of ±6°, then ±2° around the best,
+each candidate rendered with the *same* seed (common random numbers, so the
+comparison is not swamped by noise).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .colour import luminance_weights
+from .state import MIN_SKY_FRACTION, LookState
+
+BASE_LR = {"grid": 0.04, "tint": 0.03, "sun_log": 0.05, "sun_chroma": 0.03,
+           "sky_log": 0.05, "sky_chroma": 0.03, "env_log": 0.05}
+FINAL_LR_FRACTION = 0.02
+AVERAGE_FRACTION = 0.25
+SEARCH_AT = 0.3
+
+
+@dataclass
+class Fit:
+    start: LookState
+    result: LookState
+    losses: list[float]
+    trajectories: dict[str, list[float]]
+    fitted: tuple[str, ...]
+    warnings: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+    search: list[tuple[float, float, float]] = field(default_factory=list)   # (elevation, azimuth, loss)
+
+
+def lr_factor(k: int, iterations: int) -> float:
+    """Cosine decay from 1 to :data:`FINAL_LR_FRACTION`."""
+    t = k / max(iterations - 1, 1)
+    return FINAL_LR_FRACTION + (1.0 - FINAL_LR_FRACTION) * 0.5 * (1.0 + math.cos(math.pi * t))
+
+
+class _Variables:
+    """The drjit side of a :class:`LookState`: Adam variables and how they map onto the scene."""
+
+    def __init__(self, mi, proxy, start: LookState, groups: set[str], mode: str, base_grid: np.ndarray):
+        import drjit as dr
+        self.mi, self.dr, self.proxy, self.start, self.mode = mi, dr, proxy, start, mode
+        self.groups = groups
+        self.base_grid = np.asarray(base_grid, np.float64)
+        self.w = [float(x) for x in luminance_weights()]
+        self.opt = mi.ad.Adam(lr=0.01)
+        if "colour_map" in groups:
+            if mode == "aligned":
+                self.opt["grid"] = mi.Float(np.asarray(start.grid, np.float32).ravel())
+            else:
+                self.opt["tint"] = mi.Color3f(*[float(x) for x in start.tint])
+        if "sun" in groups and start.sun_irradiance is not None and proxy.sun_key is not None:
+            self.opt["sun_log"] = mi.Float(math.log(max(start.sun_irradiance, 1e-6)))
+            self.opt["sun_chroma"] = mi.Color3f(*[float(x) for x in start.sun_colour])
+        if "sky" in groups and proxy.sky_key is not None:
+            if proxy.sky_kind == "constant":
+                self.opt["sky_log"] = mi.Float(math.log(max(start.sky_radiance, 1e-6)))
+                self.opt["sky_chroma"] = mi.Color3f(*[float(x) for x in start.sky_colour])
+            elif proxy.sky_kind == "envmap":
+                self.opt["env_log"] = mi.Float(math.log(max(start.envmap_scale, 1e-6)))
+        self.base_lr = {k: BASE_LR[k] for k in self.opt.keys()}
+        self.state = start.copy()
+
+    def set_lr(self, factor: float) -> None:
+        self.opt.set_learning_rate({k: v * factor for k, v in self.base_lr.items()})
+
+    def _chroma(self, c):
+        y = self.w[0] * c.x + self.w[1] * c.y + self.w[2] * c.z
+        return c / y
+
+    def _sun_rgb(self):
+        o = self.opt
+        return self.dr.exp(o["sun_log"]) * self._chroma(o["sun_chroma"])
+
+    def _channels(self, c):
+        """A flat n·m·3 Float repeating the Color3f ``c`` per cell."""
+        dr, mi = self.dr, self.mi
+        idx = mi.UInt32(np.arange(self.base_grid.size, dtype=np.uint32) % 3)
+        return dr.select(idx == 0, c.x, dr.select(idx == 1, c.y, c.z))
+
+    def grid_expression(self):
+        """The colour map the scene sees: g (aligned) or min(t ⊙ m₀, 1) (statistics)."""
+        mi, dr, o = self.mi, self.dr, self.opt
+        if "grid" in o:
+            return o["grid"]
+        if "tint" in o:
+            return dr.clip(mi.Float(self.base_grid.astype(np.float32).ravel()) * self._channels(o["tint"]), 0.0, 1.0)
+        return None
+
+    def apply(self) -> None:
+        """Write the current variables (attached to the AD graph) into the scene."""
+        dr, o, p = self.dr, self.opt, self.proxy
+        g = self.grid_expression()
+        if g is not None:
+            p.set_grid(g)
+        if "sun_log" in o:
+            p.set_sun(self._sun_rgb())
+        if "sky_log" in o:
+            p.set_sky(dr.exp(o["sky_log"]) * self._chroma(o["sky_chroma"]))
+        elif "env_log" in o:
+            p.set_sky(dr.exp(o["env_log"]))
+        p.params.update()
+
+    def clamp(self) -> None:
+        dr, o = self.dr, self.opt
+        if "grid" in o:
+            o["grid"] = dr.clip(o["grid"], 0.0, 1.0)
+        if "tint" in o:
+            o["tint"] = dr.clip(o["tint"], 0.0, 1.0 / max(float(self.base_grid.max()), 1e-3))
+        for k in ("sun_chroma", "sky_chroma"):
+            if k in o:
+                o[k] = dr.maximum(o[k], 0.02)
+        for k in ("sun_log", "sky_log", "env_log"):
+            if k in o:
+                o[k] = dr.clip(o[k], -12.0, 12.0)
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        return {k: np.array(self.dr.detach(v), dtype=np.float64).ravel().copy() for k, v in self.opt.items()}
+
+    def to_state(self, snap: dict[str, np.ndarray]) -> LookState:
+        """A numpy LookState from a variable snapshot (chromaticities normalised, intensities exp'd)."""
+        s = self.start.copy()
+        w = np.asarray(self.w)
+        if "grid" in snap:
+            s.grid = np.clip(snap["grid"].reshape(self.start.grid.shape), 0.0, 1.0)
+        if "tint" in snap:
+            s.tint = snap["tint"].copy()
+            s.grid = np.clip(self.base_grid * s.tint, 0.0, 1.0)
+        if "sun_log" in snap:
+            s.sun_irradiance = float(math.exp(snap["sun_log"][0]))
+            s.sun_colour = snap["sun_chroma"] / float(snap["sun_chroma"] @ w)
+        if "sky_log" in snap:
+            s.sky_radiance = float(math.exp(snap["sky_log"][0]))
+            s.sky_colour = snap["sky_chroma"] / float(snap["sky_chroma"] @ w)
+        if "env_log" in snap:
+            s.envmap_scale = float(math.exp(snap["env_log"][0]))
+        return s
+
+
+def _record(traj: dict[str, list[float]], state: LookState, groups: set[str]) -> None:
+    """Append the fitted values of ``state`` to their trajectories."""
+    wanted = {"sun": ("sun irradiance", "sun colour"), "sun_direction": ("sun elevation", "sun azimuth"),
+              "sky": ("sky radiance", "sky colour", "sky scale")}
+    prefixes = tuple(p for g in groups for p in wanted.get(g, ()))
+    for k, v in state.light_values().items():
+        if k.startswith(prefixes):
+            traj.setdefault(k, []).append(v)
+    if "colour_map" in groups:
+        g = state.grid.reshape(-1, 3).mean(axis=0)
+        for ch, x in zip("rgb", g):
+            traj.setdefault(f"colour map mean {ch}", []).append(float(x))
+
+
+def optimise(proxy, loss, start: LookState, *, groups, mode: str = "aligned", iterations: int = 120, spp: int = 4,
+             seed: int = 0, progress=None, base_grid: np.ndarray | None = None) -> Fit:
+    """Fit ``groups`` (subset of colour_map, sun, sky, sun_direction) of ``start`` to the loss.
+
+    Returns a :class:`Fit` whose ``result`` is the iterate average of the last
+    quarter of the run (see the module docstring).
+    """
+    import drjit as dr
+    proxy.activate()
+    mi = proxy.mi
+    t0 = time.perf_counter()
+    groups = set(groups)
+    warnings: list[str] = []
+    if "sky" in groups:
+        frac = float(proxy.sky_mask().mean()) if proxy.sky_key is not None else 0.0
+        if proxy.sky_key is None:
+            groups.discard("sky")
+        elif frac < MIN_SKY_FRACTION and ({"sun", "colour_map"} & groups):
+            warnings.append(f"the sky covers {100 * frac:.1f} % of the frame (under {100 * MIN_SKY_FRACTION:g} %): "
+                            "light and colour-map scales are ambiguous without it, so the sky is held at its "
+                            "current value")
+            groups.discard("sky")
+    if "sun_direction" in groups and (proxy.sun_key is None or start.sun_elevation is None):
+        groups.discard("sun_direction")
+    base = start.grid if base_grid is None else base_grid
+    var = _Variables(mi, proxy, start, groups, mode, base)
+    proxy.set_state(start)
+    losses: list[float] = []
+    traj: dict[str, list[float]] = {}
+    snaps: list[dict[str, np.ndarray]] = []
+    avg_from = int(iterations * (1.0 - AVERAGE_FRACTION))
+    search_at = int(iterations * SEARCH_AT) if "sun_direction" in groups else -1
+    search_log: list[tuple[float, float, float]] = []
+    current = start.copy()
+    for k in range(iterations):
+        if k == search_at:
+            current = var.to_state(var.snapshot())
+            el, az, search_log = _search_sun(proxy, loss, current, spp=max(4 * spp, 16), seed=seed + 7_654_321)
+            current.sun_elevation, current.sun_azimuth = el, az
+            var.start.sun_elevation, var.start.sun_azimuth = el, az
+            proxy.set_sun_direction(el, az)
+            proxy.params.update()
+        var.set_lr(lr_factor(k, iterations))
+        var.apply()
+        differentiable = len(var.opt) > 0          # only the sun's direction: nothing to step
+        img = proxy.render(spp, seed=seed * 100_003 + k, grad=differentiable)
+        value = loss(img)
+        if differentiable:
+            dr.backward(value)
+            var.opt.step()
+            var.clamp()
+        losses.append(float(value[0]) if hasattr(value, "__len__") else float(value))
+        snap = var.snapshot()
+        if k >= avg_from:
+            snaps.append(snap)
+        current = var.to_state(snap)
+        _record(traj, current, groups)
+        if progress is not None:
+            progress((k + 1) / iterations, f"loss {losses[-1]:.4g}")
+    mean_snap = {}
+    for key in snaps[0]:
+        mean_snap[key] = np.mean([s[key] for s in snaps], axis=0)
+    result = var.to_state(mean_snap)
+    result.sun_elevation, result.sun_azimuth = var.start.sun_elevation, var.start.sun_azimuth
+    proxy.set_state(result)
+    return Fit(start=start, result=result, losses=losses, trajectories=traj, fitted=tuple(sorted(groups)),
+               warnings=warnings, seconds=time.perf_counter() - t0, search=search_log)
+
+
+def _search_sun(proxy, loss, state: LookState, *, spp: int, seed: int):
+    """Coarse-to-fine pattern search over (elevation, azimuth); same seed for every candidate."""
+    best = (state.sun_elevation, state.sun_azimuth)
+    log: list[tuple[float, float, float]] = []
+    cache: dict[tuple[float, float], float] = {}
+
+    def evaluate(el: float, az: float) -> float:
+        key = (round(el, 4), round(az % 360.0, 4))
+        if key not in cache:
+            proxy.set_state(state, direction=False)
+            proxy.set_sun_direction(el, az)
+            proxy.params.update()
+            img = proxy.render(spp, seed)
+            v = loss(img)
+            cache[key] = float(v[0]) if hasattr(v, "__len__") else float(v)
+            log.append((el, az % 360.0, cache[key]))
+        return cache[key]
+
+    for step in (6.0, 2.0):
+        cands = [(min(max(best[0] + de, 1.0), 89.0), best[1] + da)
+                 for de in (-step, 0.0, step) for da in (-step, 0.0, step)]
+        vals = [evaluate(e, a) for e, a in cands]
+        best = cands[int(np.argmin(vals))]
+    return float(best[0]), float(best[1] % 360.0), log
+
