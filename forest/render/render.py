@@ -165,10 +165,21 @@ def denoise(rgb: np.ndarray) -> np.ndarray | None:
 
 
 def apply_haze(rgb: np.ndarray, depth: np.ndarray, hit: np.ndarray, sigma: float, colour) -> np.ndarray:
-    """Aerial perspective: L·e^(−σd) + H·(1 − e^(−σd)) on pixels that hit a surface."""
+    """Aerial perspective: L·e^(−σd) + H·(1 − e^(−σd)) on pixels that hit a surface.
+
+    The depth comes from one ray through each pixel centre, so a pixel whose
+    centre sees the sky may still be partly covered by a distant silhouette
+    (a ridge, a tree top).  Such sky pixels next to a hit take the largest
+    depth of their 3×3 neighbours, so silhouettes against the sky are hazed
+    like the ground behind them instead of leaving a dark fringe.
+    """
     if sigma <= 0:
         return rgb
-    tr = np.exp(-sigma * np.where(hit, depth, 0.0))[..., None]
+    from scipy.ndimage import maximum_filter
+    d = np.where(hit, depth, 0.0)
+    edge = ~hit & (maximum_filter(hit.astype(np.uint8), size=3) > 0)
+    d = np.where(edge, maximum_filter(d, size=3), d)
+    tr = np.exp(-sigma * d)[..., None]
     return (rgb * tr + np.asarray(colour, np.float32) * (1.0 - tr)).astype(np.float32)
 
 
