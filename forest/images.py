@@ -112,6 +112,19 @@ def to_rgb(img: np.ndarray) -> np.ndarray:
     return img[..., :3]
 
 
+def _set_attributes(spec, attributes: dict | None) -> None:
+    """Header metadata in sorted order (booleans as 0/1); no timestamps, so files are byte-identical."""
+    for key, value in sorted((attributes or {}).items()):
+        if isinstance(value, (bool, np.bool_)):
+            value = int(value)
+        if isinstance(value, (int, np.integer)):
+            spec.attribute(key, int(value))
+        elif isinstance(value, (float, np.floating)):
+            spec.attribute(key, float(value))
+        else:
+            spec.attribute(key, str(value))
+
+
 def write_image(path: str | Path, pixels: np.ndarray, *, attributes: dict | None = None,
                 half: bool = True) -> Path:
     """Write ``pixels`` ``(H, W, C)`` atomically.
@@ -149,16 +162,7 @@ def write_image(path: str | Path, pixels: np.ndarray, *, attributes: dict | None
         spec.attribute("DateTime", "")   # OpenEXR output otherwise stamps the time: not byte-identical
     if ext == ".png":
         spec.attribute("png:compressionLevel", 6)
-    # Keep files byte-identical across runs: no timestamps or software strings.
-    for key, value in sorted((attributes or {}).items()):
-        if isinstance(value, bool):
-            value = int(value)
-        if isinstance(value, (int, np.integer)):
-            spec.attribute(key, int(value))
-        elif isinstance(value, (float, np.floating)):
-            spec.attribute(key, float(value))
-        else:
-            spec.attribute(key, str(value))
+    _set_attributes(spec, attributes)
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None:
@@ -193,13 +197,7 @@ def write_multilayer_exr(path: str | Path, layers: dict[str, np.ndarray], *, att
     spec.channelnames = tuple(names)
     spec.attribute("compression", "zip")
     spec.attribute("DateTime", "")       # no time stamp: byte-identical files
-    for key, value in sorted((attributes or {}).items()):
-        if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
-            spec.attribute(key, int(value))
-        elif isinstance(value, (float, np.floating)):
-            spec.attribute(key, float(value))
-        else:
-            spec.attribute(key, str(value))
+    _set_attributes(spec, attributes)
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec) or not out.write_image(np.ascontiguousarray(data)):

@@ -24,20 +24,30 @@ from .textures import cluster_rgba, leaf_rgba, write_texture
 _CODE_FILES = ("generator.py", "lod.py", "mesh.py", "textures.py", "build.py", "preview.py")
 
 
-def code_hash() -> str:
-    """Hash of the generator's source: a change to it invalidates every cached species."""
+def source_hash(files) -> str:
+    """sha256 over the named source files of this package (names and bytes)."""
     h = hashlib.sha256()
     here = Path(__file__).parent
-    for name in _CODE_FILES:
+    for name in files:
         h.update(name.encode())
         h.update((here / name).read_bytes())
     return h.hexdigest()
 
 
-def recipe_hash(recipe: dict, seed: int) -> str:
+def recipe_digest(code: str, recipe: dict, seed: int) -> str:
     """``sha256(code hash, canonical JSON of the validated recipe, seed)`` as hex."""
     payload = json.dumps({"recipe": recipe, "seed": int(seed)}, sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256((code_hash() + payload).encode()).hexdigest()
+    return hashlib.sha256((code + payload).encode()).hexdigest()
+
+
+def code_hash() -> str:
+    """Hash of the generator's source: a change to it invalidates every cached species."""
+    return source_hash(_CODE_FILES)
+
+
+def recipe_hash(recipe: dict, seed: int) -> str:
+    """The cache key of a tree species (see :func:`recipe_digest`)."""
+    return recipe_digest(code_hash(), recipe, seed)
 
 
 def write_json(path: Path, data: dict) -> None:

@@ -46,8 +46,6 @@ change that.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
 from pathlib import Path
 
@@ -682,18 +680,14 @@ def far_box(W: float, D: float, h: float, h_wall: float | None = None) -> tuple[
 
 def code_hash() -> str:
     """Hash of this generator's source (and the shared mesh/preview code): edits rebuild buildings."""
-    h = hashlib.sha256()
-    here = Path(__file__).parent
-    for name in _CODE_FILES:
-        h.update(name.encode())
-        h.update((here / name).read_bytes())
-    return h.hexdigest()
+    from .build import source_hash
+    return source_hash(_CODE_FILES)
 
 
 def recipe_hash(recipe: dict, seed: int) -> str:
-    """``sha256(code hash, canonical JSON of the validated recipe, seed)`` as hex."""
-    payload = json.dumps({"recipe": recipe, "seed": int(seed)}, sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256((code_hash() + payload).encode()).hexdigest()
+    """The cache key of a building species (see :func:`forest.library.build.recipe_digest`)."""
+    from .build import recipe_digest
+    return recipe_digest(code_hash(), recipe, seed)
 
 
 def build_meshes(recipe: dict, seed: int) -> tuple[dict, dict, np.ndarray]:
