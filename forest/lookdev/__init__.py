@@ -10,7 +10,8 @@ service call.  The pipeline:
    loaded in ``llvm_ad_rgb`` or ``cuda_ad_rgb`` (:mod:`.forest_proxy`);
 3. Adam fits the colour grid, the sun and the sky through Mitsuba's ``prb``
    integrator against an ``aligned`` pixel loss or a ``statistics`` loss
-   (sliced Wasserstein in Oklab) (:mod:`.losses`, :mod:`.optimise`), with the
+   (sliced Wasserstein in Oklab), an aligned fit finishing with Gauss–Newton
+   steps and iterate averaging (:mod:`.losses`, :mod:`.optimise`), with the
    parametrisation of :mod:`.state` that makes the fit identifiable;
 4. the result is written: ``scene.toml`` (the same scene with the fitted map
    beside it and the light values in), ``colour_map.exr``, ``report.png``

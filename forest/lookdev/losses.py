@@ -74,6 +74,10 @@ class AlignedLoss:
         d = image.array - self._ref
         return dr.sum(self._w * d * d)
 
+    def curvature_weights(self):
+        """The per-value weights w of L = Σ w (I − R)² (drjit Float, channel fastest)."""
+        return self._w
+
     def numpy(self, image: np.ndarray) -> float:
         d = np.asarray(image, np.float64) - self.reference.rgb
         return float((self.pixel_weight[..., None] * d * d).sum())

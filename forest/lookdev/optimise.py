@@ -13,13 +13,15 @@ one Adam step (Kingma & Ba 2015) on
 * ``sky_log``, ``sky_chroma`` — the same for a constant sky, or ``env_log``
                     for an environment map's scale.
 
-**Schedule.**  The learning rate follows a cosine from its base value down to
-2 % of it, η_k = η₀ (0.02 + 0.98 · ½ (1 + cos π k/K)); with Adam's
+**Schedule.**  In ``aligned`` mode the first 40 % of the iterations are
+Adam's and the rest a Gauss–Newton polish (:func:`_polish`); other modes
+(and runs under ``POLISH_MIN_ITERATIONS``) are all Adam.  Adam's learning
+rate follows a cosine from its base value down to 2 % of it over its
+iterations, η_k = η₀ (0.02 + 0.98 · ½ (1 + cos π k/K)); with Adam's
 normalised steps this shrinks the noise-driven jitter of the iterates in
-proportion.  The result is the **average of the iterates** over the last
-quarter of the run (Polyak & Juditsky 1992) — logs averaged for
-intensities — which removes most of the remaining Monte-Carlo jitter, so a
-few samples per pixel per iteration reach the accuracy of a high-spp fit.
+proportion, and its result is the **average of the iterates** over its last
+quarter (Polyak & Juditsky 1992) — logs averaged for intensities.  The
+polish starts there and returns the average of its own iterates.
 
 **Sun direction.**  Mitsuba 3.9.1's ``prb`` gives no gradient for a
 ``directional`` emitter's direction, so with ``sun_direction`` among the
@@ -38,13 +40,24 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .colour import luminance_weights
-from .state import MIN_SKY_FRACTION, LookState
+from .state import MIN_SKY_FRACTION, LookState, split_colour
 
 BASE_LR = {"grid": 0.04, "tint": 0.03, "sun_log": 0.05, "sun_chroma": 0.03,
            "sky_log": 0.05, "sky_chroma": 0.03, "env_log": 0.05}
 FINAL_LR_FRACTION = 0.02
 AVERAGE_FRACTION = 0.25
 SEARCH_AT = 0.3
+POLISH_FRACTION = 0.6        # share of the iterations given to the Newton polish (aligned mode)
+POLISH_MIN_ITERATIONS = 20   # runs shorter than this are all Adam
+POLISH_STEP = 0.15           # η of the damped diagonal Newton step
+POLISH_MAX_GRID_STEP = 0.05 # a grid cell moves at most this far in one polish step
+POLISH_BURN_IN = 0.15        # share of the polish left out of its iterate average
+CURVATURE_SPP = 4            # the curvature pass renders this many times the iteration spp
+
+
+def polish_iterations(iterations: int) -> int:
+    """How many of ``iterations`` the aligned-mode polish takes (none for short runs)."""
+    return int(round(POLISH_FRACTION * iterations)) if iterations >= POLISH_MIN_ITERATIONS else 0
 
 
 @dataclass
@@ -212,11 +225,14 @@ def optimise(proxy, loss, start: LookState, *, groups, mode: str = "aligned", it
     losses: list[float] = []
     traj: dict[str, list[float]] = {}
     snaps: list[dict[str, np.ndarray]] = []
-    avg_from = int(iterations * (1.0 - AVERAGE_FRACTION))
-    search_at = int(iterations * SEARCH_AT) if "sun_direction" in groups else -1
+    polish = polish_iterations(iterations) if (mode == "aligned" and hasattr(loss, "curvature_weights")
+                                                and len(var.opt) > 0) else 0
+    adam_iters = iterations - polish
+    avg_from = int(adam_iters * (1.0 - AVERAGE_FRACTION))
+    search_at = int(adam_iters * SEARCH_AT) if "sun_direction" in groups else -1
     search_log: list[tuple[float, float, float]] = []
     current = start.copy()
-    for k in range(iterations):
+    for k in range(adam_iters):
         if k == search_at:
             current = var.to_state(var.snapshot())
             el, az, search_log = _search_sun(proxy, loss, current, spp=max(4 * spp, 16), seed=seed + 7_654_321)
@@ -224,7 +240,7 @@ def optimise(proxy, loss, start: LookState, *, groups, mode: str = "aligned", it
             var.start.sun_elevation, var.start.sun_azimuth = el, az
             proxy.set_sun_direction(el, az)
             proxy.params.update()
-        var.set_lr(lr_factor(k, iterations))
+        var.set_lr(lr_factor(k, adam_iters))
         var.apply()
         differentiable = len(var.opt) > 0          # only the sun's direction: nothing to step
         img = proxy.render(spp, seed=seed * 100_003 + k, grad=differentiable)
@@ -246,6 +262,9 @@ def optimise(proxy, loss, start: LookState, *, groups, mode: str = "aligned", it
         mean_snap[key] = np.mean([s[key] for s in snaps], axis=0)
     result = var.to_state(mean_snap)
     result.sun_elevation, result.sun_azimuth = var.start.sun_elevation, var.start.sun_azimuth
+    if polish:
+        result = _polish(proxy, loss, result, var, groups, iterations=polish, first=adam_iters, total=iterations,
+                         spp=spp, seed=seed, losses=losses, traj=traj, progress=progress)
     proxy.set_state(result)
     return Fit(start=start, result=result, losses=losses, trajectories=traj, fitted=tuple(sorted(groups)),
                warnings=warnings, seconds=time.perf_counter() - t0, search=search_log)
@@ -276,3 +295,207 @@ def _search_sun(proxy, loss, state: LookState, *, spp: int, seed: int):
         best = cands[int(np.argmin(vals))]
     return float(best[0]), float(best[1] % 360.0), log
 
+
+
+def _polish(proxy, loss, state: LookState, var: _Variables, groups: set[str], *, iterations: int, first: int,
+            total: int, spp: int, seed: int, losses: list[float], traj: dict, progress) -> LookState:
+    """Damped Gauss–Newton steps on the aligned loss, then the average of the iterates.
+
+    Parameters: θ = (g, u), g the colour grid and u the logs of the lights'
+    RGB values (3 for the sun, 3 for a constant sky, 1 for an environment
+    map's scale).  For L = Σ_p w_p ‖I_p − R_p‖² the Gauss–Newton matrix is
+    H = 2 Jᵀ W J, J = ∂I/∂θ, estimated once at ``CURVATURE_SPP`` times the
+    iteration spp:
+
+    * **lights × lights** — the render is linear in the lights, so
+      ∂I/∂u_a = C_a, the image that light channel alone produces; with two
+      independently seeded renders C⁽¹⁾, C⁽²⁾ (no noise-squared bias),
+      H_ab = Σ w (C_a⁽¹⁾ C_b⁽²⁾ + C_a⁽²⁾ C_b⁽¹⁾);
+    * **grid × lights** — H_{g_i, a} = 2 ∂/∂g_i Σ_p w_p C_a,p · I_p: one
+      backward pass per light (each grid channel sees only its image
+      channel, so one pass gives the sun's three columns);
+    * **grid × grid**, kept diagonal — the radiance is (to first order)
+      homogeneous of degree one in the grid, Σ_j g_j ∂I/∂g_j = I (Euler), so
+      B_i = ∂/∂g_i Σ w I^(det) · I = ½ Σ_j g_j H_ij and D_i = 2 B_i / g_i
+      is H's row sum scaled by g_j/g_i: H_ii itself where a cell's pixels are
+      its own, larger where the interpolated grid blends neighbours (a safe,
+      Jacobi-style majorant).  One backward pass; Mitsuba draws the primal
+      and adjoint with decorrelated seeds, so B is unbiased.
+
+    Each iteration then takes the step Δ = −η H⁻¹ ∇L (η = ``POLISH_STEP``),
+    the lights through the Schur complement S = H_LL − H_Lg D⁻¹ H_gL and
+    the grid through its diagonal D.  Keeping the grid × lights block is
+    what matters: "brighter sun, darker map" is a nearly flat direction of
+    L (only shadows tell them apart) along which Adam's per-coordinate
+    steps, and a diagonal Newton step, crawl; the Schur complement steps
+    along it (somewhat slower than elsewhere, D being a majorant).  A Newton step is
+    proportional to the gradient's signal (Adam's normalised step keeps a
+    jitter of the learning rate's size whatever the signal), so the iterates
+    scatter around the optimum and their average over the polish after
+    ``POLISH_BURN_IN`` (Polyak & Juditsky 1992) is the estimate.  A grid
+    cell moves at most ``POLISH_MAX_GRID_STEP`` per step (a weakly seen cell
+    has a small, noisy curvature).  Light colours return to the
+    unit-luminance form of :mod:`.state` at the end.
+    """
+    import drjit as dr
+    mi = proxy.mi
+    has_grid = "grid" in var.opt
+    names: list[str] = []
+    values: dict[str, np.ndarray] = {}
+    if has_grid:
+        names.append("grid")
+        values["grid"] = np.asarray(state.grid, np.float64).ravel().copy()
+    if "sun_log" in var.opt:
+        names.append("sun")
+        values["sun"] = np.log(np.maximum(state.sun_rgb(), 1e-6))
+    if "sky_log" in var.opt:
+        names.append("sky")
+        values["sky"] = np.log(np.maximum(state.sky_rgb(), 1e-6))
+    if "env_log" in var.opt:
+        names.append("env")
+        values["env"] = np.array([math.log(max(state.envmap_scale, 1e-6))])
+    fixed = state.copy()                          # anything not polished
+
+    def attach() -> dict:
+        """drjit copies of ``values`` with gradients on, written into the scene."""
+        dv = {}
+        for n in names:
+            dv[n] = mi.Float(values[n].astype(np.float32))
+            dr.enable_grad(dv[n])
+        if "grid" in dv:
+            proxy.set_grid(dv["grid"])
+        if "sun" in dv:
+            proxy.set_sun(mi.Color3f(*[dr.exp(dr.gather(mi.Float, dv["sun"], i)) for i in range(3)]))
+        if "sky" in dv:
+            proxy.set_sky(mi.Color3f(*[dr.exp(dr.gather(mi.Float, dv["sky"], i)) for i in range(3)]))
+        if "env" in dv:
+            proxy.set_sky(dr.exp(dr.gather(mi.Float, dv["env"], 0)))
+        proxy.params.update()
+        return dv
+
+    def grads(dv) -> dict:
+        return {n: np.asarray(dr.grad(dv[n]), np.float64).ravel() for n in names}
+
+    def to_state(vals) -> LookState:
+        s = fixed.copy()
+        if "grid" in vals:
+            s.grid = np.clip(vals["grid"].reshape(state.grid.shape), 0.0, 1.0)
+        if "sun" in vals:
+            s.sun_irradiance, s.sun_colour = split_colour(1.0, np.exp(vals["sun"]))
+        if "sky" in vals:
+            s.sky_radiance, s.sky_colour = split_colour(1.0, np.exp(vals["sky"]))
+        if "env" in vals:
+            s.envmap_scale = float(np.exp(vals["env"][0]))
+        s.sun_elevation, s.sun_azimuth = state.sun_elevation, state.sun_azimuth
+        return s
+
+    # Curvature, once: D (grid diagonal), H_LL (lights) and H_gL (grid × lights).
+    cspp = CURVATURE_SPP * spp
+    cseed = seed * 100_003 + 99_991
+    cw = loss.curvature_weights()
+    wnp = np.asarray(cw, np.float64)
+    lights = [n for n in names if n != "grid"]
+    contrib: dict[str, list[np.ndarray]] = {}         # ∂I/∂u of each light (two independent renders)
+    if lights:
+        for n in lights:
+            contrib[n] = []
+            for r in range(2):
+                for light, setter in (("sun", proxy.set_sun), ("sky", proxy.set_sky)):
+                    if light in values:
+                        rgb = np.exp(values[light]) if n == light else np.zeros(3)
+                        setter(mi.Color3f(*[float(x) for x in rgb]))
+                if "env" in values:
+                    proxy.set_sky(mi.Float(float(np.exp(values["env"][0])) if n == "env" else 0.0))
+                if has_grid:
+                    proxy.set_grid(mi.Float(values["grid"].astype(np.float32)))
+                proxy.params.update()
+                contrib[n].append(np.asarray(proxy.render(cspp, seed=cseed + 17 * r + 1 + names.index(n)),
+                                             np.float64).ravel())
+    # Light columns: sun/sky contribute channel by channel, an environment map's scale to all three.
+    cols: list[tuple[str, int | None]] = []
+    for n in lights:
+        cols += [(n, None)] if n == "env" else [(n, c) for c in range(3)]
+    chan = np.arange(wnp.size) % 3
+
+    def column(n, c, r):
+        v = contrib[n][r]
+        return v if c is None else np.where(chan == c, v, 0.0)
+
+    m = len(cols)
+    hll = np.zeros((m, m))
+    for a, (na, ca) in enumerate(cols):
+        for bb, (nb, cb) in enumerate(cols):
+            hll[a, bb] = (np.sum(wnp * column(na, ca, 0) * column(nb, cb, 1))
+                          + np.sum(wnp * column(na, ca, 1) * column(nb, cb, 0)))    # 2 Σ w C_a C_b, symmetric
+    hgl = np.zeros((values["grid"].size if has_grid else 0, m))
+    d = None
+    if has_grid:
+        def grid_products(x: np.ndarray | None, r: int) -> np.ndarray:
+            """∂/∂g Σ w X·I with X = ``x`` (or the render's own detached primal when None)."""
+            dv = attach()
+            img = proxy.render(cspp, seed=cseed + 1000 + r, grad=True)
+            xa = dr.detach(img.array) if x is None else mi.Float(x.astype(np.float32))
+            dr.backward(dr.sum(cw * xa * img.array))
+            return grads(dv)["grid"]
+        b = grid_products(None, 0)
+        hb = 2.0 * b / np.maximum(values["grid"], 0.05)
+        pos = hb[hb > 0]
+        floor = 1e-2 * float(np.median(pos)) if pos.size else 1.0
+        d = np.maximum(hb, max(floor, 1e-12))
+        for n in lights:
+            gp = 2.0 * grid_products(contrib[n][0], 1 + names.index(n))
+            gchan = np.arange(gp.size) % 3
+            for a, (na, ca) in enumerate(cols):
+                if na == n:
+                    hgl[:, a] = gp if ca is None else np.where(gchan == ca, gp, 0.0)
+    if m:
+        schur = hll - (hgl.T / d) @ hgl if d is not None else hll
+        schur = 0.5 * (schur + schur.T)
+        ev = np.linalg.eigvalsh(schur)
+        ridge = max(1e-9, 1e-6 * float(np.abs(np.diag(hll)).max()))
+        if ev.min() < ridge:
+            schur = schur + (ridge - ev.min()) * np.eye(m)
+
+    def newton(g: dict) -> dict:
+        """The Gauss–Newton step (lights by their Schur complement, grid diagonal)."""
+        gl = np.array([g[n][0 if c is None else c] for n, c in cols]) if m else np.zeros(0)
+        gg = g["grid"] if has_grid else None
+        out = {}
+        if m:
+            rhs = -gl + (hgl.T @ (gg / d) if has_grid else 0.0)
+            dl = np.linalg.solve(schur, rhs)
+            for n in lights:
+                out[n] = np.array([dl[a] for a, (na, _) in enumerate(cols) if na == n])
+        else:
+            dl = np.zeros(0)
+        if has_grid:
+            out["grid"] = (-gg - hgl @ dl) / d
+        return out
+
+    burn = int(POLISH_BURN_IN * iterations)
+    acc: dict[str, np.ndarray] = {n: np.zeros_like(values[n]) for n in names}
+    count = 0
+    for j in range(iterations):
+        k = first + j
+        dv = attach()
+        img = proxy.render(spp, seed=seed * 100_003 + k, grad=True)
+        value = loss(img)
+        dr.backward(value)
+        g = grads(dv)
+        del dv, img
+        step = newton(g)
+        for n in names:
+            if n == "grid":
+                cap = POLISH_MAX_GRID_STEP
+                values[n] = np.clip(values[n] + np.clip(POLISH_STEP * step[n], -cap, cap), 0.0, 1.0)
+            else:
+                values[n] = np.clip(values[n] + np.clip(POLISH_STEP * step[n], -0.5, 0.5), -12.0, 12.0)
+        losses.append(float(value[0]) if hasattr(value, "__len__") else float(value))
+        if j >= burn:
+            for n in names:
+                acc[n] += values[n]
+            count += 1
+        _record(traj, to_state(values), groups)
+        if progress is not None:
+            progress((k + 1) / total, f"loss {losses[-1]:.4g}")
+    return to_state({n: acc[n] / max(count, 1) for n in names})
