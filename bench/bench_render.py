@@ -212,7 +212,8 @@ def case_million(tmp: Path, scale: float, variant: str) -> None:
     r = run_worker("render", config=cfg, out=tmp, variant=variant)
     per_tree = r["instanced"] / max(r["trees"], 1)
     print(f"render million: {r['trees']:,} trees × {per_tree:,.0f} triangles = {r['instanced'] / 1e9:.2f} G "
-          f"instanced triangles, 1280x720 16 spp: peak {r['peak_gb']:.2f} GB (target ≤ 6 GB), "
+          f"instanced triangles, 1280x720 16 spp: peak {r['peak_gb']:.2f} GB (target ≤ 6 GB; "
+          f"{r['peak_gb'] * 1e6 / max(r['trees'], 1):.1f} KB per tree), "
           f"scene {r['load_s']:.0f} s, render {r['render_s']:.0f} s, end to end {r['total_s']:.0f} s "
           f"({r['cpu_s']:.0f} CPU-s)")
 

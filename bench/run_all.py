@@ -21,7 +21,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 BEGIN, END = "<!-- bench:begin -->", "<!-- bench:end -->"
-ORDER = ["scatter", "library", "export", "render", "lookdev", "service"]
+ORDER = ["scatter", "library", "export", "render", "scenes", "lookdev", "service"]
 
 
 def machine() -> str:
@@ -80,7 +80,6 @@ def main() -> None:
         cells = "<br>".join(l.replace("|", "\\|") for l in lines if not l.startswith("machine:"))
         table.append(f"| `bench/bench_{n}.py` | {cells} |")
     text = "\n".join(table)
-    (ROOT / "bench" / "RESULTS.md").write_text("# Benchmark results\n\n" + text + "\n")
     readme = ROOT / "README.md"
     if not args.no_readme and readme.exists():
         r = readme.read_text()
@@ -95,6 +94,7 @@ def main() -> None:
             r = r[: r.index(BEGIN) + len(BEGIN)] + "\n" + text + "\n" + r[r.index(END):]
             readme.write_text(r)
             print("README.md benchmark table updated")
+    (ROOT / "bench" / "RESULTS.md").write_text("# Benchmark results\n\n" + text + "\n")
 
 
 if __name__ == "__main__":
