@@ -11,6 +11,7 @@ Target: every preview ≤ 2 minutes on the 2-core machine.
 from __future__ import annotations
 
 import argparse
+import re
 import subprocess
 import sys
 import tempfile
@@ -45,7 +46,8 @@ def main() -> None:
             line = f"{name}: preview {t:.0f} s (target ≤ 120 s)"
             if not args.skip_full:
                 tf, summary = run(["render", str(cfg), "-o", f"{tmp}/{name}.exr"])
-                trees = summary.split(":", 1)[1].split(",")[0].strip() if ":" in summary else ""
+                m = re.search(r"([\d,]+) trees", summary)
+                trees = f"{m.group(1)} trees" if m else "?"
                 line += (f"; full {r.get('width', 1280)}x{r.get('height', 720)} {r.get('spp', 64)} spp "
                          f"{tf:.0f} s ({trees})")
             print(line, flush=True)
