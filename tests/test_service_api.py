@@ -114,9 +114,10 @@ def test_flythrough_is_split_into_frame_tasks(server):
 def test_worker_killed_mid_render_is_requeued_and_finishes(server):
     c = server.client
     r = c.post("/jobs", json={"kind": "flythrough", "config": tiny_config(),
-                              "settings": {"frames": "1-4", "frames_per_task": 4}})
+                              "settings": {"frames": "1-12", "frames_per_task": 12, "spp": 16}})
     jid = r.json()["id"]
     # wait until the worker reports progress from inside the render, then SIGKILL it
+    # (twelve frames, so the render is still running when the poll sees it)
     task = wait_for(lambda: next((t for t in c.get(f"/jobs/{jid}").json()["tasks"]
                                   if t["state"] == "running" and t["message"].startswith(("building", "frame"))),
                                  None))
@@ -129,7 +130,7 @@ def test_worker_killed_mid_render_is_requeued_and_finishes(server):
     log = c.get(f"/jobs/{jid}/log").text
     assert "worker lost" in log and "task queued" in log
     res = c.get(f"/jobs/{jid}/result").json()
-    assert len([o for o in res["outputs"] if o["path"].endswith(".exr")]) == 4
+    assert len([o for o in res["outputs"] if o["path"].endswith(".exr")]) == 12
 
 
 def test_cancel_stops_the_worker_process(server):
