@@ -120,3 +120,20 @@ def look_at_matrix(position, target, up) -> np.ndarray:
     m = np.eye(4)
     m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = left, new_up, d, p
     return m
+
+
+def frame_from_z(direction) -> np.ndarray:
+    """A rotation (column-vector 4×4) whose local +Z axis is the unit ``direction``.
+
+    Used to aim lights: the remaining axes come from crossing with +Y (or +X
+    when ``direction`` is nearly vertical).
+    """
+    z = np.asarray(direction, float)
+    z = z / np.linalg.norm(z)
+    ref = np.array([0.0, 1.0, 0.0]) if abs(z[1]) < 0.99 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(ref, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2] = x, y, z
+    return m

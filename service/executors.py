@@ -23,6 +23,7 @@ An ``exit`` report follows every attempt; an attempt whose ``exit`` comes withou
 
 from __future__ import annotations
 
+import abc
 import json
 import os
 import queue
@@ -36,26 +37,34 @@ from pathlib import Path
 from .store import TaskRun
 
 
-class Executor:
+class Executor(abc.ABC):
+    """Where task attempts run.  The dispatcher is the only caller, from one thread."""
+
     name = "base"
 
+    @abc.abstractmethod
     def capacity(self) -> int:
-        raise NotImplementedError
+        """How many attempts may run at once."""
 
+    @abc.abstractmethod
     def start(self, run: TaskRun) -> str:
-        raise NotImplementedError
+        """Start one attempt; return a description of where it runs (for the job log)."""
 
+    @abc.abstractmethod
     def poll(self, timeout: float) -> list[dict]:
-        raise NotImplementedError
+        """Reports (progress, heartbeat, result, exit) received within ``timeout`` seconds."""
 
+    @abc.abstractmethod
     def kill(self, task_id: int, attempt: int) -> None:
-        raise NotImplementedError
+        """Stop an attempt (cancel or lost lease); a no-op if it already ended."""
 
+    @abc.abstractmethod
     def active(self) -> set[tuple[int, int]]:
-        raise NotImplementedError
+        """The (task id, attempt) pairs still running."""
 
+    @abc.abstractmethod
     def close(self) -> None:
-        raise NotImplementedError
+        """Stop every attempt and release resources."""
 
 
 class LocalExecutor(Executor):

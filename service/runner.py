@@ -201,7 +201,6 @@ def _render(spec: dict, config, job_dir: Path, report: Report, started: float) -
     report("log", {"line": f"render {'frames ' + _frames_text(frames) if frames else 'still'} "
                            f"-> {spec['output']} (variant {spec.get('variant') or 'auto'})"})
     instances = None
-    main_progress = progress
     if frames is None and not spec.get("preview") and config.render.spp > QUICK_LOOK_MIN_SPP:
         # A still: first a quick look (the renderer's fast preview), shown as the first pass.
         from forest.scatter import scene_instances
@@ -217,6 +216,7 @@ def _render(spec: dict, config, job_dir: Path, report: Report, started: float) -
         def main_progress(f: float, m: str = "") -> None:
             progress(QUICK_LOOK_SHARE + (1.0 - QUICK_LOOK_SHARE) * float(f), m)
     else:
+        main_progress = progress
         progress(0.0, "loading scene")
     result = render_scene(config, output=output, instances=instances, variant=spec.get("variant"), frames=frames,
                           preview=bool(spec.get("preview", False)), progress=main_progress)

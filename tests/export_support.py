@@ -176,3 +176,18 @@ def validation_errors(stage) -> list[str]:
     from pxr import UsdValidation
     ctx = UsdValidation.ValidationContext(UsdValidation.ValidationRegistry().GetOrLoadAllValidators())
     return [f"{e.GetName()}: {e.GetMessage()}" for e in ctx.Validate(stage)]
+
+
+def fly_keys(last_frame: int) -> str:
+    """TOML for a two-key camera path from frame 1 to ``last_frame`` (the second key narrows the fov)."""
+    return f"""
+[[camera.keys]]
+frame = 1
+position = [0.0, 40.0, -150.0]
+target = [0.0, 5.0, 0.0]
+[[camera.keys]]
+frame = {last_frame}
+position = [60.0, 30.0, -120.0]
+target = [10.0, 5.0, 0.0]
+fov = 35.0
+"""

@@ -6,24 +6,14 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom, UsdLux
 
-from export_support import FakeLibrary, make_config, make_instances, validation_errors
+from export_support import FakeLibrary, fly_keys, make_config, make_instances, validation_errors
 from forest.camera import camera_at
 from forest.errors import ConfigError, ForestError
 from forest.export.common import sun_direction
 from forest.export.usd import export_usd
 from forest.terrain import load_terrain
 
-FLY = """
-[[camera.keys]]
-frame = 1
-position = [0.0, 40.0, -150.0]
-target = [0.0, 5.0, 0.0]
-[[camera.keys]]
-frame = 4
-position = [60.0, 30.0, -120.0]
-target = [10.0, 5.0, 0.0]
-fov = 35.0
-"""
+FLY = fly_keys(last_frame=4)
 
 
 @pytest.fixture(scope="module")

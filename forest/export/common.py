@@ -37,9 +37,8 @@ EXPORT_KEYS = ("lod_transition", "usd_lod", "rib_lod")
 
 def sun_direction(sun: SunConfig) -> np.ndarray:
     """Unit vector from the ground towards the sun (see the module docstring)."""
-    el = math.radians(sun.elevation)
-    az = math.radians(sun.azimuth)
-    return np.array([math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)])
+    from ..render.scene import sun_vector     # one convention for render, RIB and USD
+    return sun_vector(sun.elevation, sun.azimuth)
 
 
 def export_frames(config: Config, frames: str | list[int] | None = None) -> list[int]:

@@ -92,7 +92,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_dir
-from ..camera import camera_at, look_at_matrix
+from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import Config, ConfigError
 from ..errors import ForestError
 from ..instances import InstanceSet, quaternion_to_matrix
@@ -206,19 +206,6 @@ def ri_fov(fov_x: float, width: int, height: int) -> float:
     return math.degrees(2 * math.atan(t))
 
 
-def light_frame(direction) -> np.ndarray:
-    """A rotation (column-vector 4×4) whose +Z axis is ``direction`` (unit)."""
-    z = np.asarray(direction, float)
-    z = z / np.linalg.norm(z)
-    ref = np.array([0.0, 1.0, 0.0]) if abs(z[1]) < 0.99 else np.array([1.0, 0.0, 0.0])
-    x = np.cross(ref, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    m = np.eye(4)
-    m[:3, 0], m[:3, 1], m[:3, 2] = x, y, z
-    return m
-
-
 def lights_text(config: Config, renderman22: bool) -> str:
     """Sun and sky as RI 3.2 ``LightSource`` calls or RenderMan 22+ ``Light`` calls.
 
@@ -234,7 +221,7 @@ def lights_text(config: Config, renderman22: bool) -> str:
         if renderman22:
             out += ["  AttributeBegin",
                     '    Attribute "identifier" "string name" ["sun"]',
-                    f"    ConcatTransform [{nums(rib_matrix(light_frame(-d)))}]",
+                    f"    ConcatTransform [{nums(rib_matrix(frame_from_z(-d)))}]",
                     f'    Light "PxrDistantLight" "sun" "float intensity" [{num(s.irradiance)}] '
                     f'"color lightColor" [{nums(s.colour)}] "float angleExtent" [0.53]',
                     "  AttributeEnd"]

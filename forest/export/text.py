@@ -147,6 +147,24 @@ def _layout(field: Field):
     return (q, neg, gi, gf), W
 
 
+def _integer_groups(ip: np.ndarray, gi: int, table: np.ndarray) -> np.ndarray:
+    """Integer parts as ``gi`` 4-character groups (uint32 each), most significant first.
+
+    ``table`` is indexed by group value + 10000 while every group to the left
+    is zero (leading-zero form) + 20000 for the last group (which always shows
+    a digit).
+    """
+    ints = np.empty((*ip.shape, gi), dtype=np.uint32)
+    left_zero = np.ones(ip.shape, dtype=bool)
+    for j, g in enumerate(_groups(ip, gi)):
+        idx = g + np.where(left_zero, 10000, 0)
+        if j == gi - 1:
+            idx += 20000
+        ints[..., j] = table[idx]
+        left_zero &= g == 0
+    return ints
+
+
 def _write_field(field: Field, out: np.ndarray, layout) -> None:
     """Write the text of ``field`` into ``out`` (rows, k, W) uint8; holes = 0.
 
@@ -167,14 +185,7 @@ def _write_field(field: Field, out: np.ndarray, layout) -> None:
     else:
         ip, fp = q, None
     # integer groups, left to right
-    ints = np.empty((rows, k, gi), dtype=np.uint32)
-    left_zero = np.ones((rows, k), dtype=bool)
-    for j, g in enumerate(_groups(ip, gi)):
-        idx = g + np.where(left_zero, 10000, 0)
-        if j == gi - 1:
-            idx += 20000
-        ints[..., j] = _INT_TABLE[idx]
-        left_zero &= g == 0
+    ints = _integer_groups(ip, gi, _INT_TABLE)
     out[..., o + 1: o + 1 + 4 * gi] = ints.view(np.uint8).reshape(rows, k, 4 * gi)
     if not d:
         return
@@ -231,14 +242,7 @@ def _write_padded(field: Field, out: np.ndarray, layout) -> None:
     else:
         ip, fp = q, None
     gi = math.ceil(n_int / 4)
-    ints = np.empty((rows, k, gi), dtype=np.uint32)
-    left_zero = np.ones((rows, k), dtype=bool)
-    for j, g in enumerate(_groups(ip, gi)):
-        idx = g + np.where(left_zero, 10000, 0)
-        if j == gi - 1:
-            idx += 20000
-        ints[..., j] = _PAD_TABLE[idx]
-        left_zero &= g == 0
+    ints = _integer_groups(ip, gi, _PAD_TABLE)
     region = out[..., o: o + 1 + n_int]
     region[..., 0] = 32
     region[..., 1:] = ints.view(np.uint8).reshape(rows, k, 4 * gi)[..., 4 * gi - n_int:]

@@ -58,7 +58,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_dir
-from ..camera import camera_at, look_at_matrix
+from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import Config, ConfigError
 from ..errors import ForestError
 from ..instances import InstanceSet
@@ -105,18 +105,6 @@ def gf_matrix(m: np.ndarray):
 def usd_camera_matrix(position, target, up) -> np.ndarray:
     """Camera-to-world for USD: columns (right, up, back, position), back = −forward."""
     return look_at_matrix(position, target, up) @ np.diag([-1.0, 1.0, -1.0, 1.0])
-
-
-def sun_matrix(d: np.ndarray) -> np.ndarray:
-    """Rotation turning local +Z onto ``d``: a DistantLight (emitting along −Z) then shines along −d."""
-    z = np.asarray(d, float) / np.linalg.norm(d)
-    ref = np.array([0.0, 1.0, 0.0]) if abs(z[1]) < 0.99 else np.array([1.0, 0.0, 0.0])
-    x = np.cross(ref, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    m = np.eye(4)
-    m[:3, 0], m[:3, 1], m[:3, 2] = x, y, z
-    return m
 
 
 def _set_mesh(UsdGeom, Vt, Sdf, mesh, vertices, faces, normals, uv):
@@ -292,7 +280,8 @@ def _lights(stage, config: Config, out_dir: Path):
         sun.CreateIntensityAttr(float(s.irradiance))
         sun.CreateColorAttr(Gf.Vec3f(*s.colour))
         sun.CreateAngleAttr(0.53)
-        sun.AddTransformOp().Set(gf_matrix(sun_matrix(sun_direction(s))))
+        # A DistantLight emits along its local −Z: turning +Z onto d makes it shine along −d.
+        sun.AddTransformOp().Set(gf_matrix(frame_from_z(sun_direction(s))))
     if lights.sky is not None:
         k = lights.sky
         sky = UsdLux.DomeLight.Define(stage, "/World/Lights/Sky")

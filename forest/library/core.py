@@ -209,15 +209,16 @@ class Library:
         return sp
 
     def _generated(self, name: str, seed: int | None, desc: str, build: bool) -> Species:
-        from .build import generate, recipe_hash
-        from .generator import validate_recipe
         raw, manifest_seed = self.recipe(name)
         seed = manifest_seed if seed is None else seed
         e = self.entry(name)
         kind = raw.get("kind", "tree")
         if kind == "building":            # procedural buildings (forest.library.buildings)
             from .buildings import generate, recipe_hash, validate_recipe
-        elif kind != "tree":
+        elif kind == "tree":
+            from .build import generate, recipe_hash
+            from .generator import validate_recipe
+        else:
             raise ConfigError(self.root / e["recipe"], "kind", f"must be tree or building, got {kind!r}")
         recipe = validate_recipe(raw, str(self.root / e["recipe"]))
         h = recipe_hash(recipe, seed)
