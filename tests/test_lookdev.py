@@ -192,6 +192,51 @@ def test_gradients_are_nonzero_and_point_the_right_way(setup):
     assert (g[seen] < 0).mean() > 0.8                               # descending brightens the map
 
 
+def test_grid_jacobian_agrees_with_reverse_mode(setup):
+    """The nine forward-mode passes give J = ∂I/∂g; summed over pixels it is the reverse-mode gradient of ΣI."""
+    import drjit as dr
+    from forest.lookdev.optimise import _grid_jacobian
+    cfg, inst, terrain, proxy, truth = setup
+    mi = proxy.mi
+    proxy.set_state(truth)
+    grid = truth.grid.ravel()
+    jac = _grid_jacobian(proxy, grid, spp=32, seed=3)                   # (pixels, cells, 3)
+    assert jac.shape == (W * H, GRID * GRID, 3)
+    sky = proxy.sky_mask().ravel()
+    assert sky.any() and np.abs(jac[sky]).max() == 0.0                   # the sky does not depend on the map
+    g = mi.Float(grid.astype(np.float32))
+    dr.enable_grad(g)
+    proxy.set_grid(g)
+    proxy.params.update()
+    dr.backward(dr.sum(proxy.render(32, seed=5, grad=True).array))
+    reverse = np.asarray(dr.grad(g), np.float64).reshape(-1, 3)
+    forward = jac.sum(axis=0)
+    assert np.corrcoef(reverse.ravel(), forward.ravel())[0, 1] > 0.98
+    assert abs(forward.sum() / reverse.sum() - 1) < 0.08
+    proxy.set_state(truth)
+
+
+def test_noise_weights_weigh_noisy_pixels_down():
+    from forest.lookdev.losses import AlignedLoss
+    from forest.lookdev.reference import load_reference
+    from forest.runtime import mitsuba
+    mi = mitsuba("llvm_ad_rgb")
+    rng = np.random.Generator(np.random.PCG64(3))
+    ref = rng.uniform(0.2, 0.8, (12, 16, 3)).astype(np.float32)
+    loss = AlignedLoss(load_reference(ref, 16, 12))
+    before = loss.value_weight.copy()
+    variance = np.full(ref.shape, 1e-4)
+    variance[:4, :4] = 1e-1                                              # a noisy corner (an edge, say)
+    loss.set_noise(variance)
+    after = loss.value_weight
+    assert np.isclose(after.sum(), before.sum())                         # the loss keeps its scale
+    ratio = after / before
+    assert ratio[:4, :4].max() < 0.05 * ratio[6:, 6:].min()
+    img = rng.uniform(0.2, 0.8, ref.shape).astype(np.float32)
+    value = loss(mi.TensorXf(mi.Float(img.ravel()), img.shape))
+    assert np.isclose(float(value[0]), loss.numpy(img), rtol=1e-4)      # drjit and numpy losses agree
+
+
 # -- synthetic round trip -----------------------------------------------------------------------
 
 def test_round_trip_recovers_known_values(setup):

@@ -51,6 +51,7 @@ class Proxy:
     stats: dict = field(default_factory=dict)
     haze: float = 0.0                     # [render] haze: extinction per metre (aerial perspective)
     haze_colour: tuple | None = None      # [render] haze_colour; None: the sky's radiance
+    grid_extent: tuple | None = None      # (xmin, zmin, xmax, zmax) the colour grid spans
 
     def __post_init__(self):
         self.variant = self.mi.variant()
@@ -112,11 +113,54 @@ class Proxy:
         """Render the current parameters; with ``grad`` the result is attached to the AD graph."""
         self.activate()
         mi = self.mi
+        seed = int(seed) & 0xFFFFFFFF              # Mitsuba's seeds are 32-bit
         if grad:
             img = mi.render(self.scene, self.params, seed=seed, spp=spp, spp_grad=spp)
         else:
             img = mi.render(self.scene, seed=seed, spp=spp)
         return self._hazed(img) if self.haze > 0 else img
+
+    def grid_tangent(self, grid: np.ndarray, tangent: np.ndarray, spp: int, seed: int) -> np.ndarray:
+        """The render's forward-mode derivative along ``tangent`` of the grid at ``grid``: (H, W, 3).
+
+        Both are flat n·m·3 arrays (map convention, channel fastest).  The
+        tangent is set on each grid texture's data (times its base colour) and
+        the integrator's ``render_forward`` propagates it; with haze the
+        derivative is attenuated by the same transmittance as the radiance.
+        """
+        import drjit as dr
+        self.activate()
+        mi = self.mi
+        n, m = self.grid_shape
+        g = np.asarray(grid, np.float32).ravel()
+        tg = np.asarray(tangent, np.float32).ravel()
+        keys = []
+        for t, base in zip(self.grid_targets, self._tiled):
+            b = np.asarray(base, np.float32)
+            value = mi.TensorXf(mi.Float(g * b), (n, 1, m, 3))
+            dr.enable_grad(value)
+            dr.set_grad(value, mi.TensorXf(mi.Float(tg * b), (n, 1, m, 3)))
+            self.params[t.key] = value
+            keys.append(t.key)
+        self.params.update()
+        # Push the tangent into the textures' internal copies before the integrator's isolated pass.
+        dr.enqueue(dr.ADMode.Forward, *[self.params[k] for k in keys])
+        dr.traverse(dr.ADMode.Forward, dr.ADFlag.ClearEdges)
+        out = self.scene.integrator().render_forward(self.scene, self.params, seed=int(seed) & 0xFFFFFFFF, spp=spp)
+        arr = np.asarray(dr.detach(out), np.float64)[..., :3]
+        for key in keys:
+            self.params[key] = dr.detach(self.params[key])
+        self.params.update()
+        if self.haze > 0:
+            self._hazed_setup()
+            arr = arr * np.asarray(self._haze_t, np.float64).reshape(arr.shape)
+        return arr
+
+    def _hazed_setup(self) -> None:
+        if getattr(self, "_haze_t", None) is None:
+            hit, depth = self._primary_hits()
+            t = np.where(hit, np.exp(-self.haze * depth), 1.0).astype(np.float32).ravel()
+            self._haze_t = self.mi.Float(np.repeat(t, 3))
 
     def _hazed(self, img):
         """Aerial perspective as the production render applies it: L·T + H·(1 − T), T = e^(−σd) on hits.
@@ -128,10 +172,7 @@ class Proxy:
         """
         import drjit as dr
         mi = self.mi
-        if getattr(self, "_haze_t", None) is None:
-            hit, depth = self._primary_hits()
-            t = np.where(hit, np.exp(-self.haze * depth), 1.0).astype(np.float32).ravel()
-            self._haze_t = mi.Float(np.repeat(t, 3))
+        self._hazed_setup()
         if self.haze_colour is not None:
             h = mi.Color3f(*[float(x) for x in self.haze_colour])
         elif self.sky_kind == "constant" and getattr(self, "_sky_value", None) is not None:
@@ -166,8 +207,19 @@ class Proxy:
             si = self.scene.ray_intersect(ray)
             valid = np.asarray(dr.detach(si.is_valid()), dtype=bool).reshape(h, w)
             t = np.asarray(dr.detach(si.t), dtype=np.float64).reshape(h, w)
+            self._hit_xz = np.stack([np.asarray(dr.detach(si.p.x), np.float64).reshape(h, w),
+                                     np.asarray(dr.detach(si.p.z), np.float64).reshape(h, w)], axis=-1)
             self._hits = (valid, np.where(valid, t, 0.0))
         return self._hits
+
+    def pixel_cells(self) -> np.ndarray:
+        """(H, W, 2) int: the colour-grid cell (row, column) under each pixel centre's hit; −1 for the sky."""
+        valid = self._primary_hits()[0]
+        n, m = self.grid_shape
+        xmin, zmin, xmax, zmax = self.grid_extent
+        col = np.clip(np.floor((self._hit_xz[..., 0] - xmin) / (xmax - xmin) * m), 0, m - 1).astype(np.int64)
+        row = np.clip(np.floor((self._hit_xz[..., 1] - zmin) / (zmax - zmin) * n), 0, n - 1).astype(np.int64)
+        return np.where(valid[..., None], np.stack([row, col], axis=-1), -1)
 
     def sky_mask(self) -> np.ndarray:
         """(H, W) bool: pixels whose centre ray escapes to the sky (nothing hit)."""

@@ -53,14 +53,15 @@ def _rgb(value) -> dict:
 
 def sensor_dict(config, frame: float = 1.0, width: int | None = None, height: int | None = None,
                 spp: int | None = None, variant: str = "scalar_rgb", *, seed: int | None = None,
-                rfilter: str = "box") -> dict:
+                rfilter: str = "box", sampler: str = "independent") -> dict:
     """A ``perspective`` sensor at ``frame`` of the config's camera path.
 
     The camera-to-world matrix comes from :func:`forest.camera.look_at_matrix`
     of the interpolated position/target (:func:`forest.camera.camera_at`).
-    ``width``/``height``/``spp`` default to ``[render]``; the sampler is
-    ``independent`` seeded with ``seed`` (default ``[render] seed``) so a render
-    is reproducible.  The default ``box`` pixel filter keeps every sample inside
+    ``width``/``height``/``spp`` default to ``[render]``; the sampler
+    (``independent`` unless ``sampler`` names another Mitsuba sampler) is
+    seeded with ``seed`` (default ``[render] seed``) so a render is
+    reproducible.  The default ``box`` pixel filter keeps every sample inside
     its own pixel, so ``scalar_rgb``'s threads never add into the same pixel
     and the image is bit-identical run to run (a wider filter makes the sum
     order, hence the last bits, depend on thread timing).
@@ -84,7 +85,7 @@ def sensor_dict(config, frame: float = 1.0, width: int | None = None, height: in
             "component_format": "float32",
             "rfilter": {"type": rfilter},
         },
-        "sampler": {"type": "independent", "sample_count": int(spp or rc.spp),
+        "sampler": {"type": sampler, "sample_count": int(spp or rc.spp),
                     "seed": int(rc.seed if seed is None else seed)},
     }
 
