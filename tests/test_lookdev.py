@@ -237,6 +237,23 @@ def test_noise_weights_weigh_noisy_pixels_down():
     assert np.isclose(float(value[0]), loss.numpy(img), rtol=1e-4)      # drjit and numpy losses agree
 
 
+def test_calibration_gain_scales_the_scene_not_the_sky(setup):
+    from forest.lookdev.calibrate import channel_gain
+    cfg, inst, terrain, proxy, truth = setup
+    proxy.set_state(truth)
+    plain = proxy.render_numpy(16, 7)
+    hit = ~proxy.sky_mask()
+    k = channel_gain(plain * np.array([1.2, 1.0, 0.5]), plain, hit)
+    assert np.allclose(k, [1.2, 1.0, 0.5], rtol=1e-6)
+    proxy.set_gain(k)
+    try:
+        gained = proxy.render_numpy(16, 7)
+    finally:
+        proxy.set_gain(None)
+    assert np.allclose(gained[hit], plain[hit] * k, rtol=1e-4, atol=1e-6)
+    assert np.allclose(gained[~hit], plain[~hit])
+
+
 # -- synthetic round trip -----------------------------------------------------------------------
 
 def test_round_trip_recovers_known_values(setup):

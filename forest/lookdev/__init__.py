@@ -7,7 +7,10 @@ service call.  The pipeline:
    resampled to the optimiser's resolution (:mod:`.reference`);
 2. the forest is scattered (or its saved InstanceSet read) and baked into a
    differentiable proxy — low-LOD trees merged into one mesh per material —
-   loaded in ``llvm_ad_rgb`` or ``cuda_ad_rgb`` (:mod:`.forest_proxy`);
+   loaded in ``llvm_ad_rgb`` or ``cuda_ad_rgb`` (:mod:`.forest_proxy`); with
+   ``calibrate`` (the default in ``statistics`` mode) a small production
+   render of the starting look sets a per-channel gain on the proxy
+   (:mod:`.calibrate`);
 3. Adam fits the colour grid, the sun and the sky through Mitsuba's ``prb``
    integrator against an ``aligned`` pixel loss or a ``statistics`` loss
    (sliced Wasserstein in Oklab), an aligned fit finishing with Gauss–Newton
@@ -39,7 +42,7 @@ MODES = ("aligned", "statistics")
 DEFAULTS = {"iterations": 200, "resolution": 96, "spp": 8, "mode": "aligned", "grid": 16, "bands": 2,
             "fit": "crop", "max_triangles": 2_000_000, "max_depth": None, "lod": "high"}
 LOOKDEV_KEYS = ("iterations", "resolution", "spp", "params", "mode", "grid", "bands", "mask", "fit",
-                "max_triangles", "max_depth", "variant", "lod")
+                "max_triangles", "max_depth", "variant", "lod", "calibrate")
 EVAL_SPP = 64
 SEED_TAG = 0x100CDE7
 
@@ -81,6 +84,7 @@ class Settings:
     lod: str
     mask: Path | None
     variant: str
+    calibrate: bool = False
 
 
 def parse_params(value, where: str = "--params") -> tuple[str, ...]:
@@ -147,7 +151,8 @@ def resolve_settings(config: Config, *, iterations=None, resolution=None, spp=No
                     max_triangles=f.integer("max_triangles", DEFAULTS["max_triangles"], lo=1000, hi=100_000_000),
                     max_depth=f.integer("max_depth", config.render.max_depth, lo=1, hi=64),
                     lod=f.string("lod", DEFAULTS["lod"], choices=("high", "medium", "low", "far")),
-                    mask=s_mask, variant=variant)
+                    mask=s_mask, variant=variant,
+                    calibrate=f.boolean("calibrate", s_mode == "statistics"))
 
 
 def optimiser_size(config: Config, resolution: int) -> tuple[int, int]:
@@ -241,6 +246,14 @@ def match(config, reference, out_dir, *, iterations: int | None = None, resoluti
                         max_depth=st.max_depth, lod=st.lod)
     rseed = int(config.seed if seed is None else seed)
     loss = make_loss(st.mode, ref, seed=rseed, bands=st.bands)
+    gain = None
+    if st.calibrate and len(instances):
+        from .calibrate import channel_gain, production_image
+        report(0.03, "calibrating the proxy against the production render")
+        production = production_image(config, instances, start_state, width=width, height=height, library=library)
+        proxy.set_state(start_state)
+        gain = channel_gain(production, proxy.render_numpy(EVAL_SPP, rseed + 13), ~proxy.sky_mask())
+        proxy.set_gain(gain)
     fit = optimise(proxy, loss, start_state, groups=st.params, mode=st.mode, iterations=st.iterations, spp=st.spp,
                    seed=rseed, base_grid=base,
                    progress=lambda f, m: report(0.05 + 0.85 * f, m))
@@ -272,6 +285,7 @@ def match(config, reference, out_dir, *, iterations: int | None = None, resoluti
             "start": {k: round(v, 6) for k, v in fit.start.light_values().items()},
             "result": {k: round(v, 6) for k, v in result_state.light_values().items()},
             "proxy": proxy.stats, "warnings": notes,
+            "calibration_gain": None if gain is None else [round(float(x), 5) for x in gain],
             "loss": [float(f"{x:.6g}") for x in fit.losses],
             "sun_search": [[round(a, 4), round(b, 4), float(f"{c:.6g}")] for a, b, c in fit.search],
         })

@@ -52,6 +52,7 @@ class Proxy:
     haze: float = 0.0                     # [render] haze: extinction per metre (aerial perspective)
     haze_colour: tuple | None = None      # [render] haze_colour; None: the sky's radiance
     grid_extent: tuple | None = None      # (xmin, zmin, xmax, zmax) the colour grid spans
+    gain: tuple | None = None             # per-channel calibration of hit pixels (see .calibrate)
 
     def __post_init__(self):
         self.variant = self.mi.variant()
@@ -118,7 +119,22 @@ class Proxy:
             img = mi.render(self.scene, self.params, seed=seed, spp=spp, spp_grad=spp)
         else:
             img = mi.render(self.scene, seed=seed, spp=spp)
-        return self._hazed(img) if self.haze > 0 else img
+        img = self._hazed(img) if self.haze > 0 else img
+        return self._gained(img) if self.gain is not None else img
+
+    def set_gain(self, gain) -> None:
+        """Multiply the pixels that hit the scene by ``gain`` (3,) from now on (None: no gain)."""
+        self.gain = None if gain is None else tuple(float(x) for x in gain)
+        self._gain_arr = None
+
+    def _gain_values(self) -> np.ndarray:
+        hit = self._primary_hits()[0].ravel()
+        return np.where(hit[:, None], np.asarray(self.gain, np.float64)[None, :], 1.0).ravel()
+
+    def _gained(self, img):
+        if getattr(self, "_gain_arr", None) is None:
+            self._gain_arr = self.mi.Float(self._gain_values().astype(np.float32))
+        return self.mi.TensorXf(img.array * self._gain_arr, (self.height, self.width, img.shape[2]))
 
     def grid_tangent(self, grid: np.ndarray, tangent: np.ndarray, spp: int, seed: int) -> np.ndarray:
         """The render's forward-mode derivative along ``tangent`` of the grid at ``grid``: (H, W, 3).
@@ -154,6 +170,8 @@ class Proxy:
         if self.haze > 0:
             self._hazed_setup()
             arr = arr * np.asarray(self._haze_t, np.float64).reshape(arr.shape)
+        if self.gain is not None:
+            arr = arr * self._gain_values().reshape(arr.shape)
         return arr
 
     def _hazed_setup(self) -> None:
