@@ -22,6 +22,7 @@ loaded scene and the names above.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,6 +30,15 @@ import numpy as np
 from ..errors import ForestError
 from ..render.scene import sun_vector
 from .colour import luminance_weights
+
+
+def sampler_spp(spp: int) -> int:
+    """The sample count the proxy's ``multijitter`` sampler uses for ``spp``: a·⌈spp/a⌉ with a = ⌊√spp⌋.
+
+    Rounding here, as the sampler would, keeps Mitsuba from warning on every render.
+    """
+    a = max(1, math.isqrt(int(spp)))
+    return a * -(-int(spp) // a)
 
 
 @dataclass
@@ -115,6 +125,7 @@ class Proxy:
         self.activate()
         mi = self.mi
         seed = int(seed) & 0xFFFFFFFF              # Mitsuba's seeds are 32-bit
+        spp = sampler_spp(spp)
         if grad:
             img = mi.render(self.scene, self.params, seed=seed, spp=spp, spp_grad=spp)
         else:
@@ -162,7 +173,8 @@ class Proxy:
         # Push the tangent into the textures' internal copies before the integrator's isolated pass.
         dr.enqueue(dr.ADMode.Forward, *[self.params[k] for k in keys])
         dr.traverse(dr.ADMode.Forward, dr.ADFlag.ClearEdges)
-        out = self.scene.integrator().render_forward(self.scene, self.params, seed=int(seed) & 0xFFFFFFFF, spp=spp)
+        out = self.scene.integrator().render_forward(self.scene, self.params, seed=int(seed) & 0xFFFFFFFF,
+                                                     spp=sampler_spp(spp))
         arr = np.asarray(dr.detach(out), np.float64)[..., :3]
         for key in keys:
             self.params[key] = dr.detach(self.params[key])
