@@ -39,14 +39,9 @@ GAIN_LIMITS = (0.25, 4.0)
 def production_image(config, instances, state, *, width: int, height: int, spp: int = CALIBRATION_SPP,
                      library=None) -> np.ndarray:
     """The ``scalar_rgb`` production render of ``config`` with ``state``'s lights: (H, W, 3) linear, no files."""
-    from ..render.render import _Renderer
-    if library is None:
-        from ..library import open_library
-        library = open_library()
-    r = _Renderer(config, instances, "scalar_rgb", library, preview=False, overrides=state.overrides(),
-                  progress=None)
-    r.width, r.height, r.spp, r.subframes = int(width), int(height), int(spp), 1
-    return np.asarray(r.frame(1.0, lambda: None)["rgb"], np.float64)[..., :3]
+    from ..render.render import render_image
+    return render_image(config, instances, width=width, height=height, spp=spp, overrides=state.overrides(),
+                        library=library)
 
 
 def channel_gain(production: np.ndarray, proxy_image: np.ndarray, hit: np.ndarray) -> np.ndarray:

@@ -41,6 +41,11 @@ def sampler_spp(spp: int) -> int:
     return a * -(-int(spp) // a)
 
 
+def _sampling(seed: int, spp: int) -> tuple[int, int]:
+    """(seed, spp) as Mitsuba takes them: a 32-bit seed, the sampler's own sample count."""
+    return int(seed) & 0xFFFFFFFF, sampler_spp(spp)
+
+
 @dataclass
 class GridTarget:
     key: str
@@ -124,8 +129,7 @@ class Proxy:
         """Render the current parameters; with ``grad`` the result is attached to the AD graph."""
         self.activate()
         mi = self.mi
-        seed = int(seed) & 0xFFFFFFFF              # Mitsuba's seeds are 32-bit
-        spp = sampler_spp(spp)
+        seed, spp = _sampling(seed, spp)
         if grad:
             img = mi.render(self.scene, self.params, seed=seed, spp=spp, spp_grad=spp)
         else:
@@ -173,8 +177,8 @@ class Proxy:
         # Push the tangent into the textures' internal copies before the integrator's isolated pass.
         dr.enqueue(dr.ADMode.Forward, *[self.params[k] for k in keys])
         dr.traverse(dr.ADMode.Forward, dr.ADFlag.ClearEdges)
-        out = self.scene.integrator().render_forward(self.scene, self.params, seed=int(seed) & 0xFFFFFFFF,
-                                                     spp=sampler_spp(spp))
+        seed, spp = _sampling(seed, spp)
+        out = self.scene.integrator().render_forward(self.scene, self.params, seed=seed, spp=spp)
         arr = np.asarray(dr.detach(out), np.float64)[..., :3]
         for key in keys:
             self.params[key] = dr.detach(self.params[key])

@@ -187,7 +187,7 @@ class _Renderer:
     """State shared by the frames of one ``render_scene`` call."""
 
     def __init__(self, config, instances: InstanceSet, variant: str, library, *, preview: bool,
-                 overrides: dict | None, progress):
+                 overrides: dict | None, progress, size: tuple[int, int, int] | None = None):
         self.config = config
         self.instances = instances
         self.variant = variant
@@ -199,6 +199,9 @@ class _Renderer:
             k = min(1.0, PREVIEW_WIDTH / rc.width)
             self.width, self.height = max(1, round(rc.width * k)), max(1, round(rc.height * k))
             self.spp = min(rc.spp, PREVIEW_SPP)
+            self.subframes = 1
+        elif size is not None:                 # (width, height, spp) of a still at one instant
+            self.width, self.height, self.spp = (int(v) for v in size)
             self.subframes = 1
         else:
             self.width, self.height, self.spp = rc.width, rc.height, rc.spp
@@ -411,6 +414,21 @@ class _Renderer:
         depth = np.where(far, np.float32(cam.far), depth)
         return {"rgb": rgb, "depth": depth, "id": ids, "species": species, "denoised": denoised,
                 "camera": state, "levels": levels}
+
+
+def render_image(config, instances, *, width: int, height: int, spp: int, variant: str = "scalar_rgb",
+                 overrides=None, library=None) -> np.ndarray:
+    """The beauty of frame 1 at ``width``×``height``×``spp`` as an (H, W, 3) linear array, no files, no blur.
+
+    The same scene, materials, LODs and haze as :func:`render_scene`; for
+    callers that need the production image itself (look-dev's calibration).
+    """
+    if library is None:
+        from ..library import open_library
+        library = open_library()
+    r = _Renderer(config, _resolve_instances(config, instances), variant, library, preview=False,
+                  overrides=overrides, progress=None, size=(width, height, spp))
+    return np.asarray(r.frame(1.0, lambda: None)["rgb"], np.float64)[..., :3]
 
 
 def render_scene(config, *, output, instances=None, variant=None, frames=None, preview=False, overrides=None,
