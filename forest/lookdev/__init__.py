@@ -281,7 +281,7 @@ def match(config, reference, out_dir, *, iterations: int | None = None, resoluti
                            f"fitted: {', '.join(fit.fitted)}")
         write_json(tmp / "match.json", {
             "mode": st.mode, "iterations": st.iterations, "spp": st.spp, "resolution": [width, height],
-            "grid": st.grid, "fitted": list(fit.fitted), "figures": {k: round(v, 4) for k, v in figures.items()},
+            "grid": st.grid, "fitted": list(fit.fitted), "figures": {k: float(f"{v:.6g}") for k, v in figures.items()},
             "start": {k: round(v, 6) for k, v in fit.start.light_values().items()},
             "result": {k: round(v, 6) for k, v in result_state.light_values().items()},
             "proxy": proxy.stats, "warnings": notes,
