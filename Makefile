@@ -1,7 +1,7 @@
 # The two commands the README shows: `make demo` and `make test`.
 # Both run the idempotent set-up first (LLVM 19, .venv/, the tree library).
 
-.PHONY: setup demo test bench
+.PHONY: setup demo test lint bench
 
 setup:
 	@bash scripts/setup.sh
@@ -9,6 +9,11 @@ setup:
 demo: setup
 	.venv/bin/forest scatter configs/demo.toml -o out/demo_trees.npz
 	.venv/bin/forest render configs/demo.toml --instances out/demo_trees.npz -o out/demo.exr
+
+# Conventions CI enforces before the tests: ruff (lint + format).
+lint: setup
+	.venv/bin/ruff check .
+	.venv/bin/ruff format --check .
 
 test: setup
 	.venv/bin/python -m pytest -q -p no:cacheprovider tests

@@ -36,10 +36,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from forest.config import load_config  # noqa: E402
-from forest.export.rib import export_rib  # noqa: E402
-from forest.export.usd import export_usd  # noqa: E402
-from forest.instances import InstanceSet, quaternion_to_matrix, yaw_tilt_quaternion  # noqa: E402
+from forest.config import load_config
+from forest.export.rib import export_rib
+from forest.export.usd import export_usd
+from forest.instances import InstanceSet, quaternion_to_matrix, yaw_tilt_quaternion
 
 
 def synthetic(cfg, n: int, seed: int = 1) -> InstanceSet:
@@ -51,12 +51,21 @@ def synthetic(cfg, n: int, seed: int = 1) -> InstanceSet:
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     names = [p.name for p in cfg.partitions]
     return InstanceSet(
-        id=np.arange(n, dtype=np.uint64) * 3, position=pos,
-        rotation=yaw_tilt_quaternion(yaw, normal, np.full(n, 0.5)), yaw=yaw,
-        scale=rng.uniform(0.7, 1.4, n), species=rng.integers(0, len(cfg.species), n),
-        tint=rng.uniform(0.5, 1.2, (n, 3)), partition=rng.integers(0, len(names), n), normal=normal,
-        phase=rng.uniform(0, 6.3, n), species_names=[s.model for s in cfg.species], partition_names=names,
-        extent=(-half, -half, half, half), seed=seed)
+        id=np.arange(n, dtype=np.uint64) * 3,
+        position=pos,
+        rotation=yaw_tilt_quaternion(yaw, normal, np.full(n, 0.5)),
+        yaw=yaw,
+        scale=rng.uniform(0.7, 1.4, n),
+        species=rng.integers(0, len(cfg.species), n),
+        tint=rng.uniform(0.5, 1.2, (n, 3)),
+        partition=rng.integers(0, len(names), n),
+        normal=normal,
+        phase=rng.uniform(0, 6.3, n),
+        species_names=[s.model for s in cfg.species],
+        partition_names=names,
+        extent=(-half, -half, half, half),
+        seed=seed,
+    )
 
 
 def naive_rib(inst: InstanceSet, rows: np.ndarray, archive: list[str]) -> str:
@@ -67,15 +76,17 @@ def naive_rib(inst: InstanceSet, rows: np.ndarray, archive: list[str]) -> str:
         a, p, c = m[k], inst.position[i], inst.tint[i]
         out.append(
             f'AttributeBegin\n  Attribute "identifier" "string name" ["tree_{inst.id[i]}"]\n'
-            f"  ConcatTransform [{a[0,0]:.7f} {a[1,0]:.7f} {a[2,0]:.7f} 0 {a[0,1]:.7f} {a[1,1]:.7f} {a[2,1]:.7f} 0 "
-            f"{a[0,2]:.7f} {a[1,2]:.7f} {a[2,2]:.7f} 0 {p[0]:.6f} {p[1]:.6f} {p[2]:.6f} 1]\n"
+            f"  ConcatTransform [{a[0, 0]:.7f} {a[1, 0]:.7f} {a[2, 0]:.7f} 0 {a[0, 1]:.7f} {a[1, 1]:.7f} {a[2, 1]:.7f} 0 "
+            f"{a[0, 2]:.7f} {a[1, 2]:.7f} {a[2, 2]:.7f} 0 {p[0]:.6f} {p[1]:.6f} {p[2]:.6f} 1]\n"
             f"  Color [{c[0]:.7f} {c[1]:.7f} {c[2]:.7f}]\n"
-            f"{archive[inst.species[i]]}AttributeEnd\n")
+            f"{archive[inst.species[i]]}AttributeEnd\n"
+        )
     return "".join(out)
 
 
 def naive_usd(inst: InstanceSet, rows: np.ndarray):
     from pxr import Gf, Vt
+
     pos = Vt.Vec3fArray([Gf.Vec3f(*map(float, inst.position[i])) for i in rows])
     rot = Vt.QuatfArray([Gf.Quatf(float(inst.rotation[i, 0]), *map(float, inst.rotation[i, 1:])) for i in rows])
     sc = Vt.Vec3fArray([Gf.Vec3f(float(inst.scale[i])) for i in rows])
@@ -104,11 +115,13 @@ def main() -> None:
     cfg = load_config(ROOT / "configs" / "demo.toml")
     cfg.validate_all()
     from forest.terrain import load_terrain
+
     terrain = load_terrain(cfg.terrain, cfg.path)
     inst = synthetic(cfg, args.trees)
     from forest.library import open_library
+
     lib = open_library()
-    for sp in cfg.species:                  # build any stale species now, outside the timings
+    for sp in cfg.species:  # build any stale species now, outside the timings
         lib.resolve(sp.model, cfg.base_dir)
     base_rss = peak_rss_mb()
     tmp = Path(tempfile.mkdtemp(prefix="forest-bench-export-"))
@@ -135,8 +148,10 @@ def main() -> None:
         return res.instance_seconds, res.seconds, size
 
     sample = np.arange(min(args.sample, len(inst)))
-    archive = {i: f'  Procedural "DelayedReadArchive" ["archives/{sp}_high.rib"] [-5 5 0 15 -5 5]\n'
-               for i, sp in enumerate(inst.species_names)}
+    archive = {
+        i: f'  Procedural "DelayedReadArchive" ["archives/{sp}_high.rib"] [-5 5 0 15 -5 5]\n'
+        for i, sp in enumerate(inst.species_names)
+    }
 
     def naive():
         t = time.perf_counter()
@@ -150,10 +165,13 @@ def main() -> None:
         return ((time.perf_counter() - t) * len(inst) / len(sample),)
 
     try:
-        print(f"machine load average at start: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; "
-              f"best of {args.repeat} runs")
+        print(
+            f"machine load average at start: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores; "
+            f"best of {args.repeat} runs"
+        )
         import tracemalloc
-        tracemalloc.start()                 # numpy's buffers are traced too
+
+        tracemalloc.start()  # numpy's buffers are traced too
         rib(False)
         traced = tracemalloc.get_traced_memory()[1] / 2**20
         tracemalloc.stop()
@@ -163,28 +181,42 @@ def main() -> None:
         (t_arch, _, size_arch, _, cpu_arch), runs_arch = best_of(args.repeat, lambda: rib(True, "archive"))
         set_lod(False)
         (t_naive,), _ = best_of(2, naive)
-        print(f"RIB {len(inst):,} trees, one archive each: instance files {t_rib:.2f} s "
-              f"({size / 2**20:.0f} MiB, {nparts} partitions; target <= 3 s; all runs "
-              f"{', '.join(f'{r[0]:.2f}' for r in runs)}; CPU time {cpu:.2f} s); "
-              f"whole export incl. archives, terrain, scene {t_all:.2f} s")
-        print(f"RIB per-tree f-string loop + write (measured on {len(sample):,} trees, scaled to {len(inst):,}): "
-              f"{t_naive:.1f} s -> vectorised writer {t_naive / t_rib:.1f}x faster")
-        print(f"RIB {len(inst):,} trees with [lod] Detail/DetailRange over 4 levels: instance files "
-              f"{t_lod:.2f} s ({size_lod / 2**20:.0f} MiB; runs {', '.join(f'{r[0]:.2f}' for r in runs_lod)}; "
-              f"CPU time {cpu_lod:.2f} s)")
-        print(f"RIB {len(inst):,} trees with the LOD switch in one archive per species ([export] rib_lod = "
-              f"\"archive\"): instance files {t_arch:.2f} s ({size_arch / 2**20:.0f} MiB; runs "
-              f"{', '.join(f'{r[0]:.2f}' for r in runs_arch)}; CPU time {cpu_arch:.2f} s)")
-        print(f"RIB memory: at most {traced:.0f} MiB allocated during an export of {size / 2**20:.0f} MiB of "
-              f"instance files (blocks of 32768 trees); process peak RSS {rss:.0f} MB, "
-              f"{base_rss:.0f} MB before exporting")
+        print(
+            f"RIB {len(inst):,} trees, one archive each: instance files {t_rib:.2f} s "
+            f"({size / 2**20:.0f} MiB, {nparts} partitions; target <= 3 s; all runs "
+            f"{', '.join(f'{r[0]:.2f}' for r in runs)}; CPU time {cpu:.2f} s); "
+            f"whole export incl. archives, terrain, scene {t_all:.2f} s"
+        )
+        print(
+            f"RIB per-tree f-string loop + write (measured on {len(sample):,} trees, scaled to {len(inst):,}): "
+            f"{t_naive:.1f} s -> vectorised writer {t_naive / t_rib:.1f}x faster"
+        )
+        print(
+            f"RIB {len(inst):,} trees with [lod] Detail/DetailRange over 4 levels: instance files "
+            f"{t_lod:.2f} s ({size_lod / 2**20:.0f} MiB; runs {', '.join(f'{r[0]:.2f}' for r in runs_lod)}; "
+            f"CPU time {cpu_lod:.2f} s)"
+        )
+        print(
+            f"RIB {len(inst):,} trees with the LOD switch in one archive per species ([export] rib_lod = "
+            f'"archive"): instance files {t_arch:.2f} s ({size_arch / 2**20:.0f} MiB; runs '
+            f"{', '.join(f'{r[0]:.2f}' for r in runs_arch)}; CPU time {cpu_arch:.2f} s)"
+        )
+        print(
+            f"RIB memory: at most {traced:.0f} MiB allocated during an export of {size / 2**20:.0f} MiB of "
+            f"instance files (blocks of 32768 trees); process peak RSS {rss:.0f} MB, "
+            f"{base_rss:.0f} MB before exporting"
+        )
         (t_usd, t_usd_all, usize), runs_u = best_of(args.repeat, usd)
         (t_naive_u,), _ = best_of(2, naive_u)
-        print(f"USD {len(inst):,} trees: point instancers + save (usdc) {t_usd:.2f} s "
-              f"({usize / 2**20:.0f} MiB, target <= 1 s; runs {', '.join(f'{r[0]:.2f}' for r in runs_u)}); "
-              f"whole export incl. species layers, terrain {t_usd_all:.2f} s")
-        print(f"USD per-instance Gf loop (arrays only, measured on {len(sample):,}, scaled): {t_naive_u:.1f} s "
-              f"-> {t_naive_u / t_usd:.1f}x")
+        print(
+            f"USD {len(inst):,} trees: point instancers + save (usdc) {t_usd:.2f} s "
+            f"({usize / 2**20:.0f} MiB, target <= 1 s; runs {', '.join(f'{r[0]:.2f}' for r in runs_u)}); "
+            f"whole export incl. species layers, terrain {t_usd_all:.2f} s"
+        )
+        print(
+            f"USD per-instance Gf loop (arrays only, measured on {len(sample):,}, scaled): {t_naive_u:.1f} s "
+            f"-> {t_naive_u / t_usd:.1f}x"
+        )
         print(f"machine load average at end: {os.getloadavg()[0]:.1f}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -23,7 +23,8 @@ sys.path.insert(0, str(ROOT))
 def big_tree_obj(folder: Path, triangles: int = 200_000) -> Path:
     """Write an OBJ + MTL tree of about ``triangles`` triangles: a trunk and a dense crown."""
     import trimesh
-    n = int(np.sqrt(triangles / 4.0))      # a uv-sphere of count [n, n] has about 4·n² triangles
+
+    n = int(np.sqrt(triangles / 4.0))  # a uv-sphere of count [n, n] has about 4·n² triangles
     crown = trimesh.creation.uv_sphere(radius=2.5, count=[n, n])
     crown.apply_scale([1.0, 0.8, 1.0])
     crown.apply_translation([0, 5.0, 0])
@@ -64,8 +65,9 @@ def main() -> None:
     from forest.library.importer import add_species
     from forest.runtime import mitsuba
 
-    mitsuba("scalar_rgb")            # import once, outside the timings
+    mitsuba("scalar_rgb")  # import once, outside the timings
     import colour  # noqa: F401      # (colour-science is imported by image writing)
+
     tmp = Path(tempfile.mkdtemp(prefix="forest-bench-library-"))
     try:
         root = tmp / "lib"
@@ -74,12 +76,13 @@ def main() -> None:
         shutil.copytree(ROOT / "library/presets", root / "presets")
         lib = open_library(root)
         import os
+
         print(f"load average at start: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
         with Timer() as t_gen:
             species = lib.build(previews=False)
         with Timer() as t_prev:
             for sp in species:
-                sp.preview  # noqa: B018
+                sp.preview  # noqa: B018 - renders when missing
         print(f"generate {len(species)} presets x 4 levels of detail: {t_gen}   (target <= 30 s)")
         for sp in species:
             print(f"    {sp.name:10s} " + "  ".join(f"{l.name} {l.triangles:>7,}" for l in sp.lods))
@@ -91,8 +94,10 @@ def main() -> None:
         obj = big_tree_obj(tmp)
         with Timer() as t_imp:
             sp = add_species(lib, obj, "big")
-        print(f"import a {sum(1 for line in obj.open() if line.startswith('f ')):,}-triangle OBJ with levels of detail "
-              f"and preview: {t_imp}   (target <= 20 s)")
+        print(
+            f"import a {sum(1 for line in obj.open() if line.startswith('f ')):,}-triangle OBJ with levels of detail "
+            f"and preview: {t_imp}   (target <= 20 s)"
+        )
         print("    " + "  ".join(f"{l.name} {l.triangles:>7,}" for l in sp.lods))
         print(f"load average at end: {os.getloadavg()[0]:.1f}")
     finally:

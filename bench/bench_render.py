@@ -89,9 +89,18 @@ def peak_gb() -> float:
 
 
 def write_scene(folder: Path, *, count: int, width: int, height: int, spp: int, lod: str, depth: int = 3) -> Path:
-    size = float(np.sqrt(count / 130_000.0) * 4000.0)            # ~8 trees per 1000 m², like the original
-    text = SCENE.format(size=size, count=count, camz=-0.45 * size, targetz=-0.1 * size, width=width,
-                        height=height, spp=spp, depth=depth, lod=lod)
+    size = float(np.sqrt(count / 130_000.0) * 4000.0)  # ~8 trees per 1000 m², like the original
+    text = SCENE.format(
+        size=size,
+        count=count,
+        camz=-0.45 * size,
+        targetz=-0.1 * size,
+        width=width,
+        height=height,
+        spp=spp,
+        depth=depth,
+        lod=lod,
+    )
     path = folder / "bench.toml"
     path.write_text(text)
     return path
@@ -99,11 +108,13 @@ def write_scene(folder: Path, *, count: int, width: int, height: int, spp: int, 
 
 # -- workers (run in a child process) -----------------------------------------------
 
+
 def worker_render(args) -> dict:
     """Scatter + render one frame; report times, triangles and peak memory."""
     from forest.config import load_config
     from forest.render import render_scene
     from forest.scatter import scatter
+
     t0 = time.perf_counter()
     cfg = load_config(args.config)
     inst, _ = scatter(cfg)
@@ -111,16 +122,26 @@ def worker_render(args) -> dict:
     res = render_scene(cfg, output=Path(args.out) / "frame.exr", instances=inst, variant=args.variant)
     total = time.perf_counter() - t0
     ru = resource.getrusage(resource.RUSAGE_SELF)
-    return {"trees": res.trees, "instanced": res.instanced_triangles, "unique": res.unique_triangles,
-            "cpu_s": ru.ru_utime + ru.ru_stime, "scatter_s": t_scatter, "load_s": res.load_seconds,
-            "render_s": res.render_seconds,
-            "total_s": total, "peak_gb": peak_gb(), "lod": res.lod_counts, "variant": res.variant}
+    return {
+        "trees": res.trees,
+        "instanced": res.instanced_triangles,
+        "unique": res.unique_triangles,
+        "cpu_s": ru.ru_utime + ru.ru_stime,
+        "scatter_s": t_scatter,
+        "load_s": res.load_seconds,
+        "render_s": res.render_seconds,
+        "total_s": total,
+        "peak_gb": peak_gb(),
+        "lod": res.lod_counts,
+        "variant": res.variant,
+    }
 
 
 def _flat_inputs(args):
     from forest.config import load_config
     from forest.library import open_library
     from forest.scatter import scatter
+
     cfg = load_config(args.config)
     inst, _ = scatter(cfg)
     lib = open_library()
@@ -130,6 +151,7 @@ def _flat_inputs(args):
 def worker_memory(args) -> dict:
     """Build (not render) the forest instanced or flattened; report the memory the scene added."""
     from forest.runtime import mitsuba
+
     cfg, inst, lib = _flat_inputs(args)
     mi = mitsuba("scalar_rgb")
     lod = args.lod_index
@@ -141,11 +163,16 @@ def worker_memory(args) -> dict:
     if args.mode == "instanced":
         scene = {"type": "scene"}
         for s, ps in parts.items():
-            scene[f"sg_{s}"] = {"type": "shapegroup", **{f"p{k}": {"type": "ply", "filename": str(p.path)}
-                                                          for k, p in enumerate(ps)}}
+            scene[f"sg_{s}"] = {
+                "type": "shapegroup",
+                **{f"p{k}": {"type": "ply", "filename": str(p.path)} for k, p in enumerate(ps)},
+            }
         for row, (s, m) in enumerate(zip(inst.species.tolist(), mats)):
-            scene[f"tree_{row}"] = {"type": "instance", "shapegroup": {"type": "ref", "id": f"sg_{s}"},
-                                    "to_world": mi.ScalarTransform4f(m)}
+            scene[f"tree_{row}"] = {
+                "type": "instance",
+                "shapegroup": {"type": "ref", "id": f"sg_{s}"},
+                "to_world": mi.ScalarTransform4f(m),
+            }
         obj = mi.load_dict(scene)
         del scene
         tris = sum(sum(m.triangles for m in meshes[s]) for s in inst.species.tolist())
@@ -155,11 +182,14 @@ def worker_memory(args) -> dict:
         for s, ms in meshes.items():
             rows = np.flatnonzero(inst.species == s)
             for k, m in enumerate(ms):
-                v = np.einsum("nij,vj->nvi", mats[rows, :3, :3], m.vertices.astype(np.float64)) \
+                v = (
+                    np.einsum("nij,vj->nvi", mats[rows, :3, :3], m.vertices.astype(np.float64))
                     + mats[rows, None, :3, 3]
-                f = (m.faces[None, :, :].astype(np.int64) + (np.arange(len(rows)) * len(m.vertices))[:, None, None])
-                mesh = mi.Mesh(f"flat_{s}_{k}", vertex_count=v.shape[0] * v.shape[1],
-                               face_count=f.shape[0] * f.shape[1])
+                )
+                f = m.faces[None, :, :].astype(np.int64) + (np.arange(len(rows)) * len(m.vertices))[:, None, None]
+                mesh = mi.Mesh(
+                    f"flat_{s}_{k}", vertex_count=v.shape[0] * v.shape[1], face_count=f.shape[0] * f.shape[1]
+                )
                 p = mi.traverse(mesh)
                 p["vertex_positions"] = v.astype(np.float32).ravel()
                 p["faces"] = f.astype(np.uint32).ravel()
@@ -171,8 +201,14 @@ def worker_memory(args) -> dict:
     build = time.perf_counter() - t0
     after = _rss_now()
     del obj
-    return {"mode": args.mode, "trees": len(inst), "triangles": int(tris), "scene_gb": (after - base) / 2**30,
-            "peak_gb": peak_gb(), "build_s": build}
+    return {
+        "mode": args.mode,
+        "trees": len(inst),
+        "triangles": int(tris),
+        "scene_gb": (after - base) / 2**30,
+        "peak_gb": peak_gb(),
+        "build_s": build,
+    }
 
 
 def _rss_now() -> int:
@@ -192,17 +228,21 @@ def run_worker(kind: str, **kw) -> dict:
 
 # -- cases ---------------------------------------------------------------------------------
 
+
 def case_original(tmp: Path, scale: float, variant: str, depth: int) -> None:
     count = max(100, int(130_000 * scale))
-    w, h = (1920, 1080) if scale >= 1 else (max(64, int(1920 * scale ** 0.5)), max(36, int(1080 * scale ** 0.5)))
-    cfg = write_scene(tmp, count=count, width=w, height=h, spp=64, depth=depth,
-                      lod="distances = [150.0, 600.0, 1800.0]")
+    w, h = (1920, 1080) if scale >= 1 else (max(64, int(1920 * scale**0.5)), max(36, int(1080 * scale**0.5)))
+    cfg = write_scene(
+        tmp, count=count, width=w, height=h, spp=64, depth=depth, lod="distances = [150.0, 600.0, 1800.0]"
+    )
     r = run_worker("render", config=cfg, out=tmp, variant=variant)
-    print(f"render original: {r['trees']:,} trees, {r['instanced'] / 1e6:.1f} M instanced triangles "
-          f"({r['unique'] / 1e6:.2f} M unique), {w}x{h} 64 spp, max_depth {depth} ({r['variant']}): "
-          f"{r['total_s']:.0f} s end to end (scatter {r['scatter_s']:.1f} s, scene {r['load_s']:.1f} s, "
-          f"render {r['render_s']:.0f} s), {r['cpu_s']:.0f} CPU-s (≈ {r['cpu_s'] / 2:.0f} s on 2 idle cores), "
-          f"peak {r['peak_gb']:.2f} GB — target ≤ 180 s, original 1800–2400 s")
+    print(
+        f"render original: {r['trees']:,} trees, {r['instanced'] / 1e6:.1f} M instanced triangles "
+        f"({r['unique'] / 1e6:.2f} M unique), {w}x{h} 64 spp, max_depth {depth} ({r['variant']}): "
+        f"{r['total_s']:.0f} s end to end (scatter {r['scatter_s']:.1f} s, scene {r['load_s']:.1f} s, "
+        f"render {r['render_s']:.0f} s), {r['cpu_s']:.0f} CPU-s (≈ {r['cpu_s'] / 2:.0f} s on 2 idle cores), "
+        f"peak {r['peak_gb']:.2f} GB — target ≤ 180 s, original 1800–2400 s"
+    )
     print(f"render original: LOD mix {r['lod']}")
 
 
@@ -211,11 +251,13 @@ def case_million(tmp: Path, scale: float, variant: str) -> None:
     cfg = write_scene(tmp, count=count, width=1280, height=720, spp=16, lod="distances = [1000000.0]")
     r = run_worker("render", config=cfg, out=tmp, variant=variant)
     per_tree = r["instanced"] / max(r["trees"], 1)
-    print(f"render million: {r['trees']:,} trees × {per_tree:,.0f} triangles = {r['instanced'] / 1e9:.2f} G "
-          f"instanced triangles, 1280x720 16 spp: peak {r['peak_gb']:.2f} GB (target ≤ 6 GB; "
-          f"{r['peak_gb'] * 1e6 / max(r['trees'], 1):.1f} KB per tree), "
-          f"scene {r['load_s']:.0f} s, render {r['render_s']:.0f} s, end to end {r['total_s']:.0f} s "
-          f"({r['cpu_s']:.0f} CPU-s)")
+    print(
+        f"render million: {r['trees']:,} trees × {per_tree:,.0f} triangles = {r['instanced'] / 1e9:.2f} G "
+        f"instanced triangles, 1280x720 16 spp: peak {r['peak_gb']:.2f} GB (target ≤ 6 GB; "
+        f"{r['peak_gb'] * 1e6 / max(r['trees'], 1):.1f} KB per tree), "
+        f"scene {r['load_s']:.0f} s, render {r['render_s']:.0f} s, end to end {r['total_s']:.0f} s "
+        f"({r['cpu_s']:.0f} CPU-s)"
+    )
 
 
 def case_flatten(tmp: Path, scale: float) -> None:
@@ -224,15 +266,19 @@ def case_flatten(tmp: Path, scale: float) -> None:
     inst = run_worker("memory", config=cfg, mode="instanced", lod_index=1)
     flat = run_worker("memory", config=cfg, mode="flat", lod_index=1)
     ratio = flat["scene_gb"] / max(inst["scene_gb"], 1e-6)
-    print(f"render flatten: {inst['trees']:,} trees, {inst['triangles'] / 1e6:.1f} M triangles (LOD medium): "
-          f"instanced scene {inst['scene_gb'] * 1024:.0f} MB vs flattened {flat['scene_gb'] * 1024:.0f} MB — "
-          f"ratio {ratio:.0f}× (aim ≥ 50×)")
+    print(
+        f"render flatten: {inst['trees']:,} trees, {inst['triangles'] / 1e6:.1f} M triangles (LOD medium): "
+        f"instanced scene {inst['scene_gb'] * 1024:.0f} MB vs flattened {flat['scene_gb'] * 1024:.0f} MB — "
+        f"ratio {ratio:.0f}× (aim ≥ 50×)"
+    )
 
 
 def case_blender() -> None:
     if shutil.which("blender") is None:
-        print("render blender: skipped — blender is not installed on this machine "
-              "(Debian package blender 3.4 for the Cycles comparison)")
+        print(
+            "render blender: skipped — blender is not installed on this machine "
+            "(Debian package blender 3.4 for the Cycles comparison)"
+        )
         return
     print("render blender: blender found but the comparison scene is not scripted in this version; skipped")
 
@@ -242,9 +288,13 @@ def main() -> None:
     ap.add_argument("--case", default="all", help="original, million, flatten, blender or all")
     ap.add_argument("--scale", type=float, default=1.0, help="fraction of the full tree counts")
     ap.add_argument("--variant", default="scalar_rgb")
-    ap.add_argument("--max-depth", type=int, default=2,
-                    help="path depth of the original case (2: direct sun and sky light with shadows, as the "
-                         "original pipeline lit its frames; 3 adds one indirect bounce)")
+    ap.add_argument(
+        "--max-depth",
+        type=int,
+        default=2,
+        help="path depth of the original case (2: direct sun and sky light with shadows, as the "
+        "original pipeline lit its frames; 3 adds one indirect bounce)",
+    )
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--config", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--out", default=None, help=argparse.SUPPRESS)

@@ -22,10 +22,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from forest.config import load_config  # noqa: E402
-from forest.maps import MapSet  # noqa: E402
-from forest.scatter import scatter  # noqa: E402
-from forest.terrain import load_terrain  # noqa: E402
+from forest.config import load_config
+from forest.maps import MapSet
+from forest.scatter import scatter
+from forest.terrain import load_terrain
 
 MAPS = ROOT / "configs" / "maps"
 
@@ -154,29 +154,37 @@ def main() -> None:
         count = int(args.trees / keep)
         cfg = make_config(tmp, count)
         t_plain, (inst, rep) = timed(lambda: scatter(cfg))
-        print(f"scatter, 4 maps + slope rule: {len(inst):,} trees ({count:,} candidates) in {t_plain:.3f} s "
-              f"(target ≤ 1 s)")
+        print(
+            f"scatter, 4 maps + slope rule: {len(inst):,} trees ({count:,} candidates) in {t_plain:.3f} s "
+            f"(target ≤ 1 s)"
+        )
         # Poisson-disk: spacing chosen so that ~the same number of trees survives thinning.
         area = rep.area_m2
         r = 0.58 * math.sqrt(area * keep / (args.trees * 1.6))
         cfg_p = make_config(tmp, int(count * 1.6), r)
         t_pd, (inst_p, rep_p) = timed(lambda: scatter(cfg_p), repeat=1)
-        print(f"scatter + Poisson-disk (min_distance {r:.2f} m): {len(inst_p):,} trees "
-              f"({rep_p.candidates:,} candidates) in {t_pd:.3f} s (target ≤ 10 s)")
+        print(
+            f"scatter + Poisson-disk (min_distance {r:.2f} m): {len(inst_p):,} trees "
+            f"({rep_p.candidates:,} candidates) in {t_pd:.3f} s (target ≤ 10 s)"
+        )
         terrain = load_terrain(cfg.terrain, cfg.path)
         maps = MapSet(cfg)
         t0 = time.perf_counter()
         original_loop(cfg, terrain, maps, args.sample)
         per_cand = (time.perf_counter() - t0) / args.sample
         t_loop = per_cand * count
-        print(f"original per-tree loop: {per_cand * 1e6:.1f} µs per candidate, {t_loop:.0f} s extrapolated "
-              f"to {count:,} candidates (sample of {args.sample:,})")
+        print(
+            f"original per-tree loop: {per_cand * 1e6:.1f} µs per candidate, {t_loop:.0f} s extrapolated "
+            f"to {count:,} candidates (sample of {args.sample:,})"
+        )
         print(f"speed-up vs per-tree loop: {t_loop / t_plain:.0f}× (target ≥ 300×)")
         eco = tmp / "eco.toml"
         eco.write_text(ECOSYSTEM.format(count=args.plants * 4))
         t_eco, (inst_e, rep_e) = timed(lambda: scatter(load_config(eco)), repeat=1)
-        print(f"ecosystem (competition, {rep_e.candidates:,} seeds, 15 years): {len(inst_e):,} plants in "
-              f"{t_eco:.2f} s (target ≤ 30 s for 100 000)")
+        print(
+            f"ecosystem (competition, {rep_e.candidates:,} seeds, 15 years): {len(inst_e):,} plants in "
+            f"{t_eco:.2f} s (target ≤ 30 s for 100 000)"
+        )
         print(f"machine: {platform.machine()}, {__import__('os').cpu_count()} cores, {platform.python_version()}")
 
 

@@ -48,8 +48,9 @@ def main() -> None:
                 tf, summary = run(["render", str(cfg), "-o", f"{tmp}/{name}.exr"])
                 m = re.search(r"([\d,]+) trees", summary)
                 trees = f"{m.group(1)} trees" if m else "?"
-                line += (f"; full {r.get('width', 1280)}x{r.get('height', 720)} {r.get('spp', 64)} spp "
-                         f"{tf:.0f} s ({trees})")
+                line += (
+                    f"; full {r.get('width', 1280)}x{r.get('height', 720)} {r.get('spp', 64)} spp {tf:.0f} s ({trees})"
+                )
             print(line, flush=True)
 
 

@@ -65,9 +65,12 @@ class Service:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.log = open(data.parent / f"serve-{self.port}.log", "ab")
-        self.proc = subprocess.Popen([str(FOREST), "serve", "--port", str(self.port), "--data", str(data),
-                                      "--workers", str(workers), "--quiet"], stdout=self.log,
-                                     stderr=subprocess.STDOUT, start_new_session=True)
+        self.proc = subprocess.Popen(
+            [str(FOREST), "serve", "--port", str(self.port), "--data", str(data), "--workers", str(workers), "--quiet"],
+            stdout=self.log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
             try:
@@ -92,9 +95,10 @@ def bench_submissions(tmp: Path, n: int, concurrency: int) -> dict:
     body = {"kind": "render", "config": SCENE.format(count=500, width=64, height=48, spp=4)}
 
     async def run() -> tuple[float, list[int]]:
-        async with httpx.AsyncClient(base_url=svc.url, timeout=60,
-                                     limits=httpx.Limits(max_connections=concurrency)) as c:
-            for _ in range(20):     # warm-up
+        async with httpx.AsyncClient(
+            base_url=svc.url, timeout=60, limits=httpx.Limits(max_connections=concurrency)
+        ) as c:
+            for _ in range(20):  # warm-up
                 await c.post("/jobs", json=body)
             sem = asyncio.Semaphore(concurrency)
 
@@ -145,8 +149,13 @@ def bench_status_under_load(tmp: Path, seconds: float) -> dict:
     finally:
         svc.stop()
     lat.sort()
-    return {"reads": len(lat), "p50_ms": statistics.median(lat), "p99_ms": lat[int(0.99 * (len(lat) - 1))],
-            "max_ms": lat[-1], "renders_still_running": running.count("running")}
+    return {
+        "reads": len(lat),
+        "p50_ms": statistics.median(lat),
+        "p99_ms": lat[int(0.99 * (len(lat) - 1))],
+        "max_ms": lat[-1],
+        "renders_still_running": running.count("running"),
+    }
 
 
 def bench_first_progress(tmp: Path, repeats: int) -> dict:
@@ -167,8 +176,11 @@ def bench_first_progress(tmp: Path, repeats: int) -> dict:
                             kind = line[7:]
                         elif line.startswith("data: ") and kind == "progress" and first is None:
                             first = time.perf_counter() - t0
-                        elif line.startswith("data: ") and kind == "state" and \
-                                json.loads(line[6:])["state"] in ("succeeded", "failed", "canceled"):
+                        elif (
+                            line.startswith("data: ")
+                            and kind == "state"
+                            and json.loads(line[6:])["state"] in ("succeeded", "failed", "canceled")
+                        ):
                             break
                 times.append(first)
     finally:
@@ -186,17 +198,26 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="forest-bench-") as d:
         tmp = Path(d)
         s = bench_submissions(tmp, args.submissions, args.concurrency)
-        print(f"submissions: {s['accepted']}/{s['submissions']} accepted in {s['seconds']:.2f} s = "
-              f"{s['per_second']:.0f}/s (target >= 200/s: {'ok' if s['per_second'] >= 200 else 'MISSED'}); "
-              f"{s['queued']} queued in the store", flush=True)
+        print(
+            f"submissions: {s['accepted']}/{s['submissions']} accepted in {s['seconds']:.2f} s = "
+            f"{s['per_second']:.0f}/s (target >= 200/s: {'ok' if s['per_second'] >= 200 else 'MISSED'}); "
+            f"{s['queued']} queued in the store",
+            flush=True,
+        )
         lo = bench_status_under_load(tmp, args.load_seconds)
-        print(f"status reads during two renders: {lo['reads']} reads, p50 {lo['p50_ms']:.1f} ms, "
-              f"p99 {lo['p99_ms']:.1f} ms, max {lo['max_ms']:.1f} ms (target p99 <= 20 ms: "
-              f"{'ok' if lo['p99_ms'] <= 20 else 'MISSED'}); renders running at the end: "
-              f"{lo['renders_still_running']}/2", flush=True)
+        print(
+            f"status reads during two renders: {lo['reads']} reads, p50 {lo['p50_ms']:.1f} ms, "
+            f"p99 {lo['p99_ms']:.1f} ms, max {lo['max_ms']:.1f} ms (target p99 <= 20 ms: "
+            f"{'ok' if lo['p99_ms'] <= 20 else 'MISSED'}); renders running at the end: "
+            f"{lo['renders_still_running']}/2",
+            flush=True,
+        )
         fp = bench_first_progress(tmp, args.repeats)
-        print(f"first progress event: median {fp['median_s']:.2f} s, max {fp['max_s']:.2f} s over "
-              f"{fp['repeats']} submits (target <= 2 s: {'ok' if fp['max_s'] <= 2 else 'MISSED'})", flush=True)
+        print(
+            f"first progress event: median {fp['median_s']:.2f} s, max {fp['max_s']:.2f} s over "
+            f"{fp['repeats']} submits (target <= 2 s: {'ok' if fp['max_s'] <= 2 else 'MISSED'})",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

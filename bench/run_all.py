@@ -71,7 +71,7 @@ def main() -> None:
     rows = []
     for n in names:
         print(f"== {n}", flush=True)
-        lines, secs, rc = run(n, args.timeout)
+        lines, _secs, _rc = run(n, args.timeout)
         for l in lines:
             print("  " + l, flush=True)
         rows.append((n, lines))
@@ -85,13 +85,16 @@ def main() -> None:
         r = readme.read_text()
         if BEGIN in r and END in r:
             # Keep rows for benchmarks not re-run this time.
-            old = r[r.index(BEGIN) + len(BEGIN): r.index(END)]
-            kept = [l for l in old.splitlines() if l.startswith("| `bench/")
-                    and not any(f"bench_{n}.py" in l for n, _ in rows)]
+            old = r[r.index(BEGIN) + len(BEGIN) : r.index(END)]
+            kept = [
+                l
+                for l in old.splitlines()
+                if l.startswith("| `bench/") and not any(f"bench_{n}.py" in l for n, _ in rows)
+            ]
             if kept:
                 table[4:4] = kept
                 text = "\n".join(table)
-            r = r[: r.index(BEGIN) + len(BEGIN)] + "\n" + text + "\n" + r[r.index(END):]
+            r = r[: r.index(BEGIN) + len(BEGIN)] + "\n" + text + "\n" + r[r.index(END) :]
             readme.write_text(r)
             print("README.md benchmark table updated")
     (ROOT / "bench" / "RESULTS.md").write_text("# Benchmark results\n\n" + text + "\n")

@@ -36,8 +36,10 @@ def river_mask(n: int, seed: int, width: float) -> np.ndarray:
     """Distance (in map units) to a meandering river running along +Z."""
     rng = np.random.default_rng(seed)
     z = np.linspace(0, 1, n)
-    centre = 0.5 + sum(a * np.sin(2 * np.pi * (f * z + p))
-                       for a, f, p in zip(rng.uniform(0.03, 0.09, 3), (0.7, 1.6, 3.1), rng.random(3)))
+    centre = 0.5 + sum(
+        a * np.sin(2 * np.pi * (f * z + p))
+        for a, f, p in zip(rng.uniform(0.03, 0.09, 3), (0.7, 1.6, 3.1), rng.random(3))
+    )
     x = np.linspace(0, 1, n)
     return np.abs(x[None, :] - centre[:, None]) / width
 
@@ -46,7 +48,7 @@ def main() -> None:
     HERE.mkdir(parents=True, exist_ok=True)
     height = fbm_heights(N, 6, 0.5, seed=11)
     dist = river_mask(N, 5, 0.03)
-    valley = np.clip(dist / 3.0, 0, 1) ** 0.7            # the river runs in a valley
+    valley = np.clip(dist / 3.0, 0, 1) ** 0.7  # the river runs in a valley
     height = 0.15 + 0.85 * height * (0.35 + 0.65 * valley)
     save("height.png", height, bits=16)
     save("presence.png", (dist > 1.0).astype(np.float32))
@@ -56,7 +58,7 @@ def main() -> None:
     t = fbm_heights(N, 5, 0.55, seed=31)[..., None]
     green = np.array([0.45, 0.62, 0.32])
     warm = np.array([0.85, 0.55, 0.25])
-    save("colour.png", green * (1 - t ** 2) + warm * t ** 2)
+    save("colour.png", green * (1 - t**2) + warm * t**2)
     # Partitions by distance from the camera side (-Z): foreground, midground, background.
     zz = np.linspace(0, 1, N)[:, None] * np.ones((1, N))
     part = np.zeros((N, N, 3))
@@ -73,7 +75,7 @@ def jungle() -> None:
     """Jungle with river paths: a braided river carved out by the presence map."""
     height = fbm_heights(N, 6, 0.55, seed=41)
     d1 = river_mask(N, 7, 0.025)
-    d2 = river_mask(N, 13, 0.015).T               # a tributary running along +X
+    d2 = river_mask(N, 13, 0.015).T  # a tributary running along +X
     dist = np.minimum(d1, d2)
     save("jungle_height.png", 0.2 + 0.8 * height * np.clip(dist / 4.0, 0.2, 1.0), bits=16)
     save("jungle_presence.png", (dist > 1.0).astype(np.float32))
@@ -87,13 +89,13 @@ def city() -> None:
     """City: a street grid (presence), density rising towards the centre, district partitions."""
     x = np.linspace(-1, 1, N)
     X, Z = np.meshgrid(x, x)
-    block = 16                                     # pixels per block, 3-pixel streets
-    streets = ((np.arange(N) % block) < 3)
+    block = 16  # pixels per block, 3-pixel streets
+    streets = (np.arange(N) % block) < 3
     presence = ~(streets[None, :] | streets[:, None])
-    avenue = np.abs(X + 0.15 * np.sin(3 * Z)) < 0.03   # a diagonal-ish avenue
+    avenue = np.abs(X + 0.15 * np.sin(3 * Z)) < 0.03  # a diagonal-ish avenue
     presence &= ~avenue
     save("city_presence.png", presence.astype(np.float32))
-    r = np.sqrt(X ** 2 + Z ** 2)
+    r = np.sqrt(X**2 + Z**2)
     save("city_density.png", np.clip(1.0 - 0.8 * r, 0.15, 1.0))
     part = np.zeros((N, N, 3))
     part[r < 0.35] = (1, 0, 0)

@@ -1,2 +1,3 @@
 """forest: grow, render, export and look-dev very large forests."""
+
 __version__ = "0.1.0"

@@ -23,15 +23,16 @@ from .errors import ForestError
 
 @dataclass(frozen=True)
 class CameraState:
-    position: np.ndarray   # (3,)
-    target: np.ndarray     # (3,)
-    up: np.ndarray         # (3,)
-    fov: float             # degrees (horizontal... see forest.render: Mitsuba's fov_axis="x")
+    position: np.ndarray  # (3,)
+    target: np.ndarray  # (3,)
+    up: np.ndarray  # (3,)
+    fov: float  # degrees (horizontal... see forest.render: Mitsuba's fov_axis="x")
 
 
 def _catmull_rom(p0, p1, p2, p3, t, alpha=0.5):
     def tj(ti, a, b):
         return ti + max(np.linalg.norm(b - a), 1e-9) ** alpha
+
     t0 = 0.0
     t1 = tj(t0, p0, p1)
     t2 = tj(t1, p1, p2)
@@ -103,7 +104,7 @@ def frame_path(pattern: str, frame: int) -> str:
     if not m:
         stem, dot, ext = pattern.rpartition(".")
         return f"{stem}_{frame:04d}.{ext}" if dot else f"{pattern}_{frame:04d}"
-    return pattern[: m.start()] + f"{frame:0{len(m.group())}d}" + pattern[m.end():]
+    return pattern[: m.start()] + f"{frame:0{len(m.group())}d}" + pattern[m.end() :]
 
 
 def look_at_matrix(position, target, up) -> np.ndarray:
@@ -113,7 +114,7 @@ def look_at_matrix(position, target, up) -> np.ndarray:
     d /= np.linalg.norm(d)
     u = np.asarray(up, float)
     left = np.cross(u, d)
-    if np.linalg.norm(left) < 1e-9:       # looking straight up/down: pick another up
+    if np.linalg.norm(left) < 1e-9:  # looking straight up/down: pick another up
         left = np.cross([0.0, 0.0, 1.0], d)
     left /= np.linalg.norm(left)
     new_up = np.cross(d, left)

@@ -24,17 +24,20 @@ app = typer.Typer(
 )
 
 
-
 def _version(value: bool):
     if value:
         from . import __version__
+
         typer.echo(f"forest {__version__}")
         raise typer.Exit()
 
 
 @app.callback()
-def _root(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
-                                       help="Print the version and exit.")):
+def _root(
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
+    ),
+):
     """Grow, render, export and look-dev forests of 100 000 to 1 000 000+ trees."""
 
 
@@ -46,6 +49,7 @@ COMMAND_MODULES = (
     "serve",
     "export",
     "match",
+    "examples",
 )
 
 for _name in COMMAND_MODULES:

@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 from .errors import ConfigError, ForestError
 
@@ -26,7 +27,7 @@ MAX_TREES = 20_000_000
 class Fields:
     """Typed accessors over one TOML table that report errors by dotted path."""
 
-    def __init__(self, table: Any, where: str, config: "Config", known: Iterable[str] | None = None):
+    def __init__(self, table: Any, where: str, config: Config, known: Iterable[str] | None = None):
         self.config = config
         self.where = where
         if table is None:
@@ -51,12 +52,20 @@ class Fields:
     def has(self, key: str) -> bool:
         return key in self.table
 
-    def sub(self, key: str, known: Iterable[str] | None = None) -> "Fields":
+    def sub(self, key: str, known: Iterable[str] | None = None) -> Fields:
         return Fields(self.table.get(key), self.path(key), self.config, known)
 
     # -- scalars ---------------------------------------------------------
-    def number(self, key: str, default: float | None = None, *, lo: float | None = None,
-               hi: float | None = None, lo_open: bool = False, required: bool = False) -> float:
+    def number(
+        self,
+        key: str,
+        default: float | None = None,
+        *,
+        lo: float | None = None,
+        hi: float | None = None,
+        lo_open: bool = False,
+        required: bool = False,
+    ) -> float:
         if key not in self.table:
             if required or default is None:
                 self.fail(key, "is required")
@@ -73,8 +82,15 @@ class Fields:
             self.fail(key, f"must be <= {hi:g}, got {v:g}")
         return v
 
-    def integer(self, key: str, default: int | None = None, *, lo: int | None = None,
-                hi: int | None = None, required: bool = False) -> int:
+    def integer(
+        self,
+        key: str,
+        default: int | None = None,
+        *,
+        lo: int | None = None,
+        hi: int | None = None,
+        required: bool = False,
+    ) -> int:
         if key not in self.table:
             if required or default is None:
                 self.fail(key, "is required")
@@ -97,8 +113,9 @@ class Fields:
             self.fail(key, f"must be true or false, got {v!r}")
         return v
 
-    def string(self, key: str, default: str | None = None, *, choices: Sequence[str] | None = None,
-               required: bool = False) -> str | None:
+    def string(
+        self, key: str, default: str | None = None, *, choices: Sequence[str] | None = None, required: bool = False
+    ) -> str | None:
         if key not in self.table:
             if required:
                 self.fail(key, "is required")
@@ -110,15 +127,26 @@ class Fields:
             self.fail(key, f"must be one of {', '.join(choices)}; got {v!r}")
         return v
 
-    def vector(self, key: str, n: int, default: Sequence[float] | None = None, *,
-               lo: float | None = None, hi: float | None = None, required: bool = False) -> tuple[float, ...]:
+    def vector(
+        self,
+        key: str,
+        n: int,
+        default: Sequence[float] | None = None,
+        *,
+        lo: float | None = None,
+        hi: float | None = None,
+        required: bool = False,
+    ) -> tuple[float, ...]:
         if key not in self.table:
             if required or default is None:
                 self.fail(key, "is required")
             return tuple(float(x) for x in default)
         v = self.table[key]
-        if (not isinstance(v, list) or len(v) != n
-                or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v)):
+        if (
+            not isinstance(v, list)
+            or len(v) != n
+            or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in v)
+        ):
             self.fail(key, f"must be a list of {n} numbers, got {v!r}")
         out = tuple(float(x) for x in v)
         if any(not math.isfinite(x) for x in out):
@@ -129,8 +157,9 @@ class Fields:
             self.fail(key, f"values must be <= {hi:g}, got {v!r}")
         return out
 
-    def range(self, key: str, default: Sequence[float] | None, *, lo: float | None = None,
-              hi: float | None = None) -> tuple[float, float] | None:
+    def range(
+        self, key: str, default: Sequence[float] | None, *, lo: float | None = None, hi: float | None = None
+    ) -> tuple[float, float] | None:
         if key not in self.table and default is None:
             return None
         a, b = self.vector(key, 2, default, lo=lo, hi=hi)
@@ -158,9 +187,10 @@ class Fields:
 # Sections
 # ---------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class TerrainConfig:
-    kind: str                      # "heightmap" | "mesh" | "procedural" | "flat"
+    kind: str  # "heightmap" | "mesh" | "procedural" | "flat"
     heightmap: Path | None = None
     mesh: Path | None = None
     size: tuple[float, float] = (1000.0, 1000.0)
@@ -185,7 +215,7 @@ class MapsConfig:
 class ScatterConfig:
     count: int = 10000
     min_distance: float = 0.0
-    align_to_normal: float = 0.0   # 0 = upright, 1 = fully along the terrain normal
+    align_to_normal: float = 0.0  # 0 = upright, 1 = fully along the terrain normal
     method: str = "random"
 
 
@@ -197,15 +227,15 @@ class SpeciesConfig:
     slope_max: float = 90.0
     slope_min: float = 0.0
     altitude: tuple[float, float] | None = None
-    align: float | None = None     # overrides scatter.align_to_normal for this species
-    yaw_step: float = 0.0          # degrees; > 0 snaps yaw to multiples (street-aligned buildings)
-    partitions: tuple[str, ...] | None = None   # regions this species may grow in (None = all)
+    align: float | None = None  # overrides scatter.align_to_normal for this species
+    yaw_step: float = 0.0  # degrees; > 0 snaps yaw to multiples (street-aligned buildings)
+    partitions: tuple[str, ...] | None = None  # regions this species may grow in (None = all)
     extra: dict = field(default_factory=dict, compare=False)
 
 
 @dataclass(frozen=True)
 class Partition:
-    colour: tuple[int, int, int]   # 8-bit sRGB label colour
+    colour: tuple[int, int, int]  # 8-bit sRGB label colour
     name: str
 
 
@@ -224,7 +254,7 @@ class CameraConfig:
     fov: float = 40.0
     up: tuple[float, float, float] = (0.0, 1.0, 0.0)
     keys: tuple[CameraKey, ...] = ()
-    shutter: float = 0.0           # fraction of a frame; > 0 = motion blur
+    shutter: float = 0.0  # fraction of a frame; > 0 = motion blur
     near: float = 0.5
     far: float = 100000.0
     fps: float = 24.0
@@ -232,15 +262,15 @@ class CameraConfig:
 
 @dataclass(frozen=True)
 class SunConfig:
-    elevation: float = 35.0        # degrees above the horizon
-    azimuth: float = 120.0         # degrees, clockwise from +Z (north) towards +X (east)
+    elevation: float = 35.0  # degrees above the horizon
+    azimuth: float = 120.0  # degrees, clockwise from +Z (north) towards +X (east)
     irradiance: float = 3.0
     colour: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
 
 @dataclass(frozen=True)
 class SkyConfig:
-    kind: str = "constant"         # "constant" | "envmap" | "sunsky"
+    kind: str = "constant"  # "constant" | "envmap" | "sunsky"
     radiance: float = 0.35
     colour: tuple[float, float, float] = (1.0, 1.0, 1.0)
     envmap: Path | None = None
@@ -262,26 +292,26 @@ class RenderConfig:
     spp: int = 64
     variant: str | None = None
     max_depth: int = 6
-    subframes: int = 5             # sub-frames averaged for motion blur
-    haze: float = 0.0              # aerial perspective: extinction per metre
+    subframes: int = 5  # sub-frames averaged for motion blur
+    haze: float = 0.0  # aerial perspective: extinction per metre
     haze_colour: tuple[float, float, float] | None = None
     terrain_colour: tuple[float, float, float] = (0.18, 0.16, 0.11)
     seed: int = 0
-    terrain_texture: Path | None = None   # image over the extent (map convention); overrides terrain_colour
-    alpha_shadows: bool = False           # shadow rays see through leaf-card alpha (volpath; slower)
+    terrain_texture: Path | None = None  # image over the extent (map convention); overrides terrain_colour
+    alpha_shadows: bool = False  # shadow rays see through leaf-card alpha (volpath; slower)
 
 
 @dataclass(frozen=True)
 class LodConfig:
-    distances: tuple[float, ...] = ()     # high → medium → low → far boundaries (metres)
+    distances: tuple[float, ...] = ()  # high → medium → low → far boundaries (metres)
     enabled: bool = False
 
 
 @dataclass(frozen=True)
 class WindConfig:
-    strength: float = 0.0          # sway amplitude in degrees
-    frequency: float = 0.4         # sways per second
-    direction: float = 0.0         # degrees (same convention as sun azimuth)
+    strength: float = 0.0  # sway amplitude in degrees
+    frequency: float = 0.4  # sways per second
+    direction: float = 0.0  # degrees (same convention as sun azimuth)
 
 
 def _parse_colour_label(s: str, fields: Fields) -> tuple[int, int, int]:
@@ -293,11 +323,26 @@ def _parse_colour_label(s: str, fields: Fields) -> tuple[int, int, int]:
             raise ValueError
         return int(t[0:2], 16), int(t[2:4], 16), int(t[4:6], 16)
     except ValueError:
-        fields.fail(s, "partition keys must be colours like \"#ff0000\"")
+        fields.fail(s, 'partition keys must be colours like "#ff0000"')
 
 
-TOP_LEVEL_KEYS = ("seed", "name", "terrain", "maps", "partitions", "scatter", "species", "camera",
-                  "lights", "render", "lod", "wind", "lookdev", "ecosystem", "export")
+TOP_LEVEL_KEYS = (
+    "seed",
+    "name",
+    "terrain",
+    "maps",
+    "partitions",
+    "scatter",
+    "species",
+    "camera",
+    "lights",
+    "render",
+    "lod",
+    "wind",
+    "lookdev",
+    "ecosystem",
+    "export",
+)
 
 
 class Config:
@@ -332,8 +377,9 @@ class Config:
             size = f.vector("size", 2, (1000.0, 1000.0), lo=0.0)
             if min(size) <= 0:
                 f.fail("size", f"must be positive, got {list(size)}")
-            return TerrainConfig("heightmap", heightmap=f.file("heightmap"), size=size,
-                                 height=f.number("height", 100.0, lo=0.0))
+            return TerrainConfig(
+                "heightmap", heightmap=f.file("heightmap"), size=size, height=f.number("height", 100.0, lo=0.0)
+            )
         if kind == "mesh":
             for k in ("size", "height"):
                 if f.has(k):
@@ -345,19 +391,27 @@ class Config:
             return TerrainConfig("flat", size=(s, s), height=0.0)
         p = f.sub("procedural", ("size", "height", "octaves", "resolution", "roughness", "seed"))
         size = p.number("size", 2000.0, lo=0.0, lo_open=True)
-        return TerrainConfig("procedural", size=(size, size), height=p.number("height", 150.0, lo=0.0),
-                             octaves=p.integer("octaves", 6, lo=1, hi=16),
-                             resolution=p.integer("resolution", 512, lo=8, hi=8192),
-                             roughness=p.number("roughness", 0.5, lo=0.0, hi=1.0),
-                             seed=p.integer("seed", self.seed, lo=0))
+        return TerrainConfig(
+            "procedural",
+            size=(size, size),
+            height=p.number("height", 150.0, lo=0.0),
+            octaves=p.integer("octaves", 6, lo=1, hi=16),
+            resolution=p.integer("resolution", 512, lo=8, hi=8192),
+            roughness=p.number("roughness", 0.5, lo=0.0, hi=1.0),
+            seed=p.integer("seed", self.seed, lo=0),
+        )
 
     @cached_property
     def maps(self) -> MapsConfig:
-        f = self.root.sub("maps", ("presence", "density", "colour", "partition", "presence_threshold",
-                                   "moisture"))
-        return MapsConfig(presence=f.file("presence"), density=f.file("density"), colour=f.file("colour"),
-                          partition=f.file("partition"), moisture=f.file("moisture"),
-                          presence_threshold=f.number("presence_threshold", 0.5, lo=0.0, hi=1.0))
+        f = self.root.sub("maps", ("presence", "density", "colour", "partition", "presence_threshold", "moisture"))
+        return MapsConfig(
+            presence=f.file("presence"),
+            density=f.file("density"),
+            colour=f.file("colour"),
+            partition=f.file("partition"),
+            moisture=f.file("moisture"),
+            presence_threshold=f.number("presence_threshold", 0.5, lo=0.0, hi=1.0),
+        )
 
     @cached_property
     def partitions(self) -> tuple[Partition, ...]:
@@ -383,16 +437,18 @@ class Config:
 
     @property
     def partition_tolerance(self) -> int:
-        self.partitions
+        self.partitions  # noqa: B018 - parsing the section sets the tolerance
         return self._partition_tolerance
 
     @cached_property
     def scatter(self) -> ScatterConfig:
         f = self.root.sub("scatter", ("count", "min_distance", "align_to_normal", "method"))
-        return ScatterConfig(count=f.integer("count", 10000, lo=0, hi=MAX_TREES),
-                             min_distance=f.number("min_distance", 0.0, lo=0.0),
-                             align_to_normal=f.number("align_to_normal", 0.0, lo=0.0, hi=1.0),
-                             method=f.string("method", "random", choices=("random", "ecosystem")))
+        return ScatterConfig(
+            count=f.integer("count", 10000, lo=0, hi=MAX_TREES),
+            min_distance=f.number("min_distance", 0.0, lo=0.0),
+            align_to_normal=f.number("align_to_normal", 0.0, lo=0.0, hi=1.0),
+            method=f.string("method", "random", choices=("random", "ecosystem")),
+        )
 
     @cached_property
     def species(self) -> tuple[SpeciesConfig, ...]:
@@ -402,24 +458,55 @@ class Config:
         if not isinstance(items, list) or not items:
             raise ConfigError(self.path, "species", "must be an array of tables ([[species]])")
         out = []
-        known = ("model", "percent", "scale", "slope_max", "slope_min", "altitude", "align", "name", "yaw_step", "partitions",
-                 "moisture", "radius", "growth", "shade_tolerance", "lifespan", "vigour")
+        known = (
+            "model",
+            "percent",
+            "scale",
+            "slope_max",
+            "slope_min",
+            "altitude",
+            "align",
+            "name",
+            "yaw_step",
+            "partitions",
+            "moisture",
+            "radius",
+            "growth",
+            "shade_tolerance",
+            "lifespan",
+            "vigour",
+        )
         for i, item in enumerate(items):
             f = Fields(item, f"species[{i}]", self, known)
-            out.append(SpeciesConfig(
-                model=f.string("model", required=True),
-                percent=f.number("percent", required=True, lo=0.0, hi=100.0),
-                scale=f.range("scale", (1.0, 1.0), lo=0.0),
-                slope_max=f.number("slope_max", 90.0, lo=0.0, hi=90.0),
-                slope_min=f.number("slope_min", 0.0, lo=0.0, hi=90.0),
-                altitude=f.range("altitude", None),
-                align=f.number("align", 0.0, lo=0.0, hi=1.0) if f.has("align") else None,
-                yaw_step=f.number("yaw_step", 0.0, lo=0.0, hi=360.0),
-                partitions=self._species_partitions(f),
-                extra={k: v for k, v in item.items() if k not in ("model", "percent", "scale", "slope_max",
-                                                                 "slope_min", "altitude", "align", "yaw_step",
-                                                                 "partitions")},
-            ))
+            out.append(
+                SpeciesConfig(
+                    model=f.string("model", required=True),
+                    percent=f.number("percent", required=True, lo=0.0, hi=100.0),
+                    scale=f.range("scale", (1.0, 1.0), lo=0.0),
+                    slope_max=f.number("slope_max", 90.0, lo=0.0, hi=90.0),
+                    slope_min=f.number("slope_min", 0.0, lo=0.0, hi=90.0),
+                    altitude=f.range("altitude", None),
+                    align=f.number("align", 0.0, lo=0.0, hi=1.0) if f.has("align") else None,
+                    yaw_step=f.number("yaw_step", 0.0, lo=0.0, hi=360.0),
+                    partitions=self._species_partitions(f),
+                    extra={
+                        k: v
+                        for k, v in item.items()
+                        if k
+                        not in (
+                            "model",
+                            "percent",
+                            "scale",
+                            "slope_max",
+                            "slope_min",
+                            "altitude",
+                            "align",
+                            "yaw_step",
+                            "partitions",
+                        )
+                    },
+                )
+            )
             if out[-1].scale[0] <= 0:
                 f.fail("scale", f"must be positive, got {list(out[-1].scale)}")
             if out[-1].slope_min > out[-1].slope_max:
@@ -452,10 +539,14 @@ class Config:
             f.fail("keys", "must be an array of tables")
         for i, k in enumerate(raw_keys):
             kf = Fields(k, f.path(f"keys[{i}]"), self, ("frame", "position", "target", "fov"))
-            keys.append(CameraKey(frame=kf.number("frame", required=True),
-                                  position=kf.vector("position", 3, required=True),
-                                  target=kf.vector("target", 3, required=True),
-                                  fov=kf.number("fov", fov, lo=0.1, hi=179.0)))
+            keys.append(
+                CameraKey(
+                    frame=kf.number("frame", required=True),
+                    position=kf.vector("position", 3, required=True),
+                    target=kf.vector("target", 3, required=True),
+                    fov=kf.number("fov", fov, lo=0.1, hi=179.0),
+                )
+            )
         frames = [k.frame for k in keys]
         if frames != sorted(frames) or len(set(frames)) != len(frames):
             f.fail("keys", "frames must be strictly increasing")
@@ -470,9 +561,17 @@ class Config:
             f.fail("target", "must differ from position")
         near = f.number("near", 0.5, lo=0.0, lo_open=True)
         far = f.number("far", 100000.0, lo=near, lo_open=True)
-        return CameraConfig(position=pos, target=tgt, fov=fov, up=f.vector("up", 3, (0.0, 1.0, 0.0)),
-                            keys=tuple(keys), shutter=f.number("shutter", 0.0, lo=0.0, hi=1.0),
-                            near=near, far=far, fps=f.number("fps", 24.0, lo=0.0, lo_open=True))
+        return CameraConfig(
+            position=pos,
+            target=tgt,
+            fov=fov,
+            up=f.vector("up", 3, (0.0, 1.0, 0.0)),
+            keys=tuple(keys),
+            shutter=f.number("shutter", 0.0, lo=0.0, hi=1.0),
+            near=near,
+            far=far,
+            fps=f.number("fps", 24.0, lo=0.0, lo_open=True),
+        )
 
     @cached_property
     def lights(self) -> LightsConfig:
@@ -480,10 +579,12 @@ class Config:
         sun = None
         if f.has("sun") or not f.table:
             s = f.sub("sun", ("elevation", "azimuth", "irradiance", "colour"))
-            sun = SunConfig(elevation=s.number("elevation", 35.0, lo=-90.0, hi=90.0),
-                            azimuth=s.number("azimuth", 120.0),
-                            irradiance=s.number("irradiance", 3.0, lo=0.0),
-                            colour=s.colour("colour", (1.0, 0.95, 0.88)))
+            sun = SunConfig(
+                elevation=s.number("elevation", 35.0, lo=-90.0, hi=90.0),
+                azimuth=s.number("azimuth", 120.0),
+                irradiance=s.number("irradiance", 3.0, lo=0.0),
+                colour=s.colour("colour", (1.0, 0.95, 0.88)),
+            )
         sky = None
         if f.has("sky") or not f.table:
             s = f.sub("sky", ("radiance", "colour", "envmap", "scale", "sunsky", "turbidity", "albedo"))
@@ -491,31 +592,51 @@ class Config:
                 sky = SkyConfig("envmap", envmap=s.file("envmap"), scale=s.number("scale", 1.0, lo=0.0))
             elif s.has("sunsky"):
                 ss = s.sub("sunsky", ("turbidity", "albedo", "scale"))
-                sky = SkyConfig("sunsky", turbidity=ss.number("turbidity", 3.0, lo=1.0, hi=10.0),
-                                albedo=ss.number("albedo", 0.15, lo=0.0, hi=1.0),
-                                scale=ss.number("scale", 1.0, lo=0.0))
+                sky = SkyConfig(
+                    "sunsky",
+                    turbidity=ss.number("turbidity", 3.0, lo=1.0, hi=10.0),
+                    albedo=ss.number("albedo", 0.15, lo=0.0, hi=1.0),
+                    scale=ss.number("scale", 1.0, lo=0.0),
+                )
             else:
-                sky = SkyConfig("constant", radiance=s.number("radiance", 0.35, lo=0.0),
-                                colour=s.colour("colour", (0.6, 0.75, 1.0)))
+                sky = SkyConfig(
+                    "constant", radiance=s.number("radiance", 0.35, lo=0.0), colour=s.colour("colour", (0.6, 0.75, 1.0))
+                )
         return LightsConfig(sun=sun, sky=sky)
 
     @cached_property
     def render(self) -> RenderConfig:
-        f = self.root.sub("render", ("width", "height", "spp", "variant", "max_depth", "subframes", "haze",
-                                     "haze_colour", "terrain_colour", "seed", "terrain_texture",
-                                     "alpha_shadows"))
-        return RenderConfig(width=f.integer("width", 1280, lo=1, hi=16384),
-                            height=f.integer("height", 720, lo=1, hi=16384),
-                            spp=f.integer("spp", 64, lo=1, hi=65536),
-                            variant=f.string("variant", None, choices=("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")),
-                            max_depth=f.integer("max_depth", 6, lo=1, hi=64),
-                            subframes=f.integer("subframes", 5, lo=1, hi=64),
-                            haze=f.number("haze", 0.0, lo=0.0),
-                            haze_colour=f.colour("haze_colour") if f.has("haze_colour") else None,
-                            terrain_colour=f.colour("terrain_colour", (0.18, 0.16, 0.11)),
-                            seed=f.integer("seed", 0, lo=0),
-                            terrain_texture=f.file("terrain_texture"),
-                            alpha_shadows=f.boolean("alpha_shadows", False))
+        f = self.root.sub(
+            "render",
+            (
+                "width",
+                "height",
+                "spp",
+                "variant",
+                "max_depth",
+                "subframes",
+                "haze",
+                "haze_colour",
+                "terrain_colour",
+                "seed",
+                "terrain_texture",
+                "alpha_shadows",
+            ),
+        )
+        return RenderConfig(
+            width=f.integer("width", 1280, lo=1, hi=16384),
+            height=f.integer("height", 720, lo=1, hi=16384),
+            spp=f.integer("spp", 64, lo=1, hi=65536),
+            variant=f.string("variant", None, choices=("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")),
+            max_depth=f.integer("max_depth", 6, lo=1, hi=64),
+            subframes=f.integer("subframes", 5, lo=1, hi=64),
+            haze=f.number("haze", 0.0, lo=0.0),
+            haze_colour=f.colour("haze_colour") if f.has("haze_colour") else None,
+            terrain_colour=f.colour("terrain_colour", (0.18, 0.16, 0.11)),
+            seed=f.integer("seed", 0, lo=0),
+            terrain_texture=f.file("terrain_texture"),
+            alpha_shadows=f.boolean("alpha_shadows", False),
+        )
 
     @cached_property
     def lod(self) -> LodConfig:
@@ -523,8 +644,11 @@ class Config:
         if not f.has("distances"):
             return LodConfig()
         d = f.table["distances"]
-        if (not isinstance(d, list) or not 1 <= len(d) <= 3
-                or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in d)):
+        if (
+            not isinstance(d, list)
+            or not 1 <= len(d) <= 3
+            or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in d)
+        ):
             f.fail("distances", f"must be a list of 1 to 3 numbers (metres), got {d!r}")
         d = tuple(float(x) for x in d)
         if any(not math.isfinite(x) or x <= 0 for x in d) or list(d) != sorted(set(d)):
@@ -534,9 +658,11 @@ class Config:
     @cached_property
     def wind(self) -> WindConfig:
         f = self.root.sub("wind", ("strength", "frequency", "direction"))
-        return WindConfig(strength=f.number("strength", 0.0, lo=0.0, hi=45.0),
-                          frequency=f.number("frequency", 0.4, lo=0.0),
-                          direction=f.number("direction", 0.0))
+        return WindConfig(
+            strength=f.number("strength", 0.0, lo=0.0, hi=45.0),
+            frequency=f.number("frequency", 0.4, lo=0.0),
+            direction=f.number("direction", 0.0),
+        )
 
     def section(self, name: str, known: Iterable[str] | None = None) -> Fields:
         """Raw accessor for sections other modules own (``lookdev``, ``ecosystem``, …)."""
@@ -544,11 +670,11 @@ class Config:
 
     def validate_scatter(self) -> None:
         """Validate everything scatter reads (so errors surface before any work)."""
-        self.seed, self.terrain, self.maps, self.partitions, self.scatter, self.species
+        self.seed, self.terrain, self.maps, self.partitions, self.scatter, self.species  # noqa: B018
 
     def validate_all(self) -> None:
         self.validate_scatter()
-        self.camera, self.lights, self.render, self.lod, self.wind
+        self.camera, self.lights, self.render, self.lod, self.wind  # noqa: B018
 
 
 def load_config(path: str | Path, overrides: dict | None = None) -> Config:
@@ -563,8 +689,9 @@ def load_config(path: str | Path, overrides: dict | None = None) -> Config:
     return parse_config(text, path=path.resolve(), overrides=overrides)
 
 
-def parse_config(text: str, path: Path | None = None, base_dir: Path | None = None,
-                 overrides: dict | None = None) -> Config:
+def parse_config(
+    text: str, path: Path | None = None, base_dir: Path | None = None, overrides: dict | None = None
+) -> Config:
     """Parse TOML text (e.g. received by the job service) into a :class:`Config`."""
     try:
         data = tomllib.loads(text)
@@ -578,3 +705,20 @@ def parse_config(text: str, path: Path | None = None, base_dir: Path | None = No
                 node = node.setdefault(p, {})
             node[last] = value
     return Config(data, path=path, base_dir=base_dir)
+
+
+def referenced_files(config: Config) -> list[Path]:
+    """Every existing file the config names (terrain, maps, sky, textures, mesh species), sorted."""
+    from .library.core import MESH_SUFFIXES
+
+    found = [config.terrain.heightmap, config.terrain.mesh, config.render.terrain_texture]
+    m = config.maps
+    found += [m.presence, m.density, m.colour, m.partition, m.moisture]
+    sky = config.lights.sky
+    if sky is not None:
+        found.append(sky.envmap)
+    for sp in config.species:
+        p = Path(sp.model).expanduser()
+        if p.suffix.lower() in MESH_SUFFIXES:
+            found.append(p if p.is_absolute() else config.base_dir / p)
+    return sorted({Path(f) for f in found if f is not None and Path(f).is_file()})

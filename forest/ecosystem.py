@@ -38,9 +38,9 @@ from scipy.spatial import cKDTree
 
 from .config import Config, Fields
 from .errors import ConfigError, ForestError
+from .images import read_map_grey
 from .instances import InstanceSet, yaw_tilt_quaternion
 from .maps import MapSet, sample_bilinear
-from .images import read_map_grey
 from .terrain import Terrain, load_terrain
 
 TAG = 0xEC05
@@ -68,6 +68,7 @@ def _window(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, soft: np.ndarray) -> 
 
 def ecosystem_scatter(config: Config, progress=None, terrain: Terrain | None = None):
     from .scatter import ScatterReport, _streams
+
     t0 = time.perf_counter()
     step = progress or (lambda f, m="": None)
     eco = config.section("ecosystem", ("steps", "establish", "seed"))
@@ -119,9 +120,11 @@ def ecosystem_scatter(config: Config, progress=None, terrain: Terrain | None = N
     s_hi = np.array([s.slope_max for s in species])[k]
     a_lo = np.array([s.altitude[0] if s.altitude else -np.inf for s in species])[k]
     a_hi = np.array([s.altitude[1] if s.altitude else np.inf for s in species])[k]
-    fit = (_window(slope, s_lo, s_hi, np.full(len(k), 5.0))
-           * _window(y, a_lo, a_hi, np.full(len(k), 0.05 * max(hmax - hmin, 1.0)))
-           * _window(moisture, par["m_lo"][k], par["m_hi"][k], np.full(len(k), 0.1)))
+    fit = (
+        _window(slope, s_lo, s_hi, np.full(len(k), 5.0))
+        * _window(y, a_lo, a_hi, np.full(len(k), 0.05 * max(hmax - hmin, 1.0)))
+        * _window(moisture, par["m_lo"][k], par["m_hi"][k], np.full(len(k), 0.1))
+    )
     est = fit >= establish
     rejected["site"] = int((~est).sum())
     live, k, P, normal, fit = live[est], k[est], P[est], normal[est], fit[est]
@@ -168,6 +171,7 @@ def ecosystem_scatter(config: Config, progress=None, terrain: Terrain | None = N
 
     step(0.95, "attributes")
     from .scatter import snap_yaw
+
     yaw = snap_yaw(rng["yaw"].random(n)[live] * 2 * np.pi, np.array([s.yaw_step for s in species])[k])
     phase = rng["phase"].random(n)[live] * 2 * np.pi
     rel = np.clip(r / par["radius"][k], 0.0, 1.0)
@@ -176,15 +180,36 @@ def ecosystem_scatter(config: Config, progress=None, terrain: Terrain | None = N
     align = np.array([config.scatter.align_to_normal if s.align is None else s.align for s in species])[k]
     su, sv = terrain.to_uv(P[:, 0], P[:, 2])
     inst = InstanceSet(
-        id=live.astype(np.uint64), position=P, rotation=yaw_tilt_quaternion(yaw, normal, align), yaw=yaw,
-        scale=lo + (hi - lo) * rel, species=k, tint=maps.tint_at(su, sv), partition=maps.partition_at(su, sv),
-        normal=normal, phase=phase, species_names=names, partition_names=maps.partition_names,
-        extent=terrain.extent, seed=config.seed,
-        meta={"source": config.path.name if config.path else "", "method": "ecosystem",
-              "height_range": list(terrain.height_range), "years": years})
+        id=live.astype(np.uint64),
+        position=P,
+        rotation=yaw_tilt_quaternion(yaw, normal, align),
+        yaw=yaw,
+        scale=lo + (hi - lo) * rel,
+        species=k,
+        tint=maps.tint_at(su, sv),
+        partition=maps.partition_at(su, sv),
+        normal=normal,
+        phase=phase,
+        species_names=names,
+        partition_names=maps.partition_names,
+        extent=terrain.extent,
+        seed=config.seed,
+        meta={
+            "source": config.path.name if config.path else "",
+            "method": "ecosystem",
+            "height_range": list(terrain.height_range),
+            "years": years,
+        },
+    )
     counts = inst.counts()
-    rep = ScatterReport(candidates=n, kept=len(inst), area_m2=terrain.area, rejected=rejected,
-                        species=counts["species"], partitions=counts["partitions"])
+    rep = ScatterReport(
+        candidates=n,
+        kept=len(inst),
+        area_m2=terrain.area,
+        rejected=rejected,
+        species=counts["species"],
+        partitions=counts["partitions"],
+    )
     rep.columns["radius"] = r
     rep.columns["shade_tolerant"] = shade[alive]
     rep.seconds = time.perf_counter() - t0

@@ -22,11 +22,18 @@ LINEAR_FORMATS = (".exr", ".hdr", ".pfm")
 
 def _oiio():
     import OpenImageIO as oiio
+
     return oiio
 
 
-def read_image(path: str | Path, *, what: str = "image", max_bytes: int = MAX_IMAGE_BYTES,
-               max_pixels: int = MAX_IMAGE_PIXELS, unassociated: bool = False) -> np.ndarray:
+def read_image(
+    path: str | Path,
+    *,
+    what: str = "image",
+    max_bytes: int = MAX_IMAGE_BYTES,
+    max_pixels: int = MAX_IMAGE_PIXELS,
+    unassociated: bool = False,
+) -> np.ndarray:
     """Read an image as float32 ``(H, W, C)`` with the file's own encoding (no conversion).
 
     8/16-bit integer images are normalised to [0, 1].  Raises :class:`ForestError`
@@ -73,12 +80,14 @@ def is_linear_file(path: str | Path) -> bool:
 def srgb_to_linear(a: np.ndarray) -> np.ndarray:
     """IEC 61966-2-1 sRGB decoding (colour-science's ``eotf_sRGB``)."""
     import colour
+
     return np.asarray(colour.models.eotf_sRGB(np.clip(a, 0.0, 1.0)), dtype=np.float32)
 
 
 def linear_to_srgb(a: np.ndarray) -> np.ndarray:
     """IEC 61966-2-1 sRGB encoding (colour-science's ``eotf_inverse_sRGB``)."""
     import colour
+
     return np.asarray(colour.models.eotf_inverse_sRGB(np.clip(a, 0.0, 1.0)), dtype=np.float32)
 
 
@@ -125,8 +134,7 @@ def _set_attributes(spec, attributes: dict | None) -> None:
             spec.attribute(key, str(value))
 
 
-def write_image(path: str | Path, pixels: np.ndarray, *, attributes: dict | None = None,
-                half: bool = True) -> Path:
+def write_image(path: str | Path, pixels: np.ndarray, *, attributes: dict | None = None, half: bool = True) -> Path:
     """Write ``pixels`` ``(H, W, C)`` atomically.
 
     EXR receives linear values (half float unless ``half=False``) and any
@@ -159,7 +167,7 @@ def write_image(path: str | Path, pixels: np.ndarray, *, attributes: dict | None
         spec.alpha_channel = 3
     if ext == ".exr":
         spec.attribute("compression", "zip")
-        spec.attribute("DateTime", "")   # OpenEXR output otherwise stamps the time: not byte-identical
+        spec.attribute("DateTime", "")  # OpenEXR output otherwise stamps the time: not byte-identical
     if ext == ".png":
         spec.attribute("png:compressionLevel", 6)
     _set_attributes(spec, attributes)
@@ -186,8 +194,11 @@ def write_multilayer_exr(path: str | Path, layers: dict[str, np.ndarray], *, att
         arr = np.asarray(arr, dtype=np.float32)
         if arr.ndim == 2:
             arr = arr[..., None]
-        base = ("R", "G", "B", "A")[: arr.shape[2]] if arr.shape[2] in (3, 4) else (
-            ("Z",) if arr.shape[2] == 1 else tuple(f"c{i}" for i in range(arr.shape[2])))
+        base = (
+            ("R", "G", "B", "A")[: arr.shape[2]]
+            if arr.shape[2] in (3, 4)
+            else (("Z",) if arr.shape[2] == 1 else tuple(f"c{i}" for i in range(arr.shape[2])))
+        )
         for i, b in enumerate(base):
             names.append(f"{layer}.{b}" if layer else b)
             chans.append(arr[..., i])
@@ -196,7 +207,7 @@ def write_multilayer_exr(path: str | Path, layers: dict[str, np.ndarray], *, att
     spec = oiio.ImageSpec(w, h, c, oiio.FLOAT)
     spec.channelnames = tuple(names)
     spec.attribute("compression", "zip")
-    spec.attribute("DateTime", "")       # no time stamp: byte-identical files
+    spec.attribute("DateTime", "")  # no time stamp: byte-identical files
     _set_attributes(spec, attributes)
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))

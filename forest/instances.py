@@ -87,16 +87,21 @@ class InstanceSet:
 
     # -- construction --------------------------------------------------------
     @classmethod
-    def empty(cls, species_names=(), partition_names=("default",), **kw) -> "InstanceSet":
+    def empty(cls, species_names=(), partition_names=("default",), **kw) -> InstanceSet:
         cols = {k: np.zeros((0, *s), dtype=d) for k, (d, s) in COLUMNS.items()}
         return cls(**cols, species_names=list(species_names), partition_names=list(partition_names), **kw)
 
-    def subset(self, mask_or_index) -> "InstanceSet":
+    def subset(self, mask_or_index) -> InstanceSet:
         """Rows selected by a boolean mask or an index array (order kept)."""
         cols = {k: getattr(self, k)[mask_or_index] for k in COLUMNS}
-        return InstanceSet(**cols, species_names=list(self.species_names),
-                           partition_names=list(self.partition_names), extent=self.extent,
-                           seed=self.seed, meta=dict(self.meta))
+        return InstanceSet(
+            **cols,
+            species_names=list(self.species_names),
+            partition_names=list(self.partition_names),
+            extent=self.extent,
+            seed=self.seed,
+            meta=dict(self.meta),
+        )
 
     # -- derived -------------------------------------------------------------
     def matrices(self) -> np.ndarray:
@@ -110,16 +115,23 @@ class InstanceSet:
     def counts(self) -> dict:
         sp = np.bincount(self.species, minlength=len(self.species_names))
         pa = np.bincount(self.partition.astype(np.int64), minlength=len(self.partition_names))
-        return {"species": dict(zip(self.species_names, sp.tolist())),
-                "partitions": dict(zip(self.partition_names, pa.tolist()))}
+        return {
+            "species": dict(zip(self.species_names, sp.tolist())),
+            "partitions": dict(zip(self.partition_names, pa.tolist())),
+        }
 
     # -- persistence ---------------------------------------------------------
     def save(self, path: str | Path) -> Path:
         """Write a deterministic ``.npz`` atomically."""
         path = Path(path)
-        meta = {"format": FORMAT_VERSION, "species_names": list(self.species_names),
-                "partition_names": list(self.partition_names),
-                "extent": [float(x) for x in self.extent], "seed": int(self.seed), **self.meta}
+        meta = {
+            "format": FORMAT_VERSION,
+            "species_names": list(self.species_names),
+            "partition_names": list(self.partition_names),
+            "extent": [float(x) for x in self.extent],
+            "seed": int(self.seed),
+            **self.meta,
+        }
         arrays = {k: getattr(self, k) for k in COLUMNS}
         arrays["species_names"] = np.array(self.species_names, dtype=np.str_)
         arrays["partition_names"] = np.array(self.partition_names, dtype=np.str_)
@@ -130,7 +142,7 @@ class InstanceSet:
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> "InstanceSet":
+    def load(cls, path: str | Path) -> InstanceSet:
         path = Path(path)
         if not path.is_file():
             raise ForestError(f"{path}: instance file not found")
@@ -145,8 +157,9 @@ class InstanceSet:
         extent = tuple(meta.pop("extent"))
         seed = meta.pop("seed")
         meta.pop("format", None)
-        return cls(**cols, species_names=species_names, partition_names=partition_names,
-                   extent=extent, seed=seed, meta=meta)
+        return cls(
+            **cols, species_names=species_names, partition_names=partition_names, extent=extent, seed=seed, meta=meta
+        )
 
 
 def write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -183,7 +196,7 @@ def yaw_tilt_quaternion(yaw: np.ndarray, normal: np.ndarray, align: np.ndarray) 
     up = np.array([0.0, 1.0, 0.0])
     target = up + (n - up) * np.asarray(align, dtype=np.float64)[:, None]
     target /= np.maximum(np.linalg.norm(target, axis=1, keepdims=True), 1e-12)
-    axis = np.cross(up, target)                 # (-tz ... ) rotation axis, |axis| = sin(angle)
+    axis = np.cross(up, target)  # (-tz ... ) rotation axis, |axis| = sin(angle)
     s = np.linalg.norm(axis, axis=1)
     c = np.clip(target[:, 1], -1.0, 1.0)
     angle = np.arctan2(s, c)
@@ -196,10 +209,15 @@ def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of (w, x, y, z) quaternions, row-wise."""
     aw, ax, ay, az = a.T
     bw, bx, by, bz = b.T
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
-                     aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw], axis=1)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=1,
+    )
 
 
 def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
@@ -207,8 +225,11 @@ def quaternion_to_matrix(q: np.ndarray) -> np.ndarray:
     q = np.asarray(q, dtype=np.float64)
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
     w, x, y, z = q.T
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=1),
-    ], axis=1)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=1),
+        ],
+        axis=1,
+    )

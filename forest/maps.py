@@ -58,7 +58,8 @@ def sample_bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray
 @dataclass
 class PartitionMap:
     """Partition labels per pixel: index into ``names``; ``unlabelled`` index for others."""
-    labels: np.ndarray             # (H, W) int16
+
+    labels: np.ndarray  # (H, W) int16
     names: list[str]
     unlabelled_pixels: int
     unlabelled_colours: list[tuple[int, int, int]]
@@ -120,12 +121,14 @@ class MapSet:
             img8 = np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8)
             parts = config.partitions
             if not parts:
-                raise ForestError(f"{config.path}: partitions: [maps] partition is given but no "
-                                  f"[partitions] label colours")
+                raise ForestError(
+                    f"{config.path}: partitions: [maps] partition is given but no [partitions] label colours"
+                )
             self.partition = label_partitions(img8, parts, config.partition_tolerance)
         if self.presence is not None and not (self.presence >= self.presence_threshold).any():
-            raise ForestError(f"{where}.presence: {m.presence} allows no trees anywhere (all below "
-                              f"{self.presence_threshold:g})")
+            raise ForestError(
+                f"{where}.presence: {m.presence} allows no trees anywhere (all below {self.presence_threshold:g})"
+            )
 
     @property
     def partition_names(self) -> list[str]:

@@ -39,7 +39,7 @@ def poisson_thin(points: np.ndarray, r: float) -> np.ndarray:
     pairs = conflict_pairs(points, r)
     if len(pairs) == 0:
         return np.ones(n, dtype=bool)
-    hi = np.minimum(pairs[:, 0], pairs[:, 1])   # higher priority (earlier)
+    hi = np.minimum(pairs[:, 0], pairs[:, 1])  # higher priority (earlier)
     lo = np.maximum(pairs[:, 0], pairs[:, 1])
     # Points in no conflict with an earlier point are accepted at once.
     has_earlier = np.zeros(n, dtype=bool)

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import sys
-from typing import Callable, Iterator
+from collections.abc import Callable, Iterator
 
-ProgressFn = Callable[[float, str], None]   # (fraction in [0, 1], message)
+ProgressFn = Callable[[float, str], None]  # (fraction in [0, 1], message)
 
 
 @contextlib.contextmanager
@@ -15,11 +15,19 @@ def progress_bar(description: str, *, quiet: bool = False) -> Iterator[ProgressF
     if quiet or not sys.stderr.isatty():
         yield lambda fraction, message="": None
         return
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
     from rich.console import Console
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                  TimeElapsedColumn(), TimeRemainingColumn(), TextColumn("{task.fields[msg]}"),
-                  console=Console(stderr=True), transient=True) as p:
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.percentage:>3.0f}%"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        TextColumn("{task.fields[msg]}"),
+        console=Console(stderr=True),
+        transient=True,
+    ) as p:
         task = p.add_task(description, total=1.0, msg="")
 
         def update(fraction: float, message: str = "") -> None:

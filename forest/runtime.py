@@ -46,8 +46,10 @@ def ensure_llvm() -> str:
     """Point drjit at LLVM 19; raise a clear error if it is not installed."""
     path = find_llvm()
     if path is None:
-        raise ForestError("LLVM 19 not found: install the Debian package libllvm19 (scripts/setup.sh does) "
-                          "or set DRJIT_LIBLLVM_PATH to libLLVM-19.so")
+        raise ForestError(
+            "LLVM 19 not found: install the Debian package libllvm19 (scripts/setup.sh does) "
+            "or set DRJIT_LIBLLVM_PATH to libLLVM-19.so"
+        )
     os.environ["DRJIT_LIBLLVM_PATH"] = path
     return path
 
@@ -72,14 +74,15 @@ def mitsuba(variant: str = "scalar_rgb"):
         if find:
             os.environ.setdefault("DRJIT_LIBLLVM_PATH", find)
     import mitsuba as mi
+
     if _current != variant:
         try:
             mi.set_variant(variant)
-        except Exception as e:  # noqa: BLE001 - surface backend failures as one line
+        except Exception as e:
             raise ForestError(f"cannot use Mitsuba variant {variant}: {e}") from None
         _current = variant
         try:
-            from plugins import register_all
+            from forest.plugins import register_all
         except ImportError:
             register_all = None
         if register_all is not None:

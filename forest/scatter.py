@@ -51,7 +51,7 @@ class ScatterReport:
     candidates: int
     kept: int
     area_m2: float
-    rejected: dict[str, int] = field(default_factory=dict)          # stage → count
+    rejected: dict[str, int] = field(default_factory=dict)  # stage → count
     rejected_by_species: dict[str, dict[str, int]] = field(default_factory=dict)
     species: dict[str, int] = field(default_factory=dict)
     partitions: dict[str, int] = field(default_factory=dict)
@@ -59,11 +59,13 @@ class ScatterReport:
     unlabelled_colours: list = field(default_factory=list)
     seconds: float = 0.0
     warnings: list[str] = field(default_factory=list)
-    columns: dict = field(default_factory=dict)    # method-specific per-tree arrays (e.g. canopy radius)
+    columns: dict = field(default_factory=dict)  # method-specific per-tree arrays (e.g. canopy radius)
 
     def lines(self) -> list[str]:
-        out = [f"{self.kept:,} trees from {self.candidates:,} candidates over {self.area_m2 / 1e6:.3f} km² "
-               f"in {self.seconds:.2f} s"]
+        out = [
+            f"{self.kept:,} trees from {self.candidates:,} candidates over {self.area_m2 / 1e6:.3f} km² "
+            f"in {self.seconds:.2f} s"
+        ]
         out.append("  species:    " + ", ".join(f"{k} {v:,}" for k, v in self.species.items()))
         out.append("  partitions: " + ", ".join(f"{k} {v:,}" for k, v in self.partitions.items()))
         rej = [f"{k} {v:,}" for k, v in self.rejected.items() if v]
@@ -89,6 +91,7 @@ def scatter(config: Config, progress=None, terrain: Terrain | None = None) -> tu
     config.validate_scatter()
     if config.scatter.method == "ecosystem":
         from .ecosystem import ecosystem_scatter
+
         return ecosystem_scatter(config, progress=progress, terrain=terrain)
     step(0.0, "terrain")
     terrain = terrain or load_terrain(config.terrain, config.path)
@@ -103,8 +106,15 @@ def scatter(config: Config, progress=None, terrain: Terrain | None = None) -> tu
     u = rng["position"].random((3, n))
     position, face, bary = terrain.sample_points(u[0], u[1], u[2])
     idx = np.arange(n, dtype=np.int64)
-    rejected = {"presence": 0, "density": 0, "empty ground": 0, "partition": 0, "slope": 0, "altitude": 0,
-                "min_distance": 0}
+    rejected = {
+        "presence": 0,
+        "density": 0,
+        "empty ground": 0,
+        "partition": 0,
+        "slope": 0,
+        "altitude": 0,
+        "min_distance": 0,
+    }
 
     # 1. presence (binary) and density (probabilistic), in map space.
     mu, mv = terrain.to_uv(position[:, 0], position[:, 2])
@@ -158,7 +168,9 @@ def scatter(config: Config, progress=None, terrain: Terrain | None = None) -> tu
     for k, nm in enumerate(names):
         m = k_live == k
         by_species[f"{nm}" if names.count(nm) == 1 else f"{nm}[{k}]"] = {
-            "slope": int((bad_slope_l & m).sum()), "altitude": int((bad_alt_l & m).sum())}
+            "slope": int((bad_slope_l & m).sum()),
+            "altitude": int((bad_alt_l & m).sum()),
+        }
     ok_l = ~(bad_slope_l | bad_alt_l)
     keep[live[~ok_l]] = False
     live, normal_live = live[ok_l], normal_live[ok_l]
@@ -167,6 +179,7 @@ def scatter(config: Config, progress=None, terrain: Terrain | None = None) -> tu
     if config.scatter.min_distance > 0 and keep.any():
         step(0.6, "min_distance")
         from .poisson import poisson_thin
+
         ok = poisson_thin(position[live], config.scatter.min_distance)
         rejected["min_distance"] = int((~ok).sum())
         keep[live[~ok]] = False
@@ -198,20 +211,31 @@ def scatter(config: Config, progress=None, terrain: Terrain | None = None) -> tu
         partition_names=maps.partition_names,
         extent=terrain.extent,
         seed=config.seed,
-        meta={"source": config.path.name if config.path else "", "method": "random",
-              "height_range": list(terrain.height_range)},
+        meta={
+            "source": config.path.name if config.path else "",
+            "method": "random",
+            "height_range": list(terrain.height_range),
+        },
     )
     counts = inst.counts()
-    report = ScatterReport(candidates=n, kept=len(inst), area_m2=terrain.area, rejected=rejected,
-                           rejected_by_species=by_species, species=counts["species"],
-                           partitions=counts["partitions"])
+    report = ScatterReport(
+        candidates=n,
+        kept=len(inst),
+        area_m2=terrain.area,
+        rejected=rejected,
+        rejected_by_species=by_species,
+        species=counts["species"],
+        partitions=counts["partitions"],
+    )
     if maps.partition is not None and maps.partition.unlabelled_pixels:
         pm = maps.partition
         report.unlabelled_pixels = pm.unlabelled_pixels
         report.unlabelled_colours = pm.unlabelled_colours
-        cols = ", ".join("#%02x%02x%02x" % c for c in pm.unlabelled_colours)
-        report.warnings.append(f"{pm.unlabelled_pixels:,} partition-map pixels match no label colour "
-                               f"(e.g. {cols}); their trees go to partition 'unlabelled'")
+        cols = ", ".join("#{:02x}{:02x}{:02x}".format(*c) for c in pm.unlabelled_colours)
+        report.warnings.append(
+            f"{pm.unlabelled_pixels:,} partition-map pixels match no label colour "
+            f"(e.g. {cols}); their trees go to partition 'unlabelled'"
+        )
     report.seconds = time.perf_counter() - t0
     step(1.0, "done")
     return inst, report
@@ -231,6 +255,8 @@ def scene_instances(config: Config, instances_path: str | Path | None = None, pr
     inst = InstanceSet.load(instances_path)
     expected = [s.model for s in config.species]
     if list(inst.species_names) != expected:
-        raise ForestError(f"{instances_path}: its species {inst.species_names} do not match the config's "
-                          f"[[species]] models {expected}; scatter again")
+        raise ForestError(
+            f"{instances_path}: its species {inst.species_names} do not match the config's "
+            f"[[species]] models {expected}; scatter again"
+        )
     return inst

@@ -36,9 +36,10 @@ MAX_GRID = 4097
 @dataclass
 class SurfaceSamples:
     """Points sampled on the terrain: positions, interpolated normals and their triangles."""
-    position: np.ndarray   # (N, 3) float64
-    normal: np.ndarray     # (N, 3) float64, unit
-    face: np.ndarray       # (N,) int64
+
+    position: np.ndarray  # (N, 3) float64
+    normal: np.ndarray  # (N, 3) float64, unit
+    face: np.ndarray  # (N,) int64
 
     @property
     def slope_degrees(self) -> np.ndarray:
@@ -48,15 +49,21 @@ class SurfaceSamples:
 class Terrain:
     """A triangle mesh terrain.  ``vertices`` (V, 3) float64, ``faces`` (F, 3) int64."""
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, *, grid_shape: tuple[int, int] | None = None,
-                 source: str = "mesh"):
+    def __init__(
+        self,
+        vertices: np.ndarray,
+        faces: np.ndarray,
+        *,
+        grid_shape: tuple[int, int] | None = None,
+        source: str = "mesh",
+    ):
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
-        self.grid_shape = grid_shape      # (rows along Z, columns along X) for grid terrains
+        self.grid_shape = grid_shape  # (rows along Z, columns along X) for grid terrains
         self.source = source
         lo = self.vertices.min(axis=0)
         hi = self.vertices.max(axis=0)
-        self.extent = (float(lo[0]), float(lo[2]), float(hi[0]), float(hi[2]))   # xmin, zmin, xmax, zmax
+        self.extent = (float(lo[0]), float(lo[2]), float(hi[0]), float(hi[2]))  # xmin, zmin, xmax, zmax
         self.height_range = (float(lo[1]), float(hi[1]))
 
     # -- geometry --------------------------------------------------------------
@@ -85,8 +92,9 @@ class Terrain:
         n = self.face_normals * (2.0 * self.face_areas)[:, None]
         # Scatter-add with bincount per component (np.add.at is ~20× slower).
         for c in range(3):
-            acc[:, c] = sum(np.bincount(self.faces[:, k], weights=n[:, c], minlength=len(self.vertices))
-                            for k in range(3))
+            acc[:, c] = sum(
+                np.bincount(self.faces[:, k], weights=n[:, c], minlength=len(self.vertices)) for k in range(3)
+            )
         norm = np.linalg.norm(acc, axis=1, keepdims=True)
         acc = np.where(norm > 0, acc / np.maximum(norm, 1e-300), np.array([0.0, 1.0, 0.0]))
         return acc
@@ -177,9 +185,9 @@ class Terrain:
             h00, h01, h10, h11 = h[i, j], h[i, j + 1], h[i + 1, j], h[i + 1, j + 1]
             # Same split as the triangulation: (00, 10, 11) and (00, 11, 01).
             lower = tz >= tx
-            return np.where(lower, h00 + tz * (h10 - h00) + tx * (h11 - h10),
-                            h00 + tx * (h01 - h00) + tz * (h11 - h01))
+            return np.where(lower, h00 + tz * (h10 - h00) + tx * (h11 - h10), h00 + tx * (h01 - h00) + tz * (h11 - h01))
         import trimesh
+
         mesh = trimesh.Trimesh(self.vertices, self.faces, process=False)
         top = self.height_range[1] + 1.0
         origins = np.stack([x, np.full_like(x, top), z], axis=1)
@@ -191,12 +199,14 @@ class Terrain:
 
     def to_trimesh(self):
         import trimesh
+
         return trimesh.Trimesh(self.vertices, self.faces, vertex_normals=self.vertex_normals, process=False)
 
 
 # ---------------------------------------------------------------------------
 # Builders
 # ---------------------------------------------------------------------------
+
 
 def grid_terrain(heights: np.ndarray, size: tuple[float, float], source: str = "grid") -> Terrain:
     """Triangulate a (rows, cols) height grid spanning ``size`` = (X, Z) metres, centred at 0."""
@@ -219,6 +229,7 @@ def grid_terrain(heights: np.ndarray, size: tuple[float, float], source: str = "
 def fbm_heights(resolution: int, octaves: int, roughness: float, seed: int) -> np.ndarray:
     """Fractal value noise in [0, 1] on a resolution × resolution grid (deterministic)."""
     from scipy.ndimage import map_coordinates
+
     rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, 0x7E77A1])))
     out = np.zeros((resolution, resolution))
     amp, total = 1.0, 0.0
@@ -246,13 +257,15 @@ def load_terrain(cfg: TerrainConfig, config_path: Path | None = None) -> Terrain
         return grid_terrain(h, cfg.size, source="procedural")
     if cfg.kind == "heightmap":
         from .images import read_map_grey
+
         try:
             g = read_map_grey(cfg.heightmap, what="heightmap")
         except ForestError as e:
             raise ForestError(f"{where}.heightmap: {e}") from None
         if g.shape[0] > MAX_GRID or g.shape[1] > MAX_GRID:
-            raise ForestError(f"{where}.heightmap: {cfg.heightmap} is {g.shape[1]}x{g.shape[0]}, "
-                              f"over the {MAX_GRID}x{MAX_GRID} limit")
+            raise ForestError(
+                f"{where}.heightmap: {cfg.heightmap} is {g.shape[1]}x{g.shape[0]}, over the {MAX_GRID}x{MAX_GRID} limit"
+            )
         if g.shape[0] < 2 or g.shape[1] < 2:
             raise ForestError(f"{where}.heightmap: {cfg.heightmap} must be at least 2x2 pixels")
         return grid_terrain(g * cfg.height, cfg.size, source="heightmap")
@@ -261,6 +274,7 @@ def load_terrain(cfg: TerrainConfig, config_path: Path | None = None) -> Terrain
 
 def load_mesh_terrain(path: Path, where: str = "terrain.mesh") -> Terrain:
     import trimesh
+
     path = Path(path)
     if not path.is_file():
         raise ForestError(f"{where}: file not found: {path}")
@@ -268,7 +282,7 @@ def load_mesh_terrain(path: Path, where: str = "terrain.mesh") -> Terrain:
         raise ForestError(f"{where}: {path} is over the {MAX_MESH_BYTES // 2**20} MiB limit")
     try:
         mesh = trimesh.load(str(path), force="mesh", process=False)
-    except Exception as e:  # noqa: BLE001 - trimesh raises many types for bad files
+    except Exception as e:
         raise ForestError(f"{where}: cannot read {path}: {e}") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ForestError(f"{where}: {path} has no triangles")

@@ -3,8 +3,8 @@
 :func:`register_all` is called by :func:`forest.runtime.mitsuba` each time a
 variant is set; each plugin module builds its class for the active variant.
 
-* ``forest_leaf`` — thin-leaf BSDF with diffuse transmission (:mod:`plugins.leaf`).
-* ``forest_product`` — product of two textures (:mod:`plugins.product`).
+* ``forest_leaf`` — thin-leaf BSDF with diffuse transmission (:mod:`forest.plugins.leaf`).
+* ``forest_product`` — product of two textures (:mod:`forest.plugins.product`).
 """
 
 from __future__ import annotations

@@ -73,8 +73,11 @@ def make_class(mi):
             cos_pdf = mi.warp.square_to_cosine_hemisphere_pdf(mi.Vector3f(wo.x, wo.y, dr.abs(wo_z)))
             bs.pdf = dr.select(reflect, p, 1.0 - p) * cos_pdf
             bs.eta = 1.0
-            bs.sampled_type = mi.UInt32(dr.select(reflect, mi.UInt32(+mi.BSDFFlags.DiffuseReflection),
-                                                  mi.UInt32(+mi.BSDFFlags.DiffuseTransmission)))
+            bs.sampled_type = mi.UInt32(
+                dr.select(
+                    reflect, mi.UInt32(+mi.BSDFFlags.DiffuseReflection), mi.UInt32(+mi.BSDFFlags.DiffuseTransmission)
+                )
+            )
             bs.sampled_component = mi.UInt32(dr.select(reflect, mi.UInt32(0), mi.UInt32(1)))
             weight = dr.select(reflect, r / dr.maximum(p, 1e-8), t / dr.maximum(1.0 - p, 1e-8))
             ok = active & (bs.pdf > 0)

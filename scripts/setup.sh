@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # One-shot, idempotent set-up of a fresh checkout:
 #   * LLVM 19 (drjit's CPU backend; older LLVMs crash in drjit 1.5),
-#   * a virtual environment at .venv/ with forest and its pinned dependencies,
-#   * the generated tree library (library/cache/).
+#   * a virtual environment at .venv/ with the exact versions of requirements.lock and forest itself,
+#   * the generated tree library (built into the user library's cache: $FOREST_LIBRARY, else
+#     the per-user data folder, e.g. ~/.local/share/forest/library/cache/).
 # Re-running it is cheap: every step checks whether it is already done.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT=$(pwd)
 PY=${PYTHON:-python3}
-EXTRAS=${FOREST_EXTRAS:-service,test,ray}
 
 say() { printf '\033[1m[setup]\033[0m %s\n' "$*"; }
 
@@ -49,19 +49,18 @@ if [ ! -x .venv/bin/python ]; then
     "$PY" -m venv .venv
 fi
 STAMP=.venv/.forest-installed
-HASH=$(cat pyproject.toml | sha256sum | cut -c1-16)-$EXTRAS
+HASH=$(cat pyproject.toml requirements.lock | sha256sum | cut -c1-16)
 if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$HASH" ]; then
-    say "installing forest[$EXTRAS] into .venv"
+    say "installing requirements.lock and forest into .venv"
     .venv/bin/python -m pip install -q --upgrade pip
-    .venv/bin/python -m pip install -q -e ".[$EXTRAS]"
+    .venv/bin/python -m pip install -q -r requirements.lock
+    PYTHONWARNINGS=ignore .venv/bin/python -m pip install -q --no-deps -e .
     echo "$HASH" > "$STAMP"
 fi
 # Make the venv remember where LLVM is, for every process it starts.
 echo "$LLVM" > .venv/llvm-path
 
 # --- tree library --------------------------------------------------------------
-if [ -f forest/library/__init__.py ] || [ -f forest/library.py ]; then
-    say "building the tree library (cached under library/cache/)"
-    .venv/bin/forest library build --quiet
-fi
+say "building the tree library (into the user library's cache)"
+.venv/bin/forest library build --quiet
 say "ready: .venv/bin/forest"

@@ -70,10 +70,11 @@ class ServiceConfig:
     heartbeat_s: float = 1.0
     max_attempts: int = 3
     nice: int = 19
-    dispatch: bool = True            # False: accept jobs but start none (tests, maintenance)
+    dispatch: bool = True  # False: accept jobs but start none (tests, maintenance)
 
 
 # -- response models (for the OpenAPI document) ----------------------------------
+
 
 class TaskView(BaseModel):
     index: int
@@ -152,25 +153,60 @@ class Problem(BaseModel):
     detail: str
 
 
-ERRORS = {401: {"model": Problem}, 404: {"model": Problem}, 409: {"model": Problem}, 413: {"model": Problem},
-          415: {"model": Problem}, 422: {"model": Problem}}
+ERRORS = {
+    401: {"model": Problem},
+    404: {"model": Problem},
+    409: {"model": Problem},
+    413: {"model": Problem},
+    415: {"model": Problem},
+    422: {"model": Problem},
+}
 
 
 def job_view(job: dict, *, tasks: bool = False) -> dict:
     jid = job["id"]
     base = f"/jobs/{jid}"
-    links = {"self": base, "events": f"{base}/events", "cancel": f"{base}/cancel", "log": f"{base}/log",
-             "result": f"{base}/result"}
-    v = {k: job[k] for k in ("id", "kind", "state", "priority", "message", "error", "created", "started",
-                              "finished", "cancel_requested", "settings")}
+    links = {
+        "self": base,
+        "events": f"{base}/events",
+        "cancel": f"{base}/cancel",
+        "log": f"{base}/log",
+        "result": f"{base}/result",
+    }
+    v = {
+        k: job[k]
+        for k in (
+            "id",
+            "kind",
+            "state",
+            "priority",
+            "message",
+            "error",
+            "created",
+            "started",
+            "finished",
+            "cancel_requested",
+            "settings",
+        )
+    }
     v["progress"] = min(1.0, max(0.0, float(job["progress"] or 0.0)))
     v["name"] = job["settings"].get("name")
     v["preview"] = f"{base}/preview?v={int(job['progress'] * 1000)}-{job['state']}" if job.get("preview") else None
     v["links"] = links
     if tasks and "tasks" in job:
-        v["tasks"] = [{"index": t["idx"], "state": t["state"], "attempt": t["attempt"], "progress": t["progress"],
-                       "message": t["message"], "frames": t["spec"].get("frames"), "worker": t["worker"],
-                       "error": t["error"]} for t in job["tasks"]]
+        v["tasks"] = [
+            {
+                "index": t["idx"],
+                "state": t["state"],
+                "attempt": t["attempt"],
+                "progress": t["progress"],
+                "message": t["message"],
+                "frames": t["spec"].get("frames"),
+                "worker": t["worker"],
+                "error": t["error"],
+            }
+            for t in job["tasks"]
+        ]
     return v
 
 
@@ -200,8 +236,9 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
         seed_examples(datadir)
         store = Store(datadir.db, max_attempts=cfg.max_attempts)
         if cfg.executor == "ray":
-            executor: Executor = RayExecutor(cfg.ray_address, slots=cfg.workers, heartbeat_s=cfg.heartbeat_s,
-                                             init_kwargs=cfg.ray_init)
+            executor: Executor = RayExecutor(
+                cfg.ray_address, slots=cfg.workers, heartbeat_s=cfg.heartbeat_s, init_kwargs=cfg.ray_init
+            )
         else:
             executor = LocalExecutor(cfg.workers, heartbeat_s=cfg.heartbeat_s, nice=cfg.nice)
         dispatcher = Dispatcher(store, executor, datadir, lease_s=cfg.lease_s)
@@ -216,8 +253,14 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
             store.close()
             lock.close()
 
-    app = FastAPI(title="forest render service", version="1", lifespan=lifespan, docs_url=None, redoc_url=None,
-                  description="Queue render, fly-through and colour-matching jobs; watch them, fetch results.")
+    app = FastAPI(
+        title="forest render service",
+        version="1",
+        lifespan=lifespan,
+        docs_url=None,
+        redoc_url=None,
+        description="Queue render, fly-through and colour-matching jobs; watch them, fetch results.",
+    )
     app.state.datadir = datadir
     app.state.config = cfg
 
@@ -233,8 +276,11 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
         elif request.method == "GET":
             supplied = request.query_params.get("access_token")
         if supplied is None or not hmac.compare_digest(supplied.encode(), cfg.token.encode()):
-            raise HTTPException(401, "a bearer token is required (Authorization: Bearer <token>)",
-                                headers={"WWW-Authenticate": "Bearer"})
+            raise HTTPException(
+                401,
+                "a bearer token is required (Authorization: Bearer <token>)",
+                headers={"WWW-Authenticate": "Bearer"},
+            )
 
     api = APIRouter(dependencies=[Depends(authorize)], responses={401: {"model": Problem}})
 
@@ -249,29 +295,50 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
     def view_response(view: dict, status: int = 200, headers: dict | None = None) -> JSONResponse:
         return JSONResponse(view, status_code=status, headers=headers)
 
-    @api.post("/jobs", status_code=202, response_model=None,
-              responses={202: {"model": JobView, "description": "Accepted; `Location` names the job.",
-                               "headers": {"Location": {"schema": {"type": "string"}}}}, **ERRORS},
-              summary="Submit a render, fly-through or match job")
-    async def submit(req: JobRequest,
-                     idempotency_key: str | None = Header(None, max_length=200,
-                                                          description="Makes re-submits safe.")) -> JSONResponse:
+    @api.post(
+        "/jobs",
+        status_code=202,
+        response_model=None,
+        responses={
+            202: {
+                "model": JobView,
+                "description": "Accepted; `Location` names the job.",
+                "headers": {"Location": {"schema": {"type": "string"}}},
+            },
+            **ERRORS,
+        },
+        summary="Submit a render, fly-through or match job",
+    )
+    async def submit(
+        req: JobRequest,
+        idempotency_key: str | None = Header(None, max_length=200, description="Makes re-submits safe."),
+    ) -> JSONResponse:
         h = request_hash(req)
         if idempotency_key is not None:
             existing = store().find_idempotent(idempotency_key)
             if existing is not None:
                 if existing["request_hash"] != h:
                     raise HTTPException(409, "Idempotency-Key was already used for a different request")
-                return view_response(job_view(store().get_job(existing["id"], with_tasks=True), tasks=True), 202,
-                                     {"Location": f"/jobs/{existing['id']}", "Idempotent-Replayed": "true"})
+                return view_response(
+                    job_view(store().get_job(existing["id"], with_tasks=True), tasks=True),
+                    202,
+                    {"Location": f"/jobs/{existing['id']}", "Idempotent-Replayed": "true"},
+                )
         try:
             prep = prepare(req, datadir, cfg.limits, state["caps"])
         except RequestError as e:
             raise HTTPException(e.status, str(e)) from None
         try:
-            job, created = store().create_job(kind=req.kind, config=req.config, settings=prep.settings,
-                                              priority=req.priority, task_specs=prep.task_specs,
-                                              idempotency_key=idempotency_key, request_hash=h, job_id=prep.job_id)
+            job, created = store().create_job(
+                kind=req.kind,
+                config=req.config,
+                settings=prep.settings,
+                priority=req.priority,
+                task_specs=prep.task_specs,
+                idempotency_key=idempotency_key,
+                request_hash=h,
+                job_id=prep.job_id,
+            )
         except IdempotencyConflict:
             shutil.rmtree(prep.job_dir, ignore_errors=True)
             raise HTTPException(409, "Idempotency-Key was already used for a different request") from None
@@ -280,24 +347,40 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
             shutil.rmtree(prep.job_dir, ignore_errors=True)
             headers["Idempotent-Replayed"] = "true"
             return view_response(job_view(store().get_job(job["id"], with_tasks=True), tasks=True), 202, headers)
-        job["tasks"] = [{"idx": i, "state": "queued", "attempt": 0, "progress": 0.0, "message": "", "spec": spec,
-                         "worker": None, "error": None} for i, spec in enumerate(prep.task_specs)]
+        job["tasks"] = [
+            {
+                "idx": i,
+                "state": "queued",
+                "attempt": 0,
+                "progress": 0.0,
+                "message": "",
+                "spec": spec,
+                "worker": None,
+                "error": None,
+            }
+            for i, spec in enumerate(prep.task_specs)
+        ]
         return view_response(job_view(job, tasks=True), 202, headers)
 
     @api.get("/jobs", response_model=JobList, summary="Recent jobs, newest first")
-    def list_jobs(state_: Literal["queued", "running", "succeeded", "failed", "canceled"] | None = Query(
-                      None, alias="state"),
-                  limit: int = Query(50, ge=1, le=500)):
-        return {"jobs": [job_view(j) for j in store().list_jobs(state=state_, limit=limit)],
-                "counts": store().counts()}
+    def list_jobs(
+        state_: Literal["queued", "running", "succeeded", "failed", "canceled"] | None = Query(None, alias="state"),
+        limit: int = Query(50, ge=1, le=500),
+    ):
+        return {"jobs": [job_view(j) for j in store().list_jobs(state=state_, limit=limit)], "counts": store().counts()}
 
-    @api.get("/jobs/{job_id}", response_model=None, responses={200: {"model": JobView}, **ERRORS},
-             summary="A job's state and progress")
+    @api.get(
+        "/jobs/{job_id}",
+        response_model=None,
+        responses={200: {"model": JobView}, **ERRORS},
+        summary="A job's state and progress",
+    )
     async def get_job(job_id: str) -> JSONResponse:
         return view_response(job_view(get_job_or_404(job_id, tasks=True), tasks=True))
 
-    @api.post("/jobs/{job_id}/cancel", status_code=202, response_model=JobView, responses=ERRORS,
-              summary="Cancel a job")
+    @api.post(
+        "/jobs/{job_id}/cancel", status_code=202, response_model=JobView, responses=ERRORS, summary="Cancel a job"
+    )
     def cancel(job_id: str):
         job = get_job_or_404(job_id)
         if job["state"] in TERMINAL:
@@ -305,8 +388,13 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
         store().request_cancel(job_id)
         return job_view(get_job_or_404(job_id, tasks=True), tasks=True)
 
-    @api.post("/jobs/{job_id}/retry", status_code=202, response_model=JobView, responses=ERRORS,
-              summary="Requeue the failed or canceled tasks of a finished job")
+    @api.post(
+        "/jobs/{job_id}/retry",
+        status_code=202,
+        response_model=JobView,
+        responses=ERRORS,
+        summary="Requeue the failed or canceled tasks of a finished job",
+    )
     def retry(job_id: str):
         job = get_job_or_404(job_id)
         if job["state"] not in ("failed", "canceled"):
@@ -318,8 +406,12 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
         p = datadir.job_dir(job_id) / rel
         return {"path": rel, "url": f"/jobs/{job_id}/files/{rel}", "bytes": p.stat().st_size if p.is_file() else 0}
 
-    @api.get("/jobs/{job_id}/result", response_model=ResultView, responses=ERRORS,
-             summary="Outputs and statistics of a succeeded job")
+    @api.get(
+        "/jobs/{job_id}/result",
+        response_model=ResultView,
+        responses=ERRORS,
+        summary="Outputs and statistics of a succeeded job",
+    )
     def result(job_id: str):
         job = get_job_or_404(job_id)
         if job["state"] != "succeeded":
@@ -331,8 +423,7 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
         outs = [_file_entry(job_id, o) for o in res.get("outputs", [])]
         pngs = [o["url"] for o in outs if o["path"].endswith(".png") and "/" in o["path"]]
         beauty = [u for u in pngs if not any(t in u.rsplit("/", 1)[-1] for t in ("depth", "mask", "_id", "species"))]
-        return {"id": job_id, "outputs": outs, "image": (beauty or pngs or [None])[0],
-                "stats": res.get("stats", [])}
+        return {"id": job_id, "outputs": outs, "image": (beauty or pngs or [None])[0], "stats": res.get("stats", [])}
 
     @api.get("/jobs/{job_id}/log", response_class=PlainTextResponse, responses=ERRORS, summary="The job's log")
     def job_log(job_id: str):
@@ -345,19 +436,27 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
             f.seek(max(0, size - 2**20))
             return PlainTextResponse(f.read().decode("utf-8", errors="replace"))
 
-    @api.get("/jobs/{job_id}/preview", responses={**ERRORS, 200: {"content": {"image/png": {}}}},
-             response_class=FileResponse, summary="The latest finished pass as PNG")
+    @api.get(
+        "/jobs/{job_id}/preview",
+        responses={**ERRORS, 200: {"content": {"image/png": {}}}},
+        response_class=FileResponse,
+        summary="The latest finished pass as PNG",
+    )
     def preview(job_id: str):
         job = get_job_or_404(job_id)
         if not job.get("preview"):
             raise HTTPException(404, f"job {job_id} has no preview yet")
         return _job_file(job_id, job["preview"], cache=False)
 
-    @api.get("/jobs/{job_id}/files/{path:path}", responses=ERRORS, response_class=FileResponse,
-             summary="An output file of a job")
+    @api.get(
+        "/jobs/{job_id}/files/{path:path}",
+        responses=ERRORS,
+        response_class=FileResponse,
+        summary="An output file of a job",
+    )
     def job_file(job_id: str, path: str):
         get_job_or_404(job_id)
-        if not (path.startswith("out/") or path.startswith("preview/")):
+        if not (path.startswith(("out/", "preview/"))):
             raise HTTPException(404, "only out/ and preview/ files are served")
         return _job_file(job_id, path, cache=True)
 
@@ -373,11 +472,18 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
         headers = {"Cache-Control": "no-store"} if not cache else {}
         return FileResponse(p, headers=headers)
 
-    @api.get("/jobs/{job_id}/events", responses={**ERRORS, 200: {"content": {"text/event-stream": {}}}},
-             response_class=StreamingResponse, summary="Server-Sent Events for a job")
-    async def events(job_id: str, request: Request,
-                     after: int | None = Query(None, ge=0, le=2**62, description="Replay events after this id."),
-                     last_event_id: str | None = Header(None, max_length=20, include_in_schema=False)):
+    @api.get(
+        "/jobs/{job_id}/events",
+        responses={**ERRORS, 200: {"content": {"text/event-stream": {}}}},
+        response_class=StreamingResponse,
+        summary="Server-Sent Events for a job",
+    )
+    async def events(
+        job_id: str,
+        request: Request,
+        after: int | None = Query(None, ge=0, le=2**62, description="Replay events after this id."),
+        last_event_id: str | None = Header(None, max_length=20, include_in_schema=False),
+    ):
         job = get_job_or_404(job_id, tasks=True)
         start = after
         if last_event_id and last_event_id.isdigit():
@@ -423,11 +529,17 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
                     quiet = 0.0
                     yield ": keep-alive\n\n"
 
-        return StreamingResponse(stream(), media_type="text/event-stream",
-                                 headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+        return StreamingResponse(
+            stream(), media_type="text/event-stream", headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
+        )
 
-    @api.put("/assets/{name}", status_code=201, response_model=AssetView, responses=ERRORS,
-             summary="Upload a map, mesh or reference photo (the raw file as the body)")
+    @api.put(
+        "/assets/{name}",
+        status_code=201,
+        response_model=AssetView,
+        responses=ERRORS,
+        summary="Upload a map, mesh or reference photo (the raw file as the body)",
+    )
     async def upload(name: str, request: Request):
         limit = cfg.limits.max_upload_bytes
         length = request.headers.get("content-length")
@@ -461,9 +573,14 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
 
     @api.get("/health", response_model=Health, summary="Liveness and queue counts")
     def health():
-        return {"status": "ok", "executor": state["executor"].name, "workers": cfg.workers,
-                "counts": store().counts(), "capabilities": state["caps"],
-                "requeued_at_start": store().requeued_on_open}
+        return {
+            "status": "ok",
+            "executor": state["executor"].name,
+            "workers": cfg.workers,
+            "counts": store().counts(),
+            "capabilities": state["caps"],
+            "requeued_at_start": store().requeued_on_open,
+        }
 
     app.include_router(api)
 
@@ -482,4 +599,3 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
 
 def is_loopback(host: str) -> bool:
     return host in LOOPBACK or host.startswith("127.")
-

@@ -24,8 +24,9 @@ import os
 import re
 import shutil
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path, PurePosixPath
-from typing import Any, Iterator
+from typing import Any
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr")
 MESH_EXTS = (".ply", ".obj", ".stl", ".glb", ".gltf", ".off")
@@ -59,6 +60,7 @@ class DataDir:
         Returns the open lock file; the lock lasts while it stays open (and dies with the process).
         """
         import fcntl
+
         f = open(self.root / "service.lock", "a+")
         try:
             fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -86,8 +88,13 @@ class DataDir:
         out = []
         for p in sorted(self.assets.rglob("*")):
             if p.is_file() and not p.name.startswith("."):
-                out.append({"name": p.relative_to(self.assets).as_posix(), "bytes": p.stat().st_size,
-                            "kind": asset_kind(p.name)})
+                out.append(
+                    {
+                        "name": p.relative_to(self.assets).as_posix(),
+                        "bytes": p.stat().st_size,
+                        "kind": asset_kind(p.name),
+                    }
+                )
         return out
 
 
@@ -135,8 +142,13 @@ def path_strings(data: Any, where: str = "") -> Iterator[tuple[str, str]]:
 
 
 def looks_like_path(s: str) -> bool:
-    return ("/" in s or "\\" in s or s.startswith("~") or Path(s).suffix.lower() in ASSET_EXTS
-            or bool(re.match(r"^[A-Za-z]:", s)))
+    return (
+        "/" in s
+        or "\\" in s
+        or s.startswith("~")
+        or Path(s).suffix.lower() in ASSET_EXTS
+        or bool(re.match(r"^[A-Za-z]:", s))
+    )
 
 
 def collect_assets(data: dict, datadir: DataDir) -> dict[str, Path]:
@@ -147,8 +159,9 @@ def collect_assets(data: dict, datadir: DataDir) -> dict[str, Path]:
             continue
         rel = check_relative(s, field=f"config: {field}")
         if Path(s).suffix.lower() not in ASSET_EXTS:
-            raise AssetError(f"config: {field}: {s!r} is not an image or mesh asset "
-                             f"(expected one of {', '.join(ASSET_EXTS)})")
+            raise AssetError(
+                f"config: {field}: {s!r} is not an image or mesh asset (expected one of {', '.join(ASSET_EXTS)})"
+            )
         out[rel.as_posix()] = datadir.asset_path(rel.as_posix(), field=f"config: {field}")
     return out
 
@@ -168,10 +181,12 @@ def link_into(job_dir: Path, assets: dict[str, Path]) -> None:
 
 # -- uploads --------------------------------------------------------------------
 
+
 def check_image(path: Path) -> dict:
     """Open with OpenImageIO and read the pixels; raise :class:`AssetError` if it is not an image."""
     import numpy as np
     import OpenImageIO as oiio
+
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         oiio.geterror()
@@ -195,9 +210,10 @@ def check_mesh(path: Path) -> dict:
     """Load with trimesh; refuse anything without finite vertices and at least one face."""
     import numpy as np
     import trimesh
+
     try:
         m = trimesh.load(str(path), force="mesh", process=False)
-    except Exception as e:  # noqa: BLE001 - any parser failure means "not a mesh"
+    except Exception as e:
         raise AssetError(f"upload is not a readable mesh: {type(e).__name__}", 415) from None
     faces = getattr(m, "faces", None)
     verts = getattr(m, "vertices", None)

@@ -29,8 +29,16 @@ log = logging.getLogger("forest.service")
 
 
 class Dispatcher:
-    def __init__(self, store: Store, executor: Executor, datadir: DataDir, *, lease_s: float = 15.0,
-                 tick_s: float = 0.05, housekeeping_s: float = 0.25):
+    def __init__(
+        self,
+        store: Store,
+        executor: Executor,
+        datadir: DataDir,
+        *,
+        lease_s: float = 15.0,
+        tick_s: float = 0.05,
+        housekeeping_s: float = 0.25,
+    ):
         self.store = store
         self.executor = executor
         self.datadir = datadir
@@ -38,7 +46,7 @@ class Dispatcher:
         self.tick_s = tick_s
         self.housekeeping_s = housekeeping_s
         self.owner = f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
-        self.jobs: dict[tuple[int, int], str] = {}     # (task, attempt) → job id
+        self.jobs: dict[tuple[int, int], str] = {}  # (task, attempt) → job id
         self.canceling: set[tuple[int, int]] = set()
         self.paused = False
         self._stop = threading.Event()
@@ -70,7 +78,7 @@ class Dispatcher:
                     self.housekeeping()
                 if not self.paused:
                     self.fill()
-            except Exception:  # noqa: BLE001 - the loop must survive anything, and say so
+            except Exception:
                 self.errors += 1
                 log.exception("dispatcher tick failed")
                 time.sleep(0.2)
@@ -97,8 +105,9 @@ class Dispatcher:
             if not self.store.heartbeat(*key, self.lease_s):
                 self._stale(key)
         elif typ == "progress":
-            ok = self.store.report_progress(*key, msg.get("fraction", 0.0), str(msg.get("message", "")),
-                                            msg.get("preview"), self.lease_s)
+            ok = self.store.report_progress(
+                *key, msg.get("fraction", 0.0), str(msg.get("message", "")), msg.get("preview"), self.lease_s
+            )
             if not ok:
                 self._stale(key)
         elif typ == "log":
@@ -157,7 +166,7 @@ class Dispatcher:
             self.jobs[key] = run.job_id
             try:
                 worker = self.executor.start(run)
-            except Exception as e:  # noqa: BLE001 - a start failure fails the attempt, not the service
+            except Exception as e:
                 self.store.finish_task(*key, "failed", error=f"cannot start worker: {type(e).__name__}: {e}")
                 self.job_log(run.job_id, f"task {run.task_id} attempt {run.attempt}: cannot start: {e}")
                 continue

@@ -3,7 +3,7 @@
 Both backends implement the same small interface the dispatcher drives:
 
 ``capacity()``            how many more attempts may start now;
-``start(run)``            start one attempt (:class:`service.store.TaskRun`);
+``start(run)``            start one attempt (:class:`forest.service.store.TaskRun`);
 ``poll(timeout)``         reports since the last call, as dicts with ``task_id``,
                           ``attempt`` and ``type`` (``heartbeat`` | ``progress`` | ``log`` |
                           ``done`` | ``error`` | ``exit``);
@@ -14,7 +14,7 @@ An ``exit`` report follows every attempt; an attempt whose ``exit`` comes withou
 ``done`` or ``error`` before it has lost its worker.
 
 * :class:`LocalExecutor` runs each attempt in its own process (``python -m
-  service.worker``) in a new session, so a kill takes the whole process group.
+  forest.service.worker``) in a new session, so a kill takes the whole process group.
 * :class:`RayExecutor` runs each attempt as a Ray task with CPU/GPU resource requests
   (``cuda_ad_rgb`` jobs ask for a GPU, so Ray places them on GPU nodes); progress and
   heartbeats travel through a small reporter actor.  The data folder must be visible
@@ -72,8 +72,7 @@ class LocalExecutor(Executor):
 
     name = "local"
 
-    def __init__(self, workers: int = 1, *, heartbeat_s: float = 1.0, nice: int = 19,
-                 python: str | None = None):
+    def __init__(self, workers: int = 1, *, heartbeat_s: float = 1.0, nice: int = 19, python: str | None = None):
         self.workers = max(0, int(workers))
         self.heartbeat_s = heartbeat_s
         self.nice = nice
@@ -98,27 +97,41 @@ class LocalExecutor(Executor):
         r, w = os.pipe()
         env = dict(os.environ)
         env.setdefault("PYTHONUNBUFFERED", "1")
-        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(Path(__file__).resolve().parents[1]),
-                                                          env.get("PYTHONPATH", "")]))
+        env["PYTHONPATH"] = os.pathsep.join(
+            filter(None, [str(Path(__file__).resolve().parents[1]), env.get("PYTHONPATH", "")])
+        )
         try:
-            proc = subprocess.Popen([self.python, "-m", "service.worker", str(w)], stdin=subprocess.PIPE,
-                                    stdout=log, stderr=subprocess.STDOUT, pass_fds=(w,), cwd=job_dir,
-                                    env=env, start_new_session=True)
+            proc = subprocess.Popen(
+                [self.python, "-m", "forest.service.worker", str(w)],
+                stdin=subprocess.PIPE,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                pass_fds=(w,),
+                cwd=job_dir,
+                env=env,
+                start_new_session=True,
+            )
         finally:
             os.close(w)
             log.close()
         key = (run.task_id, run.attempt)
         with self.lock:
             self.procs[key] = proc
-        msg = {"task_id": run.task_id, "attempt": run.attempt, "spec": run.spec,
-               "heartbeat_s": self.heartbeat_s, "nice": self.nice}
+        msg = {
+            "task_id": run.task_id,
+            "attempt": run.attempt,
+            "spec": run.spec,
+            "heartbeat_s": self.heartbeat_s,
+            "nice": self.nice,
+        }
         try:
             proc.stdin.write((json.dumps(msg) + "\n").encode())
             proc.stdin.flush()
         except (BrokenPipeError, OSError):
-            pass   # it died at once; the reader reports the exit
-        threading.Thread(target=self._read, args=(key, proc, r), daemon=True,
-                         name=f"worker-{run.task_id}.{run.attempt}").start()
+            pass  # it died at once; the reader reports the exit
+        threading.Thread(
+            target=self._read, args=(key, proc, r), daemon=True, name=f"worker-{run.task_id}.{run.attempt}"
+        ).start()
         return f"pid:{proc.pid}"
 
     def _read(self, key: tuple[int, int], proc: subprocess.Popen, fd: int) -> None:
@@ -182,10 +195,11 @@ class LocalExecutor(Executor):
 # Ray
 # ---------------------------------------------------------------------------
 
+
 def _ray_task_body(spec: dict, task_id: int, attempt: int, reporter, heartbeat_s: float) -> dict:
-    """Runs inside a Ray worker: the same :func:`service.runner.execute` as a local worker."""
+    """Runs inside a Ray worker: the same :func:`forest.service.runner.execute` as a local worker."""
     from forest.errors import ForestError
-    from service.runner import execute
+    from forest.service.runner import execute
 
     stop = threading.Event()
 
@@ -203,7 +217,7 @@ def _ray_task_body(spec: dict, task_id: int, attempt: int, reporter, heartbeat_s
         return {"type": "done", "result": result}
     except ForestError as e:
         return {"type": "error", "error": str(e), "user": True}
-    except Exception as e:  # noqa: BLE001 - every failure is reported, not raised through Ray
+    except Exception as e:
         return {"type": "error", "error": f"{type(e).__name__}: {e}", "user": False}
     finally:
         stop.set()
@@ -214,14 +228,15 @@ class RayExecutor(Executor):
 
     name = "ray"
 
-    def __init__(self, address: str | None = None, *, slots: int = 1, heartbeat_s: float = 1.0,
-                 init_kwargs: dict | None = None):
+    def __init__(
+        self, address: str | None = None, *, slots: int = 1, heartbeat_s: float = 1.0, init_kwargs: dict | None = None
+    ):
         try:
             import ray
         except ImportError:
             from forest.errors import ForestError
-            raise ForestError("--executor ray: the ray package is not installed "
-                              "(pip install 'forest[ray]')") from None
+
+            raise ForestError("--executor ray: the ray package is not installed (pip install 'forest[ray]')") from None
         self.ray = ray
         self.slots = max(0, int(slots))
         self.heartbeat_s = heartbeat_s
@@ -274,8 +289,7 @@ class RayExecutor(Executor):
 
     def start(self, run: TaskRun) -> str:
         opts = self.resources(run.spec)
-        ref = self.remote_fn.options(**opts).remote(run.spec, run.task_id, run.attempt, self.reporter,
-                                                    self.heartbeat_s)
+        ref = self.remote_fn.options(**opts).remote(run.spec, run.task_id, run.attempt, self.reporter, self.heartbeat_s)
         with self.lock:
             self.refs[(run.task_id, run.attempt)] = ref
         return f"ray:{ref.task_id().hex()}"
@@ -296,9 +310,15 @@ class RayExecutor(Executor):
                     res = ray.get(ref)
                     done.append({"task_id": task_id, "attempt": attempt, **res})
                     code = 0
-                except Exception as e:  # noqa: BLE001 - worker crash, cancel, node loss
-                    done.append({"task_id": task_id, "attempt": attempt, "type": "log",
-                                 "line": f"ray task ended: {type(e).__name__}"})
+                except Exception as e:
+                    done.append(
+                        {
+                            "task_id": task_id,
+                            "attempt": attempt,
+                            "type": "log",
+                            "line": f"ray task ended: {type(e).__name__}",
+                        }
+                    )
                     code = -9
                 with self.lock:
                     self.refs.pop(key, None)
@@ -308,7 +328,7 @@ class RayExecutor(Executor):
             try:
                 # Reports drained after the finished refs were collected, and put before them.
                 out.extend(ray.get(self.reporter.drain.remote(), timeout=max(timeout, 1.0)))
-            except Exception:  # noqa: BLE001 - a slow or restarting reporter only delays reports
+            except Exception:
                 pass
         out.extend(done)
         if not out:
@@ -321,7 +341,7 @@ class RayExecutor(Executor):
         if ref is not None:
             try:
                 self.ray.cancel(ref, force=True)
-            except Exception:  # noqa: BLE001 - already finished
+            except Exception:
                 pass
 
     def close(self) -> None:
@@ -330,5 +350,5 @@ class RayExecutor(Executor):
         if self.started_ray:
             try:
                 self.ray.shutdown()
-            except Exception:  # noqa: BLE001
+            except Exception:
                 pass

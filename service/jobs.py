@@ -2,7 +2,7 @@
 
 A request is checked in this order, each failure answering a 4xx with one line that
 names the field: the JSON schema (pydantic), the config's TOML syntax, every asset path
-in the config (inside the data folder, see :mod:`service.assets`), the config's own
+in the config (inside the data folder, see :mod:`forest.service.assets`), the config's own
 validation (``forest.config``), then the service's limits on resolution, samples,
 tree count and frames.  Only then is the job stored, so a bad request leaves nothing.
 """
@@ -29,6 +29,7 @@ Variant = Literal["scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb"]
 @dataclass(frozen=True)
 class Limits:
     """What one job may ask for.  Over a limit ⇒ 422 naming the setting."""
+
     max_width: int = 4096
     max_height: int = 4096
     max_pixels: int = 4096 * 2160
@@ -42,6 +43,7 @@ class Limits:
 
 class JobSettings(BaseModel):
     """Per-job settings; each overrides the matching key of the config."""
+
     model_config = ConfigDict(extra="forbid")
     width: int | None = Field(None, ge=1, le=16384, description="Image width in pixels ([render] width).")
     height: int | None = Field(None, ge=1, le=16384, description="Image height in pixels ([render] height).")
@@ -49,8 +51,9 @@ class JobSettings(BaseModel):
     variant: Variant | None = Field(None, description="Mitsuba variant; default: the renderer's choice.")
     seed: int | None = Field(None, ge=0, le=2**63 - 1, description="Scene seed (top-level seed).")
     count: int | None = Field(None, ge=0, le=20_000_000, description="Tree count ([scatter] count).")
-    frames: str | None = Field(None, max_length=200, pattern=r"^[0-9xX,\- ]+$",
-                               description="Fly-through frames, e.g. '1-24' or '1-120x2'.")
+    frames: str | None = Field(
+        None, max_length=200, pattern=r"^[0-9xX,\- ]+$", description="Fly-through frames, e.g. '1-24' or '1-120x2'."
+    )
     frames_per_task: int | None = Field(None, ge=1, le=10000, description="Frames per fly-through task.")
     cpus: float | None = Field(None, gt=0, le=1024, description="CPUs to reserve per task (Ray executor).")
     gpus: float | None = Field(None, ge=0, le=64, description="GPUs to reserve per task (Ray executor).")
@@ -65,6 +68,7 @@ class JobSettings(BaseModel):
 
 class JobRequest(BaseModel):
     """``POST /jobs`` body."""
+
     model_config = ConfigDict(extra="forbid")
     kind: Kind
     config: str = Field(..., min_length=1, max_length=1_000_000, description="The scene config as TOML text.")
@@ -93,8 +97,13 @@ class PreparedJob:
 
 def _overrides(s: JobSettings) -> dict:
     o = {}
-    for key, dotted in (("width", "render.width"), ("height", "render.height"), ("spp", "render.spp"),
-                        ("seed", "seed"), ("count", "scatter.count")):
+    for key, dotted in (
+        ("width", "render.width"),
+        ("height", "render.height"),
+        ("spp", "render.spp"),
+        ("seed", "seed"),
+        ("count", "scatter.count"),
+    ):
         v = getattr(s, key)
         if v is not None:
             o[dotted] = v
@@ -110,8 +119,10 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
     from forest.errors import ForestError
 
     if not capabilities.get(req.kind):
-        raise RequestError(f"kind: {req.kind} jobs are not available in this installation "
-                           f"(available: {', '.join(k for k, v in capabilities.items() if v) or 'none'})")
+        raise RequestError(
+            f"kind: {req.kind} jobs are not available in this installation "
+            f"(available: {', '.join(k for k, v in capabilities.items() if v) or 'none'})"
+        )
     if len(req.config.encode()) > limits.max_config_bytes:
         raise RequestError(f"config: larger than the {limits.max_config_bytes} byte limit", 413)
     try:
@@ -167,15 +178,23 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
         if height > limits.max_height:
             raise RequestError(f"settings.height: {height} is over the service limit of {limits.max_height}")
         if width * height > limits.max_pixels:
-            raise RequestError(f"settings.width×height: {width}×{height} = {width * height} pixels is over the "
-                               f"service limit of {limits.max_pixels}")
+            raise RequestError(
+                f"settings.width×height: {width}×{height} = {width * height} pixels is over the "
+                f"service limit of {limits.max_pixels}"
+            )
         if spp > limits.max_spp:
             raise RequestError(f"settings.spp: {spp} is over the service limit of {limits.max_spp}")
         trees = config.scatter.count
         if trees > limits.max_trees:
             raise RequestError(f"settings.count: {trees} trees is over the service limit of {limits.max_trees}")
-        base = {"kind": req.kind, "job_dir": str(job_dir), "config": req.config, "overrides": overrides,
-                "variant": s.variant, "preview": s.preview}
+        base = {
+            "kind": req.kind,
+            "job_dir": str(job_dir),
+            "config": req.config,
+            "overrides": overrides,
+            "variant": s.variant,
+            "preview": s.preview,
+        }
         res = {k: v for k, v in (("cpus", s.cpus), ("gpus", s.gpus)) if v is not None}
         if res:
             base["resources"] = res
@@ -188,8 +207,10 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
             if not s.frames:
                 keys = config.camera.keys
                 if len(keys) < 2:
-                    raise RequestError("settings.frames: give a frame range, e.g. '1-24' "
-                                       "(the config has no [camera] keys to take it from)")
+                    raise RequestError(
+                        "settings.frames: give a frame range, e.g. '1-24' "
+                        "(the config has no [camera] keys to take it from)"
+                    )
                 frames = list(range(int(keys[0].frame), int(keys[-1].frame) + 1))
             else:
                 try:
@@ -197,18 +218,27 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
                 except ForestError as e:
                     raise RequestError(f"settings.frames: {str(e).split(': ', 1)[-1]}") from None
             if len(frames) > limits.max_frames:
-                raise RequestError(f"settings.frames: {len(frames)} frames is over the service limit "
-                                   f"of {limits.max_frames}")
+                raise RequestError(
+                    f"settings.frames: {len(frames)} frames is over the service limit of {limits.max_frames}"
+                )
             per = s.frames_per_task or max(1, -(-len(frames) // 8))
             for i in range(0, len(frames), per):
-                specs.append({**base, "index": len(specs), "output": "out/frame_####.exr",
-                              "frames": frames[i:i + per]})
+                specs.append(
+                    {**base, "index": len(specs), "output": "out/frame_####.exr", "frames": frames[i : i + per]}
+                )
         else:
             if s.iterations is not None and s.iterations > limits.max_iterations:
-                raise RequestError(f"settings.iterations: {s.iterations} is over the service limit "
-                                   f"of {limits.max_iterations}")
-            match = {"reference": s.reference, "iterations": s.iterations, "resolution": s.resolution,
-                     "spp": s.match_spp, "params": s.params, "mode": s.mode}
+                raise RequestError(
+                    f"settings.iterations: {s.iterations} is over the service limit of {limits.max_iterations}"
+                )
+            match = {
+                "reference": s.reference,
+                "iterations": s.iterations,
+                "resolution": s.resolution,
+                "spp": s.match_spp,
+                "params": s.params,
+                "mode": s.mode,
+            }
             _check_match(config, match, s.variant, limits)
             specs.append({**base, "index": 0, "output": "out", "frames": None, "match": match})
     except BaseException:
@@ -221,18 +251,29 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
     return PreparedJob(job_id=job_id, job_dir=job_dir, settings=settings, task_specs=specs)
 
 
-
 def _check_match(config, match: dict, variant: str | None, limits: Limits) -> None:
     """Validate look-dev settings now (the same resolution look-dev does), so mistakes answer 422."""
     from forest.errors import ForestError
     from forest.lookdev import resolve_settings
 
-    names = {"--iterations": "settings.iterations", "--resolution": "settings.resolution",
-             "--spp": "settings.match_spp", "--mode": "settings.mode", "--variant": "settings.variant",
-             "--params": "settings.params"}
+    names = {
+        "--iterations": "settings.iterations",
+        "--resolution": "settings.resolution",
+        "--spp": "settings.match_spp",
+        "--mode": "settings.mode",
+        "--variant": "settings.variant",
+        "--params": "settings.params",
+    }
     try:
-        st = resolve_settings(config, iterations=match["iterations"], resolution=match["resolution"],
-                              spp=match["spp"], params=match["params"], mode=match["mode"], variant=variant)
+        st = resolve_settings(
+            config,
+            iterations=match["iterations"],
+            resolution=match["resolution"],
+            spp=match["spp"],
+            params=match["params"],
+            mode=match["mode"],
+            variant=variant,
+        )
     except ForestError as e:
         msg = str(e)
         for flag, field in names.items():

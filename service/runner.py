@@ -27,25 +27,28 @@ import importlib.util
 import math
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 Report = Callable[[str, dict], None]
 
 PROGRESS_INTERVAL_S = 0.2
-QUICK_LOOK_MIN_SPP = 8      # stills with more samples get a quick look first
-QUICK_LOOK_SHARE = 0.1      # of the task's progress bar
+QUICK_LOOK_MIN_SPP = 8  # stills with more samples get a quick look first
+QUICK_LOOK_SHARE = 0.1  # of the task's progress bar
 
 
 def capabilities() -> dict[str, bool]:
     """Which job kinds this installation can run (the renderer and look-dev may be absent)."""
+
     def has(module: str, attr: str) -> bool:
         try:
             if importlib.util.find_spec(module) is None:
                 return False
             return callable(getattr(importlib.import_module(module), attr, None))
-        except Exception:  # noqa: BLE001 - a broken optional module counts as absent
+        except Exception:
             return False
+
     render = has("forest.render", "render_scene")
     return {"render": render, "flythrough": render, "match": has("forest.lookdev", "match")}
 
@@ -141,6 +144,7 @@ def _jsonable(value: Any, job_dir: Path) -> Any:
         return value if math.isfinite(value) else None
     try:
         import numpy as np
+
         if isinstance(value, np.generic):
             return _jsonable(value.item(), job_dir)
         if isinstance(value, np.ndarray):
@@ -176,8 +180,9 @@ def execute(spec: dict, report: Report) -> dict:
     job_dir = Path(spec["job_dir"])
     job_dir.mkdir(parents=True, exist_ok=True)
     kept = job_dir / "config.toml"
-    if not kept.exists():   # the job folder keeps the config it was rendered from
+    if not kept.exists():  # the job folder keeps the config it was rendered from
         from forest.atomic import atomic_path
+
         with atomic_path(kept) as tmp:
             tmp.write_text(spec["config"], encoding="utf-8")
     caps = capabilities()
@@ -198,17 +203,29 @@ def _render(spec: dict, config, job_dir: Path, report: Report, started: float) -
     index = int(spec.get("index", 0))
     progress = _Progress(report, job_dir, index, output.parent)
     frames = spec.get("frames")
-    report("log", {"line": f"render {'frames ' + _frames_text(frames) if frames else 'still'} "
-                           f"-> {spec['output']} (variant {spec.get('variant') or 'auto'})"})
+    report(
+        "log",
+        {
+            "line": f"render {'frames ' + _frames_text(frames) if frames else 'still'} "
+            f"-> {spec['output']} (variant {spec.get('variant') or 'auto'})"
+        },
+    )
     instances = None
     if frames is None and not spec.get("preview") and config.render.spp > QUICK_LOOK_MIN_SPP:
         # A still: first a quick look (the renderer's fast preview), shown as the first pass.
         from forest.scatter import scene_instances
+
         progress(0.0, "scattering")
         instances = scene_instances(config)
         quick = job_dir / "preview" / "quick.exr"
-        render_scene(config, output=quick, instances=instances, variant=spec.get("variant"), preview=True,
-                     progress=lambda f, m="": progress(QUICK_LOOK_SHARE * float(f), f"quick look: {m}"))
+        render_scene(
+            config,
+            output=quick,
+            instances=instances,
+            variant=spec.get("variant"),
+            preview=True,
+            progress=lambda f, m="": progress(QUICK_LOOK_SHARE * float(f), f"quick look: {m}"),
+        )
         shown = progress.publish(quick.with_suffix(".png"))
         if shown:
             report("progress", {"fraction": QUICK_LOOK_SHARE, "message": "quick look ready", "preview": shown})
@@ -218,8 +235,15 @@ def _render(spec: dict, config, job_dir: Path, report: Report, started: float) -
     else:
         main_progress = progress
         progress(0.0, "loading scene")
-    result = render_scene(config, output=output, instances=instances, variant=spec.get("variant"), frames=frames,
-                          preview=bool(spec.get("preview", False)), progress=main_progress)
+    result = render_scene(
+        config,
+        output=output,
+        instances=instances,
+        variant=spec.get("variant"),
+        frames=frames,
+        preview=bool(spec.get("preview", False)),
+        progress=main_progress,
+    )
     paths = getattr(result, "paths", None)
     if paths:
         outs = sorted(_jsonable(Path(p), job_dir) for p in paths)

@@ -1,6 +1,6 @@
 """A local worker process: runs exactly one task attempt, then exits.
 
-Started by :class:`service.executors.LocalExecutor` as ``python -m service.worker FD``:
+Started by :class:`forest.service.executors.LocalExecutor` as ``python -m forest.service.worker FD``:
 
 * reads one JSON line from stdin: ``{"task_id", "attempt", "spec", "heartbeat_s", "nice"}``;
 * writes JSON-line reports to file descriptor ``FD``: ``heartbeat`` every
@@ -37,7 +37,7 @@ class Channel:
                 self.f.write(line + "\n")
                 self.f.flush()
             except (BrokenPipeError, OSError, ValueError):
-                os._exit(75)   # the service is gone
+                os._exit(75)  # the service is gone
 
 
 def _watch_stdin() -> None:
@@ -78,14 +78,15 @@ def main(argv: list[str]) -> int:
         chan.send(kind, payload)
 
     from forest.errors import ForestError
-    from service.runner import execute
+    from forest.service.runner import execute
+
     try:
         result = execute(spec, report)
     except ForestError as e:
         print(f"{tag} error: {e}", file=sys.stderr, flush=True)
         chan.send("error", {"error": str(e), "user": True})
         return 0
-    except BaseException as e:  # noqa: BLE001 - report every failure, then exit non-zero
+    except BaseException as e:
         traceback.print_exc()
         chan.send("error", {"error": f"{type(e).__name__}: {e}", "user": False})
         return 1
@@ -98,4 +99,4 @@ if __name__ == "__main__":
     code = main(sys.argv[1:])
     sys.stdout.flush()
     sys.stderr.flush()
-    os._exit(code)   # do not wait on the heartbeat thread or renderer thread pools
+    os._exit(code)  # do not wait on the heartbeat thread or renderer thread pools

@@ -20,6 +20,7 @@ os.environ.setdefault("OPENIMAGEIO_THREADS", "1")
 def write_png(path: Path, img: np.ndarray, bits: int = 8) -> Path:
     """Write a float image in [0, 1] ((H, W) or (H, W, C)) as an 8/16-bit PNG, values as given."""
     import OpenImageIO as oiio
+
     img = np.clip(np.asarray(img, dtype=np.float64), 0, 1)
     if img.ndim == 2:
         img = img[..., None]
@@ -50,17 +51,28 @@ def run_forest(*args: str, cwd: Path | None = None, timeout: float = 600) -> sub
 @pytest.fixture
 def flat_scene(tmp_path):
     """A 100 m flat terrain with one species: returns a function(extra_toml) -> config path."""
+
     def make(extra: str = "", count: int = 2000, species: str | None = None) -> Path:
-        sp = species if species is not None else """
+        sp = (
+            species
+            if species is not None
+            else """
             [[species]]
             model = "broadleaf"
             percent = 100
         """
-        return write_scene(tmp_path, f"""
+        )
+        return write_scene(
+            tmp_path,
+            f"""
             seed = 3
             [terrain]
             flat = {{ size = 100.0 }}
             [scatter]
             count = {count}
-        """ + textwrap.dedent(sp) + textwrap.dedent(extra))
+        """
+            + textwrap.dedent(sp)
+            + textwrap.dedent(extra),
+        )
+
     return make

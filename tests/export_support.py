@@ -90,24 +90,28 @@ def fake_species(name: str, height: float, seed: int, levels=("high", "medium", 
     for k, lvl in enumerate(levels):
         bark = _box([-0.2, 0.0, -0.25], [0.2, height * 0.6, 0.25], max(1, 4 - k))
         leaf = _cards(height * 0.7, height * 0.3, max(2, 40 >> k), seed + k)
-        parts = (FakePart("bark", Path(f"{name}_{lvl}_bark.ply"), (0.3, 0.2, 0.1), None, False, 0.0, bark),
-                 FakePart("leaf", Path(f"{name}_{lvl}_leaf.ply"), (0.2, 0.5, 0.1), None, True, 0.3, leaf))
+        parts = (
+            FakePart("bark", Path(f"{name}_{lvl}_bark.ply"), (0.3, 0.2, 0.1), None, False, 0.0, bark),
+            FakePart("leaf", Path(f"{name}_{lvl}_leaf.ply"), (0.2, 0.5, 0.1), None, True, 0.3, leaf),
+        )
         pts = np.concatenate([bark.vertices, leaf.vertices]).astype(np.float64)
-        lods.append(FakeLod(lvl, int(len(bark.faces) + len(leaf.faces)),
-                            np.stack([pts.min(0), pts.max(0)]), parts))
+        lods.append(FakeLod(lvl, int(len(bark.faces) + len(leaf.faces)), np.stack([pts.min(0), pts.max(0)]), parts))
     return FakeSpecies(name, "generated", lods)
 
 
 class FakeLibrary:
     def __init__(self):
-        self.species = {"oak": fake_species("oak", 12.0, 1),
-                        "pine": fake_species("pine", 18.0, 2, levels=("high", "low"))}
+        self.species = {
+            "oak": fake_species("oak", 12.0, 1),
+            "pine": fake_species("pine", 18.0, 2, levels=("high", "low")),
+        }
 
     def names(self):
         return sorted(self.species)
 
     def resolve(self, model, base_dir=None):
         from forest.errors import ForestError
+
         if model not in self.species:
             raise ForestError(f"unknown tree model {model!r}")
         return self.species[model]
@@ -152,8 +156,14 @@ def make_config(tmp_path: Path, extra: str = "", name: str = "scene.toml"):
     return parse_config(path.read_text(), path=path)
 
 
-def make_instances(n: int, seed: int = 3, partitions=("north", "south", "east"), species=("oak", "pine"),
-                   empty_partition: str | None = "east", tilt: float = 0.4) -> InstanceSet:
+def make_instances(
+    n: int,
+    seed: int = 3,
+    partitions=("north", "south", "east"),
+    species=("oak", "pine"),
+    empty_partition: str | None = "east",
+    tilt: float = 0.4,
+) -> InstanceSet:
     """A random InstanceSet with tilted trees, varied scales and tints, partitions and species."""
     rng = np.random.default_rng(seed)
     pos = np.stack([rng.uniform(-100, 100, n), rng.uniform(0, 20, n), rng.uniform(-100, 100, n)], 1)
@@ -165,15 +175,26 @@ def make_instances(n: int, seed: int = 3, partitions=("north", "south", "east"),
     allowed = [i for i, p in enumerate(parts) if p != empty_partition]
     return InstanceSet(
         id=np.sort(rng.choice(10 * n + 10, n, replace=False)).astype(np.uint64),
-        position=pos, rotation=rot, yaw=yaw, scale=rng.uniform(0.6, 1.8, n),
-        species=rng.integers(0, len(species), n), tint=rng.uniform(0.3, 1.3, (n, 3)),
-        partition=rng.choice(allowed, n), normal=normal, phase=rng.uniform(0, 6.28, n),
-        species_names=list(species), partition_names=parts, extent=(-100, -100, 100, 100), seed=seed)
+        position=pos,
+        rotation=rot,
+        yaw=yaw,
+        scale=rng.uniform(0.6, 1.8, n),
+        species=rng.integers(0, len(species), n),
+        tint=rng.uniform(0.3, 1.3, (n, 3)),
+        partition=rng.choice(allowed, n),
+        normal=normal,
+        phase=rng.uniform(0, 6.28, n),
+        species_names=list(species),
+        partition_names=parts,
+        extent=(-100, -100, 100, 100),
+        seed=seed,
+    )
 
 
 def validation_errors(stage) -> list[str]:
     """Every error usd-core's validators report (composition, types, stage metadata, shading…)."""
     from pxr import UsdValidation
+
     ctx = UsdValidation.ValidationContext(UsdValidation.ValidationRegistry().GetOrLoadAllValidators())
     return [f"{e.GetName()}: {e.GetMessage()}" for e in ctx.Validate(stage)]
 

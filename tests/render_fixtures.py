@@ -15,8 +15,23 @@ def box_mesh(lo, hi) -> MeshData:
     lo, hi = np.asarray(lo, np.float32), np.asarray(hi, np.float32)
     c = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], np.float32)
     v = lo + c * (hi - lo)
-    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]], np.uint32)
+    f = np.array(
+        [
+            [0, 1, 3],
+            [0, 3, 2],
+            [4, 6, 7],
+            [4, 7, 5],
+            [0, 4, 5],
+            [0, 5, 1],
+            [2, 3, 7],
+            [2, 7, 6],
+            [0, 2, 6],
+            [0, 6, 4],
+            [1, 5, 7],
+            [1, 7, 3],
+        ],
+        np.uint32,
+    )
     return MeshData(v, f, vertex_normals(v, f).astype(np.float32), np.zeros((8, 2), np.float32))
 
 
@@ -53,18 +68,20 @@ class BoxLibrary:
         root.mkdir(parents=True, exist_ok=True)
         self.species = {}
         lods = []
-        specs = [("high", (-1, 0, -1), (1, 6, 1), (0.8, 0.8, 0.8)),
-                 ("medium", (-1, 0, -1), (1, 6, 1), (0.8, 0.8, 0.8)),
-                 ("low", (-1, 0, -1), (1, 3, 1), (0.05, 0.05, 0.8)),
-                 ("far", (-1, 0, -1), (1, 3, 1), (0.05, 0.05, 0.8))]
+        specs = [
+            ("high", (-1, 0, -1), (1, 6, 1), (0.8, 0.8, 0.8)),
+            ("medium", (-1, 0, -1), (1, 6, 1), (0.8, 0.8, 0.8)),
+            ("low", (-1, 0, -1), (1, 3, 1), (0.05, 0.05, 0.8)),
+            ("far", (-1, 0, -1), (1, 3, 1), (0.05, 0.05, 0.8)),
+        ]
         for name, lo, hi, colour in specs:
             m = box_mesh(lo, hi)
             path = write_ply(root / f"box_{name}.ply", m)
-            lods.append(Lod(name, m.triangles, m.bounds(),
-                            [Part("leaf", path, colour, None, True, translucency)]))
+            lods.append(Lod(name, m.triangles, m.bounds(), [Part("leaf", path, colour, None, True, translucency)]))
         self.species["box"] = Species("box", lods)
         # Species "card": a horizontal 10×10 m leaf card 5 m up, its texture's alpha 0 on one half.
         from forest.images import write_image
+
         rgba = np.ones((16, 16, 4), np.float32)
         rgba[:, :8, 3] = 0.0
         tex = write_image(root / "card.png", rgba)
@@ -81,6 +98,7 @@ class BoxLibrary:
 
     def resolve(self, model, base_dir=None):
         from forest.errors import ForestError
+
         if model not in self.species:
             raise ForestError(f"unknown species {model!r}")
         return self.species[model]

@@ -30,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-_TOKEN = re.compile(rb"""
+_TOKEN = re.compile(
+    rb"""
     (?P<ws>[ \t\r\n]+)
   | (?P<comment>\#[^\n]*)
   | (?P<string>"(?:[^"\\\n]|\\.)*")
@@ -38,7 +39,9 @@ _TOKEN = re.compile(rb"""
   | (?P<open>\[)
   | (?P<close>\])
   | (?P<name>[A-Za-z_][A-Za-z0-9_]*)
-""", re.X)
+""",
+    re.X,
+)
 
 
 class RibError(AssertionError):
@@ -58,7 +61,7 @@ def tokenize(data: bytes):
     while pos < n:
         m = _TOKEN.match(data, pos)
         if not m:
-            raise RibError(f"line {line}: cannot read {data[pos:pos + 20]!r}")
+            raise RibError(f"line {line}: cannot read {data[pos : pos + 20]!r}")
         kind = m.lastgroup
         text = m.group(kind)
         if kind == "string":
@@ -113,64 +116,92 @@ def parse(data: bytes) -> list[Call]:
 # h a light handle (number in RI 3.2, string in later RIB).
 #                    positional            params  context
 TABLE = {
-    "version":         (["n"],               False, "top"),
-    "FrameBegin":      (["n"],               False, "top"),
-    "FrameEnd":        ([],                  False, "top"),
-    "WorldBegin":      ([],                  False, "options"),
-    "WorldEnd":        ([],                  False, "world"),
-    "Option":          (["s"],               True,  "options"),
-    "Display":         (["s", "s", "s"],     True,  "options"),
-    "Format":          (["n", "n", "n"],     False, "options"),
-    "PixelSamples":    (["n", "n"],          False, "options"),
-    "Hider":           (["s"],               True,  "options"),
-    "Integrator":      (["s", "s"],          True,  "options"),
-    "Projection":      (["s"],               True,  "options"),
-    "Clipping":        (["n", "n"],          False, "options"),
-    "Shutter":         (["n", "n"],          False, "options"),
-    "Transform":       (["a16"],             False, "any"),
-    "ConcatTransform": (["a16"],             False, "any"),
-    "Identity":        ([],                  False, "any"),
-    "MotionBegin":     (["a"],               False, "any"),
-    "MotionEnd":       ([],                  False, "any"),
-    "TransformBegin":  ([],                  False, "any"),
-    "TransformEnd":    ([],                  False, "any"),
-    "AttributeBegin":  ([],                  False, "any"),
-    "AttributeEnd":    ([],                  False, "any"),
-    "Attribute":       (["s"],               True,  "any"),
-    "Orientation":     (["s"],               False, "any"),
-    "Sides":           (["n"],               False, "any"),
-    "Color":           (["c3"],              False, "any"),
-    "Surface":         (["s"],               True,  "any"),
-    "Bxdf":            (["s", "s"],          True,  "any"),
-    "Pattern":         (["s", "s"],          True,  "any"),
-    "LightSource":     (["s", "h"],          True,  "world"),
-    "Light":           (["s", "s"],          True,  "world"),
-    "PointsPolygons":  (["a", "a"],          True,  "world"),
-    "Procedural":      (["s", "S", "a6"],    False, "world"),
-    "Procedural2":     (["s", "s"],          True,  "world"),
-    "Detail":          (["a6"],              False, "any"),
-    "DetailRange":     (["c4"],              False, "any"),
-    "ReadArchive":     (["s"],               False, "world"),
+    "version": (["n"], False, "top"),
+    "FrameBegin": (["n"], False, "top"),
+    "FrameEnd": ([], False, "top"),
+    "WorldBegin": ([], False, "options"),
+    "WorldEnd": ([], False, "world"),
+    "Option": (["s"], True, "options"),
+    "Display": (["s", "s", "s"], True, "options"),
+    "Format": (["n", "n", "n"], False, "options"),
+    "PixelSamples": (["n", "n"], False, "options"),
+    "Hider": (["s"], True, "options"),
+    "Integrator": (["s", "s"], True, "options"),
+    "Projection": (["s"], True, "options"),
+    "Clipping": (["n", "n"], False, "options"),
+    "Shutter": (["n", "n"], False, "options"),
+    "Transform": (["a16"], False, "any"),
+    "ConcatTransform": (["a16"], False, "any"),
+    "Identity": ([], False, "any"),
+    "MotionBegin": (["a"], False, "any"),
+    "MotionEnd": ([], False, "any"),
+    "TransformBegin": ([], False, "any"),
+    "TransformEnd": ([], False, "any"),
+    "AttributeBegin": ([], False, "any"),
+    "AttributeEnd": ([], False, "any"),
+    "Attribute": (["s"], True, "any"),
+    "Orientation": (["s"], False, "any"),
+    "Sides": (["n"], False, "any"),
+    "Color": (["c3"], False, "any"),
+    "Surface": (["s"], True, "any"),
+    "Bxdf": (["s", "s"], True, "any"),
+    "Pattern": (["s", "s"], True, "any"),
+    "LightSource": (["s", "h"], True, "world"),
+    "Light": (["s", "s"], True, "world"),
+    "PointsPolygons": (["a", "a"], True, "world"),
+    "Procedural": (["s", "S", "a6"], False, "world"),
+    "Procedural2": (["s", "s"], True, "world"),
+    "Detail": (["a6"], False, "any"),
+    "DetailRange": (["c4"], False, "any"),
+    "ReadArchive": (["s"], False, "world"),
 }
 TRANSFORMS = {"Transform", "ConcatTransform", "Identity"}
-BLOCKS = {"FrameBegin": "FrameEnd", "WorldBegin": "WorldEnd", "AttributeBegin": "AttributeEnd",
-          "TransformBegin": "TransformEnd", "MotionBegin": "MotionEnd"}
+BLOCKS = {
+    "FrameBegin": "FrameEnd",
+    "WorldBegin": "WorldEnd",
+    "AttributeBegin": "AttributeEnd",
+    "TransformBegin": "TransformEnd",
+    "MotionBegin": "MotionEnd",
+}
 ENDS = {v: k for k, v in BLOCKS.items()}
 
-TYPE_SIZE = {"float": 1, "integer": 1, "int": 1, "string": 1, "color": 3, "point": 3, "vector": 3,
-             "normal": 3, "hpoint": 4, "matrix": 16, "reference": 1}
+TYPE_SIZE = {
+    "float": 1,
+    "integer": 1,
+    "int": 1,
+    "string": 1,
+    "color": 3,
+    "point": 3,
+    "vector": 3,
+    "normal": 3,
+    "hpoint": 4,
+    "matrix": 16,
+    "reference": 1,
+}
 # Predeclared variables (spec 3.2 standard variables and parameters) → (class, type, count)
 PREDECLARED = {
-    "P": ("vertex", "point", 1), "N": ("varying", "normal", 1), "Cs": ("varying", "color", 1),
-    "Os": ("varying", "color", 1), "st": ("varying", "float", 2), "s": ("varying", "float", 1),
-    "t": ("varying", "float", 1), "fov": ("uniform", "float", 1), "intensity": ("uniform", "float", 1),
-    "lightcolor": ("uniform", "color", 1), "from": ("uniform", "point", 1), "to": ("uniform", "point", 1),
-    "name": ("uniform", "string", 1), "Ka": ("uniform", "float", 1), "Kd": ("uniform", "float", 1),
+    "P": ("vertex", "point", 1),
+    "N": ("varying", "normal", 1),
+    "Cs": ("varying", "color", 1),
+    "Os": ("varying", "color", 1),
+    "st": ("varying", "float", 2),
+    "s": ("varying", "float", 1),
+    "t": ("varying", "float", 1),
+    "fov": ("uniform", "float", 1),
+    "intensity": ("uniform", "float", 1),
+    "lightcolor": ("uniform", "color", 1),
+    "from": ("uniform", "point", 1),
+    "to": ("uniform", "point", 1),
+    "name": ("uniform", "string", 1),
+    "Ka": ("uniform", "float", 1),
+    "Kd": ("uniform", "float", 1),
 }
 # RenderMan 22+ adds a ``reference`` qualifier: the value names a pattern output ("node:out").
-_DECL = re.compile(r"^(?:(constant|uniform|varying|vertex|facevarying)\s+)?(reference\s+)?"
-                   r"(float|integer|int|string|color|point|vector|normal|hpoint|matrix)"
-                   r"(?:\[(\d+)\])?\s+([A-Za-z_][A-Za-z0-9_:]*)$")
+_DECL = re.compile(
+    r"^(?:(constant|uniform|varying|vertex|facevarying)\s+)?(reference\s+)?"
+    r"(float|integer|int|string|color|point|vector|normal|hpoint|matrix)"
+    r"(?:\[(\d+)\])?\s+([A-Za-z_][A-Za-z0-9_:]*)$"
+)
 
 
 def declaration(token: str):
@@ -259,7 +290,7 @@ def check_call(call: Call) -> dict:
             raise RibError(f"{where}: vertex indices must be non-negative integers")
         npts = int(max(verts)) + 1 if verts else 0
         if "P" not in params:
-            raise RibError(f"{where}: no \"P\"")
+            raise RibError(f'{where}: no "P"')
         for name, (decl, vals) in params.items():
             cls, typ, n, _ = decl
             per = TYPE_SIZE[typ] * n
@@ -374,6 +405,7 @@ def check_export(root: Path) -> dict[str, list[Call]]:
 # ---------------------------------------------------------------------------
 # reading trees back
 # ---------------------------------------------------------------------------
+
 
 def read_trees(calls: list[Call]) -> list[dict]:
     """The trees of an instance file: ``name``, ``matrix`` (4×4, column vectors),

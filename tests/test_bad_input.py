@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import run_forest, write_png
 
 GOOD_SPECIES = """
@@ -19,44 +18,96 @@ percent = 40
 CASES = {
     # name: (config text, extra files, expected fragments of the message)
     "invalid_toml": ("seed = = 1", {}, ["scene.toml", "invalid TOML"]),
-    "unknown_top_key": ("colours = 1\n[terrain]\nflat = {}\n" + GOOD_SPECIES, {}, ["scene.toml", "colours", "unknown key"]),
-    "unknown_section_key": ("[terrain]\nflat = {}\n[scatter]\ncuont = 5\n" + GOOD_SPECIES, {},
-                            ["scene.toml", "scatter.cuont", "unknown key"]),
+    "unknown_top_key": (
+        "colours = 1\n[terrain]\nflat = {}\n" + GOOD_SPECIES,
+        {},
+        ["scene.toml", "colours", "unknown key"],
+    ),
+    "unknown_section_key": (
+        "[terrain]\nflat = {}\n[scatter]\ncuont = 5\n" + GOOD_SPECIES,
+        {},
+        ["scene.toml", "scatter.cuont", "unknown key"],
+    ),
     "no_terrain": ("[scatter]\ncount = 5\n" + GOOD_SPECIES, {}, ["scene.toml", "terrain", "exactly one"]),
     "two_terrains": ("[terrain]\nflat = {}\nprocedural = {}\n" + GOOD_SPECIES, {}, ["terrain", "exactly one"]),
-    "missing_heightmap": ('[terrain]\nheightmap = "nope.png"\n' + GOOD_SPECIES, {},
-                          ["scene.toml", "terrain.heightmap", "not found"]),
-    "corrupt_heightmap": ('[terrain]\nheightmap = "bad.png"\n' + GOOD_SPECIES, {"bad.png": b"\x89PNG garbage"},
-                          ["terrain.heightmap", "bad.png"]),
-    "empty_map": ('[terrain]\nflat = {}\n[maps]\ndensity = "d.png"\n' + GOOD_SPECIES, {"d.png": b""},
-                  ["maps.density", "d.png", "empty"]),
-    "percent_over_100": ("[terrain]\nflat = {}\n" + GOOD_SPECIES.replace("40", "50"), {},
-                         ["scene.toml", "species", "110", "more than 100"]),
-    "percent_negative": ("[terrain]\nflat = {}\n" + GOOD_SPECIES.replace("40", "-4"), {},
-                         ["species[1].percent", ">= 0"]),
-    "negative_size": ('[terrain]\nheightmap = "h.png"\nsize = [-10.0, 100.0]\n' + GOOD_SPECIES, {"h.png": "grey"},
-                      ["terrain.size", ">= 0"]),
-    "nan_height": ('[terrain]\nheightmap = "h.png"\nheight = nan\n' + GOOD_SPECIES, {"h.png": "grey"},
-                   ["terrain.height", "finite"]),
-    "nan_heightmap": ('[terrain]\nheightmap = "h.exr"\n' + GOOD_SPECIES, {"h.exr": "nan"},
-                      ["terrain.heightmap", "NaN"]),
-    "count_wrong_type": ('[terrain]\nflat = {}\n[scatter]\ncount = "many"\n' + GOOD_SPECIES, {},
-                         ["scatter.count", "whole number"]),
-    "count_negative": ('[terrain]\nflat = {}\n[scatter]\ncount = -5\n' + GOOD_SPECIES, {}, ["scatter.count", ">= 0"]),
-    "species_without_model": ("[terrain]\nflat = {}\n[[species]]\npercent = 10\n", {}, ["species[0].model", "required"]),
+    "missing_heightmap": (
+        '[terrain]\nheightmap = "nope.png"\n' + GOOD_SPECIES,
+        {},
+        ["scene.toml", "terrain.heightmap", "not found"],
+    ),
+    "corrupt_heightmap": (
+        '[terrain]\nheightmap = "bad.png"\n' + GOOD_SPECIES,
+        {"bad.png": b"\x89PNG garbage"},
+        ["terrain.heightmap", "bad.png"],
+    ),
+    "empty_map": (
+        '[terrain]\nflat = {}\n[maps]\ndensity = "d.png"\n' + GOOD_SPECIES,
+        {"d.png": b""},
+        ["maps.density", "d.png", "empty"],
+    ),
+    "percent_over_100": (
+        "[terrain]\nflat = {}\n" + GOOD_SPECIES.replace("40", "50"),
+        {},
+        ["scene.toml", "species", "110", "more than 100"],
+    ),
+    "percent_negative": (
+        "[terrain]\nflat = {}\n" + GOOD_SPECIES.replace("40", "-4"),
+        {},
+        ["species[1].percent", ">= 0"],
+    ),
+    "negative_size": (
+        '[terrain]\nheightmap = "h.png"\nsize = [-10.0, 100.0]\n' + GOOD_SPECIES,
+        {"h.png": "grey"},
+        ["terrain.size", ">= 0"],
+    ),
+    "nan_height": (
+        '[terrain]\nheightmap = "h.png"\nheight = nan\n' + GOOD_SPECIES,
+        {"h.png": "grey"},
+        ["terrain.height", "finite"],
+    ),
+    "nan_heightmap": (
+        '[terrain]\nheightmap = "h.exr"\n' + GOOD_SPECIES,
+        {"h.exr": "nan"},
+        ["terrain.heightmap", "NaN"],
+    ),
+    "count_wrong_type": (
+        '[terrain]\nflat = {}\n[scatter]\ncount = "many"\n' + GOOD_SPECIES,
+        {},
+        ["scatter.count", "whole number"],
+    ),
+    "count_negative": ("[terrain]\nflat = {}\n[scatter]\ncount = -5\n" + GOOD_SPECIES, {}, ["scatter.count", ">= 0"]),
+    "species_without_model": (
+        "[terrain]\nflat = {}\n[[species]]\npercent = 10\n",
+        {},
+        ["species[0].model", "required"],
+    ),
     "no_species": ("[terrain]\nflat = {}\n", {}, ["species", "required"]),
-    "scale_reversed": ("[terrain]\nflat = {}\n[[species]]\nmodel = 'a'\npercent = 5\nscale = [2.0, 1.0]\n", {},
-                       ["species[0].scale", "must not exceed"]),
-    "bad_partition_key": ('[terrain]\nflat = {}\n[maps]\npartition = "p.png"\n[partitions]\n"red" = "fg"\n'
-                          + GOOD_SPECIES, {"p.png": "grey"}, ["partitions", "colours like"]),
-    "partition_map_without_labels": ('[terrain]\nflat = {}\n[maps]\npartition = "p.png"\n' + GOOD_SPECIES,
-                                     {"p.png": "grey"}, ["partitions", "no [partitions]"]),
-    "presence_all_black": ('[terrain]\nflat = {}\n[maps]\npresence = "p.png"\n' + GOOD_SPECIES, {"p.png": "black"},
-                           ["maps.presence", "allows no trees"]),
-    "mesh_with_nan": ('[terrain]\nmesh = "t.obj"\n' + GOOD_SPECIES,
-                      {"t.obj": "v 0 0 0\nv 1 0 0\nv nan 0 1\nf 1 2 3\n"}, ["terrain.mesh", "NaN"]),
-    "mesh_empty": ('[terrain]\nmesh = "t.obj"\n' + GOOD_SPECIES, {"t.obj": "# nothing\n"},
-                   ["terrain.mesh", "t.obj"]),
+    "scale_reversed": (
+        "[terrain]\nflat = {}\n[[species]]\nmodel = 'a'\npercent = 5\nscale = [2.0, 1.0]\n",
+        {},
+        ["species[0].scale", "must not exceed"],
+    ),
+    "bad_partition_key": (
+        '[terrain]\nflat = {}\n[maps]\npartition = "p.png"\n[partitions]\n"red" = "fg"\n' + GOOD_SPECIES,
+        {"p.png": "grey"},
+        ["partitions", "colours like"],
+    ),
+    "partition_map_without_labels": (
+        '[terrain]\nflat = {}\n[maps]\npartition = "p.png"\n' + GOOD_SPECIES,
+        {"p.png": "grey"},
+        ["partitions", "no [partitions]"],
+    ),
+    "presence_all_black": (
+        '[terrain]\nflat = {}\n[maps]\npresence = "p.png"\n' + GOOD_SPECIES,
+        {"p.png": "black"},
+        ["maps.presence", "allows no trees"],
+    ),
+    "mesh_with_nan": (
+        '[terrain]\nmesh = "t.obj"\n' + GOOD_SPECIES,
+        {"t.obj": "v 0 0 0\nv 1 0 0\nv nan 0 1\nf 1 2 3\n"},
+        ["terrain.mesh", "NaN"],
+    ),
+    "mesh_empty": ('[terrain]\nmesh = "t.obj"\n' + GOOD_SPECIES, {"t.obj": "# nothing\n"}, ["terrain.mesh", "t.obj"]),
 }
 
 
@@ -69,6 +120,7 @@ def _materialise(tmp_path, files):
             write_png(p, np.zeros((8, 8)))
         elif content == "nan":
             import OpenImageIO as oiio
+
             a = np.full((4, 4, 1), np.nan, dtype=np.float32)
             out = oiio.ImageOutput.create(str(p))
             out.open(str(p), oiio.ImageSpec(4, 4, 1, oiio.FLOAT))

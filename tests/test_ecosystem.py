@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+from conftest import write_scene
 from scipy.spatial import cKDTree
 
-from conftest import write_scene
 from forest.config import load_config
 from forest.scatter import scatter
 
@@ -57,12 +57,12 @@ def test_canopy_circles_do_not_overlap_but_undergrowth_may(tmp_path):
     a, b = pairs[over, 0], pairs[over, 1]
     # Every overlap left standing involves shade-tolerant undergrowth.
     assert (shade[a] | shade[b]).all()
-    assert over.sum() > 0          # and there is undergrowth beneath canopies
+    assert over.sum() > 0  # and there is undergrowth beneath canopies
 
 
 def test_self_thinning_fewer_larger_plants_with_time(tmp_path):
-    young, ry = _run(tmp_path, steps=3, name="a.toml")
-    old, ro = _run(tmp_path, steps=25, name="b.toml")
+    _young, ry = _run(tmp_path, steps=3, name="a.toml")
+    _old, ro = _run(tmp_path, steps=25, name="b.toml")
     canopy_y = ~ry.columns["shade_tolerant"]
     canopy_o = ~ro.columns["shade_tolerant"]
     assert canopy_o.sum() < canopy_y.sum()

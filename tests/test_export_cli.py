@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom, UsdShade
 
+from forest.cli import main
+
 import ribcheck
 from export_support import FakeLibrary, make_config, validation_errors
-from forest.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -23,25 +24,42 @@ def run(argv) -> int:
 @pytest.fixture
 def fake_library(monkeypatch):
     import forest.export.common as common
+
     monkeypatch.setattr(common, "open_default_library", lambda: FakeLibrary())
 
 
 def test_rib_and_usd_from_the_command_line(tmp_path, fake_library, capsys):
     cfg = make_config(tmp_path, "\n[lod]\ndistances = [60.0]\n")
     assert run(["scatter", cfg.path, "-o", tmp_path / "trees.npz", "-q"]) == 0
-    assert run(["export", "rib", cfg.path, "-o", tmp_path / "rib", "--instances", tmp_path / "trees.npz",
-                "--frames", "2-3"]) == 0
+    assert (
+        run(
+            [
+                "export",
+                "rib",
+                cfg.path,
+                "-o",
+                tmp_path / "rib",
+                "--instances",
+                tmp_path / "trees.npz",
+                "--frames",
+                "2-3",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "instance file" in out and "scene file(s)" in out
     calls = ribcheck.check_export(tmp_path / "rib")
     assert sorted(k for k in calls if k.startswith("scene_")) == ["scene_0002.rib", "scene_0003.rib"]
     trees = sum(len(ribcheck.read_trees(v)) for k, v in calls.items() if k.startswith("instances_"))
     from forest.instances import InstanceSet
+
     assert trees == len(InstanceSet.load(tmp_path / "trees.npz")) > 0
     # without --instances the command scatters the config itself: same trees, same bytes
     assert run(["export", "rib", cfg.path, "-o", tmp_path / "rib2", "-q"]) == 0
-    assert (tmp_path / "rib2" / "instances_default.rib").read_bytes() == \
-        (tmp_path / "rib" / "instances_default.rib").read_bytes()
+    assert (tmp_path / "rib2" / "instances_default.rib").read_bytes() == (
+        tmp_path / "rib" / "instances_default.rib"
+    ).read_bytes()
     assert run(["export", "rib", cfg.path, "-o", tmp_path / "r22", "--renderman22", "-q"]) == 0
     ribcheck.check_export(tmp_path / "r22")
     assert run(["export", "usd", cfg.path, "-o", tmp_path / "f.usdc", "-q"]) == 0
@@ -50,12 +68,18 @@ def test_rib_and_usd_from_the_command_line(tmp_path, fake_library, capsys):
     assert len(pi.GetIdsAttr().Get()) == trees
 
 
-@pytest.mark.parametrize("argv,message", [
-    (["export", "rib", "{cfg}", "-o", "{tmp}/out", "--frames", "9-1"], "--frames: bad range"),
-    (["export", "usd", "{cfg}", "-o", "{tmp}/out.abc"], "must end in .usda, .usdc or .usd"),
-    (["export", "rib", "{tmp}/missing.toml", "-o", "{tmp}/out"], "config file not found"),
-    (["export", "usd", "{cfg}", "-o", "{tmp}/out.usda", "--instances", "{tmp}/nope.npz"], "instance file not found"),
-])
+@pytest.mark.parametrize(
+    "argv,message",
+    [
+        (["export", "rib", "{cfg}", "-o", "{tmp}/out", "--frames", "9-1"], "--frames: bad range"),
+        (["export", "usd", "{cfg}", "-o", "{tmp}/out.abc"], "must end in .usda, .usdc or .usd"),
+        (["export", "rib", "{tmp}/missing.toml", "-o", "{tmp}/out"], "config file not found"),
+        (
+            ["export", "usd", "{cfg}", "-o", "{tmp}/out.usda", "--instances", "{tmp}/nope.npz"],
+            "instance file not found",
+        ),
+    ],
+)
 def test_bad_input_exits_2_with_one_line(tmp_path, fake_library, capsys, argv, message):
     cfg = make_config(tmp_path, "")
     argv = [a.format(cfg=cfg.path, tmp=tmp_path) for a in argv]
@@ -67,6 +91,7 @@ def test_bad_input_exits_2_with_one_line(tmp_path, fake_library, capsys, argv, m
 
 def test_unknown_species_names_the_config_field(tmp_path, capsys, monkeypatch):
     import forest.export.common as common
+
     monkeypatch.setattr(common, "open_default_library", lambda: FakeLibrary())
     cfg = make_config(tmp_path, "")
     text = cfg.path.read_text().replace('model = "pine"', 'model = "baobab"')
@@ -111,28 +136,32 @@ def real_library(tmp_path_factory):
 
 def test_real_library_species_export(tmp_path, real_library):
     from forest.library import open_library
+
     (tmp_path / "scene.toml").write_text(REAL)
-    assert run(["export", "rib", tmp_path / "scene.toml", "-o", tmp_path / "rib", "--library", real_library,
-                "-q"]) == 0
+    assert run(["export", "rib", tmp_path / "scene.toml", "-o", tmp_path / "rib", "--library", real_library, "-q"]) == 0
     calls = ribcheck.check_export(tmp_path / "rib")
     lib = open_library(real_library)
     for name in ("broadleaf", "shrub"):
         sp = lib.resolve(name)
-        for lod in sp.lods[:3]:                          # two distances: three bands
+        for lod in sp.lods[:3]:  # two distances: three bands
             meshes = ribcheck.points_polygons(calls[f"archives/{name}_{lod.name}.rib"])
             assert sum(len(m["faces"]) for m in meshes) == lod.triangles
             lo, hi = np.asarray(lod.bounds)
             for m in meshes:
                 assert np.all(m["P"] >= lo - 1e-6) and np.all(m["P"] <= hi + 1e-6)
-    assert run(["export", "usd", tmp_path / "scene.toml", "-o", tmp_path / "f.usda", "--library", real_library,
-                "-q"]) == 0
+    assert (
+        run(["export", "usd", tmp_path / "scene.toml", "-o", tmp_path / "f.usda", "--library", real_library, "-q"]) == 0
+    )
     stage = Usd.Stage.Open(str(tmp_path / "f.usda"))
     pi = UsdGeom.PointInstancer(stage.GetPrimAtPath("/World/Forest/default"))
     for t in pi.GetPrototypesRel().GetTargets():
         proto = stage.GetPrimAtPath(t)
         sp = lib.resolve(proto.GetName())
-        tris = sum(len(UsdGeom.Mesh(p).GetFaceVertexIndicesAttr().Get()) // 3
-                   for p in Usd.PrimRange(proto) if p.IsA(UsdGeom.Mesh))
+        tris = sum(
+            len(UsdGeom.Mesh(p).GetFaceVertexIndicesAttr().Get()) // 3
+            for p in Usd.PrimRange(proto)
+            if p.IsA(UsdGeom.Mesh)
+        )
         assert tris == sp.lods[0].triangles
         # every part has a bound material; textured parts read a copy of the library texture
         textured = 0

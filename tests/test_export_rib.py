@@ -6,12 +6,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import ribcheck
-from export_support import FakeLibrary, fly_keys, make_config, make_instances
 from forest.camera import camera_at
 from forest.errors import ConfigError, ForestError
 from forest.export.common import sun_direction
 from forest.export.rib import export_rib
+
+import ribcheck
+from export_support import FakeLibrary, fly_keys, make_config, make_instances
 
 LOD = "\n[lod]\ndistances = [40.0, 120.0, 300.0]\n"
 FLY = fly_keys(last_frame=3)
@@ -34,24 +35,24 @@ def exported(tmp_path_factory, lib):
 
 
 def test_every_file_passes_the_checker(exported):
-    cfg, inst, res, out = exported
+    _cfg, _inst, res, out = exported
     calls = ribcheck.check_export(out)
     assert set(calls) == {p.relative_to(out).as_posix() for p in res.files}
     assert all(p.stat().st_size > 0 for p in out.rglob("*") if p.is_file())
 
 
 def test_no_file_for_an_empty_partition_and_no_strays(exported):
-    cfg, inst, res, out = exported
+    _cfg, _inst, res, out = exported
     assert sorted(res.instance_files) == ["north", "south"]
     assert not (out / "instances_east.rib").exists()
     assert sorted(p.name for p in out.glob("instances_*")) == ["instances_north.rib", "instances_south.rib"]
-    assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]      # no temp folders left
+    assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]  # no temp folders left
     scenes = sorted(p.name for p in out.glob("scene_*.rib"))
     assert scenes == ["scene_0001.rib", "scene_0002.rib", "scene_0003.rib"]
 
 
 def test_trees_read_back_to_float_precision(exported, lib):
-    cfg, inst, res, out = exported
+    _cfg, inst, res, _out = exported
     M = inst.matrices()
     by_id = {int(i): k for k, i in enumerate(inst.id)}
     seen = []
@@ -83,7 +84,7 @@ def test_trees_read_back_to_float_precision(exported, lib):
 def test_detail_ranges_switch_levels_at_the_configured_distances(exported):
     """Level k hands over to level k+1 where the detail bound's raster area is A(d_k) = h·w·(f/d_k)²,
     cross-fading between A(d_k (1+τ)) and A(d_k (1−τ))."""
-    cfg, inst, res, out = exported
+    cfg, _inst, res, _out = exported
     tau = 0.1
     trees = ribcheck.read_trees(ribcheck.parse(res.instance_files["north"].read_bytes()))
     t = next(t for t in trees if len(t["archives"]) == 4)
@@ -94,7 +95,7 @@ def test_detail_ranges_switch_levels_at_the_configured_distances(exported):
     def A(dist):
         return area * (f / dist) ** 2
 
-    ranges = np.array(t["ranges"])              # [minvisible, lowertransition, uppertransition, maxvisible]
+    ranges = np.array(t["ranges"])  # [minvisible, lowertransition, uppertransition, maxvisible]
     for k, dist in enumerate(cfg.lod.distances):
         near, far = ranges[k], ranges[k + 1]
         assert near[0] == pytest.approx(A(dist * (1 + tau)), rel=1e-5)
@@ -105,7 +106,7 @@ def test_detail_ranges_switch_levels_at_the_configured_distances(exported):
 
 
 def test_archives_hold_the_library_meshes_inside_their_bounds(exported, lib):
-    cfg, inst, res, out = exported
+    _cfg, inst, res, _out = exported
     for path in res.archives:
         name, level = path.stem.rsplit("_", 1)
         lod = next(l for l in lib.resolve(name).lods if l.name == level)
@@ -123,11 +124,12 @@ def test_archives_hold_the_library_meshes_inside_their_bounds(exported, lib):
     text = "".join(p.read_text() for p in res.instance_files.values())
     for path in res.archives:
         assert text.count(f'"archives/{path.name}"') == int(
-            (inst.species == inst.species_names.index(path.stem.rsplit("_", 1)[0])).sum())
+            (inst.species == inst.species_names.index(path.stem.rsplit("_", 1)[0])).sum()
+        )
 
 
 def test_camera_is_left_handed_and_blurred(exported):
-    cfg, inst, res, out = exported
+    cfg, _inst, _res, out = exported
     for frame in (1, 2, 3):
         calls = ribcheck.parse((out / f"scene_{frame:04d}.rib").read_bytes())
         names = [c.name for c in calls]
@@ -141,11 +143,11 @@ def test_camera_is_left_handed_and_blurred(exported):
             st = camera_at(cfg.camera, frame - s / 2 + t)
             assert np.linalg.det(W[:3, :3]) == pytest.approx(-1.0)
             target = W @ np.append(st.target, 1.0)
-            assert abs(target[0]) < 1e-6 and abs(target[1]) < 1e-6 and target[2] > 0     # straight ahead
+            assert abs(target[0]) < 1e-6 and abs(target[1]) < 1e-6 and target[2] > 0  # straight ahead
             fwd = st.target - st.position
             right = np.cross(fwd, st.up)
-            assert (W @ np.append(st.target + right, 1.0))[0] > 0                         # right is +x
-            assert (W @ np.append(st.target + st.up, 1.0))[1] > 0                         # up is +y
+            assert (W @ np.append(st.target + right, 1.0))[0] > 0  # right is +x
+            assert (W @ np.append(st.target + st.up, 1.0))[1] > 0  # up is +y
         if frame > 1:
             assert not np.allclose(mats[0], mats[-1])
         proj = next(c for c in calls if c.name == "Projection")
@@ -160,7 +162,7 @@ def test_sun_direction_convention(tmp_path, lib):
     cfg = make_config(tmp_path, "")
     cfg.data["lights"]["sun"].update({"azimuth": 90.0, "elevation": 30.0})
     d = sun_direction(cfg.lights.sun)
-    np.testing.assert_allclose(d, [math.cos(math.radians(30)), 0.5, 0.0], atol=1e-12)     # east = +X
+    np.testing.assert_allclose(d, [math.cos(math.radians(30)), 0.5, 0.0], atol=1e-12)  # east = +X
     cfg.data["lights"]["sun"]["azimuth"] = 0.0
     cfg.__dict__.pop("lights", None)
     np.testing.assert_allclose(sun_direction(cfg.lights.sun), [0.0, 0.5, math.cos(math.radians(30))], atol=1e-12)
@@ -175,7 +177,7 @@ def test_sun_direction_convention(tmp_path, lib):
 def test_renderman22_output(tmp_path, lib):
     cfg = make_config(tmp_path, LOD)
     inst = make_instances(200)
-    res = export_rib(cfg, inst, tmp_path / "r22", library=lib, renderman22=True)
+    export_rib(cfg, inst, tmp_path / "r22", library=lib, renderman22=True)
     calls = ribcheck.check_export(tmp_path / "r22")
     assert not (tmp_path / "r22" / "shaders").exists()
     scene = calls["scene_0001.rib"]
@@ -198,16 +200,17 @@ def test_same_input_gives_identical_bytes(tmp_path, lib):
     cfg = make_config(tmp_path, LOD)
     inst = make_instances(300, seed=11)
     a = export_rib(cfg, inst, tmp_path / "a", library=lib)
-    b = export_rib(cfg, inst, tmp_path / "b", library=lib)
+    export_rib(cfg, inst, tmp_path / "b", library=lib)
     fa = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
     fb = sorted(p.relative_to(tmp_path / "b") for p in (tmp_path / "b").rglob("*") if p.is_file())
-    assert fa == fb and len(fa) == len(a.files) + 1          # + the RSL shader source
+    assert fa == fb and len(fa) == len(a.files) + 1  # + the RSL shader source
     for rel in fa:
         assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes(), rel
 
 
 def test_large_partitions_stream_in_chunks(tmp_path, lib, monkeypatch):
     import forest.export.rib as rib
+
     cfg = make_config(tmp_path, "")
     inst = make_instances(1000, seed=5)
     whole = export_rib(cfg, inst, tmp_path / "whole", library=lib)
@@ -227,6 +230,7 @@ def test_failure_leaves_nothing_behind(tmp_path, lib):
                 class Bad(type(part)):
                     def load(self):
                         raise ForestError(f"{self.path}: corrupt PLY")
+
                 sp.lods[0].parts = (Bad(**{k: getattr(part, k) for k in part.__dataclass_fields__}),)
             return sp
 
@@ -245,7 +249,7 @@ def test_bad_input_names_the_field(tmp_path, lib):
     with pytest.raises(ConfigError, match=r"scene.toml: species\[1\].model: unknown tree model 'birch'"):
         export_rib(cfg, inst, tmp_path / "x", library=lib)
     cfg = make_config(tmp_path, "[export]\nlod_transition = 0.6\n" + LOD)
-    with pytest.raises(ConfigError, match="export.lod_transition"):
+    with pytest.raises(ConfigError, match=r"export\.lod_transition"):
         export_rib(cfg, make_instances(20), tmp_path / "x", library=lib)
     with pytest.raises(ConfigError, match=r"scene.toml: export.colour: unknown key"):
         export_rib(make_config(tmp_path, "[export]\ncolour = 1\n"), make_instances(20), tmp_path / "x", library=lib)
@@ -254,6 +258,7 @@ def test_bad_input_names_the_field(tmp_path, lib):
 
 def test_no_trees_still_gives_a_scene(tmp_path, lib):
     from forest.instances import InstanceSet
+
     cfg = make_config(tmp_path, "")
     res = export_rib(cfg, InstanceSet.empty(["oak", "pine"]), tmp_path / "e", library=lib)
     assert res.instance_files == {} and res.archives == []
@@ -264,15 +269,17 @@ def test_no_trees_still_gives_a_scene(tmp_path, lib):
 def test_memory_stays_bounded_as_the_forest_grows(tmp_path, lib, monkeypatch):
     """Instance files stream: 4× the trees → 4× the bytes on disk, about the same peak memory."""
     import tracemalloc
+
     import forest.export.rib as rib
     from forest.terrain import load_terrain
+
     monkeypatch.setattr(rib, "CHUNK", 2048)
     cfg = make_config(tmp_path, "")
     terrain = load_terrain(cfg.terrain, cfg.path)
     peaks, sizes = [], []
     for n in (15000, 60000):
         inst = make_instances(n, seed=n)
-        export_rib(cfg, inst, tmp_path / "warm", library=lib, terrain=terrain)     # scratch buffers, imports
+        export_rib(cfg, inst, tmp_path / "warm", library=lib, terrain=terrain)  # scratch buffers, imports
         tracemalloc.start()
         res = export_rib(cfg, inst, tmp_path / f"n{n}", library=lib, terrain=terrain)
         peaks.append(tracemalloc.get_traced_memory()[1])
@@ -309,9 +316,9 @@ def test_lod_switch_can_live_in_one_archive_per_species(tmp_path, lib):
         for t in per_tree:
             ref = inline_trees[t["name"]]
             np.testing.assert_array_equal(t["matrix"], ref["matrix"])
-            (arch, bound), = t["archives"]
+            ((arch, bound),) = t["archives"]
             assert t["detail"] is None and arch.endswith("_lod.rib")
-            np.testing.assert_allclose(bound, ref["detail"], atol=1e-9)       # the union of the levels
+            np.testing.assert_allclose(bound, ref["detail"], atol=1e-9)  # the union of the levels
             # the archive holds exactly the inline switch: Detail, then DetailRange + level per band
             switch = calls[arch]
             assert [c.args[0] for c in switch if c.name == "Detail"] == [list(ref["detail"])]

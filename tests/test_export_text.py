@@ -16,23 +16,34 @@ def reference(x: float, d: int) -> str:
 @pytest.mark.parametrize("d", [0, 1, 3, 6, 7, 9])
 def test_matches_python_fixed_point(d):
     rng = np.random.default_rng(d)
-    x = np.concatenate([rng.normal(size=400) * 10.0 ** rng.integers(-8, 6, 400),
-                        [0.0, -0.0, 1.0, -1.0, 0.5, 10.0, 1e5, -99999.5, 123456789.0, 1e-12, -1e-12]])
-    x = x[np.abs(x) * 10 ** d < 2 ** 52]
+    x = np.concatenate(
+        [
+            rng.normal(size=400) * 10.0 ** rng.integers(-8, 6, 400),
+            [0.0, -0.0, 1.0, -1.0, 0.5, 10.0, 1e5, -99999.5, 123456789.0, 1e-12, -1e-12],
+        ]
+    )
+    x = x[np.abs(x) * 10**d < 2**52]
     text = format_rows([b"<", Field(x[:, None], d, sep=False), b">\n"]).decode()
     got = [t[1:-1] for t in text.splitlines()]
     want = [reference(v, d) for v in x]
     # Python rounds the exact binary value; we round x·10^d: they may differ by one unit
     # in the last place only where x·10^d sits within float error of a half-way point.
-    bad = [(g, w) for g, w in zip(got, want) if g != w and abs(float(g) - float(w)) > 1.01 * 10.0 ** -d]
+    bad = [(g, w) for g, w in zip(got, want) if g != w and abs(float(g) - float(w)) > 1.01 * 10.0**-d]
     assert not bad
     assert sum(g == w for g, w in zip(got, want)) >= 0.99 * len(x)
-    assert np.allclose([float(g) for g in got], x, atol=0.5 * 10.0 ** -d * (1 + 1e-9), rtol=1e-15)
+    assert np.allclose([float(g) for g in got], x, atol=0.5 * 10.0**-d * (1 + 1e-9), rtol=1e-15)
 
 
 def test_fields_separate_and_rows_repeat_constants():
-    rows = format_rows([b"A", Field(np.array([[1.5, -2.0], [0.0, 3.25]]), 2, sep="inner"), b"|",
-                        Field(np.array([7, 12345678901], dtype=np.int64), 0), b"\n"]).decode()
+    rows = format_rows(
+        [
+            b"A",
+            Field(np.array([[1.5, -2.0], [0.0, 3.25]]), 2, sep="inner"),
+            b"|",
+            Field(np.array([7, 12345678901], dtype=np.int64), 0),
+            b"\n",
+        ]
+    ).decode()
     assert rows == "A1.5 -2| 7\nA0 3.25| 12345678901\n"
 
 
@@ -58,7 +69,9 @@ def test_rejects_non_finite():
 
 def test_padded_rows_are_fixed_width_and_exact():
     import io
+
     from forest.export.text import LeftInt, write_rows
+
     rng = np.random.default_rng(4)
     x = np.clip(rng.normal(size=(500, 3)) * np.array([1.0, 30.0, 300.0]), -999, 999)
     ids = rng.integers(0, 10**7, 500)

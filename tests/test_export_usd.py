@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom, UsdLux
 
-from export_support import FakeLibrary, fly_keys, make_config, make_instances, validation_errors
 from forest.camera import camera_at
 from forest.errors import ConfigError, ForestError
 from forest.export.common import sun_direction
 from forest.export.usd import export_usd
 from forest.terrain import load_terrain
+
+from export_support import FakeLibrary, fly_keys, make_config, make_instances, validation_errors
 
 FLY = fly_keys(last_frame=4)
 
@@ -32,28 +33,30 @@ def exported(tmp_path_factory, lib):
 
 
 def test_stage_opens_and_composes(exported, lib):
-    cfg, inst, res, stage = exported
+    _cfg, _inst, res, stage = exported
     assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y and UsdGeom.GetStageMetersPerUnit(stage) == 1.0
     assert stage.GetDefaultPrim().GetPath() == "/World"
-    assert sorted(res.instancers) == ["north", "south"]            # no instancer for the empty partition
+    assert sorted(res.instancers) == ["north", "south"]  # no instancer for the empty partition
     assert not stage.GetPrimAtPath("/World/Forest/east")
-    for pname, path in res.instancers.items():
+    for _pname, path in res.instancers.items():
         pi = UsdGeom.PointInstancer(stage.GetPrimAtPath(path))
         for target in pi.GetPrototypesRel().GetTargets():
             proto = stage.GetPrimAtPath(target)
             assert proto.HasAuthoredReferences()
             vs = proto.GetVariantSets().GetVariantSet("lod")
             sp = lib.resolve(proto.GetName())
-            assert vs.GetVariantNames() == sorted(l.name for l in sp.lods) or \
-                set(vs.GetVariantNames()) == {l.name for l in sp.lods}
+            assert vs.GetVariantNames() == sorted(l.name for l in sp.lods) or set(vs.GetVariantNames()) == {
+                l.name for l in sp.lods
+            }
             assert vs.GetVariantSelection() == sp.lods[0].name
             meshes = [UsdGeom.Mesh(p) for p in Usd.PrimRange(proto) if p.IsA(UsdGeom.Mesh)]
             assert len(meshes) == len(sp.lods[0].parts)
             for mesh, part in zip(meshes, sp.lods[0].parts):
                 src = part.load()
                 np.testing.assert_array_equal(np.array(mesh.GetPointsAttr().Get()), src.vertices)
-                np.testing.assert_array_equal(np.array(mesh.GetFaceVertexIndicesAttr().Get()),
-                                              src.faces.ravel().astype(np.int64))
+                np.testing.assert_array_equal(
+                    np.array(mesh.GetFaceVertexIndicesAttr().Get()), src.faces.ravel().astype(np.int64)
+                )
                 st = np.array(UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st").Get())
                 np.testing.assert_allclose(st, np.stack([src.uv[:, 0], 1 - src.uv[:, 1]], 1), atol=1e-7)
                 colour = mesh.GetDisplayColorPrimvar()
@@ -66,12 +69,12 @@ def test_stage_opens_and_composes(exported, lib):
 
 
 def test_stage_passes_usd_validation(exported):
-    cfg, inst, res, stage = exported
+    _cfg, _inst, _res, stage = exported
     assert validation_errors(stage) == []
 
 
 def test_every_instance_round_trips(exported):
-    cfg, inst, res, stage = exported
+    _cfg, inst, res, stage = exported
     M = inst.matrices()
     seen = []
     for pname, path in res.instancers.items():
@@ -82,7 +85,7 @@ def test_every_instance_round_trips(exported):
         assert np.all(inst.partition[rows] == inst.partition_names.index(pname))
         seen += rows.tolist()
         xf = np.array(pi.ComputeInstanceTransformsAtTime(Usd.TimeCode.Default(), Usd.TimeCode.Default()))
-        got = np.transpose(xf, (0, 2, 1))                            # USD row vectors → column vectors
+        got = np.transpose(xf, (0, 2, 1))  # USD row vectors → column vectors
         np.testing.assert_allclose(got, M[rows], rtol=0, atol=2e-6 * max(1.0, np.abs(M).max()))
         colour = UsdGeom.PrimvarsAPI(pi).GetPrimvar("displayColor")
         assert colour.GetInterpolation() == UsdGeom.Tokens.vertex
@@ -92,21 +95,21 @@ def test_every_instance_round_trips(exported):
         assert [protos[i] for i in idx] == [inst.species_names[s] for s in inst.species[rows]]
         q = np.array(pi.GetOrientationsfAttr().Get())
         np.testing.assert_array_equal(q[:, [3, 0, 1, 2]], inst.rotation[rows])
-        qh = np.array(pi.GetOrientationsAttr().Get(), dtype=np.float64)      # half-precision copy
+        qh = np.array(pi.GetOrientationsAttr().Get(), dtype=np.float64)  # half-precision copy
         np.testing.assert_allclose(qh[:, [3, 0, 1, 2]], inst.rotation[rows], atol=1e-3)
     assert sorted(seen) == list(range(len(inst)))
 
 
 def test_camera_follows_the_fly_through(exported):
-    cfg, inst, res, stage = exported
+    cfg, _inst, _res, stage = exported
     cam = UsdGeom.Camera(stage.GetPrimAtPath("/World/Camera"))
     assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (1, 4)
     for f in (1, 2.0, 3, 4):
         state = camera_at(cfg.camera, f)
-        xf = np.array(cam.ComputeLocalToWorldTransform(Usd.TimeCode(f))).T      # camera → world, column vectors
+        xf = np.array(cam.ComputeLocalToWorldTransform(Usd.TimeCode(f))).T  # camera → world, column vectors
         np.testing.assert_allclose(xf[:3, 3], state.position, atol=1e-9)
         to_cam = np.linalg.inv(xf) @ np.append(state.target, 1.0)
-        assert abs(to_cam[0]) < 1e-6 and abs(to_cam[1]) < 1e-6 and to_cam[2] < 0     # looks down −Z
+        assert abs(to_cam[0]) < 1e-6 and abs(to_cam[1]) < 1e-6 and to_cam[2] < 0  # looks down −Z
         assert np.linalg.det(xf[:3, :3]) == pytest.approx(1.0)
         gc = cam.GetCamera(Usd.TimeCode(f))
         hfov = 2 * math.degrees(math.atan(gc.horizontalAperture / 2 / gc.focalLength))
@@ -115,10 +118,10 @@ def test_camera_follows_the_fly_through(exported):
 
 
 def test_lights_and_terrain(exported):
-    cfg, inst, res, stage = exported
+    cfg, _inst, _res, stage = exported
     sun = UsdLux.DistantLight(stage.GetPrimAtPath("/World/Lights/Sun"))
     xf = np.array(UsdGeom.Xformable(sun).ComputeLocalToWorldTransform(Usd.TimeCode.Default())).T
-    emission = xf[:3, :3] @ np.array([0.0, 0.0, -1.0])                 # a DistantLight shines along −Z
+    emission = xf[:3, :3] @ np.array([0.0, 0.0, -1.0])  # a DistantLight shines along −Z
     np.testing.assert_allclose(emission, -sun_direction(cfg.lights.sun), atol=1e-12)
     assert sun.GetIntensityAttr().Get() == pytest.approx(cfg.lights.sun.irradiance)
     dome = UsdLux.DomeLight(stage.GetPrimAtPath("/World/Lights/Sky"))
@@ -156,7 +159,7 @@ def test_usdc_round_trips_too(tmp_path, lib):
 
 def test_bad_input(tmp_path, lib):
     cfg = make_config(tmp_path, "")
-    with pytest.raises(ForestError, match="must end in .usda, .usdc or .usd"):
+    with pytest.raises(ForestError, match=r"must end in \.usda, \.usdc or \.usd"):
         export_usd(cfg, make_instances(10), tmp_path / "f.abc", library=lib)
     cfg = make_config(tmp_path, '[export]\nusd_lod = "tiny"\n')
     with pytest.raises(ConfigError, match=r"export.usd_lod: 'tiny' is not a level of 'oak'"):
@@ -176,6 +179,7 @@ def test_usd_lod_selects_the_variant(tmp_path, lib):
 
 def test_crate_with_usd_suffix_and_an_empty_forest(tmp_path, lib):
     from forest.instances import InstanceSet
+
     cfg = make_config(tmp_path, "")
     res = export_usd(cfg, InstanceSet.empty(["oak", "pine"]), tmp_path / "empty.usd", library=lib)
     assert res.path.read_bytes().startswith(b"PXR-USDC")

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from forest.errors import ConfigError, ForestError
+from forest.images import read_image
 from forest.library import BUDGETS, LODS, open_library
 from forest.library.build import generate
 from forest.library.mesh import MeshData, cluster_decimate, decimate_to, read_ply
-from forest.images import read_image
 from forest.library.textures import read_texture
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -89,15 +89,15 @@ def test_budgets_bounds_and_files(lib, name):
     bark = [p for p in high.parts if p.kind == "bark"][0].load()
     low_pts = bark.vertices[bark.vertices[:, 1] < 0.05]
     assert len(low_pts)
-    if name in ("broadleaf", "conifer", "palm"):      # one trunk, standing on the origin
+    if name in ("broadleaf", "conifer", "palm"):  # one trunk, standing on the origin
         assert np.linalg.norm(low_pts[:, [0, 2]].mean(axis=0)) < 0.05
-    else:                                             # clumps: stems rise from around the origin
+    else:  # clumps: stems rise from around the origin
         assert np.linalg.norm(low_pts[:, [0, 2]], axis=1).min() < 0.3
 
 
 def test_generation_is_deterministic(tmp_path):
     recipe = tomllib.loads((ROOT / "library/presets/fern.toml").read_text())
-    recipe["tree"]["trunks"] = 4       # a smaller clump: same code paths, less time
+    recipe["tree"]["trunks"] = 4  # a smaller clump: same code paths, less time
     generate(recipe, 3, tmp_path / "a", name="fern")
     generate(recipe, 3, tmp_path / "b", name="fern")
     generate(recipe, 4, tmp_path / "c", name="fern")
@@ -115,6 +115,7 @@ def test_generation_is_deterministic(tmp_path):
 @pytest.mark.parametrize("name", PRESETS)
 def test_lower_levels_keep_silhouette_and_colour(lib, name):
     from forest.library.preview import render_lod
+
     sp = lib.get(name)
     imgs = {lod: render_lod(sp, lod, size=(40, 40), spp=4) for lod in ("high", "low", "far")}
     cov = {k: float(v[..., 3].mean()) for k, v in imgs.items()}
@@ -149,9 +150,11 @@ def test_seed_variation_and_preview_follow_the_recipe(tmp_path):
     recipe = tomllib.loads((ROOT / "library/presets/fern.toml").read_text())
     recipe["tree"]["trunks"] = 4
     import tomli_w
+
     (root / "presets/fern.toml").write_text(tomli_w.dumps(recipe))
-    (root / "manifest.toml").write_text('version = 1\n[species.fern]\nsource = "generated"\n'
-                                        'recipe = "presets/fern.toml"\nseed = 1\n')
+    (root / "manifest.toml").write_text(
+        'version = 1\n[species.fern]\nsource = "generated"\nrecipe = "presets/fern.toml"\nseed = 1\n'
+    )
     lib = open_library(root)
     a = lib.get("fern")
     b = lib.resolve("fern@2")
@@ -166,6 +169,7 @@ def test_seed_variation_and_preview_follow_the_recipe(tmp_path):
     assert not fresh.is_fresh("fern")
     from forest.library.build import recipe_hash
     from forest.library.generator import validate_recipe
+
     assert recipe_hash(validate_recipe(recipe), 1) != a.hash
     # A bad recipe names the file and the field.
     recipe["level"][0]["segmnts"] = 3
@@ -174,11 +178,18 @@ def test_seed_variation_and_preview_follow_the_recipe(tmp_path):
         open_library(root).get("fern")
 
 
-@pytest.mark.parametrize("fixture,options", [
-    ("tree.obj", {}), ("tree.ply", {}), ("tree.glb", {}), ("tree_zup_mm.stl", {"units": "mm"}),
-])
+@pytest.mark.parametrize(
+    "fixture,options",
+    [
+        ("tree.obj", {}),
+        ("tree.ply", {}),
+        ("tree.glb", {}),
+        ("tree_zup_mm.stl", {"units": "mm"}),
+    ],
+)
 def test_import_mesh_formats(tmp_lib, fixture, options):
     from forest.library.importer import add_species
+
     sp = add_species(tmp_lib, FIXTURES / fixture, "oak", preview=fixture == "tree.obj", **options)
     assert sp.name == "oak" and sp.source == "imported"
     # Normalised: Y up, base at the origin, metres (the fixture is a 4.2 m tree, 2.4 m crown).
@@ -198,13 +209,14 @@ def test_import_mesh_formats(tmp_lib, fixture, options):
         parts = {p.kind: p for p in sp.lods[0].parts}
         assert set(parts) == {"leaf", "surface"}
         assert parts["leaf"].tinted and not parts["surface"].tinted
-        if fixture == "tree.obj":   # MTL Kd values are linear colours
+        if fixture == "tree.obj":  # MTL Kd values are linear colours
             np.testing.assert_allclose(parts["leaf"].colour, [0.06, 0.16, 0.03], atol=0.005)
             np.testing.assert_allclose(parts["surface"].colour, [0.12, 0.08, 0.05], atol=0.005)
 
 
 def test_import_replaces_only_with_force(tmp_lib):
     from forest.library.importer import add_species
+
     add_species(tmp_lib, FIXTURES / "tree.obj", "oak", preview=False)
     with pytest.raises(ForestError, match="already exists"):
         add_species(tmp_lib, FIXTURES / "tree.glb", "oak", preview=False)
@@ -213,17 +225,21 @@ def test_import_replaces_only_with_force(tmp_lib):
     assert tmp_lib.manifest_path.read_text().count("[species.oak]") == 1
 
 
-@pytest.mark.parametrize("fixture,message", [
-    ("empty.obj", "mesh is empty"),
-    ("lines.obj", "only points or lines"),
-    ("points.ply", "no triangles"),
-    ("nan.obj", "NaN"),
-    ("garbage.glb", "cannot read mesh"),
-    ("missing.obj", "not found"),
-    ("tree.mtl", "unsupported mesh format"),
-])
+@pytest.mark.parametrize(
+    "fixture,message",
+    [
+        ("empty.obj", "mesh is empty"),
+        ("lines.obj", "only points or lines"),
+        ("points.ply", "no triangles"),
+        ("nan.obj", "NaN"),
+        ("garbage.glb", "cannot read mesh"),
+        ("missing.obj", "not found"),
+        ("tree.mtl", "unsupported mesh format"),
+    ],
+)
 def test_bad_meshes_are_rejected(tmp_lib, fixture, message):
     from forest.library.importer import add_species
+
     with pytest.raises(ForestError, match=message) as e:
         add_species(tmp_lib, FIXTURES / fixture, "bad")
     assert fixture in str(e.value) and "\n" not in str(e.value)
@@ -233,6 +249,7 @@ def test_bad_meshes_are_rejected(tmp_lib, fixture, message):
 
 def test_size_limits(tmp_lib, monkeypatch):
     from forest.library import importer
+
     monkeypatch.setattr(importer, "MAX_FILE_BYTES", 4096)
     with pytest.raises(ForestError, match=r"tree\.obj: mesh file is 8\.\d KiB, over the 4\.0 KiB import limit"):
         importer.add_species(tmp_lib, FIXTURES / "tree.obj", "big")
@@ -245,10 +262,16 @@ def test_size_limits(tmp_lib, monkeypatch):
 
 def test_decimation_keeps_bounds_and_hits_the_budget():
     import trimesh
+
     sphere = trimesh.creation.icosphere(subdivisions=6, radius=2.0)
     from forest.library.mesh import vertex_normals
-    m = MeshData(sphere.vertices.astype(np.float32), sphere.faces.astype(np.uint32),
-                 vertex_normals(sphere.vertices, sphere.faces), np.zeros((len(sphere.vertices), 2), np.float32))
+
+    m = MeshData(
+        sphere.vertices.astype(np.float32),
+        sphere.faces.astype(np.uint32),
+        vertex_normals(sphere.vertices, sphere.faces),
+        np.zeros((len(sphere.vertices), 2), np.float32),
+    )
     for target in (12_000, 1_500):
         d = decimate_to(m, target)
         assert 0.7 * target <= d.triangles <= target, d.triangles
@@ -261,6 +284,7 @@ def test_decimation_keeps_bounds_and_hits_the_budget():
 
 def run_cli(args: list[str]) -> int:
     from forest.cli import main
+
     try:
         main(args)
     except SystemExit as e:
@@ -279,6 +303,7 @@ def test_cli_list_build_preview(lib, capsys, tmp_path):
     assert {lib.get(n).folder.name for n in PRESETS} <= {p.name for p in lib.cache.iterdir()}
     main(["library", "list", "--json"])
     import json
+
     rows = json.loads(capsys.readouterr().out)
     by = {r["name"]: r for r in rows}
     assert set(PRESETS) <= set(by)
@@ -294,20 +319,25 @@ def test_cli_list_build_preview(lib, capsys, tmp_path):
 def test_import_leaf_cards_thin_as_cards(lib, tmp_lib, tmp_path):
     """A tree made of leaf cards (here: the shrub's high level as glTF) keeps its cover at low levels."""
     import trimesh
+
     from forest.library.importer import add_species
     from forest.library.preview import render_lod
+
     scene = trimesh.Scene()
     for part in lib.get("shrub").lods[0].parts:
         m = part.load()
         tm = trimesh.Trimesh(m.vertices, m.faces, process=False)
-        tm.visual = trimesh.visual.TextureVisuals(material=trimesh.visual.material.PBRMaterial(
-            baseColorFactor=[int(255 * c ** (1 / 2.2)) for c in part.colour] + [255]))
+        tm.visual = trimesh.visual.TextureVisuals(
+            material=trimesh.visual.material.PBRMaterial(
+                baseColorFactor=[int(255 * c ** (1 / 2.2)) for c in part.colour] + [255]
+            )
+        )
         scene.add_geometry(tm, geom_name="leaves" if part.kind == "leaf" else "bark")
     path = tmp_path / "cards.glb"
     scene.export(path)
     sp = add_species(tmp_lib, path, "cards", preview=False)
     for lod in sp.lods:
-        lo, hi = BUDGETS[lod.name]
+        _lo, hi = BUDGETS[lod.name]
         assert lod.triangles <= hi, (lod.name, lod.triangles)
     leaf_high = [p for p in sp.lod("high").parts if p.kind == "leaf"][0].load()
     leaf_low = [p for p in sp.lod("low").parts if p.kind == "leaf"][0].load()
@@ -321,6 +351,7 @@ def test_import_textured_obj_keeps_alpha(tmp_lib):
     """An OBJ whose material has a map_Kd RGBA image: the texture and its alpha mask come along."""
     from forest.library.importer import add_species
     from forest.library.preview import render_lod
+
     sp = add_species(tmp_lib, FIXTURES / "cards.obj", "cards", preview=False)
     part = sp.lods[0].parts[0]
     assert part.kind == "leaf" and part.tinted and part.texture is not None
@@ -341,7 +372,9 @@ def test_import_textured_obj_keeps_alpha(tmp_lib):
 def test_import_textured_glb(tmp_lib, tmp_path):
     """glTF binary with an embedded base-colour texture: texture, alpha and uv survive the import."""
     import trimesh
+
     from forest.library.importer import add_species
+
     scene = trimesh.load(FIXTURES / "cards.obj", force="scene")
     scene.export(tmp_path / "cards.glb")
     sp = add_species(tmp_lib, tmp_path / "cards.glb", "cards", preview=False)

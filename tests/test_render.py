@@ -8,14 +8,15 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 import pytest
+from test_render_scene import ground_points
 
 from forest.config import parse_config
 from forest.errors import ForestError
 from forest.images import srgb_to_linear
 from forest.instances import InstanceSet, yaw_tilt_quaternion
 from forest.render import choose_variant, render_scene
+
 from render_fixtures import BoxLibrary
-from test_render_scene import ground_points
 
 VARIANTS = ("scalar_rgb", "llvm_ad_rgb")
 
@@ -55,8 +56,9 @@ def write_png(path: Path, rgb: np.ndarray) -> Path:
 TOP_DOWN_CAMERA = "position = [0.0, 220.0, 0.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 0.0, 1.0]\nfov = 28.0\n"
 
 
-def make_config(tmp_path: Path, *, maps: str = "", camera: str = "", render: str = "", extra: str = "",
-                replace_camera: bool = False):
+def make_config(
+    tmp_path: Path, *, maps: str = "", camera: str = "", render: str = "", extra: str = "", replace_camera: bool = False
+):
     camera = camera if replace_camera else TOP_DOWN_CAMERA + camera
     text = BASE.format(maps=maps, camera=camera, render=render) + extra
     (tmp_path / "scene.toml").write_text(text)
@@ -70,19 +72,33 @@ def read_exr(path: Path) -> dict:
     attrs = {a.name: a.value for a in spec.extra_attribs}
     inp.close()
     names = list(spec.channelnames)
-    return {"rgb": data[..., :3], "depth": data[..., names.index("depth.Z")],
-            "id": data[..., names.index("id.Z")], "species": data[..., names.index("species.Z")], "attrs": attrs}
+    return {
+        "rgb": data[..., :3],
+        "depth": data[..., names.index("depth.Z")],
+        "id": data[..., names.index("id.Z")],
+        "species": data[..., names.index("species.Z")],
+        "attrs": attrs,
+    }
 
 
 def trees(positions, *, phase=None, names=("box",), scale=1.0) -> InstanceSet:
     p = np.asarray(positions, np.float32)
     n = len(p)
     up = np.tile([0.0, 1.0, 0.0], (n, 1))
-    return InstanceSet(id=np.arange(100, 100 + n), position=p,
-                       rotation=yaw_tilt_quaternion(np.zeros(n), up, np.zeros(n)), yaw=np.zeros(n),
-                       scale=np.full(n, scale), species=np.zeros(n), tint=np.ones((n, 3)), partition=np.zeros(n),
-                       normal=up, phase=np.zeros(n) if phase is None else phase,
-                       species_names=list(names), extent=(-50.0, -50.0, 50.0, 50.0))
+    return InstanceSet(
+        id=np.arange(100, 100 + n),
+        position=p,
+        rotation=yaw_tilt_quaternion(np.zeros(n), up, np.zeros(n)),
+        yaw=np.zeros(n),
+        scale=np.full(n, scale),
+        species=np.zeros(n),
+        tint=np.ones((n, 3)),
+        partition=np.zeros(n),
+        normal=up,
+        phase=np.zeros(n) if phase is None else phase,
+        species_names=list(names),
+        extent=(-50.0, -50.0, 50.0, 50.0),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -94,8 +110,9 @@ def library(tmp_path_factory):
 def test_trees_appear_where_presence_allows(tmp_path, library, variant):
     """Presence map white for x < 0 only: trees render there and nowhere else."""
     from forest.scatter import scatter
+
     presence = np.zeros((8, 8, 3))
-    presence[:, :4] = 1.0                               # columns 0–3: x < 0
+    presence[:, :4] = 1.0  # columns 0–3: x < 0
     write_png(tmp_path / "presence.png", presence)
     cfg = make_config(tmp_path, maps='presence = "presence.png"', extra="[scatter]\ncount = 300\n")
     inst, _ = scatter(cfg)
@@ -106,11 +123,11 @@ def test_trees_appear_where_presence_allows(tmp_path, library, variant):
     inside = (np.abs(gz) < 45) & (np.abs(gx) < 45)
     allowed, banned = inside & (gx < -3), inside & (gx > 4)
     tree_px = out["id"] >= 0
-    assert tree_px[allowed].mean() > 0.1                 # plenty of trees where allowed
-    assert not tree_px[banned].any()                     # none where presence is 0
+    assert tree_px[allowed].mean() > 0.1  # plenty of trees where allowed
+    assert not tree_px[banned].any()  # none where presence is 0
     # where trees are banned the beauty pass is bare terrain: albedo 0.1 under a white sky
     np.testing.assert_allclose(out["rgb"][banned].mean(axis=0), [0.1, 0.1, 0.1], atol=0.02)
-    assert out["rgb"][allowed & tree_px].mean() > 0.2    # white boxes: twice as bright as the ground
+    assert out["rgb"][allowed & tree_px].mean() > 0.2  # white boxes: twice as bright as the ground
     ids = set(np.unique(out["id"][tree_px]).astype(int).tolist())
     assert ids <= set(inst.id.astype(int).tolist())
     assert res.trees == len(inst) and res.variant == variant
@@ -124,7 +141,7 @@ def test_colour_map_tints_each_tree_where_it_stands(tmp_path, library, variant):
     colour[:4] = [1.0, 0.25, 0.25]
     colour[4:] = [0.25, 1.0, 0.25]
     write_png(tmp_path / "colour.png", colour)
-    cfg = make_config(tmp_path, maps='colour = "colour.png"', render="max_depth = 2")   # direct light only
+    cfg = make_config(tmp_path, maps='colour = "colour.png"', render="max_depth = 2")  # direct light only
     pos = [[x, 0.0, z] for x in (-30.0, -10.0, 10.0, 30.0) for z in (-30.0, -15.0, 15.0, 30.0)]
     inst = trees(pos)
     render_scene(cfg, output=tmp_path / "t.exr", instances=inst, variant=variant, library=library)
@@ -146,19 +163,22 @@ def test_colour_map_tints_each_tree_where_it_stands(tmp_path, library, variant):
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_lod_switches_with_camera_distance(tmp_path, library, variant):
     """LOD high is a white 2×6×2 box, far a small blue one: a tree's look follows its distance."""
-    cam = "keys = [ { frame = 1, position = [0.0, 120.0, -60.0], target = [0.0, 0.0, 0.0], fov = 45.0 }, " \
-          "{ frame = 2, position = [0.0, 120.0, 60.0], target = [0.0, 0.0, 0.0], fov = 45.0 } ]"
+    cam = (
+        "keys = [ { frame = 1, position = [0.0, 120.0, -60.0], target = [0.0, 0.0, 0.0], fov = 45.0 }, "
+        "{ frame = 2, position = [0.0, 120.0, 60.0], target = [0.0, 0.0, 0.0], fov = 45.0 } ]"
+    )
     cfg = make_config(tmp_path, camera=cam, extra="[lod]\ndistances = [130.0, 135.0, 140.0]\n")
-    inst = trees([[0.0, 0.0, -35.0], [0.0, 0.0, 35.0]], scale=4.0)   # south tree, north tree
-    res = render_scene(cfg, output=tmp_path / "l_####.exr", instances=inst, variant=variant, frames=[1, 2],
-                       library=library)
+    inst = trees([[0.0, 0.0, -35.0], [0.0, 0.0, 35.0]], scale=4.0)  # south tree, north tree
+    res = render_scene(
+        cfg, output=tmp_path / "l_####.exr", instances=inst, variant=variant, frames=[1, 2], library=library
+    )
     assert res.lod_counts == {"high": 2, "far": 2}
     for frame, near_id in ((1, 100), (2, 101)):
         out = read_exr(tmp_path / f"l_{frame:04d}.exr")
         near = out["rgb"][out["id"] == near_id].mean(axis=0)
         far = out["rgb"][out["id"] == 201 - near_id].mean(axis=0)
-        assert abs(near[0] - near[2]) < 0.1 and near[0] > 0.4      # white box close to the camera
-        assert far[2] > 3 * far[0]                                 # blue stand-in far away
+        assert abs(near[0] - near[2]) < 0.1 and near[0] > 0.4  # white box close to the camera
+        assert far[2] > 3 * far[0]  # blue stand-in far away
         assert (out["id"] == near_id).sum() > (out["id"] == 201 - near_id).sum()
     assert "high=1" in read_exr(tmp_path / "l_0001.exr")["attrs"]["forest:lod"]
 
@@ -167,16 +187,19 @@ def test_lod_switches_with_camera_distance(tmp_path, library, variant):
 def test_subframes_differ_when_the_camera_moves(tmp_path, library, variant):
     """Motion blur averages sub-frames: with a moving camera it smears the image, with a still one it does not."""
     inst = trees([[x, 0.0, 0.0] for x in (-20.0, 0.0, 20.0)], scale=4.0)
-    moving = 'keys = [ { frame = 1, position = [-30.0, 220.0, 0.0], target = [-30.0, 0.0, 1.0] }, ' \
-             '{ frame = 3, position = [30.0, 220.0, 0.0], target = [30.0, 0.0, 1.0] } ]\nshutter = 1.0'
+    moving = (
+        "keys = [ { frame = 1, position = [-30.0, 220.0, 0.0], target = [-30.0, 0.0, 1.0] }, "
+        "{ frame = 3, position = [30.0, 220.0, 0.0], target = [30.0, 0.0, 1.0] } ]\nshutter = 1.0"
+    )
     images = {}
-    for name, cam, shutter in (("sharp", moving.replace("shutter = 1.0", "shutter = 0.0"), 0.0),
-                               ("blur", moving, 1.0)):
+    for name, cam, _shutter in (
+        ("sharp", moving.replace("shutter = 1.0", "shutter = 0.0"), 0.0),
+        ("blur", moving, 1.0),
+    ):
         cfg = make_config(tmp_path, camera=cam, render="subframes = 4")
-        render_scene(cfg, output=tmp_path / f"{name}.exr", instances=inst, variant=variant, frames=[2],
-                     library=library)
+        render_scene(cfg, output=tmp_path / f"{name}.exr", instances=inst, variant=variant, frames=[2], library=library)
         images[name] = read_exr(tmp_path / f"{name}_0002.exr")["rgb"].mean(axis=2)
-    sharp, blur = images["sharp"][8:32, 8:32], images["blur"][8:32, 8:32]   # inside the terrain, no sky
+    sharp, blur = images["sharp"][8:32, 8:32], images["blur"][8:32, 8:32]  # inside the terrain, no sky
     # The blurred frame's bright boxes are smeared along X: more pixels partly lit, a lower peak.
     assert (blur > 0.2).sum() > (sharp > 0.2).sum()
     assert blur.max() < sharp.max()
@@ -189,15 +212,17 @@ def test_subframes_differ_when_the_camera_moves(tmp_path, library, variant):
 
 def test_wind_moves_trees_between_frames(tmp_path, library):
     cam = "position = [0.0, 8.0, -30.0]\ntarget = [0.0, 4.0, 0.0]"
-    cfg = make_config(tmp_path, camera=cam, replace_camera=True, extra="[wind]\nstrength = 10.0\nfrequency = 1.0\ndirection = 90.0\n")
+    cfg = make_config(
+        tmp_path, camera=cam, replace_camera=True, extra="[wind]\nstrength = 10.0\nfrequency = 1.0\ndirection = 90.0\n"
+    )
     inst = trees([[0.0, 0.0, 0.0], [6.0, 0.0, 4.0]], phase=np.array([0.0, 1.5], np.float32))
-    render_scene(cfg, output=tmp_path / "w_#.exr", instances=inst, variant="scalar_rgb", frames=[1, 7],
-                 library=library)
+    render_scene(cfg, output=tmp_path / "w_#.exr", instances=inst, variant="scalar_rgb", frames=[1, 7], library=library)
     a, b = read_exr(tmp_path / "w_1.exr"), read_exr(tmp_path / "w_7.exr")
     assert not np.array_equal(a["id"] >= 0, b["id"] >= 0)
     calm = make_config(tmp_path, camera=cam, replace_camera=True)
-    render_scene(calm, output=tmp_path / "c_#.exr", instances=inst, variant="scalar_rgb", frames=[1, 7],
-                 library=library)
+    render_scene(
+        calm, output=tmp_path / "c_#.exr", instances=inst, variant="scalar_rgb", frames=[1, 7], library=library
+    )
     a, b = read_exr(tmp_path / "c_1.exr"), read_exr(tmp_path / "c_7.exr")
     assert np.array_equal(a["id"], b["id"]) and np.array_equal(a["depth"], b["depth"])
 
@@ -213,8 +238,7 @@ def test_same_config_and_seed_give_identical_files(tmp_path, library, variant):
     digests = []
     for k in range(2):
         render_scene(cfg, output=tmp_path / f"d{k}.exr", instances=inst, variant=variant, library=library)
-        digests.append(tuple(hashlib.sha256((tmp_path / f"d{k}.{e}").read_bytes()).hexdigest()
-                             for e in ("exr", "png")))
+        digests.append(tuple(hashlib.sha256((tmp_path / f"d{k}.{e}").read_bytes()).hexdigest() for e in ("exr", "png")))
     assert digests[0] == digests[1]
     attrs = read_exr(tmp_path / "d0.exr")["attrs"]
     assert attrs["forest:trees"] == 6 and attrs["forest:variant"] == variant
@@ -226,18 +250,23 @@ def test_same_config_and_seed_give_identical_files(tmp_path, library, variant):
 
 def test_haze_and_depth(tmp_path, library):
     cfg = make_config(tmp_path, render="haze = 0.01\nhaze_colour = [1.0, 0.0, 0.0]")
-    render_scene(cfg, output=tmp_path / "h.exr", instances=trees([[0.0, 0.0, 0.0]], scale=3.0), variant="scalar_rgb",
-                 library=library)
+    render_scene(
+        cfg,
+        output=tmp_path / "h.exr",
+        instances=trees([[0.0, 0.0, 0.0]], scale=3.0),
+        variant="scalar_rgb",
+        library=library,
+    )
     out = read_exr(tmp_path / "h.exr")
-    ground = (out["id"] < 0) & (out["depth"] < 1e4)          # sky pixels carry the far clip distance
+    ground = (out["id"] < 0) & (out["depth"] < 1e4)  # sky pixels carry the far clip distance
     assert (out["depth"][out["id"] < 0] >= 1e4).any()
     # straight down from 220 m: the ground is ~220 m away (more towards the corners)
-    assert 219.0 < out["depth"][ground].min() and out["depth"][ground].max() < 240.0
+    assert out["depth"][ground].min() > 219.0 and out["depth"][ground].max() < 240.0
     t = np.exp(-0.01 * out["depth"][ground])
     np.testing.assert_allclose(out["rgb"][ground][:, 0], 0.1 * t + (1 - t), atol=0.03)
     np.testing.assert_allclose(out["rgb"][ground][:, 1], 0.1 * t, atol=0.03)
     tree = out["id"] >= 0
-    assert out["depth"][tree].max() < out["depth"][ground].min()     # the box top is nearer than the ground
+    assert out["depth"][tree].max() < out["depth"][ground].min()  # the box top is nearer than the ground
 
 
 def test_bad_input(tmp_path, library):
@@ -248,13 +277,24 @@ def test_bad_input(tmp_path, library):
     with pytest.raises(ForestError, match="variant"):
         render_scene(cfg, output=tmp_path / "x.exr", instances=inst, variant="metal_rgb", library=library)
     with pytest.raises(ForestError, match="unknown species"):
-        render_scene(cfg, output=tmp_path / "x.exr", instances=trees([[0, 0, 0]], names=("oak",)),
-                     variant="scalar_rgb", library=library)
+        render_scene(
+            cfg,
+            output=tmp_path / "x.exr",
+            instances=trees([[0, 0, 0]], names=("oak",)),
+            variant="scalar_rgb",
+            library=library,
+        )
     with pytest.raises(ForestError, match="frames"):
         render_scene(cfg, output=tmp_path / "x.exr", instances=inst, frames="5-1", library=library)
-    with pytest.raises(ForestError, match="transmittance|unknown key"):
-        render_scene(cfg, output=tmp_path / "x.exr", instances=inst, variant="scalar_rgb", library=library,
-                     overrides={"sky_transmittance": 1.0})
+    with pytest.raises(ForestError, match=r"transmittance|unknown key"):
+        render_scene(
+            cfg,
+            output=tmp_path / "x.exr",
+            instances=inst,
+            variant="scalar_rgb",
+            library=library,
+            overrides={"sky_transmittance": 1.0},
+        )
     assert not list(tmp_path.glob("x*"))
 
 
@@ -267,8 +307,9 @@ def test_default_variant_choice():
 
 def test_empty_forest_renders_the_terrain(tmp_path, library):
     cfg = make_config(tmp_path)
-    res = render_scene(cfg, output=tmp_path / "e.exr", instances=trees(np.zeros((0, 3))), variant="scalar_rgb",
-                       library=library)
+    res = render_scene(
+        cfg, output=tmp_path / "e.exr", instances=trees(np.zeros((0, 3))), variant="scalar_rgb", library=library
+    )
     out = read_exr(tmp_path / "e.exr")
     assert res.trees == 0 and res.instanced_triangles == 0 and (out["id"] == -1).all()
     gx, gz = ground_points(cfg, 40, 40)
@@ -280,21 +321,20 @@ def test_empty_forest_renders_the_terrain(tmp_path, library):
 def test_leaf_card_alpha(tmp_path, library, variant):
     """A card whose texture alpha is 0 on one half: the id pass and the camera see through that half,
     and with alpha_shadows the sun straight above lights the ground through it."""
-    sun = 'sun = { elevation = 90.0, azimuth = 0.0, irradiance = 3.0, colour = [1.0, 1.0, 1.0] }\n'
-    inst = trees([[0.0, 0.0, 0.0]], names=("card",), scale=3.0)          # 30 × 30 m card, 15 m up
+    sun = "sun = { elevation = 90.0, azimuth = 0.0, irradiance = 3.0, colour = [1.0, 1.0, 1.0] }\n"
+    inst = trees([[0.0, 0.0, 0.0]], names=("card",), scale=3.0)  # 30 × 30 m card, 15 m up
     ground = {}
     for alpha_shadows in ("false", "true"):
         text = BASE.format(maps="", camera=TOP_DOWN_CAMERA, render=f"alpha_shadows = {alpha_shadows}")
         text = text.replace("[lights]\n", "[lights]\n" + sun).replace('model = "box"', 'model = "card"')
         (tmp_path / "card.toml").write_text(text)
         cfg = parse_config(text, path=tmp_path / "card.toml", base_dir=tmp_path)
-        render_scene(cfg, output=tmp_path / f"c_{alpha_shadows}.exr", instances=inst, variant=variant,
-                     library=library)
+        render_scene(cfg, output=tmp_path / f"c_{alpha_shadows}.exr", instances=inst, variant=variant, library=library)
         out = read_exr(tmp_path / f"c_{alpha_shadows}.exr")
         gx, gz = ground_points(cfg, 40, 40)
-        under = (np.abs(gx) < 12) & (np.abs(gz) < 12)                    # well inside the card's shadow
+        under = (np.abs(gx) < 12) & (np.abs(gz) < 12)  # well inside the card's shadow
         seen = out["id"][under] >= 0
-        assert 0.3 < seen.mean() < 0.7                                   # half the card is cut away
+        assert 0.3 < seen.mean() < 0.7  # half the card is cut away
         assert (out["depth"][under][~seen] > out["depth"][under][seen].max()).all()
         ground[alpha_shadows] = out["rgb"][under][~seen].mean()
     # Ground seen through the cut-out: sky only when shadow rays stop at the whole card (Mitsuba's

@@ -62,8 +62,7 @@ def test_render_still_writes_exr_png_and_summary(scene):
     assert r.returncode == 0, r.stderr
     assert "variant: scalar_rgb" in r.stderr
     summary = [line for line in r.stdout.splitlines() if line.startswith("rendered")]
-    assert len(summary) == 1 and "trees" in summary[0] and "instanced triangles" in summary[0] \
-        and "peak" in summary[0]
+    assert len(summary) == 1 and "trees" in summary[0] and "instanced triangles" in summary[0] and "peak" in summary[0]
     exr, png = scene / "out" / "still.exr", scene / "out" / "still.png"
     assert exr.stat().st_size > 0 and png.stat().st_size > 0
     inp = oiio.ImageInput.open(str(exr))
@@ -78,29 +77,50 @@ def test_render_still_writes_exr_png_and_summary(scene):
 
 
 def test_render_frames_and_preview(scene):
-    (scene / "anim.toml").write_text(SCENE.format(render="").replace(
-        "fov = 45.0", "fov = 45.0\nkeys = [ { frame = 1, position = [0.0, 30.0, -60.0], target = [0.0, 0.0, 0.0] },"
-                      " { frame = 3, position = [20.0, 25.0, -50.0], target = [0.0, 0.0, 0.0] } ]"))
-    r = run("render", scene / "anim.toml", "--frames", "1-3", "-o", scene / "seq" / "f_####.exr",
-            "--instances", scene / "trees.npz", "-q")
+    (scene / "anim.toml").write_text(
+        SCENE.format(render="").replace(
+            "fov = 45.0",
+            "fov = 45.0\nkeys = [ { frame = 1, position = [0.0, 30.0, -60.0], target = [0.0, 0.0, 0.0] },"
+            " { frame = 3, position = [20.0, 25.0, -50.0], target = [0.0, 0.0, 0.0] } ]",
+        )
+    )
+    r = run(
+        "render",
+        scene / "anim.toml",
+        "--frames",
+        "1-3",
+        "-o",
+        scene / "seq" / "f_####.exr",
+        "--instances",
+        scene / "trees.npz",
+        "-q",
+    )
     assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in (scene / "seq").iterdir()) == [
-        f"f_000{i}.{e}" for i in (1, 2, 3) for e in ("exr", "png")]
+        f"f_000{i}.{e}" for i in (1, 2, 3) for e in ("exr", "png")
+    ]
     r = run("render", scene / "scene.toml", "--preview", "-o", scene / "prev.exr", "--instances", scene / "trees.npz")
     assert r.returncode == 0, r.stderr
     assert "preview:" in r.stdout
 
 
-@pytest.mark.parametrize("args, message", [
-    (("-o", "{d}/bad.jpg"), ".exr"),
-    (("-o", "{d}/bad.exr", "--variant", "metal"), "--variant"),
-    (("-o", "{d}/bad.exr", "--frames", "9-2"), "--frames"),
-    (("-o", "{d}/bad.exr", "--instances", "{d}/missing.npz"), "missing.npz"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (("-o", "{d}/bad.jpg"), ".exr"),
+        (("-o", "{d}/bad.exr", "--variant", "metal"), "--variant"),
+        (("-o", "{d}/bad.exr", "--frames", "9-2"), "--frames"),
+        (("-o", "{d}/bad.exr", "--instances", "{d}/missing.npz"), "missing.npz"),
+    ],
+)
 def test_render_bad_input_exits_2_without_output(scene, args, message):
     args = [a.format(d=scene) for a in args]
-    r = run("render", scene / "scene.toml", *args, *(["--instances", scene / "trees.npz"]
-                                                      if "--instances" not in args else []))
+    r = run(
+        "render",
+        scene / "scene.toml",
+        *args,
+        *(["--instances", scene / "trees.npz"] if "--instances" not in args else []),
+    )
     assert r.returncode == 2, (r.stdout, r.stderr)
     assert message in r.stderr and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
@@ -119,6 +139,7 @@ def test_real_library_renders_the_same_forest_in_both_variants(scene):
     from forest.config import load_config
     from forest.instances import InstanceSet
     from forest.render import render_scene
+
     cfg = load_config(scene / "scene.toml", overrides={"render.width": 24, "render.height": 16})
     inst = InstanceSet.load(scene / "trees.npz")
     inst = inst.subset(np.argsort(np.linalg.norm(inst.position - [0.0, 30.0, -60.0], axis=1))[:4])
@@ -128,10 +149,12 @@ def test_real_library_renders_the_same_forest_in_both_variants(scene):
         assert res.leaf_model == ("forest_leaf" if variant == "llvm_ad_rgb" else "twosided-diffuse")
         inp = oiio.ImageInput.open(str(scene / f"lib_{variant}.exr"))
         spec = inp.spec()
-        out[variant] = (np.asarray(inp.read_image(0, 0, 0, spec.nchannels, "float")).reshape(16, 24, -1),
-                        list(spec.channelnames))
+        out[variant] = (
+            np.asarray(inp.read_image(0, 0, 0, spec.nchannels, "float")).reshape(16, 24, -1),
+            list(spec.channelnames),
+        )
         inp.close()
     (a, names), (b, _) = out["llvm_ad_rgb"], out["scalar_rgb"]
     ida, idb = a[..., names.index("id.Z")], b[..., names.index("id.Z")]
-    assert (ida >= 0).any() and (ida == idb).mean() > 0.95           # the same trees in the same pixels
+    assert (ida >= 0).any() and (ida == idb).mean() > 0.95  # the same trees in the same pixels
     assert np.isfinite(a).all() and a[..., :3].mean() > 0

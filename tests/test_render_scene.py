@@ -9,7 +9,7 @@ from forest.camera import look_at_matrix
 from forest.config import parse_config
 from forest.errors import ForestError
 from forest.render.instancing import lod_levels, sway_angles, sway_rotation
-from forest.render.scene import (colour_grid_texture, emitter_dicts, sensor_dict, sun_vector, terrain_dict)
+from forest.render.scene import colour_grid_texture, emitter_dicts, sensor_dict, sun_vector, terrain_dict
 from forest.runtime import mitsuba
 from forest.terrain import load_terrain
 
@@ -58,12 +58,23 @@ def test_colour_grid_follows_the_map_convention(variant):
     mi = mitsuba(variant)
     cfg = parse_config(TOP_DOWN)
     terrain = load_terrain(cfg.terrain)
-    grid = np.array([[[0.8, 0.05, 0.05], [0.05, 0.8, 0.05]],      # row 0 (z < 0): red at x < 0, green at x > 0
-                     [[0.05, 0.05, 0.8], [0.8, 0.8, 0.05]]], np.float32)  # row 1 (z > 0): blue, yellow
-    fine = np.repeat(np.repeat(grid, 4, axis=0), 4, axis=1)                 # 8×8: quadrants stay flat inside
-    scene = mi.load_dict({"type": "scene", "integrator": {"type": "path", "max_depth": 2},
-                          "sensor": sensor_dict(cfg, variant=variant), **emitter_dicts(cfg, variant),
-                          "terrain": terrain_dict(cfg, terrain, variant, colour_grid=fine)})
+    grid = np.array(
+        [
+            [[0.8, 0.05, 0.05], [0.05, 0.8, 0.05]],  # row 0 (z < 0): red at x < 0, green at x > 0
+            [[0.05, 0.05, 0.8], [0.8, 0.8, 0.05]],
+        ],
+        np.float32,
+    )  # row 1 (z > 0): blue, yellow
+    fine = np.repeat(np.repeat(grid, 4, axis=0), 4, axis=1)  # 8×8: quadrants stay flat inside
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "integrator": {"type": "path", "max_depth": 2},
+            "sensor": sensor_dict(cfg, variant=variant),
+            **emitter_dicts(cfg, variant),
+            "terrain": terrain_dict(cfg, terrain, variant, colour_grid=fine),
+        }
+    )
     img = np.asarray(mi.render(scene, seed=3))[..., :3]
     gx, gz = ground_points(cfg, 32, 32)
     for row, zsel in ((0, gz < -8), (1, gz > 8)):
@@ -94,20 +105,30 @@ def test_colour_grid_texture_layout_and_bad_input():
 
 def test_colour_grid_is_differentiable_in_llvm():
     mi = mitsuba("llvm_ad_rgb")
-    bsdf = mi.load_dict({"type": "diffuse", "reflectance": colour_grid_texture(
-        np.full((4, 4, 3), 0.5, np.float32), (0, 0, 1, 1), (0, 1), "llvm_ad_rgb")})
+    bsdf = mi.load_dict(
+        {
+            "type": "diffuse",
+            "reflectance": colour_grid_texture(
+                np.full((4, 4, 3), 0.5, np.float32), (0, 0, 1, 1), (0, 1), "llvm_ad_rgb"
+            ),
+        }
+    )
     params = mi.traverse(bsdf)
-    key = [k for k in params.keys() if k.endswith("volume.data")]
+    key = [k for k in params.keys() if k.endswith("volume.data")]  # noqa: SIM118
     assert key and params.flags(key[0]) & mi.ParamFlags.NonDifferentiable.value == 0
 
 
 def test_sun_vector_and_emitters():
     np.testing.assert_allclose(sun_vector(90.0, 0.0), [0, 1, 0], atol=1e-12)
-    np.testing.assert_allclose(sun_vector(0.0, 90.0), [1, 0, 0], atol=1e-12)     # east = +X
-    np.testing.assert_allclose(sun_vector(0.0, 0.0), [0, 0, 1], atol=1e-12)      # north = +Z
-    cfg = parse_config(TOP_DOWN.replace('sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }',
-                                        'sun = { elevation = 30.0, azimuth = 90.0, irradiance = 2.0, colour = [1.0, 0.5, 0.25] }\n'
-                                        'sky = { radiance = 0.5, colour = [0.2, 0.4, 1.0] }'))
+    np.testing.assert_allclose(sun_vector(0.0, 90.0), [1, 0, 0], atol=1e-12)  # east = +X
+    np.testing.assert_allclose(sun_vector(0.0, 0.0), [0, 0, 1], atol=1e-12)  # north = +Z
+    cfg = parse_config(
+        TOP_DOWN.replace(
+            "sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }",
+            "sun = { elevation = 30.0, azimuth = 90.0, irradiance = 2.0, colour = [1.0, 0.5, 0.25] }\n"
+            "sky = { radiance = 0.5, colour = [0.2, 0.4, 1.0] }",
+        )
+    )
     e = emitter_dicts(cfg, "scalar_rgb")
     assert e["sun"]["type"] == "directional"
     np.testing.assert_allclose(e["sun"]["direction"], -sun_vector(30.0, 90.0))
@@ -120,20 +141,32 @@ def test_sun_vector_and_emitters():
         emitter_dicts(cfg, "scalar_rgb", {"sun_power": 1.0})
     with pytest.raises(ForestError, match="sun_colour"):
         emitter_dicts(cfg, "scalar_rgb", {"sun_colour": [1, 2]})
-    night = parse_config(TOP_DOWN.replace('sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }',
-                                          'sun = { elevation = -5.0 }\nsky = { radiance = 0.1 }'))
+    night = parse_config(
+        TOP_DOWN.replace(
+            "sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }", "sun = { elevation = -5.0 }\nsky = { radiance = 0.1 }"
+        )
+    )
     assert set(emitter_dicts(night, "scalar_rgb")) == {"sky"}
-    sunsky = parse_config(TOP_DOWN.replace('sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }',
-                                           'sun = { elevation = 40.0 }\nsky = { sunsky = { turbidity = 4.0 } }'))
+    sunsky = parse_config(
+        TOP_DOWN.replace(
+            "sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }",
+            "sun = { elevation = 40.0 }\nsky = { sunsky = { turbidity = 4.0 } }",
+        )
+    )
     e = emitter_dicts(sunsky, "scalar_rgb")
     assert set(e) == {"sky"} and e["sky"]["type"] == "sunsky"
     mitsuba("scalar_rgb").load_dict(e["sky"])
 
 
 def test_sensor_follows_camera_keys():
-    cfg = parse_config(TOP_DOWN.replace("fov = 30.0", "fov = 30.0\nkeys = [ { frame = 1, position = [0.0, 50.0, -100.0], "
-                                        "target = [0.0, 0.0, 0.0] }, { frame = 10, position = [50.0, 50.0, -100.0], "
-                                        "target = [0.0, 0.0, 0.0] } ]"))
+    cfg = parse_config(
+        TOP_DOWN.replace(
+            "fov = 30.0",
+            "fov = 30.0\nkeys = [ { frame = 1, position = [0.0, 50.0, -100.0], "
+            "target = [0.0, 0.0, 0.0] }, { frame = 10, position = [50.0, 50.0, -100.0], "
+            "target = [0.0, 0.0, 0.0] } ]",
+        )
+    )
     a = sensor_dict(cfg, 1.0)
     b = sensor_dict(cfg, 10.0, width=8, height=6, spp=2)
     np.testing.assert_allclose(np.asarray(a["to_world"].matrix)[:3, 3], [0, 50, -100], atol=1e-5)
@@ -146,19 +179,20 @@ def test_sensor_follows_camera_keys():
 def test_lod_levels_by_distance():
     pos = np.array([[0, 0, 10], [0, 0, 50], [0, 0, 150], [0, 0, 1000], [0, 0, 1000]], float)
     levels = lod_levels(pos, [0, 0, 0], (40.0, 100.0, 500.0), np.array([4, 4, 4, 4, 2]))
-    assert levels.tolist() == [0, 1, 2, 3, 1]          # the last species has only two LODs
+    assert levels.tolist() == [0, 1, 2, 3, 1]  # the last species has only two LODs
     assert lod_levels(pos, [0, 0, 0], (), np.full(5, 4)).tolist() == [0] * 5
 
 
 def test_wind_sway_is_a_rotation_towards_the_wind():
     theta = np.array([0.0, 0.1, -0.2])
-    r = sway_rotation(theta, 90.0)                   # wind towards +X
+    r = sway_rotation(theta, 90.0)  # wind towards +X
     for k in range(3):
         np.testing.assert_allclose(r[k] @ r[k].T, np.eye(3), atol=1e-12)
         np.testing.assert_allclose(r[k] @ [0, 1, 0], [np.sin(theta[k]), np.cos(theta[k]), 0], atol=1e-12)
 
     class Wind:
         strength, frequency, direction = 2.0, 0.5, 0.0
+
     phase = np.array([0.0, np.pi / 2])
     np.testing.assert_allclose(sway_angles(phase, 0.0, Wind), np.radians(2.0) * np.array([0.0, 1.0]), atol=1e-12)
     assert not np.allclose(sway_angles(phase, 0.3, Wind), sway_angles(phase, 0.0, Wind))
@@ -170,15 +204,29 @@ def test_leaf_plugin_transmits_light(variant):
     mi = mitsuba(variant)
     T4 = mi.ScalarTransform4f
     R, T, E, L = np.array([0.2, 0.5, 0.1]), np.array([0.1, 0.3, 0.05]), 3.0, 0.2
-    scene = mi.load_dict({
-        "type": "scene", "integrator": {"type": "path", "max_depth": 4},
-        "sensor": {"type": "perspective", "fov": 20, "to_world": T4().look_at(origin=[0, 0, -4], target=[0, 0, 0], up=[0, 1, 0]),
-                   "film": {"type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "box"}},
-                   "sampler": {"type": "independent", "sample_count": 64}},
-        "sun": {"type": "directional", "direction": [0, 0, -1], "irradiance": E},
-        "sky": {"type": "constant", "radiance": L},
-        "leaf": {"type": "rectangle", "bsdf": {"type": "forest_leaf", "reflectance": {"type": "rgb", "value": R.tolist()},
-                                                "transmittance": {"type": "rgb", "value": T.tolist()}}}})
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "integrator": {"type": "path", "max_depth": 4},
+            "sensor": {
+                "type": "perspective",
+                "fov": 20,
+                "to_world": T4().look_at(origin=[0, 0, -4], target=[0, 0, 0], up=[0, 1, 0]),
+                "film": {"type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "box"}},
+                "sampler": {"type": "independent", "sample_count": 64},
+            },
+            "sun": {"type": "directional", "direction": [0, 0, -1], "irradiance": E},
+            "sky": {"type": "constant", "radiance": L},
+            "leaf": {
+                "type": "rectangle",
+                "bsdf": {
+                    "type": "forest_leaf",
+                    "reflectance": {"type": "rgb", "value": R.tolist()},
+                    "transmittance": {"type": "rgb", "value": T.tolist()},
+                },
+            },
+        }
+    )
     img = np.asarray(mi.render(scene, seed=1))[..., :3].reshape(-1, 3).mean(axis=0)
     np.testing.assert_allclose(img, T * E / np.pi + (R + T) * L, rtol=0.06)
 
@@ -186,49 +234,68 @@ def test_leaf_plugin_transmits_light(variant):
 def test_product_texture():
     for variant in VARIANTS:
         mi = mitsuba(variant)
-        tex = mi.load_dict({"type": "forest_product", "a": {"type": "rgb", "value": [0.5, 1.0, 0.25]},
-                            "b": {"type": "rgb", "value": [0.5, 0.5, 2.0]}})
+        tex = mi.load_dict(
+            {
+                "type": "forest_product",
+                "a": {"type": "rgb", "value": [0.5, 1.0, 0.25]},
+                "b": {"type": "rgb", "value": [0.5, 0.5, 2.0]},
+            }
+        )
         np.testing.assert_allclose(np.asarray(tex.eval(mi.SurfaceInteraction3f())).ravel(), [0.25, 0.5, 0.5], atol=1e-6)
 
 
 def test_envmap_dome_light(tmp_path):
     """An environment map lights the scene as a dome: a white-ish sky above makes the ground bright."""
     from forest.images import write_image
+
     sky = np.zeros((64, 128, 3), np.float32)
-    sky[:32] = [0.5, 0.6, 0.9]                       # upper half of the latitude–longitude map: the sky
+    sky[:32] = [0.5, 0.6, 0.9]  # upper half of the latitude–longitude map: the sky
     write_image(tmp_path / "sky.exr", sky)
-    text = TOP_DOWN.replace('sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }',
-                            'sky = { envmap = "sky.exr", scale = 2.0 }')
+    text = TOP_DOWN.replace(
+        "sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }", 'sky = { envmap = "sky.exr", scale = 2.0 }'
+    )
     cfg = parse_config(text, path=tmp_path / "s.toml", base_dir=tmp_path)
     e = emitter_dicts(cfg, "scalar_rgb")
     assert e["sky"]["type"] == "envmap" and e["sky"]["scale"] == 2.0
     assert emitter_dicts(cfg, "scalar_rgb", {"envmap_scale": 0.5})["sky"]["scale"] == 0.5
     mi = mitsuba("scalar_rgb")
     terrain = load_terrain(cfg.terrain)
-    scene = mi.load_dict({"type": "scene", "integrator": {"type": "path", "max_depth": 2},
-                          "sensor": sensor_dict(cfg, width=8, height=8, spp=64), **e,
-                          "terrain": terrain_dict(cfg, terrain, "scalar_rgb")})
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "integrator": {"type": "path", "max_depth": 2},
+            "sensor": sensor_dict(cfg, width=8, height=8, spp=64),
+            **e,
+            "terrain": terrain_dict(cfg, terrain, "scalar_rgb"),
+        }
+    )
     img = np.asarray(mi.render(scene))[..., :3]
     # White ground under a sky of radiance 2·(0.5, 0.6, 0.9) over the upper hemisphere: L = ρ·E/π = 2·c.
     # (central pixels: the outer ring looks past the 100 m terrain, down into the black lower hemisphere)
-    np.testing.assert_allclose(img[1:7, 1:7].reshape(-1, 3).mean(axis=0), 2.0 * np.array([0.5, 0.6, 0.9]),
-                               rtol=0.05)
+    np.testing.assert_allclose(img[1:7, 1:7].reshape(-1, 3).mean(axis=0), 2.0 * np.array([0.5, 0.6, 0.9]), rtol=0.05)
 
 
 def test_terrain_texture_overrides_terrain_colour(tmp_path):
     from forest.images import write_image
+
     tex = np.zeros((8, 8, 3), np.float32)
-    tex[:, :4] = [0.6, 0.1, 0.1]                    # x < 0 red, x > 0 blue (linear EXR: no decoding)
+    tex[:, :4] = [0.6, 0.1, 0.1]  # x < 0 red, x > 0 blue (linear EXR: no decoding)
     tex[:, 4:] = [0.1, 0.1, 0.6]
     write_image(tmp_path / "ground.exr", tex, half=False)
     text = TOP_DOWN.replace("terrain_colour = [1.0, 1.0, 1.0]", 'terrain_texture = "ground.exr"')
     cfg = parse_config(text, path=tmp_path / "s.toml", base_dir=tmp_path)
     mi = mitsuba("scalar_rgb")
-    scene = mi.load_dict({"type": "scene", "integrator": {"type": "path", "max_depth": 2},
-                          "sensor": sensor_dict(cfg), **emitter_dicts(cfg, "scalar_rgb"),
-                          "terrain": terrain_dict(cfg, load_terrain(cfg.terrain), "scalar_rgb")})
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "integrator": {"type": "path", "max_depth": 2},
+            "sensor": sensor_dict(cfg),
+            **emitter_dicts(cfg, "scalar_rgb"),
+            "terrain": terrain_dict(cfg, load_terrain(cfg.terrain), "scalar_rgb"),
+        }
+    )
     img = np.asarray(mi.render(scene))[..., :3]
     gx, gz = ground_points(cfg, 32, 32)
-    inner = (np.abs(gz) < 40)
+    inner = np.abs(gz) < 40
     np.testing.assert_allclose(img[inner & (gx < -8) & (gx > -40)].mean(axis=0), [0.6, 0.1, 0.1], atol=0.04)
     np.testing.assert_allclose(img[inner & (gx > 8) & (gx < 40)].mean(axis=0), [0.1, 0.1, 0.6], atol=0.04)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from conftest import run_forest, write_png, write_scene
 from scipy.spatial import cKDTree
 
-from conftest import run_forest, write_png, write_scene
 from forest.config import load_config
 from forest.instances import InstanceSet, quaternion_to_matrix
 from forest.scatter import scatter
@@ -37,7 +37,9 @@ def _ramp_heightmap(path, n=64):
 
 def test_density_is_uniform_per_area_on_a_stretched_mesh(tmp_path):
     mesh = _stretched_plane(tmp_path / "plane.obj")
-    cfg = write_scene(tmp_path, f"""
+    cfg = write_scene(
+        tmp_path,
+        f"""
         seed = 1
         [terrain]
         mesh = "{mesh.name}"
@@ -46,8 +48,9 @@ def test_density_is_uniform_per_area_on_a_stretched_mesh(tmp_path):
         [[species]]
         model = "broadleaf"
         percent = 100
-    """)
-    inst, rep = scatter(load_config(cfg))
+    """,
+    )
+    inst, _rep = scatter(load_config(cfg))
     assert len(inst) == 40000
     x, z = inst.position[:, 0], inst.position[:, 2]
     counts, _, _ = np.histogram2d(x, z, bins=8, range=[[-50, 50], [-50, 50]])
@@ -60,7 +63,9 @@ def test_density_is_uniform_per_area_on_a_stretched_mesh(tmp_path):
 
 def test_density_follows_true_surface_area_on_slopes(tmp_path):
     _ramp_heightmap(tmp_path / "ramp.png")
-    cfg = write_scene(tmp_path, """
+    cfg = write_scene(
+        tmp_path,
+        """
         seed = 2
         [terrain]
         heightmap = "ramp.png"
@@ -71,7 +76,8 @@ def test_density_follows_true_surface_area_on_slopes(tmp_path):
         [[species]]
         model = "broadleaf"
         percent = 100
-    """)
+    """,
+    )
     inst, rep = scatter(load_config(cfg))
     x = inst.position[:, 0]
     left, right = (x < -2).sum(), (x > 2).sum()
@@ -85,7 +91,9 @@ def test_density_follows_true_surface_area_on_slopes(tmp_path):
 
 def test_slope_rule_rejects_steep_ground(tmp_path):
     _ramp_heightmap(tmp_path / "ramp.png")
-    cfg = write_scene(tmp_path, """
+    cfg = write_scene(
+        tmp_path,
+        """
         [terrain]
         heightmap = "ramp.png"
         size = [100.0, 100.0]
@@ -100,7 +108,8 @@ def test_slope_rule_rejects_steep_ground(tmp_path):
         model = "conifer"
         percent = 50
         slope_min = 40.0
-    """)
+    """,
+    )
     inst, rep = scatter(load_config(cfg))
     x = inst.position[:, 0]
     broad = inst.species == 0
@@ -114,12 +123,14 @@ def test_slope_rule_rejects_steep_ground(tmp_path):
 def test_presence_density_and_altitude_maps(tmp_path):
     n = 32
     pres = np.ones((n, n))
-    pres[:, : n // 2] = 0.0          # no trees where x < 0
+    pres[:, : n // 2] = 0.0  # no trees where x < 0
     dens = np.ones((n, n))
-    dens[: n // 2, :] = 0.25          # a quarter of the trees where z < 0
+    dens[: n // 2, :] = 0.25  # a quarter of the trees where z < 0
     write_png(tmp_path / "presence.png", pres)
     write_png(tmp_path / "density.png", dens)
-    cfg = write_scene(tmp_path, """
+    cfg = write_scene(
+        tmp_path,
+        """
         [terrain]
         flat = { size = 100.0 }
         [maps]
@@ -130,7 +141,8 @@ def test_presence_density_and_altitude_maps(tmp_path):
         [[species]]
         model = "broadleaf"
         percent = 100
-    """)
+    """,
+    )
     inst, rep = scatter(load_config(cfg))
     x, z = inst.position[:, 0], inst.position[:, 2]
     assert (x < 0).sum() == 0
@@ -140,7 +152,9 @@ def test_presence_density_and_altitude_maps(tmp_path):
 
 
 def test_species_percentages_and_empty_ground(flat_scene):
-    cfg = flat_scene(count=50000, species="""
+    cfg = flat_scene(
+        count=50000,
+        species="""
         [[species]]
         model = "broadleaf"
         percent = 50
@@ -150,7 +164,8 @@ def test_species_percentages_and_empty_ground(flat_scene):
         [[species]]
         model = "shrub"
         percent = 10
-    """)
+    """,
+    )
     inst, rep = scatter(load_config(cfg))
     frac = np.bincount(inst.species, minlength=3) / 50000
     np.testing.assert_allclose(frac, [0.5, 0.3, 0.1], atol=0.01)
@@ -159,12 +174,18 @@ def test_species_percentages_and_empty_ground(flat_scene):
 
 
 def test_scale_yaw_and_phase_ranges(flat_scene):
-    inst, _ = scatter(load_config(flat_scene(species="""
+    inst, _ = scatter(
+        load_config(
+            flat_scene(
+                species="""
         [[species]]
         model = "broadleaf"
         percent = 100
         scale = [0.5, 2.0]
-    """)))
+    """
+            )
+        )
+    )
     assert inst.scale.min() >= 0.5 and inst.scale.max() <= 2.0
     assert inst.scale.std() > 0.3
     assert inst.yaw.min() >= 0 and inst.yaw.max() < 2 * np.pi and inst.yaw.std() > 1.5
@@ -176,7 +197,9 @@ def test_scale_yaw_and_phase_ranges(flat_scene):
 
 def test_alignment_to_the_terrain_normal(tmp_path):
     _ramp_heightmap(tmp_path / "ramp.png")
-    cfg = write_scene(tmp_path, """
+    cfg = write_scene(
+        tmp_path,
+        """
         [terrain]
         heightmap = "ramp.png"
         size = [100.0, 100.0]
@@ -187,17 +210,21 @@ def test_alignment_to_the_terrain_normal(tmp_path):
         [[species]]
         model = "broadleaf"
         percent = 100
-    """)
+    """,
+    )
     inst, _ = scatter(load_config(cfg))
     up = quaternion_to_matrix(inst.rotation)[:, :, 1]
     np.testing.assert_allclose(up, inst.normal, atol=1e-4)
     steep = inst.position[:, 0] > 5
-    np.testing.assert_allclose(inst.normal[steep], np.tile([-np.sqrt(0.5), np.sqrt(0.5), 0], (steep.sum(), 1)),
-                               atol=1e-3)
+    np.testing.assert_allclose(
+        inst.normal[steep], np.tile([-np.sqrt(0.5), np.sqrt(0.5), 0], (steep.sum(), 1)), atol=1e-3
+    )
 
 
 def test_poisson_disk_minimum_distance(tmp_path):
-    cfg = write_scene(tmp_path, """
+    cfg = write_scene(
+        tmp_path,
+        """
         [terrain]
         flat = { size = 100.0 }
         [scatter]
@@ -206,15 +233,17 @@ def test_poisson_disk_minimum_distance(tmp_path):
         [[species]]
         model = "broadleaf"
         percent = 100
-    """)
+    """,
+    )
     inst, rep = scatter(load_config(cfg))
     d, _ = cKDTree(inst.position).query(inst.position, k=2)
     assert d[:, 1].min() >= 2.0
     assert rep.rejected["min_distance"] > 0
     # Maximal (dart throwing): every candidate that was thinned out lies within
     # 2 m of a kept tree.  The same seed without spacing gives all candidates.
-    all_c, _ = scatter(load_config(write_scene(tmp_path, cfg.read_text().replace("min_distance = 2.0", ""),
-                                                "all.toml")))
+    all_c, _ = scatter(
+        load_config(write_scene(tmp_path, cfg.read_text().replace("min_distance = 2.0", ""), "all.toml"))
+    )
     dropped = all_c.position[~np.isin(all_c.id, inst.id)]
     assert len(dropped) == rep.rejected["min_distance"]
     d2, _ = cKDTree(inst.position).query(dropped)
@@ -223,10 +252,12 @@ def test_poisson_disk_minimum_distance(tmp_path):
 
 def test_colour_map_tints_are_linear(tmp_path):
     col = np.zeros((8, 8, 3))
-    col[:, :4] = (1.0, 0.5, 0.0)      # sRGB orange where x < 0
-    col[:, 4:] = (0.0, 0.0, 1.0)      # blue where x > 0
+    col[:, :4] = (1.0, 0.5, 0.0)  # sRGB orange where x < 0
+    col[:, 4:] = (0.0, 0.0, 1.0)  # blue where x > 0
     write_png(tmp_path / "colour.png", col)
-    cfg = write_scene(tmp_path, """
+    cfg = write_scene(
+        tmp_path,
+        """
         [terrain]
         flat = { size = 80.0 }
         [maps]
@@ -236,7 +267,8 @@ def test_colour_map_tints_are_linear(tmp_path):
         [[species]]
         model = "broadleaf"
         percent = 100
-    """)
+    """,
+    )
     inst, _ = scatter(load_config(cfg))
     left = inst.position[:, 0] < -10
     right = inst.position[:, 0] > 10
@@ -247,11 +279,13 @@ def test_colour_map_tints_are_linear(tmp_path):
 
 def test_partitions_with_tolerance_and_unlabelled_report(tmp_path):
     part = np.zeros((10, 10, 3))
-    part[:, :3] = (1.0, 0.02, 0.0)           # near-red: within tolerance of #ff0000
+    part[:, :3] = (1.0, 0.02, 0.0)  # near-red: within tolerance of #ff0000
     part[:, 3:7] = (0.0, 1.0, 0.0)
-    part[:, 7:] = (0.5, 0.5, 0.5)            # grey: unlabelled
+    part[:, 7:] = (0.5, 0.5, 0.5)  # grey: unlabelled
     write_png(tmp_path / "part.png", part)
-    cfg = write_scene(tmp_path, """
+    cfg = write_scene(
+        tmp_path,
+        """
         [terrain]
         flat = { size = 100.0 }
         [maps]
@@ -265,7 +299,8 @@ def test_partitions_with_tolerance_and_unlabelled_report(tmp_path):
         [[species]]
         model = "broadleaf"
         percent = 100
-    """)
+    """,
+    )
     inst, rep = scatter(load_config(cfg))
     assert inst.partition_names == ["foreground", "midground", "background", "unlabelled"]
     x = inst.position[:, 0]
@@ -314,7 +349,9 @@ def test_instance_file_is_plain_numpy(tmp_path, flat_scene):
 
 
 def test_procedural_and_16bit_heightmap_terrains(tmp_path):
-    cfg = write_scene(tmp_path, """
+    cfg = write_scene(
+        tmp_path,
+        """
         seed = 5
         [terrain]
         procedural = { size = 500.0, height = 80.0, octaves = 5, resolution = 64 }
@@ -323,14 +360,20 @@ def test_procedural_and_16bit_heightmap_terrains(tmp_path):
         [[species]]
         model = "broadleaf"
         percent = 100
-    """)
+    """,
+    )
     inst, _ = scatter(load_config(cfg))
-    assert 0.0 <= inst.position[:, 1].min() and inst.position[:, 1].max() <= 80.0
+    assert inst.position[:, 1].min() >= 0.0 and inst.position[:, 1].max() <= 80.0
     assert inst.position[:, 1].std() > 5.0
     h = np.linspace(0, 1, 256)[None, :].repeat(4, 0)
     write_png(tmp_path / "h16.png", h, bits=16)
     from forest.terrain import load_terrain
-    t = load_terrain(load_config(write_scene(tmp_path, """
+
+    t = load_terrain(
+        load_config(
+            write_scene(
+                tmp_path,
+                """
         [terrain]
         heightmap = "h16.png"
         size = [255.0, 10.0]
@@ -338,14 +381,21 @@ def test_procedural_and_16bit_heightmap_terrains(tmp_path):
         [[species]]
         model = "a"
         percent = 1
-    """, "h.toml")).terrain)
+    """,
+                "h.toml",
+            )
+        ).terrain
+    )
     # 16-bit precision survives: heights step by 1 m exactly per column.
     np.testing.assert_allclose(np.diff(t.vertices[:256, 1]), 1.0, atol=1e-3)
     np.testing.assert_allclose(t.height_at([0.0, 100.0], [0.0, 0.0]), [127.5, 227.5], atol=1e-3)
 
 
 def test_yaw_step_snaps_rotations(flat_scene):
-    inst, _ = scatter(load_config(flat_scene(species="""
+    inst, _ = scatter(
+        load_config(
+            flat_scene(
+                species="""
         [[species]]
         model = "tower"
         percent = 50
@@ -353,7 +403,10 @@ def test_yaw_step_snaps_rotations(flat_scene):
         [[species]]
         model = "broadleaf"
         percent = 50
-    """)))
+    """
+            )
+        )
+    )
     blocks = inst.species == 0
     q = np.degrees(inst.yaw[blocks]) / 90.0
     np.testing.assert_allclose(q, np.round(q), atol=1e-4)
@@ -366,7 +419,9 @@ def test_species_limited_to_partitions(tmp_path):
     part[:, :2] = (1.0, 0.0, 0.0)
     part[:, 2:] = (0.0, 1.0, 0.0)
     write_png(tmp_path / "part.png", part)
-    cfg = write_scene(tmp_path, """
+    cfg = write_scene(
+        tmp_path,
+        """
         [terrain]
         flat = { size = 100.0 }
         [maps]
@@ -383,7 +438,8 @@ def test_species_limited_to_partitions(tmp_path):
         [[species]]
         model = "conifer"
         percent = 50
-    """)
+    """,
+    )
     inst, rep = scatter(load_config(cfg))
     x = inst.position[:, 0]
     assert (x[inst.species == 0] < 0).all()

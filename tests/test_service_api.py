@@ -12,9 +12,10 @@ import httpx
 import numpy as np
 import pytest
 
-from service.app import ServiceConfig, create_app
-from service.jobs import Limits
-from test_service_support import (ServerThread, pid_alive, read_events, tiny_config, wait_for, wait_job)
+from forest.service.app import ServiceConfig, create_app
+from forest.service.jobs import Limits
+
+from test_service_support import ServerThread, pid_alive, read_events, tiny_config, wait_for, wait_job
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
@@ -22,9 +23,13 @@ pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     data = tmp_path_factory.mktemp("service-data")
-    cfg = ServiceConfig(data_dir=data, workers=2, limits=Limits(max_width=512, max_height=512, max_pixels=512 * 384,
-                                                                 max_spp=64, max_trees=5000,
-                                                                 max_upload_bytes=200_000))
+    cfg = ServiceConfig(
+        data_dir=data,
+        workers=2,
+        limits=Limits(
+            max_width=512, max_height=512, max_pixels=512 * 384, max_spp=64, max_trees=5000, max_upload_bytes=200_000
+        ),
+    )
     with ServerThread(create_app(cfg)) as srv:
         srv.data = data
         with httpx.Client(base_url=srv.url, timeout=30) as client:
@@ -42,8 +47,10 @@ def idle(tmp_path):
 
 
 def png_bytes(w: int = 8, h: int = 6) -> bytes:
-    import OpenImageIO as oiio
     import tempfile
+
+    import OpenImageIO as oiio
+
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "m.png"
         out = oiio.ImageOutput.create(str(p))
@@ -60,18 +67,19 @@ def read_png(data: bytes) -> tuple[int, int]:
 
 # -- a real render, end to end --------------------------------------------------------
 
+
 def test_render_job_end_to_end(server):
     c = server.client
     # 12 spp: more than a quick look's worth, so the still shows a quick look first, then the final image
-    r = c.post("/jobs", json={"kind": "render", "config": tiny_config(),
-                              "settings": {"width": 40, "height": 30, "spp": 12}})
+    r = c.post(
+        "/jobs", json={"kind": "render", "config": tiny_config(), "settings": {"width": 40, "height": 30, "spp": 12}}
+    )
     assert r.status_code == 202, r.text
     job = r.json()
     assert r.headers["location"] == f"/jobs/{job['id']}"
     assert job["state"] in ("queued", "running") and job["settings"]["width"] == 40
 
     events = read_events(c, job["id"])
-    kinds = [k for k, _ in events]
     states = [d["state"] for k, d in events if k == "state"]
     assert states[0] == "queued" and states[-1] == "succeeded" and "running" in states
     progress = [d["progress"] for k, d in events if k == "progress"]
@@ -99,8 +107,10 @@ def test_render_job_end_to_end(server):
 
 def test_flythrough_is_split_into_frame_tasks(server):
     c = server.client
-    r = c.post("/jobs", json={"kind": "flythrough", "config": tiny_config(),
-                              "settings": {"frames": "1-3", "frames_per_task": 2}})
+    r = c.post(
+        "/jobs",
+        json={"kind": "flythrough", "config": tiny_config(), "settings": {"frames": "1-3", "frames_per_task": 2}},
+    )
     assert r.status_code == 202, r.text
     assert [t["frames"] for t in r.json()["tasks"]] == [[1, 2], [3]]
     job = wait_job(c, r.json()["id"])
@@ -113,14 +123,27 @@ def test_flythrough_is_split_into_frame_tasks(server):
 
 def test_worker_killed_mid_render_is_requeued_and_finishes(server):
     c = server.client
-    r = c.post("/jobs", json={"kind": "flythrough", "config": tiny_config(),
-                              "settings": {"frames": "1-12", "frames_per_task": 12, "spp": 16}})
+    r = c.post(
+        "/jobs",
+        json={
+            "kind": "flythrough",
+            "config": tiny_config(),
+            "settings": {"frames": "1-12", "frames_per_task": 12, "spp": 16},
+        },
+    )
     jid = r.json()["id"]
     # wait until the worker reports progress from inside the render, then SIGKILL it
     # (twelve frames, so the render is still running when the poll sees it)
-    task = wait_for(lambda: next((t for t in c.get(f"/jobs/{jid}").json()["tasks"]
-                                  if t["state"] == "running" and t["message"].startswith(("building", "frame"))),
-                                 None))
+    task = wait_for(
+        lambda: next(
+            (
+                t
+                for t in c.get(f"/jobs/{jid}").json()["tasks"]
+                if t["state"] == "running" and t["message"].startswith(("building", "frame"))
+            ),
+            None,
+        )
+    )
     pid = int(task["worker"].split(":")[1])
     os.kill(pid, signal.SIGKILL)
     job = wait_job(c, jid)
@@ -135,11 +158,21 @@ def test_worker_killed_mid_render_is_requeued_and_finishes(server):
 
 def test_cancel_stops_the_worker_process(server):
     c = server.client
-    r = c.post("/jobs", json={"kind": "flythrough", "config": tiny_config(), "priority": 50,
-                              "settings": {"frames": "1-8", "frames_per_task": 8}})
+    r = c.post(
+        "/jobs",
+        json={
+            "kind": "flythrough",
+            "config": tiny_config(),
+            "priority": 50,
+            "settings": {"frames": "1-8", "frames_per_task": 8},
+        },
+    )
     jid = r.json()["id"]
-    task = wait_for(lambda: next((t for t in c.get(f"/jobs/{jid}").json()["tasks"]
-                                  if t["state"] == "running" and t["worker"]), None))
+    task = wait_for(
+        lambda: next(
+            (t for t in c.get(f"/jobs/{jid}").json()["tasks"] if t["state"] == "running" and t["worker"]), None
+        )
+    )
     pid = int(task["worker"].split(":")[1])
     r = c.post(f"/jobs/{jid}/cancel")
     assert r.status_code == 202
@@ -155,7 +188,9 @@ def test_cancel_stops_the_worker_process(server):
 
 def test_cancel_of_a_queued_job_is_immediate(idle):
     c = idle.client
-    jid = c.post("/jobs", json={"kind": "flythrough", "config": tiny_config(), "settings": {"frames": "1-4"}}).json()["id"]
+    jid = c.post("/jobs", json={"kind": "flythrough", "config": tiny_config(), "settings": {"frames": "1-4"}}).json()[
+        "id"
+    ]
     r = c.post(f"/jobs/{jid}/cancel")
     assert r.status_code == 202 and r.json()["state"] == "canceled"
     assert {t["state"] for t in r.json()["tasks"]} == {"canceled"}
@@ -172,7 +207,7 @@ def test_a_render_error_fails_the_job_once_with_its_message(server):
     assert r.status_code == 202, r.text
     job = wait_job(c, r.json()["id"])
     assert job["state"] == "failed" and "no_such_species" in job["error"]
-    assert job["tasks"][0]["attempt"] == 1            # a user mistake is not retried
+    assert job["tasks"][0]["attempt"] == 1  # a user mistake is not retried
     res = c.get(f"/jobs/{job['id']}/result")
     assert res.status_code == 409 and "no_such_species" in res.json()["detail"]
     assert "no_such_species" in c.get(f"/jobs/{job['id']}/log").text
@@ -195,10 +230,15 @@ def test_bad_config_fails_cleanly_before_any_job(server):
     assert c.get("/jobs").json()["counts"] == before
 
 
-@pytest.mark.parametrize("settings, field", [
-    ({"width": 4000}, "settings.width"), ({"spp": 65}, "settings.spp"), ({"count": 6000}, "settings.count"),
-    ({"width": 512, "height": 512}, "settings.width×height"),
-])
+@pytest.mark.parametrize(
+    "settings, field",
+    [
+        ({"width": 4000}, "settings.width"),
+        ({"spp": 65}, "settings.spp"),
+        ({"count": 6000}, "settings.count"),
+        ({"width": 512, "height": 512}, "settings.width×height"),
+    ],
+)
 def test_limits_answer_422_naming_the_setting(server, settings, field):
     r = server.client.post("/jobs", json={"kind": "render", "config": tiny_config(), "settings": settings})
     assert r.status_code == 422 and field in r.json()["detail"] and "limit" in r.json()["detail"]
@@ -210,11 +250,14 @@ def test_unknown_job_and_bad_request_shapes(server):
     assert c.get("/jobs/nope").status_code == 404
     assert c.post("/jobs", json={"kind": "paint", "config": "x"}).status_code == 422
     assert c.post("/jobs", json={"kind": "render", "config": "x", "extra": 1}).status_code == 422
-    assert c.post("/jobs", json={"kind": "render", "config": tiny_config(),
-                                 "settings": {"frames": "1-3"}}).status_code == 422
+    assert (
+        c.post("/jobs", json={"kind": "render", "config": tiny_config(), "settings": {"frames": "1-3"}}).status_code
+        == 422
+    )
 
 
 # -- assets ---------------------------------------------------------------------------
+
 
 def test_uploads_are_checked_and_size_limited(server):
     c = server.client
@@ -225,6 +268,7 @@ def test_uploads_are_checked_and_size_limited(server):
     assert c.put("/assets/notes.txt", content=b"hello").status_code == 415
     assert c.put("/assets/..png", content=png_bytes()).status_code == 422
     import trimesh
+
     ply = trimesh.creation.box().export(file_type="ply")
     mesh = c.put("/assets/box.ply", content=ply)
     assert mesh.status_code == 201 and mesh.json()["triangles"] == 12
@@ -240,13 +284,20 @@ def test_config_assets_resolve_inside_the_data_folder_only(server, tmp_path):
     outside = tmp_path / "secret.png"
     outside.write_bytes(png_bytes())
     (server.data / "assets" / "link.png").symlink_to(outside)
-    for ref, needle in [("../jobs/x.png", "'..'"), ("/etc/x.png", "relative"), ("~/x.png", "relative"),
-                        ("link.png", "outside the data folder"), ("missing.png", "not found"),
-                        ("maps\\\\x.png", "relative")]:
+    for ref, needle in [
+        ("../jobs/x.png", "'..'"),
+        ("/etc/x.png", "relative"),
+        ("~/x.png", "relative"),
+        ("link.png", "outside the data folder"),
+        ("missing.png", "not found"),
+        ("maps\\\\x.png", "relative"),
+    ]:
         text = tiny_config().replace("[scatter]", f'[maps]\npresence = "{ref}"\n[scatter]')
         r = c.post("/jobs", json={"kind": "render", "config": text})
-        assert r.status_code == 422 and needle in r.json()["detail"] and "maps.presence" in r.json()["detail"], \
-            (ref, r.text)
+        assert r.status_code == 422 and needle in r.json()["detail"] and "maps.presence" in r.json()["detail"], (
+            ref,
+            r.text,
+        )
     text = tiny_config().replace("[scatter]", '[maps]\npresence = "mask.png"\n[scatter]')
     r = c.post("/jobs", json={"kind": "render", "config": text})
     assert r.status_code == 202, r.text
@@ -260,12 +311,18 @@ def test_match_job_fits_the_look_to_a_reference(server):
     if not c.get("/health").json()["capabilities"]["match"]:
         pytest.skip("look-dev is not installed")
     assert c.put("/assets/ref.png", content=png_bytes(32, 24)).status_code == 201
-    bad = c.post("/jobs", json={"kind": "match", "config": tiny_config(),
-                                "settings": {"reference": "ref.png", "mode": "bogus"}})
+    bad = c.post(
+        "/jobs", json={"kind": "match", "config": tiny_config(), "settings": {"reference": "ref.png", "mode": "bogus"}}
+    )
     assert bad.status_code == 422 and "settings.mode" in bad.json()["detail"]
-    r = c.post("/jobs", json={"kind": "match", "config": tiny_config(),
-                              "settings": {"reference": "ref.png", "iterations": 2, "resolution": 16,
-                                           "match_spp": 1}})
+    r = c.post(
+        "/jobs",
+        json={
+            "kind": "match",
+            "config": tiny_config(),
+            "settings": {"reference": "ref.png", "iterations": 2, "resolution": 16, "match_spp": 1},
+        },
+    )
     assert r.status_code == 202, r.text
     job = wait_job(c, r.json()["id"], timeout=120)
     assert job["state"] == "succeeded", job
@@ -289,6 +346,7 @@ def test_match_jobs_need_a_reference_and_the_capability(server):
 
 # -- idempotency, concurrency, auth (no renders) ------------------------------------
 
+
 def test_idempotency_key_makes_resubmits_safe(idle):
     c = idle.client
     body = {"kind": "render", "config": tiny_config()}
@@ -304,14 +362,18 @@ def test_idempotency_key_makes_resubmits_safe(idle):
 
 def test_hundred_concurrent_submissions_all_accounted_for(idle):
     async def main():
-        async with httpx.AsyncClient(base_url=idle.url, timeout=60,
-                                     limits=httpx.Limits(max_connections=100)) as ac:
+        async with httpx.AsyncClient(base_url=idle.url, timeout=60, limits=httpx.Limits(max_connections=100)) as ac:
+
             async def one(i):
                 # 80 distinct jobs, then 20 submissions that are 10 jobs each sent twice
                 n = i if i < 80 else 80 + i % 10
                 headers = {"Idempotency-Key": f"dup-{n}"} if i >= 80 else {}
-                return await ac.post("/jobs", json={"kind": "render", "config": tiny_config(), "priority": n % 7,
-                                                    "name": f"job {n}"}, headers=headers)
+                return await ac.post(
+                    "/jobs",
+                    json={"kind": "render", "config": tiny_config(), "priority": n % 7, "name": f"job {n}"},
+                    headers=headers,
+                )
+
             return await asyncio.gather(*(one(i) for i in range(100)))
 
     rs = asyncio.run(main())
@@ -330,25 +392,40 @@ def test_token_is_required_when_configured(tmp_path):
         assert c.get("/jobs", headers={"Authorization": "Bearer wrong-token"}).status_code == 401
         assert c.get("/jobs", headers={"Authorization": "Bearer s3cret-token"}).status_code == 200
         assert c.get("/jobs", params={"access_token": "s3cret-token"}).status_code == 200
-        assert c.post("/jobs", params={"access_token": "s3cret-token"},
-                      json={"kind": "render", "config": "x"}).status_code == 401
-        assert c.get("/").status_code == 200          # the page itself asks for the token
+        assert (
+            c.post("/jobs", params={"access_token": "s3cret-token"}, json={"kind": "render", "config": "x"}).status_code
+            == 401
+        )
+        assert c.get("/").status_code == 200  # the page itself asks for the token
 
 
 def test_one_service_per_data_folder(server):
     import subprocess
+
     from test_service_support import FOREST
-    r = subprocess.run([str(FOREST), "serve", "--data", str(server.data), "--port", "0"],
-                       capture_output=True, text=True, timeout=60)
+
+    r = subprocess.run(
+        [str(FOREST), "serve", "--data", str(server.data), "--port", "0"], capture_output=True, text=True, timeout=60
+    )
     assert r.returncode == 2 and "another forest service" in r.stderr
 
 
 def test_serve_refuses_non_loopback_without_token(tmp_path):
     import subprocess
+
     from test_service_support import FOREST
-    r = subprocess.run([str(FOREST), "serve", "--host", "0.0.0.0", "--data", str(tmp_path / "d")],
-                       capture_output=True, text=True, timeout=60)
+
+    r = subprocess.run(
+        [str(FOREST), "serve", "--host", "0.0.0.0", "--data", str(tmp_path / "d")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode == 2 and "token" in r.stderr and "Traceback" not in r.stderr
-    r = subprocess.run([str(FOREST), "serve", "--executor", "kube", "--data", str(tmp_path / "d")],
-                       capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        [str(FOREST), "serve", "--executor", "kube", "--data", str(tmp_path / "d")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode == 2 and "--executor" in r.stderr

@@ -9,27 +9,39 @@ from pathlib import Path
 
 import pytest
 
-from test_service_support import ServerThread, tiny_config
+from forest.service.app import ServiceConfig, create_app
 
-from service.app import ServiceConfig, create_app
+from test_service_support import ServerThread, tiny_config
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
 
-pytestmark = pytest.mark.skipif(not (Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists()),
-                                reason="Debian packages chromium and chromium-driver are not installed")
+pytestmark = pytest.mark.skipif(
+    not (Path(CHROMIUM).exists() and Path(CHROMEDRIVER).exists()),
+    reason="Debian packages chromium and chromium-driver are not installed",
+)
 
 
 @pytest.fixture()
 def browser(tmp_path):
     webdriver = pytest.importorskip("selenium.webdriver")
     from selenium.webdriver.chrome.service import Service
-    os.environ["SE_OFFLINE"] = "true"            # never let Selenium fetch a browser or driver
+
+    os.environ["SE_OFFLINE"] = "true"  # never let Selenium fetch a browser or driver
     opts = webdriver.ChromeOptions()
     opts.binary_location = CHROMIUM
-    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-              "--disable-background-networking", "--disable-component-update", "--disable-sync",
-              "--no-first-run", "--window-size=1200,1400", f"--user-data-dir={tmp_path / 'chromium-profile'}"):
+    for a in (
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-dev-shm-usage",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        "--window-size=1200,1400",
+        f"--user-data-dir={tmp_path / 'chromium-profile'}",
+    ):
         opts.add_argument(a)
     driver = webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=opts)
     driver.set_page_load_timeout(60)
@@ -56,7 +68,8 @@ def card_state(driver, job_id):
         "return el ? {state: el.dataset.state, bar: el.querySelector('.bar').value,"
         " msg: el.querySelector('.message').textContent,"
         " img: el.querySelector('img.preview').hidden ? 0 : el.querySelector('img.preview').naturalWidth} : null;",
-        job_id)
+        job_id,
+    )
 
 
 def newest_job_id(driver, previous: set[str]) -> str:
@@ -64,6 +77,7 @@ def newest_job_id(driver, previous: set[str]) -> str:
         ids = driver.execute_script("return [...document.querySelectorAll('article.job')].map(e => e.dataset.id)")
         new = [i for i in ids if i not in previous]
         return new[0] if new else None
+
     return wait(find, timeout=30)
 
 
@@ -97,16 +111,24 @@ def test_page_submit_watch_see_cancel(browser, tmp_path):
             if s:
                 seen.append(s)
             return s and s["state"] in ("succeeded", "failed", "canceled") and (s["img"] or s["state"] != "succeeded")
+
         wait(done)
         assert seen[-1]["state"] == "succeeded", seen[-1]
         bars = [s["bar"] for s in seen]
-        assert any(0 < b < 1 for b in bars), bars             # watched it progress
+        assert any(0 < b < 1 for b in bars), bars  # watched it progress
         assert bars == sorted(bars) and bars[-1] == 1
         assert "running" in {s["state"] for s in seen}
-        assert seen[-1]["img"] == 40                          # the latest pass is shown
-        wait(lambda: d.execute_script(
-            "const i = document.querySelector(`#gallery figure[data-id='${arguments[0]}'] img`);"
-            "return i && i.complete && i.naturalWidth", job) == 40)
+        assert seen[-1]["img"] == 40  # the latest pass is shown
+        wait(
+            lambda: (
+                d.execute_script(
+                    "const i = document.querySelector(`#gallery figure[data-id='${arguments[0]}'] img`);"
+                    "return i && i.complete && i.naturalWidth",
+                    job,
+                )
+                == 40
+            )
+        )
         caption = d.find_element(By.CSS_SELECTOR, f"#gallery figure[data-id='{job}'] figcaption").text
         assert "40×30" in caption and "trees" in caption
         d.save_screenshot(str(tmp_path / "page.png"))
@@ -121,8 +143,7 @@ def test_page_submit_watch_see_cancel(browser, tmp_path):
         wait(lambda: (card_state(d, job2) or {}).get("state") == "running")
         d.find_element(By.CSS_SELECTOR, f"article.job[data-id='{job2}'] button.cancel").click()
         wait(lambda: (card_state(d, job2) or {}).get("state") == "canceled", timeout=30)
-        assert d.find_element(By.CSS_SELECTOR, f"article.job[data-id='{job2}'] button.cancel").get_attribute(
-            "disabled")
+        assert d.find_element(By.CSS_SELECTOR, f"article.job[data-id='{job2}'] button.cancel").get_attribute("disabled")
         # and the log button shows the job's log
         d.find_element(By.CSS_SELECTOR, f"article.job[data-id='{job2}'] button.show-log").click()
         wait(lambda: "canceled" in d.find_element(By.CSS_SELECTOR, f"article.job[data-id='{job2}'] pre.log").text)

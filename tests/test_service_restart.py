@@ -7,9 +7,9 @@ import time
 import httpx
 import pytest
 
-from test_service_support import ServeProcess, pid_alive, tiny_config, wait_for, wait_job
+from forest.service.store import Store
 
-from service.store import Store
+from test_service_support import ServeProcess, pid_alive, tiny_config, wait_for, wait_job
 
 
 def test_service_killed_and_restarted_loses_no_job(tmp_path):
@@ -19,14 +19,24 @@ def test_service_killed_and_restarted_loses_no_job(tmp_path):
         with httpx.Client(base_url=srv.url, timeout=30) as c:
             ids = []
             for i in range(4):
-                r = c.post("/jobs", json={"kind": "flythrough" if i == 0 else "render", "config": tiny_config(),
-                                          "priority": 10 if i == 0 else 0,
-                                          "settings": {"frames": "1-6", "frames_per_task": 6} if i == 0 else {}})
+                r = c.post(
+                    "/jobs",
+                    json={
+                        "kind": "flythrough" if i == 0 else "render",
+                        "config": tiny_config(),
+                        "priority": 10 if i == 0 else 0,
+                        "settings": {"frames": "1-6", "frames_per_task": 6} if i == 0 else {},
+                    },
+                )
                 assert r.status_code == 202, r.text
                 ids.append(r.json()["id"])
             # the first (highest priority) job is rendering; the others wait in the queue
-            task = wait_for(lambda: next((t for t in c.get(f"/jobs/{ids[0]}").json()["tasks"]
-                                          if t["state"] == "running" and t["worker"]), None))
+            task = wait_for(
+                lambda: next(
+                    (t for t in c.get(f"/jobs/{ids[0]}").json()["tasks"] if t["state"] == "running" and t["worker"]),
+                    None,
+                )
+            )
             pid = int(task["worker"].split(":")[1])
             assert all(c.get(f"/jobs/{j}").json()["state"] == "queued" for j in ids[1:])
         srv.kill()
@@ -37,6 +47,7 @@ def test_service_killed_and_restarted_loses_no_job(tmp_path):
 
     # the store on disk still has every job; the interrupted task is running in it
     import sqlite3
+
     db = sqlite3.connect(data / "jobs.sqlite3")
     rows = dict(db.execute("SELECT id, state FROM jobs").fetchall())
     db.close()
@@ -62,13 +73,23 @@ def test_lost_heartbeats_expire_the_lease_and_requeue(tmp_path):
     """A worker that stops (SIGSTOP: alive but silent) loses its lease; the task runs again elsewhere."""
     import os
     import signal
+
     srv = ServeProcess(tmp_path / "data", "--workers", "1", "--lease", "2").start()
     try:
         with httpx.Client(base_url=srv.url, timeout=30) as c:
-            jid = c.post("/jobs", json={"kind": "flythrough", "config": tiny_config(),
-                                        "settings": {"frames": "1-3", "frames_per_task": 3}}).json()["id"]
-            task = wait_for(lambda: next((t for t in c.get(f"/jobs/{jid}").json()["tasks"]
-                                          if t["state"] == "running" and t["worker"]), None))
+            jid = c.post(
+                "/jobs",
+                json={
+                    "kind": "flythrough",
+                    "config": tiny_config(),
+                    "settings": {"frames": "1-3", "frames_per_task": 3},
+                },
+            ).json()["id"]
+            task = wait_for(
+                lambda: next(
+                    (t for t in c.get(f"/jobs/{jid}").json()["tasks"] if t["state"] == "running" and t["worker"]), None
+                )
+            )
             pid = int(task["worker"].split(":")[1])
             os.kill(pid, signal.SIGSTOP)
             t0 = time.monotonic()
@@ -107,8 +128,10 @@ def test_stale_attempt_reports_are_ignored(tmp_path, attempts):
 
 def test_priority_then_age_orders_the_queue(tmp_path):
     s = Store(tmp_path / "db.sqlite3")
-    made = [s.create_job(kind="render", config="x", settings={}, priority=p, task_specs=[{}])[0]["id"]
-            for p in (0, 5, 0, 5, -1)]
+    made = [
+        s.create_job(kind="render", config="x", settings={}, priority=p, task_specs=[{}])[0]["id"]
+        for p in (0, 5, 0, 5, -1)
+    ]
     order = [s.claim_next("o", 10).job_id for _ in range(5)]
     assert order == [made[1], made[3], made[0], made[2], made[4]]
     assert s.claim_next("o", 10) is None

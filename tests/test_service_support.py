@@ -64,13 +64,22 @@ class ServerThread:
 
     def __init__(self, app):
         import uvicorn
+
         self.port = free_port()
-        self.server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level="warning",
-                                                    access_log=False, timeout_graceful_shutdown=2))
+        self.server = uvicorn.Server(
+            uvicorn.Config(
+                app,
+                host="127.0.0.1",
+                port=self.port,
+                log_level="warning",
+                access_log=False,
+                timeout_graceful_shutdown=2,
+            )
+        )
         self.thread = threading.Thread(target=self.server.run, daemon=True)
         self.url = f"http://127.0.0.1:{self.port}"
 
-    def __enter__(self) -> "ServerThread":
+    def __enter__(self) -> ServerThread:
         self.thread.start()
         deadline = time.monotonic() + 30
         while not self.server.started:
@@ -94,11 +103,14 @@ class ServeProcess:
         self.url = f"http://127.0.0.1:{self.port}"
         self.proc: subprocess.Popen | None = None
 
-    def start(self) -> "ServeProcess":
+    def start(self) -> ServeProcess:
         self.log = open(self.data.parent / f"serve-{self.port}.log", "ab")
-        self.proc = subprocess.Popen([str(FOREST), "serve", "--port", str(self.port), "--data", str(self.data),
-                                      "--quiet", *self.args], stdout=self.log, stderr=subprocess.STDOUT,
-                                     start_new_session=True)
+        self.proc = subprocess.Popen(
+            [str(FOREST), "serve", "--port", str(self.port), "--data", str(self.data), "--quiet", *self.args],
+            stdout=self.log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
@@ -128,8 +140,9 @@ class ServeProcess:
         self.log.close()
 
 
-def wait_job(client: httpx.Client, job_id: str, states=("succeeded", "failed", "canceled"),
-             timeout: float = 90.0) -> dict:
+def wait_job(
+    client: httpx.Client, job_id: str, states=("succeeded", "failed", "canceled"), timeout: float = 90.0
+) -> dict:
     deadline = time.monotonic() + timeout
     while True:
         job = client.get(f"/jobs/{job_id}").json()
@@ -174,7 +187,7 @@ def pid_alive(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    try:   # a zombie is not alive
+    try:  # a zombie is not alive
         with open(f"/proc/{pid}/stat") as f:
             return f.read().split(")")[-1].split()[0] != "Z"
     except OSError:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -17,47 +16,73 @@ def _fmt_bounds(b) -> str:
 
 
 def register(app: typer.Typer) -> None:
-    lib_app = typer.Typer(help="The tree library: generated and imported species with levels of detail.",
-                          no_args_is_help=True, context_settings={"help_option_names": ["-h", "--help"]})
+    lib_app = typer.Typer(
+        help="The tree library: generated and imported species with levels of detail.",
+        no_args_is_help=True,
+        context_settings={"help_option_names": ["-h", "--help"]},
+    )
     app.add_typer(lib_app, name="library")
 
     @lib_app.command("list")
-    def list_(library: Optional[Path] = typer.Option(None, "--library", help="Library folder (default: library/ or $FOREST_LIBRARY)."),
-              as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table.")):
+    def list_(
+        library: Path | None = typer.Option(
+            None, "--library", help="User library folder (default: $FOREST_LIBRARY, else the per-user data folder)."
+        ),
+        as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
+    ):
         """Show every species: source, levels of detail with triangle counts, bounds, preview path."""
         from ..library import open_library
+
         lib = open_library(library)
         rows = []
         for name in lib.names():
             sp = lib.get(name)
-            rows.append({"name": sp.name, "source": sp.source,
-                         "lods": {l.name: l.triangles for l in sp.lods},
-                         "bounds": sp.bounds.tolist(), "preview": str(sp.preview_path),
-                         "preview_built": sp.preview_path.is_file(), "description": sp.description})
+            rows.append(
+                {
+                    "name": sp.name,
+                    "source": sp.source,
+                    "lods": {l.name: l.triangles for l in sp.lods},
+                    "bounds": sp.bounds.tolist(),
+                    "preview": str(sp.preview_path),
+                    "preview_built": sp.preview_path.is_file(),
+                    "description": sp.description,
+                }
+            )
         if as_json:
             import json
+
             typer.echo(json.dumps(rows, indent=1))
             return
         from rich.console import Console
         from rich.table import Table
+
         t = Table(title=f"tree library: {lib.root}")
         for col in ("name", "source", "high", "medium", "low", "far", "size (x × y × z)", "preview"):
             t.add_column(col, justify="right" if col in ("high", "medium", "low", "far") else "left")
         for r, name in zip(rows, lib.names()):
             sp = lib.get(name)
-            t.add_row(r["name"], r["source"], *(f"{r['lods'].get(k, 0):,}" for k in ("high", "medium", "low", "far")),
-                      _fmt_bounds(sp.bounds), r["preview"] + ("" if r["preview_built"] else " (not rendered)"))
+            t.add_row(
+                r["name"],
+                r["source"],
+                *(f"{r['lods'].get(k, 0):,}" for k in ("high", "medium", "low", "far")),
+                _fmt_bounds(sp.bounds),
+                r["preview"] + ("" if r["preview_built"] else " (not rendered)"),
+            )
         Console(width=200).print(t)
 
     @lib_app.command("build")
-    def build(names: Optional[list[str]] = typer.Argument(None, help="Species to build (default: all)."),
-              library: Optional[Path] = typer.Option(None, "--library", help="Library folder."),
-              no_previews: bool = typer.Option(False, "--no-previews", help="Skip rendering previews."),
-              quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success.")):
-        """Generate every species' levels of detail and previews into library/cache/ (skips fresh ones)."""
+    def build(
+        names: list[str] | None = typer.Argument(None, help="Species to build (default: all)."),
+        library: Path | None = typer.Option(None, "--library", help="Library folder."),
+        no_previews: bool = typer.Option(False, "--no-previews", help="Skip rendering previews."),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
+    ):
+        """Generate every species' levels of detail and previews into the user library's cache (skips fresh ones)."""
         import time
+
         from ..library import open_library
         from ..progress import progress_bar
+
         lib = open_library(library)
         for n in names or []:
             lib.entry(n)
@@ -66,19 +91,24 @@ def register(app: typer.Typer) -> None:
         with progress_bar("library", quiet=quiet) as progress:
             built = lib.build(names or None, previews=not no_previews, progress=progress)
         if not quiet:
-            typer.echo(f"{len(built)} species ready ({len(stale)} rebuilt) in {time.perf_counter() - t0:.1f} s "
-                       f"under {lib.cache}")
+            typer.echo(
+                f"{len(built)} species ready ({len(stale)} rebuilt) in {time.perf_counter() - t0:.1f} s "
+                f"under {lib.cache}"
+            )
 
     @lib_app.command("preview")
-    def preview(name: str = typer.Argument(..., help="Species name (or NAME@SEED)."),
-                library: Optional[Path] = typer.Option(None, "--library", help="Library folder."),
-                lod: str = typer.Option("high", "--lod", help="Level of detail to render: high, medium, low, far."),
-                output: Optional[Path] = typer.Option(None, "--output", "-o", help="Write here instead of the cache."),
-                size: int = typer.Option(192, "--size", min=16, max=2048, help="Image width and height in pixels."),
-                spp: int = typer.Option(16, "--spp", min=1, max=4096, help="Samples per pixel.")):
+    def preview(
+        name: str = typer.Argument(..., help="Species name (or NAME@SEED)."),
+        library: Path | None = typer.Option(None, "--library", help="Library folder."),
+        lod: str = typer.Option("high", "--lod", help="Level of detail to render: high, medium, low, far."),
+        output: Path | None = typer.Option(None, "--output", "-o", help="Write here instead of the cache."),
+        size: int = typer.Option(192, "--size", min=16, max=2048, help="Image width and height in pixels."),
+        spp: int = typer.Option(16, "--spp", min=1, max=4096, help="Samples per pixel."),
+    ):
         """(Re)render a species' preview image with Mitsuba and print its path."""
         from ..library import open_library
         from ..library.preview import render_preview_file
+
         lib = open_library(library)
         sp = lib.resolve(name)
         if lod not in ("high", "medium", "low", "far"):
@@ -90,21 +120,29 @@ def register(app: typer.Typer) -> None:
         typer.echo(str(path))
 
     @lib_app.command("add")
-    def add(mesh: Path = typer.Argument(..., help="Mesh file: OBJ (with MTL materials), PLY, glTF/GLB, STL."),
-            name: str = typer.Option(..., "--name", "-n", help="Species name to add to the manifest."),
-            library: Optional[Path] = typer.Option(None, "--library", help="Library folder."),
-            up: str = typer.Option("auto", "--up", help="The file's up axis: auto, y or z (auto: z for STL, y otherwise)."),
-            units: str = typer.Option("auto", "--units", help="The file's unit: auto, m, cm, mm, in, ft."),
-            height: Optional[float] = typer.Option(None, "--height", min=0.0, help="Scale the model to this height in metres."),
-            force: bool = typer.Option(False, "--force", help="Replace an existing species of that name."),
-            quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the species' name.")):
+    def add(
+        mesh: Path = typer.Argument(..., help="Mesh file: OBJ (with MTL materials), PLY, glTF/GLB, STL."),
+        name: str = typer.Option(..., "--name", "-n", help="Species name to add to the manifest."),
+        library: Path | None = typer.Option(None, "--library", help="Library folder."),
+        up: str = typer.Option("auto", "--up", help="The file's up axis: auto, y or z (auto: z for STL, y otherwise)."),
+        units: str = typer.Option("auto", "--units", help="The file's unit: auto, m, cm, mm, in, ft."),
+        height: float | None = typer.Option(
+            None, "--height", min=0.0, help="Scale the model to this height in metres."
+        ),
+        force: bool = typer.Option(False, "--force", help="Replace an existing species of that name."),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the species' name."),
+    ):
         """Import a mesh as a species: normalise it, derive levels of detail, measure bounds, render a preview."""
         from ..library import open_library
         from ..library.importer import add_species
+
         lib = open_library(library)
         sp = add_species(lib, mesh, name, up=up, units=units, height=height, force=force)
         if quiet:
             typer.echo(sp.name)
             return
-        typer.echo(f"added {sp.name}: " + ", ".join(f"{l.name} {l.triangles:,}" for l in sp.lods)
-                   + f" triangles; {_fmt_bounds(sp.bounds)}; preview {sp.preview}")
+        typer.echo(
+            f"added {sp.name}: "
+            + ", ".join(f"{l.name} {l.triangles:,}" for l in sp.lods)
+            + f" triangles; {_fmt_bounds(sp.bounds)}; preview {sp.preview}"
+        )

@@ -11,18 +11,28 @@ def register(app: typer.Typer) -> None:
     @app.command("render")
     def render_cmd(
         config: Path = typer.Argument(..., help="Scene config (TOML)."),
-        output: Path = typer.Option(..., "-o", "--output",
-                                    help="Image to write (.exr; an sRGB .png is written beside it). "
-                                         "With --frames a pattern such as out/frame_####.exr."),
-        preview: bool = typer.Option(False, "--preview",
-                                     help="Fast look: at most 480 px wide, 8 spp, no motion blur, "
-                                          "denoised when Open Image Denoise is installed."),
+        output: Path = typer.Option(
+            ...,
+            "-o",
+            "--output",
+            help="Image to write (.exr; an sRGB .png is written beside it). "
+            "With --frames a pattern such as out/frame_####.exr.",
+        ),
+        preview: bool = typer.Option(
+            False,
+            "--preview",
+            help="Fast look: at most 480 px wide, 8 spp, no motion blur, "
+            "denoised when Open Image Denoise is installed.",
+        ),
         frames: str = typer.Option(None, "--frames", help="Frames along the camera path: 1-120, 1-120x2, 1,5,9."),
-        variant: str = typer.Option(None, "--variant",
-                                    help="scalar_rgb, llvm_ad_rgb or cuda_ad_rgb (default: the fastest for the "
-                                         "scene size and machine)."),
-        instances: Path = typer.Option(None, "--instances",
-                                       help="Saved InstanceSet (.npz) from `forest scatter`; default: scatter now."),
+        variant: str = typer.Option(
+            None,
+            "--variant",
+            help="scalar_rgb, llvm_ad_rgb or cuda_ad_rgb (default: the fastest for the scene size and machine).",
+        ),
+        instances: Path = typer.Option(
+            None, "--instances", help="Saved InstanceSet (.npz) from `forest scatter`; default: scatter now."
+        ),
         spp: int = typer.Option(None, "--spp", min=1, help="Override the config's render.spp."),
         width: int = typer.Option(None, "--width", min=1, help="Override the config's render.width."),
         height: int = typer.Option(None, "--height", min=1, help="Override the config's render.height."),
@@ -43,18 +53,30 @@ def register(app: typer.Typer) -> None:
         cfg = load_config(config, overrides=overrides)
         cfg.validate_all()
         if variant is not None:
-            choose_variant(0, variant)              # reject a bad --variant before any work
+            choose_variant(0, variant)  # reject a bad --variant before any work
+
         def announce(chosen: str, reason: str) -> None:
             if not quiet:
                 typer.echo(f"variant: {chosen} ({reason})", err=True)
 
         with progress_bar("render", quiet=quiet) as bar:
-            result = render_scene(cfg, output=output, instances=instances, variant=variant, frames=frames,
-                                  preview=preview, progress=bar, announce=announce)
+            result = render_scene(
+                cfg,
+                output=output,
+                instances=instances,
+                variant=variant,
+                frames=frames,
+                preview=preview,
+                progress=bar,
+                announce=announce,
+            )
         if not quiet:
             if preview:
-                typer.echo("preview: denoised with Open Image Denoise" if result.denoised
-                           else "preview: not denoised (install the 'denoise' extra for Open Image Denoise)")
+                typer.echo(
+                    "preview: denoised with Open Image Denoise"
+                    if result.denoised
+                    else "preview: not denoised (install the 'denoise' extra for Open Image Denoise)"
+                )
             typer.echo(result.summary())
             exrs = [p for p in result.paths if p.suffix == ".exr"]
             typer.echo(f"wrote {exrs[0]}" if len(exrs) == 1 else f"wrote {len(exrs)} frames: {exrs[0]} … {exrs[-1]}")

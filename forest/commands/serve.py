@@ -14,18 +14,27 @@ def register(app: typer.Typer) -> None:
         host: str = typer.Option("127.0.0.1", "--host", help="Address to bind; anything but loopback needs --token."),
         port: int = typer.Option(8000, "--port", min=0, max=65535, help="TCP port."),
         data: Path = typer.Option(Path("forest-data"), "--data", help="Data folder: job store, assets, outputs."),
-        workers: int = typer.Option(1, "--workers", min=0, max=256,
-                                    help="Tasks run at once (local processes or Ray tasks in flight)."),
+        workers: int = typer.Option(
+            1, "--workers", min=0, max=256, help="Tasks run at once (local processes or Ray tasks in flight)."
+        ),
         executor: str = typer.Option("local", "--executor", help="Where tasks run: local or ray."),
-        ray_address: str = typer.Option(None, "--ray-address",
-                                        help="Ray cluster to join (e.g. ray://head:10001 or auto); "
-                                             "default: start a local Ray."),
-        token: str = typer.Option(None, "--token", envvar="FOREST_SERVICE_TOKEN",
-                                  help="Bearer token clients must send (also $FOREST_SERVICE_TOKEN)."),
-        max_attempts: int = typer.Option(3, "--max-attempts", min=1, max=100,
-                                         help="Attempts per task before a lost worker fails the job."),
-        lease: float = typer.Option(15.0, "--lease", min=1.0, help="Seconds without a heartbeat before a task "
-                                                                    "is taken back from its worker."),
+        ray_address: str = typer.Option(
+            None,
+            "--ray-address",
+            help="Ray cluster to join (e.g. ray://head:10001 or auto); default: start a local Ray.",
+        ),
+        token: str = typer.Option(
+            None,
+            "--token",
+            envvar="FOREST_SERVICE_TOKEN",
+            help="Bearer token clients must send (also $FOREST_SERVICE_TOKEN).",
+        ),
+        max_attempts: int = typer.Option(
+            3, "--max-attempts", min=1, max=100, help="Attempts per task before a lost worker fails the job."
+        ),
+        lease: float = typer.Option(
+            15.0, "--lease", min=1.0, help="Seconds without a heartbeat before a task is taken back from its worker."
+        ),
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No access log."),
     ):
         """Serve the job API and web page: queue renders, fly-throughs and colour matches."""
@@ -33,11 +42,12 @@ def register(app: typer.Typer) -> None:
 
         if executor not in ("local", "ray"):
             raise ForestError(f"--executor: must be local or ray, got {executor!r}")
-        from service.app import ServiceConfig, create_app, is_loopback
+        from forest.service.app import ServiceConfig, create_app, is_loopback
 
         if not is_loopback(host) and not token:
-            raise ForestError(f"--host {host}: binding beyond loopback needs a bearer token "
-                              "(--token or $FOREST_SERVICE_TOKEN)")
+            raise ForestError(
+                f"--host {host}: binding beyond loopback needs a bearer token (--token or $FOREST_SERVICE_TOKEN)"
+            )
         if token is not None and len(token) < 8:
             raise ForestError("--token: use at least 8 characters")
         if data.exists() and not data.is_dir():
@@ -49,7 +59,8 @@ def register(app: typer.Typer) -> None:
             probe.unlink()
         except OSError as e:
             raise ForestError(f"--data {data}: cannot write there: {e.strerror or e}") from None
-        from service.assets import DataDir
+        from forest.service.assets import DataDir
+
         held = DataDir(data).lock()
         if held is None:
             raise ForestError(f"--data {data}: another forest service is using this data folder")
@@ -58,15 +69,34 @@ def register(app: typer.Typer) -> None:
             try:
                 import ray  # noqa: F401
             except ImportError:
-                raise ForestError("--executor ray: the ray package is not installed "
-                                  "(pip install 'forest[ray]')") from None
+                raise ForestError(
+                    "--executor ray: the ray package is not installed (pip install 'forest[ray]')"
+                ) from None
         import uvicorn
 
-        cfg = ServiceConfig(data_dir=data, workers=workers, executor=executor, ray_address=ray_address,
-                            token=token, max_attempts=max_attempts, lease_s=lease)
-        typer.echo(f"forest service on http://{host if ':' not in host else f'[{host}]'}:{port}/ "
-                   f"(data {data.resolve()}, {executor} executor, {workers} worker(s)"
-                   f"{', token required' if token else ''})", err=True)
+        cfg = ServiceConfig(
+            data_dir=data,
+            workers=workers,
+            executor=executor,
+            ray_address=ray_address,
+            token=token,
+            max_attempts=max_attempts,
+            lease_s=lease,
+        )
+        typer.echo(
+            f"forest service on http://{host if ':' not in host else f'[{host}]'}:{port}/ "
+            f"(data {data.resolve()}, {executor} executor, {workers} worker(s)"
+            f"{', token required' if token else ''})",
+            err=True,
+        )
         os.environ.setdefault("PYTHONUNBUFFERED", "1")
-        uvicorn.run(create_app(cfg), host=host, port=port, log_level="warning", access_log=not quiet,
-                    timeout_graceful_shutdown=5, loop="auto", http="auto")
+        uvicorn.run(
+            create_app(cfg),
+            host=host,
+            port=port,
+            log_level="warning",
+            access_log=not quiet,
+            timeout_graceful_shutdown=5,
+            loop="auto",
+            http="auto",
+        )

@@ -20,11 +20,13 @@ from __future__ import annotations
 __all__ = ["export_rib", "export_usd"]
 
 
-def __getattr__(name):          # import lazily: usd-core is only loaded for USD exports
+def __getattr__(name):  # import lazily: usd-core is only loaded for USD exports
     if name == "export_rib":
         from .rib import export_rib
+
         return export_rib
     if name == "export_usd":
         from .usd import export_usd
+
         return export_usd
     raise AttributeError(name)

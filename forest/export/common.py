@@ -37,7 +37,8 @@ EXPORT_KEYS = ("lod_transition", "usd_lod", "rib_lod")
 
 def sun_direction(sun: SunConfig) -> np.ndarray:
     """Unit vector from the ground towards the sun (see the module docstring)."""
-    from ..render.scene import sun_vector     # one convention for render, RIB and USD
+    from ..render.scene import sun_vector  # one convention for render, RIB and USD
+
     return sun_vector(sun.elevation, sun.azimuth)
 
 
@@ -79,26 +80,30 @@ def export_options(config: Config) -> dict:
       species' first level).
     """
     f = config.section("export", EXPORT_KEYS)
-    return {"lod_transition": f.number("lod_transition", 0.1, lo=0.0, hi=0.9),
-            "rib_lod": f.string("rib_lod", "inline", choices=("inline", "archive")),
-            "usd_lod": f.string("usd_lod", None)}
+    return {
+        "lod_transition": f.number("lod_transition", 0.1, lo=0.0, hi=0.9),
+        "rib_lod": f.string("rib_lod", "inline", choices=("inline", "archive")),
+        "usd_lod": f.string("usd_lod", None),
+    }
 
 
 @dataclass
 class Band:
     """One level of detail used for a band of camera distances [near, far) metres."""
+
     lod: object
     near: float
-    far: float          # math.inf for the last band
+    far: float  # math.inf for the last band
 
 
 @dataclass
 class SpeciesPlan:
     """A species of the InstanceSet as the exporters write it."""
-    index: int                      # index into InstanceSet.species_names
-    model: str                      # the config's ``model`` string
-    name: str                       # unique file-safe name
-    species: object                 # forest.library species
+
+    index: int  # index into InstanceSet.species_names
+    model: str  # the config's ``model`` string
+    name: str  # unique file-safe name
+    species: object  # forest.library species
     bands: list[Band] = field(default_factory=list)
 
     @property
@@ -114,7 +119,7 @@ class SpeciesPlan:
 def open_default_library():
     try:
         from ..library import open_library
-    except ImportError as e:               # pragma: no cover - only while the library is missing
+    except ImportError as e:  # pragma: no cover - only while the library is missing
         raise ForestError(f"the tree library is not available ({e}); run scripts/setup.sh") from None
     return open_library()
 
@@ -180,8 +185,11 @@ def measured_bounds(lod, meshes=None) -> np.ndarray:
     ``lod.bounds`` grown, if need be, to contain every vertex actually written."""
     b = np.array(lod.bounds, dtype=np.float64).reshape(2, 3)
     if meshes:
-        pts = [np.asarray(m.vertices, dtype=np.float64)[np.unique(np.asarray(m.faces).ravel())]
-               for _, m in meshes if len(m.faces)]
+        pts = [
+            np.asarray(m.vertices, dtype=np.float64)[np.unique(np.asarray(m.faces).ravel())]
+            for _, m in meshes
+            if len(m.faces)
+        ]
         if pts:
             p = np.concatenate(pts)
             b = np.stack([np.minimum(b[0], p.min(axis=0)), np.maximum(b[1], p.max(axis=0))])
@@ -191,8 +199,10 @@ def measured_bounds(lod, meshes=None) -> np.ndarray:
 def check_instances(config: Config, instances: InstanceSet) -> None:
     """The InstanceSet belongs to this config and holds finite numbers (one line otherwise)."""
     if list(instances.species_names) != [s.model for s in config.species]:
-        raise ForestError(f"instances: species {instances.species_names} do not match the config's "
-                          f"[[species]] models {[s.model for s in config.species]}; scatter again")
+        raise ForestError(
+            f"instances: species {instances.species_names} do not match the config's "
+            f"[[species]] models {[s.model for s in config.species]}; scatter again"
+        )
     for col in ("position", "rotation", "scale", "tint"):
         a = getattr(instances, col)
         if a.size and not np.isfinite(a).all():
@@ -214,7 +224,7 @@ def partition_rows(instances: InstanceSet) -> list[tuple[int, str, np.ndarray]]:
     starts = np.concatenate([[0], np.cumsum(counts)])
     for p, name in enumerate(instances.partition_names):
         if counts[p]:
-            out.append((p, name, order[starts[p]: starts[p + 1]]))
+            out.append((p, name, order[starts[p] : starts[p + 1]]))
     if part.max() >= len(instances.partition_names) or part.min() < 0:
         raise ForestError("instances: partition index out of range of partition_names")
     return out

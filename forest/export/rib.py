@@ -84,6 +84,7 @@ st = (u, v) unchanged.
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import dataclass, field
@@ -96,17 +97,27 @@ from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import Config, ConfigError
 from ..errors import ForestError
 from ..instances import InstanceSet, quaternion_to_matrix
-from .common import (SpeciesPlan, check_instances, export_frames, export_options, lod_mesh, measured_bounds,
-                     partition_rows, slug, species_plans, sun_direction)
+from .common import (
+    SpeciesPlan,
+    check_instances,
+    export_frames,
+    export_options,
+    lod_mesh,
+    measured_bounds,
+    partition_rows,
+    slug,
+    species_plans,
+    sun_direction,
+)
 from .text import Field, LeftInt, RowWriter, format_numbers
 
-CHUNK = 32768            # trees formatted per block (bounds the memory of an export)
-MATRIX_DECIMALS = 7      # rotation·scale entries
-POSITION_DECIMALS = 6    # metres: 1 µm
+CHUNK = 32768  # trees formatted per block (bounds the memory of an export)
+MATRIX_DECIMALS = 7  # rotation·scale entries
+POSITION_DECIMALS = 6  # metres: 1 µm
 COLOUR_DECIMALS = 7
 MESH_DECIMALS = 6
 HEADER = b"##RenderMan RIB\n"
-INFINITE_AREA = 1e38     # RenderMan's "infinitely large" detail
+INFINITE_AREA = 1e38  # RenderMan's "infinitely large" detail
 
 TINT_SHADER = """\
 /* forest_tint: Cs (the tree's colour-map tint) times the part's base colour, diffuse.
@@ -123,16 +134,17 @@ surface forest_tint(float Ka = 1, Kd = 0.8; color basecolour = 1)
 @dataclass
 class RibExport:
     """What :func:`export_rib` wrote (paths inside ``out_dir``) and how long it took."""
+
     out_dir: Path
     archives: list[Path] = field(default_factory=list)
-    instance_files: dict[str, Path] = field(default_factory=dict)   # partition → file
+    instance_files: dict[str, Path] = field(default_factory=dict)  # partition → file
     scenes: list[Path] = field(default_factory=list)
     terrain: Path | None = None
     trees: int = 0
     bytes: int = 0
     seconds: float = 0.0
     instance_seconds: float = 0.0
-    instance_cpu_seconds: float = 0.0      # CPU time of the same (this process, all threads)
+    instance_cpu_seconds: float = 0.0  # CPU time of the same (this process, all threads)
 
     @property
     def files(self) -> list[Path]:
@@ -144,10 +156,11 @@ class RibExport:
 # small formatting helpers
 # ---------------------------------------------------------------------------
 
+
 def num(x: float, digits: int = 9) -> str:
     """A short decimal for header-level calls (``digits`` significant digits)."""
     x = float(x)
-    if abs(x) < 1e-12:              # rounding noise of rotations (e.g. 3e-18) reads as 0
+    if abs(x) < 1e-12:  # rounding noise of rotations (e.g. 3e-18) reads as 0
         return "0"
     s = f"{x:.{digits}g}"
     if "e" in s or "E" in s:
@@ -189,6 +202,7 @@ def rib_string(s: str) -> str:
 # cameras and lights
 # ---------------------------------------------------------------------------
 
+
 def world_to_camera(position, target, up) -> np.ndarray:
     """World (right-handed, Y up) → RenderMan camera space (left-handed, +Z forward, +X right).
 
@@ -216,36 +230,41 @@ def lights_text(config: Config, renderman22: bool) -> str:
     lights = config.lights
     out = []
     if lights.sun is not None and lights.sun.elevation > 0 and lights.sun.irradiance > 0:
-        s = lights.sun                      # (a sun at or below the horizon lights nothing, as in the render)
+        s = lights.sun  # (a sun at or below the horizon lights nothing, as in the render)
         d = sun_direction(s)
         if renderman22:
-            out += ["  AttributeBegin",
-                    '    Attribute "identifier" "string name" ["sun"]',
-                    f"    ConcatTransform [{nums(rib_matrix(frame_from_z(-d)))}]",
-                    f'    Light "PxrDistantLight" "sun" "float intensity" [{num(s.irradiance)}] '
-                    f'"color lightColor" [{nums(s.colour)}] "float angleExtent" [0.53]',
-                    "  AttributeEnd"]
+            out += [
+                "  AttributeBegin",
+                '    Attribute "identifier" "string name" ["sun"]',
+                f"    ConcatTransform [{nums(rib_matrix(frame_from_z(-d)))}]",
+                f'    Light "PxrDistantLight" "sun" "float intensity" [{num(s.irradiance)}] '
+                f'"color lightColor" [{nums(s.colour)}] "float angleExtent" [0.53]',
+                "  AttributeEnd",
+            ]
         else:
-            out.append(f'  LightSource "distantlight" 1 "intensity" [{num(s.irradiance)}] '
-                       f'"lightcolor" [{nums(s.colour)}] "from" [{nums(d)}] "to" [0 0 0]')
+            out.append(
+                f'  LightSource "distantlight" 1 "intensity" [{num(s.irradiance)}] '
+                f'"lightcolor" [{nums(s.colour)}] "from" [{nums(d)}] "to" [0 0 0]'
+            )
     if lights.sky is not None:
         k = lights.sky
         if k.kind == "constant":
             intensity, colour = k.radiance, k.colour
         elif k.kind == "envmap":
             intensity, colour = k.scale, (1.0, 1.0, 1.0)
-        else:                                   # physical sun-sky: a neutral blue dome stands in
+        else:  # physical sun-sky: a neutral blue dome stands in
             intensity, colour = 0.35 * k.scale, (0.6, 0.75, 1.0)
         if renderman22:
             extra = f' "string lightColorMap" [{rib_string(k.envmap)}]' if k.kind == "envmap" else ""
-            out += ["  AttributeBegin",
-                    '    Attribute "identifier" "string name" ["sky"]',
-                    f'    Light "PxrDomeLight" "sky" "float intensity" [{num(intensity)}] '
-                    f'"color lightColor" [{nums(colour)}]{extra}',
-                    "  AttributeEnd"]
+            out += [
+                "  AttributeBegin",
+                '    Attribute "identifier" "string name" ["sky"]',
+                f'    Light "PxrDomeLight" "sky" "float intensity" [{num(intensity)}] '
+                f'"color lightColor" [{nums(colour)}]{extra}',
+                "  AttributeEnd",
+            ]
         else:
-            out.append(f'  LightSource "ambientlight" 2 "intensity" [{num(intensity)}] '
-                       f'"lightcolor" [{nums(colour)}]')
+            out.append(f'  LightSource "ambientlight" 2 "intensity" [{num(intensity)}] "lightcolor" [{nums(colour)}]')
     return "\n".join(out) + ("\n" if out else "")
 
 
@@ -253,19 +272,29 @@ def lights_text(config: Config, renderman22: bool) -> str:
 # geometry
 # ---------------------------------------------------------------------------
 
+
 def points_polygons(vertices, faces, normals, st, indent: str = "    ") -> bytes:
     """A triangle mesh as ``PointsPolygons`` with "P", "N" (vertex) and "st" (vertex)."""
     ind = indent.encode()
     faces = np.asarray(faces, dtype=np.int64)
     nv = np.full(len(faces), 3, dtype=np.int64)
-    parts = [ind + b"PointsPolygons [", format_numbers(nv, 0, per_line=40, indent=ind + b"  "), b"]\n",
-             ind + b"  [", format_numbers(faces.ravel(), 0, per_line=30, indent=ind + b"   "), b"]\n",
-             ind + b'  "P" [', format_numbers(np.asarray(vertices, np.float64), MESH_DECIMALS, per_line=12,
-                                                 indent=ind + b"   "), b"]\n",
-             ind + b'  "N" [', format_numbers(np.asarray(normals, np.float64), MESH_DECIMALS, per_line=12,
-                                                 indent=ind + b"   "), b"]\n",
-             ind + b'  "st" [', format_numbers(np.asarray(st, np.float64), MESH_DECIMALS, per_line=16,
-                                                  indent=ind + b"   "), b"]\n"]
+    parts = [
+        ind + b"PointsPolygons [",
+        format_numbers(nv, 0, per_line=40, indent=ind + b"  "),
+        b"]\n",
+        ind + b"  [",
+        format_numbers(faces.ravel(), 0, per_line=30, indent=ind + b"   "),
+        b"]\n",
+        ind + b'  "P" [',
+        format_numbers(np.asarray(vertices, np.float64), MESH_DECIMALS, per_line=12, indent=ind + b"   "),
+        b"]\n",
+        ind + b'  "N" [',
+        format_numbers(np.asarray(normals, np.float64), MESH_DECIMALS, per_line=12, indent=ind + b"   "),
+        b"]\n",
+        ind + b'  "st" [',
+        format_numbers(np.asarray(st, np.float64), MESH_DECIMALS, per_line=16, indent=ind + b"   "),
+        b"]\n",
+    ]
     return b"".join(parts)
 
 
@@ -280,17 +309,17 @@ def part_material(part, handle: str, renderman22: bool) -> str:
         if translucency > 0:
             extra = f' "float diffuseTransmitGain" [{num(translucency)}]'
         if tinted:
-            lines += [f'    Pattern "PxrPrimvar" "{handle}_cs" "string varname" ["Cs"] "string type" ["color"]',
-                      f'    Pattern "PxrBlend" "{handle}_colour" "int operation" [18] '
-                      f'"reference color topRGB" ["{handle}_cs:resultRGB"] "float topA" [1] '
-                      f'"color bottomRGB" [{base}] "float bottomA" [1]',
-                      f'    Bxdf "PxrSurface" "{handle}" "reference color diffuseColor" ["{handle}_colour:resultRGB"]'
-                      + (f' "reference color diffuseTransmitColor" ["{handle}_colour:resultRGB"]'
-                         if translucency > 0 else "")
-                      + extra]
+            lines += [
+                f'    Pattern "PxrPrimvar" "{handle}_cs" "string varname" ["Cs"] "string type" ["color"]',
+                f'    Pattern "PxrBlend" "{handle}_colour" "int operation" [18] '
+                f'"reference color topRGB" ["{handle}_cs:resultRGB"] "float topA" [1] '
+                f'"color bottomRGB" [{base}] "float bottomA" [1]',
+                f'    Bxdf "PxrSurface" "{handle}" "reference color diffuseColor" ["{handle}_colour:resultRGB"]'
+                + (f' "reference color diffuseTransmitColor" ["{handle}_colour:resultRGB"]' if translucency > 0 else "")
+                + extra,
+            ]
         else:
-            lines += [f"    Color [{base}]",
-                      f'    Bxdf "PxrSurface" "{handle}" "color diffuseColor" [{base}]' + extra]
+            lines += [f"    Color [{base}]", f'    Bxdf "PxrSurface" "{handle}" "color diffuseColor" [{base}]' + extra]
     else:
         if tinted:
             lines.append(f'    Surface "forest_tint" "color basecolour" [{base}]')
@@ -303,12 +332,14 @@ def archive_bytes(plan: SpeciesPlan, lod, meshes, bound, renderman22: bool) -> b
     """One species level as a self-contained RIB archive (object space, metres, Y up)."""
     name = f"{plan.name}_{lod.name}"
     tris = sum(len(m.faces) for _, m in meshes)
-    out = [HEADER,
-           f"# forest tree archive: species {plan.model!r}, level {lod.name}, {tris} triangles\n".encode(),
-           f"# object space: metres, Y up, base at the origin; bound [{fixed(bound6(bound))}]\n".encode(),
-           b"AttributeBegin\n",
-           f'  Attribute "identifier" "string name" [{rib_string(name)}]\n'.encode(),
-           b'  Orientation "rh"\n']
+    out = [
+        HEADER,
+        f"# forest tree archive: species {plan.model!r}, level {lod.name}, {tris} triangles\n".encode(),
+        f"# object space: metres, Y up, base at the origin; bound [{fixed(bound6(bound))}]\n".encode(),
+        b"AttributeBegin\n",
+        f'  Attribute "identifier" "string name" [{rib_string(name)}]\n'.encode(),
+        b'  Orientation "rh"\n',
+    ]
     for k, (part, m) in enumerate(meshes):
         if len(m.faces) == 0:
             continue
@@ -316,34 +347,43 @@ def archive_bytes(plan: SpeciesPlan, lod, meshes, bound, renderman22: bool) -> b
         handle = f"{name}_{kind}{k}"
         st = np.asarray(m.uv, dtype=np.float64).reshape(-1, 2)
         tint_note = ", tinted" if getattr(part, "tinted", False) else ""
-        out += [f"  AttributeBegin  # part {k}: {kind}{tint_note}\n".encode(),
-                f'    Attribute "identifier" "string name" [{rib_string(handle)}]\n'.encode(),
-                b"    Sides 2\n" if kind == "leaf" else b"",
-                part_material(part, handle, renderman22).encode(),
-                points_polygons(m.vertices, m.faces, m.normals, st),
-                b"  AttributeEnd\n"]
+        out += [
+            f"  AttributeBegin  # part {k}: {kind}{tint_note}\n".encode(),
+            f'    Attribute "identifier" "string name" [{rib_string(handle)}]\n'.encode(),
+            b"    Sides 2\n" if kind == "leaf" else b"",
+            part_material(part, handle, renderman22).encode(),
+            points_polygons(m.vertices, m.faces, m.normals, st),
+            b"  AttributeEnd\n",
+        ]
     out.append(b"AttributeEnd\n")
     return b"".join(out)
 
 
 def terrain_bytes(terrain, colour, renderman22: bool) -> bytes:
-    material = (f'  Bxdf "PxrDiffuse" "terrain" "color diffuseColor" [{nums(colour)}]\n' if renderman22
-                else '  Surface "matte"\n')
-    return b"".join([
-        HEADER,
-        f"# forest terrain: {len(terrain.vertices)} vertices, {len(terrain.faces)} triangles, metres, Y up\n".encode(),
-        b"AttributeBegin\n",
-        b'  Attribute "identifier" "string name" ["terrain"]\n',
-        b'  Orientation "rh"\n',
-        f"  Color [{nums(colour)}]\n".encode(),
-        material.encode(),
-        points_polygons(terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv, indent="  "),
-        b"AttributeEnd\n"])
+    material = (
+        f'  Bxdf "PxrDiffuse" "terrain" "color diffuseColor" [{nums(colour)}]\n'
+        if renderman22
+        else '  Surface "matte"\n'
+    )
+    return b"".join(
+        [
+            HEADER,
+            f"# forest terrain: {len(terrain.vertices)} vertices, {len(terrain.faces)} triangles, metres, Y up\n".encode(),
+            b"AttributeBegin\n",
+            b'  Attribute "identifier" "string name" ["terrain"]\n',
+            b'  Orientation "rh"\n',
+            f"  Color [{nums(colour)}]\n".encode(),
+            material.encode(),
+            points_polygons(terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv, indent="  "),
+            b"AttributeEnd\n",
+        ]
+    )
 
 
 # ---------------------------------------------------------------------------
 # level of detail
 # ---------------------------------------------------------------------------
+
 
 def detail_ranges(plan: SpeciesPlan, detail_bound: np.ndarray, config: Config, transition: float) -> list[list[float]]:
     """``DetailRange`` [minvisible lowertransition uppertransition maxvisible] per band.
@@ -376,20 +416,30 @@ def detail_ranges(plan: SpeciesPlan, detail_bound: np.ndarray, config: Config, t
 
 def check_transition(config: Config, transition: float) -> None:
     d = list(config.lod.distances) if config.lod.enabled else []
-    for a, b in zip(d, d[1:]):
+    for a, b in itertools.pairwise(d):
         if b * (1 - transition) < a * (1 + transition):
             limit = (b - a) / (b + a)
-            raise ConfigError(config.path, "export.lod_transition",
-                              f"{transition:g} makes the LOD bands around {a:g} m and {b:g} m overlap; "
-                              f"use at most {limit:.3f}")
+            raise ConfigError(
+                config.path,
+                "export.lod_transition",
+                f"{transition:g} makes the LOD bands around {a:g} m and {b:g} m overlap; use at most {limit:.3f}",
+            )
 
 
 # ---------------------------------------------------------------------------
 # instance files
 # ---------------------------------------------------------------------------
 
-def tree_suffixes(plans: list[SpeciesPlan], archive_paths: dict, bounds: dict, config: Config,
-                  renderman22: bool, transition: float, lod_mode: str = "inline") -> tuple[dict, dict]:
+
+def tree_suffixes(
+    plans: list[SpeciesPlan],
+    archive_paths: dict,
+    bounds: dict,
+    config: Config,
+    renderman22: bool,
+    transition: float,
+    lod_mode: str = "inline",
+) -> tuple[dict, dict]:
     """Per species index, the constant text after a tree's ``Color`` (archive calls, LOD).
 
     Returns ``(suffixes, lod_archives)``: with ``lod_mode="archive"`` the
@@ -397,11 +447,14 @@ def tree_suffixes(plans: list[SpeciesPlan], archive_paths: dict, bounds: dict, c
     ``lod_archives[relative path] = bytes`` and each tree reads that archive
     with the union bound instead.
     """
+
     def procedural(path, bound, indent="  "):
         b = fixed(bound6(bound))
         if renderman22:
-            return (f'{indent}Procedural2 "DelayedReadArchive2" "SimpleBound" "string filename" '
-                    f'[{rib_string(path)}] "float[6] bound" [{b}]')
+            return (
+                f'{indent}Procedural2 "DelayedReadArchive2" "SimpleBound" "string filename" '
+                f'[{rib_string(path)}] "float[6] bound" [{b}]'
+            )
         return f'{indent}Procedural "DelayedReadArchive" [{rib_string(path)}] [{b}]'
 
     out, lod_archives = {}, {}
@@ -414,18 +467,23 @@ def tree_suffixes(plans: list[SpeciesPlan], archive_paths: dict, bounds: dict, c
             detail = np.stack([bs[:, 0].min(axis=0), bs[:, 1].max(axis=0)])
             switch = [f"  Detail [{fixed(bound6(detail))}]"]
             for band, rng in zip(plan.bands, detail_ranges(plan, detail, config, transition)):
-                switch.append(f"  DetailRange [{nums(rng, 6)}]")      # raster areas: 6 digits are plenty
-                switch.append(procedural(archive_paths[(plan.index, band.lod.name)],
-                                         bounds[(plan.index, band.lod.name)]))
+                switch.append(f"  DetailRange [{nums(rng, 6)}]")  # raster areas: 6 digits are plenty
+                switch.append(
+                    procedural(archive_paths[(plan.index, band.lod.name)], bounds[(plan.index, band.lod.name)])
+                )
             if lod_mode == "archive":
                 rel = f"archives/{plan.name}_lod.rib"
-                text = [HEADER.decode().rstrip("\n"),
-                        f"# forest level-of-detail switch: species {plan.model!r}, levels "
-                        + ", ".join(f"{b.lod.name} from {b.near:g} m" for b in plan.bands),
-                        "# read by every tree: Detail and the bounds are in the tree's object space",
-                        "AttributeBegin",
-                        f'  Attribute "identifier" "string name" [{rib_string(plan.name + "_lod")}]',
-                        *switch, "AttributeEnd", ""]
+                text = [
+                    HEADER.decode().rstrip("\n"),
+                    f"# forest level-of-detail switch: species {plan.model!r}, levels "
+                    + ", ".join(f"{b.lod.name} from {b.near:g} m" for b in plan.bands),
+                    "# read by every tree: Detail and the bounds are in the tree's object space",
+                    "AttributeBegin",
+                    f'  Attribute "identifier" "string name" [{rib_string(plan.name + "_lod")}]',
+                    *switch,
+                    "AttributeEnd",
+                    "",
+                ]
                 lod_archives[rel] = "\n".join(text).encode()
                 lines = [procedural(rel, detail)]
             else:
@@ -438,14 +496,18 @@ def tree_suffixes(plans: list[SpeciesPlan], archive_paths: dict, bounds: dict, c
 def field_digits(instances: InstanceSet) -> dict:
     """Integer-part widths of the per-tree numbers, sized from the whole InstanceSet so the
     fixed-width text of a tree does not depend on how trees are split into blocks."""
+
     def digits(top):
         return len(str(int(math.ceil(float(top) * (1 + 1e-6) + 1e-6))))
+
     if len(instances) == 0:
         return {"matrix": 1, "position": 1, "colour": 1, "id": 1}
-    return {"matrix": digits(np.abs(instances.scale).max()),
-            "position": digits(np.abs(instances.position).max()),
-            "colour": digits(np.abs(instances.tint).max()),
-            "id": len(str(int(instances.id.max())))}
+    return {
+        "matrix": digits(np.abs(instances.scale).max()),
+        "position": digits(np.abs(instances.position).max()),
+        "colour": digits(np.abs(instances.tint).max()),
+        "id": len(str(int(instances.id.max()))),
+    }
 
 
 def write_chunk(out: RowWriter, instances: InstanceSet, rows: np.ndarray, suffix: bytes, widths: dict) -> int:
@@ -459,20 +521,36 @@ def write_chunk(out: RowWriter, instances: InstanceSet, rows: np.ndarray, suffix
     pos = instances.position[rows].astype(np.float64)
     md, pd, cd = widths["matrix"], widths["position"], widths["colour"]
     # RIB row k of Mᵀ = column k of M
-    return out.write([
-        b'AttributeBegin\n  Attribute "identifier" "string name" ["tree_',
-        LeftInt(instances.id[rows], b'"]', widths["id"]),
-        b"\n  ConcatTransform [", Field(m[:, :, 0], MATRIX_DECIMALS, pad=True, int_digits=md), b" 0",
-        Field(m[:, :, 1], MATRIX_DECIMALS, pad=True, int_digits=md), b" 0",
-        Field(m[:, :, 2], MATRIX_DECIMALS, pad=True, int_digits=md), b" 0",
-        Field(pos, POSITION_DECIMALS, pad=True, int_digits=pd), b" 1]\n  Color [",
-        Field(instances.tint[rows].astype(np.float64), COLOUR_DECIMALS, pad=True, int_digits=cd), b"]\n",
-        suffix,
-    ], len(rows))
+    return out.write(
+        [
+            b'AttributeBegin\n  Attribute "identifier" "string name" ["tree_',
+            LeftInt(instances.id[rows], b'"]', widths["id"]),
+            b"\n  ConcatTransform [",
+            Field(m[:, :, 0], MATRIX_DECIMALS, pad=True, int_digits=md),
+            b" 0",
+            Field(m[:, :, 1], MATRIX_DECIMALS, pad=True, int_digits=md),
+            b" 0",
+            Field(m[:, :, 2], MATRIX_DECIMALS, pad=True, int_digits=md),
+            b" 0",
+            Field(pos, POSITION_DECIMALS, pad=True, int_digits=pd),
+            b" 1]\n  Color [",
+            Field(instances.tint[rows].astype(np.float64), COLOUR_DECIMALS, pad=True, int_digits=cd),
+            b"]\n",
+            suffix,
+        ],
+        len(rows),
+    )
 
 
-def write_instance_file(path: Path, instances: InstanceSet, rows: np.ndarray, partition: str,
-                        suffixes: dict[int, bytes], plans: list[SpeciesPlan], progress=None) -> int:
+def write_instance_file(
+    path: Path,
+    instances: InstanceSet,
+    rows: np.ndarray,
+    partition: str,
+    suffixes: dict[int, bytes],
+    plans: list[SpeciesPlan],
+    progress=None,
+) -> int:
     """Stream one partition's trees to ``path``; returns the bytes written.
 
     Trees are grouped by species (in the order of the config's ``[[species]]``),
@@ -489,21 +567,22 @@ def write_instance_file(path: Path, instances: InstanceSet, rows: np.ndarray, pa
     bounds = np.searchsorted(np.sort(species), sorted(suffixes) + [np.iinfo(np.int64).max], side="left")
     written = 0
     with open(path, "wb") as fh:
-        head = (HEADER.decode()
-                + f"# forest instances: partition {partition!r}, {len(rows)} trees; species {names}\n"
-                "# world: metres, Y up, right-handed. ConcatTransform is the tree's object-to-world\n"
-                "# matrix M transposed (RenderMan transforms row vectors), Color its colour-map tint\n"
-                "# (linear RGB); archive bounds are in the tree's object space.\n"
-                "AttributeBegin\n"
-                f'Attribute "identifier" "string name" [{rib_string("partition_" + partition)}]\n')
+        head = (
+            HEADER.decode() + f"# forest instances: partition {partition!r}, {len(rows)} trees; species {names}\n"
+            "# world: metres, Y up, right-handed. ConcatTransform is the tree's object-to-world\n"
+            "# matrix M transposed (RenderMan transforms row vectors), Color its colour-map tint\n"
+            "# (linear RGB); archive bounds are in the tree's object space.\n"
+            "AttributeBegin\n"
+            f'Attribute "identifier" "string name" [{rib_string("partition_" + partition)}]\n'
+        )
         fh.write(head.encode())
         written += len(head)
         done = 0
         with RowWriter(fh) as out:
             for k, sp in enumerate(sorted(suffixes)):
-                block = rows[bounds[k]: bounds[k + 1]]
+                block = rows[bounds[k] : bounds[k + 1]]
                 for start in range(0, len(block), CHUNK):
-                    r = block[start: start + CHUNK]
+                    r = block[start : start + CHUNK]
                     written += write_chunk(out, instances, r, suffixes[sp], widths)
                     done += len(r)
                     if progress:
@@ -517,15 +596,19 @@ def write_instance_file(path: Path, instances: InstanceSet, rows: np.ndarray, pa
 # scene files
 # ---------------------------------------------------------------------------
 
-def scene_text(config: Config, frame: int, instance_files: list[str], renderman22: bool,
-               has_terrain: bool = True) -> str:
+
+def scene_text(
+    config: Config, frame: int, instance_files: list[str], renderman22: bool, has_terrain: bool = True
+) -> str:
     cam = config.camera
     r = config.render
-    out = [HEADER.decode().rstrip("\n"),
-           f"# forest scene {config.name!r}, frame {frame}",
-           "# world: metres, Y up, right-handed; the camera transform maps it to RenderMan's",
-           "# left-handed camera space (x right, y up, z forward), det = -1. Render from this folder.",
-           f"FrameBegin {frame}"]
+    out = [
+        HEADER.decode().rstrip("\n"),
+        f"# forest scene {config.name!r}, frame {frame}",
+        "# world: metres, Y up, right-handed; the camera transform maps it to RenderMan's",
+        "# left-handed camera space (x right, y up, z forward), det = -1. Render from this folder.",
+        f"FrameBegin {frame}",
+    ]
     if not renderman22:
         out.append('  Option "searchpath" "string shader" ["shaders:&"]')
     out.append(f'  Display "{slug(config.name)}_{frame:04d}.exr" "openexr" "rgba"')
@@ -537,8 +620,10 @@ def scene_text(config: Config, frame: int, instance_files: list[str], renderman2
         ps = max(1, int(round(math.sqrt(r.spp))))
         out.append(f"  PixelSamples {ps} {ps}")
     state = camera_at(cam, frame)
-    out.append(f'  Projection "perspective" "{"float " if renderman22 else ""}fov" '
-               f"[{num(ri_fov(state.fov, r.width, r.height))}]")
+    out.append(
+        f'  Projection "perspective" "{"float " if renderman22 else ""}fov" '
+        f"[{num(ri_fov(state.fov, r.width, r.height))}]"
+    )
     out.append(f"  Clipping {num(cam.near)} {num(cam.far)}")
     if cam.shutter > 0:
         k = max(2, r.subframes)
@@ -567,8 +652,18 @@ def scene_text(config: Config, frame: int, instance_files: list[str], renderman2
 # the export
 # ---------------------------------------------------------------------------
 
-def export_rib(config: Config, instances: InstanceSet, out_dir: str | Path, *, renderman22: bool = False,
-               frames: str | list[int] | None = None, library=None, terrain=None, progress=None) -> RibExport:
+
+def export_rib(
+    config: Config,
+    instances: InstanceSet,
+    out_dir: str | Path,
+    *,
+    renderman22: bool = False,
+    frames: str | list[int] | None = None,
+    library=None,
+    terrain=None,
+    progress=None,
+) -> RibExport:
     """Write the RIB export of ``instances`` into ``out_dir`` (see the module docstring).
 
     ``frames``: a spec (``"1-120"``) or list; default the camera's keyed range, or
@@ -581,7 +676,7 @@ def export_rib(config: Config, instances: InstanceSet, out_dir: str | Path, *, r
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise ForestError(f"{out_dir}: exists and is not a folder")
-    config.camera, config.lights, config.render, config.lod
+    config.camera, config.lights, config.render, config.lod  # noqa: B018 - validate before any work
     opts = export_options(config)
     check_transition(config, opts["lod_transition"])
     frame_list = export_frames(config, frames)
@@ -589,6 +684,7 @@ def export_rib(config: Config, instances: InstanceSet, out_dir: str | Path, *, r
     plans = species_plans(config, instances, library)
     if terrain is None:
         from ..terrain import load_terrain
+
         terrain = load_terrain(config.terrain, config.path)
     report = progress or (lambda f, m="": None)
     result = RibExport(out_dir=out_dir, trees=len(instances))
@@ -618,8 +714,9 @@ def export_rib(config: Config, instances: InstanceSet, out_dir: str | Path, *, r
             result.bytes += len(data)
             report(0.1, "terrain")
             # instance files: one per non-empty partition
-            suffixes, lod_archives = tree_suffixes(plans, archive_paths, bounds, config, renderman22,
-                                                   opts["lod_transition"], opts["rib_lod"])
+            suffixes, lod_archives = tree_suffixes(
+                plans, archive_paths, bounds, config, renderman22, opts["lod_transition"], opts["rib_lod"]
+            )
             for rel, data in lod_archives.items():
                 (tmp / rel).write_bytes(data)
                 result.archives.append(out_dir / rel)
@@ -630,7 +727,10 @@ def export_rib(config: Config, instances: InstanceSet, out_dir: str | Path, *, r
             t1, c1 = time.perf_counter(), time.process_time()
             for _, pname, rows in parts:
                 name = f"instances_{slug(pname)}.rib"
-                sub = (lambda f, m, d=done, n=len(rows): report(0.1 + 0.85 * (d + f * n) / total, f"partition {m}"))
+
+                def sub(f, m, d=done, n=len(rows)):
+                    report(0.1 + 0.85 * (d + f * n) / total, f"partition {m}")
+
                 result.bytes += write_instance_file(tmp / name, instances, rows, pname, suffixes, plans, sub)
                 result.instance_files[pname] = out_dir / name
                 done += len(rows)
@@ -644,7 +744,7 @@ def export_rib(config: Config, instances: InstanceSet, out_dir: str | Path, *, r
                 result.scenes.append(out_dir / rel)
                 result.bytes += len(text)
             report(1.0, "done")
-    except OSError as e:      # disk full, permissions, a folder in the way: one line, nothing left
+    except OSError as e:  # disk full, permissions, a folder in the way: one line, nothing left
         raise ForestError(f"{out_dir}: cannot write the export: {e.strerror or e}") from None
     result.seconds = time.perf_counter() - t0
     return result

@@ -32,7 +32,7 @@ Two layouts:
 from __future__ import annotations
 
 import math
-from typing import Sequence, Union
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -57,8 +57,16 @@ class Field:
     every number then keeps its separator space, ``"inner"`` included.
     """
 
-    def __init__(self, values: np.ndarray, decimals: int = 0, *, sep: bool | str = True, rounding: str = "nearest",
-                 pad: bool = False, int_digits: int | None = None):
+    def __init__(
+        self,
+        values: np.ndarray,
+        decimals: int = 0,
+        *,
+        sep: bool | str = True,
+        rounding: str = "nearest",
+        pad: bool = False,
+        int_digits: int | None = None,
+    ):
         v = np.asarray(values)
         if v.ndim == 1:
             v = v[:, None]
@@ -85,7 +93,7 @@ class LeftInt:
         self.digits = int(digits)
 
 
-Segment = Union[bytes, Field, LeftInt]
+Segment = bytes | Field | LeftInt
 
 
 def _scaled(values: np.ndarray, decimals: int, rounding: str) -> tuple[np.ndarray, np.ndarray]:
@@ -95,7 +103,7 @@ def _scaled(values: np.ndarray, decimals: int, rounding: str) -> tuple[np.ndarra
             raise ValueError("integer fields take no decimals")
         v = values.astype(np.int64)
         return np.abs(v), v < 0
-    x = values.astype(np.float64) * (10.0 ** decimals)
+    x = values.astype(np.float64) * (10.0**decimals)
     if not np.isfinite(x).all():
         raise ValueError("cannot write NaN or infinite values")
     if rounding == "floor":
@@ -122,7 +130,7 @@ _TRAIL = [f"{i:04d}".rstrip("0").encode().ljust(4, b"\0") for i in range(10000)]
 # the group holding the units digit keeps at least that digit.
 _LEAD = [f"{i:04d}".lstrip("0").encode().rjust(4, b"\0") for i in range(10000)]
 _UNITS = [b"\0\0\0" + b"0"] + _LEAD[1:]
-_FRAC_TABLE = _table(_FULL + _TRAIL)                 # index: g + 10⁴·(all groups to the right are 0)
+_FRAC_TABLE = _table(_FULL + _TRAIL)  # index: g + 10⁴·(all groups to the right are 0)
 _INT_TABLE = _table(_FULL + _LEAD + _FULL + _UNITS)  # index: g + 10⁴·(left all 0) + 2·10⁴·(units group)
 
 
@@ -140,7 +148,7 @@ def _layout(field: Field):
     q, neg = _scaled(field.values, field.decimals, field.rounding)
     d = field.decimals
     top = int(q.max()) if q.size else 0
-    n_int = max(1, len(str(top // 10 ** d)))
+    n_int = max(1, len(str(top // 10**d)))
     gi = math.ceil(n_int / 4)
     gf = math.ceil(d / 4)
     W = int(bool(field.sep)) + 1 + 4 * gi + (1 + 4 * gf if d else 0)
@@ -180,13 +188,13 @@ def _write_field(field: Field, out: np.ndarray, layout) -> None:
             out[:, 0, 0] = HOLE
     out[..., o] = np.where(neg, 45, HOLE)
     if d:
-        ip, fp = np.divmod(q, 10 ** d)
-        fp = fp * 10 ** (4 * gf - d)            # left-align the fraction in whole groups
+        ip, fp = np.divmod(q, 10**d)
+        fp = fp * 10 ** (4 * gf - d)  # left-align the fraction in whole groups
     else:
         ip, fp = q, None
     # integer groups, left to right
     ints = _integer_groups(ip, gi, _INT_TABLE)
-    out[..., o + 1: o + 1 + 4 * gi] = ints.view(np.uint8).reshape(rows, k, 4 * gi)
+    out[..., o + 1 : o + 1 + 4 * gi] = ints.view(np.uint8).reshape(rows, k, 4 * gi)
     if not d:
         return
     fr = np.empty((rows, k, gf), dtype=np.uint32)
@@ -197,12 +205,12 @@ def _write_field(field: Field, out: np.ndarray, layout) -> None:
         fr[..., j] = _FRAC_TABLE[g + np.where(right_zero, 10000, 0)]
         right_zero &= g == 0
     out[..., o + 1 + 4 * gi] = np.where(right_zero, HOLE, 46)
-    out[..., o + 2 + 4 * gi:] = fr.view(np.uint8).reshape(rows, k, 4 * gf)
+    out[..., o + 2 + 4 * gi :] = fr.view(np.uint8).reshape(rows, k, 4 * gf)
 
 
 _SPACE_LEAD = [f"{i:04d}".lstrip("0").encode().rjust(4, b" ") for i in range(10000)]
 _SPACE_UNITS = [b"   0"] + _SPACE_LEAD[1:]
-_PAD_TABLE = _table(_FULL + _SPACE_LEAD + _FULL + _SPACE_UNITS)   # same index as _INT_TABLE
+_PAD_TABLE = _table(_FULL + _SPACE_LEAD + _FULL + _SPACE_UNITS)  # same index as _INT_TABLE
 _FULL_TABLE = _table(_FULL)
 
 
@@ -219,7 +227,7 @@ def _digits_of(v: np.ndarray, top: int) -> np.ndarray:
 def _pad_layout(field: Field):
     q, neg = _scaled(field.values, field.decimals, field.rounding)
     d = field.decimals
-    top_int = int(q.max()) // 10 ** d if q.size else 0
+    top_int = int(q.max()) // 10**d if q.size else 0
     n_int = max(1, len(str(top_int)))
     if field.int_digits is not None:
         if n_int > field.int_digits:
@@ -238,16 +246,16 @@ def _write_padded(field: Field, out: np.ndarray, layout) -> None:
     if field.sep:
         out[..., 0] = 32
     if d:
-        ip, fp = np.divmod(q, 10 ** d)
+        ip, fp = np.divmod(q, 10**d)
     else:
         ip, fp = q, None
     gi = math.ceil(n_int / 4)
     ints = _integer_groups(ip, gi, _PAD_TABLE)
-    region = out[..., o: o + 1 + n_int]
+    region = out[..., o : o + 1 + n_int]
     region[..., 0] = 32
-    region[..., 1:] = ints.view(np.uint8).reshape(rows, k, 4 * gi)[..., 4 * gi - n_int:]
-    if neg.any():                       # the sign goes just before the first digit
-        pos = np.where(neg, n_int - _digits_of(ip, 10 ** n_int), -1)
+    region[..., 1:] = ints.view(np.uint8).reshape(rows, k, 4 * gi)[..., 4 * gi - n_int :]
+    if neg.any():  # the sign goes just before the first digit
+        pos = np.where(neg, n_int - _digits_of(ip, 10**n_int), -1)
         for p in range(n_int):
             hit = pos == p
             if hit.any():
@@ -259,7 +267,7 @@ def _write_padded(field: Field, out: np.ndarray, layout) -> None:
         for j, g in enumerate(_groups(fp, gf)):
             fr[..., j] = _FULL_TABLE[g]
         out[..., o + 1 + n_int] = 46
-        out[..., o + 2 + n_int:] = fr.view(np.uint8).reshape(rows, k, 4 * gf)[..., :d]
+        out[..., o + 2 + n_int :] = fr.view(np.uint8).reshape(rows, k, 4 * gf)[..., :d]
 
 
 def _write_left_int(seg: LeftInt, out: np.ndarray) -> None:
@@ -269,13 +277,13 @@ def _write_left_int(seg: LeftInt, out: np.ndarray) -> None:
     chars = np.empty((len(v), g), dtype=np.uint32)
     for j, grp in enumerate(_groups(v, g)):
         chars[:, j] = _FULL_TABLE[grp]
-    digits = chars.view(np.uint8).reshape(len(v), 4 * g)[:, 4 * g - T:]
+    digits = chars.view(np.uint8).reshape(len(v), 4 * g)[:, 4 * g - T :]
     S = len(seg.suffix)
     src = np.empty((len(v), 2 * T + S), dtype=np.uint8)
     src[:, :T] = digits
-    src[:, T: T + S] = np.broadcast_to(np.frombuffer(seg.suffix, np.uint8), (len(v), S))
-    src[:, T + S:] = 32
-    shift = (T - _digits_of(v, 10 ** T))[:, None]
+    src[:, T : T + S] = np.broadcast_to(np.frombuffer(seg.suffix, np.uint8), (len(v), S))
+    src[:, T + S :] = 32
+    shift = (T - _digits_of(v, 10**T))[:, None]
     out[:] = np.take_along_axis(src, shift + np.arange(T + S), axis=1)
 
 
@@ -306,7 +314,7 @@ def _plan(template: Sequence[Segment], rows: int):
 def _fill(plan, buf: np.ndarray) -> None:
     rows = buf.shape[0]
     for s, layout, off, W in plan:
-        view = buf[:, off: off + W]
+        view = buf[:, off : off + W]
         if isinstance(s, Field):
             k = s.values.shape[1]
             _write_padded(s, view.reshape(rows, k, W // k), layout)
@@ -336,7 +344,7 @@ class RowWriter:
             return 0
         plan, width = _plan(template, rows)
         n = rows * width
-        if self.buffer.size < n:            # fresh pages cost about as much as filling them: reuse
+        if self.buffer.size < n:  # fresh pages cost about as much as filling them: reuse
             self.buffer = np.empty(n, dtype=np.uint8)
         buf = self.buffer[:n].reshape(rows, width)
         _fill(plan, buf)
@@ -383,10 +391,10 @@ def format_rows(template: Sequence[Segment], rows: int | None = None) -> bytes:
     buf = np.empty((rows, width), dtype=np.uint8)
     for s, layout, off, W in plan:
         if layout is None:
-            buf[:, off: off + W] = np.broadcast_to(np.frombuffer(s, dtype=np.uint8), (rows, W))
+            buf[:, off : off + W] = np.broadcast_to(np.frombuffer(s, dtype=np.uint8), (rows, W))
         else:
             k = s.values.shape[1]
-            _write_field(s, buf[:, off: off + W * k].reshape(rows, k, W), layout)
+            _write_field(s, buf[:, off : off + W * k].reshape(rows, k, W), layout)
     return buf.tobytes().translate(None, b"\0")
 
 
@@ -402,9 +410,10 @@ def format_numbers(values: np.ndarray, decimals: int, *, per_line: int = 0, inde
     if per_line <= 0 or per_line >= v.size:
         return format_rows([Field(v[None, :], decimals, sep="inner")], 1)
     full = v.size // per_line
-    out = format_rows([indent, Field(v[: full * per_line].reshape(full, per_line), decimals, sep="inner"), b"\n"],
-                      full)[len(indent):]
-    rest = v[full * per_line:]
+    out = format_rows(
+        [indent, Field(v[: full * per_line].reshape(full, per_line), decimals, sep="inner"), b"\n"], full
+    )[len(indent) :]
+    rest = v[full * per_line :]
     if rest.size:
         out += indent + format_rows([Field(rest[None, :], decimals, sep="inner")], 1)
     else:

@@ -62,20 +62,30 @@ from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import Config, ConfigError
 from ..errors import ForestError
 from ..instances import InstanceSet
-from .common import (SpeciesPlan, check_instances, export_frames, export_options, lod_mesh, measured_bounds,
-                     partition_rows, species_plans, sun_direction)
+from .common import (
+    SpeciesPlan,
+    check_instances,
+    export_frames,
+    export_options,
+    lod_mesh,
+    measured_bounds,
+    partition_rows,
+    species_plans,
+    sun_direction,
+)
 
 SUFFIXES = (".usda", ".usdc", ".usd")
-HORIZONTAL_APERTURE = 36.0       # the camera's film width; only its ratio to focalLength matters
+HORIZONTAL_APERTURE = 36.0  # the camera's film width; only its ratio to focalLength matters
 
 
 @dataclass
 class UsdExport:
     """What :func:`export_usd` wrote and how long it took."""
+
     path: Path
     species_layers: list[Path] = field(default_factory=list)
     textures: list[Path] = field(default_factory=list)
-    instancers: dict[str, str] = field(default_factory=dict)     # partition → prim path
+    instancers: dict[str, str] = field(default_factory=dict)  # partition → prim path
     trees: int = 0
     seconds: float = 0.0
     instance_seconds: float = 0.0
@@ -87,6 +97,7 @@ class UsdExport:
 
 def _pxr():
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, Vt
+
     return Gf, Sdf, Usd, UsdGeom, UsdLux, Vt
 
 
@@ -135,6 +146,7 @@ def part_material(stage, path: str, part, texture: str | None):
     renderer (see the module docstring, *Colour*).
     """
     from pxr import Sdf, UsdShade
+
     Gf = _pxr()[0]
     mat = UsdShade.Material.Define(stage, path)
     surf = UsdShade.Shader.Define(stage, f"{path}/Surface")
@@ -150,8 +162,7 @@ def part_material(stage, path: str, part, texture: str | None):
         tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(texture))
         tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
         tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*colour, 1.0))
-        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
-            reader.ConnectableAPI(), "result")
+        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
         rgb = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
         alpha = tex.CreateOutput("a", Sdf.ValueTypeNames.Float)
         surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(rgb)
@@ -171,7 +182,8 @@ def write_species_layer(path: Path, plan: SpeciesPlan) -> dict:
     {lod name: bound (2, 3)} of the levels written.
     """
     from pxr import UsdShade
-    Gf, Sdf, Usd, UsdGeom, UsdLux, Vt = _pxr()
+
+    Gf, Sdf, Usd, UsdGeom, _UsdLux, Vt = _pxr()
     stage = Usd.Stage.CreateNew(str(path))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -199,10 +211,10 @@ def write_species_layer(path: Path, plan: SpeciesPlan) -> dict:
                     mesh.CreateDoubleSidedAttr(True)
                 pv = UsdGeom.PrimvarsAPI(mesh)
                 base = Gf.Vec3f(*[float(c) for c in part.colour])
-                pv.CreatePrimvar("forest:baseColor", Sdf.ValueTypeNames.Color3f,
-                                 UsdGeom.Tokens.constant).Set(base)
-                pv.CreatePrimvar("forest:tinted", Sdf.ValueTypeNames.Bool,
-                                 UsdGeom.Tokens.constant).Set(bool(getattr(part, "tinted", False)))
+                pv.CreatePrimvar("forest:baseColor", Sdf.ValueTypeNames.Color3f, UsdGeom.Tokens.constant).Set(base)
+                pv.CreatePrimvar("forest:tinted", Sdf.ValueTypeNames.Bool, UsdGeom.Tokens.constant).Set(
+                    bool(getattr(part, "tinted", False))
+                )
                 if not getattr(part, "tinted", False):
                     mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([base]))
                 texture = _copy_texture(getattr(part, "texture", None), path.parent, plan.name)
@@ -232,7 +244,7 @@ def _copy_texture(texture, layer_dir: Path, species: str) -> str | None:
 
 
 def _terrain(stage, terrain, colour):
-    Gf, Sdf, Usd, UsdGeom, UsdLux, Vt = _pxr()
+    Gf, Sdf, _Usd, UsdGeom, _UsdLux, Vt = _pxr()
     mesh = UsdGeom.Mesh.Define(stage, "/World/Terrain")
     _set_mesh(UsdGeom, Vt, Sdf, mesh, terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv)
     mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*colour)]))
@@ -240,7 +252,7 @@ def _terrain(stage, terrain, colour):
 
 
 def _camera(stage, config: Config, frames: list[int]):
-    Gf, Sdf, Usd, UsdGeom, UsdLux, Vt = _pxr()
+    Gf, _Sdf, Usd, UsdGeom, _UsdLux, _Vt = _pxr()
     cam_cfg = config.camera
     r = config.render
     cam = UsdGeom.Camera.Define(stage, "/World/Camera")
@@ -271,11 +283,11 @@ def _camera(stage, config: Config, frames: list[int]):
 
 
 def _lights(stage, config: Config, out_dir: Path):
-    Gf, Sdf, Usd, UsdGeom, UsdLux, Vt = _pxr()
+    Gf, Sdf, _Usd, UsdGeom, UsdLux, _Vt = _pxr()
     UsdGeom.Scope.Define(stage, "/World/Lights")
     lights = config.lights
     if lights.sun is not None and lights.sun.elevation > 0 and lights.sun.irradiance > 0:
-        s = lights.sun                      # (a sun at or below the horizon lights nothing, as in the render)
+        s = lights.sun  # (a sun at or below the horizon lights nothing, as in the render)
         sun = UsdLux.DistantLight.Define(stage, "/World/Lights/Sun")
         sun.CreateIntensityAttr(float(s.irradiance))
         sun.CreateColorAttr(Gf.Vec3f(*s.colour))
@@ -296,15 +308,21 @@ def _lights(stage, config: Config, out_dir: Path):
                 ref = str(k.envmap)
             sky.CreateTextureFileAttr(Sdf.AssetPath(Path(ref).as_posix()))
             sky.CreateTextureFormatAttr(UsdLux.Tokens.latlong)
-        else:                                   # physical sun-sky: a neutral blue dome stands in
+        else:  # physical sun-sky: a neutral blue dome stands in
             sky.CreateIntensityAttr(0.35 * float(k.scale))
             sky.CreateColorAttr(Gf.Vec3f(0.6, 0.75, 1.0))
 
 
-def write_instancer(stage, path: str, instances: InstanceSet, rows: np.ndarray, prototypes: list[tuple[int, str]],
-                    lod_selection: dict[int, str]):
+def write_instancer(
+    stage,
+    path: str,
+    instances: InstanceSet,
+    rows: np.ndarray,
+    prototypes: list[tuple[int, str]],
+    lod_selection: dict[int, str],
+):
     """A PointInstancer for ``rows``; ``prototypes`` = [(species index, layer path relative to the stage)]."""
-    Gf, Sdf, Usd, UsdGeom, UsdLux, Vt = _pxr()
+    _Gf, Sdf, _Usd, UsdGeom, _UsdLux, Vt = _pxr()
     inst = UsdGeom.PointInstancer.Define(stage, path)
     UsdGeom.Scope.Define(stage, f"{path}/Prototypes")
     targets = []
@@ -320,19 +338,26 @@ def write_instancer(stage, path: str, instances: InstanceSet, rows: np.ndarray, 
     inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(proto, dtype=np.int32)))
     inst.CreateIdsAttr(Vt.Int64Array.FromNumpy(np.ascontiguousarray(instances.id[rows].astype(np.int64))))
     inst.CreatePositionsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(instances.position[rows])))
-    q = np.ascontiguousarray(instances.rotation[rows][:, [1, 2, 3, 0]])       # (w,x,y,z) → USD's (x,y,z,w)
-    inst.CreateOrientationsfAttr(Vt.QuatfArray.FromNumpy(q))                  # used in preference …
+    q = np.ascontiguousarray(instances.rotation[rows][:, [1, 2, 3, 0]])  # (w,x,y,z) → USD's (x,y,z,w)
+    inst.CreateOrientationsfAttr(Vt.QuatfArray.FromNumpy(q))  # used in preference …
     inst.CreateOrientationsAttr(Vt.QuathArray.FromNumpy(q.astype(np.float16)))  # … by readers that know it
     s = instances.scale[rows]
     inst.CreateScalesAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(np.repeat(s[:, None], 3, axis=1))))
-    pv = UsdGeom.PrimvarsAPI(inst).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray,
-                                                UsdGeom.Tokens.vertex)
+    pv = UsdGeom.PrimvarsAPI(inst).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.vertex)
     pv.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(instances.tint[rows])))
     return inst
 
 
-def export_usd(config: Config, instances: InstanceSet, path: str | Path, *, frames: str | list[int] | None = None,
-               library=None, terrain=None, progress=None) -> UsdExport:
+def export_usd(
+    config: Config,
+    instances: InstanceSet,
+    path: str | Path,
+    *,
+    frames: str | list[int] | None = None,
+    library=None,
+    terrain=None,
+    progress=None,
+) -> UsdExport:
     """Write the USD stage of ``instances`` to ``path`` (``.usda``, ``.usdc`` or ``.usd`` = crate).
 
     The species layers go to ``<stem>_species/`` beside it.  Everything is
@@ -344,7 +369,7 @@ def export_usd(config: Config, instances: InstanceSet, path: str | Path, *, fram
         raise ForestError(f"{path}: a USD file name must end in .usda, .usdc or .usd")
     if path.is_dir():
         raise ForestError(f"{path}: is a folder; give the stage's file name")
-    config.camera, config.lights, config.render
+    config.camera, config.lights, config.render  # noqa: B018 - validate before any work
     opts = export_options(config)
     frame_list = export_frames(config, frames)
     check_instances(config, instances)
@@ -354,15 +379,18 @@ def export_usd(config: Config, instances: InstanceSet, path: str | Path, *, fram
         names = [l.name for l in plan.species.lods]
         want = opts["usd_lod"] or names[0]
         if want not in names:
-            raise ConfigError(config.path, "export.usd_lod",
-                              f"{want!r} is not a level of {plan.model!r} (levels: {', '.join(names)})")
+            raise ConfigError(
+                config.path, "export.usd_lod", f"{want!r} is not a level of {plan.model!r} (levels: {', '.join(names)})"
+            )
         lod_selection[plan.index] = want
     if terrain is None:
         from ..terrain import load_terrain
+
         terrain = load_terrain(config.terrain, config.path)
     report = progress or (lambda f, m="": None)
-    Gf, Sdf, Usd, UsdGeom, UsdLux, Vt = _pxr()
+    _Gf, Sdf, Usd, UsdGeom, _UsdLux, _Vt = _pxr()
     from pxr import Tf
+
     ext = ".usda" if path.suffix.lower() == ".usda" else ".usdc"
     species_dir = f"{path.stem}_species"
     result = UsdExport(path=path, trees=len(instances))
@@ -375,8 +403,11 @@ def export_usd(config: Config, instances: InstanceSet, path: str | Path, *, fram
                 write_species_layer(tmp / rel, plan)
                 layers[plan.index] = "./" + rel
                 result.species_layers.append(path.parent / rel)
-            result.textures = sorted(path.parent / p.relative_to(tmp) for p in (tmp / species_dir).rglob("*")
-                                     if p.is_file() and p.parent.name == "textures")
+            result.textures = sorted(
+                path.parent / p.relative_to(tmp)
+                for p in (tmp / species_dir).rglob("*")
+                if p.is_file() and p.parent.name == "textures"
+            )
             report(0.2, "species")
             main = tmp / (path.stem + (".usda" if ext == ".usda" else path.suffix))
             layer = Sdf.Layer.CreateNew(str(main), args={"format": "usda" if ext == ".usda" else "usdc"})
@@ -406,7 +437,7 @@ def export_usd(config: Config, instances: InstanceSet, path: str | Path, *, fram
             result.instance_seconds = time.perf_counter() - t1
             del stage, layer
             report(1.0, "done")
-    except (OSError, Tf.ErrorException) as e:   # disk full, permissions: one line, nothing left behind
+    except (OSError, Tf.ErrorException) as e:  # disk full, permissions: one line, nothing left behind
         raise ForestError(f"{path}: cannot write the export: {getattr(e, 'strerror', None) or e}") from None
     result.seconds = time.perf_counter() - t0
     return result

@@ -55,17 +55,29 @@ def write_json(path: Path, data: dict) -> None:
         tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
 
 
-def part_entry(kind: str, file: str, mesh: MeshData, colour, texture: str | None, tinted: bool,
-               translucency: float) -> dict:
-    return {"kind": kind, "file": file, "colour": [round(float(c), 6) for c in colour], "texture": texture,
-            "tinted": bool(tinted), "translucency": float(translucency), "triangles": mesh.triangles,
-            "bounds": mesh_bounds(mesh.vertices, mesh.faces).tolist()}
+def part_entry(
+    kind: str, file: str, mesh: MeshData, colour, texture: str | None, tinted: bool, translucency: float
+) -> dict:
+    return {
+        "kind": kind,
+        "file": file,
+        "colour": [round(float(c), 6) for c in colour],
+        "texture": texture,
+        "tinted": bool(tinted),
+        "translucency": float(translucency),
+        "triangles": mesh.triangles,
+        "bounds": mesh_bounds(mesh.vertices, mesh.faces).tolist(),
+    }
 
 
 def lod_entry(name: str, parts: list[dict]) -> dict:
     b = np.array([p["bounds"] for p in parts])
-    return {"name": name, "triangles": int(sum(p["triangles"] for p in parts)),
-            "bounds": [b[:, 0].min(axis=0).tolist(), b[:, 1].max(axis=0).tolist()], "parts": parts}
+    return {
+        "name": name,
+        "triangles": int(sum(p["triangles"] for p in parts)),
+        "bounds": [b[:, 0].min(axis=0).tolist(), b[:, 1].max(axis=0).tolist()],
+        "parts": parts,
+    }
 
 
 def ground(mesh: MeshData) -> MeshData:
@@ -80,9 +92,18 @@ def ground(mesh: MeshData) -> MeshData:
 def far_coverage(folder: Path, high: dict, bounds: np.ndarray, res: int = 128) -> np.ndarray:
     """Render the high level's exact coverage along each far card's normal (Mitsuba)."""
     from types import SimpleNamespace
+
     from .preview import card_view_alpha
-    parts = [SimpleNamespace(kind=p["kind"], path=folder / p["file"], colour=tuple(p["colour"]),
-                             texture=(folder / p["texture"]) if p["texture"] else None) for p in high["parts"]]
+
+    parts = [
+        SimpleNamespace(
+            kind=p["kind"],
+            path=folder / p["file"],
+            colour=tuple(p["colour"]),
+            texture=(folder / p["texture"]) if p["texture"] else None,
+        )
+        for p in high["parts"]
+    ]
     return card_view_alpha(parts, bounds, lodmod.FAR_VIEWS, res)
 
 
@@ -117,8 +138,11 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
             write_ply(out / f"{lod}_bark.ply", bark)
             parts.append(part_entry("bark", f"{lod}_bark.ply", bark, bark_colour, None, False, 0.0))
         write_ply(out / f"{lod}_leaf.ply", leaves)
-        parts.append(part_entry("leaf", f"{lod}_leaf.ply", leaves, leaf_colour,
-                                "cluster.png" if clustered else "leaf.png", True, transl))
+        parts.append(
+            part_entry(
+                "leaf", f"{lod}_leaf.ply", leaves, leaf_colour, "cluster.png" if clustered else "leaf.png", True, transl
+            )
+        )
         lods.append(lod_entry(lod, parts))
         if lod == "high":
             high_meshes = [(bark, np.asarray(bark_colour), None), (leaves, np.asarray(leaf_colour), leaf_tex)]
@@ -128,7 +152,13 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
     write_texture(out / "far.png", atlas)
     write_ply(out / "far_cards.ply", far)
     lods.append(lod_entry("far", [part_entry("leaf", "far_cards.ply", far, scale, "far.png", True, transl)]))
-    meta = {"name": name, "source": "generated", "seed": int(seed), "hash": recipe_hash(recipe, seed),
-            "leaf_shape": shape, "lods": lods}
+    meta = {
+        "name": name,
+        "source": "generated",
+        "seed": int(seed),
+        "hash": recipe_hash(recipe, seed),
+        "leaf_shape": shape,
+        "lods": lods,
+    }
     write_json(out / "species.json", meta)
     return meta

@@ -63,16 +63,25 @@ BUDGETS = {
     "house": {"high": (150, 2000), "medium": (30, 400), "low": (19, 100), "far": (10, 18)},
     "warehouse": {"high": (200, 4000), "medium": (40, 800), "low": (14, 200), "far": (10, 10)},
 }
-PLAIN_UV = (0.02, 0.02)      # a texel of plain wall in every façade tile
+PLAIN_UV = (0.02, 0.02)  # a texel of plain wall in every façade tile
 TEX_SIZE = 64
-ROOF_TILE = {"tower": 6.0, "apartment": 6.0, "house": 2.0, "warehouse": 3.0}   # metres a roof texture tile
+ROOF_TILE = {"tower": 6.0, "apartment": 6.0, "house": 2.0, "warehouse": 3.0}  # metres a roof texture tile
 _CODE_FILES = ("buildings.py", "mesh.py", "build.py", "preview.py", "textures.py")
 
 # Common keys and their defaults; ranges are [lo, hi] drawn per seed.
 COMMON = {
-    "type": None, "width": [20.0, 30.0], "depth": [15.0, 25.0], "floors": [2, 4], "floor_height": 3.0,
-    "bay": 3.0, "wall_colours": [[0.5, 0.5, 0.5]], "roof_colours": [[0.2, 0.2, 0.2]],
-    "trim_colour": [0.3, 0.3, 0.3], "tint_roof": True, "tint_walls": False, "parapet": 1.0,
+    "type": None,
+    "width": [20.0, 30.0],
+    "depth": [15.0, 25.0],
+    "floors": [2, 4],
+    "floor_height": 3.0,
+    "bay": 3.0,
+    "wall_colours": [[0.5, 0.5, 0.5]],
+    "roof_colours": [[0.2, 0.2, 0.2]],
+    "trim_colour": [0.3, 0.3, 0.3],
+    "tint_roof": True,
+    "tint_walls": False,
+    "parapet": 1.0,
 }
 SPECIFIC = {
     "tower": {"setbacks": [1, 3], "setback": [2.0, 4.5], "fin_depth": 0.45, "spire_chance": 0.3},
@@ -85,6 +94,7 @@ SPECIFIC = {
 # ---------------------------------------------------------------------------
 # Recipe
 # ---------------------------------------------------------------------------
+
 
 def _num(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -102,15 +112,16 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
     known.update(SPECIFIC[btype])
     unknown = sorted(set(b_in) - set(known))
     if unknown:
-        raise ConfigError(where, f"building.{unknown[0]}",
-                          f"unknown key for a {btype} (expected one of: {', '.join(sorted(known))})")
+        raise ConfigError(
+            where, f"building.{unknown[0]}", f"unknown key for a {btype} (expected one of: {', '.join(sorted(known))})"
+        )
     b = dict(known)
     b.update(b_in)
     ints = {"floors", "setbacks", "balcony_every", "doors"}
     for key, default in known.items():
         v = b[key]
         f = f"building.{key}"
-        if isinstance(default, list) and default and _num(default[0]):          # a [lo, hi] range or an RGB
+        if isinstance(default, list) and default and _num(default[0]):  # a [lo, hi] range or an RGB
             if key == "trim_colour":
                 if not (isinstance(v, list) and len(v) == 3 and all(_num(x) and 0 <= x <= 1 for x in v)):
                     raise ConfigError(where, f, f"must be three numbers in [0, 1], got {v!r}")
@@ -119,15 +130,18 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
                 raise ConfigError(where, f, f"must be a range [lo, hi] with 0 <= lo <= hi, got {v!r}")
             if key in ints and not all(float(x).is_integer() for x in v):
                 raise ConfigError(where, f, f"must be whole numbers, got {v!r}")
-            if key in ("width", "depth") and not (1.0 <= v[0] and v[1] <= 500.0):
+            if key in ("width", "depth") and not (v[0] >= 1.0 and v[1] <= 500.0):
                 raise ConfigError(where, f, f"must lie in [1, 500] metres, got {v!r}")
-            if key == "floors" and not (1 <= v[0] and v[1] <= 200):
+            if key == "floors" and not (v[0] >= 1 and v[1] <= 200):
                 raise ConfigError(where, f, f"must lie in [1, 200], got {v!r}")
-            if key == "pitch" and not (5 <= v[0] and v[1] < 75):
+            if key == "pitch" and not (v[0] >= 5 and v[1] < 75):
                 raise ConfigError(where, f, f"must lie in [5, 75) degrees, got {v!r}")
-        elif isinstance(default, list):                                            # colour lists
-            if not (isinstance(v, list) and v and all(isinstance(c, list) and len(c) == 3
-                                                      and all(_num(x) and 0 <= x <= 1 for x in c) for c in v)):
+        elif isinstance(default, list):  # colour lists
+            if not (
+                isinstance(v, list)
+                and v
+                and all(isinstance(c, list) and len(c) == 3 and all(_num(x) and 0 <= x <= 1 for x in c) for c in v)
+            ):
                 raise ConfigError(where, f, f"must be a list of RGB triples in [0, 1], got {v!r}")
         elif isinstance(default, bool):
             if not isinstance(v, bool):
@@ -138,9 +152,10 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
         elif key in ints:
             if not (isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 100):
                 raise ConfigError(where, f, f"must be a whole number in [1, 100], got {v!r}")
-        elif default is not None:
-            if not (_num(v) and v >= 0) or (key in ("floor_height", "bay") and not 0.5 <= v <= 50):
-                raise ConfigError(where, f, f"must be a number >= 0 (floor_height, bay: 0.5 to 50), got {v!r}")
+        elif default is not None and (
+            not (_num(v) and v >= 0) or (key in ("floor_height", "bay") and not 0.5 <= v <= 50)
+        ):
+            raise ConfigError(where, f, f"must be a number >= 0 (floor_height, bay: 0.5 to 50), got {v!r}")
     if btype == "tower" and not 0 <= b["spire_chance"] <= 1:
         raise ConfigError(where, "building.spire_chance", f"must be in [0, 1], got {b['spire_chance']!r}")
     return {"kind": "building", "building": b}
@@ -150,11 +165,12 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
 # Mesh assembly
 # ---------------------------------------------------------------------------
 
+
 class PartMesh:
     """Quads and triangles of one material, collected then merged into one :class:`MeshData`."""
 
     def __init__(self, planar: float | None = None):
-        self.planar = planar      # texture coordinates projected from above, ``(x, z)/planar``
+        self.planar = planar  # texture coordinates projected from above, ``(x, z)/planar``
         self.pos: list[np.ndarray] = []
         self.uv: list[np.ndarray] = []
         self.nv: list[int] = []
@@ -182,7 +198,7 @@ class PartMesh:
         off = 0
         for p, uv, k in zip(self.pos, self.uv, self.nv):
             n = np.cross(p[:, 1] - p[:, 0], p[:, k - 1] - p[:, 0])
-            if k == 4:      # a quad's normal from both diagonals (robust to a degenerate corner)
+            if k == 4:  # a quad's normal from both diagonals (robust to a degenerate corner)
                 n = np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1])
             ln = np.linalg.norm(n, axis=1, keepdims=True)
             n = np.where(ln > 1e-12, n / np.maximum(ln, 1e-12), np.array([0.0, 1.0, 0.0]))
@@ -194,14 +210,23 @@ class PartMesh:
             us.append(uv.reshape(-1, 2))
             off += k * N
         if not vs:
-            return MeshData(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint32),
-                            np.zeros((0, 3), np.float32), np.zeros((0, 2), np.float32))
-        return MeshData(np.concatenate(vs).astype(np.float32), np.concatenate(fs).astype(np.uint32),
-                        np.concatenate(ns).astype(np.float32), np.concatenate(us).astype(np.float32))
+            return MeshData(
+                np.zeros((0, 3), np.float32),
+                np.zeros((0, 3), np.uint32),
+                np.zeros((0, 3), np.float32),
+                np.zeros((0, 2), np.float32),
+            )
+        return MeshData(
+            np.concatenate(vs).astype(np.float32),
+            np.concatenate(fs).astype(np.uint32),
+            np.concatenate(ns).astype(np.float32),
+            np.concatenate(us).astype(np.float32),
+        )
 
 
-def box_faces(lo: np.ndarray, hi: np.ndarray, *, top: bool = True,
-              bottom: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def box_faces(
+    lo: np.ndarray, hi: np.ndarray, *, top: bool = True, bottom: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Faces of ``N`` axis-aligned boxes ``[lo, hi]``: sides (+X, −X, +Z, −Z) then top, bottom.
 
     Returns ``(quads (N, F, 4, 3), widths (N, F))``; each side quad runs
@@ -217,10 +242,10 @@ def box_faces(lo: np.ndarray, hi: np.ndarray, *, top: bool = True,
         return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
 
     faces = [
-        np.stack([P(x1, y0, z1), P(x1, y0, z0), P(x1, y1, z0), P(x1, y1, z1)], axis=1),   # +X
-        np.stack([P(x0, y0, z0), P(x0, y0, z1), P(x0, y1, z1), P(x0, y1, z0)], axis=1),   # −X
-        np.stack([P(x0, y0, z1), P(x1, y0, z1), P(x1, y1, z1), P(x0, y1, z1)], axis=1),   # +Z
-        np.stack([P(x1, y0, z0), P(x0, y0, z0), P(x0, y1, z0), P(x1, y1, z0)], axis=1),   # −Z
+        np.stack([P(x1, y0, z1), P(x1, y0, z0), P(x1, y1, z0), P(x1, y1, z1)], axis=1),  # +X
+        np.stack([P(x0, y0, z0), P(x0, y0, z1), P(x0, y1, z1), P(x0, y1, z0)], axis=1),  # −X
+        np.stack([P(x0, y0, z1), P(x1, y0, z1), P(x1, y1, z1), P(x0, y1, z1)], axis=1),  # +Z
+        np.stack([P(x1, y0, z0), P(x0, y0, z0), P(x0, y1, z0), P(x1, y1, z0)], axis=1),  # −Z
     ]
     widths = [z1 - z0, z1 - z0, x1 - x0, x1 - x0]
     if top:
@@ -245,8 +270,15 @@ def add_facade_boxes(walls: PartMesh, roof: PartMesh | None, lo, hi, bay: float,
     n = np.maximum(1.0, np.round(w.reshape(-1) / bay))
     vb = -sides[:, 0, 1] / floor_h
     vt = -sides[:, 2, 1] / floor_h
-    uv = np.stack([np.stack([np.zeros_like(n), vb], -1), np.stack([n, vb], -1),
-                   np.stack([n, vt], -1), np.stack([np.zeros_like(n), vt], -1)], axis=1)
+    uv = np.stack(
+        [
+            np.stack([np.zeros_like(n), vb], -1),
+            np.stack([n, vb], -1),
+            np.stack([n, vt], -1),
+            np.stack([np.zeros_like(n), vt], -1),
+        ],
+        axis=1,
+    )
     walls.polys(sides, uv)
     if roof is not None:
         tq, _ = box_faces(lo, hi, top=True)
@@ -258,8 +290,9 @@ def parapets(part: PartMesh, x0, z0, x1, z1, y, height: float, t: float = 0.3) -
     if height <= 0:
         return
     lo = np.array([[x0, y, z1 - t], [x0, y, z0], [x0, y, z0 + t], [x1 - t, y, z0 + t]])
-    hi = np.array([[x1, y + height, z1], [x1, y + height, z0 + t], [x0 + t, y + height, z1 - t],
-                   [x1, y + height, z1 - t]])
+    hi = np.array(
+        [[x1, y + height, z1], [x1, y + height, z0 + t], [x0 + t, y + height, z1 - t], [x1, y + height, z1 - t]]
+    )
     add_boxes(part, lo, hi)
 
 
@@ -267,7 +300,7 @@ def parapets(part: PartMesh, x0, z0, x1, z1, y, height: float, t: float = 0.3) -
 # Façade textures (RGB detail factor, alpha 1; row 0 = top of a floor)
 # ---------------------------------------------------------------------------
 
-GLASS = ((0.16, 0.21, 0.28), (0.15, 0.22, 0.2), (0.24, 0.2, 0.16), (0.19, 0.19, 0.2))   # blue, green, bronze, grey
+GLASS = ((0.16, 0.21, 0.28), (0.15, 0.22, 0.2), (0.24, 0.2, 0.16), (0.19, 0.19, 0.2))  # blue, green, bronze, grey
 
 
 def facade_rgba(btype: str, n: int = TEX_SIZE, *, glass=GLASS[0], band: float = 0.28) -> np.ndarray:
@@ -297,7 +330,7 @@ def facade_rgba(btype: str, n: int = TEX_SIZE, *, glass=GLASS[0], band: float = 
         rgb[:] = 0.92
         glazed = rect(0.0, 1.0, band, 0.92)
         refl = 1.0 + 0.4 * np.clip((0.92 - t) / (0.92 - band), 0, 1) ** 2
-        rgb[glazed] = (glass[None, :] * refl[glazed][:, None])
+        rgb[glazed] = glass[None, :] * refl[glazed][:, None]
         mull = glazed & ((u < 0.06) | (u >= 0.94) | (np.abs(u - 0.5) < 0.02))
         mull &= ~((u < 0.06) & (t < 0.06))
         rgb[mull] = 0.55
@@ -308,19 +341,19 @@ def facade_rgba(btype: str, n: int = TEX_SIZE, *, glass=GLASS[0], band: float = 
         rgb[frame] = 0.75
         rgb[win] = glass * 1.2
         rgb[rect(0.48, 0.52, 0.27, 0.83)] = 0.7
-        rgb[rect(0.16, 0.84, 0.87, 0.92)] = 0.6        # sill shadow
+        rgb[rect(0.16, 0.84, 0.87, 0.92)] = 0.6  # sill shadow
     elif btype == "house":
         rgb[:] = 0.97
-        rgb[rect(0.29, 0.71, 0.2, 0.26)] = 0.7          # lintel
-        rgb[rect(0.3, 0.7, 0.28, 0.8)] = 0.85           # frame
+        rgb[rect(0.29, 0.71, 0.2, 0.26)] = 0.7  # lintel
+        rgb[rect(0.3, 0.7, 0.28, 0.8)] = 0.85  # frame
         rgb[rect(0.33, 0.67, 0.31, 0.77)] = glass * 1.3
-        rgb[rect(0.49, 0.51, 0.31, 0.77)] = 0.85        # glazing bar
-        rgb[rect(0.28, 0.72, 0.8, 0.84)] = 0.65         # sill
+        rgb[rect(0.49, 0.51, 0.31, 0.77)] = 0.85  # glazing bar
+        rgb[rect(0.28, 0.72, 0.8, 0.84)] = 0.65  # sill
     elif btype == "warehouse":
         rib = 0.86 + 0.1 * np.cos(2 * np.pi * 10 * u)
         rgb[:] = rib[..., None]
         rgb[rect(0.06, 0.94, 0.08, 0.2)] = glass * 1.6
-        rgb[t >= 0.96] = 0.6                            # plinth line
+        rgb[t >= 0.96] = 0.6  # plinth line
         rgb[(u < 0.06) & (t < 0.06)] = 0.9
     else:
         raise ValueError(btype)
@@ -363,6 +396,7 @@ def roof_rgba(btype: str, n: int = TEX_SIZE) -> np.ndarray:
 # ---------------------------------------------------------------------------
 # Building types: each returns ({lod: {part: PartMesh}}, far box height, its wall height or None, (W, D))
 # ---------------------------------------------------------------------------
+
 
 def _draw(rng, r) -> float:
     return float(r[0] + (r[1] - r[0]) * rng.uniform())
@@ -425,12 +459,12 @@ def _tower(b: dict, rng) -> tuple[dict, float, float | None, tuple[float, float]
     sh = 0.35 * y if spire else 0.0
     for lod in LODS[:3]:
         p = P[lod]
-        for (x0, z0, x1, z1, y0, y1) in tiers:
+        for x0, z0, x1, z1, y0, y1 in tiers:
             add_facade_boxes(p["walls"], p["roof"], [x0, y0, z0], [x1, y1, z1], bay, fh)
         add_boxes(p["trim"], *pent)
         if lod == "low":
             continue
-        for (x0, z0, x1, z1, y0, y1) in tiers:
+        for x0, z0, x1, z1, _y0, y1 in tiers:
             parapets(p["walls"], x0, z0, x1, z1, y1, b["parapet"])
         add_boxes(p["trim"], *units)
         if spire:
@@ -438,21 +472,27 @@ def _tower(b: dict, rng) -> tuple[dict, float, float | None, tuple[float, float]
         if lod == "high":
             # Vertical fins on every bay line of every tier: thin boxes standing proud of the façade.
             fd, fw = b["fin_depth"], 0.3
-            for (x0, z0, x1, z1, y0, y1) in tiers:
+            for x0, z0, x1, z1, y0, y1 in tiers:
                 nx = max(1, round((x1 - x0) / bay))
                 nz = max(1, round((z1 - z0) / bay))
                 xs = x0 + (x1 - x0) * np.arange(1, nx) / nx
                 zs = z0 + (z1 - z0) * np.arange(1, nz) / nz
-                lo = np.concatenate([
-                    np.stack([xs - fw / 2, np.full_like(xs, y0), np.full_like(xs, z1)], 1),
-                    np.stack([xs - fw / 2, np.full_like(xs, y0), np.full_like(xs, z0 - fd)], 1),
-                    np.stack([np.full_like(zs, x1), np.full_like(zs, y0), zs - fw / 2], 1),
-                    np.stack([np.full_like(zs, x0 - fd), np.full_like(zs, y0), zs - fw / 2], 1)])
-                hi = np.concatenate([
-                    np.stack([xs + fw / 2, np.full_like(xs, y1), np.full_like(xs, z1 + fd)], 1),
-                    np.stack([xs + fw / 2, np.full_like(xs, y1), np.full_like(xs, z0)], 1),
-                    np.stack([np.full_like(zs, x1 + fd), np.full_like(zs, y1), zs + fw / 2], 1),
-                    np.stack([np.full_like(zs, x0), np.full_like(zs, y1), zs + fw / 2], 1)])
+                lo = np.concatenate(
+                    [
+                        np.stack([xs - fw / 2, np.full_like(xs, y0), np.full_like(xs, z1)], 1),
+                        np.stack([xs - fw / 2, np.full_like(xs, y0), np.full_like(xs, z0 - fd)], 1),
+                        np.stack([np.full_like(zs, x1), np.full_like(zs, y0), zs - fw / 2], 1),
+                        np.stack([np.full_like(zs, x0 - fd), np.full_like(zs, y0), zs - fw / 2], 1),
+                    ]
+                )
+                hi = np.concatenate(
+                    [
+                        np.stack([xs + fw / 2, np.full_like(xs, y1), np.full_like(xs, z1 + fd)], 1),
+                        np.stack([xs + fw / 2, np.full_like(xs, y1), np.full_like(xs, z0)], 1),
+                        np.stack([np.full_like(zs, x1 + fd), np.full_like(zs, y1), zs + fw / 2], 1),
+                        np.stack([np.full_like(zs, x0), np.full_like(zs, y1), zs + fw / 2], 1),
+                    ]
+                )
                 add_boxes(p["trim"], lo, hi)
     return P, (area_x + area_z) / (W + D), None, (W, D)
 
@@ -470,8 +510,10 @@ def _apartment(b: dict, rng) -> tuple[dict, float, float | None, tuple[float, fl
     # Stair and lift cores on the roof, one per 25 m of slab.
     ncore = max(1, round(W / 25))
     cx = x0 + W * (np.arange(ncore) + 0.5) / ncore
-    core = (np.stack([cx - 2.0, np.full(ncore, H), np.full(ncore, -2.5)], 1),
-            np.stack([cx + 2.0, np.full(ncore, H + 2.8), np.full(ncore, 2.5)], 1))
+    core = (
+        np.stack([cx - 2.0, np.full(ncore, H), np.full(ncore, -2.5)], 1),
+        np.stack([cx + 2.0, np.full(ncore, H + 2.8), np.full(ncore, 2.5)], 1),
+    )
     P = _parts(b)
     for lod in LODS[:3]:
         p = P[lod]
@@ -525,20 +567,24 @@ def _gable_roof(p: PartMesh, walls: PartMesh, W, D, eave, ridge, oh, thick: floa
         p.polys(top)
         if thick > 0:
             bot = top - [0.0, thick, 0.0]
-            p.polys(bot[:, ::-1])                                               # soffit
+            p.polys(bot[:, ::-1])  # soffit
             e0, e1 = bot[0], top[0]
             # Fascia along the eave and the two verges (edges between top and bottom outlines).
             for i, j in ((0, 1), (3, 0), (1, 2)):
                 p.polys(np.array([[e0[i], e0[j], e1[j], e1[i]]]))
-    g = np.array([[[-W / 2, eave, -D / 2], [-W / 2, eave, D / 2], [-W / 2, ridge, 0.0]],
-                  [[W / 2, eave, D / 2], [W / 2, eave, -D / 2], [W / 2, ridge, 0.0]]])
+    g = np.array(
+        [
+            [[-W / 2, eave, -D / 2], [-W / 2, eave, D / 2], [-W / 2, ridge, 0.0]],
+            [[W / 2, eave, D / 2], [W / 2, eave, -D / 2], [W / 2, ridge, 0.0]],
+        ]
+    )
     walls.polys(g)
 
 
 def _house(b: dict, rng) -> tuple[dict, float, float | None, tuple[float, float]]:
     W, D = _draw(rng, b["width"]), _draw(rng, b["depth"])
     if D > W:
-        W, D = D, W                                # ridge along the long side (X)
+        W, D = D, W  # ridge along the long side (X)
     floors = _draw_int(rng, b["floors"])
     fh, bay = b["floor_height"], b["bay"]
     eave = floors * fh
@@ -577,11 +623,14 @@ def _house(b: dict, rng) -> tuple[dict, float, float | None, tuple[float, float]
             # door, canopy slab on two posts, and a step.
             dx = -W / 2 + W * round(nx / 2) / nx
             dz = D / 2
-            add_boxes(p["trim"], [dx - 0.5, 0.0, dz], [dx + 0.5, 2.1, dz + 0.06])                 # door
-            add_boxes(p["trim"], [dx - 1.3, 2.4, dz], [dx + 1.3, 2.55, dz + 1.5], bottom=True)    # canopy
-            add_boxes(p["walls"], [[dx - 1.25, 0.0, dz + 1.3], [dx + 1.05, 0.0, dz + 1.3]],
-                      [[dx - 1.05, 2.4, dz + 1.5], [dx + 1.25, 2.4, dz + 1.5]])                 # posts
-            add_boxes(p["walls"], [dx - 1.3, 0.0, dz], [dx + 1.3, 0.18, dz + 1.6])                # step
+            add_boxes(p["trim"], [dx - 0.5, 0.0, dz], [dx + 0.5, 2.1, dz + 0.06])  # door
+            add_boxes(p["trim"], [dx - 1.3, 2.4, dz], [dx + 1.3, 2.55, dz + 1.5], bottom=True)  # canopy
+            add_boxes(
+                p["walls"],
+                [[dx - 1.25, 0.0, dz + 1.3], [dx + 1.05, 0.0, dz + 1.3]],
+                [[dx - 1.05, 2.4, dz + 1.5], [dx + 1.25, 2.4, dz + 1.5]],
+            )  # posts
+            add_boxes(p["walls"], [dx - 1.3, 0.0, dz], [dx + 1.3, 0.18, dz + 1.6])  # step
     # Silhouettes: along Z (eave side) the roof up to the ridge over W + 2·oh; along X the gable.
     area_z = W * eave + (W + 2 * oh) * (ridge - eave)
     area_x = D * eave + 0.5 * D * (ridge - eave)
@@ -608,17 +657,46 @@ def _warehouse(b: dict, rng) -> tuple[dict, float, float | None, tuple[float, fl
             a, c = e[:-1], e[1:]
             N = nt
             y0, y1 = np.full(N, H), np.full(N, H + rise)
-            slope = np.stack([np.stack([a, y0, np.full(N, z1)], 1), np.stack([c, y1, np.full(N, z1)], 1),
-                              np.stack([c, y1, np.full(N, z0)], 1), np.stack([a, y0, np.full(N, z0)], 1)], 1)
+            slope = np.stack(
+                [
+                    np.stack([a, y0, np.full(N, z1)], 1),
+                    np.stack([c, y1, np.full(N, z1)], 1),
+                    np.stack([c, y1, np.full(N, z0)], 1),
+                    np.stack([a, y0, np.full(N, z0)], 1),
+                ],
+                1,
+            )
             p["roof"].polys(slope)
-            light = np.stack([np.stack([c, y0, np.full(N, z1)], 1), np.stack([c, y0, np.full(N, z0)], 1),
-                              np.stack([c, y1, np.full(N, z0)], 1), np.stack([c, y1, np.full(N, z1)], 1)], 1)
+            light = np.stack(
+                [
+                    np.stack([c, y0, np.full(N, z1)], 1),
+                    np.stack([c, y0, np.full(N, z0)], 1),
+                    np.stack([c, y1, np.full(N, z0)], 1),
+                    np.stack([c, y1, np.full(N, z1)], 1),
+                ],
+                1,
+            )
             p["trim"].polys(light)
-            ends = np.concatenate([
-                np.stack([np.stack([a, y0, np.full(N, z1)], 1), np.stack([c, y0, np.full(N, z1)], 1),
-                          np.stack([c, y1, np.full(N, z1)], 1)], 1),
-                np.stack([np.stack([c, y0, np.full(N, z0)], 1), np.stack([a, y0, np.full(N, z0)], 1),
-                          np.stack([c, y1, np.full(N, z0)], 1)], 1)])
+            ends = np.concatenate(
+                [
+                    np.stack(
+                        [
+                            np.stack([a, y0, np.full(N, z1)], 1),
+                            np.stack([c, y0, np.full(N, z1)], 1),
+                            np.stack([c, y1, np.full(N, z1)], 1),
+                        ],
+                        1,
+                    ),
+                    np.stack(
+                        [
+                            np.stack([c, y0, np.full(N, z0)], 1),
+                            np.stack([a, y0, np.full(N, z0)], 1),
+                            np.stack([c, y1, np.full(N, z0)], 1),
+                        ],
+                        1,
+                    ),
+                ]
+            )
             p["walls"].polys(ends)
         # Loading doors on the +Z face with a canopy over them (the canopy down to the low level).
         dx = x0 + W * (np.arange(ndoor) + 0.5) / ndoor
@@ -630,22 +708,33 @@ def _warehouse(b: dict, rng) -> tuple[dict, float, float | None, tuple[float, fl
         if sky is not None:
             add_boxes(p["trim"], sky[0], sky[1][:, :] * [1, 0, 1] + [0, H + 0.6, 0])
         parapets(p["walls"], x0, z0, x1, z1, H, 0.0 if saw else b["parapet"])
-        add_boxes(p["trim"], np.stack([dx - dw / 2, np.zeros(ndoor), np.full(ndoor, z1)], 1),
-                  np.stack([dx + dw / 2, np.full(ndoor, dh), np.full(ndoor, z1 + 0.08)], 1))
+        add_boxes(
+            p["trim"],
+            np.stack([dx - dw / 2, np.zeros(ndoor), np.full(ndoor, z1)], 1),
+            np.stack([dx + dw / 2, np.full(ndoor, dh), np.full(ndoor, z1 + 0.08)], 1),
+        )
         if lod == "high":
             # Pilasters every two bays around the perimeter.
             nx, nz = max(1, round(W / (2 * bay))), max(1, round(D / (2 * bay)))
             xs = x0 + W * np.arange(nx + 1) / nx
             zs = z0 + D * np.arange(1, nz) / nz
             t, d = 0.5, 0.3
-            lo = np.concatenate([np.stack([xs - t / 2, np.zeros_like(xs), np.full_like(xs, z1)], 1),
-                                 np.stack([xs - t / 2, np.zeros_like(xs), np.full_like(xs, z0 - d)], 1),
-                                 np.stack([np.full_like(zs, x1), np.zeros_like(zs), zs - t / 2], 1),
-                                 np.stack([np.full_like(zs, x0 - d), np.zeros_like(zs), zs - t / 2], 1)])
-            hi = np.concatenate([np.stack([xs + t / 2, np.full_like(xs, H), np.full_like(xs, z1 + d)], 1),
-                                 np.stack([xs + t / 2, np.full_like(xs, H), np.full_like(xs, z0)], 1),
-                                 np.stack([np.full_like(zs, x1 + d), np.full_like(zs, H), zs + t / 2], 1),
-                                 np.stack([np.full_like(zs, x0), np.full_like(zs, H), zs + t / 2], 1)])
+            lo = np.concatenate(
+                [
+                    np.stack([xs - t / 2, np.zeros_like(xs), np.full_like(xs, z1)], 1),
+                    np.stack([xs - t / 2, np.zeros_like(xs), np.full_like(xs, z0 - d)], 1),
+                    np.stack([np.full_like(zs, x1), np.zeros_like(zs), zs - t / 2], 1),
+                    np.stack([np.full_like(zs, x0 - d), np.zeros_like(zs), zs - t / 2], 1),
+                ]
+            )
+            hi = np.concatenate(
+                [
+                    np.stack([xs + t / 2, np.full_like(xs, H), np.full_like(xs, z1 + d)], 1),
+                    np.stack([xs + t / 2, np.full_like(xs, H), np.full_like(xs, z0)], 1),
+                    np.stack([np.full_like(zs, x1 + d), np.full_like(zs, H), zs + t / 2], 1),
+                    np.stack([np.full_like(zs, x0), np.full_like(zs, H), zs + t / 2], 1),
+                ]
+            )
             add_boxes(p["walls"], lo, hi)
     area_z = W * (H + rise / 2)
     area_x = D * (H + rise)
@@ -678,15 +767,18 @@ def far_box(W: float, D: float, h: float, h_wall: float | None = None) -> tuple[
 # Species files
 # ---------------------------------------------------------------------------
 
+
 def code_hash() -> str:
     """Hash of this generator's source (and the shared mesh/preview code): edits rebuild buildings."""
     from .build import source_hash
+
     return source_hash(_CODE_FILES)
 
 
 def recipe_hash(recipe: dict, seed: int) -> str:
     """The cache key of a building species (see :func:`forest.library.build.recipe_digest`)."""
     from .build import recipe_digest
+
     return recipe_digest(code_hash(), recipe, seed)
 
 
@@ -704,9 +796,13 @@ def build_meshes(recipe: dict, seed: int) -> tuple[dict, dict, np.ndarray]:
     glass = GLASS[int(rng.integers(len(GLASS)))]
     tex = facade_rgba(b["type"], glass=glass, band=float(rng.uniform(0.2, 0.4)))
     roof_tex = roof_rgba(b["type"])
-    colours = {"walls": wall, "roof": roofc, "trim": np.asarray(b["trim_colour"], dtype=np.float64),
-               "far_walls": wall * tex[..., :3].reshape(-1, 3).mean(axis=0),
-               "far_roof": roofc * roof_tex[..., :3].reshape(-1, 3).mean(axis=0)}
+    colours = {
+        "walls": wall,
+        "roof": roofc,
+        "trim": np.asarray(b["trim_colour"], dtype=np.float64),
+        "far_walls": wall * tex[..., :3].reshape(-1, 3).mean(axis=0),
+        "far_roof": roofc * roof_tex[..., :3].reshape(-1, 3).mean(axis=0),
+    }
     return meshes, colours, {"walls": tex, "roof": roof_tex}
 
 
@@ -718,6 +814,7 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
     """
     from .build import lod_entry, part_entry, write_json
     from .textures import write_texture
+
     recipe = validate_recipe(recipe, where)
     b = recipe["building"]
     meshes, colours, tex = build_meshes(recipe, seed)
@@ -740,7 +837,14 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
             colour = colours[f"far_{part}"] if lod == "far" else colours[part]
             entries.append(part_entry("surface", file, mesh, colour, texture, tint[part], 0.0))
         lods.append(lod_entry(lod, entries))
-    meta = {"name": name, "source": "generated", "seed": int(seed), "hash": recipe_hash(recipe, seed),
-            "kind": "building", "building_type": b["type"], "lods": lods}
+    meta = {
+        "name": name,
+        "source": "generated",
+        "seed": int(seed),
+        "hash": recipe_hash(recipe, seed),
+        "kind": "building",
+        "building_type": b["type"],
+        "lods": lods,
+    }
     write_json(out / "species.json", meta)
     return meta

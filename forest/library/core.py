@@ -1,11 +1,19 @@
-"""The tree library: species, levels of detail and parts, read from ``library/manifest.toml``.
+"""The tree library: species, levels of detail and parts, read from ``manifest.toml`` files.
 
-``open_library()`` reads the manifest; species are built (generated species)
-into ``library/cache/<name>-<hash>/`` on first use, where ``hash`` covers the
-recipe, the seed and the generator's code — editing a recipe or the generator
-therefore gives a fresh folder and a fresh preview, and a stale folder is never
-read.  Building writes into a temporary folder and renames it into place, so
-processes that build the same species at once never see a half-built one.
+A library is layered: the **shipped** library (the presets installed with
+forest as ``forest.library_files``; read-only) under a **user** library
+(``$FOREST_LIBRARY``, else a per-user data folder such as
+``~/.local/share/forest/library``) that holds imported species
+(``forest library add``), species of the user's own that shadow presets of the
+same name, and the build cache.  Nothing is ever written into the installed
+package or the checkout.
+
+Species are built (generated species) into ``<user library>/cache/<name>-<hash>/``
+on first use, where ``hash`` covers the recipe, the seed and the generator's
+code — editing a recipe or the generator therefore gives a fresh folder and a
+fresh preview, and a stale folder is never read.  Building writes into a
+temporary folder and renames it into place, so processes that build the same
+species at once never see a half-built one.
 """
 
 from __future__ import annotations
@@ -24,7 +32,6 @@ import numpy as np
 from ..errors import ConfigError, ForestError
 from .mesh import MeshData, read_ply
 
-REPO_LIBRARY = Path(__file__).resolve().parents[2] / "library"
 MANIFEST = "manifest.toml"
 NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]{0,63}$")
 MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb", ".stl", ".off")
@@ -61,7 +68,7 @@ class Lod:
 
     name: str
     triangles: int
-    bounds: np.ndarray            # (2, 3) float64 [min, max]
+    bounds: np.ndarray  # (2, 3) float64 [min, max]
     parts: tuple[Part, ...]
 
 
@@ -70,11 +77,11 @@ class Species:
     """A species of the library with its levels of detail (ordered high, medium, low, far)."""
 
     name: str
-    source: str                   # "generated" | "imported"
+    source: str  # "generated" | "imported"
     folder: Path
     lods: list[Lod]
     hash: str
-    library: "Library" = field(repr=False, compare=False)
+    library: Library = field(repr=False, compare=False)
     description: str = ""
 
     def lod(self, name: str) -> Lod:
@@ -98,6 +105,7 @@ class Species:
         p = self.preview_path
         if not p.is_file():
             from .preview import render_preview_file
+
             render_preview_file(self, p)
         return p
 
@@ -112,72 +120,124 @@ def _load_meta(folder: Path) -> dict | None:
         return None
 
 
-def _species_from_meta(lib: "Library", meta: dict, folder: Path, description: str = "") -> Species:
+def _species_from_meta(lib: Library, meta: dict, folder: Path, description: str = "") -> Species:
     lods = []
     for L in meta["lods"]:
-        parts = tuple(Part(kind=p["kind"], path=folder / p["file"], colour=tuple(p["colour"]),
-                           texture=(folder / p["texture"]) if p.get("texture") else None,
-                           tinted=bool(p["tinted"]), translucency=float(p["translucency"]),
-                           triangles=int(p["triangles"]), bounds=np.array(p["bounds"], dtype=np.float64))
-                      for p in L["parts"])
+        parts = tuple(
+            Part(
+                kind=p["kind"],
+                path=folder / p["file"],
+                colour=tuple(p["colour"]),
+                texture=(folder / p["texture"]) if p.get("texture") else None,
+                tinted=bool(p["tinted"]),
+                translucency=float(p["translucency"]),
+                triangles=int(p["triangles"]),
+                bounds=np.array(p["bounds"], dtype=np.float64),
+            )
+            for p in L["parts"]
+        )
         lods.append(Lod(L["name"], int(L["triangles"]), np.array(L["bounds"], dtype=np.float64), parts))
     return Species(meta["name"], meta["source"], folder, lods, meta["hash"], lib, description)
 
 
-class Library:
-    """A folder with ``manifest.toml``, ``presets/``, ``imported/`` and the ``cache/``."""
+def shipped_root() -> Path:
+    """The folder of the library shipped with forest (manifest and recipes; read-only)."""
+    from importlib.resources import files
 
-    def __init__(self, root: Path):
+    return Path(str(files("forest.library_files")))
+
+
+def user_root() -> Path:
+    """The user's library folder: ``$FOREST_LIBRARY``, else the per-user data folder."""
+    env = os.environ.get("FOREST_LIBRARY")
+    if env:
+        return Path(env).expanduser()
+    import platformdirs
+
+    return platformdirs.user_data_path("forest") / "library"
+
+
+def _read_manifest(path: Path) -> dict:
+    if not path.is_file():
+        return {}
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(path, None, f"cannot read: {e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(path, None, f"invalid TOML: {e}") from None
+    sp = data.get("species", {})
+    if not isinstance(sp, dict):
+        raise ConfigError(path, "species", "must be a table of [species.NAME] tables")
+    return sp
+
+
+class Library:
+    """A writable folder (``manifest.toml``, ``presets/``, ``imported/``, ``cache/``) over
+    an optional read-only ``base`` folder (the shipped presets).
+
+    Species of ``root``'s manifest shadow those of ``base`` with the same name;
+    recipe and mesh paths are relative to the folder whose manifest names them.
+    """
+
+    def __init__(self, root: Path, base: Path | None = None):
         self.root = Path(root)
+        self.base = None if base is None else Path(base)
         self.manifest_path = self.root / MANIFEST
         self.cache = self.root / "cache"
         self._species: dict[str, Species] = {}
 
     # -- manifest -----------------------------------------------------------
+    def _entries(self) -> dict[str, tuple[dict, Path]]:
+        """name → (manifest entry, the folder it is relative to), user entries over shipped ones."""
+        out: dict[str, tuple[dict, Path]] = {}
+        for folder in (self.base, self.root):
+            if folder is None:
+                continue
+            for name, e in _read_manifest(folder / MANIFEST).items():
+                if not isinstance(e, dict):
+                    raise ConfigError(folder / MANIFEST, f"species.{name}", "must be a table")
+                out[name] = (e, folder)
+        return out
+
     @property
     def manifest(self) -> dict:
-        if not self.manifest_path.is_file():
-            return {"version": 1, "species": {}}
-        try:
-            data = tomllib.loads(self.manifest_path.read_text())
-        except tomllib.TOMLDecodeError as e:
-            raise ConfigError(self.manifest_path, None, f"invalid TOML: {e}") from None
-        sp = data.get("species", {})
-        if not isinstance(sp, dict):
-            raise ConfigError(self.manifest_path, "species", "must be a table of [species.NAME] tables")
-        return data
+        """The merged manifest: ``{"version": 1, "species": {name: entry}}``."""
+        return {"version": 1, "species": {k: e for k, (e, _) in self._entries().items()}}
+
+    def _where(self, name: str) -> tuple[dict, Path]:
+        entries = self._entries()
+        if name not in entries:
+            raise ForestError(f"unknown species {name!r}: the library has {', '.join(sorted(entries)) or 'no species'}")
+        return entries[name]
 
     def entry(self, name: str) -> dict:
-        sp = self.manifest.get("species", {})
-        if name not in sp:
-            raise ForestError(f"unknown species {name!r}: the library has {', '.join(sorted(sp)) or 'no species'}")
-        e = sp[name]
-        if not isinstance(e, dict):
-            raise ConfigError(self.manifest_path, f"species.{name}", "must be a table")
-        return e
+        """The manifest table of species ``name`` (user library first, then the shipped one)."""
+        return self._where(name)[0]
 
     def names(self) -> list[str]:
-        """Species names in the manifest, sorted."""
-        return sorted(self.manifest.get("species", {}))
+        """Species names of both layers, sorted."""
+        return sorted(self._entries())
 
     # -- species --------------------------------------------------------------
     def recipe(self, name: str) -> tuple[dict, int]:
         """The raw recipe table and seed of a generated species."""
-        e = self.entry(name)
+        e, folder = self._where(name)
+        manifest = folder / MANIFEST
         field_ = f"species.{name}"
         rel = e.get("recipe")
         if not isinstance(rel, str) or not rel:
-            raise ConfigError(self.manifest_path, f"{field_}.recipe", "must name a preset file")
-        path = self.root / rel
+            raise ConfigError(manifest, f"{field_}.recipe", "must name a preset file")
+        path = folder / rel
         if not path.is_file():
-            raise ConfigError(self.manifest_path, f"{field_}.recipe", f"file not found: {rel}")
+            raise ConfigError(manifest, f"{field_}.recipe", f"file not found: {rel}")
         try:
             recipe = tomllib.loads(path.read_text())
         except tomllib.TOMLDecodeError as e2:
             raise ConfigError(path, None, f"invalid TOML: {e2}") from None
         seed = e.get("seed", 0)
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            raise ConfigError(self.manifest_path, f"{field_}.seed", f"must be a whole number >= 0, got {seed!r}")
+            raise ConfigError(manifest, f"{field_}.seed", f"must be a whole number >= 0, got {seed!r}")
         return recipe, seed
 
     def get(self, name: str, *, seed: int | None = None, build: bool = True) -> Species:
@@ -185,7 +245,7 @@ class Library:
         key = name if seed is None else f"{name}@{seed}"
         if key in self._species:
             return self._species[key]
-        e = self.entry(name)
+        e, where = self._where(name)
         source = e.get("source", "generated")
         desc = str(e.get("description", ""))
         if source == "generated":
@@ -195,32 +255,36 @@ class Library:
                 raise ForestError(f"{name}@{seed}: only generated species take a seed")
             rel = e.get("path")
             if not isinstance(rel, str):
-                raise ConfigError(self.manifest_path, f"species.{name}.path", "must name the species' folder")
-            folder = self.root / rel
+                raise ConfigError(where / MANIFEST, f"species.{name}.path", "must name the species' folder")
+            folder = where / rel
             meta = _load_meta(folder)
             if meta is None:
-                raise ConfigError(self.manifest_path, f"species.{name}.path",
-                                  f"{rel}/species.json is missing or unreadable; re-import with `forest library add`")
+                raise ConfigError(
+                    where / MANIFEST,
+                    f"species.{name}.path",
+                    f"{rel}/species.json is missing or unreadable; re-import with `forest library add`",
+                )
             sp = _species_from_meta(self, meta, folder, desc)
         else:
-            raise ConfigError(self.manifest_path, f"species.{name}.source",
-                              f"must be generated or imported, got {source!r}")
+            raise ConfigError(
+                where / MANIFEST, f"species.{name}.source", f"must be generated or imported, got {source!r}"
+            )
         self._species[key] = sp
         return sp
 
     def _generated(self, name: str, seed: int | None, desc: str, build: bool) -> Species:
         raw, manifest_seed = self.recipe(name)
         seed = manifest_seed if seed is None else seed
-        e = self.entry(name)
+        e, where = self._where(name)
         kind = raw.get("kind", "tree")
-        if kind == "building":            # procedural buildings (forest.library.buildings)
+        if kind == "building":  # procedural buildings (forest.library.buildings)
             from .buildings import generate, recipe_hash, validate_recipe
         elif kind == "tree":
             from .build import generate, recipe_hash
             from .generator import validate_recipe
         else:
-            raise ConfigError(self.root / e["recipe"], "kind", f"must be tree or building, got {kind!r}")
-        recipe = validate_recipe(raw, str(self.root / e["recipe"]))
+            raise ConfigError(where / e["recipe"], "kind", f"must be tree or building, got {kind!r}")
+        recipe = validate_recipe(raw, str(where / e["recipe"]))
         h = recipe_hash(recipe, seed)
         label = name if seed == manifest_seed else f"{name}@{seed}"
         folder = self.cache / f"{label}-{h[:16]}"
@@ -231,12 +295,12 @@ class Library:
             self.cache.mkdir(parents=True, exist_ok=True)
             tmp = Path(tempfile.mkdtemp(prefix=f".{label}.", suffix=".tmp", dir=self.cache))
             try:
-                generate(raw, seed, tmp, name=label, where=str(self.root / e["recipe"]))
-                os.chmod(tmp, 0o755)              # mkdtemp makes it private
+                generate(raw, seed, tmp, name=label, where=str(where / e["recipe"]))
+                os.chmod(tmp, 0o755)  # mkdtemp makes it private
                 try:
                     os.rename(tmp, folder)
                 except OSError:
-                    if _load_meta(folder) is None:   # someone else won the race with a complete folder, or fail
+                    if _load_meta(folder) is None:  # someone else won the race with a complete folder, or fail
                         raise
             finally:
                 shutil.rmtree(tmp, ignore_errors=True)
@@ -270,16 +334,20 @@ class Library:
             if not p.is_absolute() and base_dir is not None:
                 p = Path(base_dir) / p
             from .importer import import_cached
+
             return import_cached(self, p)
-        raise ForestError(f"unknown species {model!r}: not in the library "
-                          f"({', '.join(sorted(names)) or 'empty'}) and not a mesh file "
-                          f"({', '.join(MESH_SUFFIXES)})")
+        raise ForestError(
+            f"unknown species {model!r}: not in the library "
+            f"({', '.join(sorted(names)) or 'empty'}) and not a mesh file "
+            f"({', '.join(MESH_SUFFIXES)})"
+        )
 
     def species(self) -> list[Species]:
         return [self.get(n) for n in self.names()]
 
-    def build(self, names: list[str] | None = None, *, previews: bool = True, progress=None,
-              prune: bool = True) -> list[Species]:
+    def build(
+        self, names: list[str] | None = None, *, previews: bool = True, progress=None, prune: bool = True
+    ) -> list[Species]:
         """Build (if stale) every species in ``names`` (all by default) and their previews.
 
         With ``prune``, cache folders of generated species that no longer match
@@ -306,6 +374,7 @@ class Library:
         if not self.cache.is_dir():
             return
         import time
+
         now = time.time()
         for p in self.cache.glob(".*.tmp"):
             try:
@@ -316,8 +385,13 @@ class Library:
         for p in self.cache.iterdir():
             if p.is_dir() and p.name in keep_dirs and (p.stat().st_mode & 0o777) != 0o755:
                 os.chmod(p, 0o755)
-            if p.is_dir() and p.name not in ("previews", "imported") and not p.name.startswith(".") \
-                    and p.name not in keep_dirs and "@" not in p.name:
+            if (
+                p.is_dir()
+                and p.name not in ("previews", "imported")
+                and not p.name.startswith(".")
+                and p.name not in keep_dirs
+                and "@" not in p.name
+            ):
                 shutil.rmtree(p, ignore_errors=True)
         pv = self.cache / "previews"
         if pv.is_dir():
@@ -326,11 +400,16 @@ class Library:
                     p.unlink(missing_ok=True)
 
 
-def open_library(root: str | Path | None = None) -> Library:
-    """Open the library at ``root``, else ``$FOREST_LIBRARY``, else ``library/`` of the checkout."""
-    if root is None:
-        root = os.environ.get("FOREST_LIBRARY") or REPO_LIBRARY
-    root = Path(root).expanduser()
+def open_library(root: str | Path | None = None, *, presets: bool = True) -> Library:
+    """The tree library: the user library at ``root`` (default :func:`user_root`) layered
+    over the shipped presets (``presets=False``: ``root`` alone).
+
+    Opening the shipped folder itself gives it alone, with its cache beside it
+    (a checkout's ``library/``).
+    """
+    root = user_root() if root is None else Path(root).expanduser()
     if root.exists() and not root.is_dir():
         raise ForestError(f"{root}: the tree library must be a folder")
-    return Library(root)
+    shipped = shipped_root()
+    same = root.exists() and shipped.exists() and root.resolve() == shipped.resolve()
+    return Library(root, base=shipped if presets and not same else None)

@@ -43,21 +43,62 @@ import numpy as np
 from ..errors import ConfigError
 
 TAG = 0x7EE5  # RNG stream tag of the tree generator
-SHAPES = ("conical", "spherical", "hemispherical", "cylindrical", "tapered_cylindrical", "flame",
-          "inverse_conical", "tend_flame")
+SHAPES = (
+    "conical",
+    "spherical",
+    "hemispherical",
+    "cylindrical",
+    "tapered_cylindrical",
+    "flame",
+    "inverse_conical",
+    "tend_flame",
+)
 
 LEVEL_DEFAULTS = {
-    "length": 1.0, "length_var": 0.0, "segments": 8, "curve": 0.0, "curve_back": 0.0, "curve_var": 0.0,
-    "branches": 0, "start": 0.0, "down_angle": 45.0, "down_angle_var": 10.0, "down_angle_tip": None,
-    "rotate": 137.5, "rotate_var": 15.0, "sides": 6,
+    "length": 1.0,
+    "length_var": 0.0,
+    "segments": 8,
+    "curve": 0.0,
+    "curve_back": 0.0,
+    "curve_var": 0.0,
+    "branches": 0,
+    "start": 0.0,
+    "down_angle": 45.0,
+    "down_angle_var": 10.0,
+    "down_angle_tip": None,
+    "rotate": 137.5,
+    "rotate_var": 15.0,
+    "sides": 6,
 }
 TREE_DEFAULTS = {
-    "shape": "conical", "scale": 10.0, "scale_var": 0.0, "base_size": 0.2, "ratio": 0.02, "ratio_power": 1.2,
-    "taper": 0.9, "flare": 0.4, "trunks": 1, "trunk_splay": 0.0, "trunk_splay_var": 0.0, "trunk_spread": 0.0,
-    "attract_up": 0.0, "leaves": 10, "leaf_scale": 0.15, "leaf_scale_x": 0.6, "leaf_scale_var": 0.15,
-    "leaf_down_angle": 50.0, "leaf_down_angle_var": 15.0, "leaf_rotate": 137.5, "leaf_start": 0.2,
-    "leaf_shape": "broad", "leaf_colour": [0.06, 0.16, 0.03], "bark_colour": [0.12, 0.08, 0.05],
-    "translucency": 0.3, "leaf_face_up": 0.5, "leaf_segments": 1, "leaf_bend": 0.0,
+    "shape": "conical",
+    "scale": 10.0,
+    "scale_var": 0.0,
+    "base_size": 0.2,
+    "ratio": 0.02,
+    "ratio_power": 1.2,
+    "taper": 0.9,
+    "flare": 0.4,
+    "trunks": 1,
+    "trunk_splay": 0.0,
+    "trunk_splay_var": 0.0,
+    "trunk_spread": 0.0,
+    "attract_up": 0.0,
+    "leaves": 10,
+    "leaf_scale": 0.15,
+    "leaf_scale_x": 0.6,
+    "leaf_scale_var": 0.15,
+    "leaf_down_angle": 50.0,
+    "leaf_down_angle_var": 15.0,
+    "leaf_rotate": 137.5,
+    "leaf_start": 0.2,
+    "leaf_shape": "broad",
+    "leaf_colour": [0.06, 0.16, 0.03],
+    "bark_colour": [0.12, 0.08, 0.05],
+    "translucency": 0.3,
+    "leaf_face_up": 0.5,
+    "leaf_segments": 1,
+    "leaf_bend": 0.0,
 }
 
 
@@ -65,12 +106,12 @@ TREE_DEFAULTS = {
 class Level:
     """The stems of one level, grown together."""
 
-    points: np.ndarray      # (S, P, 3) float64 polylines
-    tangents: np.ndarray    # (S, P, 3) unit headings
-    radii: np.ndarray       # (S, P) radii in metres
-    side: np.ndarray        # (S, 3) unit reference axis (ring frames)
-    length: np.ndarray      # (S,) stem lengths
-    sides: int              # ring resolution at the highest level of detail
+    points: np.ndarray  # (S, P, 3) float64 polylines
+    tangents: np.ndarray  # (S, P, 3) unit headings
+    radii: np.ndarray  # (S, P) radii in metres
+    side: np.ndarray  # (S, 3) unit reference axis (ring frames)
+    length: np.ndarray  # (S,) stem lengths
+    sides: int  # ring resolution at the highest level of detail
 
 
 @dataclass
@@ -78,10 +119,10 @@ class Skeleton:
     """A grown tree: stem levels plus leaf cards (centres of the card's base edge)."""
 
     levels: list[Level]
-    leaf_base: np.ndarray   # (N, 3) where the card's stalk end sits
-    leaf_dir: np.ndarray    # (N, 3) unit direction from stalk to tip
+    leaf_base: np.ndarray  # (N, 3) where the card's stalk end sits
+    leaf_dir: np.ndarray  # (N, 3) unit direction from stalk to tip
     leaf_width: np.ndarray  # (N, 3) unit direction across the card
-    leaf_size: np.ndarray   # (N, 2) [length, width] in metres
+    leaf_size: np.ndarray  # (N, 2) [length, width] in metres
     recipe: dict = field(default_factory=dict)
 
 
@@ -138,13 +179,18 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
     t_in = recipe.get("tree", {})
     unknown = sorted(set(t_in) - set(TREE_DEFAULTS))
     if unknown:
-        raise ConfigError(where, f"tree.{unknown[0]}", f"unknown key (expected one of: {', '.join(sorted(TREE_DEFAULTS))})")
+        raise ConfigError(
+            where, f"tree.{unknown[0]}", f"unknown key (expected one of: {', '.join(sorted(TREE_DEFAULTS))})"
+        )
     tree.update(t_in)
     if tree["shape"] not in SHAPES:
         raise ConfigError(where, "tree.shape", f"must be one of {', '.join(SHAPES)}, got {tree['shape']!r}")
     from .textures import SHAPES as LEAF_SHAPES
+
     if tree["leaf_shape"] not in LEAF_SHAPES:
-        raise ConfigError(where, "tree.leaf_shape", f"must be one of {', '.join(LEAF_SHAPES)}, got {tree['leaf_shape']!r}")
+        raise ConfigError(
+            where, "tree.leaf_shape", f"must be one of {', '.join(LEAF_SHAPES)}, got {tree['leaf_shape']!r}"
+        )
     for key in ("scale", "leaf_scale"):
         v = tree[key]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not (0 < v < 200):
@@ -156,7 +202,9 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
     if not (0 <= tree["translucency"] <= 1):
         raise ConfigError(where, "tree.translucency", f"must be in [0, 1], got {tree['translucency']!r}")
     if not isinstance(tree["leaf_segments"], int) or not 1 <= tree["leaf_segments"] <= 16:
-        raise ConfigError(where, "tree.leaf_segments", f"must be a whole number in [1, 16], got {tree['leaf_segments']!r}")
+        raise ConfigError(
+            where, "tree.leaf_segments", f"must be a whole number in [1, 16], got {tree['leaf_segments']!r}"
+        )
     if not isinstance(tree["trunks"], int) or not 1 <= tree["trunks"] <= 200:
         raise ConfigError(where, "tree.trunks", f"must be a whole number in [1, 200], got {tree['trunks']!r}")
     levels_in = recipe.get("level", [])
@@ -166,14 +214,19 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
     for i, lv in enumerate(levels_in):
         unknown = sorted(set(lv) - set(LEVEL_DEFAULTS))
         if unknown:
-            raise ConfigError(where, f"level[{i}].{unknown[0]}",
-                              f"unknown key (expected one of: {', '.join(sorted(LEVEL_DEFAULTS))})")
+            raise ConfigError(
+                where, f"level[{i}].{unknown[0]}", f"unknown key (expected one of: {', '.join(sorted(LEVEL_DEFAULTS))})"
+            )
         d = dict(LEVEL_DEFAULTS)
         d.update(lv)
         if not isinstance(d["segments"], int) or not 1 <= d["segments"] <= 64:
-            raise ConfigError(where, f"level[{i}].segments", f"must be a whole number in [1, 64], got {d['segments']!r}")
+            raise ConfigError(
+                where, f"level[{i}].segments", f"must be a whole number in [1, 64], got {d['segments']!r}"
+            )
         if not isinstance(d["branches"], int) or not 0 <= d["branches"] <= 2000:
-            raise ConfigError(where, f"level[{i}].branches", f"must be a whole number in [0, 2000], got {d['branches']!r}")
+            raise ConfigError(
+                where, f"level[{i}].branches", f"must be a whole number in [0, 2000], got {d['branches']!r}"
+            )
         if not isinstance(d["sides"], int) or not 3 <= d["sides"] <= 64:
             raise ConfigError(where, f"level[{i}].sides", f"must be a whole number in [3, 64], got {d['sides']!r}")
         levels.append(d)
@@ -227,7 +280,7 @@ def _children_offsets(counts: np.ndarray, start: np.ndarray, rng):
     """Stem index and offset ``t`` for every child: evenly spread over ``[start, 1]`` with jitter."""
     total = int(counts.sum())
     stem = np.repeat(np.arange(len(counts)), counts)
-    k = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)     # index within its parent
+    k = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)  # index within its parent
     c = np.repeat(counts, counts).astype(np.float64)
     s0 = np.repeat(start, counts)
     t = s0 + (1.0 - s0) * (k + 0.5 + 0.35 * rng.uniform(-1, 1, total)) / c
@@ -248,7 +301,9 @@ def grow(recipe: dict, seed: int) -> Skeleton:
     lv0 = levels_cfg[0]
     len0 = scale * lv0["length"] * (1.0 + lv0["length_var"] * rng.uniform(-1, 1, nt))
     az = np.radians(137.508) * np.arange(nt) + rng.uniform(0, 2 * np.pi)
-    tilt = np.radians(tree["trunk_splay"] + tree["trunk_splay_var"] * rng.uniform(-1, 1, nt)) * (nt > 1 or tree["trunk_splay"] > 0)
+    tilt = np.radians(tree["trunk_splay"] + tree["trunk_splay_var"] * rng.uniform(-1, 1, nt)) * (
+        nt > 1 or tree["trunk_splay"] > 0
+    )
     head = np.stack([np.sin(tilt) * np.cos(az), np.cos(tilt), np.sin(tilt) * np.sin(az)], axis=1)
     spread = tree["trunk_spread"] * np.sqrt(rng.uniform(0, 1, nt))
     origins = np.stack([spread * np.cos(az), np.zeros(nt), spread * np.sin(az)], axis=1)
@@ -273,11 +328,15 @@ def grow(recipe: dict, seed: int) -> Skeleton:
         stem, t, k = _children_offsets(counts, start, rng)
         pos, ptan, prad, pside = _sample_along(parent, stem, t)
         pbin = _norm(np.cross(ptan, pside))
-        phi = np.radians(k * lv["rotate"] + lv["rotate_var"] * rng.uniform(-1, 1, len(t))) + rng.uniform(0, 2 * np.pi, len(counts))[stem]
+        phi = (
+            np.radians(k * lv["rotate"] + lv["rotate_var"] * rng.uniform(-1, 1, len(t)))
+            + rng.uniform(0, 2 * np.pi, len(counts))[stem]
+        )
         tip_angle = lv["down_angle"] if lv["down_angle_tip"] is None else lv["down_angle_tip"]
         span = (t - start[stem]) / np.maximum(1.0 - start[stem], 1e-6)
-        theta = np.radians(lv["down_angle"] * (1 - span) + tip_angle * span
-                           + lv["down_angle_var"] * rng.uniform(-1, 1, len(t)))
+        theta = np.radians(
+            lv["down_angle"] * (1 - span) + tip_angle * span + lv["down_angle_var"] * rng.uniform(-1, 1, len(t))
+        )
         radial = np.cos(phi)[:, None] * pside + np.sin(phi)[:, None] * pbin
         head = _norm(np.cos(theta)[:, None] * ptan + np.sin(theta)[:, None] * radial)
         plen = parent.length[stem]

@@ -54,8 +54,20 @@ MAX_FILE_BYTES = 256 * 1024 * 1024
 MAX_TRIANGLES = 5_000_000
 HIGH_MAX = lodmod.BUDGETS["high"][1]
 LEAF_RE = re.compile(r"leaf|leaves|foliage|needle|frond|canopy|crown|blatt|feuill", re.I)
-UNITS = {"m": 1.0, "meters": 1.0, "metres": 1.0, "meter": 1.0, "cm": 0.01, "centimeters": 0.01, "mm": 0.001,
-         "millimeters": 0.001, "in": 0.0254, "inches": 0.0254, "ft": 0.3048, "feet": 0.3048}
+UNITS = {
+    "m": 1.0,
+    "meters": 1.0,
+    "metres": 1.0,
+    "meter": 1.0,
+    "cm": 0.01,
+    "centimeters": 0.01,
+    "mm": 0.001,
+    "millimeters": 0.001,
+    "in": 0.0254,
+    "inches": 0.0254,
+    "ft": 0.3048,
+    "feet": 0.3048,
+}
 TAG_IMPORT = 0x1A7
 
 
@@ -79,7 +91,9 @@ def _material(geom) -> tuple[str, tuple[float, float, float], np.ndarray | None]
             factor = getattr(mat, "diffuse", None)
         if factor is not None:
             f = np.asarray(factor, dtype=np.float64)[:3]
-            colour = tuple((f / 255.0 if f.max() > 1.0 or np.issubdtype(np.asarray(factor).dtype, np.integer) else f).tolist())
+            colour = tuple(
+                (f / 255.0 if f.max() > 1.0 or np.issubdtype(np.asarray(factor).dtype, np.integer) else f).tolist()
+            )
         img = getattr(mat, "baseColorTexture", None)
         if img is None:
             img = getattr(mat, "image", None)
@@ -87,7 +101,7 @@ def _material(geom) -> tuple[str, tuple[float, float, float], np.ndarray | None]
             arr = np.asarray(img.convert("RGBA"), dtype=np.float32) / 255.0
             arr[..., :3] = srgb_to_linear(arr[..., :3])
             image = arr
-            if factor is None:          # the texture alone carries the colour
+            if factor is None:  # the texture alone carries the colour
                 colour = (1.0, 1.0, 1.0)
     elif getattr(vis, "kind", None) in ("face", "vertex"):
         c = np.asarray(vis.face_colors if vis.kind == "face" else vis.vertex_colors, dtype=np.float64)
@@ -120,9 +134,10 @@ def load_parts(path: Path, *, up: str = "auto", units: str = "auto", height: flo
     if units != "auto" and units not in UNITS:
         raise ForestError(f"--units: must be auto or one of {', '.join(sorted(UNITS))}; got {units!r}")
     import trimesh
+
     try:
         scene = trimesh.load(str(path), force="scene", process=False)
-    except Exception as e:  # noqa: BLE001 - any parser failure is a bad file
+    except Exception as e:
         msg = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise ForestError(f"{path}: cannot read mesh: {msg}") from None
     parts: dict[str, _Part] = {}
@@ -150,7 +165,7 @@ def load_parts(path: Path, *, up: str = "auto", units: str = "auto", height: flo
         mname, colour, image = _material(geom)
         uv = getattr(geom.visual, "uv", None)
         uv = np.zeros((len(v), 2)) if uv is None or len(uv) != len(v) else np.asarray(uv, dtype=np.float64)
-        uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1)    # trimesh gives v up; Mitsuba reads v down
+        uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], axis=1)  # trimesh gives v up; Mitsuba reads v down
         key = f"{mname}|{colour}|{id(image) if image is not None else ''}"
         label = f"{gname} {mname}".strip()
         if key not in parts:
@@ -188,7 +203,7 @@ def load_parts(path: Path, *, up: str = "auto", units: str = "auto", height: flo
     start = 0
     for p in parts.values():
         n = sum(len(x) for x in p.vertices)
-        v = allv[start:start + n]
+        v = allv[start : start + n]
         start += n
         f = np.concatenate(p.faces)
         uv = np.concatenate(p.uv)
@@ -200,7 +215,7 @@ def load_parts(path: Path, *, up: str = "auto", units: str = "auto", height: flo
 def _classify(parts) -> list[tuple[str, bool]]:
     """(kind, tinted) per part: leaf by name; tint leaves, else the greenest part, else all."""
     kinds = []
-    for label, mesh, colour, image in parts:
+    for label, _mesh, _colour, image in parts:
         # Leaves by name, or by an alpha-cut texture (cards whose texels are partly transparent).
         cutout = image is not None and image.shape[2] == 4 and float((image[..., 3] < 0.5).mean()) > 0.05
         leafy = bool(LEAF_RE.search(label)) or cutout
@@ -217,14 +232,22 @@ def seed_of(digest: str) -> int:
     return int(digest[:8], 16) if digest else 0
 
 
-def convert(path: Path, out: Path, name: str, *, up: str = "auto", units: str = "auto",
-            height: float | None = None, digest: str = "") -> dict:
+def convert(
+    path: Path,
+    out: Path,
+    name: str,
+    *,
+    up: str = "auto",
+    units: str = "auto",
+    height: float | None = None,
+    digest: str = "",
+) -> dict:
     """Import ``path`` into folder ``out`` (PLY per part per level, textures, species.json)."""
     parts = load_parts(path, up=up, units=units, height=height)
     classes = _classify(parts)
     out.mkdir(parents=True, exist_ok=True)
     textures = []
-    for i, (label, mesh, colour, image) in enumerate(parts):
+    for i, (_label, _mesh, _colour, image) in enumerate(parts):
         if image is not None:
             write_texture(out / f"texture{i}.png", image)
             textures.append(f"texture{i}.png")
@@ -236,7 +259,7 @@ def convert(path: Path, out: Path, name: str, *, up: str = "auto", units: str = 
     for lod in ("high", "medium", "low"):
         target = HIGH_MAX if lod == "high" else lodmod.TARGETS[lod]
         entries = []
-        for i, ((label, mesh, colour, image), (kind, tinted)) in enumerate(zip(parts, classes)):
+        for i, ((_label, mesh, colour, image), (kind, tinted)) in enumerate(zip(parts, classes)):
             share = max(8, int(round(target * mesh.triangles / total)))
             m = mesh
             if mesh.triangles > share:
@@ -259,8 +282,14 @@ def convert(path: Path, out: Path, name: str, *, up: str = "auto", units: str = 
     write_ply(out / "far_cards.ply", far)
     any_tint = any(t for _, t in classes)
     lods.append(lod_entry("far", [part_entry("leaf", "far_cards.ply", far, scale, "far.png", any_tint, 0.2)]))
-    meta = {"name": name, "source": "imported", "original": path.name, "hash": digest, "lods": lods,
-            "options": {"up": up, "units": units, "height": height}}
+    meta = {
+        "name": name,
+        "source": "imported",
+        "original": path.name,
+        "hash": digest,
+        "lods": lods,
+        "options": {"up": up, "units": units, "height": height},
+    }
     write_json(out / "species.json", meta)
     return meta
 
@@ -285,7 +314,7 @@ def _into_place(lib: Library, path: Path, folder: Path, name: str, replace: bool
     old = None
     try:
         meta = convert(path, tmp, name, digest=digest, **options)
-        os.chmod(tmp, 0o755)                      # mkdtemp makes it private
+        os.chmod(tmp, 0o755)  # mkdtemp makes it private
         if folder.exists():
             if not replace:
                 return _load_meta(folder) or meta
@@ -325,32 +354,50 @@ def _manifest_without(text: str, name: str) -> str:
     return "".join(out)
 
 
-def add_species(lib: Library, path: str | Path, name: str, *, up: str = "auto", units: str = "auto",
-                height: float | None = None, force: bool = False, preview: bool = True) -> Species:
+def add_species(
+    lib: Library,
+    path: str | Path,
+    name: str,
+    *,
+    up: str = "auto",
+    units: str = "auto",
+    height: float | None = None,
+    force: bool = False,
+    preview: bool = True,
+) -> Species:
     """Import ``path`` as species ``name`` into ``lib`` (files under ``imported/NAME/``, a manifest entry)."""
     path = Path(path)
     if not NAME_RE.match(name or ""):
-        raise ForestError(f"--name: {name!r} is not a valid species name (letters, digits, _ and -, starting with a letter)")
-    existing = lib.names()
-    if name in existing and not force:
-        raise ForestError(f"--name: species {name!r} already exists in {lib.manifest_path}; use --force to replace it")
+        raise ForestError(
+            f"--name: {name!r} is not a valid species name (letters, digits, _ and -, starting with a letter)"
+        )
+    if name in lib.names() and not force:
+        raise ForestError(
+            f"--name: species {name!r} already exists in the library; use --force to replace it "
+            f"(a preset of that name is shadowed, not changed)"
+        )
     if height is not None and not (math.isfinite(height) and height > 0):
         raise ForestError(f"--height: must be a positive number of metres, got {height!r}")
     folder = lib.root / "imported" / name
     meta = _into_place(lib, path, folder, name, True, up=up, units=units, height=height)
-    text = lib.manifest_path.read_text() if lib.manifest_path.is_file() else \
-        "# forest tree library (see `forest library --help`).\nversion = 1\n"
+    text = (
+        lib.manifest_path.read_text()
+        if lib.manifest_path.is_file()
+        else "# forest tree library (see `forest library --help`).\nversion = 1\n"
+    )
     text = _manifest_without(text, name).rstrip("\n") + "\n"
-    opts = "".join(f'{k} = {v!r}\n'.replace("'", '"') for k, v in (("up", up), ("units", units)) if v != "auto")
+    opts = "".join(f"{k} = {v!r}\n".replace("'", '"') for k, v in (("up", up), ("units", units)) if v != "auto")
     if height is not None:
         opts += f"height = {float(height)!r}\n"
     desc = f"imported from {path.name}".replace('"', "'")
-    text += (f'\n[species.{name}]\nsource = "imported"\npath = "imported/{name}"\n'
-             f'original = "{path.name.replace(chr(34), "")}"\n{opts}description = "{desc}"\n')
+    text += (
+        f'\n[species.{name}]\nsource = "imported"\npath = "imported/{name}"\n'
+        f'original = "{path.name.replace(chr(34), "")}"\n{opts}description = "{desc}"\n'
+    )
     with atomic_path(lib.manifest_path) as tmp:
         tmp.write_text(text)
     lib._species.pop(name, None)
     sp = _species_from_meta(lib, meta, folder, desc)
     if preview:
-        sp.preview  # noqa: B018 - render it now
+        sp.preview  # noqa: B018 - renders when missing
     return sp

@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from .generator import Skeleton, Level, _norm, _perpendicular
+from .generator import Level, Skeleton, _norm, _perpendicular
 from .mesh import MeshData
 
 LODS = ("high", "medium", "low", "far")
@@ -57,23 +57,26 @@ def tubes(level: Level, sides: int, rows: np.ndarray) -> MeshData:
     pos = pts[:, :, None, :] + rad[:, :, None, None] * nrm
     arc = np.concatenate([np.zeros((S, 1)), np.cumsum(np.linalg.norm(np.diff(pts, axis=1), axis=2), axis=1)], axis=1)
     v = arc / (2 * np.pi * np.maximum(rad[:, :1], 1e-4))
-    uv = np.stack(np.broadcast_arrays(np.broadcast_to((a / (2 * np.pi))[None, None, :], (S, R, K + 1)),
-                                      v[:, :, None]), axis=-1)
+    uv = np.stack(
+        np.broadcast_arrays(np.broadcast_to((a / (2 * np.pi))[None, None, :], (S, R, K + 1)), v[:, :, None]), axis=-1
+    )
     # Faces: quad (j, k) → (j,k) (j+1,k) (j+1,k+1) and (j,k) (j+1,k+1) (j,k+1); winding outward.
     j, k = np.meshgrid(np.arange(R - 1), np.arange(K), indexing="ij")
     i00 = j * (K + 1) + k
     i10 = (j + 1) * (K + 1) + k
     i11 = (j + 1) * (K + 1) + k + 1
     i01 = j * (K + 1) + k + 1
-    tmpl = np.concatenate([np.stack([i00, i01, i11], -1).reshape(-1, 3),
-                           np.stack([i00, i11, i10], -1).reshape(-1, 3)])
+    tmpl = np.concatenate([np.stack([i00, i01, i11], -1).reshape(-1, 3), np.stack([i00, i11, i10], -1).reshape(-1, 3)])
     faces = (tmpl[None, :, :] + (np.arange(S) * R * (K + 1))[:, None, None]).reshape(-1, 3)
-    return MeshData(pos.reshape(-1, 3).astype(np.float32), faces.astype(np.uint32),
-                    nrm.reshape(-1, 3).astype(np.float32), uv.reshape(-1, 2).astype(np.float32))
+    return MeshData(
+        pos.reshape(-1, 3).astype(np.float32),
+        faces.astype(np.uint32),
+        nrm.reshape(-1, 3).astype(np.float32),
+        uv.reshape(-1, 2).astype(np.float32),
+    )
 
 
-def cards(base: np.ndarray, direction: np.ndarray, width: np.ndarray, size: np.ndarray,
-          scale: float = 1.0) -> MeshData:
+def cards(base: np.ndarray, direction: np.ndarray, width: np.ndarray, size: np.ndarray, scale: float = 1.0) -> MeshData:
     """Quads of ``size = [length, width]`` from ``base`` along ``direction``, scaled about their centre.
 
     Vertices: ``c ± ½·s·len·d̂ ± ½·s·wid·ŵ`` with ``c = base + ½·len·d̂``; normals
@@ -89,12 +92,17 @@ def cards(base: np.ndarray, direction: np.ndarray, width: np.ndarray, size: np.n
     nrms = np.repeat(nrm[:, None, :], 4, axis=1)
     uv = np.tile(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]), (n, 1, 1))
     faces = (np.array([[0, 1, 2], [0, 2, 3]])[None] + 4 * np.arange(n)[:, None, None]).reshape(-1, 3)
-    return MeshData(quad.reshape(-1, 3).astype(np.float32), faces.astype(np.uint32),
-                    nrms.reshape(-1, 3).astype(np.float32), uv.reshape(-1, 2).astype(np.float32))
+    return MeshData(
+        quad.reshape(-1, 3).astype(np.float32),
+        faces.astype(np.uint32),
+        nrms.reshape(-1, 3).astype(np.float32),
+        uv.reshape(-1, 2).astype(np.float32),
+    )
 
 
-def bent_cards(base: np.ndarray, direction: np.ndarray, width: np.ndarray, size: np.ndarray,
-               segments: int, bend: float) -> MeshData:
+def bent_cards(
+    base: np.ndarray, direction: np.ndarray, width: np.ndarray, size: np.ndarray, segments: int, bend: float
+) -> MeshData:
     """Cards split into ``segments`` strips along their length, drooping by ``bend`` degrees.
 
     The centreline heading at arc parameter ``s ∈ [0, 1]`` is ``d̂`` rotated
@@ -110,13 +118,14 @@ def bent_cards(base: np.ndarray, direction: np.ndarray, width: np.ndarray, size:
     # Bend axis: ŵ oriented so that positive rotation turns d̂ towards −Y.
     axis = width * np.sign(np.sum(np.cross(width, direction) * down, axis=1, keepdims=True) + 1e-12)
     from .generator import _rotate
+
     heads = np.stack([_rotate(direction, axis, np.full(n, np.radians(bend) * si)) for si in s[:-1]], axis=1)
     steps = heads * (size[:, :1, None] / K)
     centre = np.concatenate([base[:, None, :], base[:, None, :] + np.cumsum(steps, axis=1)], axis=1)
     tangent = np.concatenate([heads, heads[:, -1:]], axis=1)
     hw = 0.5 * size[:, 1:, None] * width[:, None, :]
     left, right = centre - hw, centre + hw
-    pos = np.stack([left, right], axis=2)                       # (n, K+1, 2, 3)
+    pos = np.stack([left, right], axis=2)  # (n, K+1, 2, 3)
     nrm = _norm(np.cross(np.broadcast_to(width[:, None, :], tangent.shape), tangent))
     flip = nrm[:, K // 2 : K // 2 + 1, 1:2] < 0
     nrm = np.where(flip, -nrm, nrm)
@@ -127,8 +136,12 @@ def bent_cards(base: np.ndarray, direction: np.ndarray, width: np.ndarray, size:
     i0, i1, i2, i3 = 2 * j, 2 * j + 1, 2 * j + 3, 2 * j + 2
     tmpl = np.concatenate([np.stack([i0, i1, i2], -1), np.stack([i0, i2, i3], -1)])
     faces = (tmpl[None] + (np.arange(n) * 2 * (K + 1))[:, None, None]).reshape(-1, 3)
-    return MeshData(pos.reshape(-1, 3).astype(np.float32), faces.astype(np.uint32),
-                    nrm.reshape(-1, 3).astype(np.float32), uv.reshape(-1, 2).astype(np.float32))
+    return MeshData(
+        pos.reshape(-1, 3).astype(np.float32),
+        faces.astype(np.uint32),
+        nrm.reshape(-1, 3).astype(np.float32),
+        uv.reshape(-1, 2).astype(np.float32),
+    )
 
 
 def _tube_plan(sk: Skeleton, lod: str, budget: float) -> list[tuple[int, int, np.ndarray]]:
@@ -161,11 +174,13 @@ def _tube_plan(sk: Skeleton, lod: str, budget: float) -> list[tuple[int, int, np
 
 def bark_mesh(sk: Skeleton, lod: str, budget: float) -> MeshData:
     from .mesh import merge_meshes
+
     return merge_meshes([tubes(sk.levels[i], sides, rows) for i, sides, rows in _tube_plan(sk, lod, budget)])
 
 
-def leaf_meshes(sk: Skeleton, lod: str, budget_cards: int, seed: int, cov_leaf: float,
-                cov_cluster: float) -> tuple[MeshData, bool]:
+def leaf_meshes(
+    sk: Skeleton, lod: str, budget_cards: int, seed: int, cov_leaf: float, cov_cluster: float
+) -> tuple[MeshData, bool]:
     """Leaf cards for ``lod``: every leaf at the high level, an area-preserving subset below.
 
     Returns the mesh and whether it uses the cluster texture.
@@ -173,15 +188,19 @@ def leaf_meshes(sk: Skeleton, lod: str, budget_cards: int, seed: int, cov_leaf: 
     N = len(sk.leaf_base)
     tree = sk.recipe["tree"]
     if lod == "high" and N * tree["leaf_segments"] <= budget_cards:
-        return bent_cards(sk.leaf_base, sk.leaf_dir, sk.leaf_width, sk.leaf_size,
-                          tree["leaf_segments"], tree["leaf_bend"]), False
+        return bent_cards(
+            sk.leaf_base, sk.leaf_dir, sk.leaf_width, sk.leaf_size, tree["leaf_segments"], tree["leaf_bend"]
+        ), False
     m = max(1, min(N, budget_cards))
-    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, TAG_LOD, LODS.index(lod)])))
+    rng = np.random.Generator(
+        np.random.PCG64(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, TAG_LOD, LODS.index(lod)]))
+    )
     keep = np.sort(rng.permutation(N)[:m])
     if lod == "high":
         # Too many leaves for the budget: fewer single-leaf cards, same total area.
-        return cards(sk.leaf_base[keep], sk.leaf_dir[keep], sk.leaf_width[keep], sk.leaf_size[keep],
-                     scale=math.sqrt(N / m)), False
+        return cards(
+            sk.leaf_base[keep], sk.leaf_dir[keep], sk.leaf_width[keep], sk.leaf_size[keep], scale=math.sqrt(N / m)
+        ), False
     area_leaf = float(np.sum(sk.leaf_size[:, 0] * sk.leaf_size[:, 1])) * cov_leaf
     area_kept = float(np.sum(sk.leaf_size[keep, 0] * sk.leaf_size[keep, 1])) * cov_cluster
     s = math.sqrt(area_leaf / max(area_kept, 1e-12))
@@ -228,7 +247,7 @@ def card_coverage(alpha: np.ndarray) -> np.ndarray:
     ``s = a (ê_j·û_k) + t (d·û_k)``; the cards compose as ``1 − Π_k (1 − α_k)``.
     """
     K, H, W = alpha.shape
-    a = (np.arange(W) + 0.5) / W * 2.0 - 1.0          # in units of R
+    a = (np.arange(W) + 0.5) / W * 2.0 - 1.0  # in units of R
     out = np.zeros(K)
     for j in range(K):
         phi = math.pi * j / K
@@ -242,7 +261,7 @@ def card_coverage(alpha: np.ndarray) -> np.ndarray:
             nk = np.array([-math.sin(ang), math.cos(ang)])
             dn = float(d @ nk)
             if abs(dn) < 1e-6:
-                continue                              # edge-on: invisible
+                continue  # edge-on: invisible
             t = -a * float(e @ nk) / dn
             sk = a * float(e @ u) + t * float(d @ u)
             col = np.floor((sk + 1.0) / 2.0 * W).astype(np.int64)
@@ -275,9 +294,14 @@ def calibrate_opacity(cov: np.ndarray) -> float:
     return 0.5 * (lo + hi)
 
 
-def impostor(parts: list[tuple[MeshData, np.ndarray, np.ndarray | None]], bounds: np.ndarray, *,
-             res: int = 128, seed: int = 0, coverage: np.ndarray | None = None
-             ) -> tuple[MeshData, np.ndarray, np.ndarray]:
+def impostor(
+    parts: list[tuple[MeshData, np.ndarray, np.ndarray | None]],
+    bounds: np.ndarray,
+    *,
+    res: int = 128,
+    seed: int = 0,
+    coverage: np.ndarray | None = None,
+) -> tuple[MeshData, np.ndarray, np.ndarray]:
     """Crossed-card far form of ``parts`` (mesh, linear colour, RGBA texture or None).
 
     ``coverage (FAR_VIEWS, res, res)``, when given, is the exact coverage of
@@ -308,7 +332,9 @@ def impostor(parts: list[tuple[MeshData, np.ndarray, np.ndarray | None]], bounds
         if len(mesh.faces):
             v = mesh.vertices.astype(np.float64)
             f = mesh.faces.astype(np.int64)
-            total_area += 0.5 * float(np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum())
+            total_area += 0.5 * float(
+                np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum()
+            )
     density = min(2.0 / (px * py), max_samples / max(total_area, 1e-12))
     samples_p, samples_c = [], []
     for mesh, colour, tex in parts:
@@ -336,7 +362,7 @@ def impostor(parts: list[tuple[MeshData, np.ndarray, np.ndarray | None]], bounds
         a = P @ axis
         depth = P @ normal
         ix = np.clip(((a + radius) / (2 * radius) * sub).astype(np.int64), 0, sub - 1)
-        iy = np.clip(((hi[1] - P[:, 1]) / height * sub).astype(np.int64), 0, sub - 1)   # row 0 = top
+        iy = np.clip(((hi[1] - P[:, 1]) / height * sub).astype(np.int64), 0, sub - 1)  # row 0 = top
         cell = iy * sub + ix
         # One sort on cell + (normalised distance from the viewer): per cell, the nearest sample first.
         dn = (depth.max() - depth) / max(float(np.ptp(depth)), 1e-9) * 0.999 if len(depth) else depth
@@ -356,23 +382,33 @@ def impostor(parts: list[tuple[MeshData, np.ndarray, np.ndarray | None]], bounds
             mean_rgb = C.mean(axis=0) if len(C) else np.full(3, 0.5)
             rgb = np.where(hits[..., None] > 0, rgb, mean_rgb)
             cov = np.asarray(coverage[k], dtype=np.float64)
-        atlas[:, k * res:(k + 1) * res, :3] = rgb
+        atlas[:, k * res : (k + 1) * res, :3] = rgb
         covs.append(cov)
         u0, u1 = k / FAR_VIEWS, (k + 1) / FAR_VIEWS
-        quad = np.array([-radius * axis + [0, lo[1], 0], radius * axis + [0, lo[1], 0],
-                         radius * axis + [0, hi[1], 0], -radius * axis + [0, hi[1], 0]])
+        quad = np.array(
+            [
+                -radius * axis + [0, lo[1], 0],
+                radius * axis + [0, lo[1], 0],
+                radius * axis + [0, hi[1], 0],
+                -radius * axis + [0, hi[1], 0],
+            ]
+        )
         verts.append(quad)
         uvs.append(np.array([[u0, 1.0], [u1, 1.0], [u1, 0.0], [u0, 0.0]]))
         nrms.append(np.repeat(normal[None], 4, axis=0))
     cov = np.stack(covs)
     gamma = calibrate_opacity(cov)
     for k in range(FAR_VIEWS):
-        atlas[:, k * res:(k + 1) * res, 3] = 1.0 - (1.0 - cov[k]) ** gamma
+        atlas[:, k * res : (k + 1) * res, 3] = 1.0 - (1.0 - cov[k]) ** gamma
     covered = atlas[..., 3] > 0
     scale = atlas[..., :3][covered].max(axis=0) if covered.any() else np.ones(3)
     scale = np.maximum(scale, 1e-4)
     atlas[..., :3] = np.where(covered[..., None], atlas[..., :3] / scale, 1.0)
     faces = (np.array([[0, 1, 2], [0, 2, 3]])[None] + 4 * np.arange(FAR_VIEWS)[:, None, None]).reshape(-1, 3)
-    mesh = MeshData(np.concatenate(verts).astype(np.float32), faces.astype(np.uint32),
-                    np.concatenate(nrms).astype(np.float32), np.concatenate(uvs).astype(np.float32))
+    mesh = MeshData(
+        np.concatenate(verts).astype(np.float32),
+        faces.astype(np.uint32),
+        np.concatenate(nrms).astype(np.float32),
+        np.concatenate(uvs).astype(np.float32),
+    )
     return mesh, atlas.astype(np.float32), scale

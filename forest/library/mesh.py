@@ -52,8 +52,12 @@ def merge_meshes(meshes: list[MeshData]) -> MeshData:
     """Concatenate meshes, offsetting face indices."""
     meshes = [m for m in meshes if len(m.faces)]
     if not meshes:
-        return MeshData(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint32),
-                        np.zeros((0, 3), np.float32), np.zeros((0, 2), np.float32))
+        return MeshData(
+            np.zeros((0, 3), np.float32),
+            np.zeros((0, 3), np.uint32),
+            np.zeros((0, 3), np.float32),
+            np.zeros((0, 2), np.float32),
+        )
     offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
     return MeshData(
         np.concatenate([m.vertices for m in meshes]).astype(np.float32),
@@ -87,21 +91,24 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 # PLY
 # ---------------------------------------------------------------------------
 
-_VERTEX_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("nx", "<f4"), ("ny", "<f4"),
-                          ("nz", "<f4"), ("u", "<f4"), ("v", "<f4")])
+_VERTEX_DTYPE = np.dtype(
+    [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4"), ("u", "<f4"), ("v", "<f4")]
+)
 _FACE_DTYPE = np.dtype([("n", "u1"), ("i", "<u4", (3,))])
 
 
 def ply_bytes(mesh: MeshData) -> bytes:
     """Serialise ``mesh`` as binary little-endian PLY (deterministic)."""
     nv, nf = len(mesh.vertices), len(mesh.faces)
-    header = ("ply\nformat binary_little_endian 1.0\n"
-              f"element vertex {nv}\n"
-              "property float x\nproperty float y\nproperty float z\n"
-              "property float nx\nproperty float ny\nproperty float nz\n"
-              "property float u\nproperty float v\n"
-              f"element face {nf}\n"
-              "property list uchar uint vertex_indices\nend_header\n").encode("ascii")
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"element vertex {nv}\n"
+        "property float x\nproperty float y\nproperty float z\n"
+        "property float nx\nproperty float ny\nproperty float nz\n"
+        "property float u\nproperty float v\n"
+        f"element face {nf}\n"
+        "property list uchar uint vertex_indices\nend_header\n"
+    ).encode("ascii")
     vert = np.empty(nv, dtype=_VERTEX_DTYPE)
     vv = np.asarray(mesh.vertices, dtype=np.float32)
     nn = np.asarray(mesh.normals, dtype=np.float32)
@@ -145,11 +152,16 @@ def read_ply(path: str | Path) -> MeshData:
             nv = int(parts[2])
         elif parts[:2] == ["element", "face"]:
             nf = int(parts[2])
-    expected = ply_bytes(MeshData(np.zeros((nv or 0, 3)), np.zeros((nf or 0, 3)), np.zeros((nv or 0, 3)),
-                                  np.zeros((nv or 0, 2))))[:end + len("end_header\n")]
-    body = data[end + len("end_header\n"):]
-    if nv is None or nf is None or data[:end + 11] != expected or \
-            len(body) != nv * _VERTEX_DTYPE.itemsize + nf * _FACE_DTYPE.itemsize:
+    expected = ply_bytes(
+        MeshData(np.zeros((nv or 0, 3)), np.zeros((nf or 0, 3)), np.zeros((nv or 0, 3)), np.zeros((nv or 0, 2)))
+    )[: end + len("end_header\n")]
+    body = data[end + len("end_header\n") :]
+    if (
+        nv is None
+        or nf is None
+        or data[: end + 11] != expected
+        or len(body) != nv * _VERTEX_DTYPE.itemsize + nf * _FACE_DTYPE.itemsize
+    ):
         raise ForestError(f"{path}: unexpected PLY layout (expected forest's x y z nx ny nz u v / uint faces)")
     vert = np.frombuffer(body, dtype=_VERTEX_DTYPE, count=nv)
     face = np.frombuffer(body, dtype=_FACE_DTYPE, count=nf, offset=nv * _VERTEX_DTYPE.itemsize)
@@ -164,6 +176,7 @@ def read_ply(path: str | Path) -> MeshData:
 # ---------------------------------------------------------------------------
 # Decimation by vertex clustering
 # ---------------------------------------------------------------------------
+
 
 def cluster_decimate(mesh: MeshData, cell: float) -> MeshData:
     """Vertex clustering (Rossignac & Borrel 1993): snap vertices to a grid of ``cell`` metres.
@@ -205,8 +218,9 @@ def cluster_decimate(mesh: MeshData, cell: float) -> MeshData:
         f = f[np.sort(first)]
     used, f_new = np.unique(f, return_inverse=True)
     f_new = f_new.reshape(-1, 3)
-    return MeshData(pos[used].astype(np.float32), f_new.astype(np.uint32),
-                    nrm[used].astype(np.float32), uv[used].astype(np.float32))
+    return MeshData(
+        pos[used].astype(np.float32), f_new.astype(np.uint32), nrm[used].astype(np.float32), uv[used].astype(np.float32)
+    )
 
 
 def decimate_to(mesh: MeshData, target: int, *, tolerance: float = 0.25) -> MeshData:
@@ -245,6 +259,7 @@ def components(faces: np.ndarray, n_vertices: int) -> tuple[int, np.ndarray]:
     """Connected components of a mesh (faces sharing a vertex): (count, component id per face)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
+
     f = np.asarray(faces, dtype=np.int64)
     rows = np.concatenate([f[:, 0], f[:, 1], f[:, 2]])
     cols = np.concatenate([f[:, 1], f[:, 2], f[:, 0]])
@@ -273,7 +288,7 @@ def thin_cards(mesh: MeshData, target: int, seed: int, tag: int) -> MeshData | N
     order = rng.permutation(n)
     keep_n = int(np.searchsorted(np.cumsum(comp_tris[order]), target, side="right"))
     keep = np.zeros(n, dtype=bool)
-    keep[order[:max(keep_n, 1)]] = True
+    keep[order[: max(keep_n, 1)]] = True
     s = float(np.sqrt(comp_area.sum() / max(comp_area[keep].sum(), 1e-12)))
     fk = f[keep[comp]]
     used, inv = np.unique(fk, return_inverse=True)
@@ -286,5 +301,9 @@ def thin_cards(mesh: MeshData, target: int, seed: int, tag: int) -> MeshData | N
     cent /= np.maximum(cnt, 1)[:, None]
     c = cent[vcomp[used]]
     nv = c + (v[used] - c) * s
-    return MeshData(nv.astype(np.float32), inv.reshape(-1, 3).astype(np.uint32),
-                    np.asarray(mesh.normals)[used], np.asarray(mesh.uv)[used])
+    return MeshData(
+        nv.astype(np.float32),
+        inv.reshape(-1, 3).astype(np.uint32),
+        np.asarray(mesh.normals)[used],
+        np.asarray(mesh.uv)[used],
+    )

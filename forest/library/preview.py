@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 
-
 PREVIEW_SIZE = (192, 192)
 PREVIEW_SPP = 16
 FOV = 30.0
@@ -31,6 +30,7 @@ def _texture_arrays(path: Path, cache: dict) -> tuple[np.ndarray, np.ndarray]:
     """(linear RGB detail, straight alpha ``(H, W, 1)``) of a texture, cached per render."""
     if path not in cache:
         from .textures import read_texture
+
         img = read_texture(path)
         cache[path] = (np.ascontiguousarray(img[..., :3]), np.ascontiguousarray(img[..., 3:4]))
     return cache[path]
@@ -44,12 +44,19 @@ def part_bsdf(mi, part, cache: dict | None = None) -> dict:
         diffuse = {"type": "diffuse", "reflectance": {"type": "rgb", "value": colour.tolist()}}
         return {"type": "twosided", "material": diffuse} if part.kind != "bark" else diffuse
     rgb, alpha = _texture_arrays(part.texture, cache)
-    refl = {"type": "bitmap", "bitmap": mi.Bitmap(np.ascontiguousarray(rgb * colour)), "raw": True,
-            "filter_type": "bilinear"}
+    refl = {
+        "type": "bitmap",
+        "bitmap": mi.Bitmap(np.ascontiguousarray(rgb * colour)),
+        "raw": True,
+        "filter_type": "bilinear",
+    }
     diffuse = {"type": "twosided", "material": {"type": "diffuse", "reflectance": refl}}
     if part.kind == "leaf" or alpha.min() < 1.0:
-        return {"type": "mask", "opacity": {"type": "bitmap", "bitmap": mi.Bitmap(alpha), "raw": True,
-                                            "filter_type": "bilinear"}, "material": diffuse}
+        return {
+            "type": "mask",
+            "opacity": {"type": "bitmap", "bitmap": mi.Bitmap(alpha), "raw": True, "filter_type": "bilinear"},
+            "material": diffuse,
+        }
     return diffuse
 
 
@@ -59,7 +66,7 @@ def camera_for(bounds: np.ndarray, size: tuple[int, int]) -> dict:
     r = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-3)
     aspect = size[0] / size[1]
     half = math.radians(FOV / 2)
-    if aspect < 1:   # fov applies to the wider axis; keep the sphere inside the narrow one
+    if aspect < 1:  # fov applies to the wider axis; keep the sphere inside the narrow one
         half = math.atan(math.tan(half) * aspect)
     # Fit the box's front face (width × height) in the view, plus half its depth.
     ext = hi - lo
@@ -67,47 +74,76 @@ def camera_for(bounds: np.ndarray, size: tuple[int, int]) -> dict:
     d = max(d, 1.05 * r)
     el = math.radians(12.0)
     eye = centre + d * np.array([0.0, math.sin(el), math.cos(el)])
-    return {"type": "perspective", "fov": FOV, "fov_axis": "larger",
-            "near_clip": max(d - 2 * r, 1e-3) * 0.5, "far_clip": d + 2 * r,
-            "to_world": None, "_eye": eye.tolist(), "_target": centre.tolist()}
+    return {
+        "type": "perspective",
+        "fov": FOV,
+        "fov_axis": "larger",
+        "near_clip": max(d - 2 * r, 1e-3) * 0.5,
+        "far_clip": d + 2 * r,
+        "to_world": None,
+        "_eye": eye.tolist(),
+        "_target": centre.tolist(),
+    }
 
 
-def render_lod(species, lod: str = "high", *, size: tuple[int, int] = PREVIEW_SIZE, spp: int = PREVIEW_SPP,
-               frame_bounds: np.ndarray | None = None) -> np.ndarray:
+def render_lod(
+    species,
+    lod: str = "high",
+    *,
+    size: tuple[int, int] = PREVIEW_SIZE,
+    spp: int = PREVIEW_SPP,
+    frame_bounds: np.ndarray | None = None,
+) -> np.ndarray:
     """Render one level of detail; returns linear RGBA float32 ``(H, W, 4)``.
 
     The camera frames ``frame_bounds`` (default: the high level's bounds) so
     images of different levels line up pixel for pixel.
     """
     from ..runtime import mitsuba
+
     mi = mitsuba("scalar_rgb")
     level = species.lod(lod)
     bounds = species.lods[0].bounds if frame_bounds is None else frame_bounds
     cam = camera_for(bounds, size)
     eye, target = cam.pop("_eye"), cam.pop("_target")
     cam["to_world"] = mi.ScalarTransform4f().look_at(origin=eye, target=target, up=[0, 1, 0])
-    cam["film"] = {"type": "hdrfilm", "width": int(size[0]), "height": int(size[1]), "pixel_format": "rgba",
-                   "rfilter": {"type": "gaussian"}}
+    cam["film"] = {
+        "type": "hdrfilm",
+        "width": int(size[0]),
+        "height": int(size[1]),
+        "pixel_format": "rgba",
+        "rfilter": {"type": "gaussian"},
+    }
     cam["sampler"] = {"type": "independent", "sample_count": int(spp), "seed": 0}
-    scene = {"type": "scene",
-             # Every crossing of a leaf card's transparent texels costs one path vertex
-             # (mask = null interaction), so depth and Russian roulette are set high
-             # enough not to cut rays off inside a crown (which would lose coverage).
-             "integrator": {"type": "path", "max_depth": MAX_DEPTH, "rr_depth": MAX_DEPTH, "hide_emitters": True},
-             "sensor": cam,
-             "env": {"type": "constant", "radiance": {"type": "rgb", "value": [0.55, 0.55, 0.55]}},
-             "sun": {"type": "directional", "direction": [0.45, -0.75, -0.5],
-                     "irradiance": {"type": "rgb", "value": [2.2, 2.2, 2.2]}}}
+    scene = {
+        "type": "scene",
+        # Every crossing of a leaf card's transparent texels costs one path vertex
+        # (mask = null interaction), so depth and Russian roulette are set high
+        # enough not to cut rays off inside a crown (which would lose coverage).
+        "integrator": {"type": "path", "max_depth": MAX_DEPTH, "rr_depth": MAX_DEPTH, "hide_emitters": True},
+        "sensor": cam,
+        "env": {"type": "constant", "radiance": {"type": "rgb", "value": [0.55, 0.55, 0.55]}},
+        "sun": {
+            "type": "directional",
+            "direction": [0.45, -0.75, -0.5],
+            "irradiance": {"type": "rgb", "value": [2.2, 2.2, 2.2]},
+        },
+    }
     cache: dict = {}
     for i, part in enumerate(level.parts):
-        scene[f"part{i}"] = {"type": "ply", "filename": str(part.path), "face_normals": False,
-                             "bsdf": part_bsdf(mi, part, cache)}
+        scene[f"part{i}"] = {
+            "type": "ply",
+            "filename": str(part.path),
+            "face_normals": False,
+            "bsdf": part_bsdf(mi, part, cache),
+        }
     img = mi.render(mi.load_dict(scene), spp=int(spp), seed=0)
     return np.array(img, dtype=np.float32).reshape(int(size[1]), int(size[0]), -1)[..., :4]
 
 
-def render_preview_file(species, path: Path, *, lod: str = "high", size: tuple[int, int] = PREVIEW_SIZE,
-                        spp: int = PREVIEW_SPP) -> Path:
+def render_preview_file(
+    species, path: Path, *, lod: str = "high", size: tuple[int, int] = PREVIEW_SIZE, spp: int = PREVIEW_SPP
+) -> Path:
     """Render ``species`` and write the preview PNG (sRGB, straight alpha) atomically."""
     rgba = render_lod(species, lod, size=size, spp=spp)
     a = rgba[..., 3:4]
@@ -115,6 +151,7 @@ def render_preview_file(species, path: Path, *, lod: str = "high", size: tuple[i
     out = rgba.copy()
     out[..., :3] = np.where(a > 1e-6, rgba[..., :3] / np.maximum(a, 1e-6), 0.0)
     from .textures import write_texture
+
     return write_texture(path, out)
 
 
@@ -133,6 +170,7 @@ def card_view_alpha(parts, bounds: np.ndarray, views: int, res: int, spp: int = 
     ``(views, res, res)`` alpha rendered with Mitsuba (alpha-tested leaves included).
     """
     from ..runtime import mitsuba
+
     mi = mitsuba("scalar_rgb")
     lo, hi = np.asarray(bounds, dtype=np.float64)
     radius = float(max(np.abs(lo[[0, 2]]).max(), np.abs(hi[[0, 2]]).max(), 1e-3))
@@ -149,23 +187,38 @@ def card_view_alpha(parts, bounds: np.ndarray, views: int, res: int, spp: int = 
             return {"type": "mask", "opacity": b["opacity"], "material": black}
         return black
 
-    shapes = {f"part{i}": {"type": "ply", "filename": str(p.path), "face_normals": False,
-                           "bsdf": coverage_bsdf(p)} for i, p in enumerate(parts)}
+    shapes = {
+        f"part{i}": {"type": "ply", "filename": str(p.path), "face_normals": False, "bsdf": coverage_bsdf(p)}
+        for i, p in enumerate(parts)
+    }
     out = np.zeros((views, res, res), dtype=np.float32)
     for k in range(views):
         phi = math.pi * k / views
         n = np.array([-math.sin(phi), 0.0, math.cos(phi)])
         eye = np.array([0.0, cy, 0.0]) + n * (4.0 * (radius + height))
-        to_world = mi.ScalarTransform4f().look_at(origin=eye.tolist(), target=[0.0, cy, 0.0], up=[0, 1, 0]) \
-            @ mi.ScalarTransform4f().scale([radius, 0.5 * height, 1.0])
-        scene = {"type": "scene", "integrator": {"type": "path", "max_depth": 512, "rr_depth": 512,
-                                "hide_emitters": True},
-                 "sensor": {"type": "orthographic", "to_world": to_world,
-                            "near_clip": 1e-3, "far_clip": 8.0 * (radius + height) + 1.0,
-                            "film": {"type": "hdrfilm", "width": res, "height": res, "pixel_format": "rgba",
-                                     "rfilter": {"type": "box"}},
-                            "sampler": {"type": "independent", "sample_count": spp, "seed": k}},
-                 "env": {"type": "constant"}, **shapes}
+        to_world = mi.ScalarTransform4f().look_at(
+            origin=eye.tolist(), target=[0.0, cy, 0.0], up=[0, 1, 0]
+        ) @ mi.ScalarTransform4f().scale([radius, 0.5 * height, 1.0])
+        scene = {
+            "type": "scene",
+            "integrator": {"type": "path", "max_depth": 512, "rr_depth": 512, "hide_emitters": True},
+            "sensor": {
+                "type": "orthographic",
+                "to_world": to_world,
+                "near_clip": 1e-3,
+                "far_clip": 8.0 * (radius + height) + 1.0,
+                "film": {
+                    "type": "hdrfilm",
+                    "width": res,
+                    "height": res,
+                    "pixel_format": "rgba",
+                    "rfilter": {"type": "box"},
+                },
+                "sampler": {"type": "independent", "sample_count": spp, "seed": k},
+            },
+            "env": {"type": "constant"},
+            **shapes,
+        }
         img = np.array(mi.render(mi.load_dict(scene), spp=spp, seed=k), dtype=np.float32)
         out[k] = img.reshape(res, res, -1)[..., 3]
     return np.clip(out, 0.0, 1.0)

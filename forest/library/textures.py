@@ -54,10 +54,10 @@ def leaf_rgba(shape: str, n: int = SIZE) -> np.ndarray:
     if shape == "broad":
         w = 0.92 * np.sin(np.pi * t) ** 0.8
         alpha = _smooth_mask(ax - w, n)
-        rib = np.exp(-(x / 0.025) ** 2)
+        rib = np.exp(-((x / 0.025) ** 2))
         # Veins: lines ax = (t - t0)·tan(50°) mirrored about the centre of the card.
         phase = (np.abs(t - 0.5) * 2.0 + ax * 0.85) * 7.0
-        veins = np.exp(-((phase - np.round(phase)) / 0.06) ** 2) * (ax < w * 0.9)
+        veins = np.exp(-(((phase - np.round(phase)) / 0.06) ** 2)) * (ax < w * 0.9)
         detail = 0.92 - 0.18 * rib - 0.10 * veins + 0.08 * (ax / np.maximum(w, 1e-3)).clip(0, 1) ** 2
     elif shape == "needle":
         # Nine needles from the centre (0, 0.5), angles spread over 360°.
@@ -72,7 +72,7 @@ def leaf_rgba(shape: str, n: int = SIZE) -> np.ndarray:
     elif shape == "frond":
         w = 0.45 * np.sin(np.pi * t)
         alpha = _smooth_mask(ax - w, n)
-        detail = 0.9 - 0.2 * np.exp(-(x / 0.04) ** 2) + 0.1 * (ax / np.maximum(w, 1e-3)).clip(0, 1)
+        detail = 0.9 - 0.2 * np.exp(-((x / 0.04) ** 2)) + 0.1 * (ax / np.maximum(w, 1e-3)).clip(0, 1)
     elif shape == "blade":
         alpha = np.zeros_like(x)
         for c, s in ((-0.55, 0.9), (0.0, 1.0), (0.55, 0.85)):
@@ -86,14 +86,15 @@ def leaf_rgba(shape: str, n: int = SIZE) -> np.ndarray:
         seg = t * k
         idx = np.floor(seg)
         side = np.where(idx % 2 == 0, 1.0, -1.0)
-        lt = seg - idx - 0.5                       # -0.5..0.5 within a lobe
+        lt = seg - idx - 0.5  # -0.5..0.5 within a lobe
         taper = np.sin(np.pi * t) ** 0.6
         lx = (x * side - 0.42 * taper) / (0.42 * taper + 1e-3)
         lobe = _smooth_mask(np.hypot(lx, lt / 0.5) - 1.0, n / 6)
-        lobe2 = _smooth_mask(np.hypot((-x * side - 0.42 * taper) / (0.42 * taper + 1e-3),
-                                      (((seg + 0.5) % 1.0) - 0.5) / 0.5) - 1.0, n / 6)
+        lobe2 = _smooth_mask(
+            np.hypot((-x * side - 0.42 * taper) / (0.42 * taper + 1e-3), (((seg + 0.5) % 1.0) - 0.5) / 0.5) - 1.0, n / 6
+        )
         alpha = np.maximum(rachis, np.maximum(lobe, lobe2)) * (t > 0.02) * (t < 0.98)
-        detail = 0.88 - 0.15 * np.exp(-(x / 0.05) ** 2) + 0.1 * ax
+        detail = 0.88 - 0.15 * np.exp(-((x / 0.05) ** 2)) + 0.1 * ax
     else:
         raise ValueError(f"unknown leaf shape {shape!r}")
     rgba = np.empty((n, n, 4), dtype=np.float32)
@@ -118,6 +119,7 @@ def write_texture(path: str | Path, rgba: np.ndarray) -> Path:
 def read_texture(path: str | Path) -> np.ndarray:
     """Read a texture as linear RGB + straight alpha, float32 ``(H, W, 4)`` (alpha 1 when absent)."""
     from ..images import read_image, srgb_to_linear
+
     img = read_image(path, what="texture", unassociated=True)
     c = img.shape[2]
     out = np.ones(img.shape[:2] + (4,), dtype=np.float32)

@@ -36,12 +36,15 @@ CALIBRATION_SPP = 64
 GAIN_LIMITS = (0.25, 4.0)
 
 
-def production_image(config, instances, state, *, width: int, height: int, spp: int = CALIBRATION_SPP,
-                     library=None) -> np.ndarray:
+def production_image(
+    config, instances, state, *, width: int, height: int, spp: int = CALIBRATION_SPP, library=None
+) -> np.ndarray:
     """The ``scalar_rgb`` production render of ``config`` with ``state``'s lights: (H, W, 3) linear, no files."""
     from ..render.render import render_image
-    return render_image(config, instances, width=width, height=height, spp=spp, overrides=state.overrides(),
-                        library=library)
+
+    return render_image(
+        config, instances, width=width, height=height, spp=spp, overrides=state.overrides(), library=library
+    )
 
 
 def channel_gain(production: np.ndarray, proxy_image: np.ndarray, hit: np.ndarray) -> np.ndarray:

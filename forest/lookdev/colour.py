@@ -20,6 +20,7 @@ import numpy as np
 
 def _colour():
     import colour
+
     return colour
 
 
@@ -64,6 +65,7 @@ def delta_e2000(rgb_a, rgb_b) -> np.ndarray:
 def oklab_matrices() -> tuple[np.ndarray, np.ndarray]:
     """(linear sRGB → LMS, LMS' → Lab) with LMS = M₁·M_sRGB·rgb; matrices from colour-science."""
     from colour.models import oklab
+
     m1 = np.asarray(oklab.MATRIX_1_XYZ_TO_LMS, dtype=np.float64) @ srgb_matrix()
     m2 = np.asarray(oklab.MATRIX_2_LMS_TO_LAB, dtype=np.float64)
     return m1, m2
@@ -76,6 +78,7 @@ def oklab_dr(r, g, b, eps: float = 1e-5):
     Returns ``(L, a, b)`` drjit arrays.
     """
     import drjit as dr
+
     m1, m2 = oklab_matrices()
     lms = []
     for row in m1:

@@ -52,7 +52,7 @@ from ..runtime import mitsuba
 from .proxy import GridTarget, Proxy
 
 FRUSTUM_MARGIN = 1.15
-PROXY_SAMPLER = "multijitter"   # stratified, jittered: ~1.8x less variance per sample than independent (measured)
+PROXY_SAMPLER = "multijitter"  # stratified, jittered: ~1.8x less variance per sample than independent (measured)
 DEFAULT_MAX_TRIANGLES = 2_000_000
 
 
@@ -60,14 +60,20 @@ DEFAULT_MAX_TRIANGLES = 2_000_000
 class ProxyStats:
     trees: int
     kept: int
-    finer: int          # trees at ``lod`` or finer (the production level where that is coarser)
+    finer: int  # trees at ``lod`` or finer (the production level where that is coarser)
     far: int
     triangles: int
     meshes: int
 
 
-def visible_trees(positions: np.ndarray, radii: np.ndarray, cam_to_world: np.ndarray, fov_x: float,
-                  aspect: float, margin: float = FRUSTUM_MARGIN) -> np.ndarray:
+def visible_trees(
+    positions: np.ndarray,
+    radii: np.ndarray,
+    cam_to_world: np.ndarray,
+    fov_x: float,
+    aspect: float,
+    margin: float = FRUSTUM_MARGIN,
+) -> np.ndarray:
     """Bool mask of spheres (centre, radius) that intersect the widened view pyramid.
 
     In camera space (x left, y up, z forward) a sphere is kept when
@@ -79,8 +85,9 @@ def visible_trees(positions: np.ndarray, radii: np.ndarray, cam_to_world: np.nda
     tx = margin * math.tan(math.radians(fov_x) / 2.0)
     ty = tx / aspect
     x, y, z = np.abs(p[:, 0]), np.abs(p[:, 1]), p[:, 2]
-    return ((z > -radii) & (x - z * tx <= radii * math.sqrt(1 + tx * tx))
-            & (y - z * ty <= radii * math.sqrt(1 + ty * ty)))
+    return (
+        (z > -radii) & (x - z * tx <= radii * math.sqrt(1 + tx * tx)) & (y - z * ty <= radii * math.sqrt(1 + ty * ty))
+    )
 
 
 def _lod_index(species, name: str) -> int:
@@ -88,15 +95,28 @@ def _lod_index(species, name: str) -> int:
     return names.index(name) if name in names else max(0, len(names) - 2)
 
 
-def build_proxy(config, instances, terrain, *, width: int, height: int, grid_shape: tuple[int, int],
-                variant: str, library=None, state=None, max_triangles: int = DEFAULT_MAX_TRIANGLES,
-                max_depth: int | None = None, frame: float = 1.0, lod: str = "high") -> Proxy:
+def build_proxy(
+    config,
+    instances,
+    terrain,
+    *,
+    width: int,
+    height: int,
+    grid_shape: tuple[int, int],
+    variant: str,
+    library=None,
+    state=None,
+    max_triangles: int = DEFAULT_MAX_TRIANGLES,
+    max_depth: int | None = None,
+    frame: float = 1.0,
+    lod: str = "high",
+) -> Proxy:
     """Build the :class:`~forest.lookdev.proxy.Proxy` of ``config``'s forest (see the module docstring)."""
     mi = mitsuba(variant)
     n, m = grid_shape
     ones = np.ones((n, m, 3), np.float32)
     materials = MaterialBuilder(variant, ones, terrain.extent, terrain.height_range)
-    materials.exact = False                    # the production (scalar_rgb) material model
+    materials.exact = False  # the production (scalar_rgb) material model
     materials.leaf_model = "twosided-diffuse"
     cam = camera_at(config.camera, frame)
     c2w = look_at_matrix(cam.position, cam.target, cam.up)
@@ -108,6 +128,7 @@ def build_proxy(config, instances, terrain, *, width: int, height: int, grid_sha
     if len(instances):
         if library is None:
             from ..library import open_library
+
             library = open_library()
         species = []
         for model in instances.species_names:
@@ -134,12 +155,14 @@ def build_proxy(config, instances, terrain, *, width: int, height: int, grid_sha
         far_idx = n_lods[sp_idx] - 1
         tris = np.zeros((len(species), int(n_lods.max())), dtype=np.int64)
         for s, sp in enumerate(species):
-            tris[s, :len(sp.lods)] = [level_k.triangles for level_k in sp.lods]
+            tris[s, : len(sp.lods)] = [level_k.triangles for level_k in sp.lods]
         cost = tris[sp_idx, level] * keep
         dist = np.linalg.norm(instances.position - cam.position[None, :], axis=1)
-        order = np.argsort(-dist, kind="stable")              # farthest first
-        coarser = [np.minimum(np.array([_lod_index(s, name) for s in species])[sp_idx], far_idx)
-                   for name in LOD_NAMES[LOD_NAMES.index(lod) + 1:]] + [far_idx]
+        order = np.argsort(-dist, kind="stable")  # farthest first
+        coarser = [
+            np.minimum(np.array([_lod_index(s, name) for s in species])[sp_idx], far_idx)
+            for name in LOD_NAMES[LOD_NAMES.index(lod) + 1 :]
+        ] + [far_idx]
         for target in coarser:
             if cost.sum() <= max_triangles:
                 break
@@ -177,25 +200,27 @@ def build_proxy(config, instances, terrain, *, width: int, height: int, grid_sha
                     g["uv"].append(np.tile(mesh.uv.astype(np.float32), (len(sel), 1)))
                     g["f"].append((mesh.faces.astype(np.int64)[None] + base).reshape(-1, 3))
                     g["count"] += len(sel) * len(mesh.vertices)
-        for i, (ref, g) in enumerate(sorted(groups.items())):
+        for i, (_ref, g) in enumerate(sorted(groups.items())):
             shapes[f"forest_{i}"] = _mesh(mi, f"forest_{i}", g)
         stats.meshes = len(shapes)
 
     overrides = state.overrides() if state is not None else None
-    scene = {"type": "scene",
-             "integrator": {"type": "prb", "max_depth": int(max_depth or config.render.max_depth)},
-             "sensor": sensor_dict(config, frame, width, height, 1, variant, rfilter="box", sampler=PROXY_SAMPLER),
-             **emitter_dicts(config, variant, overrides),
-             "terrain": terrain_dict(config, terrain, variant, colour_grid=ones)}
+    scene = {
+        "type": "scene",
+        "integrator": {"type": "prb", "max_depth": int(max_depth or config.render.max_depth)},
+        "sensor": sensor_dict(config, frame, width, height, 1, variant, rfilter="box", sampler=PROXY_SAMPLER),
+        **emitter_dicts(config, variant, overrides),
+        "terrain": terrain_dict(config, terrain, variant, colour_grid=ones),
+    }
     scene.update(shapes)
     try:
         loaded = mi.load_dict(scene)
-    except Exception as e:  # noqa: BLE001 - Mitsuba raises RuntimeError for bad meshes etc.
+    except Exception as e:
         raise ForestError(f"{config.path}: cannot build the look-dev proxy: {str(e).splitlines()[0]}") from None
     params = mi.traverse(loaded)
     textured_terrain = getattr(config.render, "terrain_texture", None) is not None
     targets = []
-    for key in params.keys():
+    for key in params.keys():  # noqa: SIM118 - SceneParameters iterates (key, value) pairs
         if not key.endswith("volume.data"):
             continue
         if textured_terrain and key.startswith("terrain."):
@@ -205,22 +230,39 @@ def build_proxy(config, instances, terrain, *, width: int, height: int, grid_sha
             continue
         targets.append(GridTarget(key, data[0, 0, 0, :3].astype(np.float64)))
     sky = config.lights.sky
-    sky_kind = None if sky is None else ("constant" if sky.kind == "constant" else
-                                         "envmap" if sky.kind == "envmap" else None)
+    sky_kind = (
+        None if sky is None else ("constant" if sky.kind == "constant" else "envmap" if sky.kind == "envmap" else None)
+    )
     sky_key = {"constant": "sky.radiance.value", "envmap": "sky.scale"}.get(sky_kind)
-    proxy = Proxy(mi, loaded, width, height, (n, m), targets,
-                  sun_key="sun.irradiance.value" if "sun.irradiance.value" in params else None,
-                  sky_kind=sky_kind if sky_key in params else None,
-                  sky_key=sky_key if sky_key in params else None,
-                  stats=stats.__dict__, haze=float(config.render.haze),
-                  haze_colour=config.render.haze_colour, grid_extent=tuple(terrain.extent))
+    proxy = Proxy(
+        mi,
+        loaded,
+        width,
+        height,
+        (n, m),
+        targets,
+        sun_key="sun.irradiance.value" if "sun.irradiance.value" in params else None,
+        sky_kind=sky_kind if sky_key in params else None,
+        sky_key=sky_key if sky_key in params else None,
+        stats=stats.__dict__,
+        haze=float(config.render.haze),
+        haze_colour=config.render.haze_colour,
+        grid_extent=tuple(terrain.extent),
+    )
     return proxy
 
 
 def materials_ref(materials: MaterialBuilder, part, groups: dict) -> str:
     """A stable key per distinct material; creates the group (BSDF dict + empty buffers) on first use."""
-    key = "|".join([part.kind, ",".join(f"{c:.6f}" for c in part.colour), str(part.texture),
-                    str(bool(part.tinted)), f"{float(part.translucency or 0.0):.6f}"])
+    key = "|".join(
+        [
+            part.kind,
+            ",".join(f"{c:.6f}" for c in part.colour),
+            str(part.texture),
+            str(bool(part.tinted)),
+            f"{float(part.translucency or 0.0):.6f}",
+        ]
+    )
     if key not in groups:
         groups[key] = {"bsdf": materials.part_bsdf(part), "v": [], "n": [], "uv": [], "f": [], "count": 0}
     return key
@@ -231,8 +273,9 @@ def _mesh(mi, name: str, g: dict):
     f = np.concatenate(g["f"]).astype(np.uint32)
     props = mi.Properties()
     props["bsdf"] = mi.load_dict(g["bsdf"])
-    mesh = mi.Mesh(name, vertex_count=len(v), face_count=len(f), has_vertex_normals=True,
-                   has_vertex_texcoords=True, props=props)
+    mesh = mi.Mesh(
+        name, vertex_count=len(v), face_count=len(f), has_vertex_normals=True, has_vertex_texcoords=True, props=props
+    )
     p = mi.traverse(mesh)
     p["vertex_positions"] = mi.Float(v.ravel())
     p["faces"] = mi.UInt32(f.ravel())

@@ -69,12 +69,14 @@ NOISE_BALANCE = 0.1
 
 def _box3(a: np.ndarray) -> np.ndarray:
     from scipy.ndimage import uniform_filter
+
     return uniform_filter(a, size=3, mode="nearest")
 
 
 @dataclass
 class AlignedLoss:
     """Relative squared error against a same-camera reference (see module docstring)."""
+
     reference: Reference
 
     def __post_init__(self):
@@ -84,8 +86,8 @@ class AlignedLoss:
         kappa = 0.1 * float(np.median(y[w > 0])) + 1e-4
         rho = w / (y + kappa) ** 2
         rho /= max(float(w.sum()), 1e-12)
-        self.pixel_weight = rho.astype(np.float32)                         # (H, W): ρ_p
-        self.value_weight = np.repeat(rho[..., None], 3, axis=2)           # (H, W, 3): w_pc
+        self.pixel_weight = rho.astype(np.float32)  # (H, W): ρ_p
+        self.value_weight = np.repeat(rho[..., None], 3, axis=2)  # (H, W, 3): w_pc
         self._w = mi.Float(self.value_weight.astype(np.float32).ravel())
         self._ref = mi.Float(self.reference.rgb.astype(np.float32).ravel())
 
@@ -97,12 +99,13 @@ class AlignedLoss:
         if not pos.size:
             return
         w = rho / (1.0 + v / (NOISE_BALANCE * float(np.median(pos))))
-        w *= rho.sum() / max(float(w.sum()), 1e-30)               # the loss keeps its scale
+        w *= rho.sum() / max(float(w.sum()), 1e-30)  # the loss keeps its scale
         self.value_weight = w
         self._w = _mi().Float(w.astype(np.float32).ravel())
 
     def __call__(self, image):
         import drjit as dr
+
         d = image.array - self._ref
         return dr.sum(self._w * d * d)
 
@@ -118,6 +121,7 @@ class AlignedLoss:
 @dataclass
 class StatisticsLoss:
     """Per-band sliced Wasserstein distance in Oklab (see module docstring)."""
+
     reference: Reference
     directions: int = 32
     bands: int = 2
@@ -133,26 +137,29 @@ class StatisticsLoss:
         self.bands = int(max(1, min(self.bands, h)))
         rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([self.seed, SW_TAG])))
         th = rng.normal(size=(self.directions, 3))
-        th[0] = (1.0, 0.0, 0.0)                     # lightness on its own, always
+        th[0] = (1.0, 0.0, 0.0)  # lightness on its own, always
         self.theta = th / np.linalg.norm(th, axis=1, keepdims=True)
         lab = rgb_to_oklab(self._pool_np(self.reference.rgb).reshape(-1, 3))
         wt = self._pool_np(self.reference.weight[..., None])[..., 0].ravel()
         # Flat indices of each block's k×k pixels in the full image, for the drjit pooling.
         yy, xx = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
-        self._block_px = [((yy * k + dy) * W + (xx * k + dx)).ravel().astype(np.uint32)
-                          for dy in range(k) for dx in range(k)]
+        self._block_px = [
+            ((yy * k + dy) * W + (xx * k + dx)).ravel().astype(np.uint32) for dy in range(k) for dx in range(k)
+        ]
         rows = np.repeat(np.arange(h), w)
         self.band_of_row = (np.arange(h) * self.bands) // h
         self._targets = []
         for b in range(self.bands):
             sel = (self.band_of_row[rows] == b) & (wt > 0)
-            if not sel.any():                        # whole band masked: use the whole frame's pixels
+            if not sel.any():  # whole band masked: use the whole frame's pixels
                 sel = wt > 0
-            proj = lab[sel] @ self.theta.T           # (n, K)
+            proj = lab[sel] @ self.theta.T  # (n, K)
             order = np.argsort(proj, axis=0, kind="stable")
             sorted_p = np.take_along_axis(proj, order, axis=0)
             cw = np.cumsum(np.take_along_axis(np.repeat(wt[sel][:, None], self.directions, 1), order, axis=0), axis=0)
-            cw = (cw - 0.5 * np.take_along_axis(np.repeat(wt[sel][:, None], self.directions, 1), order, axis=0)) / cw[-1]
+            cw = (cw - 0.5 * np.take_along_axis(np.repeat(wt[sel][:, None], self.directions, 1), order, axis=0)) / cw[
+                -1
+            ]
             self._targets.append((sorted_p, cw))
         self._pixels = [np.flatnonzero(self.band_of_row[rows] == b) for b in range(self.bands)]
 
@@ -171,6 +178,7 @@ class StatisticsLoss:
     def _pool_dr(self, arr):
         """The same k×k box average of a flat (H·W·3) drjit image, per channel."""
         import drjit as dr
+
         mi = _mi()
         out = []
         for c in range(3):
@@ -183,6 +191,7 @@ class StatisticsLoss:
 
     def __call__(self, image):
         import drjit as dr
+
         mi = _mi()
         r, g, bb = self._pool_dr(image.array)
         L, A, B = oklab_dr(r, g, bb)
@@ -191,17 +200,20 @@ class StatisticsLoss:
         gidx, tgt, th_all, wts = [], [], [], []
         for b, pix in enumerate(self._pixels):
             n = len(pix)
-            proj = lab[pix] @ self.theta.T                       # (n, K)
-            order = np.argsort(proj, axis=0, kind="stable")     # (n, K)
-            q = self._quantiles(b, n)                            # (K, n)
-            gidx.append(pix[order.T].ravel())                    # direction-major
+            proj = lab[pix] @ self.theta.T  # (n, K)
+            order = np.argsort(proj, axis=0, kind="stable")  # (n, K)
+            q = self._quantiles(b, n)  # (K, n)
+            gidx.append(pix[order.T].ravel())  # direction-major
             tgt.append(q.ravel())
             th_all.append(np.repeat(self.theta, n, axis=0))
             wts.append(np.full(self.directions * n, 1.0 / (self.directions * n * len(self._pixels))))
         gi = mi.UInt32(np.concatenate(gidx).astype(np.uint32))
         th = np.concatenate(th_all).astype(np.float32)
-        p = (dr.gather(mi.Float, L, gi) * mi.Float(th[:, 0]) + dr.gather(mi.Float, A, gi) * mi.Float(th[:, 1])
-             + dr.gather(mi.Float, B, gi) * mi.Float(th[:, 2]))
+        p = (
+            dr.gather(mi.Float, L, gi) * mi.Float(th[:, 0])
+            + dr.gather(mi.Float, A, gi) * mi.Float(th[:, 1])
+            + dr.gather(mi.Float, B, gi) * mi.Float(th[:, 2])
+        )
         d = p - mi.Float(np.concatenate(tgt).astype(np.float32))
         return dr.sum(mi.Float(np.concatenate(wts).astype(np.float32)) * d * d)
 
@@ -224,6 +236,6 @@ def make_loss(mode: str, reference: Reference, *, seed: int = 0, bands: int = 2,
 
 
 def _mi():
-    from ..runtime import mitsuba
     import mitsuba as mi
+
     return mi

@@ -47,19 +47,26 @@ import numpy as np
 from .colour import luminance_weights
 from .state import MIN_SKY_FRACTION, LookState, split_colour
 
-BASE_LR = {"grid": 0.04, "tint": 0.03, "sun_log": 0.05, "sun_chroma": 0.03,
-           "sky_log": 0.05, "sky_chroma": 0.03, "env_log": 0.05}
+BASE_LR = {
+    "grid": 0.04,
+    "tint": 0.03,
+    "sun_log": 0.05,
+    "sun_chroma": 0.03,
+    "sky_log": 0.05,
+    "sky_chroma": 0.03,
+    "env_log": 0.05,
+}
 FINAL_LR_FRACTION = 0.02
 AVERAGE_FRACTION = 0.25
 SEARCH_AT = 0.3
-POLISH_FRACTION = 0.6        # share of the iterations given to the Newton polish (aligned mode)
-POLISH_MIN_ITERATIONS = 20   # runs shorter than this are all Adam
-POLISH_STEP = 0.5            # η of the Gauss–Newton step
-POLISH_MAX_GRID_STEP = 0.1   # a grid cell moves at most this far in one polish step
-POLISH_BURN_IN = 0.2         # share of the polish left out of its iterate average (J is re-measured after it)
-POLISH_SPP_FACTOR = 2        # a polish iteration renders a primal at this many times the iteration spp
-CURVATURE_SPP = 4            # the curvature pass renders this many times the iteration spp
-NOISE_RENDERS = 16           # renders that measure the per-pixel noise for the loss's weights
+POLISH_FRACTION = 0.6  # share of the iterations given to the Newton polish (aligned mode)
+POLISH_MIN_ITERATIONS = 20  # runs shorter than this are all Adam
+POLISH_STEP = 0.5  # η of the Gauss–Newton step
+POLISH_MAX_GRID_STEP = 0.1  # a grid cell moves at most this far in one polish step
+POLISH_BURN_IN = 0.2  # share of the polish left out of its iterate average (J is re-measured after it)
+POLISH_SPP_FACTOR = 2  # a polish iteration renders a primal at this many times the iteration spp
+CURVATURE_SPP = 4  # the curvature pass renders this many times the iteration spp
+NOISE_RENDERS = 16  # renders that measure the per-pixel noise for the loss's weights
 NOISE_SEED = 0x5EED_0015
 
 
@@ -77,7 +84,7 @@ class Fit:
     fitted: tuple[str, ...]
     warnings: list[str] = field(default_factory=list)
     seconds: float = 0.0
-    search: list[tuple[float, float, float]] = field(default_factory=list)   # (elevation, azimuth, loss)
+    search: list[tuple[float, float, float]] = field(default_factory=list)  # (elevation, azimuth, loss)
 
 
 def lr_factor(k: int, iterations: int) -> float:
@@ -91,6 +98,7 @@ class _Variables:
 
     def __init__(self, mi, proxy, start: LookState, groups: set[str], mode: str, base_grid: np.ndarray):
         import drjit as dr
+
         self.mi, self.dr, self.proxy, self.start, self.mode = mi, dr, proxy, start, mode
         self.groups = groups
         self.base_grid = np.asarray(base_grid, np.float64)
@@ -110,7 +118,7 @@ class _Variables:
                 self.opt["sky_chroma"] = mi.Color3f(*[float(x) for x in start.sky_colour])
             elif proxy.sky_kind == "envmap":
                 self.opt["env_log"] = mi.Float(math.log(max(start.envmap_scale, 1e-6)))
-        self.base_lr = {k: BASE_LR[k] for k in self.opt.keys()}
+        self.base_lr = {k: BASE_LR[k] for k in self.opt.keys()}  # noqa: SIM118 - mi.ad.Optimizer
         self.state = start.copy()
 
     def set_lr(self, factor: float) -> None:
@@ -191,8 +199,11 @@ class _Variables:
 
 def _record(traj: dict[str, list[float]], state: LookState, groups: set[str]) -> None:
     """Append the fitted values of ``state`` to their trajectories."""
-    wanted = {"sun": ("sun irradiance", "sun colour"), "sun_direction": ("sun elevation", "sun azimuth"),
-              "sky": ("sky radiance", "sky colour", "sky scale")}
+    wanted = {
+        "sun": ("sun irradiance", "sun colour"),
+        "sun_direction": ("sun elevation", "sun azimuth"),
+        "sky": ("sky radiance", "sky colour", "sky scale"),
+    }
     prefixes = tuple(p for g in groups for p in wanted.get(g, ()))
     for k, v in state.light_values().items():
         if k.startswith(prefixes):
@@ -203,14 +214,26 @@ def _record(traj: dict[str, list[float]], state: LookState, groups: set[str]) ->
             traj.setdefault(f"colour map mean {ch}", []).append(float(x))
 
 
-def optimise(proxy, loss, start: LookState, *, groups, mode: str = "aligned", iterations: int = 120, spp: int = 4,
-             seed: int = 0, progress=None, base_grid: np.ndarray | None = None) -> Fit:
+def optimise(
+    proxy,
+    loss,
+    start: LookState,
+    *,
+    groups,
+    mode: str = "aligned",
+    iterations: int = 120,
+    spp: int = 4,
+    seed: int = 0,
+    progress=None,
+    base_grid: np.ndarray | None = None,
+) -> Fit:
     """Fit ``groups`` (subset of colour_map, sun, sky, sun_direction) of ``start`` to the loss.
 
     Returns a :class:`Fit` whose ``result`` is the iterate average of the last
     quarter of the run (see the module docstring).
     """
     import drjit as dr
+
     proxy.activate()
     mi = proxy.mi
     t0 = time.perf_counter()
@@ -221,9 +244,11 @@ def optimise(proxy, loss, start: LookState, *, groups, mode: str = "aligned", it
         if proxy.sky_key is None:
             groups.discard("sky")
         elif frac < MIN_SKY_FRACTION and ({"sun", "colour_map"} & groups):
-            warnings.append(f"the sky covers {100 * frac:.1f} % of the frame (under {100 * MIN_SKY_FRACTION:g} %): "
-                            "light and colour-map scales are ambiguous without it, so the sky is held at its "
-                            "current value")
+            warnings.append(
+                f"the sky covers {100 * frac:.1f} % of the frame (under {100 * MIN_SKY_FRACTION:g} %): "
+                "light and colour-map scales are ambiguous without it, so the sky is held at its "
+                "current value"
+            )
             groups.discard("sky")
     if "sun_direction" in groups and (proxy.sun_key is None or start.sun_elevation is None):
         groups.discard("sun_direction")
@@ -235,8 +260,11 @@ def optimise(proxy, loss, start: LookState, *, groups, mode: str = "aligned", it
     losses: list[float] = []
     traj: dict[str, list[float]] = {}
     snaps: list[dict[str, np.ndarray]] = []
-    polish = polish_iterations(iterations) if (mode == "aligned" and hasattr(loss, "curvature_weights")
-                                                and len(var.opt) > 0) else 0
+    polish = (
+        polish_iterations(iterations)
+        if (mode == "aligned" and hasattr(loss, "curvature_weights") and len(var.opt) > 0)
+        else 0
+    )
     adam_iters = iterations - polish
     avg_from = int(adam_iters * (1.0 - AVERAGE_FRACTION))
     search_at = int(adam_iters * SEARCH_AT) if "sun_direction" in groups else -1
@@ -252,7 +280,7 @@ def optimise(proxy, loss, start: LookState, *, groups, mode: str = "aligned", it
             proxy.params.update()
         var.set_lr(lr_factor(k, adam_iters))
         var.apply()
-        differentiable = len(var.opt) > 0          # only the sun's direction: nothing to step
+        differentiable = len(var.opt) > 0  # only the sun's direction: nothing to step
         img = proxy.render(spp, seed=seed * 100_003 + k, grad=differentiable)
         value = loss(img)
         if differentiable:
@@ -275,11 +303,32 @@ def optimise(proxy, loss, start: LookState, *, groups, mode: str = "aligned", it
     if polish:
         if hasattr(loss, "set_noise"):
             _measure_noise(proxy, loss, result, spp=spp, seed=seed + NOISE_SEED + 1)
-        result = _polish(proxy, loss, result, var, groups, iterations=polish, first=adam_iters, total=iterations,
-                         spp=spp, seed=seed, losses=losses, traj=traj, progress=progress)
+        result = _polish(
+            proxy,
+            loss,
+            result,
+            var,
+            groups,
+            iterations=polish,
+            first=adam_iters,
+            total=iterations,
+            spp=spp,
+            seed=seed,
+            losses=losses,
+            traj=traj,
+            progress=progress,
+        )
     proxy.set_state(result)
-    return Fit(start=start, result=result, losses=losses, trajectories=traj, fitted=tuple(sorted(groups)),
-               warnings=warnings, seconds=time.perf_counter() - t0, search=search_log)
+    return Fit(
+        start=start,
+        result=result,
+        losses=losses,
+        trajectories=traj,
+        fitted=tuple(sorted(groups)),
+        warnings=warnings,
+        seconds=time.perf_counter() - t0,
+        search=search_log,
+    )
 
 
 def _grid_jacobian(proxy, grid: np.ndarray, *, spp: int, seed: int) -> np.ndarray:
@@ -348,16 +397,30 @@ def _search_sun(proxy, loss, state: LookState, *, spp: int, seed: int):
         return cache[key]
 
     for step in (6.0, 2.0):
-        cands = [(min(max(best[0] + de, 1.0), 89.0), best[1] + da)
-                 for de in (-step, 0.0, step) for da in (-step, 0.0, step)]
+        cands = [
+            (min(max(best[0] + de, 1.0), 89.0), best[1] + da) for de in (-step, 0.0, step) for da in (-step, 0.0, step)
+        ]
         vals = [evaluate(e, a) for e, a in cands]
         best = cands[int(np.argmin(vals))]
     return float(best[0]), float(best[1] % 360.0), log
 
 
-
-def _polish(proxy, loss, state: LookState, var: _Variables, groups: set[str], *, iterations: int, first: int,
-            total: int, spp: int, seed: int, losses: list[float], traj: dict, progress) -> LookState:
+def _polish(
+    proxy,
+    loss,
+    state: LookState,
+    var: _Variables,
+    groups: set[str],
+    *,
+    iterations: int,
+    first: int,
+    total: int,
+    spp: int,
+    seed: int,
+    losses: list[float],
+    traj: dict,
+    progress,
+) -> LookState:
     """Gauss–Newton steps with a frozen Jacobian, rendering primals only, then the average of the iterates.
 
     Parameters: θ = (g, u), g the colour grid and u the logs of the lights'
@@ -413,7 +476,7 @@ def _polish(proxy, loss, state: LookState, var: _Variables, groups: set[str], *,
     if "env_log" in var.opt:
         names.append("env")
         values["env"] = np.array([math.log(max(state.envmap_scale, 1e-6))])
-    fixed = state.copy()                          # anything not polished
+    fixed = state.copy()  # anything not polished
     lights = [n for n in names if n != "grid"]
 
     def to_state(vals) -> LookState:
@@ -432,11 +495,13 @@ def _polish(proxy, loss, state: LookState, var: _Variables, groups: set[str], *,
     def set_lights(on: str | None) -> None:
         """Every fitted light at its current value if it is ``on`` (or all when None), else dark."""
         if "sun" in values:
-            proxy.set_sun(mi.Color3f(*[float(x) for x in (np.exp(values["sun"]) if on in (None, "sun") else
-                                                          np.zeros(3))]))
+            proxy.set_sun(
+                mi.Color3f(*[float(x) for x in (np.exp(values["sun"]) if on in (None, "sun") else np.zeros(3))])
+            )
         if "sky" in values:
-            proxy.set_sky(mi.Color3f(*[float(x) for x in (np.exp(values["sky"]) if on in (None, "sky") else
-                                                          np.zeros(3))]))
+            proxy.set_sky(
+                mi.Color3f(*[float(x) for x in (np.exp(values["sky"]) if on in (None, "sky") else np.zeros(3))])
+            )
         if "env" in values:
             proxy.set_sky(mi.Float(float(np.exp(values["env"][0])) if on in (None, "env") else 0.0))
         proxy.params.update()
@@ -461,17 +526,20 @@ def _polish(proxy, loss, state: LookState, var: _Variables, groups: set[str], *,
             blocks.append(dense.reshape(p * 3, cells * 3))
         if lights:
             offset = 0.0
-            if proxy.haze > 0 and proxy.haze_colour is not None:       # the haze's own light: not a derivative
+            if proxy.haze > 0 and proxy.haze_colour is not None:  # the haze's own light: not a derivative
                 set_lights("none")
                 offset = np.asarray(proxy.render(cspp, seed=seed * 100_003 + 92_000 + 100 * tag), np.float64).ravel()
             contrib = {}
             for i, n in enumerate(lights):
                 set_lights(n)
-                contrib[n] = np.asarray(proxy.render(cspp, seed=seed * 100_003 + 93_000 + 100 * tag + i),
-                                        np.float64).ravel() - offset
+                contrib[n] = (
+                    np.asarray(proxy.render(cspp, seed=seed * 100_003 + 93_000 + 100 * tag + i), np.float64).ravel()
+                    - offset
+                )
             set_lights(None)
-            blocks.append(np.stack([contrib[n] if c is None else np.where(chan == c, contrib[n], 0.0)
-                                    for n, c in cols], axis=1))
+            blocks.append(
+                np.stack([contrib[n] if c is None else np.where(chan == c, contrib[n], 0.0) for n, c in cols], axis=1)
+            )
         jac = np.concatenate(blocks, axis=1)
         h = 2.0 * jac.T @ (wv[:, None] * jac)
         ev, vec = np.linalg.eigh(0.5 * (h + h.T))
@@ -494,8 +562,9 @@ def _polish(proxy, loss, state: LookState, var: _Variables, groups: set[str], *,
         r = img - ref
         step = -POLISH_STEP * (inverse @ (2.0 * jac.T @ (wv * r)))
         if has_grid:
-            values["grid"] = np.clip(values["grid"] + np.clip(step[:ng], -POLISH_MAX_GRID_STEP, POLISH_MAX_GRID_STEP),
-                                     0.0, 1.0)
+            values["grid"] = np.clip(
+                values["grid"] + np.clip(step[:ng], -POLISH_MAX_GRID_STEP, POLISH_MAX_GRID_STEP), 0.0, 1.0
+            )
         for n in lights:
             dl = np.array([step[ng + a] for a, (na, _) in enumerate(cols) if na == n])
             values[n] = np.clip(values[n] + np.clip(dl, -0.5, 0.5), -12.0, 12.0)

@@ -49,7 +49,7 @@ def _sampling(seed: int, spp: int) -> tuple[int, int]:
 @dataclass
 class GridTarget:
     key: str
-    base: np.ndarray          # (3,) linear RGB multiplied by the grid
+    base: np.ndarray  # (3,) linear RGB multiplied by the grid
 
 
 @dataclass
@@ -61,13 +61,13 @@ class Proxy:
     grid_shape: tuple[int, int]
     grid_targets: list[GridTarget]
     sun_key: str | None = None
-    sky_kind: str | None = None           # "constant" | "envmap" | None
+    sky_kind: str | None = None  # "constant" | "envmap" | None
     sky_key: str | None = None
     stats: dict = field(default_factory=dict)
-    haze: float = 0.0                     # [render] haze: extinction per metre (aerial perspective)
-    haze_colour: tuple | None = None      # [render] haze_colour; None: the sky's radiance
-    grid_extent: tuple | None = None      # (xmin, zmin, xmax, zmax) the colour grid spans
-    gain: tuple | None = None             # per-channel calibration of hit pixels (see .calibrate)
+    haze: float = 0.0  # [render] haze: extinction per metre (aerial perspective)
+    haze_colour: tuple | None = None  # [render] haze_colour; None: the sky's radiance
+    grid_extent: tuple | None = None  # (xmin, zmin, xmax, zmax) the colour grid spans
+    gain: tuple | None = None  # per-channel calibration of hit pixels (see .calibrate)
 
     def __post_init__(self):
         self.variant = self.mi.variant()
@@ -81,6 +81,7 @@ class Proxy:
     def activate(self) -> None:
         """Make this proxy's variant Mitsuba's current one (another render may have switched it)."""
         from ..runtime import mitsuba
+
         mitsuba(self.variant)
 
     # -- writing the look into the scene -------------------------------------------------
@@ -106,8 +107,9 @@ class Proxy:
         mi = self.mi
         d = -sun_vector(elevation, azimuth)
         up = [0.0, 1.0, 0.0] if abs(d[1]) < 0.999 else [1.0, 0.0, 0.0]
-        self.params["sun.to_world"] = mi.Transform4f().look_at(origin=[0.0, 0.0, 0.0], target=[float(x) for x in d],
-                                                               up=up)
+        self.params["sun.to_world"] = mi.Transform4f().look_at(
+            origin=[0.0, 0.0, 0.0], target=[float(x) for x in d], up=up
+        )
 
     def set_state(self, state, *, direction: bool = True) -> None:
         """Write a numpy :class:`~forest.lookdev.state.LookState` (no gradients)."""
@@ -160,6 +162,7 @@ class Proxy:
         derivative is attenuated by the same transmittance as the radiance.
         """
         import drjit as dr
+
         self.activate()
         mi = self.mi
         n, m = self.grid_shape
@@ -205,6 +208,7 @@ class Proxy:
         the renderer's default (0.5, 0.6, 0.75).
         """
         import drjit as dr
+
         mi = self.mi
         self._hazed_setup()
         if self.haze_colour is not None:
@@ -232,17 +236,25 @@ class Proxy:
             self.activate()
             mi = self.mi
             import drjit as dr
+
             sensor = self.scene.sensors()[0]
             h, w = self.height, self.width
             jj, ii = np.meshgrid(np.arange(w), np.arange(h))
-            pos = mi.Point2f(mi.Float(((jj.ravel() + 0.5) / w).astype(np.float32)),
-                             mi.Float(((ii.ravel() + 0.5) / h).astype(np.float32)))
+            pos = mi.Point2f(
+                mi.Float(((jj.ravel() + 0.5) / w).astype(np.float32)),
+                mi.Float(((ii.ravel() + 0.5) / h).astype(np.float32)),
+            )
             ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
             si = self.scene.ray_intersect(ray)
             valid = np.asarray(dr.detach(si.is_valid()), dtype=bool).reshape(h, w)
             t = np.asarray(dr.detach(si.t), dtype=np.float64).reshape(h, w)
-            self._hit_xz = np.stack([np.asarray(dr.detach(si.p.x), np.float64).reshape(h, w),
-                                     np.asarray(dr.detach(si.p.z), np.float64).reshape(h, w)], axis=-1)
+            self._hit_xz = np.stack(
+                [
+                    np.asarray(dr.detach(si.p.x), np.float64).reshape(h, w),
+                    np.asarray(dr.detach(si.p.z), np.float64).reshape(h, w),
+                ],
+                axis=-1,
+            )
             self._hits = (valid, np.where(valid, t, 0.0))
         return self._hits
 

@@ -39,10 +39,11 @@ BLACK_LEVEL = 1e-4
 @dataclass
 class Reference:
     """A reference frame ready for the loss: linear RGB and per-pixel weights at the optimiser's size."""
+
     path: Path | None
-    rgb: np.ndarray                 # (H, W, 3) float32, linear sRGB
-    weight: np.ndarray              # (H, W) float32 in [0, 1]
-    source_size: tuple[int, int]    # (width, height) of the file
+    rgb: np.ndarray  # (H, W, 3) float32, linear sRGB
+    weight: np.ndarray  # (H, W) float32 in [0, 1]
+    source_size: tuple[int, int]  # (width, height) of the file
     warnings: list[str] = field(default_factory=list)
 
     @property
@@ -69,19 +70,31 @@ def _fit(img: np.ndarray, width: int, height: int, fit: str) -> tuple[np.ndarray
         if fit == "crop":
             x0, y0, x1, y1 = _crop_box(w, h, aspect)
             img = img[y0:y1, x0:x1]
-            note = (f"aspect ratio {w}x{h} ({w / h:.3f}) differs from the render's {width}x{height} "
-                    f"({aspect:.3f}); centre-cropped to {x1 - x0}x{y1 - y0}")
+            note = (
+                f"aspect ratio {w}x{h} ({w / h:.3f}) differs from the render's {width}x{height} "
+                f"({aspect:.3f}); centre-cropped to {x1 - x0}x{y1 - y0}"
+            )
         else:
-            note = (f"aspect ratio {w}x{h} ({w / h:.3f}) differs from the render's {width}x{height} "
-                    f"({aspect:.3f}); stretched to fit")
+            note = (
+                f"aspect ratio {w}x{h} ({w / h:.3f}) differs from the render's {width}x{height} "
+                f"({aspect:.3f}); stretched to fit"
+            )
     if img.shape[0] != height or img.shape[1] != width:
         img = resample(img, height, width)
     return np.ascontiguousarray(img, dtype=np.float32), note
 
 
-def load_reference(path: str | Path | np.ndarray, width: int, height: int, *, mask: str | Path | np.ndarray | None = None,
-                   fit: str = "crop", what: str = "reference", max_bytes: int = MAX_REFERENCE_BYTES,
-                   max_pixels: int = MAX_REFERENCE_PIXELS) -> Reference:
+def load_reference(
+    path: str | Path | np.ndarray,
+    width: int,
+    height: int,
+    *,
+    mask: str | Path | np.ndarray | None = None,
+    fit: str = "crop",
+    what: str = "reference",
+    max_bytes: int = MAX_REFERENCE_BYTES,
+    max_pixels: int = MAX_REFERENCE_PIXELS,
+) -> Reference:
     """Read a reference (a file, or an ``(H, W, 3)`` linear array) at ``width × height``.
 
     Raises :class:`ForestError` naming the file for an unreadable, oversized,
@@ -125,8 +138,9 @@ def load_reference(path: str | Path | np.ndarray, width: int, height: int, *, ma
         if m.ndim == 3:
             m = m[..., 0]
         if abs((m.shape[1] / m.shape[0]) / (sw / sh) - 1.0) > ASPECT_TOLERANCE:
-            raise ForestError(f"{mlabel}: mask is {m.shape[1]}x{m.shape[0]}, its aspect ratio differs from "
-                              f"the reference's {sw}x{sh}")
+            raise ForestError(
+                f"{mlabel}: mask is {m.shape[1]}x{m.shape[0]}, its aspect ratio differs from the reference's {sw}x{sh}"
+            )
         m, _ = _fit(m[..., None], width, height, fit)
         weight = np.clip(m[..., 0], 0.0, 1.0)
         if float(weight.sum()) < 1.0:

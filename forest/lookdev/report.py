@@ -79,6 +79,7 @@ def scene_data(config, state: LookState, fitted: tuple[str, ...], out_dir: Path,
 
 def write_scene(path: Path, data: dict) -> Path:
     import tomli_w
+
     text = "# look-dev result: colour map and light values fitted to a reference (forest match)\n" + tomli_w.dumps(data)
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
@@ -95,12 +96,23 @@ def _show(img: np.ndarray) -> np.ndarray:
     return linear_to_srgb(np.clip(img, 0.0, 1.0))
 
 
-def write_report(path: Path, *, reference: np.ndarray, start: np.ndarray, result: np.ndarray, losses: list[float],
-                 trajectories: dict[str, list[float]], figures: dict, title: str) -> Path:
+def write_report(
+    path: Path,
+    *,
+    reference: np.ndarray,
+    start: np.ndarray,
+    result: np.ndarray,
+    losses: list[float],
+    trajectories: dict[str, list[float]],
+    figures: dict,
+    title: str,
+) -> Path:
     """report.png: three images on top, loss curve and trajectories below, figures in the title."""
     import matplotlib
+
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
+
     fig = Figure(figsize=(13, 8.5), dpi=100)
     gs = fig.add_gridspec(2, 3, height_ratios=[1.0, 1.0], hspace=0.35, wspace=0.25)
     for i, (name, img) in enumerate((("reference", reference), ("start", start), ("result", result))):

@@ -59,18 +59,19 @@ def split_colour(intensity: float, colour) -> tuple[float, np.ndarray]:
 @dataclass
 class LookState:
     """One look: colour grid, sun and sky (numpy, the optimiser's readable side)."""
-    grid: np.ndarray                          # (n, m, 3) in [0, 1], map convention
-    sun_irradiance: float | None = None       # E (W/m²), colour has unit luminance
+
+    grid: np.ndarray  # (n, m, 3) in [0, 1], map convention
+    sun_irradiance: float | None = None  # E (W/m²), colour has unit luminance
     sun_colour: np.ndarray | None = None
     sun_elevation: float | None = None
     sun_azimuth: float | None = None
-    sky_kind: str | None = None               # "constant" | "envmap" | "sunsky" | None
+    sky_kind: str | None = None  # "constant" | "envmap" | "sunsky" | None
     sky_radiance: float | None = None
     sky_colour: np.ndarray | None = None
     envmap_scale: float | None = None
-    tint: np.ndarray = field(default_factory=lambda: np.ones(3))   # statistics mode
+    tint: np.ndarray = field(default_factory=lambda: np.ones(3))  # statistics mode
 
-    def copy(self) -> "LookState":
+    def copy(self) -> LookState:
         return copy.deepcopy(self)
 
     def overrides(self) -> dict:
@@ -126,5 +127,5 @@ def state_from_config(config, grid: np.ndarray) -> LookState:
         else:
             st.envmap_scale = float(sky.scale)
     if sky is not None and sky.kind == "sunsky":
-        st.sun_irradiance = st.sun_colour = None       # sunsky's sun follows its scale
+        st.sun_irradiance = st.sun_colour = None  # sunsky's sun follows its scale
     return st

@@ -74,8 +74,9 @@ def tree_matrices(instances: InstanceSet, time_s: float, wind) -> np.ndarray:
 @dataclass
 class ForestGraph:
     """A forest as scene-dict entries plus what it cost."""
-    entries: dict                 # shapegroups, shared BSDFs and instances, ready for a scene dict
-    instance_rows: np.ndarray     # row of the InstanceSet behind each instance key tree_<k>
+
+    entries: dict  # shapegroups, shared BSDFs and instances, ready for a scene dict
+    instance_rows: np.ndarray  # row of the InstanceSet behind each instance key tree_<k>
     trees: int
     instanced_triangles: int
     unique_triangles: int
@@ -92,7 +93,7 @@ class ForestBuilder:
         self.materials = materials
         self.variant = materials.variant
         self.species = []
-        for i, model in enumerate(instances.species_names):
+        for _i, model in enumerate(instances.species_names):
             try:
                 sp = library.resolve(model, config.base_dir)
             except ForestError as e:
@@ -108,12 +109,18 @@ class ForestBuilder:
         inst = self.instances
         if not len(inst):
             return np.zeros(0, dtype=np.int64)
-        return lod_levels(inst.position, camera_position, self.config.lod.distances,
-                          self.n_lods[inst.species.astype(np.int64)])
+        return lod_levels(
+            inst.position, camera_position, self.config.lod.distances, self.n_lods[inst.species.astype(np.int64)]
+        )
 
     def _bsdf_ref(self, part) -> dict:
-        key = (part.kind, tuple(np.round(np.asarray(part.colour, float), 6)), str(getattr(part, "texture", None)),
-               bool(getattr(part, "tinted", False)), round(float(getattr(part, "translucency", 0.0) or 0.0), 6))
+        key = (
+            part.kind,
+            tuple(np.round(np.asarray(part.colour, float), 6)),
+            str(getattr(part, "texture", None)),
+            bool(getattr(part, "tinted", False)),
+            round(float(getattr(part, "translucency", 0.0) or 0.0), 6),
+        )
         if key not in self._bsdf_ids:
             bid = f"bsdf_{len(self._bsdf_ids)}"
             self._bsdf_ids[key] = bid
@@ -150,13 +157,19 @@ class ForestBuilder:
             tri_per_key[key] = t
         instanced = int(tri_per_key[keys].sum()) if len(keys) else 0
         refs = {key: {"type": "ref", "id": f"sg_{key // 8}_{key % 8}"} for key in used.tolist()}
-        T, M4 = mi.ScalarTransform4f, mi.ScalarMatrix4f      # T(M4(array)): 3× faster than T(array)
+        T, M4 = mi.ScalarTransform4f, mi.ScalarMatrix4f  # T(M4(array)): 3× faster than T(array)
         mats = np.ascontiguousarray(matrices, dtype=np.float64)
         for row, (key, m) in enumerate(zip(keys.tolist(), mats)):
             entries[f"tree_{row}"] = {"type": "instance", "shapegroup": refs[key], "to_world": T(M4(m))}
         # Shared BSDFs go first so references resolve.
         out = dict(self._bsdfs)
         out.update(entries)
-        return ForestGraph(entries=out, instance_rows=np.arange(len(inst)), trees=len(inst),
-                           instanced_triangles=instanced, unique_triangles=int(sum(tris.values())),
-                           shapegroups=len(used), lod_counts=lod_counts)
+        return ForestGraph(
+            entries=out,
+            instance_rows=np.arange(len(inst)),
+            trees=len(inst),
+            instanced_triangles=instanced,
+            unique_triangles=int(sum(tris.values())),
+            shapegroups=len(used),
+            lod_counts=lod_counts,
+        )

@@ -44,19 +44,28 @@ def uses_python_plugins(variant: str) -> bool:
 @lru_cache(maxsize=64)
 def _texture_arrays(path: str) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """(detail RGB linear (H, W, 3), alpha (H, W, 1) or None, mean detail where alpha ≥ ½)."""
-    img = read_image(path, what="leaf texture", unassociated=True)   # straight alpha, as stored
+    img = read_image(path, what="leaf texture", unassociated=True)  # straight alpha, as stored
     c = img.shape[2]
     rgb = img[..., :3] if c >= 3 else np.repeat(img[..., :1], 3, axis=2)
     rgb = srgb_to_linear(rgb) if Path(path).suffix.lower() not in (".exr", ".hdr") else rgb
     alpha = img[..., 3:4] if c == 4 else (img[..., 1:2] if c == 2 else None)
     mask = (alpha[..., 0] >= 0.5) if alpha is not None else np.ones(rgb.shape[:2], bool)
     mean = rgb[mask].mean(axis=0) if mask.any() else rgb.reshape(-1, 3).mean(axis=0)
-    return np.ascontiguousarray(rgb, np.float32), (None if alpha is None else np.ascontiguousarray(alpha, np.float32)), mean
+    return (
+        np.ascontiguousarray(rgb, np.float32),
+        (None if alpha is None else np.ascontiguousarray(alpha, np.float32)),
+        mean,
+    )
 
 
 def _bitmap(mi, array: np.ndarray) -> dict:
-    return {"type": "bitmap", "bitmap": mi.Bitmap(np.ascontiguousarray(array, dtype=np.float32)),
-            "raw": True, "filter_type": "bilinear", "wrap_mode": "repeat"}
+    return {
+        "type": "bitmap",
+        "bitmap": mi.Bitmap(np.ascontiguousarray(array, dtype=np.float32)),
+        "raw": True,
+        "filter_type": "bilinear",
+        "wrap_mode": "repeat",
+    }
 
 
 class MaterialBuilder:
@@ -80,13 +89,16 @@ class MaterialBuilder:
     def _albedo(self, colour, tinted: bool, texture: Path | None, share: float) -> dict:
         mi = self.mi
         c = np.asarray(colour, np.float32) * np.float32(share)
-        detail = alpha = None
+        detail = None
         if texture is not None:
-            detail, alpha, mean = _texture_arrays(str(texture))
+            detail, _, mean = _texture_arrays(str(texture))
         if tinted and self.grid is not None:
             if detail is not None and self.exact:
-                return {"type": "forest_product", "a": _bitmap(mi, detail),
-                        "b": colour_grid_texture(self.grid * c, self.extent, self.height_range, self.variant)}
+                return {
+                    "type": "forest_product",
+                    "a": _bitmap(mi, detail),
+                    "b": colour_grid_texture(self.grid * c, self.extent, self.height_range, self.variant),
+                }
             scale = c * (mean if detail is not None else 1.0)
             return colour_grid_texture(self.grid * scale, self.extent, self.height_range, self.variant)
         if detail is not None:
@@ -108,12 +120,16 @@ class MaterialBuilder:
         tinted = bool(getattr(part, "tinted", False))
         tau = float(getattr(part, "translucency", 0.0) or 0.0)
         if part.kind == "leaf" and self.exact and tau > 0:
-            bsdf = {"type": "forest_leaf",
-                    "reflectance": self._albedo(part.colour, tinted, texture, 1.0 - tau),
-                    "transmittance": self._albedo(part.colour, tinted, texture, tau)}
+            bsdf = {
+                "type": "forest_leaf",
+                "reflectance": self._albedo(part.colour, tinted, texture, 1.0 - tau),
+                "transmittance": self._albedo(part.colour, tinted, texture, tau),
+            }
         else:
-            bsdf = {"type": "twosided",
-                    "material": {"type": "diffuse", "reflectance": self._albedo(part.colour, tinted, texture, 1.0)}}
+            bsdf = {
+                "type": "twosided",
+                "material": {"type": "diffuse", "reflectance": self._albedo(part.colour, tinted, texture, 1.0)},
+            }
         opacity = self._opacity(texture)
         if opacity is not None:
             bsdf = {"type": "mask", "opacity": opacity, "material": bsdf}

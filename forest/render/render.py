@@ -61,7 +61,8 @@ PREVIEW_SPP = 8
 @dataclass
 class RenderResult:
     """What a render wrote and what it cost."""
-    paths: list[Path]                      # every file written (EXR and PNG per frame)
+
+    paths: list[Path]  # every file written (EXR and PNG per frame)
     frames: list[int]
     variant: str
     variant_reason: str
@@ -83,10 +84,12 @@ class RenderResult:
     def summary(self) -> str:
         """One line: trees, instanced and unique triangles, times, peak memory."""
         frames = f"{len(self.frames)} frames" if len(self.frames) > 1 else "1 frame"
-        return (f"rendered {frames} {self.width}x{self.height} {self.spp} spp ({self.variant}): "
-                f"{self.trees:,} trees, {self.instanced_triangles:,} instanced triangles, "
-                f"{self.unique_triangles:,} unique, load {self.load_seconds:.1f} s, "
-                f"render {self.render_seconds:.1f} s, peak {self.peak_memory_gb:.2f} GB")
+        return (
+            f"rendered {frames} {self.width}x{self.height} {self.spp} spp ({self.variant}): "
+            f"{self.trees:,} trees, {self.instanced_triangles:,} instanced triangles, "
+            f"{self.unique_triangles:,} unique, load {self.load_seconds:.1f} s, "
+            f"render {self.render_seconds:.1f} s, peak {self.peak_memory_gb:.2f} GB"
+        )
 
 
 def peak_memory_gb() -> float:
@@ -109,13 +112,16 @@ def choose_variant(trees: int, requested: str | None = None, configured: str | N
             if v == "cuda_ad_rgb" and not cuda_available():
                 raise ForestError("--variant: cuda_ad_rgb needs an NVIDIA GPU and driver, none found")
             if v != "scalar_rgb" and trees > CUDA_MAX_TREES:
-                why += (f"; note: {trees:,} instances in a JIT variant build in quadratic time in "
-                        "Mitsuba 3.9.1 — scalar_rgb is much faster for this forest")
+                why += (
+                    f"; note: {trees:,} instances in a JIT variant build in quadratic time in "
+                    "Mitsuba 3.9.1 — scalar_rgb is much faster for this forest"
+                )
             return v, why
     if cuda_available() and trees <= CUDA_MAX_TREES:
         return "cuda_ad_rgb", f"GPU found and {trees:,} trees ≤ {CUDA_MAX_TREES:,}"
-    return "scalar_rgb", (f"{trees:,} trees: instancing is linear in scalar_rgb, "
-                          "quadratic in the JIT variants of Mitsuba 3.9.1")
+    return "scalar_rgb", (
+        f"{trees:,} trees: instancing is linear in scalar_rgb, quadratic in the JIT variants of Mitsuba 3.9.1"
+    )
 
 
 def _output_paths(output: str | Path) -> tuple[Path, Path]:
@@ -132,6 +138,7 @@ def _resolve_instances(config, instances) -> InstanceSet:
     if isinstance(instances, InstanceSet):
         return instances
     from ..scatter import scene_instances
+
     result = scene_instances(config, instances)
     return result[0] if isinstance(result, tuple) else result
 
@@ -140,7 +147,7 @@ def _header_value(v):
     if isinstance(v, (bool, np.bool_)):
         return int(v)
     if isinstance(v, (int, np.integer)):
-        return int(v) if -2**31 <= int(v) < 2**31 else str(int(v))
+        return int(v) if -(2**31) <= int(v) < 2**31 else str(int(v))
     if isinstance(v, (float, np.floating)):
         return float(v)
     return str(v)
@@ -149,7 +156,7 @@ def _header_value(v):
 def _denoiser():
     """Intel Open Image Denoise through the optional ``pyoidn`` package, or None."""
     try:
-        import pyoidn  # noqa: F401
+        import pyoidn
     except ImportError:
         return None
     return pyoidn
@@ -176,6 +183,7 @@ def apply_haze(rgb: np.ndarray, depth: np.ndarray, hit: np.ndarray, sigma: float
     if sigma <= 0:
         return rgb
     from scipy.ndimage import maximum_filter
+
     d = np.where(hit, depth, 0.0)
     edge = ~hit & (maximum_filter(hit.astype(np.uint8), size=3) > 0)
     d = np.where(edge, maximum_filter(d, size=3), d)
@@ -186,8 +194,18 @@ def apply_haze(rgb: np.ndarray, depth: np.ndarray, hit: np.ndarray, sigma: float
 class _Renderer:
     """State shared by the frames of one ``render_scene`` call."""
 
-    def __init__(self, config, instances: InstanceSet, variant: str, library, *, preview: bool,
-                 overrides: dict | None, progress, size: tuple[int, int, int] | None = None):
+    def __init__(
+        self,
+        config,
+        instances: InstanceSet,
+        variant: str,
+        library,
+        *,
+        preview: bool,
+        overrides: dict | None,
+        progress,
+        size: tuple[int, int, int] | None = None,
+    ):
         self.config = config
         self.instances = instances
         self.variant = variant
@@ -200,7 +218,7 @@ class _Renderer:
             self.width, self.height = max(1, round(rc.width * k)), max(1, round(rc.height * k))
             self.spp = min(rc.spp, PREVIEW_SPP)
             self.subframes = 1
-        elif size is not None:                 # (width, height, spp) of a still at one instant
+        elif size is not None:  # (width, height, spp) of a still at one instant
             self.width, self.height, self.spp = (int(v) for v in size)
             self.subframes = 1
         else:
@@ -214,8 +232,11 @@ class _Renderer:
         self.emitters = emitter_dicts(config, variant, overrides)
         # Mitsuba 3.9.1's ``path`` tests shadow rays against whole leaf cards (alpha ignored);
         # ``volpath`` attenuates them by each mask's opacity: exact, but 3–6× slower on foliage.
-        self.integrator = {"type": "volpath" if rc.alpha_shadows else "path", "max_depth": int(rc.max_depth),
-                           "rr_depth": RR_DEPTH}
+        self.integrator = {
+            "type": "volpath" if rc.alpha_shadows else "path",
+            "max_depth": int(rc.max_depth),
+            "rr_depth": RR_DEPTH,
+        }
         self._scene_key = None
         self._scene = None
         self.graph = None
@@ -241,10 +262,10 @@ class _Renderer:
         scene.update(graph.entries)
         try:
             self._scene = self.mi.load_dict(scene, parallel=True)
-        except Exception as e:  # noqa: BLE001 - Mitsuba raises RuntimeError for unreadable meshes etc.
+        except Exception as e:
             raise ForestError(f"{self.config.path}: cannot build the Mitsuba scene: {str(e).splitlines()[0]}") from None
         del scene
-        graph.entries = None             # the dicts are no longer needed: free them before rendering
+        graph.entries = None  # the dicts are no longer needed: free them before rendering
         self.graph = graph
         self._scene_key = key
         self.max_instanced = max(self.max_instanced, graph.instanced_triangles)
@@ -255,8 +276,9 @@ class _Renderer:
         return self._scene
 
     def sensor(self, frame: float, spp: int, *, rfilter: str = "box"):
-        return self.mi.load_dict(sensor_dict(self.config, frame, self.width, self.height, spp, self.variant,
-                                             rfilter=rfilter))
+        return self.mi.load_dict(
+            sensor_dict(self.config, frame, self.width, self.height, spp, self.variant, rfilter=rfilter)
+        )
 
     def passes(self, spp: int) -> list[int]:
         if self.variant.startswith("scalar"):
@@ -305,9 +327,12 @@ class _Renderer:
                         if not si.is_valid():
                             break
                         bsdf = si.bsdf()
-                        if skip + 1 < MAX_ALPHA_SKIPS and mi.has_flag(bsdf.flags(), null) and \
-                                float(np.mean(bsdf.eval_null_transmission(si))) > 0.5:
-                            travelled += si.t            # a transparent texel of a leaf card: look past it
+                        if (
+                            skip + 1 < MAX_ALPHA_SKIPS
+                            and mi.has_flag(bsdf.flags(), null)
+                            and float(np.mean(bsdf.eval_null_transmission(si))) > 0.5
+                        ):
+                            travelled += si.t  # a transparent texel of a leaf card: look past it
                             ray = si.spawn_ray(ray.d)
                             continue
                         # an opaque surface, or the last allowed skip (dense far foliage): take this hit
@@ -319,6 +344,7 @@ class _Renderer:
                         break
         else:
             import drjit as dr
+
             jj, ii = np.meshgrid(np.arange(w), np.arange(h))
             u = mi.Point2f(mi.Float(((jj + 0.5) / w).ravel()), mi.Float(((ii + 0.5) / h).ravel()))
             ray, _ = sensor.sample_ray(0.0, 0.5, u, mi.Point2f(0.5, 0.5))
@@ -331,10 +357,10 @@ class _Renderer:
                 si = scene.ray_intersect(ray, active)
                 valid = active & si.is_valid()
                 bsdf = si.bsdf(ray)
-                tr = bsdf.eval_null_transmission(si, valid)          # Color3f: 1 − opacity for masks, 0 else
+                tr = bsdf.eval_null_transmission(si, valid)  # Color3f: 1 − opacity for masks, 0 else
                 clear = valid & ((tr[0] + tr[1] + tr[2]) > 1.5)
                 if skip + 1 == MAX_ALPHA_SKIPS:
-                    clear = dr.zeros(mi.Bool, n)                     # last skip: take the hit as it is
+                    clear = dr.zeros(mi.Bool, n)  # last skip: take the hit as it is
                 stop = valid & ~clear
                 dist = dr.select(stop, travelled + si.t, dist)
                 reg = dr.select(stop, dr.reinterpret_array(mi.UInt32, si.instance), reg)
@@ -359,12 +385,14 @@ class _Renderer:
         """InstanceSet row of each shape in ``scene.shapes()`` order (−1 for non-trees)."""
         if self._shape_rows is None:
             ids = [s.id() for s in scene.shapes()]
-            self._shape_rows = np.array([int(i[5:]) if i.startswith("tree_") else -1 for i in ids] or [-1],
-                                        dtype=np.int64)
+            self._shape_rows = np.array(
+                [int(i[5:]) if i.startswith("tree_") else -1 for i in ids] or [-1], dtype=np.int64
+            )
         return self._shape_rows
 
     def _jit_registry_index(self, scene, reg: np.ndarray) -> np.ndarray:
         import drjit as dr
+
         table = np.asarray(dr.reinterpret_array(self.mi.UInt32, scene.shapes_dr())).astype(np.int64)
         order = np.argsort(table)
         pos = np.searchsorted(table[order], reg)
@@ -383,7 +411,7 @@ class _Renderer:
         seed = int(self.config.render.seed) * 1_000_003 + int(round(frame * 1000)) * 997
         scene = None
         for k, t in enumerate(times):
-            scene = None                     # let a superseded scene go before the next is built
+            scene = None  # let a superseded scene go before the next is built
             scene = self.scene_at(levels, t / cam.fps)
             sensor = self.sensor(t, spp_sub)
             t0 = time.perf_counter()
@@ -402,8 +430,11 @@ class _Renderer:
             hc = rc.haze_colour
             if hc is None:
                 sky = self.config.lights.sky
-                hc = tuple(sky.radiance * c for c in sky.colour) if sky is not None and sky.kind == "constant" \
+                hc = (
+                    tuple(sky.radiance * c for c in sky.colour)
+                    if sky is not None and sky.kind == "constant"
                     else (0.5, 0.6, 0.75)
+                )
             rgb = apply_haze(rgb, depth, depth > 0, rc.haze, hc)
         denoised = False
         if self.preview:
@@ -412,12 +443,20 @@ class _Renderer:
                 rgb, denoised = d, True
         far = depth <= 0
         depth = np.where(far, np.float32(cam.far), depth)
-        return {"rgb": rgb, "depth": depth, "id": ids, "species": species, "denoised": denoised,
-                "camera": state, "levels": levels}
+        return {
+            "rgb": rgb,
+            "depth": depth,
+            "id": ids,
+            "species": species,
+            "denoised": denoised,
+            "camera": state,
+            "levels": levels,
+        }
 
 
-def render_image(config, instances, *, width: int, height: int, spp: int, variant: str = "scalar_rgb",
-                 overrides=None, library=None) -> np.ndarray:
+def render_image(
+    config, instances, *, width: int, height: int, spp: int, variant: str = "scalar_rgb", overrides=None, library=None
+) -> np.ndarray:
     """The beauty of frame 1 at ``width``×``height``×``spp`` as an (H, W, 3) linear array, no files, no blur.
 
     The same scene, materials, LODs and haze as :func:`render_scene`; for
@@ -425,14 +464,34 @@ def render_image(config, instances, *, width: int, height: int, spp: int, varian
     """
     if library is None:
         from ..library import open_library
+
         library = open_library()
-    r = _Renderer(config, _resolve_instances(config, instances), variant, library, preview=False,
-                  overrides=overrides, progress=None, size=(width, height, spp))
+    r = _Renderer(
+        config,
+        _resolve_instances(config, instances),
+        variant,
+        library,
+        preview=False,
+        overrides=overrides,
+        progress=None,
+        size=(width, height, spp),
+    )
     return np.asarray(r.frame(1.0, lambda: None)["rgb"], np.float64)[..., :3]
 
 
-def render_scene(config, *, output, instances=None, variant=None, frames=None, preview=False, overrides=None,
-                 progress=None, library=None, announce=None) -> RenderResult:
+def render_scene(
+    config,
+    *,
+    output,
+    instances=None,
+    variant=None,
+    frames=None,
+    preview=False,
+    overrides=None,
+    progress=None,
+    library=None,
+    announce=None,
+) -> RenderResult:
     """Render the config's forest to ``output`` (EXR + PNG), a still or a frame sequence.
 
     ``instances``: an :class:`InstanceSet`, a path to a saved one, or None to
@@ -445,7 +504,7 @@ def render_scene(config, *, output, instances=None, variant=None, frames=None, p
     defaults to :func:`forest.library.open_library`.
     """
     # Validate everything the render reads before any work.
-    config.camera, config.lights, config.render, config.lod, config.wind, config.maps, config.terrain
+    config.camera, config.lights, config.render, config.lod, config.wind, config.maps, config.terrain  # noqa: B018
     if isinstance(frames, str):
         frames = parse_frames(frames)
     still = frames is None
@@ -464,6 +523,7 @@ def render_scene(config, *, output, instances=None, variant=None, frames=None, p
         announce(chosen, reason)
     if library is None:
         from ..library import open_library
+
         library = open_library()
     progress = progress or (lambda f, m="": None)
     progress(0.0, "building scene")
@@ -475,39 +535,66 @@ def render_scene(config, *, output, instances=None, variant=None, frames=None, p
     denoised = False
 
     for fi, (f, (exr, png)) in enumerate(zip(frame_list, targets)):
+
         def tick(fi=fi):
             done[0] += 1
             progress(done[0] / total, f"frame {frame_list[fi]} ({fi + 1}/{len(frame_list)})")
+
         out = r.frame(float(f), tick)
         denoised |= out["denoised"]
         g = r.graph
         cam = out["camera"]
         attrs = {
-            "forest:config": config.name, "forest:seed": int(config.seed), "forest:frame": int(f),
-            "forest:variant": chosen, "forest:spp": r.spp, "forest:subframes": n_sub,
-            "forest:shutter": float(config.camera.shutter), "forest:max_depth": int(config.render.max_depth),
-            "forest:render_seed": int(config.render.seed), "forest:preview": bool(preview),
-            "forest:denoised": bool(out["denoised"]), "forest:leaf_model": r.materials.leaf_model,
-            "forest:trees": g.trees, "forest:instanced_triangles": g.instanced_triangles,
-            "forest:unique_triangles": g.unique_triangles, "forest:shapegroups": g.shapegroups,
+            "forest:config": config.name,
+            "forest:seed": int(config.seed),
+            "forest:frame": int(f),
+            "forest:variant": chosen,
+            "forest:spp": r.spp,
+            "forest:subframes": n_sub,
+            "forest:shutter": float(config.camera.shutter),
+            "forest:max_depth": int(config.render.max_depth),
+            "forest:render_seed": int(config.render.seed),
+            "forest:preview": bool(preview),
+            "forest:denoised": bool(out["denoised"]),
+            "forest:leaf_model": r.materials.leaf_model,
+            "forest:trees": g.trees,
+            "forest:instanced_triangles": g.instanced_triangles,
+            "forest:unique_triangles": g.unique_triangles,
+            "forest:shapegroups": g.shapegroups,
             "forest:lod": ", ".join(f"{k}={v}" for k, v in g.lod_counts.items()),
             "forest:lod_distances": ", ".join(f"{d:g}" for d in config.lod.distances),
             "forest:camera_position": ", ".join(f"{x:.4f}" for x in cam.position),
             "forest:camera_target": ", ".join(f"{x:.4f}" for x in cam.target),
-            "forest:fov": float(cam.fov), "forest:wind_strength": float(config.wind.strength),
+            "forest:fov": float(cam.fov),
+            "forest:wind_strength": float(config.wind.strength),
             "forest:haze": float(config.render.haze),
             "forest:layers": "RGB beauty (linear); depth.Z distance to the first hit in metres (far clip where "
-                             "nothing is hit); id.Z tree id (-1 none); species.Z species index (-1 none)",
+            "nothing is hit); id.Z tree id (-1 none); species.Z species index (-1 none)",
         }
         attrs = {k: _header_value(v) for k, v in attrs.items()}
-        write_multilayer_exr(exr, {"": out["rgb"], "depth": out["depth"], "id": out["id"],
-                                   "species": out["species"]}, attributes=attrs)
+        write_multilayer_exr(
+            exr, {"": out["rgb"], "depth": out["depth"], "id": out["id"], "species": out["species"]}, attributes=attrs
+        )
         write_image(png, out["rgb"])
         written += [exr, png]
     progress(1.0, "done")
-    return RenderResult(paths=written, frames=frame_list, variant=chosen, variant_reason=reason,
-                        width=r.width, height=r.height, spp=r.spp, subframes=n_sub, trees=len(inst),
-                        instanced_triangles=r.max_instanced, unique_triangles=r.max_unique,
-                        shapegroups=r.max_groups, load_seconds=r.load_seconds, render_seconds=r.render_seconds,
-                        peak_memory_gb=peak_memory_gb(), lod_counts=r.lod_counts, denoised=denoised,
-                        leaf_model=r.materials.leaf_model)
+    return RenderResult(
+        paths=written,
+        frames=frame_list,
+        variant=chosen,
+        variant_reason=reason,
+        width=r.width,
+        height=r.height,
+        spp=r.spp,
+        subframes=n_sub,
+        trees=len(inst),
+        instanced_triangles=r.max_instanced,
+        unique_triangles=r.max_unique,
+        shapegroups=r.max_groups,
+        load_seconds=r.load_seconds,
+        render_seconds=r.render_seconds,
+        peak_memory_gb=peak_memory_gb(),
+        lod_counts=r.lod_counts,
+        denoised=denoised,
+        leaf_model=r.materials.leaf_model,
+    )

@@ -51,9 +51,19 @@ def _rgb(value) -> dict:
 # Camera
 # ---------------------------------------------------------------------------
 
-def sensor_dict(config, frame: float = 1.0, width: int | None = None, height: int | None = None,
-                spp: int | None = None, variant: str = "scalar_rgb", *, seed: int | None = None,
-                rfilter: str = "box", sampler: str = "independent") -> dict:
+
+def sensor_dict(
+    config,
+    frame: float = 1.0,
+    width: int | None = None,
+    height: int | None = None,
+    spp: int | None = None,
+    variant: str = "scalar_rgb",
+    *,
+    seed: int | None = None,
+    rfilter: str = "box",
+    sampler: str = "independent",
+) -> dict:
     """A ``perspective`` sensor at ``frame`` of the config's camera path.
 
     The camera-to-world matrix comes from :func:`forest.camera.look_at_matrix`
@@ -85,14 +95,18 @@ def sensor_dict(config, frame: float = 1.0, width: int | None = None, height: in
             "component_format": "float32",
             "rfilter": {"type": rfilter},
         },
-        "sampler": {"type": sampler, "sample_count": int(spp or rc.spp),
-                    "seed": int(rc.seed if seed is None else seed)},
+        "sampler": {
+            "type": sampler,
+            "sample_count": int(spp or rc.spp),
+            "seed": int(rc.seed if seed is None else seed),
+        },
     }
 
 
 # ---------------------------------------------------------------------------
 # Lights
 # ---------------------------------------------------------------------------
+
 
 def sun_vector(elevation: float, azimuth: float) -> np.ndarray:
     """Unit vector towards the sun: (sin A cos E, sin E, cos A cos E), degrees in."""
@@ -144,22 +158,28 @@ def emitter_dicts(config, variant: str, overrides: dict | None = None) -> dict[s
         sun_scale = 1.0
         if "sun_irradiance" in o and sun is not None and sun.irradiance > 0:
             sun_scale = float(o["sun_irradiance"]) / sun.irradiance
-        out["sky"] = {"type": "sunsky", "sun_direction": [float(x) for x in sun_vector(el, az)],
-                      "turbidity": float(sky.turbidity), "albedo": float(sky.albedo),
-                      "sky_scale": float(o.get("envmap_scale", sky.scale)),
-                      "sun_scale": float(sky.scale * sun_scale)}
+        out["sky"] = {
+            "type": "sunsky",
+            "sun_direction": [float(x) for x in sun_vector(el, az)],
+            "turbidity": float(sky.turbidity),
+            "albedo": float(sky.albedo),
+            "sky_scale": float(o.get("envmap_scale", sky.scale)),
+            "sun_scale": float(sky.scale * sun_scale),
+        }
         return out
     if sun is not None:
         irr = float(o.get("sun_irradiance", sun.irradiance))
         col = np.asarray(o.get("sun_colour", sun.colour), dtype=np.float64)
         if sun.elevation > 0 and irr > 0:
             d = -sun_vector(sun.elevation, sun.azimuth)
-            out["sun"] = {"type": "directional", "direction": [float(x) for x in d],
-                          "irradiance": _rgb(irr * col)}
+            out["sun"] = {"type": "directional", "direction": [float(x) for x in d], "irradiance": _rgb(irr * col)}
     if sky is not None:
         if sky.kind == "envmap":
-            out["sky"] = {"type": "envmap", "filename": str(sky.envmap),
-                          "scale": float(o.get("envmap_scale", sky.scale))}
+            out["sky"] = {
+                "type": "envmap",
+                "filename": str(sky.envmap),
+                "scale": float(o.get("envmap_scale", sky.scale)),
+            }
         else:
             rad = float(o.get("sky_radiance", sky.radiance))
             col = np.asarray(o.get("sky_colour", sky.colour), dtype=np.float64)
@@ -172,6 +192,7 @@ def emitter_dicts(config, variant: str, overrides: dict | None = None) -> dict[s
 # ---------------------------------------------------------------------------
 # Colour grid: a map evaluated at each hit's world position
 # ---------------------------------------------------------------------------
+
 
 def grid_to_world(extent, height_range) -> np.ndarray:
     """4×4 matrix mapping the grid's unit cube onto the terrain box.
@@ -212,8 +233,12 @@ def colour_grid_texture(grid, extent, height_range, variant: str, *, filter_type
     if not np.isfinite(g).all():
         raise ForestError("colour grid contains NaN or infinite values")
     data = np.ascontiguousarray(g[:, None, :, :])
-    vol = {"type": "gridvolume", "filter_type": filter_type, "wrap_mode": "clamp",
-           "to_world": transform(variant, grid_to_world(extent, height_range))}
+    vol = {
+        "type": "gridvolume",
+        "filter_type": filter_type,
+        "wrap_mode": "clamp",
+        "to_world": transform(variant, grid_to_world(extent, height_range)),
+    }
     if _is_scalar(variant):
         vol["grid"] = mi.VolumeGrid(data)
     else:
@@ -225,6 +250,7 @@ def colour_grid_texture(grid, extent, height_range, variant: str, *, filter_type
 # Terrain
 # ---------------------------------------------------------------------------
 
+
 def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "terrain"):
     """The terrain as a Mitsuba ``Mesh`` object (positions, faces, smooth normals, uv) with ``bsdf``."""
     mi = mitsuba(variant)
@@ -233,8 +259,9 @@ def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "t
     props = mi.Properties()
     if bsdf is not None:
         props["bsdf"] = mi.load_dict(bsdf)
-    mesh = mi.Mesh(name, vertex_count=len(v), face_count=len(f), has_vertex_normals=True,
-                   has_vertex_texcoords=True, props=props)
+    mesh = mi.Mesh(
+        name, vertex_count=len(v), face_count=len(f), has_vertex_normals=True, has_vertex_texcoords=True, props=props
+    )
     params = mi.traverse(mesh)
     conv = (lambda a: a.ravel()) if _is_scalar(variant) else (lambda a: mi.Float(a.ravel()))
     params["vertex_positions"] = conv(v)
@@ -259,11 +286,13 @@ def terrain_reflectance(config, terrain, variant: str, colour_grid: np.ndarray |
     base = np.asarray(rc.terrain_colour, dtype=np.float32)
     if tex_path is not None:
         from ..images import read_map_rgb
+
         grid = read_map_rgb(tex_path, what="terrain texture")
         return colour_grid_texture(grid, terrain.extent, terrain.height_range, variant)
     if colour_grid is not None:
-        return colour_grid_texture(np.asarray(colour_grid, np.float32) * base, terrain.extent,
-                                   terrain.height_range, variant)
+        return colour_grid_texture(
+            np.asarray(colour_grid, np.float32) * base, terrain.extent, terrain.height_range, variant
+        )
     return _rgb(base)
 
 
@@ -277,6 +306,7 @@ def terrain_dict(config, terrain, variant: str, colour_grid: np.ndarray | None =
     """
     if colour_grid is None and config.maps.colour is not None:
         from ..images import read_map_rgb
+
         colour_grid = read_map_rgb(config.maps.colour, what="colour map")
     bsdf = {"type": "diffuse", "reflectance": terrain_reflectance(config, terrain, variant, colour_grid)}
     return terrain_mesh(terrain, variant, bsdf)
