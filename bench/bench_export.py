@@ -36,7 +36,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from forest.config import load_config
+from forest.config import Config, load_config
 from forest.export.rib import export_rib
 from forest.export.usd import export_usd
 from forest.instances import InstanceSet, quaternion_to_matrix, yaw_tilt_quaternion
@@ -113,7 +113,6 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     cfg = load_config(ROOT / "configs" / "demo.toml")
-    cfg.validate_all()
     from forest.terrain import load_terrain
 
     terrain = load_terrain(cfg.terrain, cfg.path)
@@ -125,14 +124,15 @@ def main() -> None:
         lib.resolve(sp.model, cfg.base_dir)
     base_rss = peak_rss_mb()
     tmp = Path(tempfile.mkdtemp(prefix="forest-bench-export-"))
-    lod = cfg.data.pop("lod")
+    base = dict(cfg.data)
+    lod = base.pop("lod")
 
     def set_lod(on: bool, mode: str = "inline"):
-        cfg.data.pop("lod", None)
+        nonlocal cfg
+        data = dict(base, export={"rib_lod": mode})
         if on:
-            cfg.data["lod"] = lod
-        cfg.data["export"] = {"rib_lod": mode}
-        cfg.__dict__.pop("lod", None)
+            data["lod"] = lod
+        cfg = Config(data, cfg.path)
 
     def rib(on: bool, mode: str = "inline"):
         set_lod(on, mode)

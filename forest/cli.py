@@ -12,7 +12,7 @@ import sys
 
 import typer
 
-from .errors import ForestError
+from .errors import ForestError, ParameterError
 
 app = typer.Typer(
     name="forest",
@@ -50,6 +50,7 @@ COMMAND_MODULES = (
     "export",
     "match",
     "examples",
+    "schema",
 )
 
 for _name in COMMAND_MODULES:
@@ -65,6 +66,10 @@ def fail(message: str, code: int = 2) -> None:
 def main(argv: list[str] | None = None) -> None:
     try:
         app(args=argv, prog_name="forest")
+    except ParameterError as e:
+        from .commands import FLAGS
+
+        fail(f"{FLAGS.get(e.field or '', e.field)}: {e.message}", e.exit_code)
     except ForestError as e:
         fail(str(e), e.exit_code)
     except KeyboardInterrupt:

@@ -36,7 +36,7 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .config import Config, Fields
+from .config import Config
 from .errors import ConfigError, ForestError
 from .images import read_map_grey
 from .instances import InstanceSet, yaw_tilt_quaternion
@@ -47,17 +47,16 @@ TAG = 0xEC05
 
 
 def _species_params(config: Config) -> dict[str, np.ndarray]:
-    out = {k: [] for k in ("radius", "growth", "shade", "vigour", "m_lo", "m_hi")}
-    for i, sp in enumerate(config.species):
-        f = Fields(sp.extra, f"species[{i}]", config)
-        out["radius"].append(f.number("radius", 4.0, lo=0.0, lo_open=True))
-        out["growth"].append(f.number("growth", 0.25, lo=0.0, lo_open=True))
-        out["shade"].append(f.number("shade_tolerance", 0.0, lo=0.0, hi=1.0))
-        out["vigour"].append(f.number("vigour", 1.0, lo=0.0, lo_open=True))
-        lo, hi = f.range("moisture", (0.0, 1.0), lo=0.0, hi=1.0)
-        out["m_lo"].append(lo)
-        out["m_hi"].append(hi)
-    return {k: np.asarray(v, dtype=np.float64) for k, v in out.items()}
+    """Per-species ecosystem parameters as arrays (radius, growth, shade, vigour, moisture window)."""
+    sp = config.species
+    return {
+        "radius": np.array([s.radius for s in sp], dtype=np.float64),
+        "growth": np.array([s.growth for s in sp], dtype=np.float64),
+        "shade": np.array([s.shade_tolerance for s in sp], dtype=np.float64),
+        "vigour": np.array([s.vigour for s in sp], dtype=np.float64),
+        "m_lo": np.array([s.moisture[0] for s in sp], dtype=np.float64),
+        "m_hi": np.array([s.moisture[1] for s in sp], dtype=np.float64),
+    }
 
 
 def _window(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, soft: np.ndarray) -> np.ndarray:
@@ -71,9 +70,8 @@ def ecosystem_scatter(config: Config, progress=None, terrain: Terrain | None = N
 
     t0 = time.perf_counter()
     step = progress or (lambda f, m="": None)
-    eco = config.section("ecosystem", ("steps", "establish", "seed"))
-    years = eco.integer("steps", 15, lo=1, hi=200)
-    establish = eco.number("establish", 0.25, lo=0.0, hi=1.0)
+    years = config.ecosystem.steps
+    establish = config.ecosystem.establish
     terrain = terrain or load_terrain(config.terrain, config.path)
     maps = MapSet(config)
     species = config.species

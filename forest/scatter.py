@@ -88,7 +88,6 @@ def scatter(config: Config, progress=None, terrain: Terrain | None = None) -> tu
     """Scatter the trees a config describes.  Raises :class:`ForestError` on bad input."""
     t0 = time.perf_counter()
     step = progress or (lambda f, m="": None)
-    config.validate_scatter()
     if config.scatter.method == "ecosystem":
         from .ecosystem import ecosystem_scatter
 

@@ -250,11 +250,13 @@ def fbm_heights(resolution: int, octaves: int, roughness: float, seed: int) -> n
 def load_terrain(cfg: TerrainConfig, config_path: Path | None = None) -> Terrain:
     """Build the :class:`Terrain` a ``[terrain]`` section describes."""
     where = f"{config_path}: terrain" if config_path else "terrain"
-    if cfg.kind == "flat":
-        return grid_terrain(np.zeros((2, 2)), cfg.size, source="flat")
-    if cfg.kind == "procedural":
-        h = fbm_heights(cfg.resolution, cfg.octaves, cfg.roughness, cfg.seed) * cfg.height
-        return grid_terrain(h, cfg.size, source="procedural")
+    if cfg.flat is not None:
+        return grid_terrain(np.zeros((2, 2)), (cfg.flat.size, cfg.flat.size), source="flat")
+    if cfg.procedural is not None:
+        pr = cfg.procedural
+        seed = 0 if pr.seed is None else pr.seed
+        h = fbm_heights(pr.resolution, pr.octaves, pr.roughness, seed) * pr.height
+        return grid_terrain(h, (pr.size, pr.size), source="procedural")
     if cfg.kind == "heightmap":
         from .images import read_map_grey
 

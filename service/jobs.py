@@ -115,7 +115,7 @@ def _overrides(s: JobSettings) -> dict:
 def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dict[str, bool]) -> PreparedJob:
     """Validate a request completely and lay out its job folder; raise :class:`RequestError`."""
     from forest.camera import parse_frames
-    from forest.config import Config
+    from forest.config import Config, apply_overrides
     from forest.errors import ForestError
 
     if not capabilities.get(req.kind):
@@ -147,18 +147,10 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
     job_id = uuid.uuid4().hex
     job_dir = datadir.job_dir(job_id)
     overrides = _overrides(s)
-    # The TOML is parsed once: the same tree, with the settings applied as parse_config
-    # would apply them, becomes the Config that is validated.
-    for dotted, value in overrides.items():
-        node = data
-        *parents, last = dotted.split(".")
-        for part in parents:
-            node = node.setdefault(part, {})
-            if not isinstance(node, dict):
-                raise RequestError(f"config: {part}: must be a table")
-        node[last] = value
+    # The TOML is parsed once; the settings are applied as the CLI applies its flags.
     try:
-        config = Config(data, path=Path("config.toml"), base_dir=job_dir)
+        data = apply_overrides(data, overrides)
+        config = Config(data, path=Path("config.toml"), base_dir=job_dir, check_files=False)
     except ForestError as e:
         raise RequestError(str(e)) from None
     try:
@@ -168,7 +160,7 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
             job_dir.mkdir(parents=True)
             link_into(job_dir, assets)
         try:
-            config.validate_all()
+            config = Config(data, path=Path("config.toml"), base_dir=job_dir)
         except ForestError as e:
             raise RequestError(str(e)) from None
         r = config.render
@@ -253,16 +245,16 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
 
 def _check_match(config, match: dict, variant: str | None, limits: Limits) -> None:
     """Validate look-dev settings now (the same resolution look-dev does), so mistakes answer 422."""
-    from forest.errors import ForestError
+    from forest.errors import ForestError, ParameterError
     from forest.lookdev import resolve_settings
 
     names = {
-        "--iterations": "settings.iterations",
-        "--resolution": "settings.resolution",
-        "--spp": "settings.match_spp",
-        "--mode": "settings.mode",
-        "--variant": "settings.variant",
-        "--params": "settings.params",
+        "lookdev.iterations": "settings.iterations",
+        "lookdev.resolution": "settings.resolution",
+        "lookdev.spp": "settings.match_spp",
+        "lookdev.mode": "settings.mode",
+        "lookdev.variant": "settings.variant",
+        "lookdev.params": "settings.params",
     }
     try:
         st = resolve_settings(
@@ -275,9 +267,9 @@ def _check_match(config, match: dict, variant: str | None, limits: Limits) -> No
             variant=variant,
         )
     except ForestError as e:
-        msg = str(e)
-        for flag, field in names.items():
-            msg = msg.replace(flag, field)
-        raise RequestError(msg) from None
+        # an error in a job setting names the setting's JSON field; one in the config, the config's field
+        if isinstance(e, ParameterError) and e.field in names:
+            raise RequestError(f"{names[e.field]}: {e.message}") from None
+        raise RequestError(str(e)) from None
     if st.iterations > limits.max_iterations:
         raise RequestError(f"lookdev.iterations: {st.iterations} is over the service limit of {limits.max_iterations}")

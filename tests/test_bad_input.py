@@ -58,7 +58,7 @@ CASES = {
     "negative_size": (
         '[terrain]\nheightmap = "h.png"\nsize = [-10.0, 100.0]\n' + GOOD_SPECIES,
         {"h.png": "grey"},
-        ["terrain.size", ">= 0"],
+        ["terrain.size", "> 0", "[-10, 100]"],
     ),
     "nan_height": (
         '[terrain]\nheightmap = "h.png"\nheight = nan\n' + GOOD_SPECIES,

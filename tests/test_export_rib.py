@@ -27,8 +27,7 @@ def lib():
 def exported(tmp_path_factory, lib):
     """An export with LOD, a fly-through with motion blur and an empty partition."""
     tmp = tmp_path_factory.mktemp("rib")
-    cfg = make_config(tmp, LOD + FLY)
-    cfg.data["camera"]["shutter"] = 0.5
+    cfg = make_config(tmp, LOD + FLY).with_overrides({"camera.shutter": 0.5})
     inst = make_instances(700)
     res = export_rib(cfg, inst, tmp / "out", library=lib)
     return cfg, inst, res, tmp / "out"
@@ -159,12 +158,10 @@ def test_camera_is_left_handed_and_blurred(exported):
 
 
 def test_sun_direction_convention(tmp_path, lib):
-    cfg = make_config(tmp_path, "")
-    cfg.data["lights"]["sun"].update({"azimuth": 90.0, "elevation": 30.0})
+    cfg = make_config(tmp_path, "").with_overrides({"lights.sun.azimuth": 90.0, "lights.sun.elevation": 30.0})
     d = sun_direction(cfg.lights.sun)
     np.testing.assert_allclose(d, [math.cos(math.radians(30)), 0.5, 0.0], atol=1e-12)  # east = +X
-    cfg.data["lights"]["sun"]["azimuth"] = 0.0
-    cfg.__dict__.pop("lights", None)
+    cfg = cfg.with_overrides({"lights.sun.azimuth": 0.0})
     np.testing.assert_allclose(sun_direction(cfg.lights.sun), [0.0, 0.5, math.cos(math.radians(30))], atol=1e-12)
     res = export_rib(cfg, make_instances(20), tmp_path / "a", library=lib)
     calls = ribcheck.parse(res.scenes[0].read_bytes())
@@ -242,10 +239,8 @@ def test_failure_leaves_nothing_behind(tmp_path, lib):
 
 
 def test_bad_input_names_the_field(tmp_path, lib):
-    cfg = make_config(tmp_path, "")
+    cfg = make_config(tmp_path, "").with_overrides({"species[1].model": "birch"})
     inst = make_instances(20, species=("oak", "birch"))
-    cfg.data["species"][1]["model"] = "birch"
-    cfg.__dict__.pop("species", None)
     with pytest.raises(ConfigError, match=r"scene.toml: species\[1\].model: unknown tree model 'birch'"):
         export_rib(cfg, inst, tmp_path / "x", library=lib)
     cfg = make_config(tmp_path, "[export]\nlod_transition = 0.6\n" + LOD)

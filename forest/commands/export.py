@@ -13,7 +13,6 @@ def _scene(config: Path, instances: Path | None, quiet: bool):
     from ..scatter import scene_instances
 
     cfg = load_config(config)
-    cfg.validate_all()
     with progress_bar("scatter", quiet=quiet or instances is not None) as bar:
         inst = scene_instances(cfg, instances, progress=bar)
     return cfg, inst

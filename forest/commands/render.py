@@ -33,25 +33,19 @@ def register(app: typer.Typer) -> None:
         instances: Path = typer.Option(
             None, "--instances", help="Saved InstanceSet (.npz) from `forest scatter`; default: scatter now."
         ),
-        spp: int = typer.Option(None, "--spp", min=1, help="Override the config's render.spp."),
-        width: int = typer.Option(None, "--width", min=1, help="Override the config's render.width."),
-        height: int = typer.Option(None, "--height", min=1, help="Override the config's render.height."),
+        spp: int = typer.Option(None, "--spp", help="Override the config's render.spp."),
+        width: int = typer.Option(None, "--width", help="Override the config's render.width."),
+        height: int = typer.Option(None, "--height", help="Override the config's render.height."),
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No progress bar, no summary."),
     ):
         """Render the scene's forest with Mitsuba 3: linear EXR (with depth, id and species layers) + sRGB PNG."""
-        from ..config import load_config
-        from ..errors import ForestError
         from ..progress import progress_bar
         from ..render import choose_variant, render_scene
+        from ..render.render import output_paths
+        from . import load_with_flags
 
-        if output.suffix.lower() not in (".exr", ".png"):
-            raise ForestError(f"-o: {output}: the output must end in .exr (an sRGB .png is written beside it)")
-        overrides = {}
-        for key, value in (("render.spp", spp), ("render.width", width), ("render.height", height)):
-            if value is not None:
-                overrides[key] = value
-        cfg = load_config(config, overrides=overrides)
-        cfg.validate_all()
+        output_paths(output)  # a bad -o fails before any work
+        cfg = load_with_flags(config, {"render.spp": spp, "render.width": width, "render.height": height})
         if variant is not None:
             choose_variant(0, variant)  # reject a bad --variant before any work
 

@@ -17,19 +17,14 @@ def register(app: typer.Typer) -> None:
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No summary, no progress bar."),
     ):
         """Scatter trees over the terrain and save one row per tree as .npz."""
-        from ..config import load_config
         from ..errors import ForestError
         from ..progress import progress_bar
         from ..scatter import scatter
+        from . import load_with_flags
 
         if output.suffix.lower() != ".npz":
             raise ForestError(f"{output}: output must be a .npz file")
-        overrides = {}
-        if seed is not None:
-            overrides["seed"] = seed
-        if count is not None:
-            overrides["scatter.count"] = count
-        cfg = load_config(config, overrides=overrides)
+        cfg = load_with_flags(config, {"seed": seed, "scatter.count": count})
         with progress_bar("scatter", quiet=quiet) as bar:
             inst, report = scatter(cfg, progress=bar)
         inst.save(output)

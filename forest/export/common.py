@@ -29,10 +29,8 @@ import numpy as np
 
 from ..camera import parse_frames
 from ..config import Config, ConfigError, SunConfig
-from ..errors import ForestError
+from ..errors import ForestError, ParameterError
 from ..instances import InstanceSet
-
-EXPORT_KEYS = ("lod_transition", "usd_lod", "rib_lod")
 
 
 def sun_direction(sun: SunConfig) -> np.ndarray:
@@ -48,7 +46,7 @@ def export_frames(config: Config, frames: str | list[int] | None = None) -> list
     if frames is not None:
         out = parse_frames(frames) if isinstance(frames, str) else sorted({int(f) for f in frames})
         if not out:
-            raise ForestError("--frames: no frames selected")
+            raise ParameterError("frames", "no frames selected")
         return out
     keys = config.camera.keys
     if keys:
@@ -79,12 +77,8 @@ def export_options(config: Config) -> dict:
     * ``usd_lod`` — the ``lod`` variant the USD prototypes select (default each
       species' first level).
     """
-    f = config.section("export", EXPORT_KEYS)
-    return {
-        "lod_transition": f.number("lod_transition", 0.1, lo=0.0, hi=0.9),
-        "rib_lod": f.string("rib_lod", "inline", choices=("inline", "archive")),
-        "usd_lod": f.string("usd_lod", None),
-    }
+    e = config.export
+    return {"lod_transition": e.lod_transition, "rib_lod": e.rib_lod, "usd_lod": e.usd_lod}
 
 
 @dataclass
@@ -134,7 +128,7 @@ def species_plans(config: Config, instances: InstanceSet, library=None, *, used_
         library = open_default_library()
     models = [s.model for s in config.species]
     counts = np.bincount(instances.species, minlength=len(instances.species_names))
-    distances = list(config.lod.distances) if config.lod.enabled else []
+    distances = list(config.lod.bands)
     plans: list[SpeciesPlan] = []
     taken: set[str] = set()
     for i, model in enumerate(instances.species_names):

@@ -415,7 +415,7 @@ def detail_ranges(plan: SpeciesPlan, detail_bound: np.ndarray, config: Config, t
 
 
 def check_transition(config: Config, transition: float) -> None:
-    d = list(config.lod.distances) if config.lod.enabled else []
+    d = list(config.lod.bands)
     for a, b in itertools.pairwise(d):
         if b * (1 - transition) < a * (1 + transition):
             limit = (b - a) / (b + a)
@@ -676,7 +676,6 @@ def export_rib(
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise ForestError(f"{out_dir}: exists and is not a folder")
-    config.camera, config.lights, config.render, config.lod  # noqa: B018 - validate before any work
     opts = export_options(config)
     check_transition(config, opts["lod_transition"])
     frame_list = export_frames(config, frames)

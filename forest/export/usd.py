@@ -369,7 +369,6 @@ def export_usd(
         raise ForestError(f"{path}: a USD file name must end in .usda, .usdc or .usd")
     if path.is_dir():
         raise ForestError(f"{path}: is a folder; give the stage's file name")
-    config.camera, config.lights, config.render  # noqa: B018 - validate before any work
     opts = export_options(config)
     frame_list = export_frames(config, frames)
     check_instances(config, instances)

@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_path
-from ..errors import ForestError
+from ..errors import ForestError, ParameterError
 from ..images import srgb_to_linear
 from . import lod as lodmod
 from .build import code_hash, far_coverage, lod_entry, part_entry, write_json
@@ -130,9 +130,9 @@ def load_parts(path: Path, *, up: str = "auto", units: str = "auto", height: flo
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise ForestError(f"{path}: unsupported mesh format {path.suffix or '(none)'}; use {', '.join(MESH_SUFFIXES)}")
     if up not in ("auto", "y", "z"):
-        raise ForestError(f"--up: must be auto, y or z; got {up!r}")
+        raise ParameterError("up", f"must be auto, y or z; got {up!r}")
     if units != "auto" and units not in UNITS:
-        raise ForestError(f"--units: must be auto or one of {', '.join(sorted(UNITS))}; got {units!r}")
+        raise ParameterError("units", f"must be auto or one of {', '.join(sorted(UNITS))}; got {units!r}")
     import trimesh
 
     try:
@@ -377,7 +377,7 @@ def add_species(
             f"(a preset of that name is shadowed, not changed)"
         )
     if height is not None and not (math.isfinite(height) and height > 0):
-        raise ForestError(f"--height: must be a positive number of metres, got {height!r}")
+        raise ParameterError("height", f"must be a positive number of metres, got {height!r}")
     folder = lib.root / "imported" / name
     meta = _into_place(lib, path, folder, name, True, up=up, units=units, height=height)
     text = (

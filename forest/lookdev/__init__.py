@@ -34,39 +34,11 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_dir
-from ..config import Config, load_config
-from ..errors import ForestError
+from ..config import Config, ConfigError, load_config
+from ..errors import ForestError, ParameterError
 from .state import DEFAULT_PARAMS, PARAM_GROUPS, LookState, state_from_config
 
 MODES = ("aligned", "statistics")
-DEFAULTS = {
-    "iterations": 200,
-    "resolution": 96,
-    "spp": 8,
-    "mode": "aligned",
-    "grid": 16,
-    "bands": 2,
-    "fit": "crop",
-    "max_triangles": 2_000_000,
-    "max_depth": None,
-    "lod": "high",
-}
-LOOKDEV_KEYS = (
-    "iterations",
-    "resolution",
-    "spp",
-    "params",
-    "mode",
-    "grid",
-    "bands",
-    "mask",
-    "fit",
-    "max_triangles",
-    "max_depth",
-    "variant",
-    "lod",
-    "calibrate",
-)
 EVAL_SPP = 64
 SEED_TAG = 0x100CDE7
 
@@ -112,7 +84,7 @@ class Settings:
     calibrate: bool = False
 
 
-def parse_params(value, where: str = "--params") -> tuple[str, ...]:
+def parse_params(value, where: str = "lookdev.params") -> tuple[str, ...]:
     """``"colour_map,sun,sky"`` or a list → validated tuple of parameter groups."""
     items = value.split(",") if isinstance(value, str) else list(value)
     out = []
@@ -121,11 +93,11 @@ def parse_params(value, where: str = "--params") -> tuple[str, ...]:
         if not it:
             continue
         if it not in PARAM_GROUPS:
-            raise ForestError(f"{where}: unknown parameter {it!r} (expected some of {', '.join(PARAM_GROUPS)})")
+            raise ParameterError(where, f"unknown parameter {it!r} (expected some of {', '.join(PARAM_GROUPS)})")
         if it not in out:
             out.append(it)
     if not out:
-        raise ForestError(f"{where}: give at least one of {', '.join(PARAM_GROUPS)}")
+        raise ParameterError(where, f"give at least one of {', '.join(PARAM_GROUPS)}")
     return tuple(out)
 
 
@@ -141,62 +113,56 @@ def resolve_settings(
     variant=None,
     grid=None,
 ) -> Settings:
-    """Call arguments over ``[lookdev]`` over defaults, each validated with the field it came from."""
-    f = config.section("lookdev", LOOKDEV_KEYS)
+    """Call arguments over ``[lookdev]`` over its defaults.
 
-    def pick(value, key, lo, hi, where):
-        if value is None:
-            return f.integer(key, DEFAULTS[key], lo=lo, hi=hi)
-        if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-            raise ForestError(f"{where}: must be a whole number from {lo} to {hi}, got {value!r}")
-        return int(value)
-
-    s_iter = pick(iterations, "iterations", 1, 100_000, "--iterations")
-    s_res = pick(resolution, "resolution", 8, 4096, "--resolution")
-    s_spp = pick(spp, "spp", 1, 4096, "--spp")
-    s_grid = pick(grid, "grid", 1, 64, "--grid")
-    if params is None:
-        raw = f.table.get("params", list(DEFAULT_PARAMS))
-        if not isinstance(raw, (list, str)):
-            f.fail("params", f"must be a list of names, got {raw!r}")
+    The call's arguments are applied as overrides of ``lookdev.<name>`` and
+    validated by the scene schema, so a bad argument is reported with the
+    parameter's name (``lookdev.iterations: must be <= 100000, got 0``).
+    """
+    given = {
+        "iterations": iterations,
+        "resolution": resolution,
+        "spp": spp,
+        "mode": mode,
+        "grid": grid,
+        "variant": variant,
+    }
+    if params is not None:
+        given["params"] = (
+            [p.strip() for p in params.split(",") if p.strip()] if isinstance(params, str) else list(params)
+        )
+    overrides = {f"lookdev.{k}": v for k, v in given.items() if v is not None}
+    if mask is not None:
+        overrides["lookdev.mask"] = str(Path(mask).resolve())
+    if overrides:
         try:
-            s_params = parse_params(raw, "params")
-        except ForestError as e:
-            f.fail("params", str(e).split(": ", 1)[1])
-    else:
-        s_params = parse_params(params)
-    if mode is None:
-        s_mode = f.string("mode", DEFAULTS["mode"], choices=MODES)
-    elif mode not in MODES:
-        raise ForestError(f"--mode: must be one of {', '.join(MODES)}, got {mode!r}")
-    else:
-        s_mode = mode
-    s_mask = Path(mask) if mask is not None else f.file("mask")
-    if variant is None:
-        variant = f.string("variant", None, choices=("llvm_ad_rgb", "cuda_ad_rgb"))
+            config = config.with_overrides(overrides)
+        except ConfigError as e:
+            if e.field in overrides:
+                raise e.for_parameter(e.field) from None
+            raise
+    lk = config.lookdev
+    s_params = parse_params(lk.params if lk.params is not None else list(DEFAULT_PARAMS), "lookdev.params")
+    variant = lk.variant
     if variant is None:
         from ..runtime import cuda_available
 
         variant = "cuda_ad_rgb" if cuda_available() else "llvm_ad_rgb"
-    if variant not in ("llvm_ad_rgb", "cuda_ad_rgb"):
-        raise ForestError(
-            f"--variant: look-dev needs a differentiable variant (llvm_ad_rgb or cuda_ad_rgb), got {variant!r}"
-        )
     return Settings(
-        iterations=s_iter,
-        resolution=s_res,
-        spp=s_spp,
+        iterations=lk.iterations,
+        resolution=lk.resolution,
+        spp=lk.spp,
         params=s_params,
-        mode=s_mode,
-        grid=s_grid,
-        bands=f.integer("bands", DEFAULTS["bands"], lo=1, hi=16),
-        fit=f.string("fit", DEFAULTS["fit"], choices=("crop", "stretch")),
-        max_triangles=f.integer("max_triangles", DEFAULTS["max_triangles"], lo=1000, hi=100_000_000),
-        max_depth=f.integer("max_depth", config.render.max_depth, lo=1, hi=64),
-        lod=f.string("lod", DEFAULTS["lod"], choices=("high", "medium", "low", "far")),
-        mask=s_mask,
+        mode=lk.mode,
+        grid=lk.grid,
+        bands=lk.bands,
+        fit=lk.fit,
+        max_triangles=lk.max_triangles,
+        max_depth=lk.max_depth if lk.max_depth is not None else config.render.max_depth,
+        lod=lk.lod,
+        mask=lk.mask,
         variant=variant,
-        calibrate=f.boolean("calibrate", s_mode == "statistics"),
+        calibrate=lk.calibrate if lk.calibrate is not None else lk.mode == "statistics",
     )
 
 
@@ -274,7 +240,6 @@ def match(
     report = progress or (lambda f, m="": None)
     if not isinstance(config, Config):
         config = load_config(config)
-    config.validate_all()
     st = resolve_settings(
         config,
         iterations=iterations,

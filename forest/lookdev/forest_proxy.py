@@ -138,7 +138,7 @@ def build_proxy(
                 raise ForestError(f"{config.path}: species model {model!r}: {e}") from None
         sp_idx = instances.species.astype(np.int64)
         n_lods = np.array([len(s.lods) for s in species], dtype=np.int64)
-        prod = lod_levels(instances.position, cam.position, config.lod.distances, n_lods[sp_idx])
+        prod = lod_levels(instances.position, cam.position, config.lod.bands, n_lods[sp_idx])
         finest = np.array([_lod_index(s, lod) for s in species], dtype=np.int64)[sp_idx]
         level = np.maximum(prod, finest)
         mats = tree_matrices(instances, frame / config.camera.fps, config.wind)

@@ -110,7 +110,7 @@ class ForestBuilder:
         if not len(inst):
             return np.zeros(0, dtype=np.int64)
         return lod_levels(
-            inst.position, camera_position, self.config.lod.distances, self.n_lods[inst.species.astype(np.int64)]
+            inst.position, camera_position, self.config.lod.bands, self.n_lods[inst.species.astype(np.int64)]
         )
 
     def _bsdf_ref(self, part) -> dict:

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import camera_at, frame_path, parse_frames, subframe_times
-from ..errors import ForestError
+from ..errors import ForestError, ParameterError
 from ..images import read_map_rgb, write_image, write_multilayer_exr
 from ..instances import InstanceSet
 from ..runtime import VARIANTS, cuda_available, mitsuba
@@ -108,9 +108,9 @@ def choose_variant(trees: int, requested: str | None = None, configured: str | N
     for v, why in ((requested, "requested"), (configured, "[render] variant")):
         if v is not None:
             if v not in VARIANTS:
-                raise ForestError(f"--variant: must be one of {', '.join(VARIANTS)}, got {v!r}")
+                raise ParameterError("variant", f"must be one of {', '.join(VARIANTS)}, got {v!r}")
             if v == "cuda_ad_rgb" and not cuda_available():
-                raise ForestError("--variant: cuda_ad_rgb needs an NVIDIA GPU and driver, none found")
+                raise ParameterError("variant", "cuda_ad_rgb needs an NVIDIA GPU and driver, none found")
             if v != "scalar_rgb" and trees > CUDA_MAX_TREES:
                 why += (
                     f"; note: {trees:,} instances in a JIT variant build in quadratic time in "
@@ -124,14 +124,14 @@ def choose_variant(trees: int, requested: str | None = None, configured: str | N
     )
 
 
-def _output_paths(output: str | Path) -> tuple[Path, Path]:
+def output_paths(output: str | Path) -> tuple[Path, Path]:
     out = Path(output)
     ext = out.suffix.lower()
     if ext == ".exr":
         return out, out.with_suffix(".png")
     if ext == ".png":
         return out.with_suffix(".exr"), out
-    raise ForestError(f"-o: {output}: the output must end in .exr (an sRGB .png is written beside it)")
+    raise ParameterError("output", f"{output}: the output must end in .exr (an sRGB .png is written beside it)")
 
 
 def _resolve_instances(config, instances) -> InstanceSet:
@@ -504,19 +504,18 @@ def render_scene(
     defaults to :func:`forest.library.open_library`.
     """
     # Validate everything the render reads before any work.
-    config.camera, config.lights, config.render, config.lod, config.wind, config.maps, config.terrain  # noqa: B018
     if isinstance(frames, str):
         frames = parse_frames(frames)
     still = frames is None
     frame_list = [1] if still else [int(f) for f in frames]
     if not frame_list:
-        raise ForestError("--frames: no frames to render")
+        raise ParameterError("frames", "no frames to render")
     if still:
-        targets = [_output_paths(output)]
+        targets = [output_paths(output)]
     else:
-        targets = [_output_paths(frame_path(str(output), f)) for f in frame_list]
+        targets = [output_paths(frame_path(str(output), f)) for f in frame_list]
         if len({t[0] for t in targets}) != len(targets):
-            raise ForestError(f"-o: {output}: every frame needs its own file; put #### in the name")
+            raise ParameterError("output", f"{output}: every frame needs its own file; put #### in the name")
     inst = _resolve_instances(config, instances)
     chosen, reason = choose_variant(len(inst), variant, config.render.variant)
     if announce is not None:
@@ -562,7 +561,7 @@ def render_scene(
             "forest:unique_triangles": g.unique_triangles,
             "forest:shapegroups": g.shapegroups,
             "forest:lod": ", ".join(f"{k}={v}" for k, v in g.lod_counts.items()),
-            "forest:lod_distances": ", ".join(f"{d:g}" for d in config.lod.distances),
+            "forest:lod_distances": ", ".join(f"{d:g}" for d in config.lod.bands),
             "forest:camera_position": ", ".join(f"{x:.4f}" for x in cam.position),
             "forest:camera_target": ", ".join(f"{x:.4f}" for x in cam.target),
             "forest:fov": float(cam.fov),

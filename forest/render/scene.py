@@ -161,10 +161,10 @@ def emitter_dicts(config, variant: str, overrides: dict | None = None) -> dict[s
         out["sky"] = {
             "type": "sunsky",
             "sun_direction": [float(x) for x in sun_vector(el, az)],
-            "turbidity": float(sky.turbidity),
-            "albedo": float(sky.albedo),
-            "sky_scale": float(o.get("envmap_scale", sky.scale)),
-            "sun_scale": float(sky.scale * sun_scale),
+            "turbidity": float(sky.sunsky.turbidity),
+            "albedo": float(sky.sunsky.albedo),
+            "sky_scale": float(o.get("envmap_scale", sky.sunsky.scale)),
+            "sun_scale": float(sky.sunsky.scale * sun_scale),
         }
         return out
     if sun is not None:

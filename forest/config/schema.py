@@ -1,0 +1,631 @@
+"""The scene file's schema: one pydantic model per TOML table, validated eagerly and strictly.
+
+Every section of a scene file — the ones scatter and render read, and
+``[lookdev]``, ``[ecosystem]`` and ``[export]`` — is declared here once, with
+its types, ranges, defaults and a description.  From this one declaration
+come: validation (numbers must be numbers, integers whole, strings strings,
+unknown keys refused), the JSON Schema editors use to complete and check scene
+files (``forest schema``), and the list of fields that name files
+(:func:`file_fields`), so that the service, look-dev and ``forest examples``
+never guess which strings are paths.
+
+Types are strict: TOML already distinguishes integers, floats, booleans and
+strings, so ``width = "64"`` or ``count = 1.5`` are mistakes, not values to coerce
+(an integer is accepted where a float is expected).  Non-finite floats are
+refused everywhere.
+
+File fields hold paths relative to the scene file's folder; validation resolves
+them (the :class:`pydantic.ValidationInfo` context carries ``base_dir``) and
+checks that the file exists.
+"""
+
+from __future__ import annotations
+
+import math
+import typing
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
+
+MAX_TREES = 20_000_000
+MAX_IMAGE_SIDE = 16384
+MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb", ".stl", ".off")
+
+
+# ---------------------------------------------------------------------------
+# Field types
+# ---------------------------------------------------------------------------
+
+
+def fail(message: str, field: str | None = None) -> PydanticCustomError:
+    """A schema error with a finished message, optionally naming a sub-field of the table that raises it."""
+    text = message.replace("{", "{{").replace("}", "}}")
+    if field is None:
+        return PydanticCustomError("forest", text)
+    return PydanticCustomError("forest_field", text, {"field": field})
+
+
+class FileRef:
+    """Marks a field as naming an input file (relative to the scene file's folder)."""
+
+
+def _resolve_file(value: Path, info: ValidationInfo) -> Path:
+    base = (info.context or {}).get("base_dir")
+    p = Path(value).expanduser()
+    if not p.is_absolute() and base is not None:
+        p = Path(base) / p
+    if (info.context or {}).get("check_files", True) and not p.is_file():
+        raise fail(f"file not found: {value}")
+    return p
+
+
+def _non_empty(value: str) -> str:
+    if not value.strip():
+        raise fail("must be a non-empty string")
+    return value
+
+
+Float = Annotated[float, Strict(False), Field(allow_inf_nan=False)]
+Int = Annotated[int, Strict()]
+Bool = Annotated[bool, Strict()]
+Str = Annotated[str, Strict()]
+NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+Unit = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
+RGB = tuple[NonNegative, NonNegative, NonNegative]
+Vec3 = tuple[Float, Float, Float]
+InputFile = Annotated[Path, FileRef(), AfterValidator(_resolve_file), Field(json_schema_extra={"format": "path"})]
+
+
+class Section(BaseModel):
+    """A TOML table: unknown keys are refused, floats must be finite."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, validate_default=False, frozen=False)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _table(cls, data: Any) -> Any:
+        if data is None:
+            return {}
+        if not isinstance(data, dict):
+            raise fail(f"must be a table, got {data!r}")
+        return data
+
+
+def _ordered_pair(v: tuple[float, float] | None) -> tuple[float, float] | None:
+    if v is not None and v[0] > v[1]:
+        raise fail(f"first value must not exceed the second, got [{v[0]:g}, {v[1]:g}]")
+    return v
+
+
+# ---------------------------------------------------------------------------
+# [terrain]
+# ---------------------------------------------------------------------------
+
+
+class ProceduralTerrain(Section):
+    """Fractal value noise (fBm) over a square."""
+
+    size: Positive = Field(2000.0, description="Side of the square, metres.")
+    height: NonNegative = Field(150.0, description="Height of the highest point, metres.")
+    octaves: Annotated[Int, Field(ge=1, le=16)] = Field(6, description="Noise lattices, each twice as fine.")
+    resolution: Annotated[Int, Field(ge=8, le=8192)] = Field(512, description="Grid vertices per side.")
+    roughness: Unit = Field(0.5, description="Strength of each octave relative to the previous one.")
+    seed: Annotated[Int, Field(ge=0)] | None = Field(None, description="Noise seed (default: the scene's seed).")
+
+
+class FlatTerrain(Section):
+    """A flat square at height 0."""
+
+    size: Positive = Field(1000.0, description="Side of the square, metres.")
+
+
+class TerrainConfig(Section):
+    """Exactly one source: ``heightmap`` (with ``size`` and ``height``), ``mesh``, ``procedural`` or ``flat``."""
+
+    heightmap: InputFile | None = Field(
+        None, description="Greyscale image (8/16-bit PNG, TIFF, EXR); white = `height` metres."
+    )
+    mesh: InputFile | None = Field(None, description="Terrain mesh trimesh reads, metres, Y up.")
+    procedural: ProceduralTerrain | None = None
+    flat: FlatTerrain | None = None
+    size: tuple[Positive, Positive] = Field((1000.0, 1000.0), description="Heightmap extent along X and Z, metres.")
+    height: NonNegative = Field(100.0, description="Heightmap: metres at full white.")
+
+    @model_validator(mode="after")
+    def _one_source(self) -> TerrainConfig:
+        sources = [k for k in ("heightmap", "mesh", "procedural", "flat") if getattr(self, k) is not None]
+        if len(sources) != 1:
+            got = f", got {', '.join(sources)}" if sources else ""
+            raise fail(f"give exactly one terrain source: heightmap, mesh, procedural or flat{got}")
+        if self.heightmap is None:
+            for key in ("size", "height"):
+                if key in self.model_fields_set:
+                    raise fail(f"does not apply to a {sources[0]} terrain (only to a heightmap)", key)
+        return self
+
+    @property
+    def kind(self) -> str:
+        """``"heightmap"``, ``"mesh"``, ``"procedural"`` or ``"flat"``."""
+        for k in ("heightmap", "mesh", "procedural", "flat"):
+            if getattr(self, k) is not None:
+                return k
+        raise AssertionError("validated terrain has a source")
+
+    @property
+    def extent_size(self) -> tuple[float, float] | None:
+        """(X, Z) extent in metres for grid terrains; None for a mesh (known once loaded)."""
+        if self.procedural is not None:
+            return (self.procedural.size, self.procedural.size)
+        if self.flat is not None:
+            return (self.flat.size, self.flat.size)
+        if self.heightmap is not None:
+            return self.size
+        return None
+
+
+# ---------------------------------------------------------------------------
+# [maps], [partitions]
+# ---------------------------------------------------------------------------
+
+
+class MapsConfig(Section):
+    """Painted maps laid over the terrain's X/Z extent (column → +X, row → +Z, row 0 at the smallest Z)."""
+
+    presence: InputFile | None = Field(None, description="White = trees allowed.")
+    density: InputFile | None = Field(None, description="Grey level = relative density.")
+    colour: InputFile | None = Field(
+        None, description="sRGB tint map (→ linear), a tint around each species' leaf colour."
+    )
+    partition: InputFile | None = Field(None, description="Label colours → regions (see [partitions]).")
+    moisture: InputFile | None = Field(None, description="Grey = soil moisture, for method = 'ecosystem'.")
+    presence_threshold: Unit = Field(0.5, description="Presence grey level at which trees are allowed.")
+
+
+def parse_label(key: str) -> tuple[int, int, int] | None:
+    """``"#ff0000"`` or ``"#f00"`` → (255, 0, 0); None if it is not a colour."""
+    t = key.strip().lstrip("#")
+    if len(t) == 3:
+        t = "".join(c * 2 for c in t)
+    if len(t) != 6:
+        return None
+    try:
+        return int(t[0:2], 16), int(t[2:4], 16), int(t[4:6], 16)
+    except ValueError:
+        return None
+
+
+class PartitionsConfig(Section):
+    """Label colour → region name (``"#ff0000" = "foreground"``), any number, plus ``tolerance``."""
+
+    model_config = ConfigDict(
+        extra="allow",
+        json_schema_extra={
+            "patternProperties": {"^#?([0-9a-fA-F]{3}|[0-9a-fA-F]{6})$": {"type": "string"}},
+            "additionalProperties": False,
+        },
+    )
+    __pydantic_extra__: dict[str, Any] = Field(init=False)  # type: ignore[assignment]
+
+    tolerance: Annotated[Int, Field(ge=0, le=255)] = Field(
+        24, description="Largest per-channel difference (8-bit) between a pixel and its label colour."
+    )
+
+    @model_validator(mode="after")
+    def _labels(self) -> PartitionsConfig:
+        names: list[str] = []
+        colours: list[tuple[int, int, int]] = []
+        for key, name in (self.__pydantic_extra__ or {}).items():
+            c = parse_label(key)
+            if c is None:
+                raise fail('partition keys must be colours like "#ff0000"', key)
+            if not isinstance(name, str) or not name.strip() or not name.replace("_", "").replace("-", "").isalnum():
+                raise fail(f"region name must be letters, digits, '-' or '_', got {name!r}", key)
+            names.append(name)
+            colours.append(c)
+        if len(set(names)) != len(names):
+            raise fail("region names must be unique")
+        if len(set(colours)) != len(colours):
+            raise fail("label colours must be unique")
+        return self
+
+    @property
+    def labels(self) -> tuple[tuple[tuple[int, int, int], str], ...]:
+        """((8-bit sRGB colour, region name), …) in file order."""
+        out = []
+        for key, name in (self.__pydantic_extra__ or {}).items():
+            c = parse_label(key)
+            assert c is not None
+            out.append((c, name))
+        return tuple(out)
+
+
+# ---------------------------------------------------------------------------
+# [scatter], [[species]], [ecosystem]
+# ---------------------------------------------------------------------------
+
+
+class ScatterConfig(Section):
+    count: Annotated[Int, Field(ge=0, le=MAX_TREES)] = Field(
+        10000, description="Candidate sites over the whole terrain (all maps white)."
+    )
+    min_distance: NonNegative = Field(0.0, description="> 0: Poisson-disk spacing between trees, metres.")
+    align_to_normal: Unit = Field(0.0, description="0 upright … 1 along the terrain normal.")
+    method: Literal["random", "ecosystem"] = Field(
+        "random", description="'random': percentages; 'ecosystem': growth, competition and self-thinning."
+    )
+
+
+Range = tuple[Float, Float]
+
+
+class SpeciesConfig(Section):
+    """One ``[[species]]``: a library tree, its share and where it grows."""
+
+    model: Annotated[Str, Field(min_length=1)] = Field(
+        description="A library name, NAME@SEED, or a mesh file (relative to the scene file)."
+    )
+    percent: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)] = Field(
+        description="Share of candidates; the remainder of 100 % is empty ground."
+    )
+    name: Str | None = Field(None, description="A label for reports (default: the model).")
+    scale: tuple[Positive, Positive] = Field((1.0, 1.0), description="Uniform scale range [min, max].")
+    slope_max: Annotated[float, Field(ge=0.0, le=90.0, allow_inf_nan=False)] = Field(
+        90.0, description="Steepest terrain, degrees."
+    )
+    slope_min: Annotated[float, Field(ge=0.0, le=90.0, allow_inf_nan=False)] = Field(
+        0.0, description="Flattest terrain, degrees."
+    )
+    altitude: Range | None = Field(None, description="Height window [min, max], metres.")
+    align: Unit | None = Field(None, description="Overrides [scatter] align_to_normal for this species.")
+    yaw_step: Annotated[float, Field(ge=0.0, le=360.0, allow_inf_nan=False)] = Field(
+        0.0, description="> 0 snaps yaw to multiples of this many degrees (street-aligned buildings)."
+    )
+    partitions: Annotated[list[Annotated[Str, Field(min_length=1)]], Field(min_length=1)] | None = Field(
+        None, description="Regions of [partitions] this species may grow in (default: all)."
+    )
+    # Ecosystem method (Deussen et al. 1998)
+    radius: Positive = Field(4.0, description="Ecosystem: mature radius of the zone of influence, metres.")
+    growth: Positive = Field(0.25, description="Ecosystem: growth rate, 1/year.")
+    shade_tolerance: Unit = Field(0.0, description="Ecosystem: >= 0.5 survives beneath a larger canopy.")
+    vigour: Positive = Field(1.0, description="Ecosystem: competitive strength multiplier.")
+    moisture: tuple[Unit, Unit] = Field((0.0, 1.0), description="Ecosystem: preferred soil moisture [lo, hi].")
+
+    _pairs = field_validator("scale", "altitude", "moisture")(_ordered_pair)
+
+    @model_validator(mode="after")
+    def _slopes(self) -> SpeciesConfig:
+        if self.slope_min > self.slope_max:
+            raise fail("must not exceed slope_max", "slope_min")
+        return self
+
+    @property
+    def is_mesh(self) -> bool:
+        """True when ``model`` names a mesh file rather than a library species."""
+        return Path(self.model).suffix.lower() in MESH_SUFFIXES
+
+
+class EcosystemConfig(Section):
+    steps: Annotated[Int, Field(ge=1, le=200)] = Field(15, description="Years of growth and competition.")
+    establish: Unit = Field(0.25, description="Site fitness below which a seed never establishes.")
+
+
+# ---------------------------------------------------------------------------
+# [camera]
+# ---------------------------------------------------------------------------
+
+Fov = Annotated[float, Field(ge=0.1, le=179.0, allow_inf_nan=False)]
+
+
+class CameraKey(Section):
+    frame: Float = Field(description="Frame number of this key (fractional allowed).")
+    position: Vec3
+    target: Vec3
+    fov: Fov | None = Field(None, description="Horizontal field of view, degrees (default: the camera's).")
+
+
+class CameraConfig(Section):
+    """A still camera, or a path through ``keys`` (centripetal Catmull–Rom)."""
+
+    position: Vec3 | None = Field(None, description="Default: the first key, else a view over the terrain.")
+    target: Vec3 | None = None
+    fov: Fov = Field(40.0, description="Horizontal field of view, degrees.")
+    up: Vec3 = (0.0, 1.0, 0.0)
+    keys: list[CameraKey] = Field(default_factory=list)
+    shutter: Unit = Field(0.0, description="Fraction of a frame the shutter is open (> 0: motion blur).")
+    near: Positive = 0.5
+    far: Positive = 100000.0
+    fps: Positive = 24.0
+
+    @model_validator(mode="after")
+    def _path(self) -> CameraConfig:
+        frames = [k.frame for k in self.keys]
+        if frames != sorted(frames) or len(set(frames)) != len(frames):
+            raise fail("frames must be strictly increasing", "keys")
+        if self.far <= self.near:
+            raise fail(f"must be > near ({self.near:g})", "far")
+        if math.hypot(*self.up) < 1e-9:
+            raise fail("must not be the zero vector", "up")
+        for k in self.keys:
+            if k.fov is None:
+                k.fov = self.fov
+        if self.keys:
+            self.position = self.position or self.keys[0].position
+            self.target = self.target or self.keys[0].target
+        return self
+
+    def resolve(self, terrain_size: tuple[float, float] | None, where: str = "camera.") -> None:
+        """Fill a missing position/target with a view over the terrain and check the frame.
+
+        Errors name ``where`` + the field (the scene-level validator calls this).
+        """
+        size = max(terrain_size) if terrain_size else 1000.0
+        if self.position is None:
+            self.position = (0.0, 0.15 * size, -0.6 * size)
+        if self.target is None:
+            self.target = (0.0, 0.0, 0.0)
+        if self.position == self.target:
+            raise fail("must differ from position", where + "target")
+        d = [t - p for p, t in zip(self.position, self.target)]
+        n = math.hypot(*d)
+        u = self.up
+        cross = (u[1] * d[2] - u[2] * d[1], u[2] * d[0] - u[0] * d[2], u[0] * d[1] - u[1] * d[0])
+        if math.hypot(*cross) < 1e-6 * n * math.hypot(*u) and not self.keys:
+            raise fail("is parallel to the view direction; give another up vector", where + "up")
+
+
+# ---------------------------------------------------------------------------
+# [lights]
+# ---------------------------------------------------------------------------
+
+
+class SunConfig(Section):
+    elevation: Annotated[float, Field(ge=-90.0, le=90.0, allow_inf_nan=False)] = Field(
+        35.0, description="Degrees above the horizon."
+    )
+    azimuth: Float = Field(120.0, description="Degrees, clockwise from +Z (north) towards +X (east).")
+    irradiance: NonNegative = Field(3.0, description="W/m² on a surface facing the sun, per unit colour.")
+    colour: RGB = Field((1.0, 0.95, 0.88), description="Linear RGB.")
+
+
+class SunskyConfig(Section):
+    """Mitsuba's Hosek–Wilkie sky and sun model, pointed at the [lights.sun] direction."""
+
+    turbidity: Annotated[float, Field(ge=1.0, le=10.0, allow_inf_nan=False)] = 3.0
+    albedo: Unit = Field(0.15, description="Ground albedo the sky model assumes.")
+    scale: NonNegative = 1.0
+
+
+class SkyConfig(Section):
+    """A constant sky (``radiance`` × ``colour``), an ``envmap``, or ``sunsky``."""
+
+    radiance: NonNegative = Field(0.35, description="Constant sky: radiance.")
+    colour: RGB = Field((0.6, 0.75, 1.0), description="Constant sky: linear RGB.")
+    envmap: InputFile | None = Field(None, description="Latitude–longitude environment map (+Y up), EXR/HDR.")
+    scale: NonNegative = Field(1.0, description="Environment map: scale.")
+    sunsky: SunskyConfig | None = None
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> SkyConfig:
+        if self.envmap is not None and self.sunsky is not None:
+            raise fail("give envmap or sunsky, not both")
+        given = self.model_fields_set
+        if self.kind != "constant":
+            for key in ("radiance", "colour"):
+                if key in given:
+                    raise fail("applies to a constant sky only", key)
+        if self.kind != "envmap" and "scale" in given:
+            raise fail("applies to an environment map only (sunsky has its own scale)", "scale")
+        return self
+
+    @property
+    def kind(self) -> str:
+        """``"constant"``, ``"envmap"`` or ``"sunsky"``."""
+        if self.envmap is not None:
+            return "envmap"
+        if self.sunsky is not None:
+            return "sunsky"
+        return "constant"
+
+
+class LightsConfig(Section):
+    """``sun`` and ``sky``; an empty or missing [lights] gives both at their defaults."""
+
+    sun: SunConfig | None = None
+    sky: SkyConfig | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _defaults(cls, data: Any) -> Any:
+        if data is None or data == {}:
+            return {"sun": {}, "sky": {}}
+        return data
+
+
+# ---------------------------------------------------------------------------
+# [render], [lod], [wind]
+# ---------------------------------------------------------------------------
+
+Side = Annotated[Int, Field(ge=1, le=MAX_IMAGE_SIDE)]
+
+
+class RenderConfig(Section):
+    width: Side = Field(1280, description="Pixels.")
+    height: Side = Field(720, description="Pixels.")
+    spp: Annotated[Int, Field(ge=1, le=65536)] = Field(64, description="Samples per pixel.")
+    variant: Literal["scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb"] | None = Field(
+        None, description="Mitsuba variant (default: chosen per machine and scene)."
+    )
+    max_depth: Annotated[Int, Field(ge=1, le=64)] = Field(6, description="Longest light path, in bounces + 1.")
+    subframes: Annotated[Int, Field(ge=1, le=64)] = Field(5, description="Sub-frames averaged for motion blur.")
+    haze: NonNegative = Field(0.0, description="Aerial perspective: extinction per metre.")
+    haze_colour: RGB | None = Field(None, description="Haze radiance (default: the sky's).")
+    terrain_colour: RGB = Field((0.18, 0.16, 0.11), description="Ground albedo, linear RGB.")
+    terrain_texture: InputFile | None = Field(
+        None, description="Image laid over the extent (map convention); overrides terrain_colour."
+    )
+    seed: Annotated[Int, Field(ge=0)] = Field(0, description="Sampler seed.")
+    alpha_shadows: Bool = Field(False, description="Shadow rays see through leaf-card alpha.")
+
+
+class LodConfig(Section):
+    distances: (
+        Annotated[list[Positive], Field(min_length=1, max_length=3, json_schema_extra={"uniqueItems": True})] | None
+    ) = Field(None, description="Boundaries high → medium → low → far, metres from the camera.")
+
+    @field_validator("distances")
+    @classmethod
+    def _increasing(cls, v: list[float] | None) -> list[float] | None:
+        if v is not None and list(v) != sorted(set(v)):
+            raise fail(f"must be positive and strictly increasing, got {list(v)}")
+        return v
+
+    @property
+    def enabled(self) -> bool:
+        return self.distances is not None
+
+    @property
+    def bands(self) -> tuple[float, ...]:
+        """The boundaries as a tuple (empty without [lod])."""
+        return tuple(self.distances or ())
+
+
+class WindConfig(Section):
+    strength: Annotated[float, Field(ge=0.0, le=45.0, allow_inf_nan=False)] = Field(
+        0.0, description="Sway amplitude, degrees."
+    )
+    frequency: NonNegative = Field(0.4, description="Sways per second.")
+    direction: Float = Field(0.0, description="Degrees, same convention as the sun's azimuth.")
+
+
+# ---------------------------------------------------------------------------
+# [lookdev], [export]
+# ---------------------------------------------------------------------------
+
+LOOKDEV_PARAMS = ("colour_map", "sun", "sky", "sun_direction")
+
+
+class LookdevConfig(Section):
+    """Defaults of ``forest match``'s options."""
+
+    iterations: Annotated[Int, Field(ge=1, le=100_000)] = 200
+    resolution: Annotated[Int, Field(ge=8, le=4096)] = Field(96, description="Long side of the fit, pixels.")
+    spp: Annotated[Int, Field(ge=1, le=4096)] = 8
+    params: Annotated[list[Literal["colour_map", "sun", "sky", "sun_direction"]], Field(min_length=1)] | None = Field(
+        None, description="Parameter groups to fit."
+    )
+    mode: Literal["aligned", "statistics"] = "aligned"
+    grid: Annotated[Int, Field(ge=1, le=64)] = Field(16, description="Colour grid cells per side.")
+    bands: Annotated[Int, Field(ge=1, le=16)] = 2
+    mask: InputFile | None = Field(None, description="Weights image over the reference (white = counts).")
+    fit: Literal["crop", "stretch"] = "crop"
+    max_triangles: Annotated[Int, Field(ge=1000, le=100_000_000)] = 2_000_000
+    max_depth: Annotated[Int, Field(ge=1, le=64)] | None = None
+    variant: Literal["llvm_ad_rgb", "cuda_ad_rgb"] | None = None
+    lod: Literal["high", "medium", "low", "far"] = "high"
+    calibrate: Bool | None = Field(None, description="Default: on in statistics mode.")
+
+
+class ExportConfig(Section):
+    lod_transition: Annotated[float, Field(ge=0.0, le=0.9, allow_inf_nan=False)] = Field(
+        0.1, description="Fraction of a LOD distance over which RIB levels cross-fade."
+    )
+    rib_lod: Literal["inline", "archive"] = Field("inline", description="Where RIB's Detail/DetailRange go.")
+    usd_lod: Str | None = Field(None, description="The `lod` variant USD prototypes select.")
+
+
+# ---------------------------------------------------------------------------
+# The scene file
+# ---------------------------------------------------------------------------
+
+
+class SceneConfig(Section):
+    """A forest scene file."""
+
+    model_config = ConfigDict(title="forest scene", json_schema_extra={"$comment": "forest schema"})
+
+    seed: Annotated[Int, Field(ge=0, le=2**63 - 1)] = Field(0, description="Seed of every random choice.")
+    name: Annotated[Str, Field(min_length=1)] | None = Field(None, description="Default: the file's name.")
+    terrain: TerrainConfig
+    maps: MapsConfig = Field(default_factory=MapsConfig)
+    partitions: PartitionsConfig = Field(default_factory=PartitionsConfig)
+    scatter: ScatterConfig = Field(default_factory=ScatterConfig)
+    species: Annotated[list[SpeciesConfig], Field(min_length=1)]
+    ecosystem: EcosystemConfig = Field(default_factory=EcosystemConfig)
+    camera: CameraConfig = Field(default_factory=CameraConfig)
+    lights: LightsConfig = Field(default_factory=lambda: LightsConfig.model_validate({}))
+    render: RenderConfig = Field(default_factory=RenderConfig)
+    lod: LodConfig = Field(default_factory=LodConfig)
+    wind: WindConfig = Field(default_factory=WindConfig)
+    lookdev: LookdevConfig = Field(default_factory=LookdevConfig)
+    export: ExportConfig = Field(default_factory=ExportConfig)
+
+    @model_validator(mode="after")
+    def _across_sections(self) -> SceneConfig:
+        total = sum(s.percent for s in self.species)
+        if total > 100.0 + 1e-9:
+            raise fail(f"percentages add up to {total:g}, more than 100", "species")
+        labels = self.partitions.labels
+        if labels and self.maps.partition is None:
+            raise fail("regions are given but [maps] partition is not", "partitions")
+        if self.maps.partition is not None and not labels:
+            raise fail("[maps] partition is given but no [partitions] label colours", "partitions")
+        known = [n for _, n in labels] + (["unlabelled"] if labels else [])
+        for i, sp in enumerate(self.species):
+            for region in sp.partitions or ():
+                if region not in known:
+                    raise fail(
+                        f"unknown region {region!r} (regions: {', '.join(known) or 'none'})", f"species[{i}].partitions"
+                    )
+        if self.terrain.procedural is not None and self.terrain.procedural.seed is None:
+            self.terrain.procedural.seed = self.seed
+        self.camera.resolve(self.terrain.extent_size)
+        return self
+
+
+def file_fields(model: type[BaseModel] = SceneConfig, prefix: str = "") -> list[str]:
+    """Dotted names of every field that names an input file (``[]`` marks a list of tables).
+
+    Derived from the :class:`FileRef` markers of the schema, so the service's
+    asset handling, look-dev's rebasing and ``forest examples`` agree on which
+    strings are paths.  (``species[].model`` also names a file when it has a
+    mesh suffix: see :attr:`SpeciesConfig.is_mesh`.)
+    """
+    out: list[str] = []
+    for name, field in model.model_fields.items():
+        dotted = f"{prefix}{name}"
+        annotation = field.annotation
+        if _is_file(annotation) or any(isinstance(m, FileRef) for m in field.metadata):
+            out.append(dotted)
+            continue
+        for t, in_list in _model_types(annotation):
+            out.extend(file_fields(t, dotted + ("[]." if in_list else ".")))
+    return out
+
+
+def _is_file(annotation: Any) -> bool:
+    if typing.get_origin(annotation) is Annotated:
+        return any(isinstance(m, FileRef) for m in typing.get_args(annotation)[1:])
+    return any(_is_file(a) for a in typing.get_args(annotation) if typing.get_origin(annotation) is not list)
+
+
+def _model_types(annotation: Any, in_list: bool = False) -> list[tuple[type[BaseModel], bool]]:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return [(annotation, in_list)]
+    out = []
+    inner_list = in_list or typing.get_origin(annotation) is list
+    for a in typing.get_args(annotation):
+        if a is not type(None):
+            out.extend(_model_types(a, inner_list))
+    return out
