@@ -40,6 +40,7 @@ from forest.config import Config, load_config
 from forest.export.rib import export_rib
 from forest.export.usd import export_usd
 from forest.instances import InstanceSet, quaternion_to_matrix, yaw_tilt_quaternion
+from forest.scene import load_scene
 
 
 def synthetic(cfg, n: int, seed: int = 1) -> InstanceSet:
@@ -113,9 +114,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     cfg = load_config(ROOT / "configs" / "demo.toml")
-    from forest.terrain import load_terrain
 
-    terrain = load_terrain(cfg.terrain, cfg.path)
     inst = synthetic(cfg, args.trees)
     from forest.library import open_library
 
@@ -136,13 +135,13 @@ def main() -> None:
 
     def rib(on: bool, mode: str = "inline"):
         set_lod(on, mode)
-        res = export_rib(cfg, inst, tmp / "rib", frames=[1], terrain=terrain, library=lib)
+        res = export_rib(load_scene(cfg, inst, library=lib), tmp / "rib", frames=[1])
         size = sum(p.stat().st_size for p in res.instance_files.values())
         shutil.rmtree(tmp / "rib")
         return res.instance_seconds, res.seconds, size, len(res.instance_files), res.instance_cpu_seconds
 
     def usd():
-        res = export_usd(cfg, inst, tmp / "usd" / "forest.usdc", frames=[1], terrain=terrain, library=lib)
+        res = export_usd(load_scene(cfg, inst, library=lib), tmp / "usd" / "forest.usdc", frames=[1])
         size = res.path.stat().st_size
         shutil.rmtree(tmp / "usd")
         return res.instance_seconds, res.seconds, size

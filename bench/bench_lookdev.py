@@ -112,8 +112,7 @@ def round_trip(tmp: Path, iterations: int, spp: int) -> dict:
     from forest.lookdev.colour import delta_e2000
     from forest.lookdev.forest_proxy import build_proxy
     from forest.lookdev.state import state_from_config
-    from forest.scatter import scene_instances
-    from forest.terrain import load_terrain
+    from forest.scene import load_scene
 
     rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([2026, 6])))
     hidden = rng.uniform(0.3, 1.0, (8, 8, 3))
@@ -121,14 +120,12 @@ def round_trip(tmp: Path, iterations: int, spp: int) -> dict:
         scene(tmp / "truth", "scene.toml", sun=3.4, sun_colour=(1.0, 0.92, 0.8), sky=0.33, sky_colour=(0.55, 0.72, 1.0))
     )
     start_cfg = load_config(scene(tmp / "start", "scene.toml"))
-    inst = scene_instances(true_cfg)
-    terrain = load_terrain(true_cfg.terrain, true_cfg.path)
+    true_scene = load_scene(true_cfg)
+    inst = true_scene.instances
     truth = state_from_config(true_cfg, hidden)
     res = 64
     w, h = res, round(res * 240 / 320)
-    proxy = build_proxy(
-        true_cfg, inst, terrain, width=w, height=h, grid_shape=(8, 8), variant="llvm_ad_rgb", state=truth
-    )
+    proxy = build_proxy(true_scene, width=w, height=h, grid_shape=(8, 8), variant="llvm_ad_rgb", state=truth)
     proxy.set_state(truth)
     t = time.perf_counter()
     ref = proxy.render_numpy(256, 777, passes=16)
@@ -136,14 +133,13 @@ def round_trip(tmp: Path, iterations: int, spp: int) -> dict:
     start = state_from_config(start_cfg, np.full((8, 8, 3), 0.7))
     t, c = time.perf_counter(), time.process_time()
     r = match(
-        start_cfg,
+        load_scene(start_cfg, inst),
         ref,
         tmp / "out_rt",
         iterations=iterations,
         spp=spp,
         resolution=res,
         grid=8,
-        instances=inst,
         start=start,
     )
     seconds, cpu = time.perf_counter() - t, time.process_time() - c
@@ -174,6 +170,7 @@ def unaligned(tmp: Path, iterations: int, spp: int) -> dict:
     from forest.lookdev import match
     from forest.lookdev.colour import delta_e2000
     from forest.render import render_scene
+    from forest.scene import load_scene
 
     tint = np.array([0.78, 1.0, 0.62])
     base = np.full((8, 8, 3), 0.8)
@@ -192,7 +189,7 @@ def unaligned(tmp: Path, iterations: int, spp: int) -> dict:
             extra='[maps]\ncolour = "../maps/tinted.exr"\n',
         )
     )
-    render_scene(ref_cfg, output=tmp / "photo" / "photo.exr", variant="scalar_rgb")
+    render_scene(load_scene(ref_cfg), output=tmp / "photo" / "photo.exr", variant="scalar_rgb")
     cfg = load_config(
         scene(
             tmp / "scene",
@@ -205,7 +202,7 @@ def unaligned(tmp: Path, iterations: int, spp: int) -> dict:
     )
     t = time.perf_counter()
     r = match(
-        cfg,
+        load_scene(cfg),
         tmp / "photo" / "photo.exr",
         tmp / "out_un",
         iterations=iterations,
@@ -244,17 +241,16 @@ def proxy_design(tmp: Path) -> dict:
     from forest.lookdev.state import state_from_config
     from forest.render.instancing import tree_matrices
     from forest.render.scene import colour_grid_texture, emitter_dicts, sensor_dict
-    from forest.scatter import scene_instances
-    from forest.terrain import load_terrain
+    from forest.scene import load_scene
 
     out = {}
     for count in (100, 400):
         cfg = load_config(scene(tmp / f"pd{count}", "scene.toml", count=count))
-        inst = scene_instances(cfg)
-        terrain = load_terrain(cfg.terrain, cfg.path)
+        sc = load_scene(cfg)
+        inst, terrain = sc.instances, sc.terrain
         st = state_from_config(cfg, np.ones((8, 8, 3)))
         t = time.perf_counter()
-        proxy = build_proxy(cfg, inst, terrain, width=64, height=48, grid_shape=(8, 8), variant="llvm_ad_rgb", state=st)
+        proxy = build_proxy(sc, width=64, height=48, grid_shape=(8, 8), variant="llvm_ad_rgb", state=st)
         build = time.perf_counter() - t
 
         def step(p):

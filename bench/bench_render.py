@@ -119,7 +119,9 @@ def worker_render(args) -> dict:
     cfg = load_config(args.config)
     inst, _ = scatter(cfg)
     t_scatter = time.perf_counter() - t0
-    res = render_scene(cfg, output=Path(args.out) / "frame.exr", instances=inst, variant=args.variant)
+    from forest.scene import load_scene
+
+    res = render_scene(load_scene(cfg, inst), output=Path(args.out) / "frame.exr", variant=args.variant)
     total = time.perf_counter() - t0
     ru = resource.getrusage(resource.RUSAGE_SELF)
     return {

@@ -162,6 +162,17 @@ class InstanceSet:
         )
 
 
+def file_digest(path: str | Path) -> str:
+    """sha256 of a file's bytes, hex (what an InstanceSet records of the inputs it was scattered from)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
 def write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """Like :func:`numpy.savez` but byte-deterministic (fixed zip timestamps, sorted names)."""
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_STORED, allowZip64=True) as zf:

@@ -113,7 +113,7 @@ class MapSet:
 
         self.presence = load(read_map_grey, "presence", m.presence)
         self.density = load(read_map_grey, "density", m.density)
-        self.colour = load(read_map_rgb, "colour", m.colour)
+        self.colour = load(lambda p, what: read_colour_map(p), "colour", m.colour)
         self.partition: PartitionMap | None = None
         if m.partition is not None:
             raw = load(read_image, "partition", m.partition)
@@ -155,6 +155,11 @@ class MapSet:
         return sample_nearest(self.partition.labels, u, v)
 
 
-def load_colour_grid(path: Path) -> np.ndarray:
-    """The colour map as linear RGB (H, W, 3): what renderers and look-dev tint with."""
+def read_colour_map(path: Path) -> np.ndarray:
+    """The colour map as linear RGB ``(H, W, 3)`` float32: the one reader of ``[maps] colour``.
+
+    sRGB-encoded images are decoded to linear light; scatter's tints, every
+    renderer, the exporters and look-dev all take the map from here (through
+    :class:`MapSet` or :func:`forest.scene.load_scene`).
+    """
     return read_map_rgb(path, what="colour map")

@@ -247,10 +247,12 @@ def snap_yaw(yaw: np.ndarray, step_deg: np.ndarray) -> np.ndarray:
     return np.where(step > 0, np.mod(snapped, 2 * np.pi), yaw)
 
 
-def scene_instances(config: Config, instances_path: str | Path | None = None, progress=None) -> InstanceSet:
+def scene_instances(
+    config: Config, instances_path: str | Path | None = None, progress=None, terrain: Terrain | None = None
+) -> InstanceSet:
     """The scene's InstanceSet: loaded from ``instances_path`` if given, else scattered."""
     if instances_path is None:
-        return scatter(config, progress=progress)[0]
+        return scatter(config, progress=progress, terrain=terrain)[0]
     inst = InstanceSet.load(instances_path)
     expected = [s.model for s in config.species]
     if list(inst.species_names) != expected:

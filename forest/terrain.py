@@ -13,14 +13,13 @@ Maps are laid over the terrain's X/Z extent as textures seen from above:
 image column → +X, image row → +Z (row 0 at the smallest Z).  A map pixel
 (i, j) of an H×W image covers x ∈ xmin + [j, j+1]·Δx, z ∈ zmin + [i, i+1]·Δz.
 
-Placement samples the *surface* uniformly by area (:meth:`Terrain.sample`),
+Placement samples the *surface* uniformly by area (:meth:`Terrain.sample_points`),
 so the number of trees per square metre does not depend on how the terrain is
 parametrised or triangulated.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
@@ -31,19 +30,6 @@ from .errors import ForestError
 
 MAX_MESH_BYTES = 1024 * 1024 * 1024
 MAX_GRID = 4097
-
-
-@dataclass
-class SurfaceSamples:
-    """Points sampled on the terrain: positions, interpolated normals and their triangles."""
-
-    position: np.ndarray  # (N, 3) float64
-    normal: np.ndarray  # (N, 3) float64, unit
-    face: np.ndarray  # (N,) int64
-
-    @property
-    def slope_degrees(self) -> np.ndarray:
-        return np.degrees(np.arccos(np.clip(self.normal[:, 1], -1.0, 1.0)))
 
 
 class Terrain:
@@ -163,11 +149,6 @@ class Terrain:
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
         return nrm
 
-    def sample(self, u_face: np.ndarray, u1: np.ndarray, u2: np.ndarray) -> SurfaceSamples:
-        """Area-uniform points with their normals (see :meth:`sample_points`)."""
-        pos, face, b = self.sample_points(u_face, u1, u2)
-        return SurfaceSamples(pos, self.normals_at(face, b), face)
-
     # -- queries -------------------------------------------------------------------
     def height_at(self, x, z) -> np.ndarray:
         """Terrain height at world X/Z (vectorised).  Outside the extent: clamped to the edge."""
@@ -196,11 +177,6 @@ class Terrain:
         out = np.full(len(x), self.height_range[0])
         out[idx] = locs[:, 1]
         return out
-
-    def to_trimesh(self):
-        import trimesh
-
-        return trimesh.Trimesh(self.vertices, self.faces, vertex_normals=self.vertex_normals, process=False)
 
 
 # ---------------------------------------------------------------------------

@@ -210,18 +210,16 @@ def _render(spec: dict, config, job_dir: Path, report: Report, started: float) -
             f"-> {spec['output']} (variant {spec.get('variant') or 'auto'})"
         },
     )
-    instances = None
+    from forest.scene import load_scene
+
+    progress(0.0, "loading scene")
+    scene = load_scene(config)
     if frames is None and not spec.get("preview") and config.render.spp > QUICK_LOOK_MIN_SPP:
         # A still: first a quick look (the renderer's fast preview), shown as the first pass.
-        from forest.scatter import scene_instances
-
-        progress(0.0, "scattering")
-        instances = scene_instances(config)
         quick = job_dir / "preview" / "quick.exr"
         render_scene(
-            config,
+            scene,
             output=quick,
-            instances=instances,
             variant=spec.get("variant"),
             preview=True,
             progress=lambda f, m="": progress(QUICK_LOOK_SHARE * float(f), f"quick look: {m}"),
@@ -234,11 +232,9 @@ def _render(spec: dict, config, job_dir: Path, report: Report, started: float) -
             progress(QUICK_LOOK_SHARE + (1.0 - QUICK_LOOK_SHARE) * float(f), m)
     else:
         main_progress = progress
-        progress(0.0, "loading scene")
     result = render_scene(
-        config,
+        scene,
         output=output,
-        instances=instances,
         variant=spec.get("variant"),
         frames=frames,
         preview=bool(spec.get("preview", False)),
@@ -274,8 +270,12 @@ def _match(spec: dict, config, job_dir: Path, report: Report, started: float) ->
     if spec.get("variant"):
         kwargs["variant"] = spec["variant"]
     report("log", {"line": f"match {reference.name} -> out/ ({kwargs})"})
+    from forest.scene import load_scene
+
+    progress(0.0, "loading scene")
+    scene = load_scene(config)
     progress(0.0, "building proxy")
-    result = lookdev.match(config, reference, out_dir, progress=progress, **kwargs)
+    result = lookdev.match(scene, reference, out_dir, progress=progress, **kwargs)
     outs = _outputs(out_dir, job_dir, started)
     pngs = [o for o in outs if o.endswith(".png")]
     payload = {"fraction": 1.0, "message": "done"}

@@ -44,6 +44,11 @@ class Part:
     tinted: bool = True
     translucency: float = 0.0
 
+    def load(self) -> MeshData:
+        from forest.library.mesh import read_ply
+
+        return read_ply(self.path)
+
 
 @dataclass
 class Lod:

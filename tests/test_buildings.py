@@ -14,6 +14,7 @@ from forest.errors import ConfigError
 from forest.library import LODS, open_library
 from forest.library import buildings as B
 from forest.library.textures import read_texture
+from forest.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 TYPES = ("tower", "apartment", "house", "warehouse")
@@ -312,7 +313,7 @@ def test_buildings_scatter_and_render_in_a_scene(lib, tmp_path):
     cfg = parse_config(SCENE, path=tmp_path / "city.toml", base_dir=tmp_path)
     inst, _ = scatter(cfg)
     assert len(inst) > 0 and set(inst.species_names) == {"tower", "apartment", "house@4", "warehouse"}
-    result = render_scene(cfg, output=tmp_path / "city.exr", instances=inst, library=lib)
+    result = render_scene(load_scene(cfg, inst, library=lib), output=tmp_path / "city.exr")
     assert result.trees == len(inst) and result.instanced_triangles > 0
     img = read_image(tmp_path / "city.exr")
     lit = img[..., :3].max(axis=2) > 0.02  # black ground; roofs and walls are lit

@@ -23,9 +23,9 @@ def run(argv) -> int:
 
 @pytest.fixture
 def fake_library(monkeypatch):
-    import forest.export.common as common
+    import forest.library
 
-    monkeypatch.setattr(common, "open_default_library", lambda: FakeLibrary())
+    monkeypatch.setattr(forest.library, "open_library", lambda *a, **k: FakeLibrary())
 
 
 def test_rib_and_usd_from_the_command_line(tmp_path, fake_library, capsys):
@@ -90,9 +90,9 @@ def test_bad_input_exits_2_with_one_line(tmp_path, fake_library, capsys, argv, m
 
 
 def test_unknown_species_names_the_config_field(tmp_path, capsys, monkeypatch):
-    import forest.export.common as common
+    import forest.library
 
-    monkeypatch.setattr(common, "open_default_library", lambda: FakeLibrary())
+    monkeypatch.setattr(forest.library, "open_library", lambda *a, **k: FakeLibrary())
     cfg = make_config(tmp_path, "")
     text = cfg.path.read_text().replace('model = "pine"', 'model = "baobab"')
     cfg.path.write_text(text)

@@ -10,6 +10,7 @@ from forest.camera import camera_at
 from forest.errors import ConfigError, ForestError
 from forest.export.common import sun_direction
 from forest.export.rib import export_rib
+from forest.scene import load_scene
 
 import ribcheck
 from export_support import FakeLibrary, fly_keys, make_config, make_instances
@@ -29,7 +30,7 @@ def exported(tmp_path_factory, lib):
     tmp = tmp_path_factory.mktemp("rib")
     cfg = make_config(tmp, LOD + FLY).with_overrides({"camera.shutter": 0.5})
     inst = make_instances(700)
-    res = export_rib(cfg, inst, tmp / "out", library=lib)
+    res = export_rib(load_scene(cfg, inst, library=lib), tmp / "out")
     return cfg, inst, res, tmp / "out"
 
 
@@ -163,7 +164,7 @@ def test_sun_direction_convention(tmp_path, lib):
     np.testing.assert_allclose(d, [math.cos(math.radians(30)), 0.5, 0.0], atol=1e-12)  # east = +X
     cfg = cfg.with_overrides({"lights.sun.azimuth": 0.0})
     np.testing.assert_allclose(sun_direction(cfg.lights.sun), [0.0, 0.5, math.cos(math.radians(30))], atol=1e-12)
-    res = export_rib(cfg, make_instances(20), tmp_path / "a", library=lib)
+    res = export_rib(load_scene(cfg, make_instances(20), library=lib), tmp_path / "a")
     calls = ribcheck.parse(res.scenes[0].read_bytes())
     sun = next(c for c in calls if c.name == "LightSource" and c.args[0] == "distantlight")
     params = dict(zip(sun.args[2::2], sun.args[3::2]))
@@ -174,7 +175,7 @@ def test_sun_direction_convention(tmp_path, lib):
 def test_renderman22_output(tmp_path, lib):
     cfg = make_config(tmp_path, LOD)
     inst = make_instances(200)
-    export_rib(cfg, inst, tmp_path / "r22", library=lib, renderman22=True)
+    export_rib(load_scene(cfg, inst, library=lib), tmp_path / "r22", renderman22=True)
     calls = ribcheck.check_export(tmp_path / "r22")
     assert not (tmp_path / "r22" / "shaders").exists()
     scene = calls["scene_0001.rib"]
@@ -196,8 +197,8 @@ def test_renderman22_output(tmp_path, lib):
 def test_same_input_gives_identical_bytes(tmp_path, lib):
     cfg = make_config(tmp_path, LOD)
     inst = make_instances(300, seed=11)
-    a = export_rib(cfg, inst, tmp_path / "a", library=lib)
-    export_rib(cfg, inst, tmp_path / "b", library=lib)
+    a = export_rib(load_scene(cfg, inst, library=lib), tmp_path / "a")
+    export_rib(load_scene(cfg, inst, library=lib), tmp_path / "b")
     fa = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
     fb = sorted(p.relative_to(tmp_path / "b") for p in (tmp_path / "b").rglob("*") if p.is_file())
     assert fa == fb and len(fa) == len(a.files) + 1  # + the RSL shader source
@@ -210,9 +211,9 @@ def test_large_partitions_stream_in_chunks(tmp_path, lib, monkeypatch):
 
     cfg = make_config(tmp_path, "")
     inst = make_instances(1000, seed=5)
-    whole = export_rib(cfg, inst, tmp_path / "whole", library=lib)
+    whole = export_rib(load_scene(cfg, inst, library=lib), tmp_path / "whole")
     monkeypatch.setattr(rib, "CHUNK", 7)
-    chunked = export_rib(cfg, inst, tmp_path / "chunked", library=lib)
+    chunked = export_rib(load_scene(cfg, inst, library=lib), tmp_path / "chunked")
     for p in whole.instance_files:
         assert whole.instance_files[p].read_bytes() == chunked.instance_files[p].read_bytes()
 
@@ -233,7 +234,7 @@ def test_failure_leaves_nothing_behind(tmp_path, lib):
 
     cfg = make_config(tmp_path, "")
     with pytest.raises(ForestError, match="corrupt PLY"):
-        export_rib(cfg, make_instances(50), tmp_path / "out", library=Broken())
+        export_rib(load_scene(cfg, make_instances(50), library=Broken()), tmp_path / "out")
     assert not (tmp_path / "out").exists()
     assert [p.name for p in tmp_path.iterdir()] == ["scene.toml"]
 
@@ -242,12 +243,14 @@ def test_bad_input_names_the_field(tmp_path, lib):
     cfg = make_config(tmp_path, "").with_overrides({"species[1].model": "birch"})
     inst = make_instances(20, species=("oak", "birch"))
     with pytest.raises(ConfigError, match=r"scene.toml: species\[1\].model: unknown tree model 'birch'"):
-        export_rib(cfg, inst, tmp_path / "x", library=lib)
+        export_rib(load_scene(cfg, inst, library=lib), tmp_path / "x")
     cfg = make_config(tmp_path, "[export]\nlod_transition = 0.6\n" + LOD)
     with pytest.raises(ConfigError, match=r"export\.lod_transition"):
-        export_rib(cfg, make_instances(20), tmp_path / "x", library=lib)
+        export_rib(load_scene(cfg, make_instances(20), library=lib), tmp_path / "x")
     with pytest.raises(ConfigError, match=r"scene.toml: export.colour: unknown key"):
-        export_rib(make_config(tmp_path, "[export]\ncolour = 1\n"), make_instances(20), tmp_path / "x", library=lib)
+        export_rib(
+            load_scene(make_config(tmp_path, "[export]\ncolour = 1\n"), make_instances(20), library=lib), tmp_path / "x"
+        )
     assert not (tmp_path / "x").exists()
 
 
@@ -255,7 +258,7 @@ def test_no_trees_still_gives_a_scene(tmp_path, lib):
     from forest.instances import InstanceSet
 
     cfg = make_config(tmp_path, "")
-    res = export_rib(cfg, InstanceSet.empty(["oak", "pine"]), tmp_path / "e", library=lib)
+    res = export_rib(load_scene(cfg, InstanceSet.empty(["oak", "pine"]), library=lib), tmp_path / "e")
     assert res.instance_files == {} and res.archives == []
     calls = ribcheck.check_export(tmp_path / "e")
     assert [c.args[0] for c in calls["scene_0001.rib"] if c.name == "ReadArchive"] == ["terrain.rib"]
@@ -266,17 +269,15 @@ def test_memory_stays_bounded_as_the_forest_grows(tmp_path, lib, monkeypatch):
     import tracemalloc
 
     import forest.export.rib as rib
-    from forest.terrain import load_terrain
 
     monkeypatch.setattr(rib, "CHUNK", 2048)
     cfg = make_config(tmp_path, "")
-    terrain = load_terrain(cfg.terrain, cfg.path)
     peaks, sizes = [], []
     for n in (15000, 60000):
         inst = make_instances(n, seed=n)
-        export_rib(cfg, inst, tmp_path / "warm", library=lib, terrain=terrain)  # scratch buffers, imports
+        export_rib(load_scene(cfg, inst, library=lib), tmp_path / "warm")  # scratch buffers, imports
         tracemalloc.start()
-        res = export_rib(cfg, inst, tmp_path / f"n{n}", library=lib, terrain=terrain)
+        res = export_rib(load_scene(cfg, inst, library=lib), tmp_path / f"n{n}")
         peaks.append(tracemalloc.get_traced_memory()[1])
         tracemalloc.stop()
         sizes.append(sum(p.stat().st_size for p in res.instance_files.values()))
@@ -289,18 +290,18 @@ def test_corrupt_instances_are_refused(tmp_path, lib):
     inst = make_instances(10)
     inst.position[3, 1] = np.nan
     with pytest.raises(ForestError, match="instances: column 'position' holds NaN"):
-        export_rib(cfg, inst, tmp_path / "out", library=lib)
+        export_rib(load_scene(cfg, inst, library=lib), tmp_path / "out")
     inst = make_instances(10, species=("pine", "oak"))
     with pytest.raises(ForestError, match="do not match the config's"):
-        export_rib(cfg, inst, tmp_path / "out", library=lib)
+        export_rib(load_scene(cfg, inst, library=lib), tmp_path / "out")
     assert not (tmp_path / "out").exists()
 
 
 def test_lod_switch_can_live_in_one_archive_per_species(tmp_path, lib):
     inst = make_instances(400, seed=21)
-    inline = export_rib(make_config(tmp_path, LOD), inst, tmp_path / "inline", library=lib)
+    inline = export_rib(load_scene(make_config(tmp_path, LOD), inst, library=lib), tmp_path / "inline")
     cfg = make_config(tmp_path, LOD + '[export]\nrib_lod = "archive"\n', name="archive.toml")
-    res = export_rib(cfg, inst, tmp_path / "arch", library=lib)
+    res = export_rib(load_scene(cfg, inst, library=lib), tmp_path / "arch")
     calls = ribcheck.check_export(tmp_path / "arch")
     assert sorted(k for k in calls if k.endswith("_lod.rib")) == ["archives/oak_lod.rib", "archives/pine_lod.rib"]
     for part, path in res.instance_files.items():
@@ -327,5 +328,5 @@ def test_output_in_the_way_is_a_user_error(tmp_path, lib):
     cfg = make_config(tmp_path, "")
     (tmp_path / "taken").write_text("not a folder")
     with pytest.raises(ForestError, match="exists and is not a folder"):
-        export_rib(cfg, make_instances(10), tmp_path / "taken", library=lib)
+        export_rib(load_scene(cfg, make_instances(10), library=lib), tmp_path / "taken")
     assert (tmp_path / "taken").read_text() == "not a folder"

@@ -10,6 +10,7 @@ from forest.camera import camera_at
 from forest.errors import ConfigError, ForestError
 from forest.export.common import sun_direction
 from forest.export.usd import export_usd
+from forest.scene import load_scene
 from forest.terrain import load_terrain
 
 from export_support import FakeLibrary, fly_keys, make_config, make_instances, validation_errors
@@ -27,7 +28,7 @@ def exported(tmp_path_factory, lib):
     tmp = tmp_path_factory.mktemp("usd")
     cfg = make_config(tmp, FLY)
     inst = make_instances(800)
-    res = export_usd(cfg, inst, tmp / "out" / "forest.usda", library=lib)
+    res = export_usd(load_scene(cfg, inst, library=lib), tmp / "out" / "forest.usda")
     stage = Usd.Stage.Open(str(res.path))
     return cfg, inst, res, stage
 
@@ -136,8 +137,8 @@ def test_lights_and_terrain(exported):
 def test_same_input_gives_identical_files(tmp_path, lib, suffix):
     cfg = make_config(tmp_path, "")
     inst = make_instances(300, seed=9)
-    a = export_usd(cfg, inst, tmp_path / "a" / f"f{suffix}", library=lib)
-    b = export_usd(cfg, inst, tmp_path / "b" / f"f{suffix}", library=lib)
+    a = export_usd(load_scene(cfg, inst, library=lib), tmp_path / "a" / f"f{suffix}")
+    b = export_usd(load_scene(cfg, inst, library=lib), tmp_path / "b" / f"f{suffix}")
     assert len(a.files) == 3
     for fa, fb in zip(a.files, b.files):
         assert fa.relative_to(tmp_path / "a") == fb.relative_to(tmp_path / "b")
@@ -147,7 +148,7 @@ def test_same_input_gives_identical_files(tmp_path, lib, suffix):
 def test_usdc_round_trips_too(tmp_path, lib):
     cfg = make_config(tmp_path, "")
     inst = make_instances(200, seed=2, empty_partition=None)
-    res = export_usd(cfg, inst, tmp_path / "f.usdc", library=lib)
+    res = export_usd(load_scene(cfg, inst, library=lib), tmp_path / "f.usdc")
     stage = Usd.Stage.Open(str(res.path))
     total = 0
     for path in res.instancers.values():
@@ -160,17 +161,17 @@ def test_usdc_round_trips_too(tmp_path, lib):
 def test_bad_input(tmp_path, lib):
     cfg = make_config(tmp_path, "")
     with pytest.raises(ForestError, match=r"must end in \.usda, \.usdc or \.usd"):
-        export_usd(cfg, make_instances(10), tmp_path / "f.abc", library=lib)
+        export_usd(load_scene(cfg, make_instances(10), library=lib), tmp_path / "f.abc")
     cfg = make_config(tmp_path, '[export]\nusd_lod = "tiny"\n')
     with pytest.raises(ConfigError, match=r"export.usd_lod: 'tiny' is not a level of 'oak'"):
-        export_usd(cfg, make_instances(10), tmp_path / "f.usda", library=lib)
+        export_usd(load_scene(cfg, make_instances(10), library=lib), tmp_path / "f.usda")
     assert [p.name for p in tmp_path.iterdir()] == ["scene.toml"]
 
 
 def test_usd_lod_selects_the_variant(tmp_path, lib):
     lib2 = FakeLibrary()
     cfg = make_config(tmp_path, '[export]\nusd_lod = "low"\n')
-    res = export_usd(cfg, make_instances(50), tmp_path / "f.usda", library=lib2)
+    res = export_usd(load_scene(cfg, make_instances(50), library=lib2), tmp_path / "f.usda")
     stage = Usd.Stage.Open(str(res.path))
     pi = UsdGeom.PointInstancer(stage.GetPrimAtPath(res.instancers["north"]))
     for t in pi.GetPrototypesRel().GetTargets():
@@ -181,10 +182,10 @@ def test_crate_with_usd_suffix_and_an_empty_forest(tmp_path, lib):
     from forest.instances import InstanceSet
 
     cfg = make_config(tmp_path, "")
-    res = export_usd(cfg, InstanceSet.empty(["oak", "pine"]), tmp_path / "empty.usd", library=lib)
+    res = export_usd(load_scene(cfg, InstanceSet.empty(["oak", "pine"]), library=lib), tmp_path / "empty.usd")
     assert res.path.read_bytes().startswith(b"PXR-USDC")
     stage = Usd.Stage.Open(str(res.path))
     assert res.instancers == {} and stage.GetPrimAtPath("/World/Terrain") and stage.GetPrimAtPath("/World/Camera")
     (tmp_path / "dir.usda").mkdir()
     with pytest.raises(ForestError, match="is a folder"):
-        export_usd(cfg, make_instances(5), tmp_path / "dir.usda", library=lib)
+        export_usd(load_scene(cfg, make_instances(5), library=lib), tmp_path / "dir.usda")

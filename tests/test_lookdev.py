@@ -60,18 +60,14 @@ def setup(tmp_path_factory):
     from forest.config import load_config
     from forest.lookdev.forest_proxy import build_proxy
     from forest.lookdev.state import state_from_config
-    from forest.scatter import scene_instances
-    from forest.terrain import load_terrain
+    from forest.scene import load_scene
 
     folder = tmp_path_factory.mktemp("lookdev")
     cfg = load_config(write_scene(folder, SCENE))
-    inst = scene_instances(cfg)
-    terrain = load_terrain(cfg.terrain, cfg.path)
+    scene = load_scene(cfg)
     truth = state_from_config(cfg, _hidden_grid())
-    proxy = build_proxy(
-        cfg, inst, terrain, width=W, height=H, grid_shape=(GRID, GRID), variant="llvm_ad_rgb", state=truth
-    )
-    return cfg, inst, terrain, proxy, truth
+    proxy = build_proxy(scene, width=W, height=H, grid_shape=(GRID, GRID), variant="llvm_ad_rgb", state=truth)
+    return cfg, scene.instances, scene, proxy, truth
 
 
 def _reference(proxy, state, spp=64, passes=8):
@@ -337,8 +333,9 @@ def test_match_writes_a_scene_that_renders_like_the_reference(setup, tmp_path):
     from forest.lookdev import match
     from forest.lookdev.colour import delta_e2000
     from forest.render import render_scene
+    from forest.scene import load_scene
 
-    cfg, inst, _terrain, _proxy, _truth = setup
+    cfg, inst, _scene, _proxy, _truth = setup
     # The reference: the production renderer with a hidden colour map and other light values.
     hidden = tmp_path / "hidden"
     hidden.mkdir()
@@ -347,11 +344,11 @@ def test_match_writes_a_scene_that_renders_like_the_reference(setup, tmp_path):
     write_image(hidden / "map.exr", _hidden_grid().astype(np.float32), half=False)
     text = SCENE.replace("irradiance = 3.0", "irradiance = 3.6").replace("radiance = 0.4", "radiance = 0.34")
     hcfg = load_config(write_scene(hidden, text + '\n[maps]\ncolour = "map.exr"\n'))
-    render_scene(hcfg, output=hidden / "ref.exr", instances=inst, variant="scalar_rgb")
+    render_scene(load_scene(hcfg, inst), output=hidden / "ref.exr", variant="scalar_rgb")
     ref_path = hidden / "ref.exr"
 
     out = tmp_path / "lookdev"
-    r = match(cfg, ref_path, out, iterations=60, spp=4, resolution=W, grid=GRID, instances=inst)
+    r = match(load_scene(cfg, inst), ref_path, out, iterations=60, spp=4, resolution=W, grid=GRID)
     assert sorted(p.name for p in out.iterdir()) == ["colour_map.exr", "match.json", "report.png", "scene.toml"]
     assert r.figures["result_delta_e_mean"] < r.figures["start_delta_e_mean"]
     fitted = load_config(r.scene_path)
@@ -359,12 +356,12 @@ def test_match_writes_a_scene_that_renders_like_the_reference(setup, tmp_path):
     assert np.allclose(read_map_rgb(fitted.maps.colour), r.result.grid, atol=1e-4)
     assert math.isclose(fitted.lights.sun.irradiance, r.result.sun_irradiance, rel_tol=1e-5)
     # Transfer: the full render of the fitted scene is about as close to the reference as the proxy was.
-    render_scene(fitted, output=tmp_path / "full.exr", instances=inst, variant="scalar_rgb")
+    render_scene(load_scene(fitted, inst), output=tmp_path / "full.exr", variant="scalar_rgb")
     full = read_image(tmp_path / "full.exr")[..., :3]
     ref = read_image(ref_path)[..., :3]
     full_de = float(delta_e2000(full.reshape(-1, 3), ref.reshape(-1, 3)).mean())
     start_full = tmp_path / "start.exr"
-    render_scene(cfg, output=start_full, instances=inst, variant="scalar_rgb")
+    render_scene(load_scene(cfg, inst), output=start_full, variant="scalar_rgb")
     start_de = float(delta_e2000(read_image(start_full)[..., :3].reshape(-1, 3), ref.reshape(-1, 3)).mean())
     print(f"transfer: proxy {r.figures['result_delta_e_mean']:.2f} full {full_de:.2f} start {start_de:.2f}")
     assert full_de < r.figures["result_delta_e_mean"] + 1.5
@@ -409,18 +406,16 @@ def test_proxy_applies_the_renderers_haze(tmp_path):
     from forest.lookdev.forest_proxy import build_proxy
     from forest.lookdev.state import state_from_config
     from forest.render import render_scene
-    from forest.scatter import scene_instances
-    from forest.terrain import load_terrain
+    from forest.scene import load_scene
 
     cfg = load_config(write_scene(tmp_path, SCENE.replace("max_depth = 4", "max_depth = 4\nhaze = 0.01")))
-    inst = scene_instances(cfg)
-    terrain = load_terrain(cfg.terrain, cfg.path)
+    scene = load_scene(cfg)
     st = state_from_config(cfg, np.ones((GRID, GRID, 3)))
-    proxy = build_proxy(cfg, inst, terrain, width=W, height=H, grid_shape=(GRID, GRID), variant="llvm_ad_rgb", state=st)
+    proxy = build_proxy(scene, width=W, height=H, grid_shape=(GRID, GRID), variant="llvm_ad_rgb", state=st)
     proxy.set_state(st)
     hazed = proxy.render_numpy(32, 1, passes=2)
     proxy.haze = 0.0
     clear = proxy.render_numpy(32, 1, passes=2)
-    render_scene(cfg, output=tmp_path / "full.exr", instances=inst, variant="scalar_rgb")
+    render_scene(scene, output=tmp_path / "full.exr", variant="scalar_rgb")
     full = read_image(tmp_path / "full.exr")[..., :3].reshape(-1, 3)
     assert delta_e2000(hazed.reshape(-1, 3), full).mean() < 0.3 * delta_e2000(clear.reshape(-1, 3), full).mean()

@@ -15,6 +15,7 @@ from forest.errors import ForestError
 from forest.images import srgb_to_linear
 from forest.instances import InstanceSet, yaw_tilt_quaternion
 from forest.render import choose_variant, render_scene
+from forest.scene import load_scene
 
 from render_fixtures import BoxLibrary
 
@@ -117,7 +118,7 @@ def test_trees_appear_where_presence_allows(tmp_path, library, variant):
     cfg = make_config(tmp_path, maps='presence = "presence.png"', extra="[scatter]\ncount = 300\n")
     inst, _ = scatter(cfg)
     assert len(inst) > 20 and (inst.position[:, 0] < 0.5).all()
-    res = render_scene(cfg, output=tmp_path / "f.exr", instances=inst, variant=variant, library=library)
+    res = render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "f.exr", variant=variant)
     out = read_exr(tmp_path / "f.exr")
     gx, gz = ground_points(cfg, 40, 40)
     inside = (np.abs(gz) < 45) & (np.abs(gx) < 45)
@@ -144,7 +145,7 @@ def test_colour_map_tints_each_tree_where_it_stands(tmp_path, library, variant):
     cfg = make_config(tmp_path, maps='colour = "colour.png"', render="max_depth = 2")  # direct light only
     pos = [[x, 0.0, z] for x in (-30.0, -10.0, 10.0, 30.0) for z in (-30.0, -15.0, 15.0, 30.0)]
     inst = trees(pos)
-    render_scene(cfg, output=tmp_path / "t.exr", instances=inst, variant=variant, library=library)
+    render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "t.exr", variant=variant)
     out = read_exr(tmp_path / "t.exr")
     z_of_id = dict(zip(inst.id.astype(int).tolist(), inst.position[:, 2].tolist()))
     ids = out["id"].astype(int)
@@ -170,7 +171,10 @@ def test_lod_switches_with_camera_distance(tmp_path, library, variant):
     cfg = make_config(tmp_path, camera=cam, extra="[lod]\ndistances = [130.0, 135.0, 140.0]\n")
     inst = trees([[0.0, 0.0, -35.0], [0.0, 0.0, 35.0]], scale=4.0)  # south tree, north tree
     res = render_scene(
-        cfg, output=tmp_path / "l_####.exr", instances=inst, variant=variant, frames=[1, 2], library=library
+        load_scene(cfg, inst, library=library),
+        output=tmp_path / "l_####.exr",
+        variant=variant,
+        frames=[1, 2],
     )
     assert res.lod_counts == {"high": 2, "far": 2}
     for frame, near_id in ((1, 100), (2, 101)):
@@ -197,7 +201,9 @@ def test_subframes_differ_when_the_camera_moves(tmp_path, library, variant):
         ("blur", moving, 1.0),
     ):
         cfg = make_config(tmp_path, camera=cam, render="subframes = 4")
-        render_scene(cfg, output=tmp_path / f"{name}.exr", instances=inst, variant=variant, frames=[2], library=library)
+        render_scene(
+            load_scene(cfg, inst, library=library), output=tmp_path / f"{name}.exr", variant=variant, frames=[2]
+        )
         images[name] = read_exr(tmp_path / f"{name}_0002.exr")["rgb"].mean(axis=2)
     sharp, blur = images["sharp"][8:32, 8:32], images["blur"][8:32, 8:32]  # inside the terrain, no sky
     # The blurred frame's bright boxes are smeared along X: more pixels partly lit, a lower peak.
@@ -205,7 +211,7 @@ def test_subframes_differ_when_the_camera_moves(tmp_path, library, variant):
     assert blur.max() < sharp.max()
     # Frames 1 and 3 of the moving camera see different things.
     cfg = make_config(tmp_path, camera=moving.replace("shutter = 1.0", ""))
-    render_scene(cfg, output=tmp_path / "m_#.exr", instances=inst, variant=variant, frames="1,3", library=library)
+    render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "m_#.exr", variant=variant, frames="1,3")
     a, b = read_exr(tmp_path / "m_1.exr"), read_exr(tmp_path / "m_3.exr")
     assert not np.array_equal(a["id"], b["id"])
 
@@ -216,12 +222,17 @@ def test_wind_moves_trees_between_frames(tmp_path, library):
         tmp_path, camera=cam, replace_camera=True, extra="[wind]\nstrength = 10.0\nfrequency = 1.0\ndirection = 90.0\n"
     )
     inst = trees([[0.0, 0.0, 0.0], [6.0, 0.0, 4.0]], phase=np.array([0.0, 1.5], np.float32))
-    render_scene(cfg, output=tmp_path / "w_#.exr", instances=inst, variant="scalar_rgb", frames=[1, 7], library=library)
+    render_scene(
+        load_scene(cfg, inst, library=library), output=tmp_path / "w_#.exr", variant="scalar_rgb", frames=[1, 7]
+    )
     a, b = read_exr(tmp_path / "w_1.exr"), read_exr(tmp_path / "w_7.exr")
     assert not np.array_equal(a["id"] >= 0, b["id"] >= 0)
     calm = make_config(tmp_path, camera=cam, replace_camera=True)
     render_scene(
-        calm, output=tmp_path / "c_#.exr", instances=inst, variant="scalar_rgb", frames=[1, 7], library=library
+        load_scene(calm, inst, library=library),
+        output=tmp_path / "c_#.exr",
+        variant="scalar_rgb",
+        frames=[1, 7],
     )
     a, b = read_exr(tmp_path / "c_1.exr"), read_exr(tmp_path / "c_7.exr")
     assert np.array_equal(a["id"], b["id"]) and np.array_equal(a["depth"], b["depth"])
@@ -237,25 +248,23 @@ def test_same_config_and_seed_give_identical_files(tmp_path, library, variant):
     inst = trees([[x, 0.0, z] for x in (-20.0, 0.0, 20.0) for z in (-20.0, 20.0)])
     digests = []
     for k in range(2):
-        render_scene(cfg, output=tmp_path / f"d{k}.exr", instances=inst, variant=variant, library=library)
+        render_scene(load_scene(cfg, inst, library=library), output=tmp_path / f"d{k}.exr", variant=variant)
         digests.append(tuple(hashlib.sha256((tmp_path / f"d{k}.{e}").read_bytes()).hexdigest() for e in ("exr", "png")))
     assert digests[0] == digests[1]
     attrs = read_exr(tmp_path / "d0.exr")["attrs"]
     assert attrs["forest:trees"] == 6 and attrs["forest:variant"] == variant
     assert attrs["forest:instanced_triangles"] == 6 * 12 and attrs["forest:spp"] == 4
     other = make_config(tmp_path, maps='colour = "colour.png"', render="seed = 5")
-    render_scene(other, output=tmp_path / "d2.exr", instances=inst, variant=variant, library=library)
+    render_scene(load_scene(other, inst, library=library), output=tmp_path / "d2.exr", variant=variant)
     assert (tmp_path / "d2.exr").read_bytes() != (tmp_path / "d0.exr").read_bytes()
 
 
 def test_haze_and_depth(tmp_path, library):
     cfg = make_config(tmp_path, render="haze = 0.01\nhaze_colour = [1.0, 0.0, 0.0]")
     render_scene(
-        cfg,
+        load_scene(cfg, trees([[0.0, 0.0, 0.0]], scale=3.0), library=library),
         output=tmp_path / "h.exr",
-        instances=trees([[0.0, 0.0, 0.0]], scale=3.0),
         variant="scalar_rgb",
-        library=library,
     )
     out = read_exr(tmp_path / "h.exr")
     ground = (out["id"] < 0) & (out["depth"] < 1e4)  # sky pixels carry the far clip distance
@@ -273,27 +282,24 @@ def test_bad_input(tmp_path, library):
     cfg = make_config(tmp_path)
     inst = trees([[0.0, 0.0, 0.0]])
     with pytest.raises(ForestError, match=r"\.exr"):
-        render_scene(cfg, output=tmp_path / "x.jpg", instances=inst, variant="scalar_rgb", library=library)
+        render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "x.jpg", variant="scalar_rgb")
     with pytest.raises(ForestError, match="variant"):
-        render_scene(cfg, output=tmp_path / "x.exr", instances=inst, variant="metal_rgb", library=library)
+        render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "x.exr", variant="metal_rgb")
     with pytest.raises(ForestError, match="unknown species"):
         render_scene(
-            cfg,
+            load_scene(
+                cfg.with_overrides({"species[0].model": "oak"}), trees([[0, 0, 0]], names=("oak",)), library=library
+            ),
             output=tmp_path / "x.exr",
-            instances=trees([[0, 0, 0]], names=("oak",)),
             variant="scalar_rgb",
-            library=library,
         )
     with pytest.raises(ForestError, match="frames"):
-        render_scene(cfg, output=tmp_path / "x.exr", instances=inst, frames="5-1", library=library)
-    with pytest.raises(ForestError, match=r"transmittance|unknown key"):
+        render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "x.exr", frames="5-1")
+    with pytest.raises(ForestError, match=r"transmittance.*unknown key"):
         render_scene(
-            cfg,
+            load_scene(cfg.with_overrides({"lights.sky.transmittance": 1.0}), inst, library=library),
             output=tmp_path / "x.exr",
-            instances=inst,
             variant="scalar_rgb",
-            library=library,
-            overrides={"sky_transmittance": 1.0},
         )
     assert not list(tmp_path.glob("x*"))
 
@@ -308,7 +314,9 @@ def test_default_variant_choice():
 def test_empty_forest_renders_the_terrain(tmp_path, library):
     cfg = make_config(tmp_path)
     res = render_scene(
-        cfg, output=tmp_path / "e.exr", instances=trees(np.zeros((0, 3))), variant="scalar_rgb", library=library
+        load_scene(cfg, trees(np.zeros((0, 3))), library=library),
+        output=tmp_path / "e.exr",
+        variant="scalar_rgb",
     )
     out = read_exr(tmp_path / "e.exr")
     assert res.trees == 0 and res.instanced_triangles == 0 and (out["id"] == -1).all()
@@ -329,7 +337,9 @@ def test_leaf_card_alpha(tmp_path, library, variant):
         text = text.replace("[lights]\n", "[lights]\n" + sun).replace('model = "box"', 'model = "card"')
         (tmp_path / "card.toml").write_text(text)
         cfg = parse_config(text, path=tmp_path / "card.toml", base_dir=tmp_path)
-        render_scene(cfg, output=tmp_path / f"c_{alpha_shadows}.exr", instances=inst, variant=variant, library=library)
+        render_scene(
+            load_scene(cfg, inst, library=library), output=tmp_path / f"c_{alpha_shadows}.exr", variant=variant
+        )
         out = read_exr(tmp_path / f"c_{alpha_shadows}.exr")
         gx, gz = ground_points(cfg, 40, 40)
         under = (np.abs(gx) < 12) & (np.abs(gz) < 12)  # well inside the card's shadow

@@ -145,7 +145,9 @@ def test_real_library_renders_the_same_forest_in_both_variants(scene):
     inst = inst.subset(np.argsort(np.linalg.norm(inst.position - [0.0, 30.0, -60.0], axis=1))[:4])
     out = {}
     for variant in ("llvm_ad_rgb", "scalar_rgb"):
-        res = render_scene(cfg, output=scene / f"lib_{variant}.exr", instances=inst, variant=variant)
+        from forest.scene import load_scene
+
+        res = render_scene(load_scene(cfg, inst), output=scene / f"lib_{variant}.exr", variant=variant)
         assert res.leaf_model == ("forest_leaf" if variant == "llvm_ad_rgb" else "twosided-diffuse")
         inp = oiio.ImageInput.open(str(scene / f"lib_{variant}.exr"))
         spec = inp.spec()

@@ -8,7 +8,8 @@ import pytest
 from forest.camera import look_at_matrix
 from forest.config import parse_config
 from forest.errors import ForestError
-from forest.render.instancing import lod_levels, sway_angles, sway_rotation
+from forest.lod import lod_levels
+from forest.render.instancing import sway_angles, sway_rotation
 from forest.render.scene import colour_grid_texture, emitter_dicts, sensor_dict, sun_vector, terrain_dict
 from forest.runtime import mitsuba
 from forest.terrain import load_terrain
@@ -134,13 +135,16 @@ def test_sun_vector_and_emitters():
     np.testing.assert_allclose(e["sun"]["direction"], -sun_vector(30.0, 90.0))
     np.testing.assert_allclose(e["sun"]["irradiance"]["value"], [2.0, 1.0, 0.5])
     np.testing.assert_allclose(e["sky"]["radiance"]["value"], [0.1, 0.2, 0.5])
-    o = emitter_dicts(cfg, "scalar_rgb", {"sun_irradiance": 4.0, "sky_colour": [1, 1, 1], "sky_radiance": 0.25})
+    lit = cfg.with_overrides(
+        {"lights.sun.irradiance": 4.0, "lights.sky.colour": [1, 1, 1], "lights.sky.radiance": 0.25}
+    )
+    o = emitter_dicts(lit, "scalar_rgb")
     np.testing.assert_allclose(o["sun"]["irradiance"]["value"], [4.0, 2.0, 1.0])
     np.testing.assert_allclose(o["sky"]["radiance"]["value"], [0.25, 0.25, 0.25])
-    with pytest.raises(ForestError, match="unknown key"):
-        emitter_dicts(cfg, "scalar_rgb", {"sun_power": 1.0})
-    with pytest.raises(ForestError, match="sun_colour"):
-        emitter_dicts(cfg, "scalar_rgb", {"sun_colour": [1, 2]})
+    with pytest.raises(ForestError, match=r"lights\.sun\.power: unknown key"):
+        cfg.with_overrides({"lights.sun.power": 1.0})
+    with pytest.raises(ForestError, match=r"lights\.sun\.colour"):
+        cfg.with_overrides({"lights.sun.colour": [1, 2]})
     night = parse_config(
         TOP_DOWN.replace(
             "sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }", "sun = { elevation = -5.0 }\nsky = { radiance = 0.1 }"
@@ -257,7 +261,7 @@ def test_envmap_dome_light(tmp_path):
     cfg = parse_config(text, path=tmp_path / "s.toml", base_dir=tmp_path)
     e = emitter_dicts(cfg, "scalar_rgb")
     assert e["sky"]["type"] == "envmap" and e["sky"]["scale"] == 2.0
-    assert emitter_dicts(cfg, "scalar_rgb", {"envmap_scale": 0.5})["sky"]["scale"] == 0.5
+    assert emitter_dicts(cfg.with_overrides({"lights.sky.scale": 0.5}), "scalar_rgb")["sky"]["scale"] == 0.5
     mi = mitsuba("scalar_rgb")
     terrain = load_terrain(cfg.terrain)
     scene = mi.load_dict(

@@ -7,23 +7,16 @@ from pathlib import Path
 import typer
 
 
-def _scene(config: Path, instances: Path | None, quiet: bool):
+def _scene(config: Path, instances: Path | None, library: Path | None, quiet: bool):
     from ..config import load_config
+    from ..library import open_library
     from ..progress import progress_bar
-    from ..scatter import scene_instances
+    from ..scene import load_scene
 
     cfg = load_config(config)
-    with progress_bar("scatter", quiet=quiet or instances is not None) as bar:
-        inst = scene_instances(cfg, instances, progress=bar)
-    return cfg, inst
-
-
-def _library(path: Path | None):
-    if path is None:
-        return None
-    from ..library import open_library
-
-    return open_library(path)
+    lib = open_library(library) if library is not None else None
+    with progress_bar("scene", quiet=quiet or instances is not None) as bar:
+        return load_scene(cfg, instances, library=lib, progress=bar)
 
 
 def _size(n: int) -> str:
@@ -66,11 +59,9 @@ def register(app: typer.Typer) -> None:
         from ..export.rib import export_rib
         from ..progress import progress_bar
 
-        cfg, inst = _scene(config, instances, quiet)
+        scene = _scene(config, instances, library, quiet)
         with progress_bar("export rib", quiet=quiet) as bar:
-            res = export_rib(
-                cfg, inst, output, renderman22=renderman22, frames=frames, library=_library(library), progress=bar
-            )
+            res = export_rib(scene, output, renderman22=renderman22, frames=frames, progress=bar)
         if not quiet:
             typer.echo(
                 f"{res.trees:,} trees in {len(res.instance_files)} instance file(s), "
@@ -99,9 +90,9 @@ def register(app: typer.Typer) -> None:
 
         if output.suffix.lower() not in SUFFIXES:
             raise ForestError(f"{output}: a USD file name must end in .usda, .usdc or .usd")
-        cfg, inst = _scene(config, instances, quiet)
+        scene = _scene(config, instances, library, quiet)
         with progress_bar("export usd", quiet=quiet) as bar:
-            res = export_usd(cfg, inst, output, frames=frames, library=_library(library), progress=bar)
+            res = export_usd(scene, output, frames=frames, progress=bar)
         if not quiet:
             typer.echo(
                 f"{res.trees:,} trees in {len(res.instancers)} point instancer(s), "

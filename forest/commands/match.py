@@ -34,13 +34,29 @@ def register(app: typer.Typer) -> None:
         from ..config import load_config
         from ..lookdev import match
         from ..progress import progress_bar
+        from ..scene import load_scene
 
         cfg = load_config(config)
+        from ..lookdev import resolve_settings
+
+        resolve_settings(
+            cfg,
+            iterations=iterations,
+            resolution=resolution,
+            spp=spp,
+            params=params,
+            mode=mode,
+            mask=mask,
+            variant=variant,
+            grid=grid,
+        )  # bad options fail before any work
+        with progress_bar("scene", quiet=quiet or instances is not None) as bar:
+            scene = load_scene(cfg, instances, progress=bar)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             with progress_bar("match", quiet=quiet) as bar:
                 result = match(
-                    cfg,
+                    scene,
                     reference,
                     output,
                     iterations=iterations,
@@ -51,7 +67,6 @@ def register(app: typer.Typer) -> None:
                     mask=mask,
                     variant=variant,
                     grid=grid,
-                    instances=instances,
                     progress=bar,
                 )
         if not quiet:

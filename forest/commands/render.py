@@ -53,16 +53,13 @@ def register(app: typer.Typer) -> None:
             if not quiet:
                 typer.echo(f"variant: {chosen} ({reason})", err=True)
 
+        from ..scene import load_scene
+
+        with progress_bar("scene", quiet=quiet or instances is not None) as bar:
+            scene = load_scene(cfg, instances, progress=bar)
         with progress_bar("render", quiet=quiet) as bar:
             result = render_scene(
-                cfg,
-                output=output,
-                instances=instances,
-                variant=variant,
-                frames=frames,
-                preview=preview,
-                progress=bar,
-                announce=announce,
+                scene, output=output, variant=variant, frames=frames, preview=preview, progress=bar, announce=announce
             )
         if not quiet:
             if preview:

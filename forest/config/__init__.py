@@ -217,6 +217,47 @@ def referenced_files(config: Config) -> list[Path]:
     return sorted({p for p in found if isinstance(p, Path) and p.is_file()})
 
 
+def rebase_paths(data: dict, base_dir: Path, out_dir: Path) -> dict:
+    """A copy of TOML ``data`` whose relative file fields (and mesh species) are relative to ``out_dir``.
+
+    The fields are the schema's file fields (:func:`file_fields`) and
+    ``species[].model`` where it names a mesh; a config written with the result
+    into ``out_dir`` names the same files as the original did from ``base_dir``.
+    """
+    import os
+
+    from .schema import MESH_SUFFIXES
+
+    out = copy.deepcopy(data)
+
+    def rebase(value: Any) -> Any:
+        if not isinstance(value, str) or not value or Path(value).expanduser().is_absolute():
+            return value
+        return os.path.relpath((Path(base_dir) / value).resolve(), Path(out_dir).resolve())
+
+    for dotted in file_fields():
+        _rewrite(out, dotted.split("."), rebase)
+    for sp in out.get("species", []) if isinstance(out.get("species"), list) else []:
+        if isinstance(sp, dict) and Path(str(sp.get("model", ""))).suffix.lower() in MESH_SUFFIXES:
+            sp["model"] = rebase(sp["model"])
+    return out
+
+
+def _rewrite(node: Any, keys: list[str], fn) -> None:
+    key = keys[0]
+    if key.endswith("[]"):
+        items = node.get(key[:-2]) if isinstance(node, dict) else None
+        for item in items if isinstance(items, list) else []:
+            _rewrite(item, keys[1:], fn)
+        return
+    if not isinstance(node, dict) or key not in node:
+        return
+    if len(keys) == 1:
+        node[key] = fn(node[key])
+    else:
+        _rewrite(node[key], keys[1:], fn)
+
+
 def _values(node: Any, keys: list[str]) -> list[Any]:
     if not keys:
         return [node]
@@ -255,5 +296,6 @@ __all__ = [
     "load_config",
     "parse_config",
     "read_toml",
+    "rebase_paths",
     "referenced_files",
 ]

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import parse_frames
-from ..config import Config, ConfigError, SunConfig
+from ..config import Config, SunConfig
 from ..errors import ForestError, ParameterError
 from ..instances import InstanceSet
 
@@ -110,53 +110,26 @@ class SpeciesPlan:
         return out
 
 
-def open_default_library():
-    try:
-        from ..library import open_library
-    except ImportError as e:  # pragma: no cover - only while the library is missing
-        raise ForestError(f"the tree library is not available ({e}); run scripts/setup.sh") from None
-    return open_library()
+def species_plans(scene, *, used_only: bool = True) -> list[SpeciesPlan]:
+    """Every species of the scene with trees (all with ``used_only=False``) and its LOD bands.
 
-
-def species_plans(config: Config, instances: InstanceSet, library=None, *, used_only: bool = True) -> list[SpeciesPlan]:
-    """Resolve every species with trees through the library and plan its LOD bands.
-
-    Species are matched to ``[[species]]`` by their ``model`` string; a model the
-    library cannot resolve raises :class:`ConfigError` naming ``species[i].model``.
+    Species come resolved from the Scene; the bands from its LOD plan
+    (:meth:`forest.lod.LodPlan.bands`), the one rule every backend shares.
     """
-    if library is None:
-        library = open_default_library()
-    models = [s.model for s in config.species]
+    instances = scene.instances
     counts = np.bincount(instances.species, minlength=len(instances.species_names))
-    distances = list(config.lod.bands)
     plans: list[SpeciesPlan] = []
     taken: set[str] = set()
     for i, model in enumerate(instances.species_names):
         if used_only and counts[i] == 0:
             continue
-        field_name = f"species[{models.index(model)}].model" if model in models else "species"
-        try:
-            sp = library.resolve(model, config.base_dir)
-        except ForestError as e:
-            raise ConfigError(config.path, field_name, str(e)) from None
-        except (OSError, KeyError, ValueError) as e:
-            raise ConfigError(config.path, field_name, f"cannot resolve tree model {model!r}: {e}") from None
-        lods = list(sp.lods)
-        if not lods:
-            raise ConfigError(config.path, field_name, f"tree model {model!r} has no levels of detail")
+        sp = scene.species[i]
         name = slug(getattr(sp, "name", model))
         base, n = name, 2
         while name in taken:
             name, n = f"{base}_{n}", n + 1
         taken.add(name)
-        edges = [0.0] + distances + [math.inf]
-        bands = []
-        for b in range(len(edges) - 1):
-            lod = lods[min(b, len(lods) - 1)]
-            if bands and bands[-1].lod is lod:
-                bands[-1].far = edges[b + 1]
-            else:
-                bands.append(Band(lod, edges[b], edges[b + 1]))
+        bands = [Band(sp.lods[b.level], b.near, b.far) for b in scene.lod.bands(i)]
         plans.append(SpeciesPlan(i, model, name, sp, bands))
     return plans
 

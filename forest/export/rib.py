@@ -97,6 +97,7 @@ from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import Config, ConfigError
 from ..errors import ForestError
 from ..instances import InstanceSet, quaternion_to_matrix
+from ..scene import Scene
 from .common import (
     SpeciesPlan,
     check_instances,
@@ -253,7 +254,7 @@ def lights_text(config: Config, renderman22: bool) -> str:
         elif k.kind == "envmap":
             intensity, colour = k.scale, (1.0, 1.0, 1.0)
         else:  # physical sun-sky: a neutral blue dome stands in
-            intensity, colour = 0.35 * k.scale, (0.6, 0.75, 1.0)
+            intensity, colour = 0.35 * k.sunsky.scale, (0.6, 0.75, 1.0)
         if renderman22:
             extra = f' "string lightColorMap" [{rib_string(k.envmap)}]' if k.kind == "envmap" else ""
             out += [
@@ -575,8 +576,9 @@ def write_instance_file(
             "AttributeBegin\n"
             f'Attribute "identifier" "string name" [{rib_string("partition_" + partition)}]\n'
         )
-        fh.write(head.encode())
-        written += len(head)
+        data = head.encode()
+        fh.write(data)
+        written += len(data)
         done = 0
         with RowWriter(fh) as out:
             for k, sp in enumerate(sorted(suffixes)):
@@ -587,8 +589,9 @@ def write_instance_file(
                     done += len(r)
                     if progress:
                         progress(done / len(rows), partition)
-        fh.write(b"AttributeEnd\n")
-        written += 14
+        end = b"AttributeEnd\n"
+        fh.write(end)
+        written += len(end)
     return written
 
 
@@ -654,24 +657,20 @@ def scene_text(
 
 
 def export_rib(
-    config: Config,
-    instances: InstanceSet,
+    scene: Scene,
     out_dir: str | Path,
     *,
     renderman22: bool = False,
     frames: str | list[int] | None = None,
-    library=None,
-    terrain=None,
     progress=None,
 ) -> RibExport:
-    """Write the RIB export of ``instances`` into ``out_dir`` (see the module docstring).
+    """Write the RIB export of the scene's trees into ``out_dir`` (see the module docstring).
 
     ``frames``: a spec (``"1-120"``) or list; default the camera's keyed range, or
-    frame 1.  ``library``: a tree library (default :func:`forest.library.open_library`).
-    ``terrain``: a loaded :class:`~forest.terrain.Terrain` (default: loaded from the
-    config).  Every file is written to a temporary folder first and moved into
+    frame 1.  Every file is written to a temporary folder first and moved into
     ``out_dir`` only when the whole export succeeded.
     """
+    config, instances, terrain = scene.config, scene.instances, scene.terrain
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
@@ -680,11 +679,7 @@ def export_rib(
     check_transition(config, opts["lod_transition"])
     frame_list = export_frames(config, frames)
     check_instances(config, instances)
-    plans = species_plans(config, instances, library)
-    if terrain is None:
-        from ..terrain import load_terrain
-
-        terrain = load_terrain(config.terrain, config.path)
+    plans = species_plans(scene)
     report = progress or (lambda f, m="": None)
     result = RibExport(out_dir=out_dir, trees=len(instances))
     try:

@@ -62,6 +62,7 @@ from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import Config, ConfigError
 from ..errors import ForestError
 from ..instances import InstanceSet
+from ..scene import Scene
 from .common import (
     SpeciesPlan,
     check_instances,
@@ -309,7 +310,7 @@ def _lights(stage, config: Config, out_dir: Path):
             sky.CreateTextureFileAttr(Sdf.AssetPath(Path(ref).as_posix()))
             sky.CreateTextureFormatAttr(UsdLux.Tokens.latlong)
         else:  # physical sun-sky: a neutral blue dome stands in
-            sky.CreateIntensityAttr(0.35 * float(k.scale))
+            sky.CreateIntensityAttr(0.35 * float(k.sunsky.scale))
             sky.CreateColorAttr(Gf.Vec3f(0.6, 0.75, 1.0))
 
 
@@ -349,21 +350,19 @@ def write_instancer(
 
 
 def export_usd(
-    config: Config,
-    instances: InstanceSet,
+    scene: Scene,
     path: str | Path,
     *,
     frames: str | list[int] | None = None,
-    library=None,
-    terrain=None,
     progress=None,
 ) -> UsdExport:
-    """Write the USD stage of ``instances`` to ``path`` (``.usda``, ``.usdc`` or ``.usd`` = crate).
+    """Write the USD stage of the scene's trees to ``path`` (``.usda``, ``.usdc`` or ``.usd`` = crate).
 
     The species layers go to ``<stem>_species/`` beside it.  Everything is
     written into a temporary folder and moved into place only when complete.
     """
     t0 = time.perf_counter()
+    config, instances, terrain = scene.config, scene.instances, scene.terrain
     path = Path(path)
     if path.suffix.lower() not in SUFFIXES:
         raise ForestError(f"{path}: a USD file name must end in .usda, .usdc or .usd")
@@ -372,7 +371,7 @@ def export_usd(
     opts = export_options(config)
     frame_list = export_frames(config, frames)
     check_instances(config, instances)
-    plans = species_plans(config, instances, library)
+    plans = species_plans(scene)
     lod_selection = {}
     for plan in plans:
         names = [l.name for l in plan.species.lods]
@@ -382,10 +381,6 @@ def export_usd(
                 config.path, "export.usd_lod", f"{want!r} is not a level of {plan.model!r} (levels: {', '.join(names)})"
             )
         lod_selection[plan.index] = want
-    if terrain is None:
-        from ..terrain import load_terrain
-
-        terrain = load_terrain(config.terrain, config.path)
     report = progress or (lambda f, m="": None)
     _Gf, Sdf, Usd, UsdGeom, _UsdLux, _Vt = _pxr()
     from pxr import Tf

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_dir
-from ..config import Config, ConfigError, load_config
+from ..config import Config, ConfigError
 from ..errors import ForestError, ParameterError
 from .state import DEFAULT_PARAMS, PARAM_GROUPS, LookState, state_from_config
 
@@ -174,14 +174,13 @@ def optimiser_size(config: Config, resolution: int) -> tuple[int, int]:
     return max(1, round(resolution * w / h)), resolution
 
 
-def start_grid(config: Config, n: int) -> np.ndarray:
-    """The current colour map resampled to n×n cells (area average), or white (no map = untinted)."""
-    if config.maps.colour is None:
+def start_grid(scene, n: int) -> np.ndarray:
+    """The scene's colour map resampled to n×n cells (area average), or white (no map = untinted)."""
+    if scene.colour is None:
         return np.ones((n, n, 3))
-    from ..images import read_map_rgb, resample
+    from ..images import resample
 
-    m = read_map_rgb(config.maps.colour, what="colour map")
-    return np.clip(resample(m, n, n).astype(np.float64), 0.0, 1.0)
+    return np.clip(resample(scene.colour.rgb, n, n).astype(np.float64), 0.0, 1.0)
 
 
 def colour_errors(image: np.ndarray, reference, mode: str, bands: int) -> tuple[float, float]:
@@ -211,7 +210,7 @@ def colour_errors(image: np.ndarray, reference, mode: str, bands: int) -> tuple[
 
 
 def match(
-    config,
+    scene,
     reference,
     out_dir,
     *,
@@ -224,22 +223,18 @@ def match(
     variant: str | None = None,
     progress=None,
     grid: int | None = None,
-    instances=None,
-    library=None,
     seed: int | None = None,
     start: LookState | None = None,
 ) -> MatchResult:
-    """Fit the colour map and lights of ``config``'s scene to ``reference``; write the results to ``out_dir``.
+    """Fit the colour map and lights of a :class:`~forest.scene.Scene` to ``reference``; write the results to ``out_dir``.
 
-    ``config``: a :class:`~forest.config.Config` or a path; ``reference``: an
-    image path (or an (H, W, 3) linear array); ``progress(fraction, message)``
-    receives the current loss.  ``instances`` (an InstanceSet or a saved one's
-    path) skips the scatter; ``start`` overrides the starting look.
+    ``reference``: an image path (or an (H, W, 3) linear array);
+    ``progress(fraction, message)`` receives the current loss; ``start``
+    overrides the starting look.
     """
     t0 = time.perf_counter()
     report = progress or (lambda f, m="": None)
-    if not isinstance(config, Config):
-        config = load_config(config)
+    config, instances = scene.config, scene.instances
     st = resolve_settings(
         config,
         iterations=iterations,
@@ -266,28 +261,17 @@ def match(
         _warnings.simplefilter("always")
         ref = load_reference(reference, width, height, mask=st.mask, fit=st.fit)
     notes += [str(w.message) for w in caught]
-    report(0.0, "scattering")
-    from ..terrain import load_terrain
-
-    terrain = load_terrain(config.terrain, config.path)
-    if instances is None or isinstance(instances, (str, Path)):
-        from ..scatter import scene_instances
-
-        instances = scene_instances(config, instances)
-    base = start_grid(config, st.grid)
+    base = start_grid(scene, st.grid)
     start_state = start.copy() if start is not None else state_from_config(config, base)
     if start is not None and start.grid.shape[:2] != (st.grid, st.grid):
         raise ForestError(f"start grid is {start.grid.shape[0]}x{start.grid.shape[1]}, expected {st.grid}x{st.grid}")
     report(0.02, "building the proxy")
     proxy = build_proxy(
-        config,
-        instances,
-        terrain,
+        scene,
         width=width,
         height=height,
         grid_shape=(st.grid, st.grid),
         variant=st.variant,
-        library=library,
         state=start_state,
         max_triangles=st.max_triangles,
         max_depth=st.max_depth,
@@ -300,7 +284,7 @@ def match(
         from .calibrate import channel_gain, production_image
 
         report(0.03, "calibrating the proxy against the production render")
-        production = production_image(config, instances, start_state, width=width, height=height, library=library)
+        production = production_image(scene, start_state, width=width, height=height)
         proxy.set_state(start_state)
         gain = channel_gain(production, proxy.render_numpy(EVAL_SPP, rseed + 13), ~proxy.sky_mask())
         proxy.set_gain(gain)

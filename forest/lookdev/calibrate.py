@@ -36,15 +36,12 @@ CALIBRATION_SPP = 64
 GAIN_LIMITS = (0.25, 4.0)
 
 
-def production_image(
-    config, instances, state, *, width: int, height: int, spp: int = CALIBRATION_SPP, library=None
-) -> np.ndarray:
-    """The ``scalar_rgb`` production render of ``config`` with ``state``'s lights: (H, W, 3) linear, no files."""
+def production_image(scene, state, *, width: int, height: int, spp: int = CALIBRATION_SPP) -> np.ndarray:
+    """The ``scalar_rgb`` production render of ``scene`` with ``state``'s lights: (H, W, 3) linear, no files."""
     from ..render.render import render_image
 
-    return render_image(
-        config, instances, width=width, height=height, spp=spp, overrides=state.overrides(), library=library
-    )
+    lit = scene.with_config(scene.config.with_overrides(state.config_overrides()))
+    return render_image(lit, width=width, height=height, spp=spp)
 
 
 def channel_gain(production: np.ndarray, proxy_image: np.ndarray, hit: np.ndarray) -> np.ndarray:

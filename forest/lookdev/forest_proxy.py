@@ -45,7 +45,8 @@ import numpy as np
 
 from ..camera import camera_at, look_at_matrix
 from ..errors import ForestError
-from ..render.instancing import LOD_NAMES, lod_levels, tree_matrices
+from ..lod import LOD_NAMES
+from ..render.instancing import tree_matrices
 from ..render.materials import MaterialBuilder
 from ..render.scene import emitter_dicts, sensor_dict, terrain_dict
 from ..runtime import mitsuba
@@ -96,23 +97,23 @@ def _lod_index(species, name: str) -> int:
 
 
 def build_proxy(
-    config,
-    instances,
-    terrain,
+    scene,
     *,
     width: int,
     height: int,
     grid_shape: tuple[int, int],
     variant: str,
-    library=None,
     state=None,
     max_triangles: int = DEFAULT_MAX_TRIANGLES,
     max_depth: int | None = None,
     frame: float = 1.0,
     lod: str = "high",
 ) -> Proxy:
-    """Build the :class:`~forest.lookdev.proxy.Proxy` of ``config``'s forest (see the module docstring)."""
+    """Build the :class:`~forest.lookdev.proxy.Proxy` of the scene's forest (see the module docstring)."""
     mi = mitsuba(variant)
+    config, instances, terrain = scene.config, scene.instances, scene.terrain
+    if state is not None:
+        config = config.with_overrides(state.config_overrides())
     n, m = grid_shape
     ones = np.ones((n, m, 3), np.float32)
     materials = MaterialBuilder(variant, ones, terrain.extent, terrain.height_range)
@@ -126,19 +127,10 @@ def build_proxy(
     if lod not in LOD_NAMES:
         raise ForestError(f"lookdev.lod: must be one of {', '.join(LOD_NAMES)}, got {lod!r}")
     if len(instances):
-        if library is None:
-            from ..library import open_library
-
-            library = open_library()
-        species = []
-        for model in instances.species_names:
-            try:
-                species.append(library.resolve(model, config.base_dir))
-            except ForestError as e:
-                raise ForestError(f"{config.path}: species model {model!r}: {e}") from None
+        species = list(scene.species)
         sp_idx = instances.species.astype(np.int64)
         n_lods = np.array([len(s.lods) for s in species], dtype=np.int64)
-        prod = lod_levels(instances.position, cam.position, config.lod.bands, n_lods[sp_idx])
+        prod = scene.lod.levels(instances.position, instances.species, cam.position)
         finest = np.array([_lod_index(s, lod) for s in species], dtype=np.int64)[sp_idx]
         level = np.maximum(prod, finest)
         mats = tree_matrices(instances, frame / config.camera.fps, config.wind)
@@ -204,17 +196,16 @@ def build_proxy(
             shapes[f"forest_{i}"] = _mesh(mi, f"forest_{i}", g)
         stats.meshes = len(shapes)
 
-    overrides = state.overrides() if state is not None else None
-    scene = {
+    scene_dict = {
         "type": "scene",
         "integrator": {"type": "prb", "max_depth": int(max_depth or config.render.max_depth)},
         "sensor": sensor_dict(config, frame, width, height, 1, variant, rfilter="box", sampler=PROXY_SAMPLER),
-        **emitter_dicts(config, variant, overrides),
+        **emitter_dicts(config, variant),
         "terrain": terrain_dict(config, terrain, variant, colour_grid=ones),
     }
-    scene.update(shapes)
+    scene_dict.update(shapes)
     try:
-        loaded = mi.load_dict(scene)
+        loaded = mi.load_dict(scene_dict)
     except Exception as e:
         raise ForestError(f"{config.path}: cannot build the look-dev proxy: {str(e).splitlines()[0]}") from None
     params = mi.traverse(loaded)

@@ -29,7 +29,6 @@ import numpy as np
 
 from ..errors import ForestError
 from ..render.scene import sun_vector
-from .colour import luminance_weights
 
 
 def sampler_spp(spp: int) -> int:
@@ -270,6 +269,3 @@ class Proxy:
     def sky_mask(self) -> np.ndarray:
         """(H, W) bool: pixels whose centre ray escapes to the sky (nothing hit)."""
         return ~self._primary_hits()[0]
-
-    def luminance_weights(self) -> np.ndarray:
-        return luminance_weights()

@@ -16,14 +16,13 @@ so that the files do not depend on the last bits of a floating-point sum.
 
 from __future__ import annotations
 
-import copy
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 
 from ..atomic import atomic_path
+from ..config import rebase_paths
 from ..images import linear_to_srgb, write_image
 from .state import LookState
 
@@ -38,22 +37,9 @@ def rounded_grid(grid: np.ndarray) -> np.ndarray:
     return (np.round(np.clip(grid, 0.0, 1.0) * 65536.0) / 65536.0).astype(np.float32)
 
 
-def _rebase(value, base_dir: Path, out_dir: Path):
-    """Rewrite strings naming existing files relative to ``base_dir`` as paths relative to ``out_dir``."""
-    if isinstance(value, dict):
-        return {k: _rebase(v, base_dir, out_dir) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_rebase(v, base_dir, out_dir) for v in value]
-    if isinstance(value, str) and value and not os.path.isabs(value) and ("/" in value or "." in value):
-        p = base_dir / value
-        if p.exists():
-            return os.path.relpath(p.resolve(), out_dir.resolve())
-    return value
-
-
 def scene_data(config, state: LookState, fitted: tuple[str, ...], out_dir: Path, map_name: str = MAP_NAME) -> dict:
     """The fitted config as a TOML-ready dict."""
-    data = _rebase(copy.deepcopy(config.data), Path(config.base_dir), Path(out_dir))
+    data = rebase_paths(config.data, Path(config.base_dir), Path(out_dir))
     if "colour_map" in fitted:
         data.setdefault("maps", {})["colour"] = map_name
     lights = data.setdefault("lights", {})

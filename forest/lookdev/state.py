@@ -74,17 +74,22 @@ class LookState:
     def copy(self) -> LookState:
         return copy.deepcopy(self)
 
-    def overrides(self) -> dict:
-        """Light values as ``forest.render.scene.emitter_dicts`` overrides."""
+    def config_overrides(self) -> dict:
+        """The light values as scene-file overrides (:func:`forest.config.apply_overrides`)."""
         o: dict = {}
         if self.sun_irradiance is not None:
-            o["sun_irradiance"] = float(self.sun_irradiance)
-            o["sun_colour"] = [float(x) for x in self.sun_colour]
+            o["lights.sun.irradiance"] = float(self.sun_irradiance)
+            o["lights.sun.colour"] = [float(x) for x in self.sun_colour]
+        if self.sun_elevation is not None:
+            o["lights.sun.elevation"] = float(self.sun_elevation)
+            o["lights.sun.azimuth"] = float(self.sun_azimuth)
         if self.sky_kind == "constant":
-            o["sky_radiance"] = float(self.sky_radiance)
-            o["sky_colour"] = [float(x) for x in self.sky_colour]
-        elif self.sky_kind in ("envmap", "sunsky"):
-            o["envmap_scale"] = float(self.envmap_scale)
+            o["lights.sky.radiance"] = float(self.sky_radiance)
+            o["lights.sky.colour"] = [float(x) for x in self.sky_colour]
+        elif self.sky_kind == "envmap":
+            o["lights.sky.scale"] = float(self.envmap_scale)
+        elif self.sky_kind == "sunsky":
+            o["lights.sky.sunsky.scale"] = float(self.envmap_scale)
         return o
 
     def light_values(self) -> dict[str, float]:
@@ -124,8 +129,10 @@ def state_from_config(config, grid: np.ndarray) -> LookState:
         st.sky_kind = sky.kind
         if sky.kind == "constant":
             st.sky_radiance, st.sky_colour = split_colour(sky.radiance, sky.colour)
-        else:
+        elif sky.kind == "envmap":
             st.envmap_scale = float(sky.scale)
+        else:
+            st.envmap_scale = float(sky.sunsky.scale)
     if sky is not None and sky.kind == "sunsky":
         st.sun_irradiance = st.sun_colour = None  # sunsky's sun follows its scale
     return st

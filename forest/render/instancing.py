@@ -14,26 +14,9 @@ import numpy as np
 
 from ..errors import ForestError
 from ..instances import InstanceSet
+from ..lod import LOD_NAMES
 from ..runtime import mitsuba
 from .materials import MaterialBuilder
-
-LOD_NAMES = ("high", "medium", "low", "far")
-
-
-def lod_levels(position: np.ndarray, camera: np.ndarray, distances, n_lods: np.ndarray) -> np.ndarray:
-    """Level of detail per tree from its distance to the camera.
-
-    With boundaries d₀ < d₁ < d₂ (``[lod] distances``), a tree at distance
-    r = |p − c| gets level k = #{dᵢ ≤ r} (0 = high … 3 = far), clamped to the
-    species' last LOD (``n_lods − 1``).  No boundaries: every tree is level 0.
-    """
-    position = np.asarray(position, dtype=np.float64)
-    n_lods = np.asarray(n_lods)
-    if len(distances) == 0 or len(position) == 0:
-        return np.zeros(len(position), dtype=np.int64)
-    r = np.linalg.norm(position - np.asarray(camera, dtype=np.float64)[None, :], axis=1)
-    k = np.searchsorted(np.asarray(distances, dtype=np.float64), r, side="right")
-    return np.minimum(k, n_lods - 1).astype(np.int64)
 
 
 def sway_angles(phase: np.ndarray, time_s: float, wind) -> np.ndarray:
@@ -76,7 +59,6 @@ class ForestGraph:
     """A forest as scene-dict entries plus what it cost."""
 
     entries: dict  # shapegroups, shared BSDFs and instances, ready for a scene dict
-    instance_rows: np.ndarray  # row of the InstanceSet behind each instance key tree_<k>
     trees: int
     instanced_triangles: int
     unique_triangles: int
@@ -85,33 +67,16 @@ class ForestGraph:
 
 
 class ForestBuilder:
-    """Resolves species once, then builds per-frame instance graphs for one variant."""
+    """Builds per-frame instance graphs of a Scene's trees for one variant."""
 
-    def __init__(self, config, instances: InstanceSet, library, materials: MaterialBuilder):
-        self.config = config
-        self.instances = instances
+    def __init__(self, scene, materials: MaterialBuilder):
+        self.config = scene.config
+        self.instances = scene.instances
         self.materials = materials
         self.variant = materials.variant
-        self.species = []
-        for _i, model in enumerate(instances.species_names):
-            try:
-                sp = library.resolve(model, config.base_dir)
-            except ForestError as e:
-                raise ForestError(f"{config.path}: species model {model!r}: {e}") from None
-            if not sp.lods:
-                raise ForestError(f"{config.path}: species model {model!r} has no levels of detail")
-            self.species.append(sp)
-        self.n_lods = np.array([len(sp.lods) for sp in self.species] or [1], dtype=np.int64)
+        self.species = list(scene.species)
         self._bsdf_ids: dict = {}
         self._bsdfs: dict = {}
-
-    def levels(self, camera_position) -> np.ndarray:
-        inst = self.instances
-        if not len(inst):
-            return np.zeros(0, dtype=np.int64)
-        return lod_levels(
-            inst.position, camera_position, self.config.lod.bands, self.n_lods[inst.species.astype(np.int64)]
-        )
 
     def _bsdf_ref(self, part) -> dict:
         key = (
@@ -166,7 +131,6 @@ class ForestBuilder:
         out.update(entries)
         return ForestGraph(
             entries=out,
-            instance_rows=np.arange(len(inst)),
             trees=len(inst),
             instanced_triangles=instanced,
             unique_triangles=int(sum(tris.values())),

@@ -29,8 +29,6 @@ from ..runtime import mitsuba
 #: any margin is exact; a wide one keeps tall trees and overhangs inside.
 GRID_Y_MARGIN = 10_000.0
 
-OVERRIDE_KEYS = ("sun_irradiance", "sun_colour", "sky_radiance", "sky_colour", "envmap_scale")
-
 
 def _is_scalar(variant: str) -> bool:
     return variant.startswith("scalar")
@@ -114,24 +112,7 @@ def sun_vector(elevation: float, azimuth: float) -> np.ndarray:
     return np.array([math.sin(a) * math.cos(e), math.sin(e), math.cos(a) * math.cos(e)])
 
 
-def _check_overrides(overrides: dict | None) -> dict:
-    o = dict(overrides or {})
-    unknown = sorted(set(o) - set(OVERRIDE_KEYS))
-    if unknown:
-        raise ForestError(f"light overrides: unknown key {unknown[0]!r} (expected one of {', '.join(OVERRIDE_KEYS)})")
-    for k in ("sun_irradiance", "sky_radiance", "envmap_scale"):
-        if k in o and (not isinstance(o[k], (int, float)) or not math.isfinite(o[k]) or o[k] < 0):
-            raise ForestError(f"light overrides: {k} must be a number >= 0, got {o[k]!r}")
-    for k in ("sun_colour", "sky_colour"):
-        if k in o:
-            v = np.asarray(o[k], dtype=np.float64).ravel()
-            if v.shape != (3,) or not np.isfinite(v).all() or (v < 0).any():
-                raise ForestError(f"light overrides: {k} must be 3 numbers >= 0, got {o[k]!r}")
-            o[k] = v
-    return o
-
-
-def emitter_dicts(config, variant: str, overrides: dict | None = None) -> dict[str, dict]:
+def emitter_dicts(config, variant: str) -> dict[str, dict]:
     """Emitters for ``[lights]``: ``{"sun": directional, "sky": constant | envmap | sunsky}``.
 
     * sun — ``directional`` with irradiance = ``irradiance · colour`` (W/m² per
@@ -142,34 +123,26 @@ def emitter_dicts(config, variant: str, overrides: dict | None = None) -> dict[s
       (Hosek–Wilkie sky + sun) pointed at the ``[lights.sun]`` direction, which
       then replaces the directional sun.
 
-    ``overrides`` (look-dev) replaces ``sun_irradiance`` (float), ``sun_colour``
-    (3), ``sky_radiance`` (float), ``sky_colour`` (3), ``envmap_scale`` (float).
     """
     mitsuba(variant)
-    o = _check_overrides(overrides)
     lights = config.lights
     out: dict[str, dict] = {}
     sun = lights.sun
     sky = lights.sky
     if sky is not None and sky.kind == "sunsky":
         el, az = (sun.elevation, sun.azimuth) if sun is not None else (35.0, 120.0)
-        # The physical sun's strength comes from the model; an irradiance override scales it
-        # relative to the configured irradiance.
-        sun_scale = 1.0
-        if "sun_irradiance" in o and sun is not None and sun.irradiance > 0:
-            sun_scale = float(o["sun_irradiance"]) / sun.irradiance
         out["sky"] = {
             "type": "sunsky",
             "sun_direction": [float(x) for x in sun_vector(el, az)],
             "turbidity": float(sky.sunsky.turbidity),
             "albedo": float(sky.sunsky.albedo),
-            "sky_scale": float(o.get("envmap_scale", sky.sunsky.scale)),
-            "sun_scale": float(sky.sunsky.scale * sun_scale),
+            "sky_scale": float(sky.sunsky.scale),
+            "sun_scale": float(sky.sunsky.scale),
         }
         return out
     if sun is not None:
-        irr = float(o.get("sun_irradiance", sun.irradiance))
-        col = np.asarray(o.get("sun_colour", sun.colour), dtype=np.float64)
+        irr = float(sun.irradiance)
+        col = np.asarray(sun.colour, dtype=np.float64)
         if sun.elevation > 0 and irr > 0:
             d = -sun_vector(sun.elevation, sun.azimuth)
             out["sun"] = {"type": "directional", "direction": [float(x) for x in d], "irradiance": _rgb(irr * col)}
@@ -178,11 +151,11 @@ def emitter_dicts(config, variant: str, overrides: dict | None = None) -> dict[s
             out["sky"] = {
                 "type": "envmap",
                 "filename": str(sky.envmap),
-                "scale": float(o.get("envmap_scale", sky.scale)),
+                "scale": float(sky.scale),
             }
         else:
-            rad = float(o.get("sky_radiance", sky.radiance))
-            col = np.asarray(o.get("sky_colour", sky.colour), dtype=np.float64)
+            rad = float(sky.radiance)
+            col = np.asarray(sky.colour, dtype=np.float64)
             out["sky"] = {"type": "constant", "radiance": _rgb(rad * col)}
     if not out:
         raise ForestError(f"{config.path}: lights: no light left (sun below the horizon and no sky)")
@@ -301,12 +274,8 @@ def terrain_dict(config, terrain, variant: str, colour_grid: np.ndarray | None =
 
     The returned object goes into a scene dict like any shape dict
     (``scene["terrain"] = terrain_dict(...)``).  Reflectance: see
-    :func:`terrain_reflectance`; when ``colour_grid`` is None and ``[maps]
-    colour`` is set, the map is read here (linear RGB, map convention).
+    :func:`terrain_reflectance` (``colour_grid``: the Scene's colour map, linear
+    RGB in the map convention, or None).
     """
-    if colour_grid is None and config.maps.colour is not None:
-        from ..images import read_map_rgb
-
-        colour_grid = read_map_rgb(config.maps.colour, what="colour map")
     bsdf = {"type": "diffuse", "reflectance": terrain_reflectance(config, terrain, variant, colour_grid)}
     return terrain_mesh(terrain, variant, bsdf)
