@@ -21,7 +21,9 @@ import numpy as np
 LOD_NAMES = ("high", "medium", "low", "far")
 
 
-def lod_levels(position: np.ndarray, camera: np.ndarray, distances, n_lods: np.ndarray) -> np.ndarray:
+def lod_levels(
+    position: np.ndarray, camera: np.ndarray, distances: tuple[float, ...] | list[float], n_lods: np.ndarray
+) -> np.ndarray:
     """Level per tree: k = #{dᵢ ≤ |p − c|}, clamped to ``n_lods − 1`` (the module's rule)."""
     position = np.asarray(position, dtype=np.float64)
     n_lods = np.asarray(n_lods)
@@ -29,7 +31,8 @@ def lod_levels(position: np.ndarray, camera: np.ndarray, distances, n_lods: np.n
         return np.zeros(len(position), dtype=np.int64)
     r = np.linalg.norm(position - np.asarray(camera, dtype=np.float64)[None, :], axis=1)
     k = np.searchsorted(np.asarray(distances, dtype=np.float64), r, side="right")
-    return np.minimum(k, n_lods - 1).astype(np.int64)
+    out: np.ndarray = np.minimum(k, n_lods - 1).astype(np.int64)
+    return out
 
 
 @dataclass(frozen=True)

@@ -33,11 +33,16 @@ from .camera import CameraState, camera_at
 from .config import Config
 from .errors import ConfigError, ForestError
 from .instances import InstanceSet, file_digest
+from .library import Library, Species
 from .lod import LodPlan
 from .maps import read_colour_map, sample_bilinear
 from .terrain import Terrain, load_terrain
 
 Progress = Callable[[float, str], None]
+
+
+def _silent(fraction: float, message: str = "") -> None:
+    """A progress callback that reports nothing."""
 
 
 @dataclass(frozen=True)
@@ -69,8 +74,8 @@ class Scene:
     terrain: Terrain
     instances: InstanceSet
     colour: ColourGrid | None
-    library: object  # forest.library.Library
-    species: tuple  # forest.library.Species per species index of the InstanceSet
+    library: Library
+    species: tuple[Species, ...]  # per species index of the InstanceSet
     lod: LodPlan
 
     @property
@@ -134,7 +139,7 @@ def _scattered_with(instances: InstanceSet, colour: ColourGrid | None) -> bool:
     return recorded == file_digest(colour.path)
 
 
-def resolve_species(config: Config, names: list[str], library) -> tuple:
+def resolve_species(config: Config, names: list[str], library: Library) -> tuple[Species, ...]:
     """The library species of each ``model`` in ``names``; a failure names ``species[i].model``."""
     models = [s.model for s in config.species]
     out = []
@@ -156,7 +161,7 @@ def load_scene(
     config: Config,
     instances: InstanceSet | str | Path | None = None,
     *,
-    library=None,
+    library: Library | None = None,
     progress: Progress | None = None,
 ) -> Scene:
     """Build the :class:`Scene` of ``config``.
@@ -165,7 +170,7 @@ def load_scene(
     config: species and the maps it was scattered from), or None to scatter now.
     ``library`` defaults to :func:`forest.library.open_library`.
     """
-    step = progress or (lambda f, m="": None)
+    step: Progress = progress or _silent
     step(0.0, "terrain")
     terrain = load_terrain(config.terrain, config.path)
     if instances is None or isinstance(instances, (str, Path)):

@@ -16,6 +16,7 @@ from __future__ import annotations
 import copy
 import re
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -69,7 +70,9 @@ class Config:
     paths are resolved against.
     """
 
-    def __init__(self, data: dict, path: Path | None = None, base_dir: Path | None = None, *, check_files: bool = True):
+    def __init__(
+        self, data: dict[str, Any], path: Path | None = None, base_dir: Path | None = None, *, check_files: bool = True
+    ):
         self.data = data
         self.path = path
         self.base_dir = Path(base_dir if base_dir is not None else (path.parent if path else Path.cwd()))
@@ -114,7 +117,7 @@ class Config:
 _KEY = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[(\d+)\])?")
 
 
-def apply_overrides(data: dict, overrides: dict[str, Any]) -> dict:
+def apply_overrides(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
     """A deep copy of TOML ``data`` with ``{"render.spp": 16, "species[0].percent": 40, …}`` set.
 
     Keys are dotted paths through tables, with ``[i]`` for an element of an
@@ -166,7 +169,7 @@ def _depth(value: Any, limit: int) -> int:
     return deepest
 
 
-def read_toml(text: str, path: Path | None = None) -> dict:
+def read_toml(text: str, path: Path | None = None) -> dict[str, Any]:
     """Parse scene-file TOML with the size and nesting limits; one :class:`ConfigError` line otherwise."""
     if len(text.encode("utf-8", "replace")) > MAX_CONFIG_BYTES:
         raise ConfigError(path, None, f"the config is over {MAX_CONFIG_BYTES // 1024} KiB")
@@ -181,7 +184,7 @@ def read_toml(text: str, path: Path | None = None) -> dict:
     return data
 
 
-def load_config(path: str | Path, overrides: dict | None = None) -> Config:
+def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> Config:
     """Read, parse and validate a TOML scene config.  Raises :class:`ForestError` on any problem."""
     path = Path(path)
     if not path.is_file():
@@ -196,7 +199,7 @@ def load_config(path: str | Path, overrides: dict | None = None) -> Config:
 
 
 def parse_config(
-    text: str, path: Path | None = None, base_dir: Path | None = None, overrides: dict | None = None
+    text: str, path: Path | None = None, base_dir: Path | None = None, overrides: dict[str, Any] | None = None
 ) -> Config:
     """Parse and validate TOML text (e.g. received by the job service) into a :class:`Config`."""
     data = read_toml(text, path)
@@ -217,7 +220,7 @@ def referenced_files(config: Config) -> list[Path]:
     return sorted({p for p in found if isinstance(p, Path) and p.is_file()})
 
 
-def rebase_paths(data: dict, base_dir: Path, out_dir: Path) -> dict:
+def rebase_paths(data: dict[str, Any], base_dir: Path, out_dir: Path) -> dict[str, Any]:
     """A copy of TOML ``data`` whose relative file fields (and mesh species) are relative to ``out_dir``.
 
     The fields are the schema's file fields (:func:`file_fields`) and
@@ -243,7 +246,7 @@ def rebase_paths(data: dict, base_dir: Path, out_dir: Path) -> dict:
     return out
 
 
-def _rewrite(node: Any, keys: list[str], fn) -> None:
+def _rewrite(node: Any, keys: list[str], fn: Callable[[Any], Any]) -> None:
     key = keys[0]
     if key.endswith("[]"):
         items = node.get(key[:-2]) if isinstance(node, dict) else None

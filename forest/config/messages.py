@@ -84,8 +84,8 @@ def first_error(error: ValidationError, data: Any) -> tuple[str | None, str]:
 
     if kind == "forest_field":
         sub = str(ctx["field"])
-        field = dotted(loc)
-        return (f"{field}.{sub}" if field else sub), e["msg"]
+        table = dotted(loc)
+        return (f"{table}.{sub}" if table else sub), e["msg"]
     if kind == "forest":
         return (dotted(loc) or None), e["msg"]
     if kind == "extra_forbidden":

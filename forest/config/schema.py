@@ -216,7 +216,7 @@ class PartitionsConfig(Section):
             "additionalProperties": False,
         },
     )
-    __pydantic_extra__: dict[str, Any] = Field(init=False)  # type: ignore[assignment]
+    __pydantic_extra__: dict[str, Any] = Field(init=False)
 
     tolerance: Annotated[Int, Field(ge=0, le=255)] = Field(
         24, description="Largest per-channel difference (8-bit) between a pixel and its label colour."
