@@ -8,7 +8,7 @@ applying that config reproduces these reference functions.
 
 ``standard``
     Clip to [0, 1], then the IEC 61966-2-1 sRGB encoding.  18 % grey → sRGB
-    code 0.4614 (118/255); everything above scene value 1.0 clips to white.
+    code 0.4614 (117.7/255); everything above scene value 1.0 clips to white.
 
 ``filmic``
     John Hable's filmic curve (“Filmic Tonemapping Operators”, GDC 2010; the

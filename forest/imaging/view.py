@@ -11,9 +11,9 @@ Where 18 % grey lands at exposure 0 (sRGB code values; ×255 for 8-bit):
 ========  =====================  ==============================================
 view      18 % grey →            highlights
 ========  =====================  ==============================================
-agx       0.500 (128/255)        roll off to white at +6.5 EV (scene 16.3)
-filmic    0.500 (128/255)        roll off to white at +4.1 EV (scene 3.12)
-standard  0.461 (118/255)        clip at scene 1.0 (+2.5 EV)
+agx       0.500 (127.5/255)      roll off to white at +6.5 EV (scene 16.3)
+filmic    0.500 (127.5/255)      roll off to white at +4.1 EV (scene 3.12)
+standard  0.461 (117.7/255)      clip at scene 1.0 (+2.5 EV)
 ========  =====================  ==============================================
 
 Each +1 EV of ``exposure`` doubles the scene values before the view, so grey at
