@@ -59,7 +59,8 @@ def murmurhash3_32(names: Sequence[str] | str, seed: int = 0) -> np.ndarray:
     the ``fmix32`` finaliser.  A single string gives a 0-d array.
     """
     single = isinstance(names, str)
-    encoded = [n.encode("utf-8") for n in ([names] if single else names)]
+    items: Sequence[str] = [names] if isinstance(names, str) else names
+    encoded = [n.encode("utf-8") for n in items]
     out = np.empty(len(encoded), dtype=np.uint32)
     lengths = np.array([len(b) for b in encoded], dtype=np.int64)
     with np.errstate(over="ignore"):
@@ -165,7 +166,7 @@ def _top(ids: np.ndarray, w: np.ndarray, keep: int) -> tuple[np.ndarray, np.ndar
     np.maximum.accumulate(start_idx, axis=1, out=start_idx)
     start = np.take_along_axis(before, start_idx, axis=1)  # csum just before each run's first sample
     run = np.where(last & (sid != NONE), csum - start, -1.0)
-    rank = np.lexsort((sid, -run), axis=1)[:, :keep]
+    rank = np.argsort(-run, axis=1, kind="stable")[:, :keep]  # ids ascending already: ties keep the smaller id
     top_w = np.take_along_axis(run, rank, axis=1)
     top_id = np.take_along_axis(sid, rank, axis=1)
     empty = top_w <= 0.0
@@ -221,16 +222,33 @@ class CoverageAccumulator:
         return Ranking(ids=ids.copy(), coverage=cov)
 
 
-def rank_coverage(ids: np.ndarray, weights: np.ndarray | None = None, *, ranks: int = DEFAULT_RANKS) -> Ranking:
+def rank_coverage(
+    ids: np.ndarray, weights: np.ndarray | None = None, *, ranks: int = DEFAULT_RANKS, rows_per_chunk: int = 64
+) -> Ranking:
     """The ranking filter over all samples at once: ``ids (H, W[, S])``, ``weights`` alike (default 1).
 
     Also takes per-pixel lists that are already summed (IDs with their coverage
-    as weights): equal IDs are merged either way.
+    as weights): equal IDs are merged either way.  Works on ``rows_per_chunk``
+    image rows at a time (memory ≈ rows·W·S·40 bytes).
     """
     ids, w = _as_samples(ids, weights)
-    acc = CoverageAccumulator(ids.shape[0], ids.shape[1], keep=max(ranks, 1))
-    acc.add(ids, w)
-    return acc.ranking(ranks)
+    h, width, s = ids.shape
+    total = w.sum(axis=2)
+    out_ids = np.full((h, width, ranks), NONE, dtype=np.int64)
+    out_cov = np.zeros((h, width, ranks), dtype=np.float32)
+    if s == 1:  # one sample per pixel (a pixel-centre id pass): the id covers the pixel
+        hit = (ids[..., 0] != NONE) & (w[..., 0] > 0)
+        if ranks:
+            out_ids[..., 0] = np.where(hit, ids[..., 0], NONE)
+            out_cov[..., 0] = hit
+        return Ranking(ids=out_ids, coverage=out_cov)
+    for r0 in range(0, h, rows_per_chunk):
+        r1 = min(h, r0 + rows_per_chunk)
+        top_id, top_w = _top(ids[r0:r1].reshape(-1, s), w[r0:r1].reshape(-1, s), ranks)
+        norm = np.where(total[r0:r1] > 0, total[r0:r1], 1.0).reshape(-1, 1)
+        out_ids[r0:r1] = top_id.reshape(r1 - r0, width, ranks)
+        out_cov[r0:r1] = (top_w / norm).reshape(r1 - r0, width, ranks)
+    return Ranking(ids=out_ids, coverage=out_cov)
 
 
 # ------------------------------------------------------------------ encoding

@@ -97,7 +97,7 @@ def to_display(rgb: np.ndarray, view: str = DEFAULT_VIEW, exposure: float = 0.0)
     arr = np.asarray(rgb)
     if arr.ndim < 1 or arr.shape[-1] < 3:
         raise ValueError(f"to_display needs (..., 3) RGB, got shape {arr.shape}")
-    out = np.nan_to_num(arr[..., :3], nan=0.0, posinf=np.finfo(np.float32).max, neginf=0.0)
+    out = np.nan_to_num(arr[..., :3], nan=0.0, posinf=float(np.finfo(np.float32).max), neginf=0.0)
     out = np.ascontiguousarray(out, dtype=np.float32)
     if out.size:
         flat = out.reshape(-1, 3)
