@@ -322,6 +322,12 @@ def test_with_a_background_the_rgba_goes_over_the_sky_to_give_the_beauty(tmp_pat
     assert "premultiplied" in str(header["forest:layers"])
 
 
+def test_tree_ids_that_a_float32_channel_would_round_are_refused(tmp_path):
+    with pytest.raises(ValueError, match="id.Z"):
+        write_comp_exr(tmp_path / "f.exr", np.zeros((2, 2, 3)), tree_id=np.full((2, 2), 2**24 + 1))
+    assert not (tmp_path / "f.exr").exists()
+
+
 def test_camera_matrices_follow_openexr_conventions_against_mitsubas_camera():
     from forest.camera import look_at_matrix
     from forest.runtime import mitsuba

@@ -41,6 +41,10 @@ CONVERSION = "uint32_to_float32"
 DEFAULT_RANKS = 6
 NONE = -1
 """The sample ID of a sample that hit nothing (sky, background)."""
+TREE_MATTE = "CryptoObject"
+"""Type name of the per-tree Cryptomatte (names ``<species>/<tree id>``)."""
+SPECIES_MATTE = "CryptoAsset"
+"""Type name of the per-species Cryptomatte (a species is the library asset a tree instances)."""
 
 _C1, _C2 = np.uint32(0xCC9E2D51), np.uint32(0x1B873593)
 _M1, _M2 = np.uint32(0x85EBCA6B), np.uint32(0xC2B2AE35)
@@ -406,8 +410,8 @@ def forest_mattes(
     table: TreeTable,
     *,
     ranks: int = DEFAULT_RANKS,
-    tree_type: str = "CryptoObject",
-    species_type: str = "CryptoAsset",
+    tree_type: str = TREE_MATTE,
+    species_type: str = SPECIES_MATTE,
 ) -> tuple[Cryptomatte, Cryptomatte]:
     """Per-tree and per-species Cryptomattes from per-sample IDs ``(H, W[, S])`` and weights."""
     trees = encode(tree_type, rank_coverage(sample_ids, weights, ranks=ranks), table.tree_names)

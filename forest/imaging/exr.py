@@ -8,7 +8,7 @@ One single-part EXR (ZIP, float32 unless asked) with these channels:
 ``background.R, G, B``      (optional) the sky seen directly; then ``RGB`` holds the foreground
                             only, premultiplied by ``A``, and ``RGB + background = beauty``
 ``depth.Z``                 distance along the camera ray to the first hit, metres
-``id.Z``                    tree id (InstanceSet ``id``), −1 where no tree
+``id.Z``                    tree id (InstanceSet ``id``, exact up to 2²⁴), −1 where no tree
 ``species.Z``               species index into the header's ``forest:species_names``, −1 none
 ``CryptoObject00 … .RGBA``  Cryptomatte of individual trees (names ``<species>/<tree id>``)
 ``CryptoAsset00 … .RGBA``   Cryptomatte of species (names = species names)
@@ -44,8 +44,8 @@ from .ocio_config import SCENE_LINEAR_INTEROP_ID
 REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
 """OpenEXR ``chromaticities``: red xy, green xy, blue xy, white xy (ITU-R BT.709, D65)."""
 
-TREE_MATTE = "CryptoObject"
-SPECIES_MATTE = "CryptoAsset"
+FLOAT32_EXACT = 2**24
+"""Integers up to this are exact in the float32 ``id.Z`` / ``species.Z`` channels."""
 
 
 def colour_space_header() -> dict[str, object]:
@@ -109,6 +109,9 @@ def write_comp_exr(
     if bg is not None:
         for i, c in enumerate("RGB"):
             channels[f"background.{c}"] = bg[..., i]
+    for name, arr in (("id.Z", tree_id), ("species.Z", species)):
+        if arr is not None and np.abs(np.asarray(arr, dtype=np.float64)).max(initial=0.0) > FLOAT32_EXACT:
+            raise ValueError(f"{name}: ids above {FLOAT32_EXACT} do not survive a float32 channel")
     for name, arr in (("depth.Z", depth), ("id.Z", tree_id), ("species.Z", species)):
         p = _plane(name, arr, shape)
         if p is not None:
