@@ -323,7 +323,7 @@ def test_with_a_background_the_rgba_goes_over_the_sky_to_give_the_beauty(tmp_pat
 
 
 def test_tree_ids_that_a_float32_channel_would_round_are_refused(tmp_path):
-    with pytest.raises(ValueError, match="id.Z"):
+    with pytest.raises(ValueError, match=r"id\.Z"):
         write_comp_exr(tmp_path / "f.exr", np.zeros((2, 2, 3)), tree_id=np.full((2, 2), 2**24 + 1))
     assert not (tmp_path / "f.exr").exists()
 
