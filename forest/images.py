@@ -222,13 +222,15 @@ def write_exr_channels(
     *,
     attributes: dict | None = None,
     half: frozenset[str] | set[str] = frozenset(),
+    compression: str = "zip",
 ) -> Path:
     """Write named ``(H, W)`` channels (``{"R": …, "depth.Z": …, "CryptoObject00.R": …}``) to one EXR, atomically.
 
-    Channels are float32 except those named in ``half``.  ZIP compression, no
-    time stamp and sorted header attributes (see :func:`_set_attributes`), so
-    the same pixels and attributes give a byte-identical file.  An ``A``
-    channel is flagged as the image's alpha.
+    Channels are float32 except those named in ``half``.  Lossless
+    ``compression`` (OpenEXR's ``zip`` by default; ``zip:1`` is the fastest zlib
+    level), no time stamp and sorted header attributes (see
+    :func:`_set_attributes`), so the same pixels and attributes give a
+    byte-identical file.  An ``A`` channel is flagged as the image's alpha.
     """
     oiio = _oiio()
     path = Path(path)
@@ -246,7 +248,7 @@ def write_exr_channels(
     spec.channelformats = tuple(oiio.TypeDesc(oiio.HALF if n in half else oiio.FLOAT) for n in names)
     if "A" in names:
         spec.alpha_channel = names.index("A")
-    spec.attribute("compression", "zip")
+    spec.attribute("compression", compression)
     spec.attribute("DateTime", "")  # no time stamp: byte-identical files
     _set_attributes(spec, attributes)
     with atomic_path(path) as tmp:

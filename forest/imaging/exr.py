@@ -1,6 +1,6 @@
 """The comp-ready EXR of a frame: beauty with alpha, data layers, Cryptomattes and a header a compositor trusts.
 
-One single-part EXR (ZIP, float32 unless asked) with these channels:
+One single-part EXR (lossless ZIP at zlib level 1, float32 unless asked) with these channels:
 
 ==========================  =====================================================================
 ``R, G, B, A``              scene-linear beauty (Rec.709 primaries, D65) with alpha = coverage of
@@ -130,7 +130,9 @@ def write_comp_exr(
     header["forest:layers"] = _describe(channels, background is not None, [m.type_name for m in mattes])
     header.update(attributes or {})
     half = {c for c in channels if c in ("R", "G", "B", "A") or c.startswith("background.")} if half_beauty else set()
-    return write_exr_channels(path, channels, attributes=header, half=half)
+    # zlib level 1: Cryptomatte IDs are high-entropy floats that the default level compresses no
+    # better (+0.3 % bytes) at 1.5× the time (measured at 1920×1080 by bench/bench_imaging.py).
+    return write_exr_channels(path, channels, attributes=header, half=half, compression="zip:1")
 
 
 def _describe(channels: Mapping[str, np.ndarray], split_background: bool, mattes: Sequence[str]) -> str:
