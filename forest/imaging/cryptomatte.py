@@ -123,52 +123,61 @@ def layer_key(type_name: str) -> str:
 
 @dataclass(frozen=True)
 class Ranking:
-    """Per-pixel IDs by coverage: ``ids (H, W, R)`` int64 (:data:`NONE` where empty), ``coverage (H, W, R)``."""
+    """Per-pixel IDs by coverage: ``ids (H, W, R)`` signed ints (:data:`NONE` where empty), ``coverage (H, W, R)``."""
 
     ids: np.ndarray
     coverage: np.ndarray
 
 
-def _as_samples(ids: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+def _as_samples(ids: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Sample IDs as a signed (H, W, S) array and weights alike as float64 (None: all samples weigh 1)."""
     ids = np.asarray(ids)
     if ids.ndim == 2:
         ids = ids[..., None]
     if ids.ndim != 3 or ids.dtype.kind not in "iu":
         raise ValueError(f"sample ids must be an integer (H, W) or (H, W, S) array, got {ids.dtype} {ids.shape}")
+    if ids.dtype.kind == "u" or ids.dtype.itemsize < 4:
+        ids = ids.astype(np.int64)
     if weights is None:
-        w = np.ones(ids.shape, dtype=np.float64)
-    else:
-        w = np.asarray(weights, dtype=np.float64)
-        if w.ndim == 2:
-            w = w[..., None]
-        if w.shape != ids.shape:
-            raise ValueError(f"weights {w.shape} must match sample ids {ids.shape}")
-        if not np.isfinite(w).all() or (w < 0).any():
-            raise ValueError("sample weights must be finite and non-negative")
-    return ids.astype(np.int64, copy=False), w
+        return ids, None
+    w = np.asarray(weights, dtype=np.float64)
+    if w.ndim == 2:
+        w = w[..., None]
+    if w.shape != ids.shape:
+        raise ValueError(f"weights {w.shape} must match sample ids {ids.shape}")
+    if not np.isfinite(w).all() or (w < 0).any():
+        raise ValueError("sample weights must be finite and non-negative")
+    return ids, w
 
 
-def _top(ids: np.ndarray, w: np.ndarray, keep: int) -> tuple[np.ndarray, np.ndarray]:
+def _top(ids: np.ndarray, w: np.ndarray | None, keep: int) -> tuple[np.ndarray, np.ndarray]:
     """Sum equal IDs along the last axis and keep the ``keep`` largest sums (ties: smaller ID first).
 
-    ``ids``/``w`` are (P, S); :data:`NONE` entries are dropped.  Returns (P, keep)
-    IDs (NONE-padded) and their summed weights (0-padded).
+    ``ids``/``w`` are (P, S) (``w`` None: every sample weighs 1); :data:`NONE`
+    entries are dropped.  Sorting each row by ID makes equal IDs runs; a run's
+    sum is the cumulative weight at its last sample minus that just before its
+    first.  Returns (P, keep) IDs (NONE-padded) and their sums (0-padded).
     """
     p, s = ids.shape
-    order = np.argsort(ids, axis=1, kind="stable")
-    sid = np.take_along_axis(ids, order, axis=1)
-    sw = np.take_along_axis(w, order, axis=1)
-    csum = np.cumsum(sw, axis=1)
+    if w is None:
+        sid = np.sort(ids, axis=1)
+        csum = np.broadcast_to(np.arange(1.0, s + 1.0), (p, s))
+    else:
+        order = np.argsort(ids, axis=1, kind="stable")
+        sid = np.take_along_axis(ids, order, axis=1)
+        csum = np.cumsum(np.take_along_axis(w, order, axis=1), axis=1)
+    change = sid[:, 1:] != sid[:, :-1]
     last = np.ones((p, s), dtype=bool)
-    last[:, :-1] = sid[:, 1:] != sid[:, :-1]
-    # sum of a run = csum at its last element − csum just before its first element
-    first = np.ones((p, s), dtype=bool)
-    first[:, 1:] = sid[:, 1:] != sid[:, :-1]
-    before = np.zeros((p, s))
-    before[:, 1:] = csum[:, :-1]
-    start_idx = np.where(first, np.arange(s)[None, :], 0)
-    np.maximum.accumulate(start_idx, axis=1, out=start_idx)
-    start = np.take_along_axis(before, start_idx, axis=1)  # csum just before each run's first sample
+    last[:, :-1] = change
+    start_idx = np.zeros((p, s), dtype=np.intp)
+    start_idx[:, 1:] = np.where(change, np.arange(1, s)[None, :], 0)
+    np.maximum.accumulate(start_idx, axis=1, out=start_idx)  # index of each run's first sample
+    if w is None:
+        start = start_idx.astype(np.float64)
+    else:
+        before = np.zeros((p, s))
+        before[:, 1:] = csum[:, :-1]
+        start = np.take_along_axis(before, start_idx, axis=1)
     run = np.where(last & (sid != NONE), csum - start, -1.0)
     rank = np.argsort(-run, axis=1, kind="stable")[:, :keep]  # ids ascending already: ties keep the smaller id
     top_w = np.take_along_axis(run, rank, axis=1)
@@ -205,6 +214,8 @@ class CoverageAccumulator:
         ids, w = _as_samples(ids, weights)
         if ids.shape[:2] != (self.height, self.width):
             raise ValueError(f"samples are {ids.shape[:2]}, the accumulator is {(self.height, self.width)}")
+        if w is None:
+            w = np.ones(ids.shape, dtype=np.float64)
         self.total += w.sum(axis=2)
         for r0 in range(0, self.height, self.rows_per_chunk):
             r1 = min(self.height, r0 + self.rows_per_chunk)
@@ -237,18 +248,21 @@ def rank_coverage(
     """
     ids, w = _as_samples(ids, weights)
     h, width, s = ids.shape
-    total = w.sum(axis=2)
-    out_ids = np.full((h, width, ranks), NONE, dtype=np.int64)
+    total = np.full((h, width), float(s)) if w is None else w.sum(axis=2)
+    out_ids = np.full((h, width, ranks), NONE, dtype=ids.dtype)
     out_cov = np.zeros((h, width, ranks), dtype=np.float32)
     if s == 1:  # one sample per pixel (a pixel-centre id pass): the id covers the pixel
-        hit = (ids[..., 0] != NONE) & (w[..., 0] > 0)
+        hit = ids[..., 0] != NONE
+        if w is not None:
+            hit &= w[..., 0] > 0
         if ranks:
             out_ids[..., 0] = np.where(hit, ids[..., 0], NONE)
             out_cov[..., 0] = hit
         return Ranking(ids=out_ids, coverage=out_cov)
     for r0 in range(0, h, rows_per_chunk):
         r1 = min(h, r0 + rows_per_chunk)
-        top_id, top_w = _top(ids[r0:r1].reshape(-1, s), w[r0:r1].reshape(-1, s), ranks)
+        chunk_w = None if w is None else w[r0:r1].reshape(-1, s)
+        top_id, top_w = _top(ids[r0:r1].reshape(-1, s), chunk_w, ranks)
         norm = np.where(total[r0:r1] > 0, total[r0:r1], 1.0).reshape(-1, 1)
         out_ids[r0:r1] = top_id.reshape(r1 - r0, width, ranks)
         out_cov[r0:r1] = (top_w / norm).reshape(r1 - r0, width, ranks)
