@@ -132,6 +132,11 @@ def test_the_exr_colour_space_name_resolves_in_the_config():
     assert cfg.getColorSpace(ocio_config.SCENE_LINEAR_INTEROP_ID).getName() == ocio_config.SCENE_LINEAR
     assert cfg.getColorSpace("scene_linear").getName() == ocio_config.SCENE_LINEAR
     assert set(cfg.getViews(ocio_config.DISPLAY)) >= set(ocio_config.VIEW_NAMES.values())
+    # and OCIO's own studio config reads the EXR's colour-space name as the same space
+    import PyOpenColorIO as OCIO
+
+    studio = OCIO.Config.CreateFromFile("ocio://studio-config-latest")
+    assert studio.getColorSpace(ocio_config.SCENE_LINEAR_INTEROP_ID).getName() == ocio_config.SCENE_LINEAR
 
 
 @pytest.mark.parametrize("bits", [8, 16])

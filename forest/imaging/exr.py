@@ -18,8 +18,9 @@ Header (besides the caller's ``forest:*`` attributes):
 
 - ``chromaticities`` — Rec.709 primaries and D65 white (OpenEXR standard attribute);
 - ``colorInteropID`` = ``lin_rec709_scene`` — the Color Interop Forum name of the
-  colour space, which forest's OCIO config (and the ASWF studio configs) resolve
-  to scene-linear Rec.709; written through OpenImageIO's ``oiio:ColorSpace``;
+  colour space, which forest's OCIO config and OCIO's built-in studio config
+  (``ocio://studio-config-latest``) both resolve to ``Linear Rec.709 (sRGB)``;
+  written through OpenImageIO's ``oiio:ColorSpace``;
 - ``worldToCamera``, ``worldToNDC`` — see :mod:`forest.imaging.camera_matrices`;
 - ``forest:species_names`` — JSON list, index = the ``species`` channel's value;
 - ``cryptomatte/<key>/…`` — see :mod:`forest.imaging.cryptomatte`;
