@@ -277,12 +277,7 @@ Names = Sequence[str] | Mapping[int, str] | Callable[[np.ndarray], Sequence[str]
 
 
 def _lookup(names: Names, ids: np.ndarray) -> list[str]:
-    if callable(names):
-        out = list(names(ids))
-    elif isinstance(names, Mapping):
-        out = [names[int(i)] for i in ids]
-    else:
-        out = [names[int(i)] for i in ids]
+    out = list(names(ids)) if callable(names) else [names[int(i)] for i in ids]
     if len(out) != len(ids):
         raise ValueError("the name table returned a different number of names than IDs")
     return [str(n) for n in out]
