@@ -80,6 +80,15 @@ def test_tone_curves_are_monotonic_neutral_and_reach_white():
     assert to_display(np.full(3, 0.18 * 2**4.2), "filmic")[0] == pytest.approx(1.0, abs=1e-4)
 
 
+def test_stray_samples_never_poison_the_picture():
+    bad = np.array([[np.nan, 0.18, 0.18], [np.inf, 0.18, 0.18], [-1.0, 0.18, 0.18], [1e30, 1e30, 1e30]], np.float32)
+    for view in ("agx", "filmic", "standard"):
+        out = to_display(bad, view)
+        assert np.isfinite(out).all() and out.min() >= 0.0 and out.max() <= 1.0
+        assert out[0, 0] == out[2, 0] == pytest.approx(to_display(np.array([0.0, 0.18, 0.18]), view)[0], abs=1e-6)
+        assert out[3] == pytest.approx([1.0, 1.0, 1.0], abs=1e-4)
+
+
 def test_agx_takes_over_exposed_colour_to_white_instead_of_a_pure_primary():
     red = np.array([[1.0, 0.0, 0.0]], dtype=np.float32)
     assert to_display(red * 50.0, "standard")[0] == pytest.approx([1.0, 0.0, 0.0])
