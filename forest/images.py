@@ -122,7 +122,14 @@ def to_rgb(img: np.ndarray) -> np.ndarray:
 
 
 def _set_attributes(spec, attributes: dict | None) -> None:
-    """Header metadata in sorted order (booleans as 0/1); no timestamps, so files are byte-identical."""
+    """Header metadata in sorted order; no timestamps, so files are byte-identical.
+
+    Booleans are written as 0/1, ints and floats as themselves, a 4×4 array as
+    a matrix (OpenEXR ``m44f``, stored in the order given), any other float
+    array or tuple of floats as ``float[n]`` (e.g. ``chromaticities``), the rest
+    as strings.
+    """
+    oiio = _oiio()
     for key, value in sorted((attributes or {}).items()):
         if isinstance(value, (bool, np.bool_)):
             value = int(value)
@@ -130,6 +137,13 @@ def _set_attributes(spec, attributes: dict | None) -> None:
             spec.attribute(key, int(value))
         elif isinstance(value, (float, np.floating)):
             spec.attribute(key, float(value))
+        elif isinstance(value, (np.ndarray, tuple)) and np.asarray(value).dtype.kind == "f":
+            arr = np.asarray(value, dtype=np.float32)
+            floats = tuple(float(v) for v in arr.ravel())
+            if arr.shape == (4, 4):
+                spec.attribute(key, oiio.TypeMatrix, floats)
+            else:
+                spec.attribute(key, oiio.TypeDesc(f"float[{len(floats)}]"), floats)
         else:
             spec.attribute(key, str(value))
 
@@ -187,9 +201,7 @@ def write_image(path: str | Path, pixels: np.ndarray, *, attributes: dict | None
 
 def write_multilayer_exr(path: str | Path, layers: dict[str, np.ndarray], *, attributes: dict | None = None) -> Path:
     """Write several named layers (``{"": rgb, "depth": z, …}``) into one float EXR, atomically."""
-    oiio = _oiio()
-    path = Path(path)
-    names, chans = [], []
+    channels: dict[str, np.ndarray] = {}
     for layer, arr in layers.items():
         arr = np.asarray(arr, dtype=np.float32)
         if arr.ndim == 2:
@@ -200,18 +212,111 @@ def write_multilayer_exr(path: str | Path, layers: dict[str, np.ndarray], *, att
             else (("Z",) if arr.shape[2] == 1 else tuple(f"c{i}" for i in range(arr.shape[2])))
         )
         for i, b in enumerate(base):
-            names.append(f"{layer}.{b}" if layer else b)
-            chans.append(arr[..., i])
-    data = np.stack(chans, axis=2)
-    h, w, c = data.shape
-    spec = oiio.ImageSpec(w, h, c, oiio.FLOAT)
+            channels[f"{layer}.{b}" if layer else b] = arr[..., i]
+    return write_exr_channels(path, channels, attributes=attributes)
+
+
+def write_exr_channels(
+    path: str | Path,
+    channels: dict[str, np.ndarray],
+    *,
+    attributes: dict | None = None,
+    half: frozenset[str] | set[str] = frozenset(),
+    compression: str = "zip",
+) -> Path:
+    """Write named ``(H, W)`` channels (``{"R": …, "depth.Z": …, "CryptoObject00.R": …}``) to one EXR, atomically.
+
+    Channels are float32 except those named in ``half``.  Lossless
+    ``compression`` (OpenEXR's ``zip`` by default; ``zip:1`` is the fastest zlib
+    level), no time stamp and sorted header attributes (see
+    :func:`_set_attributes`), so the same pixels and attributes give a
+    byte-identical file.  An ``A`` channel is flagged as the image's alpha.
+    """
+    oiio = _oiio()
+    path = Path(path)
+    if not channels:
+        raise ValueError("write_exr_channels needs at least one channel")
+    names = list(channels)
+    planes = [np.asarray(channels[n], dtype=np.float32) for n in names]
+    shape = planes[0].shape
+    if len(shape) != 2 or any(p.shape != shape for p in planes):
+        raise ValueError(f"every channel must be one (H, W) plane of the same size: {[p.shape for p in planes]}")
+    h, w = shape
+    data = np.stack(planes, axis=2)
+    spec = oiio.ImageSpec(w, h, len(names), oiio.FLOAT)
     spec.channelnames = tuple(names)
-    spec.attribute("compression", "zip")
+    spec.channelformats = tuple(oiio.TypeDesc(oiio.HALF if n in half else oiio.FLOAT) for n in names)
+    if "A" in names:
+        spec.alpha_channel = names.index("A")
+    spec.attribute("compression", compression)
     spec.attribute("DateTime", "")  # no time stamp: byte-identical files
     _set_attributes(spec, attributes)
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec) or not out.write_image(np.ascontiguousarray(data)):
+            raise ForestError(f"{path}: cannot write image: {oiio.geterror()}")
+        out.close()
+    return path
+
+
+def read_exr_channels(path: str | Path, *, what: str = "EXR") -> tuple[dict[str, np.ndarray], dict[str, object]]:
+    """Every channel of an EXR as float32 ``(H, W)`` planes by name, and its header attributes.
+
+    Matrices come back as 4×4 float64 arrays in the file's order, float arrays
+    as tuples.  Raises :class:`ForestError` for a missing or unreadable file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ForestError(f"{path}: {what} not found")
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ForestError(f"{path}: cannot read {what}: {oiio.geterror() or 'unknown format'}")
+    try:
+        spec = inp.spec()
+        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        if data is None or not hasattr(data, "shape"):
+            raise ForestError(f"{path}: cannot read {what}: {inp.geterror() or 'corrupt data'}")
+        data = np.asarray(data, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
+        attrs: dict[str, object] = {}
+        for a in spec.extra_attribs:
+            value = a.value
+            if str(a.type) in ("matrix", "matrix44"):
+                value = np.asarray(value, dtype=np.float64).reshape(4, 4)
+            attrs[a.name] = value
+    finally:
+        inp.close()
+    return {name: data[..., i] for i, name in enumerate(spec.channelnames)}, attrs
+
+
+def write_encoded_image(path: str | Path, pixels: np.ndarray, *, attributes: dict | None = None) -> Path:
+    """Write already display-encoded ``uint8``/``uint16`` pixels ``(H, W, C)`` to a PNG/TIFF as they are, atomically.
+
+    Unlike :func:`write_image` nothing is converted: the values are the code
+    values a view transform produced (:func:`forest.imaging.to_display`).
+    """
+    oiio = _oiio()
+    path = Path(path)
+    pixels = np.asarray(pixels)
+    if pixels.ndim == 2:
+        pixels = pixels[..., None]
+    if pixels.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"write_encoded_image takes uint8 or uint16 pixels, not {pixels.dtype}")
+    ext = path.suffix.lower()
+    if ext not in (".png", ".tif", ".tiff"):
+        raise ForestError(f"{path}: unsupported format {ext or '(none)'} for a display image; use .png")
+    h, w, c = pixels.shape
+    spec = oiio.ImageSpec(w, h, c, oiio.UINT8 if pixels.dtype == np.uint8 else oiio.UINT16)
+    if c == 4:
+        spec.channelnames = ("R", "G", "B", "A")
+        spec.alpha_channel = 3
+    if ext == ".png":
+        spec.attribute("png:compressionLevel", 6)
+    spec.attribute("oiio:ColorSpace", "srgb_rec709_display")
+    _set_attributes(spec, attributes)
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None or not out.open(str(tmp), spec) or not out.write_image(np.ascontiguousarray(pixels)):
             raise ForestError(f"{path}: cannot write image: {oiio.geterror()}")
         out.close()
     return path

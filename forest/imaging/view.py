@@ -1,0 +1,137 @@
+"""The view transform: scene-linear renders → sRGB display pictures, through OpenColorIO.
+
+``to_display(rgb, view="agx", exposure=0.0)`` multiplies the scene-linear image by
+``2^exposure`` (OCIO's ExposureContrastTransform, linear style) and applies the
+``sRGB`` display's view from forest's shipped OCIO config (see
+:mod:`forest.imaging.curves` for the maths and :mod:`forest.imaging.ocio_config`
+for the config), on OCIO's CPU processor over the whole numpy array.
+
+Where 18 % grey lands at exposure 0 (sRGB code values; ×255 for 8-bit):
+
+========  =====================  ==============================================
+view      18 % grey →            highlights
+========  =====================  ==============================================
+agx       0.500 (127.5/255)      roll off to white at +6.5 EV (scene 16.3)
+filmic    0.500 (127.5/255)      roll off to white at +4.1 EV (scene 3.12)
+standard  0.461 (117.7/255)      clip at scene 1.0 (+2.5 EV)
+========  =====================  ==============================================
+
+Each +1 EV of ``exposure`` doubles the scene values before the view, so grey at
++1 EV is the value grey·2 has at 0 EV.  Only display pictures (PNG, previews) go
+through a view; the EXR stays scene-linear and says so in its header.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError
+from . import ocio_config as _cfg
+
+VIEWS = ("agx", "filmic", "standard")
+"""The values ``[render] view`` accepts."""
+DEFAULT_VIEW = "agx"
+EXPOSURE_RANGE = (-10.0, 10.0)
+"""The exposures (EV) ``[render] exposure`` accepts: ±10 stops covers any sane render
+(beyond it the image is a flat black or white in every view)."""
+
+CONFIG_PATH = Path(__file__).resolve().parent / "ocio" / "config.ocio"
+"""forest's shipped OCIO config (package data)."""
+
+
+def check_view(view: Any, *, path: str | Path | None = None, field: str = "render.view") -> str:
+    """``view`` as one of :data:`VIEWS` (case-insensitive), or :class:`ConfigError` naming ``field``."""
+    if not isinstance(view, str) or view.strip().lower() not in VIEWS:
+        raise ConfigError(path, field, f"unknown view {view!r}; use one of {', '.join(VIEWS)}")
+    return view.strip().lower()
+
+
+def check_exposure(exposure: Any, *, path: str | Path | None = None, field: str = "render.exposure") -> float:
+    """``exposure`` as a float in :data:`EXPOSURE_RANGE`, or :class:`ConfigError` naming ``field``."""
+    lo, hi = EXPOSURE_RANGE
+    if isinstance(exposure, bool) or not isinstance(exposure, (int, float, np.integer, np.floating)):
+        raise ConfigError(path, field, f"exposure must be a number of stops (EV), not {exposure!r}")
+    value = float(exposure)
+    if not math.isfinite(value) or not lo <= value <= hi:
+        raise ConfigError(path, field, f"exposure {exposure!r} EV is out of range; use {lo:g} to {hi:g}")
+    return value
+
+
+@functools.lru_cache(maxsize=1)
+def load_ocio_config():
+    """forest's OCIO config (``PyOpenColorIO.Config``), loaded once."""
+    import PyOpenColorIO as OCIO
+
+    return OCIO.Config.CreateFromFile(str(CONFIG_PATH))
+
+
+@functools.lru_cache(maxsize=32)
+def _processor(view: str, exposure: float):
+    import PyOpenColorIO as OCIO
+
+    group = OCIO.GroupTransform(
+        [
+            OCIO.ExposureContrastTransform(style=OCIO.EXPOSURE_CONTRAST_LINEAR, exposure=exposure),
+            OCIO.DisplayViewTransform(src=_cfg.SCENE_LINEAR, display=_cfg.DISPLAY, view=_cfg.VIEW_NAMES[view]),
+        ]
+    )
+    return load_ocio_config().getProcessor(group).getDefaultCPUProcessor()
+
+
+def to_display(rgb: np.ndarray, view: str = DEFAULT_VIEW, exposure: float = 0.0) -> np.ndarray:
+    """Scene-linear Rec.709 RGB ``(..., 3|4)`` → sRGB display code values, float32 in [0, 1].
+
+    Only the first three channels are transformed (an alpha channel is dropped).
+    NaN becomes 0 and +inf the largest float first, so a stray sample never
+    poisons the picture.  Raises :class:`ConfigError` for an unknown ``view``
+    or an ``exposure`` outside :data:`EXPOSURE_RANGE`.
+    """
+    view = check_view(view)
+    exposure = check_exposure(exposure)
+    arr = np.asarray(rgb)
+    if arr.ndim < 1 or arr.shape[-1] < 3:
+        raise ValueError(f"to_display needs (..., 3) RGB, got shape {arr.shape}")
+    out = np.nan_to_num(arr[..., :3], nan=0.0, posinf=float(np.finfo(np.float32).max), neginf=0.0)
+    out = np.ascontiguousarray(out, dtype=np.float32)
+    if out.size:
+        flat = out.reshape(-1, 3)
+        _processor(view, exposure).applyRGB(flat)
+    return np.clip(out, 0.0, 1.0, out=out)
+
+
+def quantise(display: np.ndarray, bits: int = 8) -> np.ndarray:
+    """Display code values in [0, 1] → ``uint8`` (bits = 8) or ``uint16`` (bits = 16), rounded to nearest."""
+    if bits not in (8, 16):
+        raise ValueError("bits must be 8 or 16")
+    top = (1 << bits) - 1
+    q = np.rint(np.clip(display, 0.0, 1.0) * top)
+    return q.astype(np.uint8 if bits == 8 else np.uint16)
+
+
+def write_display(
+    path: str | Path,
+    rgb: np.ndarray,
+    *,
+    view: str = DEFAULT_VIEW,
+    exposure: float = 0.0,
+    bits: int = 8,
+    attributes: dict | None = None,
+) -> Path:
+    """Write the view of scene-linear ``rgb`` to a PNG (8 or 16 bit), atomically.
+
+    The header records the view and exposure (``forest:view``, ``forest:exposure``).
+    """
+    from ..images import write_encoded_image
+
+    display = to_display(rgb, view, exposure)
+    attrs = {"forest:view": check_view(view), "forest:exposure": float(exposure), **(attributes or {})}
+    return write_encoded_image(path, quantise(display, bits), attributes=attrs)
+
+
+os.environ.setdefault("OCIO_LOGGING_LEVEL", "warning")
