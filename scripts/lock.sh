@@ -5,5 +5,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 "$PY" -m pip install -q uv
-"$PY" -m uv pip compile pyproject.toml --extra service --extra test --extra ray --extra dev \
+"$PY" -m uv pip compile pyproject.toml --extra service --extra test --extra ray --extra dev --extra denoise \
     --python-version 3.11 --python-platform x86_64-manylinux_2_28 --no-header --quiet -o requirements.lock
