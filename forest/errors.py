@@ -26,3 +26,7 @@ class ConfigError(ForestError):
         self.message = message
         parts = [p for p in (self.path, field) if p]
         super().__init__(": ".join(parts + [message]))
+
+
+class ForestWarning(UserWarning):
+    """Something a user should know that does not stop the work: the CLI prints it as one line."""

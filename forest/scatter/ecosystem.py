@@ -1,0 +1,214 @@
+"""The ecosystem survival rule: plants placed by competition and self-thinning.
+
+In the spirit of Deussen et al. 1998 ("Realistic modeling and rendering of
+plant ecosystems", §3): every plant is a circle — its zone of influence — that
+grows; where two circles overlap the weaker plant dies.  Selected as
+``[scatter] method = "ecosystem"``; it runs on the candidates that passed the
+shared rules (:mod:`forest.scatter.candidates`: presence, density, species by
+``percent`` read as relative seeding rates, partitions, and the hard slope and
+altitude windows), all steps vectorised over plants:
+
+* **Site fitness** f ∈ [0, 1] per seed: a soft preference for moisture,
+  1 inside the species' ``moisture = [lo, hi]`` and a Gaussian shoulder
+  exp(−½ (δ/0.1)²) at a distance δ outside it.  Moisture comes from
+  ``[maps] moisture`` or, without a map, from the terrain: low and flat
+  ground is wet, m = (1 − ĥ)(1 − θ/90°) with ĥ the normalised height and θ
+  the slope.  (Slope and altitude were soft preferences of the same shape,
+  1 inside their windows; the windows are now hard rules for every method, so
+  inside them those factors are 1.)  Seeds with f < ``[ecosystem] establish``
+  never establish (stage ``site``).
+* **Growth** — over ``steps`` years, radius r(t) = R·f·(1 − e^(−g t)) with the
+  species' mature ``radius`` R (m) and ``growth`` rate g (1/yr).
+* **Competition** — each year, every pair of living plants with
+  r_i + r_j > d_ij (found with a KD-tree) is resolved at once: the plant with
+  the larger r·vigour wins (ties: the earlier seed) and the other dies (stage
+  ``competition``) — unless the loser is **shade tolerant**
+  (``shade_tolerance`` ≥ 0.5) and its own mature radius is under half the
+  winner's: undergrowth survives beneath a canopy, a year younger by half.
+* **Spacing** — with ``[scatter] min_distance`` = s > 0, a pair closer than s
+  competes whatever the radii and shade tolerance do not spare its loser
+  (stage ``min_distance`` when spacing alone killed it): a hard core, so no
+  two survivors stand closer than s, and the stronger plant keeps the site.
+* Survivors' size in the species' ``scale`` range is r / R, so old dominant
+  trees are large.
+
+Deterministic: the only random draws are the shared per-candidate streams, and
+ties break by candidate order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..config import Config, Fields
+from ..errors import ConfigError, ForestError
+from ..images import read_map_grey
+from ..maps import sample_bilinear
+from ..terrain import Terrain
+from .candidates import Candidates, Progress
+from .survival import Survival
+
+STAGES = ("site", "competition", "min_distance")
+SITE, COMPETITION, SPACING = np.uint8(1), np.uint8(2), np.uint8(3)
+MOISTURE_SOFTNESS = 0.1  # width of the Gaussian shoulder of the moisture preference
+SHADE_TOLERANT = 0.5  # shade_tolerance at and above which undergrowth can survive beneath a canopy
+UNDERGROWTH_RATIO = 0.5  # ... when its mature radius is under this share of the winner's
+
+
+@dataclass(frozen=True)
+class EcosystemParams:
+    """The ecosystem's settings: ``[ecosystem]`` and per-species arrays (index = ``[[species]]`` order)."""
+
+    years: int
+    establish: float
+    radius: np.ndarray  # mature radius R, m
+    growth: np.ndarray  # growth rate g, 1/yr
+    shade_tolerance: np.ndarray  # [0, 1]
+    vigour: np.ndarray  # competitive strength multiplier
+    moisture_lo: np.ndarray  # preferred moisture window
+    moisture_hi: np.ndarray
+
+
+def ecosystem_params(config: Config) -> EcosystemParams:
+    """Read and validate ``[ecosystem] steps, establish`` and the species' ecosystem keys.
+
+    The one place that reads them (``radius``, ``growth``, ``shade_tolerance``,
+    ``vigour``, ``moisture``); errors name the file and field.
+    """
+    eco = config.section("ecosystem", ("steps", "establish", "seed"))
+    cols: dict[str, list[float]] = {k: [] for k in ("radius", "growth", "shade", "vigour", "m_lo", "m_hi")}
+    for i, sp in enumerate(config.species):
+        f = Fields(sp.extra, f"species[{i}]", config)
+        cols["radius"].append(f.number("radius", 4.0, lo=0.0, lo_open=True))
+        cols["growth"].append(f.number("growth", 0.25, lo=0.0, lo_open=True))
+        cols["shade"].append(f.number("shade_tolerance", 0.0, lo=0.0, hi=1.0))
+        cols["vigour"].append(f.number("vigour", 1.0, lo=0.0, lo_open=True))
+        window = f.range("moisture", (0.0, 1.0), lo=0.0, hi=1.0)
+        assert window is not None  # a default is given
+        cols["m_lo"].append(window[0])
+        cols["m_hi"].append(window[1])
+    a = {k: np.asarray(v, dtype=np.float64) for k, v in cols.items()}
+    return EcosystemParams(
+        years=eco.integer("steps", 15, lo=1, hi=200),
+        establish=eco.number("establish", 0.25, lo=0.0, hi=1.0),
+        radius=a["radius"],
+        growth=a["growth"],
+        shade_tolerance=a["shade"],
+        vigour=a["vigour"],
+        moisture_lo=a["m_lo"],
+        moisture_hi=a["m_hi"],
+    )
+
+
+def preference(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, soft: float) -> np.ndarray:
+    """1 inside [lo, hi], exp(−½ (δ/soft)²) at a distance δ outside it."""
+    d = np.maximum(lo - x, 0.0) + np.maximum(x - hi, 0.0)
+    return np.exp(-0.5 * (d / max(soft, 1e-9)) ** 2)
+
+
+def site_moisture(cand: Candidates, config: Config, terrain: Terrain) -> np.ndarray:
+    """Moisture in [0, 1] at each candidate: the moisture map, else (1 − ĥ)(1 − θ/90°)."""
+    if config.maps.moisture is not None:
+        try:
+            img = read_map_grey(config.maps.moisture, what="moisture map")
+        except ForestError as e:
+            raise ConfigError(config.path, "maps.moisture", str(e)) from None
+        return np.clip(sample_bilinear(img, cand.u, cand.v), 0.0, 1.0)
+    hmin, hmax = terrain.height_range
+    hn = (cand.position[:, 1] - hmin) / max(hmax - hmin, 1e-9)
+    return np.clip((1.0 - hn) * (1.0 - cand.slope / 90.0), 0.0, 1.0)
+
+
+def grow_and_compete(
+    position: np.ndarray,
+    order: np.ndarray,
+    potential: np.ndarray,
+    mature: np.ndarray,
+    growth: np.ndarray,
+    vigour: np.ndarray,
+    shade_tolerant: np.ndarray,
+    years: int,
+    min_distance: float,
+    progress: Progress,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Simulate growth and competition of m plants over ``years``.
+
+    ``potential`` is each plant's final radius R·f, ``mature`` the species' R,
+    ``order`` the tie-break (smaller wins).  Returns the fate (m,) uint8 —
+    0 alive, :data:`COMPETITION` or :data:`SPACING` — and the radius at the end.
+    """
+    m = len(position)
+    age = np.zeros(m)
+    alive = np.ones(m, dtype=bool)
+    fate = np.zeros(m, dtype=np.uint8)
+    for year in range(1, years + 1):
+        progress(0.6 + 0.3 * year / years, f"year {year}/{years}")
+        age[alive] += 1.0
+        r = potential * (1.0 - np.exp(-growth * age))
+        idx = np.flatnonzero(alive)
+        if len(idx) < 2:
+            break
+        reach = max(2.0 * r[idx].max(), min_distance)
+        tree = cKDTree(position[idx], balanced_tree=False, compact_nodes=False)
+        pairs = tree.query_pairs(reach, output_type="ndarray")
+        if len(pairs) == 0:
+            continue
+        a, b = idx[pairs[:, 0]], idx[pairs[:, 1]]
+        d = np.linalg.norm(position[a] - position[b], axis=1)
+        over = r[a] + r[b] > d
+        close = d < min_distance
+        hit = over | close
+        a, b, over, close = a[hit], b[hit], over[hit], close[hit]
+        if len(a) == 0:
+            continue
+        sa, sb = r[a] * vigour[a], r[b] * vigour[b]
+        a_wins = (sa > sb) | ((sa == sb) & (order[a] < order[b]))
+        win = np.where(a_wins, a, b)
+        lose = np.where(a_wins, b, a)
+        beneath = shade_tolerant[lose] & (mature[lose] < UNDERGROWTH_RATIO * mature[win])
+        by_competition = over & ~beneath
+        by_spacing = close & ~by_competition
+        fate[lose[by_spacing]] = SPACING
+        fate[lose[by_competition]] = COMPETITION  # competition counts first where both killed a plant
+        alive[lose[by_competition | by_spacing]] = False
+        # Undergrowth in shade grows more slowly this year.
+        age[lose[over & beneath & ~close]] -= 0.5
+    r = potential * (1.0 - np.exp(-growth * np.maximum(age, 0.0)))
+    return fate, r
+
+
+def ecosystem_rule(cand: Candidates, config: Config, terrain: Terrain, progress: Progress) -> Survival:
+    """Establishment by site fitness, then growth, competition and spacing (see the module docstring)."""
+    par = ecosystem_params(config)
+    k = cand.species
+    fate = np.zeros(len(cand), dtype=np.uint8)
+    progress(0.55, "site fitness")
+    fit = preference(site_moisture(cand, config, terrain), par.moisture_lo[k], par.moisture_hi[k], MOISTURE_SOFTNESS)
+    est = np.flatnonzero(fit >= par.establish)
+    fate[fit < par.establish] = SITE
+    ke = k[est]
+    shade = par.shade_tolerance[ke] >= SHADE_TOLERANT
+    fate_e, r = grow_and_compete(
+        cand.position[est],
+        cand.index[est],
+        potential=par.radius[ke] * fit[est],
+        mature=par.radius[ke],
+        growth=par.growth[ke],
+        vigour=par.vigour[ke],
+        shade_tolerant=shade,
+        years=par.years,
+        min_distance=config.scatter.min_distance,
+        progress=progress,
+    )
+    fate[est] = fate_e
+    alive = fate_e == 0
+    return Survival(
+        STAGES,
+        fate,
+        size=np.clip(r[alive] / par.radius[ke[alive]], 0.0, 1.0),
+        columns={"radius": r[alive], "shade_tolerant": shade[alive]},
+        meta={"method": "ecosystem", "years": par.years},
+    )
