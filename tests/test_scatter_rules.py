@@ -166,3 +166,19 @@ def test_same_config_same_bytes(tmp_path, method):
         _config(tmp_path, method, count=6000, name="seed.toml", edit=lambda s: s.replace("seed = 11", "seed = 12"))
     )
     assert len(a) != len(c) or not np.array_equal(a.position, c.position)
+
+
+def test_ecosystem_spacing_keeps_the_stronger_plant_and_is_maximal(tmp_path):
+    """min_distance thins the ecosystem's survivors by dart throwing, strongest (r·vigour) first."""
+    free, r_free = scatter(_config(tmp_path, "ecosystem", min_distance=0.0))
+    spaced, rep = scatter(_config(tmp_path, "ecosystem", name="spaced.toml"))
+    assert set(spaced.id.tolist()) <= set(free.id.tolist())
+    dropped = ~np.isin(free.id, spaced.id)
+    assert dropped.sum() == rep.rejected["min_distance"] > 0
+    # Every dropped plant has a kept plant within min_distance that is at least as strong (vigour is 1).
+    kept = ~dropped
+    strength = r_free.columns["radius"]
+    tree = cKDTree(free.position[kept])
+    for i in np.flatnonzero(dropped):
+        near = tree.query_ball_point(free.position[i], MIN_DISTANCE)
+        assert near and strength[kept][near].max() >= strength[i]

@@ -25,10 +25,12 @@ altitude windows), all steps vectorised over plants:
   ``competition``) — unless the loser is **shade tolerant**
   (``shade_tolerance`` ≥ 0.5) and its own mature radius is under half the
   winner's: undergrowth survives beneath a canopy, a year younger by half.
-* **Spacing** — with ``[scatter] min_distance`` = s > 0, a pair closer than s
-  competes whatever the radii and shade tolerance do not spare its loser
-  (stage ``min_distance`` when spacing alone killed it): a hard core, so no
-  two survivors stand closer than s, and the stronger plant keeps the site.
+* **Spacing** — with ``[scatter] min_distance`` = s > 0, the survivors are
+  thinned like the random method's candidates, by sequential dart throwing
+  (:func:`~forest.scatter.poisson.poisson_thin`), but in order of final
+  strength r·vigour: a plant is kept iff no stronger kept plant stands within
+  s (stage ``min_distance``).  The dominant plant keeps its site, and the
+  result is a maximal set with no two plants closer than s.
 * Survivors' size in the species' ``scale`` range is r / R, so old dominant
   trees are large.
 
@@ -49,6 +51,7 @@ from ..images import read_map_grey
 from ..maps import sample_bilinear
 from ..terrain import Terrain
 from .candidates import Candidates, Progress
+from .poisson import poisson_thin
 from .survival import Survival
 
 STAGES = ("site", "competition", "min_distance")
@@ -131,37 +134,32 @@ def grow_and_compete(
     vigour: np.ndarray,
     shade_tolerant: np.ndarray,
     years: int,
-    min_distance: float,
     progress: Progress,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Simulate growth and competition of m plants over ``years``.
 
     ``potential`` is each plant's final radius R·f, ``mature`` the species' R,
-    ``order`` the tie-break (smaller wins).  Returns the fate (m,) uint8 —
-    0 alive, :data:`COMPETITION` or :data:`SPACING` — and the radius at the end.
+    ``order`` the tie-break (smaller wins).  Returns which plants are alive
+    (m,) bool and their radius at the end.
     """
     m = len(position)
     age = np.zeros(m)
     alive = np.ones(m, dtype=bool)
-    fate = np.zeros(m, dtype=np.uint8)
     for year in range(1, years + 1):
-        progress(0.6 + 0.3 * year / years, f"year {year}/{years}")
+        progress(0.6 + 0.25 * year / years, f"year {year}/{years}")
         age[alive] += 1.0
         r = potential * (1.0 - np.exp(-growth * age))
         idx = np.flatnonzero(alive)
         if len(idx) < 2:
             break
-        reach = max(2.0 * r[idx].max(), min_distance)
         tree = cKDTree(position[idx], balanced_tree=False, compact_nodes=False)
-        pairs = tree.query_pairs(reach, output_type="ndarray")
+        pairs = tree.query_pairs(2.0 * r[idx].max(), output_type="ndarray")
         if len(pairs) == 0:
             continue
         a, b = idx[pairs[:, 0]], idx[pairs[:, 1]]
         d = np.linalg.norm(position[a] - position[b], axis=1)
         over = r[a] + r[b] > d
-        close = d < min_distance
-        hit = over | close
-        a, b, over, close = a[hit], b[hit], over[hit], close[hit]
+        a, b = a[over], b[over]
         if len(a) == 0:
             continue
         sa, sb = r[a] * vigour[a], r[b] * vigour[b]
@@ -169,15 +167,21 @@ def grow_and_compete(
         win = np.where(a_wins, a, b)
         lose = np.where(a_wins, b, a)
         beneath = shade_tolerant[lose] & (mature[lose] < UNDERGROWTH_RATIO * mature[win])
-        by_competition = over & ~beneath
-        by_spacing = close & ~by_competition
-        fate[lose[by_spacing]] = SPACING
-        fate[lose[by_competition]] = COMPETITION  # competition counts first where both killed a plant
-        alive[lose[by_competition | by_spacing]] = False
+        alive[lose[~beneath]] = False
         # Undergrowth in shade grows more slowly this year.
-        age[lose[over & beneath & ~close]] -= 0.5
+        age[lose[beneath]] -= 0.5
     r = potential * (1.0 - np.exp(-growth * np.maximum(age, 0.0)))
-    return fate, r
+    return alive, r
+
+
+def spaced(position: np.ndarray, strength: np.ndarray, order: np.ndarray, min_distance: float) -> np.ndarray:
+    """Mask of the plants kept by dart throwing at spacing ``min_distance``, strongest first (ties: ``order``)."""
+    if min_distance <= 0 or len(position) < 2:
+        return np.ones(len(position), dtype=bool)
+    priority = np.lexsort((order, -strength))
+    keep = np.empty(len(position), dtype=bool)
+    keep[priority] = poisson_thin(position[priority], min_distance)
+    return keep
 
 
 def ecosystem_rule(cand: Candidates, config: Config, terrain: Terrain, progress: Progress) -> Survival:
@@ -191,7 +195,7 @@ def ecosystem_rule(cand: Candidates, config: Config, terrain: Terrain, progress:
     fate[fit < par.establish] = SITE
     ke = k[est]
     shade = par.shade_tolerance[ke] >= SHADE_TOLERANT
-    fate_e, r = grow_and_compete(
+    alive, r = grow_and_compete(
         cand.position[est],
         cand.index[est],
         potential=par.radius[ke] * fit[est],
@@ -200,11 +204,16 @@ def ecosystem_rule(cand: Candidates, config: Config, terrain: Terrain, progress:
         vigour=par.vigour[ke],
         shade_tolerant=shade,
         years=par.years,
-        min_distance=config.scatter.min_distance,
         progress=progress,
     )
-    fate[est] = fate_e
-    alive = fate_e == 0
+    fate[est[~alive]] = COMPETITION
+    live = np.flatnonzero(alive)
+    progress(0.85, "min_distance")
+    kept = spaced(
+        cand.position[est[live]], r[live] * par.vigour[ke[live]], cand.index[est[live]], config.scatter.min_distance
+    )
+    fate[est[live[~kept]]] = SPACING
+    alive[live[~kept]] = False
     return Survival(
         STAGES,
         fate,

@@ -7,8 +7,8 @@
    partitions, slope and altitude windows);
 2. the survival rule ``[scatter] method`` names (:data:`RULES`): ``random``
    (Poisson-disk ``min_distance`` thinning in candidate order) or
-   ``ecosystem`` (growth, competition, self-thinning, with ``min_distance``
-   as a hard core);
+   ``ecosystem`` (growth, competition, self-thinning, then ``min_distance``
+   thinning with the strongest plants first);
 3. :func:`~forest.scatter.attributes.tree_attributes` — yaw, scale, phase,
    tint, partition and orientation of the survivors;
 4. the provenance (:mod:`forest.scatter.provenance`): the hashes of the input

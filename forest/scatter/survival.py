@@ -11,7 +11,8 @@ stand side by side, chosen by ``[scatter] method``:
   ``scale`` range.
 * ``ecosystem`` (:func:`forest.scatter.ecosystem.ecosystem_rule`) — seeds
   establish by site fitness, grow, and die by competition and self-thinning
-  (after Deussen et al. 1998); ``min_distance`` is a hard core of that competition.
+  (after Deussen et al. 1998); with ``min_distance`` the survivors are thinned
+  by the same dart throwing, the strongest plants first.
 
 Each rule names the stages it can reject at; every candidate it drops carries one
 of them, so the report's counts add up.
