@@ -13,10 +13,9 @@ altitude windows), all steps vectorised over plants:
   exp(−½ (δ/0.1)²) at a distance δ outside it.  Moisture comes from
   ``[maps] moisture`` or, without a map, from the terrain: low and flat
   ground is wet, m = (1 − ĥ)(1 − θ/90°) with ĥ the normalised height and θ
-  the slope.  (Slope and altitude were soft preferences of the same shape,
-  1 inside their windows; the windows are now hard rules for every method, so
-  inside them those factors are 1.)  Seeds with f < ``[ecosystem] establish``
-  never establish (stage ``site``).
+  the slope.  (Slope and altitude enter as the shared hard windows, not as
+  preferences: a preference of this shape is 1 everywhere inside its window.)
+  Seeds with f < ``[ecosystem] establish`` never establish (stage ``site``).
 * **Growth** — over ``steps`` years, radius r(t) = R·f·(1 − e^(−g t)) with the
   species' mature ``radius`` R (m) and ``growth`` rate g (1/yr).
 * **Competition** — each year, every pair of living plants with
@@ -24,7 +23,8 @@ altitude windows), all steps vectorised over plants:
   the larger r·vigour wins (ties: the earlier seed) and the other dies (stage
   ``competition``) — unless the loser is **shade tolerant**
   (``shade_tolerance`` ≥ 0.5) and its own mature radius is under half the
-  winner's: undergrowth survives beneath a canopy, a year younger by half.
+  winner's: undergrowth survives beneath a canopy and ages only half a year
+  that year, so it grows more slowly.
 * **Spacing** — with ``[scatter] min_distance`` = s > 0, the survivors are
   thinned like the random method's candidates, by sequential dart throwing
   (:func:`~forest.scatter.poisson.poisson_thin`), but in order of final
