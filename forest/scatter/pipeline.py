@@ -56,6 +56,7 @@ def scatter(
     cand, fate, species_draw = candidates(config, terrain, maps, rng, step)
     survival = rule(cand, config, terrain, step)
     stages = SHARED_STAGES + survival.stages
+    # The rule's codes 1, 2, … follow the shared stages' in the per-candidate fates.
     fate[cand.index] = np.where(survival.fate > 0, survival.fate + len(SHARED_STAGES), 0)
 
     step(0.9, "attributes")
@@ -65,7 +66,9 @@ def scatter(
         **survival.meta,
         "inputs": inputs,
     }
-    inst = tree_attributes(cand.subset(survival.alive), survival.size, config, terrain, maps, rng, meta)
+    alive = survival.alive
+    trees = cand if alive.all() else cand.subset(alive)
+    inst = tree_attributes(trees, survival.size, config, terrain, maps, rng, meta)
     names = list(inst.species_names)
     rejected, by_species = tally(fate, species_draw, stages, SPECIES_STAGES + survival.stages, names)
     counts = inst.counts()
