@@ -34,6 +34,8 @@ from .candidates import Candidates
 
 def snap_yaw(yaw: np.ndarray, step_deg: np.ndarray) -> np.ndarray:
     """Round yaw to multiples of ``step_deg`` where it is > 0 (e.g. 90° for street-aligned blocks)."""
+    if not (np.asarray(step_deg) > 0).any():
+        return yaw
     step = np.radians(step_deg)
     snapped = np.round(yaw / np.where(step > 0, step, 1.0)) * step
     return np.where(step > 0, np.mod(snapped, 2 * np.pi), yaw)
