@@ -59,17 +59,15 @@ def tally(
     """Count rejections from per-candidate fates.
 
     ``fate[i]`` is 0 for a tree and ``1 + s`` for a candidate rejected by ``stages[s]``;
-    ``species[i]`` the candidate's species draw (≥ ``len(names)`` for empty ground).
+    ``species[i]`` the candidate's species draw (``len(names)`` for empty ground).
     Returns ``rejected`` (stage → count, every stage listed) and, for the stages in
-    ``per_species``, the counts per species.
+    ``per_species``, the counts per species — one joint histogram of (fate, species).
     """
     n_sp = len(names)
-    counts = np.bincount(fate, minlength=len(stages) + 1)
-    rejected = {s: int(counts[1 + i]) for i, s in enumerate(stages)}
-    by_species: dict[str, dict[str, int]] = {key: {} for key in species_keys(names)}
-    for s in per_species:
-        code = 1 + stages.index(s)
-        per = np.bincount(species[fate == code], minlength=n_sp)[:n_sp]
-        for key, c in zip(by_species, per.tolist()):
-            by_species[key][s] = int(c)
+    joint = np.bincount(fate.astype(np.int64) * (n_sp + 1) + species, minlength=(len(stages) + 1) * (n_sp + 1))
+    joint = joint.reshape(len(stages) + 1, n_sp + 1)
+    rejected = {s: int(joint[1 + i].sum()) for i, s in enumerate(stages)}
+    by_species = {
+        key: {s: int(joint[1 + stages.index(s), k]) for s in per_species} for k, key in enumerate(species_keys(names))
+    }
     return rejected, by_species
