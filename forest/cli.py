@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import importlib
 import sys
+import warnings
+from collections.abc import Callable
+from typing import TextIO
 
 import typer
 
-from .errors import ForestError, ParameterError
+from .errors import ForestError, ForestWarning, ParameterError
 
 app = typer.Typer(
     name="forest",
@@ -63,9 +66,30 @@ def fail(message: str, code: int = 2) -> None:
     raise SystemExit(code)
 
 
+def _one_line_warnings(show: Callable[..., None]) -> Callable[..., None]:
+    """A ``warnings.showwarning`` that prints forest's own warnings as one line and passes others to ``show``."""
+
+    def show_warning(
+        message: Warning | str,
+        category: type[Warning],
+        filename: str,
+        lineno: int,
+        file: TextIO | None = None,
+        line: str | None = None,
+    ) -> None:
+        if issubclass(category, ForestWarning):
+            typer.echo(f"forest: warning: {message}", err=True)
+        else:
+            show(message, category, filename, lineno, file, line)
+
+    return show_warning
+
+
 def main(argv: list[str] | None = None) -> None:
     try:
-        app(args=argv, prog_name="forest")
+        with warnings.catch_warnings():
+            warnings.showwarning = _one_line_warnings(warnings.showwarning)
+            app(args=argv, prog_name="forest")
     except ParameterError as e:
         from .commands import FLAGS
 

@@ -52,3 +52,7 @@ class ConfigError(ForestError):
     def for_parameter(self, name: str) -> ParameterError:
         """The same mistake reported against parameter ``name`` (the value came from it, not the file)."""
         return ParameterError(name, self.message)
+
+
+class ForestWarning(UserWarning):
+    """Something a user should know that does not stop the work: the CLI prints it as one line."""

@@ -21,8 +21,10 @@ phase         f4 (N,)      wind phase, radians
 ============  ===========  ====================================================
 
 Metadata: ``species_names`` (the ``model`` strings of ``[[species]]``),
-``partition_names``, ``extent`` (xmin, zmin, xmax, zmax), ``seed``, ``source``
-(the config file's name), ``config_sha256``.
+``partition_names``, ``extent`` (xmin, zmin, xmax, zmax), ``seed``, and in
+``meta``: ``source`` (the config file's name), ``method``, ``height_range`` and
+``inputs`` — the SHA-256 of every file the set was scattered from, by config
+field (:mod:`forest.scatter.provenance`).
 
 Saved as an uncompressed ``.npz`` of those names, written with fixed zip
 timestamps so that the same config and seed give a byte-identical file.

@@ -127,13 +127,15 @@ def retint(instances: InstanceSet, colour: ColourGrid | None) -> InstanceSet:
 def _scattered_with(instances: InstanceSet, colour: ColourGrid | None) -> bool:
     """Whether the InstanceSet's tints came from this colour map (or no record says otherwise).
 
-    Scatter records the sha256 of each input file under ``meta["inputs"]``;
-    sets made elsewhere (another tool, a test) carry no record and keep their tints.
+    Scatter records the sha256 of each input file under ``meta["inputs"]``
+    (:mod:`forest.scatter.provenance`); sets made elsewhere (another tool, a
+    test) carry no record and keep their tints.
     """
     inputs = instances.meta.get("inputs") if isinstance(instances.meta, dict) else None
     if not isinstance(inputs, dict):
         return True
-    recorded = inputs.get("maps.colour")
+    entry = inputs.get("maps.colour")
+    recorded = entry.get("sha256") if isinstance(entry, dict) else None
     if colour is None or colour.path is None:
         return recorded is None
     return recorded == file_digest(colour.path)

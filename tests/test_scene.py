@@ -110,7 +110,7 @@ def test_instance_tints_are_kept_unless_the_map_changed(tmp_path, library):
     scene = load_scene(make_config(tmp_path), inst, library=library)
     np.testing.assert_array_equal(scene.instances.tint, inst.tint)  # no record of a map: as given
     write_png(tmp_path / "colour.png", np.repeat(np.repeat(QUADRANTS, 8, 0), 8, 1))
-    inst.meta["inputs"] = {"maps.colour": "0" * 64}  # scattered from another map
+    inst.meta["inputs"] = {"maps.colour": {"file": "old.png", "sha256": "0" * 64}}  # scattered from another map
     scene = load_scene(make_config(tmp_path, maps='colour = "colour.png"'), inst, library=library)
     from forest.images import srgb_to_linear
 

@@ -292,7 +292,7 @@ class SpeciesConfig(Section):
     yaw_step: Annotated[float, Field(ge=0.0, le=360.0, allow_inf_nan=False)] = Field(
         0.0, description="> 0 snaps yaw to multiples of this many degrees (street-aligned buildings)."
     )
-    partitions: Annotated[list[Annotated[Str, Field(min_length=1)]], Field(min_length=1)] | None = Field(
+    partitions: Annotated[tuple[Annotated[Str, Field(min_length=1)], ...], Field(min_length=1)] | None = Field(
         None, description="Regions of [partitions] this species may grow in (default: all)."
     )
     # Ecosystem method (Deussen et al. 1998)

@@ -1,0 +1,82 @@
+"""Per-tree attributes of the survivors: yaw, scale, wind phase, tint, partition, orientation.
+
+For a tree drawn as candidate i of species k:
+
+* yaw ψ = 2π·ξ_yaw[i], snapped to multiples of the species' ``yaw_step`` when
+  it is > 0 (street-aligned buildings);
+* scale = lo_k + (hi_k − lo_k)·s with the species' ``scale = [lo, hi]`` and
+  s = ξ_scale[i] uniform, or the survival rule's size in [0, 1] (the
+  ecosystem's r / R);
+* wind phase 2π·ξ_phase[i];
+* tint: the colour map, bilinear in linear light; partition: the region
+  under the tree (nearest pixel of the partition map);
+* rotation: the quaternion q = q_tilt · q_yaw (yaw about +Y, then a tilt of +Y
+  towards the terrain normal by the species' ``align`` or ``[scatter]
+  align_to_normal``), :func:`forest.instances.yaw_tilt_quaternion`.
+
+ξ are the candidate streams of :func:`forest.scatter.candidates.random_streams`,
+indexed by candidate, so a tree's attributes never depend on which other
+candidates survived.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..config import Config
+from ..instances import InstanceSet, yaw_tilt_quaternion
+from ..maps import MapSet
+from ..terrain import Terrain
+from .candidates import Candidates
+
+
+def snap_yaw(yaw: np.ndarray, step_deg: np.ndarray) -> np.ndarray:
+    """Round yaw to multiples of ``step_deg`` where it is > 0 (e.g. 90° for street-aligned blocks)."""
+    if not (np.asarray(step_deg) > 0).any():
+        return yaw
+    step = np.radians(step_deg)
+    snapped = np.round(yaw / np.where(step > 0, step, 1.0)) * step
+    return np.where(step > 0, np.mod(snapped, 2 * np.pi), yaw)
+
+
+def tree_attributes(
+    trees: Candidates,
+    size: np.ndarray | None,
+    config: Config,
+    terrain: Terrain,
+    maps: MapSet,
+    rng: dict[str, np.random.Generator],
+    meta: dict[str, Any],
+) -> InstanceSet:
+    """The InstanceSet of the surviving candidates ``trees`` (rows in candidate order = sorted ids)."""
+    species = config.species
+    n = config.scatter.count
+    sel = trees.index
+    k = trees.species
+    yaw = rng["yaw"].random(n)[sel] * (2 * np.pi)
+    scale_xi = rng["scale"].random(n)[sel]
+    phase = rng["phase"].random(n)[sel] * (2 * np.pi)
+    s = scale_xi if size is None else size
+    yaw = snap_yaw(yaw, np.array([sp.yaw_step for sp in species])[k])
+    lo = np.array([sp.scale[0] for sp in species])[k]
+    hi = np.array([sp.scale[1] for sp in species])[k]
+    align = np.array([config.scatter.align_to_normal if sp.align is None else sp.align for sp in species])[k]
+    return InstanceSet(
+        id=sel.astype(np.uint64),
+        position=trees.position,
+        rotation=yaw_tilt_quaternion(yaw, trees.normal, align),
+        yaw=yaw,
+        scale=lo + (hi - lo) * s,
+        species=k,
+        tint=maps.tint_at(trees.u, trees.v),
+        partition=maps.partition_at(trees.u, trees.v),
+        normal=trees.normal,
+        phase=phase,
+        species_names=[sp.model for sp in species],
+        partition_names=maps.partition_names,
+        extent=terrain.extent,
+        seed=config.seed,
+        meta=meta,
+    )

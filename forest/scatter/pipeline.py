@@ -1,0 +1,110 @@
+"""The scatter pipeline: terrain and maps → shared candidate stages → a survival rule → an InstanceSet.
+
+:func:`scatter` runs, in order:
+
+1. :func:`~forest.scatter.candidates.candidates` — ``count`` sites by surface
+   area and the rules every method obeys (presence, density, empty ground,
+   partitions, slope and altitude windows);
+2. the survival rule ``[scatter] method`` names (:data:`RULES`): ``random``
+   (Poisson-disk ``min_distance`` thinning in candidate order) or
+   ``ecosystem`` (growth, competition, self-thinning, then ``min_distance``
+   thinning with the strongest plants first);
+3. :func:`~forest.scatter.attributes.tree_attributes` — yaw, scale, phase,
+   tint, partition and orientation of the survivors;
+4. the provenance (:mod:`forest.scatter.provenance`): the hashes of the input
+   files go into the InstanceSet's metadata.
+
+Same config + seed ⇒ the same InstanceSet, byte for byte.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..config import Config
+from ..instances import InstanceSet
+from ..maps import MapSet
+from ..terrain import Terrain, load_terrain
+from .attributes import tree_attributes
+from .candidates import SHARED_STAGES, SPECIES_STAGES, Progress, candidates, no_progress, random_streams
+from .ecosystem import ecosystem_rule
+from .provenance import check_provenance, input_hashes
+from .report import ScatterReport, tally
+from .survival import SurvivalRule, random_rule
+
+RULES: dict[str, SurvivalRule] = {"random": random_rule, "ecosystem": ecosystem_rule}
+
+
+def scatter(
+    config: Config, progress: Progress | None = None, terrain: Terrain | None = None
+) -> tuple[InstanceSet, ScatterReport]:
+    """Scatter the trees a config describes.  Raises :class:`~forest.errors.ForestError` on bad input."""
+    t0 = time.perf_counter()
+    step = progress or no_progress
+    rule = RULES[config.scatter.method]
+    step(0.0, "terrain")
+    terrain = terrain or load_terrain(config.terrain, config.path)
+    step(0.15, "maps")
+    maps = MapSet(config)
+    inputs = input_hashes(config)
+    rng = random_streams(config.seed)
+
+    cand, fate, species_draw = candidates(config, terrain, maps, rng, step)
+    survival = rule(cand, config, terrain, step)
+    stages = SHARED_STAGES + survival.stages
+    # The rule's codes 1, 2, … follow the shared stages' in the per-candidate fates.
+    fate[cand.index] = np.where(survival.fate > 0, survival.fate + len(SHARED_STAGES), 0)
+
+    step(0.9, "attributes")
+    meta = {
+        "source": config.path.name if config.path else "",
+        "height_range": list(terrain.height_range),
+        **survival.meta,
+        "inputs": inputs,
+    }
+    alive = survival.alive
+    trees = cand if alive.all() else cand.subset(alive)
+    inst = tree_attributes(trees, survival.size, config, terrain, maps, rng, meta)
+    names = list(inst.species_names)
+    rejected, by_species = tally(fate, species_draw, stages, SPECIES_STAGES + survival.stages, names)
+    counts = inst.counts()
+    report = ScatterReport(
+        candidates=config.scatter.count,
+        kept=len(inst),
+        area_m2=terrain.area,
+        rejected=rejected,
+        rejected_by_species=by_species,
+        species=counts["species"],
+        partitions=counts["partitions"],
+        columns=survival.columns,
+    )
+    if maps.partition is not None and maps.partition.unlabelled_pixels:
+        pm = maps.partition
+        report.unlabelled_pixels = pm.unlabelled_pixels
+        report.unlabelled_colours = pm.unlabelled_colours
+        cols = ", ".join("#{:02x}{:02x}{:02x}".format(*c) for c in pm.unlabelled_colours)
+        report.warnings.append(
+            f"{pm.unlabelled_pixels:,} partition-map pixels match no label colour "
+            f"(e.g. {cols}); their trees go to partition 'unlabelled'"
+        )
+    report.seconds = time.perf_counter() - t0
+    step(1.0, "done")
+    return inst, report
+
+
+def scene_instances(
+    config: Config,
+    instances_path: str | Path | None = None,
+    progress: Progress | None = None,
+    terrain: Terrain | None = None,
+) -> InstanceSet:
+    """The scene's InstanceSet: loaded from ``instances_path`` if given (and checked against the
+    config's species and input files, :func:`~forest.scatter.provenance.check_provenance`), else scattered."""
+    if instances_path is None:
+        return scatter(config, progress=progress, terrain=terrain)[0]
+    inst = InstanceSet.load(instances_path)
+    check_provenance(inst, config, instances_path)
+    return inst
