@@ -13,6 +13,9 @@ from typing import Any
 #: Parameter (or config field a flag overrides) → the flag a user typed.
 FLAGS = {
     "output": "-o",
+    "library": "--library",
+    "folder": "FOLDER",
+    "mesh": "MESH",
     "frames": "--frames",
     "variant": "--variant",
     "instances": "--instances",
