@@ -140,8 +140,8 @@ def _bug(exc: BaseException, argv: list[str]) -> NoReturn:
     fail(f"internal error (a bug in forest, not in your input): {what}; {where}", 1)
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Run the CLI: exit 0 on success, 2 with one line for a user's mistake, 1 with one line for a bug."""
+def main(argv: list[str] | None = None) -> NoReturn:
+    """Run the CLI and exit: 0 on success, 2 with one line for a user's mistake, 1 with one line for a bug."""
     args = list(sys.argv[1:] if argv is None else argv)
     try:
         code = app(args=args, prog_name="forest", standalone_mode=False)
@@ -166,6 +166,10 @@ def main(argv: list[str] | None = None) -> None:
         fail("interrupted", 130)
     except MemoryError:
         fail("out of memory: render fewer pixels (render.width, render.height) or fewer trees", 2)
+    except RuntimeError as e:
+        if "out of memory" not in str(e).lower():  # drjit's and Mitsuba's allocators raise RuntimeError
+            _bug(e, args)
+        fail("out of memory: render fewer pixels (render.width, render.height) or fewer trees", 2)
     except OSError as e:
         if e.errno == errno.EPIPE:  # the reader of our output went away (e.g. `| head`)
             sys.stderr = open(os.devnull, "w")  # nothing more may be printed
@@ -176,8 +180,7 @@ def main(argv: list[str] | None = None) -> None:
         _bug(e, args)
     except Exception as e:
         _bug(e, args)
-    if isinstance(code, int) and code != 0:
-        raise SystemExit(code)
+    raise SystemExit(code if isinstance(code, int) else 0)
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ as linear EXR (half or float) and sRGB-encoded 8-bit PNG, always atomically.
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -101,6 +102,9 @@ def read_image(
         oiio.geterror()  # clear the global error too: OpenImageIO prints unretrieved errors at exit
     if data is None:
         detail = _first_line(problem, *noise) or "unknown format"
+        for quoted in (f' ("{path}")', f" ({path})", f' "{path}"', str(path)):  # the line names the file already
+            detail = detail.replace(quoted, "")
+        detail = re.sub(r"^EXR Error\s*:\s*", "", detail).strip(" :") or "unknown format"
         raise ForestError(f"{path}: cannot read {what}: {detail}")
     assert spec is not None
     data = np.asarray(data, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)

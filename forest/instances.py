@@ -191,7 +191,7 @@ def check_rows(inst: InstanceSet) -> str | None:
 
     def first(bad: np.ndarray) -> str:
         rows = np.flatnonzero(bad)
-        return f"{len(rows):,} rows, the first tree id {int(inst.id[rows[0]])}"
+        return f"{len(rows):,} {'row' if len(rows) == 1 else 'rows'}, the first tree id {int(inst.id[rows[0]])}"
 
     for name, (dtype, _shape) in COLUMNS.items():
         a = getattr(inst, name)

@@ -96,21 +96,32 @@ def _name_max(folder: Path) -> int:
         return 255
 
 
+def _shown(path: Path) -> str:
+    """``path`` for a message, with any name over 40 characters shortened."""
+    parts = [p if len(p) <= 40 else f"{p[:16]}…{p[-8:]}" for p in path.parts]
+    return str(Path(*parts)) if parts else str(path)
+
+
+def _is_dir(path: Path) -> bool:
+    try:
+        return path.is_dir()
+    except OSError:  # a name the file system cannot even look up (too long, …)
+        return False
+
+
 def _existing_ancestor(path: Path, field: str) -> Path:
     """The nearest existing ancestor of ``path`` (which must be a folder), checking the names to create."""
-    missing: list[str] = []
+    limit = _name_max(Path("/"))
+    for name in path.parts:
+        if len(os.fsencode(name)) > limit:
+            raise ParameterError(field, f"{_shown(path)}: the name {_shown(Path(name))} is longer than {limit} bytes")
     folder = path.parent
     while not os.path.lexists(folder):
-        missing.append(folder.name)
         if folder.parent == folder:
             break
         folder = folder.parent
-    if not folder.is_dir():
+    if not _is_dir(folder):
         raise ParameterError(field, f"{path}: {folder} is a file, not a folder")
-    limit = _name_max(folder)
-    for name in [*missing, path.name]:
-        if len(os.fsencode(name)) > limit:
-            raise ParameterError(field, f"{path}: the name {name[:24]}… is longer than {limit} bytes")
     return folder
 
 
@@ -135,9 +146,9 @@ def output_file(path: str | Path, *, field: str = "output") -> Path:
     system.  Nothing is created.
     """
     path = Path(path)
-    if path.is_dir():
-        raise ParameterError(field, f"{path}: is a folder; give a file name")
     folder = _existing_ancestor(path, field)
+    if _is_dir(path):
+        raise ParameterError(field, f"{path}: is a folder; give a file name")
     _probe(folder, path, field)
     return path
 
@@ -148,9 +159,9 @@ def output_files(paths: Iterable[str | Path], *, field: str = "output") -> list[
     probed: set[Path] = set()
     for p in paths:
         p = Path(p)
-        if p.is_dir():
-            raise ParameterError(field, f"{p}: is a folder; give a file name")
         folder = _existing_ancestor(p, field)
+        if _is_dir(p):
+            raise ParameterError(field, f"{p}: is a folder; give a file name")
         if folder not in probed:
             _probe(folder, p, field)
             probed.add(folder)
@@ -161,29 +172,45 @@ def output_files(paths: Iterable[str | Path], *, field: str = "output") -> list[
 def output_folder(path: str | Path, *, field: str = "output") -> Path:
     """Check that folder ``path`` can be created or written into (files are written inside it)."""
     path = Path(path)
-    if os.path.lexists(path) and not path.is_dir():
-        raise ParameterError(field, f"{path}: exists and is not a folder")
     folder = _existing_ancestor(path, field)
+    if os.path.lexists(path) and not _is_dir(path):
+        raise ParameterError(field, f"{path}: exists and is not a folder")
     _probe(folder, path, field)
-    if path.is_dir():
+    if _is_dir(path):
         _probe(path, path, field)
     return path
 
 
-def input_file(path: str | Path, *, field: str, what: str = "file") -> Path:
-    """Check that ``path`` is an existing, readable, non-empty file; a one-line error naming ``field``."""
+def output_folder_argument(path: str | Path) -> Path:
+    """:func:`output_folder` for a positional argument: the message names the folder alone."""
+    try:
+        return output_folder(path)
+    except ParameterError as e:
+        raise ForestError(e.message) from None
+
+
+def input_file(path: str | Path, *, field: str | None, what: str = "file") -> Path:
+    """Check that ``path`` is an existing, readable, non-empty file.
+
+    A one-line error naming ``field`` (an option's parameter), or only the file
+    when ``field`` is None (a positional argument: the file is what the user typed).
+    """
     path = Path(path)
-    if path.is_dir():
-        raise ParameterError(field, f"{path}: is a folder, not a {what}")
+
+    def error(message: str) -> ForestError:
+        return ForestError(message) if field is None else ParameterError(field, message)
+
+    if _is_dir(path):
+        raise error(f"{path}: is a folder, not a {what}")
     if not path.is_file():
-        raise ParameterError(field, f"{path}: {what} not found")
+        raise error(f"{path}: {what} not found")
     try:
         with open(path, "rb") as f:
             first = f.read(1)
     except OSError as e:
-        raise ParameterError(field, f"{path}: cannot read {what}: {e.strerror or e}") from None
+        raise error(f"{path}: cannot read {what}: {e.strerror or e}") from None
     if not first:
-        raise ParameterError(field, f"{path}: {what} is empty")
+        raise error(f"{path}: {what} is empty")
     return path
 
 
@@ -214,11 +241,11 @@ def check_species(config, library) -> None:
         if base in known:
             continue
         close = difflib.get_close_matches(base, names, n=3, cutoff=0.6)
-        hint = f"did you mean {' or '.join(repr(c) for c in close)}? " if close else ""
+        hint = f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
         raise ConfigError(
             config.path,
             field,
-            f"unknown species {model!r}: {hint}(the library has {', '.join(names) or 'no species'}; "
+            f"unknown species {model!r}{hint} (the library has {', '.join(names) or 'no species'}; "
             "or name a mesh file)",
         )
 

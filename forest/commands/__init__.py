@@ -14,8 +14,6 @@ from typing import Any
 FLAGS = {
     "output": "-o",
     "library": "--library",
-    "folder": "FOLDER",
-    "mesh": "MESH",
     "frames": "--frames",
     "variant": "--variant",
     "instances": "--instances",

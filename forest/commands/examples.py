@@ -30,8 +30,8 @@ def register(app: typer.Typer) -> None:
     ):
         """Copy an example's config and every file it refers to into FOLDER; print the config's path."""
         from ..example_scenes import copy_example, example_path
-        from ..preflight import output_folder
+        from ..preflight import output_folder_argument
 
         example_path(name)  # an unknown name first
-        output_folder(folder, field="folder")
+        output_folder_argument(folder)
         typer.echo(str(copy_example(name, folder)))

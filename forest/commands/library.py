@@ -142,7 +142,7 @@ def register(app: typer.Typer) -> None:
         from ..library import open_library
         from ..library.importer import add_species
 
-        preflight.input_file(mesh, field="mesh", what="mesh file")
+        preflight.input_file(mesh, field=None, what="mesh file")
         lib = open_library(library)
         preflight.output_folder(lib.root, field="library")  # the import writes there: check before converting
         sp = add_species(lib, mesh, name, up=up, units=units, height=height, force=force)

@@ -39,7 +39,7 @@ def register(app: typer.Typer) -> None:
         from ..lookdev import match, optimiser_size, resolve_settings
         from ..lookdev.reference import load_reference
         from ..progress import progress_bar
-        from ..render.scene import check_envmap
+        from ..render.scene import check_render_inputs
         from ..scene import load_scene
 
         # Everything a fit needs, checked before the scene is loaded and the proxy built.
@@ -59,7 +59,7 @@ def register(app: typer.Typer) -> None:
             variant=variant,
             grid=grid,
         )  # bad options fail before any work
-        check_envmap(cfg)
+        check_render_inputs(cfg)
         width, height = optimiser_size(cfg, settings.resolution)
         try:
             with warnings.catch_warnings():

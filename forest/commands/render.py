@@ -45,7 +45,7 @@ def register(app: typer.Typer) -> None:
         from ..progress import progress_bar
         from ..render import choose_variant, render_scene
         from ..render.render import frame_size, output_paths
-        from ..render.scene import check_envmap
+        from ..render.scene import check_render_inputs
         from . import load_with_flags
 
         # 1. What can be checked without reading the scene: the output files and the flags.
@@ -61,7 +61,7 @@ def register(app: typer.Typer) -> None:
         if variant is not None:
             choose_variant(0, variant)  # reject a bad --variant before any work
         # 2. The inputs only the render reads, and the image's memory before any tree is loaded.
-        check_envmap(cfg)
+        check_render_inputs(cfg)
         size = frame_size(cfg, preview=preview)
         flags = width is not None or height is not None
         guess = variant or cfg.render.variant or "scalar_rgb"

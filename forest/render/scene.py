@@ -146,6 +146,25 @@ def check_envmap(config) -> None:
         raise ConfigError(config.path, ENVMAP_FIELD, f"{path}: {bad:,} negative values; radiance must be >= 0")
 
 
+def _terrain_texture(config):
+    """The ``[render] terrain_texture`` image as linear RGB, or None; a bad file fails naming the field."""
+    path = getattr(config.render, "terrain_texture", None)
+    if path is None:
+        return None
+    from ..images import read_map_rgb
+
+    try:
+        return read_map_rgb(path, what="terrain texture")
+    except ForestError as e:
+        raise ConfigError(config.path, "render.terrain_texture", str(e)) from None
+
+
+def check_render_inputs(config) -> None:
+    """The files only a render reads (environment map, terrain texture), checked before any work."""
+    check_envmap(config)
+    _terrain_texture(config)
+
+
 def _envmap(config, variant: str) -> dict:
     """The ``envmap`` emitter dict, checked (:func:`check_envmap`) and test-loaded by Mitsuba.
 
@@ -314,9 +333,7 @@ def terrain_reflectance(config, terrain, variant: str, colour_grid: np.ndarray |
     tex_path = getattr(rc, "terrain_texture", None)
     base = np.asarray(rc.terrain_colour, dtype=np.float32)
     if tex_path is not None:
-        from ..images import read_map_rgb
-
-        grid = read_map_rgb(tex_path, what="terrain texture")
+        grid = _terrain_texture(config)
         return colour_grid_texture(grid, terrain.extent, terrain.height_range, variant)
     if colour_grid is not None:
         return colour_grid_texture(
