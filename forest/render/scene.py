@@ -160,9 +160,18 @@ def _terrain_texture(config):
 
 
 def check_render_inputs(config) -> None:
-    """The files only a render reads (environment map, terrain texture), checked before any work."""
-    check_envmap(config)
+    """The files only a render reads (environment map, terrain texture), checked before any work.
+
+    An environment map is also test-loaded by Mitsuba (:func:`_envmap`), which
+    refuses some files OpenImageIO reads (an EXR with 2 or 5 channels).
+    """
+    if config.lights.sky is not None and config.lights.sky.kind == "envmap":
+        _envmap(config, "scalar_rgb")
     _terrain_texture(config)
+
+
+#: Environment maps already checked in this process, by (path, size, modification time).
+_checked_envmaps: set[tuple[str, int, int]] = set()
 
 
 def _envmap(config, variant: str) -> dict:
@@ -171,9 +180,16 @@ def _envmap(config, variant: str) -> dict:
     Whatever Mitsuba's loader still refuses is reported against ``lights.sky.envmap``
     in one line, with Mitsuba's own stderr captured.
     """
-    check_envmap(config)
     sky = config.lights.sky
     d = {"type": "envmap", "filename": str(sky.envmap), "scale": float(sky.scale)}
+    try:
+        st = sky.envmap.stat()
+        key = (str(sky.envmap.resolve()), st.st_size, st.st_mtime_ns)
+    except OSError:
+        key = None
+    if key is not None and key in _checked_envmaps:
+        return d
+    check_envmap(config)
     mi = mitsuba(variant)
     failure = ""
     with captured_stderr() as noise:
@@ -185,6 +201,8 @@ def _envmap(config, variant: str) -> dict:
         text = (failure or next(line for line in noise if "error" in line.lower())).splitlines()[0]
         detail = text.split('"envmap": ')[-1].strip()
         raise ConfigError(config.path, ENVMAP_FIELD, f"{sky.envmap}: Mitsuba cannot read it: {detail}")
+    if key is not None:
+        _checked_envmaps.add(key)
     return d
 
 

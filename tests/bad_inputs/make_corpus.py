@@ -159,6 +159,7 @@ def cases(tmp: Path) -> list[Case]:
     exr_nan = _encoded(lambda p: _oiio_write(p, nan_map, "float"), ".exr", tmp)
     exr_neg = _encoded(lambda p: _oiio_write(p, neg_map, "float"), ".exr", tmp)
     exr_inf = _encoded(lambda p: _oiio_write(p, inf_map, "float"), ".exr", tmp)
+    exr_two = _encoded(lambda p: _oiio_write(p, np.ones((8, 16, 2), np.float32), "float"), ".exr", tmp)
     exr_ok = _encoded(lambda p: _oiio_write(p, _grey(8, 16), "half"), ".exr", tmp)
     tif_ok = _encoded(lambda p: _oiio_write(p, _grey(8, 16), "float"), ".tif", tmp)
     jpg_ok = _encoded(lambda p: _oiio_write(p, np.round(_noise(64, 64) * 255).astype(np.uint8), "uint8"), ".jpg", tmp)
@@ -354,6 +355,13 @@ def cases(tmp: Path) -> list[Case]:
             RENDER,
             ["lights.sky.envmap", "sky.exr"],
             {"scene.toml": with_sky('envmap = "sky.exr"'), "sky.exr": b"v/1\x01\x02\x00\x00\x00" + b"junk" * 20},
+        ),
+        L(
+            "envmap_two_channels",
+            "input",
+            RENDER,
+            ["lights.sky.envmap", "sky.exr", "Mitsuba cannot read"],
+            {"scene.toml": with_sky('envmap = "sky.exr"'), "sky.exr": exr_two},
         ),
         L(
             "envmap_tiff",
