@@ -22,7 +22,7 @@ import typer
 try:  # typer ≥ 0.17 carries its own copy of click
     from typer._click import exceptions as click_errors
 except ImportError:  # pragma: no cover - older typer on the public click
-    from click import exceptions as click_errors
+    from click import exceptions as click_errors  # type: ignore[no-redef]
 
 from .errors import ForestError, ParameterError
 

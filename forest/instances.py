@@ -161,7 +161,8 @@ class InstanceSet:
                 cols = {k: z[k] for k in COLUMNS}
             species_names = [str(x) for x in meta.pop("species_names")]
             partition_names = [str(x) for x in meta.pop("partition_names")]
-            extent = tuple(float(x) for x in meta.pop("extent"))
+            xmin, zmin, xmax, zmax = (float(x) for x in meta.pop("extent"))
+            extent = (xmin, zmin, xmax, zmax)
             seed = int(meta.pop("seed"))
             meta.pop("format", None)
             inst = cls(
