@@ -61,7 +61,7 @@ from .errors import ConfigError, ForestError, ParameterError
 GiB = 1 << 30
 
 # -- memory model (bytes), see the module docstring --------------------------------------------
-BASE_BYTES = 400 << 20
+BASE_BYTES = 300 << 20
 BYTES_PER_TRIANGLE = 200
 BYTES_PER_TREE = {"scalar": 4_700, "jit": 18_000}
 BYTES_PER_PIXEL = {"scalar": 200, "jit": 300}

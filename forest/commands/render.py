@@ -40,6 +40,16 @@ def register(app: typer.Typer) -> None:
     ):
         """Render the scene's forest with Mitsuba 3: linear EXR (with depth, id and species layers) + sRGB PNG."""
         from .. import preflight
+
+        if frames is None and output.suffix.lower() in (".exr", ".png"):
+            # The still's EXR and PNG, checked before the renderer's modules are even imported.
+            preflight.output_files(
+                [
+                    output.with_suffix(output.suffix),
+                    output.with_suffix(".png" if output.suffix.lower() == ".exr" else ".exr"),
+                ]
+            )
+
         from ..camera import frame_path, parse_frames
         from ..errors import ParameterError
         from ..progress import progress_bar
