@@ -422,40 +422,72 @@ def _throughput_file() -> Path:
     return platformdirs.user_state_path("forest") / "throughput.json"
 
 
-def throughput(variant: str) -> tuple[float, float, bool]:
-    """(seconds per camera sample, seconds per tree, measured?) for ``variant`` on this machine."""
-    kind = _kind(variant)
+def _rates() -> dict:
     try:
-        rec = json.loads(_throughput_file().read_text()).get(variant)
-        sample_s, tree_s = float(rec["sample_s"]), float(rec["tree_s"])
-        if math.isfinite(sample_s) and math.isfinite(tree_s) and sample_s > 0 and tree_s >= 0:
-            return sample_s, tree_s, True
-    except (OSError, ValueError, TypeError, KeyError, AttributeError):
-        pass
-    cores = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
-    scale = 2.0 / cores if kind == "scalar" else 1.0
-    return SECONDS_PER_SAMPLE[kind] * scale, SECONDS_PER_TREE[kind], False
+        data = json.loads(_throughput_file().read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
 
 
-def record_render(variant: str, *, samples: int, trees: int, render_seconds: float, load_seconds: float) -> None:
-    """Remember this machine's rates from a finished render (for the next estimate); never fails."""
-    if samples <= 0 or render_seconds <= 0:
-        return
+def _rate(key: str, name: str) -> float | None:
+    rec = _rates().get(key)
+    try:
+        value = float(rec[name])  # type: ignore[index]
+    except (TypeError, KeyError, ValueError):
+        return None
+    return value if math.isfinite(value) and value >= 0 else None
+
+
+def _record(key: str, rates: dict[str, float]) -> None:
+    """Store ``rates`` under ``key`` in the user's throughput file; never fails (it only informs estimates)."""
     path = _throughput_file()
     try:
-        data = json.loads(path.read_text()) if path.is_file() else {}
-        if not isinstance(data, dict):
-            data = {}
-        data[variant] = {
-            "sample_s": render_seconds / samples,
-            "tree_s": load_seconds / trees if trees > 0 else 0.0,
-        }
+        data = _rates()
+        data[key] = rates
         from .atomic import atomic_path
 
         with atomic_path(path) as tmp:
             tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
     except (OSError, ValueError, ForestError):
         pass
+
+
+def throughput(variant: str) -> tuple[float, float, bool]:
+    """(seconds per camera sample, seconds per tree, measured?) of a render in ``variant`` on this machine."""
+    kind = _kind(variant)
+    sample_s, tree_s = _rate(f"render:{variant}", "sample_s"), _rate(f"render:{variant}", "tree_s")
+    if sample_s and tree_s is not None:
+        return sample_s, tree_s, True
+    cores = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+    scale = 2.0 / cores if kind == "scalar" else 1.0
+    return SECONDS_PER_SAMPLE[kind] * scale, SECONDS_PER_TREE[kind], False
+
+
+def record_render(variant: str, *, samples: int, trees: int, render_seconds: float, load_seconds: float) -> None:
+    """Remember this machine's render rates from a finished render (for the next estimate)."""
+    if samples > 0 and render_seconds > 0:
+        rates = {"sample_s": render_seconds / samples, "tree_s": load_seconds / trees if trees > 0 else 0.0}
+        _record(f"render:{variant}", rates)
+
+
+#: Look-dev: seconds per fitted sample (optimiser pixels × spp × iterations) and the fit's memory, measured on
+#: the 2-core machine (96x54 x 8 spp, 400 trees, aligned: 5.6 s per iteration under load; 0.8–1.2 GiB peak).
+MATCH_SECONDS_PER_SAMPLE = 1.0e-4
+MATCH_BYTES = int(1.2 * GiB)
+
+
+def match_estimate(width: int, height: int, spp: int, iterations: int, variant: str, mode: str) -> tuple[float, int]:
+    """(seconds, bytes) of a look-dev fit: this machine's last fit's rate if it has one, else the built-in rate."""
+    rate = _rate(f"match:{variant}:{mode}", "sample_s") or MATCH_SECONDS_PER_SAMPLE
+    samples = int(width) * int(height) * int(spp) * int(iterations)
+    return samples * rate, MATCH_BYTES
+
+
+def record_match(variant: str, mode: str, *, samples: int, seconds: float) -> None:
+    """Remember this machine's look-dev rate from a finished fit."""
+    if samples > 0 and seconds > 0:
+        _record(f"match:{variant}:{mode}", {"sample_s": seconds / samples})
 
 
 # -- formatting ---------------------------------------------------------------------------------

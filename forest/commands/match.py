@@ -76,10 +76,14 @@ def register(app: typer.Typer) -> None:
         with progress_bar("scene", quiet=quiet or instances is not None) as bar:
             scene = load_scene(cfg, instances, progress=bar)
         if not quiet:
+            seconds, memory = preflight.match_estimate(
+                width, height, settings.spp, settings.iterations, settings.variant, settings.mode
+            )
             typer.echo(
                 f"match: {len(scene.instances):,} trees, {settings.mode} fit of {', '.join(settings.params)}: "
                 f"{settings.iterations} iterations x {settings.spp} spp at {width}x{height}, "
-                f"{settings.grid}x{settings.grid} colour grid ({settings.variant})",
+                f"{settings.grid}x{settings.grid} colour grid ({settings.variant}): about "
+                f"{preflight.format_bytes(memory)}, about {preflight.format_seconds(seconds)}",
                 err=True,
             )
         with warnings.catch_warnings():
@@ -99,6 +103,12 @@ def register(app: typer.Typer) -> None:
                     grid=grid,
                     progress=bar,
                 )
+        preflight.record_match(
+            settings.variant,
+            settings.mode,
+            samples=width * height * settings.spp * settings.iterations,
+            seconds=result.seconds,
+        )
         if not quiet:
             for w in result.warnings:
                 typer.echo(f"warning: {w}", err=True)
