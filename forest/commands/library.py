@@ -80,12 +80,14 @@ def register(app: typer.Typer) -> None:
         """Generate every species' levels of detail and previews into the user library's cache (skips fresh ones)."""
         import time
 
+        from .. import preflight
         from ..library import open_library
         from ..progress import progress_bar
 
         lib = open_library(library)
         for n in names or []:
             lib.entry(n)
+        preflight.output_folder(lib.cache, field="library")  # the build writes there: check before generating
         t0 = time.perf_counter()
         stale = [n for n in (names or lib.names()) if not lib.is_fresh(n)]
         with progress_bar("library", quiet=quiet) as progress:

@@ -705,6 +705,18 @@ def cases(tmp: Path) -> list[Case]:
             ["--library", "/sys", "cannot write"],
             {"tri.obj": tri_obj},
         ),
+        L(
+            "build_library_unwritable",
+            "library",
+            ["library", "build", "--no-previews", "--library", f"{UNWRITABLE}/lib"],
+            ["--library", "/sys", "cannot write"],
+        ),
+        L(
+            "build_unknown_species",
+            "library",
+            ["library", "build", "brodleaf", "--library", "lib"],
+            ["brodleaf"],
+        ),
         L("preview_unknown_species", "library", ["library", "preview", "brodleaf"], ["brodleaf"]),
         # -- look-dev references ----------------------------------------------------------------
         L(
