@@ -169,12 +169,13 @@ def load_scene(
     before anything is loaded or scattered.
     """
     step = progress or (lambda f, m="": None)
+    step(0.0, "terrain")
+
     if library is None:
         from .library import open_library
 
         library = open_library()
     check_species(config, library)  # a misspelled species fails now, not after the trees are scattered
-    step(0.0, "terrain")
     terrain = load_terrain(config.terrain, config.path)
     if instances is None or isinstance(instances, (str, Path)):
         from .scatter import scene_instances
