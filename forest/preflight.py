@@ -27,11 +27,12 @@ temporary file that is removed at once.
   float64, the depth/id/species layers and the copies made to write the EXR and
   PNG) and L the rays one sample pass traces at once in the JIT variants
   (``forest.render.frame.JIT_LANES`` at most).  The coefficients are measured
-  peak resident sizes of ``forest render`` in Mitsuba 3.9.1 (scalar_rgb:
-  ≈ 183 B per pixel from 256² → 1024²; llvm_ad_rgb: ≈ 281 B per pixel and
-  ≈ 1.6 B per lane; per tree: ≈ 4.6 KB in scalar_rgb between 100 000 and
-  1 000 000 instances and ≈ 13 KB more in the JIT variants, see DESIGN.md),
-  rounded up.  The estimate is compared with the memory this process may use
+  peak resident sizes of ``forest render`` in Mitsuba 3.9.1, rounded up:
+  M₀ ≈ 0.27 GB (a few trees, a small image); scalar_rgb ≈ 183 B per pixel
+  (256² → 1024²); llvm_ad_rgb ≈ 281 B per pixel and ≈ 1.6 B per lane; per tree
+  ≈ 4.6 KB in scalar_rgb between 100 000 and 1 000 000 instances
+  (bench/RESULTS.md, "render million": 4.83 GB) and ≈ 13 KB more in the JIT
+  variants.  ``bench/bench_preflight.py`` compares estimate and measurement.  The estimate is compared with the memory this process may use
   (:func:`available_memory`: ``MemAvailable`` and the cgroup's limit, or
   ``$FOREST_MEMORY_GB``); a render that does not fit fails naming
   ``render.width``/``render.height`` and the largest image of the same aspect
@@ -70,7 +71,7 @@ BYTES_PER_LANE = 2
 JIT_LANES = 1 << 22
 
 # -- time model (seconds), used until this machine has rendered once ---------------------------
-#: Core-seconds per camera sample and per tree loaded, measured on a 2-core machine.
+#: Seconds per camera sample and per tree loaded on a 2-core machine (samples scale with the cores).
 SECONDS_PER_SAMPLE = {"scalar": 8e-6, "jit": 2e-6}
 SECONDS_PER_TREE = {"scalar": 2.2e-5, "jit": 1.0e-4}
 #: Fixed cost of building the scene (and, in the JIT variants, compiling the kernels).
@@ -167,6 +168,26 @@ def output_files(paths: Iterable[str | Path], *, field: str = "output") -> list[
             probed.add(folder)
         out.append(p)
     return out
+
+
+#: Bytes per pixel of one written frame: the float EXR's beauty, depth, id and species layers after
+#: zip compression (noisy beauty compresses little, the id layers much) plus the 8-bit PNG.
+FRAME_BYTES_PER_PIXEL = 16
+
+
+def check_free_space(path: str | Path, needed: int, *, field: str = "output") -> None:
+    """Refuse ``needed`` bytes of output at ``path`` when its file system has less room left."""
+    import shutil
+
+    folder = _existing_ancestor(Path(path), field)
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return
+    if needed > free:
+        raise ParameterError(
+            field, f"{path}: the output needs about {format_bytes(needed)}, {format_bytes(free)} free on its disk"
+        )
 
 
 def output_folder(path: str | Path, *, field: str = "output") -> Path:
@@ -494,7 +515,7 @@ def record_match(variant: str, mode: str, *, samples: int, seconds: float) -> No
 
 
 def format_bytes(n: float) -> str:
-    for unit, scale in (("GiB", GiB), ("MiB", 1 << 20)):
+    for unit, scale in (("TiB", 1 << 40), ("GiB", GiB), ("MiB", 1 << 20)):
         if n >= scale:
             return f"{n / scale:.1f} {unit}"
     return f"{n / 1024:.0f} KiB"

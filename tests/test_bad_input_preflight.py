@@ -69,6 +69,18 @@ def test_output_into_a_read_only_folder(tmp_path):
         ro.chmod(0o755)
 
 
+def test_free_space_is_checked(tmp_path):
+    import shutil
+
+    from forest.preflight import check_free_space
+
+    free = shutil.disk_usage(tmp_path).free
+    check_free_space(tmp_path / "new" / "f.exr", 1024)
+    with pytest.raises(ParameterError, match="free on its disk") as e:
+        check_free_space(tmp_path / "new" / "f.exr", free * 2 + 2**40)
+    assert e.value.field == "output"
+
+
 def test_output_folder_refuses_a_file(tmp_path):
     from forest.preflight import output_folder, output_folder_argument
 

@@ -70,9 +70,11 @@ def register(app: typer.Typer) -> None:
         cfg = load_with_flags(config, {"render.spp": spp, "render.width": width, "render.height": height})
         if variant is not None:
             choose_variant(0, variant)  # reject a bad --variant before any work
-        # 2. The inputs only the render reads, and the image's memory before any tree is loaded.
+        # 2. The inputs only the render reads, the disk, and the image's memory before any tree is loaded.
         check_render_inputs(cfg)
         size = frame_size(cfg, preview=preview)
+        pixels = size.width * size.height
+        preflight.check_free_space(output, len(frame_list) * pixels * preflight.FRAME_BYTES_PER_PIXEL)
         flags = width is not None or height is not None
         guess = variant or cfg.render.variant or "scalar_rgb"
         preflight.check_render_memory(
