@@ -55,18 +55,46 @@ def test_output_file_refusals_name_the_parameter(tmp_path, make, target, words):
     assert _listing(tmp_path) == before
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
-def test_output_into_a_read_only_folder(tmp_path):
-    from forest.preflight import output_file
+def _unprivileged() -> list[str] | None:
+    """A command prefix that runs as an ordinary user: none needed, ``setpriv`` to nobody as root, or None."""
+    import shutil
 
-    ro = tmp_path / "ro"
-    ro.mkdir()
-    ro.chmod(0o555)
+    if os.geteuid() != 0:
+        return []
+    setpriv = shutil.which("setpriv")
+    return [setpriv, "--reuid=65534", "--regid=65534", "--clear-groups"] if setpriv else None
+
+
+def test_render_into_a_read_only_folder_is_one_line():
+    """A real read-only folder (as an ordinary user: root writes anywhere) fails at once, leaving it empty."""
+    import shutil
+    import tempfile
+
+    prefix = _unprivileged()
+    if prefix is None:
+        pytest.skip("running as root without setpriv")
+    base = Path(tempfile.mkdtemp(prefix="forest-ro-"))
     try:
-        with pytest.raises(ParameterError, match="permission denied"):
-            output_file(ro / "frame.exr")
+        base.chmod(0o755)
+        cfg = write_scene(base, "[terrain]\nflat = {}\n[[species]]\nmodel = 'palm'\npercent = 5\n")
+        cfg.chmod(0o644)
+        ro = base / "ro"
+        ro.mkdir()
+        ro.chmod(0o555)
+        forest = [sys.executable, "-m", "forest.cli"]
+        env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+        r = subprocess.run(
+            [*prefix, *forest, "render", str(cfg), "-o", str(ro / "frame.exr")],
+            capture_output=True,
+            text=True,
+            env=env,
+            cwd=base,
+        )
+        assert r.returncode == 2, r.stderr
+        assert r.stderr.strip() == f"forest: error: -o: {ro / 'frame.exr'}: cannot write into {ro}: permission denied"
+        assert list(ro.iterdir()) == []
     finally:
-        ro.chmod(0o755)
+        shutil.rmtree(base, ignore_errors=True)
 
 
 def test_free_space_is_checked(tmp_path):
