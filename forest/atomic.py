@@ -1,16 +1,45 @@
 """Atomic output files: write to a temporary name beside the target, then rename.
 
 A failed run therefore leaves neither a half-written file nor an empty one.
+The file system's own refusals (a read-only folder, a file where a folder
+should be, a folder where the file should go, a full disk) raise
+:class:`~forest.errors.ForestError` naming the output, never a bare
+``OSError``; :mod:`forest.preflight` checks the same before any work starts.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+
+from .errors import ForestError
+
+#: Errors of the storage itself while writing (full disk, quota, file size limit).
+STORAGE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
+
+
+def _refused(dest: Path, e: OSError) -> ForestError:
+    """One line for an output the file system refuses."""
+    if isinstance(e, IsADirectoryError) or dest.is_dir():
+        return ForestError(f"{dest}: is a folder; cannot write a file there")
+    if isinstance(e, (FileExistsError, NotADirectoryError)):
+        for parent in dest.parents:
+            if parent.exists() and not parent.is_dir():
+                return ForestError(f"{dest}: {parent} is a file, not a folder")
+    reason = e.strerror or str(e)
+    return ForestError(f"{dest}: cannot write: {reason}")
+
+
+def _make_parent(dest: Path) -> None:
+    try:
+        dest.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise _refused(dest, e) from None
 
 
 @contextlib.contextmanager
@@ -22,17 +51,30 @@ def atomic_path(dest: str | Path, suffix: str | None = None) -> Iterator[Path]:
     left untouched.
     """
     dest = Path(dest)
-    dest.parent.mkdir(parents=True, exist_ok=True)
+    if dest.is_dir():
+        raise ForestError(f"{dest}: is a folder; cannot write a file there")
+    _make_parent(dest)
     suffix = dest.suffix if suffix is None else suffix
-    fd, tmp = tempfile.mkstemp(prefix=f".{dest.stem}.", suffix=f".tmp{suffix}", dir=dest.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{dest.stem}.", suffix=f".tmp{suffix}", dir=dest.parent)
+    except OSError as e:
+        raise _refused(dest, e) from None
     os.close(fd)
     tmp_path = Path(tmp)
     try:
-        yield tmp_path
+        try:
+            yield tmp_path
+        except OSError as e:
+            if e.errno in STORAGE_ERRNOS:  # the disk, not the code: name the output, not the temporary
+                raise ForestError(f"{dest}: cannot write: {e.strerror}") from None
+            raise
         if not tmp_path.exists() or tmp_path.stat().st_size == 0:
             raise OSError(f"{dest}: nothing was written")
         os.chmod(tmp_path, 0o644)
-        os.replace(tmp_path, dest)
+        try:
+            os.replace(tmp_path, dest)
+        except OSError as e:
+            raise _refused(dest, e) from None
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
@@ -46,15 +88,23 @@ def atomic_dir(dest: str | Path) -> Iterator[Path]:
     directory is created only if something was written.
     """
     dest = Path(dest)
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", suffix=".tmp", dir=dest.parent))
+    if os.path.lexists(dest) and not dest.is_dir():
+        raise ForestError(f"{dest}: exists and is not a folder")
+    _make_parent(dest)
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", suffix=".tmp", dir=dest.parent))
+    except OSError as e:
+        raise _refused(dest, e) from None
     try:
         yield tmp
         files = sorted(p for p in tmp.rglob("*") if p.is_file())
         for p in files:
             target = dest / p.relative_to(tmp)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            os.chmod(p, 0o644)
-            os.replace(p, target)
+            try:
+                target.parent.mkdir(parents=True, exist_ok=True)
+                os.chmod(p, 0o644)
+                os.replace(p, target)
+            except OSError as e:
+                raise _refused(target, e) from None
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -8,6 +8,7 @@ as linear EXR (half or float) and sRGB-encoded 8-bit PNG, always atomically.
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,18 @@ def _oiio():
     return oiio
 
 
+def _first_line(*texts: str) -> str:
+    """The first non-empty line of the first text that has one, without OpenImageIO's format prefixes."""
+    for text in texts:
+        for line in str(text or "").splitlines():
+            line = line.strip()
+            for prefix in ("libpng error: ", "PNG read error: ", "JPEG error: ", "Error: "):
+                line = line.removeprefix(prefix)
+            if line and line != "PNG library error":
+                return line
+    return ""
+
+
 def read_image(
     path: str | Path,
     *,
@@ -37,11 +50,20 @@ def read_image(
     """Read an image as float32 ``(H, W, C)`` with the file's own encoding (no conversion).
 
     8/16-bit integer images are normalised to [0, 1].  Raises :class:`ForestError`
-    naming the file for a missing, oversized, unreadable or non-finite image.
-    With ``unassociated``, RGBA colour comes back as stored (straight alpha)
-    instead of OpenImageIO's default of multiplying it by alpha on read.
+    naming the file for a missing, oversized, unreadable, truncated or
+    non-finite image, in one line: what the decoding libraries print on stderr
+    (libpng, libjpeg, OpenEXR through OpenImageIO) is captured and folded into
+    that line, and OpenImageIO's pending errors are collected so that none is
+    printed later.  A decoder that reports an error after returning pixels (a
+    truncated JPEG, filled with grey) counts as a failure.  With
+    ``unassociated``, RGBA colour comes back as stored (straight alpha) instead
+    of OpenImageIO's default of multiplying it by alpha on read.
     """
+    from .runtime import captured_stderr
+
     path = Path(path)
+    if path.is_dir():
+        raise ForestError(f"{path}: {what} is a folder, not an image file")
     if not path.is_file():
         raise ForestError(f"{path}: {what} not found")
     size = path.stat().st_size
@@ -49,27 +71,46 @@ def read_image(
         raise ForestError(f"{path}: {what} is empty")
     if size > max_bytes:
         raise ForestError(f"{path}: {what} is {size / 2**20:.0f} MiB, over the {max_bytes / 2**20:.0f} MiB limit")
+    if not os.access(path, os.R_OK):
+        raise ForestError(f"{path}: cannot read {what}: permission denied")
     oiio = _oiio()
-    if unassociated:
-        config = oiio.ImageSpec()
-        config.attribute("oiio:UnassociatedAlpha", 1)
-        inp = oiio.ImageInput.open(str(path), config)
-    else:
-        inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise ForestError(f"{path}: cannot read {what}: {oiio.geterror() or 'unknown format'}")
-    try:
-        spec = inp.spec()
-        if spec.width * spec.height > max_pixels:
-            raise ForestError(f"{path}: {what} is {spec.width}x{spec.height}, over the {max_pixels} pixel limit")
-        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
-        if data is None or not hasattr(data, "shape"):
-            raise ForestError(f"{path}: cannot read {what}: {inp.geterror() or 'corrupt data'}")
-    finally:
-        inp.close()
+    problem = ""
+    data = None
+    spec = None
+    with captured_stderr() as noise:
+        if unassociated:
+            config = oiio.ImageSpec()
+            config.attribute("oiio:UnassociatedAlpha", 1)
+            inp = oiio.ImageInput.open(str(path), config)
+        else:
+            inp = oiio.ImageInput.open(str(path))
+        if inp is None:
+            problem = _first_line(oiio.geterror()) or "not an image file OpenImageIO can read"
+        else:
+            spec = inp.spec()
+            if spec.width * spec.height > max_pixels:
+                inp.close()
+                del inp
+                raise ForestError(f"{path}: {what} is {spec.width}x{spec.height}, over the {max_pixels} pixel limit")
+            data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+            error = inp.geterror()
+            if data is None or not hasattr(data, "shape") or error:
+                problem = _first_line(error) or "corrupt or truncated data"
+                data = None
+            inp.close()
+            del inp
+        oiio.geterror()  # clear the global error too: OpenImageIO prints unretrieved errors at exit
+    if data is None:
+        detail = _first_line(problem, *noise) or "unknown format"
+        for quoted in (f' ("{path}")', f" ({path})", f' "{path}"', str(path)):  # the line names the file already
+            detail = detail.replace(quoted, "")
+        detail = re.sub(r"^EXR Error\s*:\s*", "", detail).strip(" :") or "unknown format"
+        raise ForestError(f"{path}: cannot read {what}: {detail}")
+    assert spec is not None
     data = np.asarray(data, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
     if not np.isfinite(data).all():
-        raise ForestError(f"{path}: {what} contains NaN or infinite values")
+        bad = int((~np.isfinite(data)).sum())
+        raise ForestError(f"{path}: {what} contains NaN or infinite values ({bad:,} of {data.size:,})")
     return data
 
 

@@ -145,23 +145,77 @@ class InstanceSet:
 
     @classmethod
     def load(cls, path: str | Path) -> InstanceSet:
+        """Read a saved set; a :class:`ForestError` naming the file for anything but a valid, finite one.
+
+        Checked on load (a set edited by another tool can hold anything): the
+        columns' shapes, finite values in every float column, ``scale > 0``, a
+        non-zero rotation quaternion, and species and partition indices inside
+        their name lists (see :func:`check_rows`).
+        """
         path = Path(path)
+        if path.is_dir():
+            raise ForestError(f"{path}: is a folder, not an instance file")
         if not path.is_file():
             raise ForestError(f"{path}: instance file not found")
         try:
             with np.load(path, allow_pickle=False) as z:
                 meta = json.loads(bytes(z["meta"]).decode())
                 cols = {k: z[k] for k in COLUMNS}
-        except (KeyError, ValueError, OSError, zipfile.BadZipFile, json.JSONDecodeError) as e:
-            raise ForestError(f"{path}: not a forest instance file ({e})") from None
-        species_names = meta.pop("species_names")
-        partition_names = meta.pop("partition_names")
-        extent = tuple(meta.pop("extent"))
-        seed = meta.pop("seed")
-        meta.pop("format", None)
-        return cls(
-            **cols, species_names=species_names, partition_names=partition_names, extent=extent, seed=seed, meta=meta
-        )
+            species_names = [str(x) for x in meta.pop("species_names")]
+            partition_names = [str(x) for x in meta.pop("partition_names")]
+            xmin, zmin, xmax, zmax = (float(x) for x in meta.pop("extent"))
+            extent = (xmin, zmin, xmax, zmax)
+            seed = int(meta.pop("seed"))
+            meta.pop("format", None)
+            inst = cls(
+                **cols,
+                species_names=species_names,
+                partition_names=partition_names,
+                extent=extent,
+                seed=seed,
+                meta=meta,
+            )
+        except (KeyError, ValueError, TypeError, AttributeError, OSError, zipfile.BadZipFile) as e:
+            reason = str(e).splitlines()[0] if str(e) else type(e).__name__
+            raise ForestError(f"{path}: not a forest instance file ({reason})") from None
+        problem = check_rows(inst)
+        if problem:
+            raise ForestError(f"{path}: {problem}")
+        return inst
+
+
+def check_rows(inst: InstanceSet) -> str | None:
+    """What is wrong with a set's values, as a phrase naming the column and the first bad tree; None if nothing.
+
+    Float columns must be finite, ``scale`` positive, ``rotation`` a non-zero
+    quaternion, ``species``/``partition`` indices inside their name lists and
+    ``extent`` finite.
+    """
+
+    def first(bad: np.ndarray) -> str:
+        rows = np.flatnonzero(bad)
+        return f"{len(rows):,} {'row' if len(rows) == 1 else 'rows'}, the first tree id {int(inst.id[rows[0]])}"
+
+    for name, (dtype, _shape) in COLUMNS.items():
+        a = getattr(inst, name)
+        if np.issubdtype(dtype, np.floating) and a.size and not np.isfinite(a).all():
+            bad = ~np.isfinite(a).reshape(len(a), -1).all(axis=1)
+            return f"column {name!r} has NaN or infinite values ({first(bad)})"
+    if len(inst) and (inst.scale <= 0).any():
+        return f"column 'scale' must be > 0 ({first(inst.scale <= 0)})"
+    if len(inst):
+        zero = np.linalg.norm(inst.rotation, axis=1) < 1e-6
+        if zero.any():
+            return f"column 'rotation' has zero quaternions ({first(zero)})"
+        bad = inst.species >= len(inst.species_names)
+        if bad.any():
+            return f"column 'species' indexes past its {len(inst.species_names)} species names ({first(bad)})"
+        bad = (inst.partition < 0) | (inst.partition >= len(inst.partition_names))
+        if bad.any():
+            return f"column 'partition' indexes past its {len(inst.partition_names)} partition names ({first(bad)})"
+    if not all(np.isfinite(inst.extent)):
+        return f"extent {list(inst.extent)} is not finite"
+    return None
 
 
 def file_digest(path: str | Path) -> str:

@@ -1,15 +1,25 @@
-"""Mitsuba / drjit runtime set-up: LLVM discovery and variant selection.
+"""Mitsuba / drjit runtime set-up: LLVM discovery, variant selection, third-party stderr.
 
 drjit 1.5's CPU backend needs LLVM 19 (LLVM 14–16 crash with
 ``Cannot select: fminimum``).  :func:`ensure_llvm` finds ``libLLVM-19.so`` and
 names it in ``DRJIT_LIBLLVM_PATH`` before mitsuba is imported;
 :func:`mitsuba` imports mitsuba with a variant set and our plugins registered.
+
+C and C++ libraries (libpng, libjpeg, OpenImageIO, Mitsuba, drjit) print
+their own complaints straight to file descriptor 2, around and beside the one
+line forest prints for the same mistake.  :func:`captured_stderr` redirects
+the descriptor around such a call and hands the text back, so that the caller
+can fold it into its own message (or drop it when the library also reported
+the error through its API).
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 from .errors import ForestError, ParameterError
@@ -88,3 +98,33 @@ def mitsuba(variant: str = "scalar_rgb"):
         if register_all is not None:
             register_all(mi)
     return mi
+
+
+@contextlib.contextmanager
+def captured_stderr() -> Iterator[list[str]]:
+    """Redirect file descriptor 2 into a temporary file while the block runs.
+
+    Yields a list that, once the block has ended (normally or not), holds the
+    non-empty lines written to descriptor 2 meanwhile — by Python or by any C
+    library.  Nested use is fine; output of other threads in the window is
+    captured too, so keep the window to the one call that may complain.
+    """
+    lines: list[str] = []
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no descriptor 2 (embedded interpreters): nothing to capture
+        yield lines
+        return
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            with contextlib.suppress(OSError, ValueError):
+                sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            text = sink.read().decode("utf-8", "replace")
+            lines.extend(line.strip() for line in text.splitlines() if line.strip())

@@ -36,6 +36,7 @@ from .instances import InstanceSet, file_digest
 from .library import Library, Species
 from .lod import LodPlan
 from .maps import read_colour_map, sample_bilinear
+from .preflight import check_species
 from .terrain import Terrain, load_terrain
 
 Progress = Callable[[float, str], None]
@@ -170,10 +171,18 @@ def load_scene(
 
     ``instances``: an InstanceSet, the path of a saved one (checked against the
     config: species and the maps it was scattered from), or None to scatter now.
-    ``library`` defaults to :func:`forest.library.open_library`.
+    ``library`` defaults to :func:`forest.library.open_library`.  Every
+    species is checked against it (:func:`forest.preflight.check_species`)
+    before anything is loaded or scattered.
     """
     step: Progress = progress or _silent
     step(0.0, "terrain")
+
+    if library is None:
+        from .library import open_library
+
+        library = open_library()
+    check_species(config, library)  # a misspelled species fails now, not after the trees are scattered
     terrain = load_terrain(config.terrain, config.path)
     if instances is None or isinstance(instances, (str, Path)):
         from .scatter import scene_instances
@@ -191,10 +200,6 @@ def load_scene(
     colour = _colour_grid(config, terrain)
     if not _scattered_with(inst, colour):
         inst = retint(inst, colour)
-    if library is None:
-        from .library import open_library
-
-        library = open_library()
     step(0.8, "species")
     species = resolve_species(config, list(inst.species_names), library)
     lod = LodPlan(config.lod.bands, tuple(len(sp.lods) for sp in species))

@@ -242,7 +242,7 @@ def test_failure_leaves_nothing_behind(tmp_path, lib):
 def test_bad_input_names_the_field(tmp_path, lib):
     cfg = make_config(tmp_path, "").with_overrides({"species[1].model": "birch"})
     inst = make_instances(20, species=("oak", "birch"))
-    with pytest.raises(ConfigError, match=r"scene.toml: species\[1\].model: unknown tree model 'birch'"):
+    with pytest.raises(ConfigError, match=r"scene.toml: species\[1\]\.model: unknown species 'birch'"):
         export_rib(load_scene(cfg, inst, library=lib), tmp_path / "x")
     cfg = make_config(tmp_path, "[export]\nlod_transition = 0.6\n" + LOD)
     with pytest.raises(ConfigError, match=r"export\.lod_transition"):

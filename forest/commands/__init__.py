@@ -13,6 +13,7 @@ from typing import Any
 #: Parameter (or config field a flag overrides) → the flag a user typed.
 FLAGS = {
     "output": "-o",
+    "library": "--library",
     "frames": "--frames",
     "variant": "--variant",
     "instances": "--instances",

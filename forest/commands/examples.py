@@ -29,6 +29,9 @@ def register(app: typer.Typer) -> None:
         folder: Path = typer.Argument(..., help="Folder to copy the config and its maps into."),
     ):
         """Copy an example's config and every file it refers to into FOLDER; print the config's path."""
-        from ..example_scenes import copy_example
+        from ..example_scenes import copy_example, example_path
+        from ..preflight import output_folder_argument
 
+        example_path(name)  # an unknown name first
+        output_folder_argument(folder)
         typer.echo(str(copy_example(name, folder)))

@@ -80,12 +80,14 @@ def register(app: typer.Typer) -> None:
         """Generate every species' levels of detail and previews into the user library's cache (skips fresh ones)."""
         import time
 
+        from .. import preflight
         from ..library import open_library
         from ..progress import progress_bar
 
         lib = open_library(library)
         for n in names or []:
             lib.entry(n)
+        preflight.output_folder(lib.cache, field="library")  # the build writes there: check before generating
         t0 = time.perf_counter()
         stale = [n for n in (names or lib.names()) if not lib.is_fresh(n)]
         with progress_bar("library", quiet=quiet) as progress:
@@ -106,13 +108,18 @@ def register(app: typer.Typer) -> None:
         spp: int = typer.Option(16, "--spp", min=1, max=4096, help="Samples per pixel."),
     ):
         """(Re)render a species' preview image with Mitsuba and print its path."""
+        from .. import preflight
         from ..library import open_library
         from ..library.preview import render_preview_file
 
-        lib = open_library(library)
-        sp = lib.resolve(name)
         if lod not in ("high", "medium", "low", "far"):
             raise ForestError(f"--lod: must be one of high, medium, low, far; got {lod!r}")
+        if output is not None:
+            if output.suffix.lower() != ".png":
+                raise ForestError(f"-o: {output}: a preview is a .png file")
+            preflight.output_file(output)
+        lib = open_library(library)
+        sp = lib.resolve(name)
         path = output or sp.preview_path
         if output is None and (lod != "high" or size != 192 or spp != 16):
             path = sp.preview_path.with_name(f"{sp.preview_path.stem}-{lod}-{size}-{spp}.png")
@@ -133,10 +140,13 @@ def register(app: typer.Typer) -> None:
         quiet: bool = typer.Option(False, "--quiet", "-q", help="Print only the species' name."),
     ):
         """Import a mesh as a species: normalise it, derive levels of detail, measure bounds, render a preview."""
+        from .. import preflight
         from ..library import open_library
         from ..library.importer import add_species
 
+        preflight.input_file(mesh, field=None, what="mesh file")
         lib = open_library(library)
+        preflight.output_folder(lib.root, field="library")  # the import writes there: check before converting
         sp = add_species(lib, mesh, name, up=up, units=units, height=height, force=force)
         if quiet:
             typer.echo(sp.name)

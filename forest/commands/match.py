@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from ..errors import ForestError
+
 
 def register(app: typer.Typer) -> None:
     @app.command("match")
@@ -31,15 +33,22 @@ def register(app: typer.Typer) -> None:
         """Fit the colour map and light values so the forest render looks like a reference."""
         import warnings
 
+        from .. import preflight
         from ..config import load_config
-        from ..lookdev import match
+        from ..errors import ParameterError
+        from ..lookdev import match, optimiser_size, resolve_settings
+        from ..lookdev.reference import load_reference
         from ..progress import progress_bar
+        from ..render.scene import check_render_inputs
         from ..scene import load_scene
 
+        # Everything a fit needs, checked before the scene is loaded and the proxy built.
+        preflight.output_folder(output)
+        preflight.input_file(reference, field="reference", what="reference")
+        if mask is not None:
+            preflight.input_file(mask, field="mask", what="mask")
         cfg = load_config(config)
-        from ..lookdev import resolve_settings
-
-        resolve_settings(
+        settings = resolve_settings(
             cfg,
             iterations=iterations,
             resolution=resolution,
@@ -50,8 +59,33 @@ def register(app: typer.Typer) -> None:
             variant=variant,
             grid=grid,
         )  # bad options fail before any work
+        check_render_inputs(cfg)
+        width, height = optimiser_size(cfg, settings.resolution)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # the fit repeats the reference's notes in its summary
+                load_reference(reference, width, height, mask=settings.mask, fit=settings.fit)
+        except ParameterError:
+            raise
+        except ForestError as e:
+            if settings.mask is not None and str(settings.mask) in str(e):
+                if mask is None:
+                    raise cfg.fail("lookdev.mask", str(e)) from None
+                raise ParameterError("mask", str(e)) from None
+            raise ParameterError("reference", str(e)) from None
         with progress_bar("scene", quiet=quiet or instances is not None) as bar:
             scene = load_scene(cfg, instances, progress=bar)
+        if not quiet:
+            seconds, memory = preflight.match_estimate(
+                width, height, settings.spp, settings.iterations, settings.variant, settings.mode
+            )
+            typer.echo(
+                f"match: {len(scene.instances):,} trees, {settings.mode} fit of {', '.join(settings.params)}: "
+                f"{settings.iterations} iterations x {settings.spp} spp at {width}x{height}, "
+                f"{settings.grid}x{settings.grid} colour grid ({settings.variant}): about "
+                f"{preflight.format_bytes(memory)}, about {preflight.format_seconds(seconds)}",
+                err=True,
+            )
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             with progress_bar("match", quiet=quiet) as bar:
@@ -69,6 +103,12 @@ def register(app: typer.Typer) -> None:
                     grid=grid,
                     progress=bar,
                 )
+        preflight.record_match(
+            settings.variant,
+            settings.mode,
+            samples=width * height * settings.spp * settings.iterations,
+            seconds=result.seconds,
+        )
         if not quiet:
             for w in result.warnings:
                 typer.echo(f"warning: {w}", err=True)

@@ -39,28 +39,78 @@ def register(app: typer.Typer) -> None:
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No progress bar, no summary."),
     ):
         """Render the scene's forest with Mitsuba 3: linear EXR (with depth, id and species layers) + sRGB PNG."""
+        from .. import preflight
+
+        if frames is None and output.suffix.lower() in (".exr", ".png"):
+            # The still's EXR and PNG, checked before the renderer's modules are even imported.
+            preflight.output_files(
+                [
+                    output.with_suffix(output.suffix),
+                    output.with_suffix(".png" if output.suffix.lower() == ".exr" else ".exr"),
+                ]
+            )
+
+        from ..camera import frame_path, parse_frames
+        from ..errors import ParameterError
         from ..progress import progress_bar
         from ..render import choose_variant, render_scene
-        from ..render.render import output_paths
+        from ..render.render import frame_size, output_paths
+        from ..render.scene import check_render_inputs
         from . import load_with_flags
 
-        output_paths(output)  # a bad -o fails before any work
+        # 1. What can be checked without reading the scene: the output files and the flags.
+        frame_list = parse_frames(frames) if frames is not None else [1]
+        if frames is None:
+            targets = list(output_paths(output))
+        else:
+            targets = [p for f in frame_list for p in output_paths(frame_path(str(output), f))]
+            if len(set(targets)) != len(targets):
+                raise ParameterError("output", f"{output}: every frame needs its own file; put #### in the name")
+        preflight.output_files(targets)
         cfg = load_with_flags(config, {"render.spp": spp, "render.width": width, "render.height": height})
         if variant is not None:
             choose_variant(0, variant)  # reject a bad --variant before any work
-
-        def announce(chosen: str, reason: str) -> None:
-            if not quiet:
-                typer.echo(f"variant: {chosen} ({reason})", err=True)
+        # 2. The inputs only the render reads, the disk, and the image's memory before any tree is loaded.
+        check_render_inputs(cfg)
+        size = frame_size(cfg, preview=preview)
+        pixels = size.width * size.height
+        preflight.check_free_space(output, len(frame_list) * pixels * preflight.FRAME_BYTES_PER_PIXEL)
+        flags = width is not None or height is not None
+        guess = variant or cfg.render.variant or "scalar_rgb"
+        preflight.check_render_memory(
+            cfg, preflight.render_estimate(size.width, size.height, size.spp, 0, guess), flags=flags
+        )
 
         from ..scene import load_scene
 
         with progress_bar("scene", quiet=quiet or instances is not None) as bar:
             scene = load_scene(cfg, instances, progress=bar)
+        # 3. With the trees known: the whole render's memory, then say what will happen.
+        trees = len(scene.instances)
+        chosen, reason = choose_variant(trees, variant, cfg.render.variant)
+        estimate = preflight.render_estimate(
+            size.width,
+            size.height,
+            size.spp,
+            trees,
+            chosen,
+            frames=len(frame_list),
+            subframes=size.subframes,
+            triangles=sum(lod.triangles for sp in scene.species for lod in sp.lods),
+        )
+        room = preflight.check_render_memory(cfg, estimate, flags=flags)
+        if not quiet:
+            typer.echo(f"render: {estimate.line(room)}", err=True)
+            typer.echo(f"variant: {chosen} ({reason})", err=True)
         with progress_bar("render", quiet=quiet) as bar:
-            result = render_scene(
-                scene, output=output, variant=variant, frames=frames, preview=preview, progress=bar, announce=announce
-            )
+            result = render_scene(scene, output=output, variant=variant, frames=frames, preview=preview, progress=bar)
+        preflight.record_render(
+            result.variant,
+            samples=len(result.frames) * result.width * result.height * max(result.spp, result.subframes),
+            trees=result.trees,
+            render_seconds=result.render_seconds,
+            load_seconds=result.load_seconds,
+        )
         if not quiet:
             if preview:
                 typer.echo(

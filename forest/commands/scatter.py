@@ -17,14 +17,18 @@ def register(app: typer.Typer) -> None:
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No summary, no progress bar."),
     ):
         """Scatter trees over the terrain and save one row per tree as .npz."""
-        from ..errors import ForestError
+        from .. import preflight
+        from ..errors import ParameterError
+        from ..library import open_library
         from ..progress import progress_bar
         from ..scatter import scatter
         from . import load_with_flags
 
         if output.suffix.lower() != ".npz":
-            raise ForestError(f"{output}: output must be a .npz file")
+            raise ParameterError("output", f"{output}: an InstanceSet is a .npz file")
+        preflight.output_file(output)
         cfg = load_with_flags(config, {"seed": seed, "scatter.count": count})
+        preflight.check_species(cfg, open_library())  # a misspelled species fails here, not at render
         with progress_bar("scatter", quiet=quiet) as bar:
             inst, report = scatter(cfg, progress=bar)
         inst.save(output)

@@ -17,11 +17,13 @@ def register(app: typer.Typer) -> None:
 
         from ..atomic import atomic_path
         from ..config.schema import SceneConfig
+        from ..preflight import output_file
 
         text = json.dumps(SceneConfig.model_json_schema(), indent=2, sort_keys=True) + "\n"
         if output is None:
             typer.echo(text, nl=False)
             return
+        output_file(output)
         with atomic_path(output) as tmp:
             tmp.write_text(text)
         typer.echo(f"wrote {output}", err=True)

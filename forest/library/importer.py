@@ -31,6 +31,7 @@ Steps, for a file and a name:
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import math
 import os
@@ -69,6 +70,8 @@ UNITS = {
     "feet": 0.3048,
 }
 TAG_IMPORT = 0x1A7
+#: A mesh whose total area is below this fraction of its extent squared is degenerate (points, lines, slivers).
+MIN_AREA_FRACTION = 1e-9
 
 
 class _Part:
@@ -198,6 +201,12 @@ def load_parts(path: Path, *, up: str = "auto", units: str = "auto", height: flo
         lo, hi = allv.min(axis=0), allv.max(axis=0)
     if not np.isfinite(allv).all() or float(np.max(hi - lo)) <= 0:
         raise ForestError(f"{path}: mesh has degenerate extent {(hi - lo).tolist()}")
+    area = _surface_area(allv, np.concatenate([np.concatenate(p.faces) for p in parts.values()]))
+    if not area > MIN_AREA_FRACTION * float(np.max(hi - lo)) ** 2:
+        raise ForestError(
+            f"{path}: mesh has no surface area ({area:.3g} m² over a {float(np.max(hi - lo)):.3g} m extent): "
+            "every triangle is degenerate"
+        )
     allv = allv - np.array([(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2])
     out = []
     start = 0
@@ -210,6 +219,14 @@ def load_parts(path: Path, *, up: str = "auto", units: str = "auto", height: flo
         mesh = MeshData(v.astype(np.float32), f.astype(np.uint32), vertex_normals(v, f), uv.astype(np.float32))
         out.append((p.label, mesh, p.colour, p.image))
     return out
+
+
+def _surface_area(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Total area Σ ½‖(b − a) × (c − a)‖ of the triangles ``faces`` over ``vertices`` (float64)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    return float(0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
 
 
 def _classify(parts) -> list[tuple[str, bool]]:
@@ -308,24 +325,49 @@ def _into_place(lib: Library, path: Path, folder: Path, name: str, replace: bool
     """Convert into a temporary folder beside ``folder`` and rename it into place."""
     if not path.is_file():
         raise ForestError(f"{path}: mesh file not found")
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    digest = _digest(path, **options)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
-    old = None
+    created = _make_dirs(folder.parent)
+    done = False
     try:
-        meta = convert(path, tmp, name, digest=digest, **options)
-        os.chmod(tmp, 0o755)  # mkdtemp makes it private
-        if folder.exists():
-            if not replace:
-                return _load_meta(folder) or meta
-            old = folder.with_name(f".{folder.name}.old{os.getpid()}")
-            os.rename(folder, old)
-        os.rename(tmp, folder)
+        digest = _digest(path, **options)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+        old = None
+        try:
+            meta = convert(path, tmp, name, digest=digest, **options)
+            os.chmod(tmp, 0o755)  # mkdtemp makes it private
+            if folder.exists():
+                if not replace:
+                    done = True
+                    return _load_meta(folder) or meta
+                old = folder.with_name(f".{folder.name}.old{os.getpid()}")
+                os.rename(folder, old)
+            os.rename(tmp, folder)
+            done = True
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
     finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        if not done:  # a failed import leaves no empty folder behind (``imported/``, the library itself)
+            for d in reversed(created):
+                with contextlib.suppress(OSError):
+                    d.rmdir()
     return meta
+
+
+def _make_dirs(folder: Path) -> list[Path]:
+    """Create ``folder`` and its missing parents; return the folders created, outermost first."""
+    missing = []
+    p = folder
+    while not p.exists():
+        missing.append(p)
+        if p.parent == p:
+            break
+        p = p.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ForestError(f"{folder}: cannot create the library folder: {e.strerror or e}") from None
+    return list(reversed(missing))
 
 
 def import_cached(lib: Library, path: Path) -> Species:

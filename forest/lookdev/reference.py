@@ -12,7 +12,11 @@ linear).  Then:
   optimiser's ``width × height`` (area filtering when shrinking, so the
   reduced-resolution loss compares box-filtered pixels on both sides);
 * **content** — an all-black (or all-masked) reference is refused: nothing in
-  it constrains the look.
+  it constrains the look;
+* **size** — a reference file must have at least :func:`min_side` pixels on
+  its short side: at least :data:`MIN_REFERENCE_SIDE`, and no less than the
+  optimiser's short side over :data:`MAX_UPSCALE` (a smaller one would be
+  blown up into a blur the fit then matches; a 1×1 "photo" fits nothing).
 
 A **mask** is a grey image over the same frame (same crop and resampling):
 white = use the pixel, black = ignore it (sky, a foreground branch, a logo);
@@ -21,6 +25,7 @@ grey values are fractional weights.
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +39,15 @@ MAX_REFERENCE_BYTES = 256 * 1024 * 1024
 MAX_REFERENCE_PIXELS = 12000 * 12000
 ASPECT_TOLERANCE = 0.01
 BLACK_LEVEL = 1e-4
+#: Fewest pixels on a reference file's short side.
+MIN_REFERENCE_SIDE = 8
+#: Largest factor a reference may be enlarged by to reach the optimiser's resolution.
+MAX_UPSCALE = 4
+
+
+def min_side(width: int, height: int) -> int:
+    """Fewest pixels a reference needs on its short side for a fit at ``width × height``."""
+    return max(MIN_REFERENCE_SIDE, math.ceil(min(width, height) / MAX_UPSCALE))
 
 
 @dataclass
@@ -98,7 +112,7 @@ def load_reference(
     """Read a reference (a file, or an ``(H, W, 3)`` linear array) at ``width × height``.
 
     Raises :class:`ForestError` naming the file for an unreadable, oversized,
-    all-black or fully masked reference, or a mask that cannot be read.
+    too small, all-black or fully masked reference, or a mask that cannot be read.
     """
     if fit not in ("crop", "stretch"):
         raise ForestError(f"fit: must be crop or stretch, got {fit!r}")
@@ -118,6 +132,12 @@ def load_reference(
         if not is_linear_file(file):
             rgb_full = srgb_to_linear(rgb_full)
         rgb_full = np.maximum(rgb_full, 0.0)
+        need = min_side(width, height)
+        if min(rgb_full.shape[:2]) < need:
+            raise ForestError(
+                f"{label}: {what} is {rgb_full.shape[1]}x{rgb_full.shape[0]} pixels; the fit at {width}x{height} "
+                f"needs at least {need} pixels on its short side"
+            )
     sh, sw = rgb_full.shape[:2]
     if float(rgb_full.max(initial=0.0)) <= BLACK_LEVEL:
         raise ForestError(f"{label}: {what} is all black; nothing in it constrains the look")

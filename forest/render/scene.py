@@ -21,13 +21,17 @@ import math
 import numpy as np
 
 from ..camera import camera_at, look_at_matrix
-from ..errors import ForestError
-from ..runtime import mitsuba
+from ..errors import ConfigError, ForestError
+from ..runtime import captured_stderr, mitsuba
 
 #: Height margin (metres) added above and below the terrain's height range for the
 #: colour-grid box.  The grid is constant along Y and clamps outside its box, so
 #: any margin is exact; a wide one keeps tall trees and overhangs inside.
 GRID_Y_MARGIN = 10_000.0
+
+#: Image formats Mitsuba 3.9.1's ``Bitmap`` reads (an environment map in any other, e.g. TIFF, fails in its loader).
+ENVMAP_SUFFIXES = (".exr", ".hdr", ".pfm", ".png", ".jpg", ".jpeg", ".ppm", ".tga", ".bmp")
+ENVMAP_FIELD = "lights.sky.envmap"
 
 
 def _is_scalar(variant: str) -> bool:
@@ -112,6 +116,96 @@ def sun_vector(elevation: float, azimuth: float) -> np.ndarray:
     return np.array([math.sin(a) * math.cos(e), math.sin(e), math.cos(a) * math.cos(e)])
 
 
+def check_envmap(config) -> None:
+    """Check ``[lights.sky] envmap`` before anything is built; a :class:`ConfigError` on ``lights.sky.envmap``.
+
+    The file must be in a format Mitsuba reads (:data:`ENVMAP_SUFFIXES`),
+    decodable (through :func:`forest.images.read_image`, which also refuses
+    truncated files) and hold finite, non-negative radiance: Mitsuba's
+    ``envmap`` accepts NaN and negative texels and then renders NaN pixels.
+    """
+    sky = config.lights.sky
+    if sky is None or sky.kind != "envmap":
+        return
+    from ..images import read_image
+
+    path = sky.envmap
+    if path.suffix.lower() not in ENVMAP_SUFFIXES:
+        raise ConfigError(
+            config.path,
+            ENVMAP_FIELD,
+            f"{path}: Mitsuba reads environment maps as {', '.join(s[1:] for s in ENVMAP_SUFFIXES)}, "
+            f"not {path.suffix or 'a file without an extension'}",
+        )
+    try:
+        img = read_image(path, what="environment map")
+    except ForestError as e:
+        raise ConfigError(config.path, ENVMAP_FIELD, str(e)) from None
+    if float(img.min(initial=0.0)) < 0.0:
+        bad = int((img < 0).sum())
+        raise ConfigError(config.path, ENVMAP_FIELD, f"{path}: {bad:,} negative values; radiance must be >= 0")
+
+
+def _terrain_texture(config):
+    """The ``[render] terrain_texture`` image as linear RGB, or None; a bad file fails naming the field."""
+    path = getattr(config.render, "terrain_texture", None)
+    if path is None:
+        return None
+    from ..images import read_map_rgb
+
+    try:
+        return read_map_rgb(path, what="terrain texture")
+    except ForestError as e:
+        raise ConfigError(config.path, "render.terrain_texture", str(e)) from None
+
+
+def check_render_inputs(config) -> None:
+    """The files only a render reads (environment map, terrain texture), checked before any work.
+
+    An environment map is also test-loaded by Mitsuba (:func:`_envmap`), which
+    refuses some files OpenImageIO reads (an EXR with 2 or 5 channels).
+    """
+    if config.lights.sky is not None and config.lights.sky.kind == "envmap":
+        _envmap(config, "scalar_rgb")
+    _terrain_texture(config)
+
+
+#: Environment maps already checked in this process, by (path, size, modification time).
+_checked_envmaps: set[tuple[str, int, int]] = set()
+
+
+def _envmap(config, variant: str) -> dict:
+    """The ``envmap`` emitter dict, checked (:func:`check_envmap`) and test-loaded by Mitsuba.
+
+    Whatever Mitsuba's loader still refuses is reported against ``lights.sky.envmap``
+    in one line, with Mitsuba's own stderr captured.
+    """
+    sky = config.lights.sky
+    d = {"type": "envmap", "filename": str(sky.envmap), "scale": float(sky.scale)}
+    try:
+        st = sky.envmap.stat()
+        key = (str(sky.envmap.resolve()), st.st_size, st.st_mtime_ns)
+    except OSError:
+        key = None
+    if key is not None and key in _checked_envmaps:
+        return d
+    check_envmap(config)
+    mi = mitsuba(variant)
+    failure = ""
+    with captured_stderr() as noise:
+        try:
+            mi.load_dict(d)
+        except Exception as e:  # Mitsuba raises RuntimeError with its parser's location first
+            failure = str(e)
+    if failure or any("error" in line.lower() for line in noise):
+        text = (failure or next(line for line in noise if "error" in line.lower())).splitlines()[0]
+        detail = text.split('"envmap": ')[-1].strip()
+        raise ConfigError(config.path, ENVMAP_FIELD, f"{sky.envmap}: Mitsuba cannot read it: {detail}")
+    if key is not None:
+        _checked_envmaps.add(key)
+    return d
+
+
 def emitter_dicts(config, variant: str) -> dict[str, dict]:
     """Emitters for ``[lights]``: ``{"sun": directional, "sky": constant | envmap | sunsky}``.
 
@@ -123,6 +217,9 @@ def emitter_dicts(config, variant: str) -> dict[str, dict]:
       (Hosek–Wilkie sky + sun) pointed at the ``[lights.sun]`` direction, which
       then replaces the directional sun.
 
+    An environment map is checked first (:func:`check_envmap`, then a test
+    load), so a bad one fails here naming ``lights.sky.envmap``, not inside
+    the scene's loader.
     """
     mitsuba(variant)
     lights = config.lights
@@ -148,11 +245,7 @@ def emitter_dicts(config, variant: str) -> dict[str, dict]:
             out["sun"] = {"type": "directional", "direction": [float(x) for x in d], "irradiance": _rgb(irr * col)}
     if sky is not None:
         if sky.kind == "envmap":
-            out["sky"] = {
-                "type": "envmap",
-                "filename": str(sky.envmap),
-                "scale": float(sky.scale),
-            }
+            out["sky"] = _envmap(config, variant)
         else:
             rad = float(sky.radiance)
             col = np.asarray(sky.colour, dtype=np.float64)
@@ -258,9 +351,7 @@ def terrain_reflectance(config, terrain, variant: str, colour_grid: np.ndarray |
     tex_path = getattr(rc, "terrain_texture", None)
     base = np.asarray(rc.terrain_colour, dtype=np.float32)
     if tex_path is not None:
-        from ..images import read_map_rgb
-
-        grid = read_map_rgb(tex_path, what="terrain texture")
+        grid = _terrain_texture(config)
         return colour_grid_texture(grid, terrain.extent, terrain.height_range, variant)
     if colour_grid is not None:
         return colour_grid_texture(

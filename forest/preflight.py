@@ -1,0 +1,529 @@
+"""Pre-flight: what a command can check before it starts work, and what it will cost.
+
+Every long command runs these checks first, so that a mistake costs a second,
+not a render: each raises :class:`~forest.errors.ForestError` (a
+:class:`~forest.errors.ParameterError` naming the parameter, or a
+:class:`~forest.errors.ConfigError` naming the file and field) with one line.
+Nothing here writes anything the user would see: writability is probed with a
+temporary file that is removed at once.
+
+* **Output paths** (:func:`output_file`, :func:`output_folder`): the nearest
+  existing ancestor must be a folder this process can create files in (the
+  missing folders below it are created when the output is written), a file
+  must not be asked for where a folder stands and vice versa, and every name
+  must fit the file system's name limit.
+* **Species** (:func:`check_species`): every ``[[species]] model`` names a
+  library species, ``NAME@SEED`` of one, or an existing mesh file — checked
+  before scatter, so a misspelling fails at ``forest scatter`` and not at the
+  end of a render (with the closest names as a suggestion).
+* **Memory** (:func:`render_estimate`, :func:`check_render_memory`): a render
+  needs, to first order,
+
+      M ≈ M₀ + m_tri · T_unique + m_tree · N + m_px · W·H + m_lane · L
+
+  where N is the number of trees (each an instance record and its share of the
+  acceleration structure), T_unique the triangles of the species' levels of
+  detail, W·H the image (the film, the running and accumulated beauty in
+  float64, the depth/id/species layers and the copies made to write the EXR and
+  PNG) and L the rays one sample pass traces at once in the JIT variants
+  (``forest.render.frame.JIT_LANES`` at most).  The coefficients are measured
+  peak resident sizes of ``forest render`` in Mitsuba 3.9.1, rounded up:
+  M₀ ≈ 0.27 GB (a few trees, a small image); scalar_rgb ≈ 183 B per pixel
+  (256² → 1024²); llvm_ad_rgb ≈ 281 B per pixel and ≈ 1.6 B per lane; per tree
+  ≈ 4.6 KB in scalar_rgb between 100 000 and 1 000 000 instances
+  (bench/RESULTS.md, "render million": 4.83 GB) and ≈ 13 KB more in the JIT
+  variants.  ``bench/bench_preflight.py`` compares estimate and measurement.  The estimate is compared with the memory this process may use
+  (:func:`available_memory`: ``MemAvailable`` and the cgroup's limit, or
+  ``$FOREST_MEMORY_GB``); a render that does not fit fails naming
+  ``render.width``/``render.height`` and the largest image of the same aspect
+  ratio that fits.
+* **Time**: samples × seconds-per-sample + trees × seconds-per-tree, with the
+  rates measured by this machine's last render of the same variant
+  (:func:`record_render`, kept in the user state folder) or, before any, rates
+  measured on a 2-core machine and scaled by the core count.  Shown as
+  "about …"; it is a forecast, not a promise.
+"""
+
+from __future__ import annotations
+
+import difflib
+import errno
+import json
+import math
+import os
+import re
+import tempfile
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import ConfigError, ForestError, ParameterError
+
+GiB = 1 << 30
+
+# -- memory model (bytes), see the module docstring --------------------------------------------
+BASE_BYTES = 300 << 20
+BYTES_PER_TRIANGLE = 200
+BYTES_PER_TREE = {"scalar": 4_700, "jit": 18_000}
+BYTES_PER_PIXEL = {"scalar": 200, "jit": 300}
+BYTES_PER_LANE = 2
+#: Rays one JIT sample pass traces at most (forest.render.frame.JIT_LANES).
+JIT_LANES = 1 << 22
+
+# -- time model (seconds), used until this machine has rendered once ---------------------------
+#: Seconds per camera sample and per tree loaded on a 2-core machine (samples scale with the cores).
+SECONDS_PER_SAMPLE = {"scalar": 8e-6, "jit": 2e-6}
+SECONDS_PER_TREE = {"scalar": 2.2e-5, "jit": 1.0e-4}
+#: Fixed cost of building the scene (and, in the JIT variants, compiling the kernels).
+SECONDS_FIXED = {"scalar": 2.0, "jit": 15.0}
+
+#: Environment variable that states the memory (GiB) a render may use, instead of measuring it.
+MEMORY_ENV = "FOREST_MEMORY_GB"
+
+
+def _kind(variant: str) -> str:
+    return "scalar" if variant.startswith("scalar") else "jit"
+
+
+# ---------------------------------------------------------------------------------------------
+# Output paths
+# ---------------------------------------------------------------------------------------------
+
+
+def _name_max(folder: Path) -> int:
+    try:
+        return os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError, AttributeError):
+        return 255
+
+
+def _shown(path: Path) -> str:
+    """``path`` for a message, with any name over 40 characters shortened."""
+    parts = [p if len(p) <= 40 else f"{p[:16]}…{p[-8:]}" for p in path.parts]
+    return str(Path(*parts)) if parts else str(path)
+
+
+def _is_dir(path: Path) -> bool:
+    try:
+        return path.is_dir()
+    except OSError:  # a name the file system cannot even look up (too long, …)
+        return False
+
+
+def _existing_ancestor(path: Path, field: str) -> Path:
+    """The nearest existing ancestor of ``path`` (which must be a folder), checking the names to create."""
+    limit = _name_max(Path("/"))
+    for name in path.parts:
+        if len(os.fsencode(name)) > limit:
+            raise ParameterError(field, f"{_shown(path)}: the name {_shown(Path(name))} is longer than {limit} bytes")
+    folder = path.parent
+    while not os.path.lexists(folder):
+        if folder.parent == folder:
+            break
+        folder = folder.parent
+    if not _is_dir(folder):
+        raise ParameterError(field, f"{path}: {folder} is a file, not a folder")
+    return folder
+
+
+def _probe(folder: Path, path: Path, field: str) -> None:
+    """Create and remove a temporary file in ``folder``; a one-line error naming ``path`` if that fails."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".forest-probe.", dir=folder)
+    except OSError as e:
+        reason = e.strerror or str(e)
+        if e.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+            reason = "permission denied" if e.errno != errno.EROFS else "read-only file system"
+        raise ParameterError(field, f"{path}: cannot write into {folder}: {reason}") from None
+    os.close(fd)
+    os.unlink(tmp)
+
+
+def output_file(path: str | Path, *, field: str = "output") -> Path:
+    """Check that a file can be written at ``path`` (folders above it may still be missing).
+
+    Refused: a folder at ``path``; a file where one of its folders should be;
+    a folder this process cannot create files in; a name too long for the file
+    system.  Nothing is created.
+    """
+    path = Path(path)
+    folder = _existing_ancestor(path, field)
+    if _is_dir(path):
+        raise ParameterError(field, f"{path}: is a folder; give a file name")
+    _probe(folder, path, field)
+    return path
+
+
+def output_files(paths: Iterable[str | Path], *, field: str = "output") -> list[Path]:
+    """:func:`output_file` for several files (a frame sequence), probing each distinct folder once."""
+    out: list[Path] = []
+    probed: set[Path] = set()
+    for p in paths:
+        p = Path(p)
+        folder = _existing_ancestor(p, field)
+        if _is_dir(p):
+            raise ParameterError(field, f"{p}: is a folder; give a file name")
+        if folder not in probed:
+            _probe(folder, p, field)
+            probed.add(folder)
+        out.append(p)
+    return out
+
+
+#: Bytes per pixel of one written frame: the float EXR's beauty, depth, id and species layers after
+#: zip compression (noisy beauty compresses little, the id layers much) plus the 8-bit PNG.
+FRAME_BYTES_PER_PIXEL = 16
+
+
+def check_free_space(path: str | Path, needed: int, *, field: str = "output") -> None:
+    """Refuse ``needed`` bytes of output at ``path`` when its file system has less room left."""
+    import shutil
+
+    folder = _existing_ancestor(Path(path), field)
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return
+    if needed > free:
+        raise ParameterError(
+            field, f"{path}: the output needs about {format_bytes(needed)}, {format_bytes(free)} free on its disk"
+        )
+
+
+def output_folder(path: str | Path, *, field: str = "output") -> Path:
+    """Check that folder ``path`` can be created or written into (files are written inside it)."""
+    path = Path(path)
+    folder = _existing_ancestor(path, field)
+    if os.path.lexists(path) and not _is_dir(path):
+        raise ParameterError(field, f"{path}: exists and is not a folder")
+    _probe(folder, path, field)
+    if _is_dir(path):
+        _probe(path, path, field)
+    return path
+
+
+def output_folder_argument(path: str | Path) -> Path:
+    """:func:`output_folder` for a positional argument: the message names the folder alone."""
+    try:
+        return output_folder(path)
+    except ParameterError as e:
+        raise ForestError(e.message) from None
+
+
+def input_file(path: str | Path, *, field: str | None, what: str = "file") -> Path:
+    """Check that ``path`` is an existing, readable, non-empty file.
+
+    A one-line error naming ``field`` (an option's parameter), or only the file
+    when ``field`` is None (a positional argument: the file is what the user typed).
+    """
+    path = Path(path)
+
+    def error(message: str) -> ForestError:
+        return ForestError(message) if field is None else ParameterError(field, message)
+
+    if _is_dir(path):
+        raise error(f"{path}: is a folder, not a {what}")
+    if not path.is_file():
+        raise error(f"{path}: {what} not found")
+    try:
+        with open(path, "rb") as f:
+            first = f.read(1)
+    except OSError as e:
+        raise error(f"{path}: cannot read {what}: {e.strerror or e}") from None
+    if not first:
+        raise error(f"{path}: {what} is empty")
+    return path
+
+
+# ---------------------------------------------------------------------------------------------
+# Species
+# ---------------------------------------------------------------------------------------------
+
+
+def check_species(config, library) -> None:
+    """Every ``[[species]] model`` names a library species, ``NAME@SEED`` of one, or an existing mesh.
+
+    Resolving (building a species, importing a mesh) is left to the scene;
+    this only catches what would fail there.  A misspelled name gets the
+    closest library names as suggestions.
+    """
+    names = library.names()
+    known = set(names)
+    for i, sp in enumerate(config.species):
+        model = sp.model
+        field = f"species[{i}].model"
+        if sp.is_mesh:
+            p = Path(model).expanduser()
+            p = p if p.is_absolute() else config.base_dir / p
+            if not p.is_file():
+                raise ConfigError(config.path, field, f"mesh file not found: {model}")
+            continue
+        base = m.group(1) if (m := re.fullmatch(r"(.+)@(\d+)", model)) else model
+        if base in known:
+            continue
+        close = difflib.get_close_matches(base, names, n=3, cutoff=0.6)
+        hint = f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
+        raise ConfigError(
+            config.path,
+            field,
+            f"unknown species {model!r}{hint} (the library has {', '.join(names) or 'no species'}; "
+            "or name a mesh file)",
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# Memory and time
+# ---------------------------------------------------------------------------------------------
+
+
+def _meminfo_available() -> int | None:
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def _cgroup_available() -> int | None:
+    """Room left under this process's cgroup memory limit (v2, else v1), or None without a limit."""
+    for limit_file, usage_file in (
+        ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+        ("/sys/fs/cgroup/memory/memory.limit_in_bytes", "/sys/fs/cgroup/memory/memory.usage_in_bytes"),
+    ):
+        try:
+            limit = Path(limit_file).read_text().strip()
+            usage = int(Path(usage_file).read_text().strip())
+        except (OSError, ValueError):
+            continue
+        if limit == "max" or not limit.isdigit() or int(limit) >= 1 << 60:
+            return None
+        return max(0, int(limit) - usage)
+    return None
+
+
+def available_memory() -> int | None:
+    """Bytes this process may still use: ``$FOREST_MEMORY_GB``, else the least of the machine's
+    available memory and the room under its cgroup limit; None where neither can be read."""
+    env = os.environ.get(MEMORY_ENV)
+    if env:
+        try:
+            gb = float(env)
+        except ValueError:
+            gb = float("nan")
+        if not (math.isfinite(gb) and gb > 0):
+            raise ForestError(f"${MEMORY_ENV}: must be a positive number of GiB, got {env!r}")
+        return int(gb * GiB)
+    found = [v for v in (_meminfo_available(), _cgroup_available()) if v is not None]
+    return min(found) if found else None
+
+
+@dataclass(frozen=True)
+class RenderEstimate:
+    """What a render will need: peak memory in bytes and wall-clock seconds (both approximate)."""
+
+    width: int
+    height: int
+    spp: int
+    frames: int
+    trees: int
+    variant: str
+    triangles: int
+    memory: int
+    seconds: float
+    measured: bool  # the time comes from this machine's last render (else from the built-in rates)
+
+    def line(self, available: int | None = None) -> str:
+        """One line for the user: size, samples, trees, memory and time."""
+        frames = f"{self.frames} frames" if self.frames > 1 else "1 frame"
+        room = f" of {format_bytes(available)} available" if available is not None else ""
+        return (
+            f"{frames} {self.width}x{self.height} at {self.spp} spp, {self.trees:,} trees: "
+            f"about {format_bytes(self.memory)}{room}, about {format_seconds(self.seconds)}"
+        )
+
+
+def render_memory(width: int, height: int, spp: int, trees: int, variant: str, triangles: int = 0) -> int:
+    """Peak bytes of a render (the model in the module docstring)."""
+    kind = _kind(variant)
+    pixels = int(width) * int(height)
+    mem = BASE_BYTES + BYTES_PER_TRIANGLE * int(triangles) + BYTES_PER_TREE[kind] * int(trees)
+    mem += BYTES_PER_PIXEL[kind] * pixels
+    if kind == "jit":
+        mem += BYTES_PER_LANE * min(JIT_LANES, pixels * max(1, int(spp)))
+    return int(mem)
+
+
+def render_estimate(
+    width: int,
+    height: int,
+    spp: int,
+    trees: int,
+    variant: str,
+    *,
+    frames: int = 1,
+    subframes: int = 1,
+    triangles: int = 0,
+) -> RenderEstimate:
+    """Memory and time of rendering ``frames`` frames (time from :func:`throughput`)."""
+    kind = _kind(variant)
+    sample_s, tree_s, measured = throughput(variant)
+    samples = int(width) * int(height) * max(int(spp), int(subframes))
+    seconds = SECONDS_FIXED[kind] + frames * (samples * sample_s + trees * tree_s * max(1, subframes))
+    return RenderEstimate(
+        width=int(width),
+        height=int(height),
+        spp=int(spp),
+        frames=int(frames),
+        trees=int(trees),
+        variant=variant,
+        triangles=int(triangles),
+        memory=render_memory(width, height, spp, trees, variant, triangles),
+        seconds=seconds,
+        measured=measured,
+    )
+
+
+def largest_fitting(width: int, height: int, budget: int, estimate) -> tuple[int, int] | None:
+    """The largest (w, h) of the same aspect ratio with ``estimate(w, h) <= budget``, sides multiples of 16."""
+    aspect = width / height
+    lo, hi = 0.0, 1.0
+    for _ in range(40):  # bisection on the scale factor; memory grows with it
+        mid = 0.5 * (lo + hi)
+        w, h = max(1, int(width * mid)), max(1, int(height * mid))
+        if estimate(w, h) <= budget:
+            lo = mid
+        else:
+            hi = mid
+    w = int(width * lo) // 16 * 16
+    h = int(round(w / aspect)) if w else 0
+    if w < 16 or h < 1 or estimate(w, h) > budget:
+        return None
+    return w, h
+
+
+def check_render_memory(
+    config, estimate: RenderEstimate, *, available: int | None = None, flags: bool = False
+) -> int | None:
+    """Refuse a render whose estimate exceeds the memory available; return the bytes available.
+
+    The error names ``render.width``/``render.height`` (``--width``/``--height``
+    when ``flags``: the size came from the command line) and the largest image
+    of the same aspect ratio that fits, or says that the trees alone do not fit.
+    """
+    room = available_memory() if available is None else available
+    if room is None or estimate.memory <= room:
+        return room
+
+    def need(w: int, h: int) -> int:
+        return render_memory(w, h, estimate.spp, estimate.trees, estimate.variant, estimate.triangles)
+
+    trees = f" of {estimate.trees:,} trees" if estimate.trees else ""
+    what = f"a {estimate.width}x{estimate.height} render{trees} needs about {format_bytes(estimate.memory)}, "
+    what += f"{format_bytes(room)} available"
+    fits = largest_fitting(estimate.width, estimate.height, room, need)
+    if fits is None:
+        message = what + "; even a small image does not fit: render fewer trees (scatter.count, --instances)"
+    else:
+        message = what + f"; {fits[0]}x{fits[1]} fits"
+    field = "--width/--height" if flags else "render.width/render.height"
+    if flags:
+        raise ForestError(f"{field}: {message}")
+    raise ConfigError(config.path, field, message)
+
+
+# -- measured throughput ------------------------------------------------------------------------
+
+
+def _throughput_file() -> Path:
+    import platformdirs
+
+    return platformdirs.user_state_path("forest") / "throughput.json"
+
+
+def _rates() -> dict:
+    try:
+        data = json.loads(_throughput_file().read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _rate(key: str, name: str) -> float | None:
+    rec = _rates().get(key)
+    try:
+        value = float(rec[name])  # type: ignore[index]
+    except (TypeError, KeyError, ValueError):
+        return None
+    return value if math.isfinite(value) and value >= 0 else None
+
+
+def _record(key: str, rates: dict[str, float]) -> None:
+    """Store ``rates`` under ``key`` in the user's throughput file; never fails (it only informs estimates)."""
+    path = _throughput_file()
+    try:
+        data = _rates()
+        data[key] = rates
+        from .atomic import atomic_path
+
+        with atomic_path(path) as tmp:
+            tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+    except (OSError, ValueError, ForestError):
+        pass
+
+
+def throughput(variant: str) -> tuple[float, float, bool]:
+    """(seconds per camera sample, seconds per tree, measured?) of a render in ``variant`` on this machine."""
+    kind = _kind(variant)
+    sample_s, tree_s = _rate(f"render:{variant}", "sample_s"), _rate(f"render:{variant}", "tree_s")
+    if sample_s and tree_s is not None:
+        return sample_s, tree_s, True
+    cores = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+    scale = 2.0 / cores if kind == "scalar" else 1.0
+    return SECONDS_PER_SAMPLE[kind] * scale, SECONDS_PER_TREE[kind], False
+
+
+def record_render(variant: str, *, samples: int, trees: int, render_seconds: float, load_seconds: float) -> None:
+    """Remember this machine's render rates from a finished render (for the next estimate)."""
+    if samples > 0 and render_seconds > 0:
+        rates = {"sample_s": render_seconds / samples, "tree_s": load_seconds / trees if trees > 0 else 0.0}
+        _record(f"render:{variant}", rates)
+
+
+#: Look-dev: seconds per fitted sample (optimiser pixels × spp × iterations) and the fit's memory, measured on
+#: the 2-core machine (96x54 x 8 spp, 400 trees, aligned: 5.6 s per iteration under load; 0.8–1.2 GiB peak).
+MATCH_SECONDS_PER_SAMPLE = 1.0e-4
+MATCH_BYTES = int(1.2 * GiB)
+
+
+def match_estimate(width: int, height: int, spp: int, iterations: int, variant: str, mode: str) -> tuple[float, int]:
+    """(seconds, bytes) of a look-dev fit: this machine's last fit's rate if it has one, else the built-in rate."""
+    rate = _rate(f"match:{variant}:{mode}", "sample_s") or MATCH_SECONDS_PER_SAMPLE
+    samples = int(width) * int(height) * int(spp) * int(iterations)
+    return samples * rate, MATCH_BYTES
+
+
+def record_match(variant: str, mode: str, *, samples: int, seconds: float) -> None:
+    """Remember this machine's look-dev rate from a finished fit."""
+    if samples > 0 and seconds > 0:
+        _record(f"match:{variant}:{mode}", {"sample_s": seconds / samples})
+
+
+# -- formatting ---------------------------------------------------------------------------------
+
+
+def format_bytes(n: float) -> str:
+    for unit, scale in (("TiB", 1 << 40), ("GiB", GiB), ("MiB", 1 << 20)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{n / 1024:.0f} KiB"
+
+
+def format_seconds(s: float) -> str:
+    if s < 90:
+        return f"{max(1, round(s))} s"
+    if s < 90 * 60:
+        return f"{round(s / 60)} min"
+    return f"{s / 3600:.1f} h"
