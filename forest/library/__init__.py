@@ -8,6 +8,7 @@ for lod in sp.lods:                       # high, medium, low, far
     for part in lod.parts:                # kind leaf | bark | surface; PLY path; colour; texture; tinted
         mesh = part.load()                # MeshData(vertices, faces, normals, uv)
 sp.preview                                # preview PNG (rendered with Mitsuba on first use)
+individual(lib, "broadleaf", 3)           # the 3rd individual: "broadleaf@<manifest seed + 3>"
 ```
 
 Meshes are binary little-endian PLY (``x y z nx ny nz u v``), Y up, base at the
@@ -22,7 +23,19 @@ albedo that is transmitted.
 from __future__ import annotations
 
 from .core import Library, Lod, Part, Species, open_library
+from .individuals import individual, individuals
 from .lod import BUDGETS, LODS
 from .mesh import MeshData
 
-__all__ = ["BUDGETS", "LODS", "Library", "Lod", "MeshData", "Part", "Species", "open_library"]
+__all__ = [
+    "BUDGETS",
+    "LODS",
+    "Library",
+    "Lod",
+    "MeshData",
+    "Part",
+    "Species",
+    "individual",
+    "individuals",
+    "open_library",
+]

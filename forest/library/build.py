@@ -1,8 +1,9 @@
 """Turn a recipe into a species' files: PLY per part per level of detail, textures, metadata.
 
 A species' asset folder holds ``<lod>_<part>.ply``, ``leaf.png`` (single-leaf
-card), ``cluster.png`` (leaf-cluster card of the lower levels), ``far.png`` (the
-crossed-card impostor atlas) and ``species.json`` — the measured triangle
+card), ``cluster.png`` (leaf-cluster card of the lower levels), ``bark.exr`` (the
+bark's tileable detail factor, mean 1), ``far.png`` (the crossed-card impostor
+atlas) and ``species.json`` — the measured triangle
 counts and bounds that :class:`forest.library.Library` reads without opening
 any mesh.  ``species.json`` is written last, so a folder with it is complete.
 """
@@ -16,10 +17,11 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_path
+from ..images import write_image
 from . import lod as lodmod
 from .generator import grow, validate_recipe
-from .mesh import MeshData, mesh_bounds, write_ply
-from .textures import cluster_rgba, leaf_rgba, write_texture
+from .mesh import MeshData, mesh_bounds, orient_faces, write_ply
+from .textures import bark_rgb, cluster_rgba, leaf_rgba, write_texture
 
 _CODE_FILES = ("generator.py", "lod.py", "mesh.py", "textures.py", "build.py", "preview.py")
 
@@ -89,8 +91,12 @@ def ground(mesh: MeshData) -> MeshData:
     return mesh
 
 
-def far_coverage(folder: Path, high: dict, bounds: np.ndarray, res: int = 128) -> np.ndarray:
-    """Render the high level's exact coverage along each far card's normal (Mitsuba)."""
+COVER_STEPS = 3  # at most this many corrections of a cluster level's card scale
+COVER_TOLERANCE = 0.04  # relative coverage difference accepted without a correction
+
+
+def far_coverage(folder: Path, high: dict, bounds: np.ndarray, res: int = 128, spp: int = 8) -> np.ndarray:
+    """Render a level's exact coverage along each far card's normal (Mitsuba), framed by ``bounds``."""
     from types import SimpleNamespace
 
     from .preview import card_view_alpha
@@ -104,7 +110,7 @@ def far_coverage(folder: Path, high: dict, bounds: np.ndarray, res: int = 128) -
         )
         for p in high["parts"]
     ]
-    return card_view_alpha(parts, bounds, lodmod.FAR_VIEWS, res)
+    return card_view_alpha(parts, bounds, lodmod.FAR_VIEWS, res, spp)
 
 
 def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "recipe") -> dict:
@@ -119,36 +125,50 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
     shape = tree["leaf_shape"]
     leaf_tex = leaf_rgba(shape)
     cluster_tex = cluster_rgba(shape)
+    bark_tex = bark_rgb(tree["bark_texture"])
     write_texture(out / "leaf.png", leaf_tex)
     write_texture(out / "cluster.png", cluster_tex)
+    write_image(out / "bark.exr", bark_tex)
     cov_leaf = float(leaf_tex[..., 3].mean())
     cov_cluster = float(cluster_tex[..., 3].mean())
     leaf_colour, bark_colour = tree["leaf_colour"], tree["bark_colour"]
     transl = tree["translucency"]
     lods = []
     high_meshes = None
+    coverage = None
+    high_bounds = np.zeros((2, 3))
     for lod in ("high", "medium", "low"):
         target = lodmod.TARGETS[lod]
-        bark = ground(lodmod.bark_mesh(sk, lod, target * lodmod.BARK_SHARE[lod]))
+        bark = orient_faces(ground(lodmod.bark_mesh(sk, lod, target * lodmod.BARK_SHARE[lod])))
         cards_budget = max(target // 8, (target - bark.triangles) // 2)
-        leaves, clustered = lodmod.leaf_meshes(sk, lod, cards_budget, seed, cov_leaf, cov_cluster)
-        leaves = ground(leaves)
         parts = []
         if bark.triangles:
             write_ply(out / f"{lod}_bark.ply", bark)
-            parts.append(part_entry("bark", f"{lod}_bark.ply", bark, bark_colour, None, False, 0.0))
-        write_ply(out / f"{lod}_leaf.ply", leaves)
-        parts.append(
-            part_entry(
-                "leaf", f"{lod}_leaf.ply", leaves, leaf_colour, "cluster.png" if clustered else "leaf.png", True, transl
+            parts.append(part_entry("bark", f"{lod}_bark.ply", bark, bark_colour, "bark.exr", False, 0.0))
+        cover = 1.0
+        for step in range(COVER_STEPS + 1):
+            leaves, clustered = lodmod.leaf_meshes(sk, lod, cards_budget, seed, cov_leaf, cov_cluster, cover)
+            leaves = orient_faces(ground(leaves))
+            write_ply(out / f"{lod}_leaf.ply", leaves)
+            tex = "cluster.png" if clustered else "leaf.png"
+            entry = lod_entry(
+                lod, parts + [part_entry("leaf", f"{lod}_leaf.ply", leaves, leaf_colour, tex, True, transl)]
             )
-        )
-        lods.append(lod_entry(lod, parts))
+            if coverage is None or not clustered or step == COVER_STEPS:
+                break
+            # Cluster cards: match the high level's rendered coverage (area ∝ cover², so cover ∝ √coverage).
+            got = float(far_coverage(out, entry, high_bounds, res=64, spp=4).mean())
+            want = float(coverage.mean())
+            if got <= 0 or abs(got / want - 1.0) < COVER_TOLERANCE:
+                break
+            cover *= float(np.clip(want / got, 0.5, 2.0)) ** 0.5
+        lods.append(entry)
         if lod == "high":
-            high_meshes = [(bark, np.asarray(bark_colour), None), (leaves, np.asarray(leaf_colour), leaf_tex)]
-    bounds = np.array(lods[0]["bounds"])
-    coverage = far_coverage(out, lods[0], bounds)
-    far, atlas, scale = lodmod.impostor(high_meshes, bounds, seed=seed, coverage=coverage)
+            high_bounds = np.array(entry["bounds"])
+            coverage = far_coverage(out, entry, high_bounds)
+            bark_rgba = np.concatenate([bark_tex, np.ones(bark_tex.shape[:2] + (1,), np.float32)], axis=2)
+            high_meshes = [(bark, np.asarray(bark_colour), bark_rgba), (leaves, np.asarray(leaf_colour), leaf_tex)]
+    far, atlas, scale = lodmod.impostor(high_meshes, high_bounds, seed=seed, coverage=coverage)
     write_texture(out / "far.png", atlas)
     write_ply(out / "far_cards.ply", far)
     lods.append(lod_entry("far", [part_entry("leaf", "far_cards.ply", far, scale, "far.png", True, transl)]))
