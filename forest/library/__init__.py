@@ -14,8 +14,10 @@ individual(lib, "broadleaf", 3)           # the 3rd individual: "broadleaf@<mani
 Meshes are binary little-endian PLY (``x y z nx ny nz u v``), Y up, base at the
 origin, metres.  UVs follow Mitsuba's image convention (``v = 0`` is the
 image's top row); writers for conventions with ``v = 0`` at the bottom use
-``1 − v``.  Reflectance of a part is ``colour × texture.rgb`` (texture
-sRGB-decoded), times the colour map's tint where ``tinted``; a leaf's opacity
+``1 − v``.  Reflectance of a part is ``colour × texture.rgb`` (PNG textures
+sRGB-decoded, the bark's EXR linear; every detail factor has mean 1, so
+``colour`` is the part's mean albedo), times the colour map's tint where
+``tinted``; a leaf's opacity
 is its texture's alpha and ``translucency`` is the share of its diffuse
 albedo that is transmitted.
 """

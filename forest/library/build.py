@@ -95,11 +95,20 @@ COVER_STEPS = 3  # at most this many corrections of a cluster level's card scale
 COVER_TOLERANCE = 0.04  # relative coverage difference accepted without a correction
 
 
-def far_coverage(folder: Path, high: dict, bounds: np.ndarray, res: int = 128, spp: int = 8) -> np.ndarray:
-    """Render a level's exact coverage along each far card's normal (Mitsuba), framed by ``bounds``."""
+def far_coverage(folder: Path, level: dict, bounds: np.ndarray, res: int = 128, spp: int = 8) -> np.ndarray:
+    """A level's exact coverage along each far card's normal, ``(views, res, res)`` (see :func:`far_views`)."""
+    return far_views(folder, level, bounds, res, spp)[..., 3]
+
+
+def far_views(folder: Path, level: dict, bounds: np.ndarray, res: int = 128, spp: int = 8, shaded: bool = False):
+    """Render a level along each far card's normal (Mitsuba), framed by ``bounds``: RGBA ``(views, res, res, 4)``.
+
+    Alpha is the exact coverage; with ``shaded`` the RGB is the level's radiance under a unit sky
+    (:func:`forest.library.preview.card_views`).
+    """
     from types import SimpleNamespace
 
-    from .preview import card_view_alpha
+    from .preview import card_views
 
     parts = [
         SimpleNamespace(
@@ -108,9 +117,9 @@ def far_coverage(folder: Path, high: dict, bounds: np.ndarray, res: int = 128, s
             colour=tuple(p["colour"]),
             texture=(folder / p["texture"]) if p["texture"] else None,
         )
-        for p in high["parts"]
+        for p in level["parts"]
     ]
-    return card_view_alpha(parts, bounds, lodmod.FAR_VIEWS, res, spp)
+    return card_views(parts, bounds, lodmod.FAR_VIEWS, res, spp, shaded=shaded)
 
 
 def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "recipe") -> dict:
@@ -134,8 +143,8 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
     leaf_colour, bark_colour = tree["leaf_colour"], tree["bark_colour"]
     transl = tree["translucency"]
     lods = []
-    high_meshes = None
-    coverage = None
+    high_meshes: list[tuple[MeshData, np.ndarray, np.ndarray | None]] = []
+    coverage = shading = None
     high_bounds = np.zeros((2, 3))
     for lod in ("high", "medium", "low"):
         target = lodmod.TARGETS[lod]
@@ -165,10 +174,13 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
         lods.append(entry)
         if lod == "high":
             high_bounds = np.array(entry["bounds"])
-            coverage = far_coverage(out, entry, high_bounds)
+            views = far_views(out, entry, high_bounds, shaded=True)
+            coverage = views[..., 3]
+            a = views[..., 3:4]
+            shading = np.where(a > 1e-4, views[..., :3] / np.maximum(a, 1e-4), 0.0)
             bark_rgba = np.concatenate([bark_tex, np.ones(bark_tex.shape[:2] + (1,), np.float32)], axis=2)
             high_meshes = [(bark, np.asarray(bark_colour), bark_rgba), (leaves, np.asarray(leaf_colour), leaf_tex)]
-    far, atlas, scale = lodmod.impostor(high_meshes, high_bounds, seed=seed, coverage=coverage)
+    far, atlas, scale = lodmod.impostor(high_meshes, high_bounds, seed=seed, coverage=coverage, shading=shading)
     write_texture(out / "far.png", atlas)
     write_ply(out / "far_cards.ply", far)
     lods.append(lod_entry("far", [part_entry("leaf", "far_cards.ply", far, scale, "far.png", True, transl)]))

@@ -53,6 +53,7 @@ same recipe and seed give the same tree, and each level has its own stream.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -70,7 +71,7 @@ SHAPES = (
     "tend_flame",
 )
 
-LEVEL_DEFAULTS = {
+LEVEL_DEFAULTS: dict[str, Any] = {
     "length": 1.0,
     "length_var": 0.0,
     "segments": 8,
@@ -87,7 +88,7 @@ LEVEL_DEFAULTS = {
     "whorl": 1,
     "sides": 6,
 }
-TREE_DEFAULTS = {
+TREE_DEFAULTS: dict[str, Any] = {
     "shape": "conical",
     "scale": 10.0,
     "scale_var": 0.0,
@@ -200,7 +201,7 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
     """Fill defaults and check a recipe; raise :class:`ConfigError` naming the bad field."""
     if not isinstance(recipe, dict):
         raise ConfigError(where, None, "recipe must be a table")
-    tree = dict(TREE_DEFAULTS)
+    tree: dict[str, Any] = dict(TREE_DEFAULTS)
     t_in = recipe.get("tree", {})
     unknown = sorted(set(t_in) - set(TREE_DEFAULTS))
     if unknown:
@@ -249,7 +250,7 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
     levels_in = recipe.get("level", [])
     if not isinstance(levels_in, list) or not levels_in or len(levels_in) > 5:
         raise ConfigError(where, "level", "must be 1 to 5 [[level]] tables")
-    levels = []
+    levels: list[dict[str, Any]] = []
     for i, lv in enumerate(levels_in):
         unknown = sorted(set(lv) - set(LEVEL_DEFAULTS))
         if unknown:

@@ -328,8 +328,15 @@ def impostor(
     res: int = 128,
     seed: int = 0,
     coverage: np.ndarray | None = None,
+    shading: np.ndarray | None = None,
 ) -> tuple[MeshData, np.ndarray, np.ndarray]:
     """Crossed-card far form of ``parts`` (mesh, linear colour, RGBA texture or None).
+
+    ``shading (FAR_VIEWS, res, res, 3)``, when given, is each view rendered under a
+    unit sky (:func:`forest.library.preview.card_view_shading`): albedo times the
+    sky's visibility, so the atlas carries the crown's self-occlusion — darker
+    inside and below, as the high level renders — which three flat cards lit in a
+    scene would otherwise lack.  It replaces the splat's albedo where it hit.
 
     ``coverage (FAR_VIEWS, res, res)``, when given, is the exact coverage of
     each view (rendered, :func:`forest.library.preview.card_view_alpha`); the
@@ -410,6 +417,9 @@ def impostor(
             mean_rgb = C.mean(axis=0) if len(C) else np.full(3, 0.5)
             rgb = np.where(hits[..., None] > 0, rgb, mean_rgb)
             cov = np.asarray(coverage[k], dtype=np.float64)
+        if shading is not None:
+            sh = np.asarray(shading[k], dtype=np.float64)
+            rgb = np.where(sh.sum(axis=-1, keepdims=True) > 0, sh, rgb)
         atlas[:, k * res : (k + 1) * res, :3] = rgb
         covs.append(cov)
         u0, u1 = k / FAR_VIEWS, (k + 1) / FAR_VIEWS

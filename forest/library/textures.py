@@ -34,7 +34,7 @@ def _grid(n: int) -> tuple[np.ndarray, np.ndarray]:
     return x, t
 
 
-def _smooth_mask(sd: np.ndarray, n: int) -> np.ndarray:
+def _smooth_mask(sd: np.ndarray, n: float) -> np.ndarray:
     """Anti-aliased coverage from a signed distance (negative inside), one pixel wide edge."""
     return np.clip(0.5 - sd * n / 2.0, 0.0, 1.0)
 
