@@ -533,3 +533,25 @@ def test_whorls_and_two_ranked_leaflets():
     phi = np.degrees(np.arctan2(np.sum(across * hb, axis=1), np.abs(np.sum(across * hs, axis=1))))
     lift = r["tree"]["leaf_lift"]
     assert np.mean(np.abs(phi - lift) < 20.0) > 0.8, np.percentile(phi, [10, 50, 90])
+
+
+@pytest.mark.parametrize(
+    "table,key,value,field",
+    [
+        ("tree", "bark_texture", "mossy", r"tree\.bark_texture: must be one of furrowed"),
+        ("tree", "crown_var", 2.0, r"tree\.crown_var: must be a number in \[0, 0\.9\]"),
+        ("tree", "leaf_lift", -5.0, r"tree\.leaf_lift"),
+        ("level", "whorl", 0, r"level\[1\]\.whorl: must be a whole number"),
+        ("level", "whorl", 2.5, r"level\[1\]\.whorl"),
+    ],
+)
+def test_new_recipe_keys_are_checked(table, key, value, field):
+    from forest.library.generator import validate_recipe
+
+    recipe = tomllib.loads((ROOT / "library/presets/conifer.toml").read_text())
+    if table == "tree":
+        recipe["tree"][key] = value
+    else:
+        recipe["level"][1][key] = value
+    with pytest.raises(ConfigError, match=field):
+        validate_recipe(recipe, "conifer.toml")

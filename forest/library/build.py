@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -91,16 +92,20 @@ def ground(mesh: MeshData) -> MeshData:
     return mesh
 
 
+FAR_RES = 128  # the far atlas's resolution per view
 COVER_STEPS = 3  # at most this many corrections of a cluster level's card scale
 COVER_TOLERANCE = 0.04  # relative coverage difference accepted without a correction
+COVER_EXPONENT = 0.7  # first guess of d ln(coverage) / d ln(card scale) for cluster cards
 
 
-def far_coverage(folder: Path, level: dict, bounds: np.ndarray, res: int = 128, spp: int = 8) -> np.ndarray:
+def far_coverage(folder: Path, level: dict, bounds: np.ndarray, res: int = FAR_RES, spp: int = 8) -> np.ndarray:
     """A level's exact coverage along each far card's normal, ``(views, res, res)`` (see :func:`far_views`)."""
     return far_views(folder, level, bounds, res, spp)[..., 3]
 
 
-def far_views(folder: Path, level: dict, bounds: np.ndarray, res: int = 128, spp: int = 8, shaded: bool = False):
+def far_views(
+    folder: Path, level: dict, bounds: np.ndarray, res: int = FAR_RES, spp: int = 8, shaded: bool = False
+) -> np.ndarray:
     """Render a level along each far card's normal (Mitsuba), framed by ``bounds``: RGBA ``(views, res, res, 4)``.
 
     Alpha is the exact coverage; with ``shaded`` the RGB is the level's radiance under a unit sky
@@ -154,7 +159,7 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
         if bark.triangles:
             write_ply(out / f"{lod}_bark.ply", bark)
             parts.append(part_entry("bark", f"{lod}_bark.ply", bark, bark_colour, "bark.exr", False, 0.0))
-        cover = 1.0
+        cover, seen = 1.0, []
         for step in range(COVER_STEPS + 1):
             leaves, clustered = lodmod.leaf_meshes(sk, lod, cards_budget, seed, cov_leaf, cov_cluster, cover)
             leaves = orient_faces(ground(leaves))
@@ -165,19 +170,25 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
             )
             if coverage is None or not clustered or step == COVER_STEPS:
                 break
-            # Cluster cards: match the high level's rendered coverage (area ∝ cover², so cover ∝ √coverage).
+            # Cluster cards: match the high level's rendered coverage c.  Locally c ∝ cover^p;
+            # p ≈ 0.7 on the presets (not 2: the cards overlap more as they grow), then the secant.
             got = float(far_coverage(out, entry, high_bounds, res=64, spp=4).mean())
             want = float(coverage.mean())
             if got <= 0 or abs(got / want - 1.0) < COVER_TOLERANCE:
                 break
-            cover *= float(np.clip(want / got, 0.5, 2.0)) ** 0.5
+            seen.append((math.log(cover), math.log(got)))
+            p = COVER_EXPONENT
+            if len(seen) >= 2 and abs(seen[-1][0] - seen[-2][0]) > 1e-6:
+                p = float(np.clip((seen[-1][1] - seen[-2][1]) / (seen[-1][0] - seen[-2][0]), 0.3, 2.0))
+            cover *= float(np.clip(want / got, 0.5, 2.0)) ** (1.0 / p)
         lods.append(entry)
         if lod == "high":
             high_bounds = np.array(entry["bounds"])
-            views = far_views(out, entry, high_bounds, shaded=True)
-            coverage = views[..., 3]
+            coverage = far_coverage(out, entry, high_bounds)
+            # The self-occlusion is smooth: half the resolution, repeated to the atlas's.
+            views = far_views(out, entry, high_bounds, res=FAR_RES // 2, spp=8, shaded=True)
             a = views[..., 3:4]
-            shading = np.where(a > 1e-4, views[..., :3] / np.maximum(a, 1e-4), 0.0)
+            shading = np.where(a > 1e-4, views[..., :3] / np.maximum(a, 1e-4), 0.0).repeat(2, 1).repeat(2, 2)
             bark_rgba = np.concatenate([bark_tex, np.ones(bark_tex.shape[:2] + (1,), np.float32)], axis=2)
             high_meshes = [(bark, np.asarray(bark_colour), bark_rgba), (leaves, np.asarray(leaf_colour), leaf_tex)]
     far, atlas, scale = lodmod.impostor(high_meshes, high_bounds, seed=seed, coverage=coverage, shading=shading)

@@ -183,7 +183,7 @@ def card_view_shading(parts, bounds: np.ndarray, views: int, res: int, spp: int 
     ``(views, res, res, 3)`` (zeros where nothing is hit).
     """
     img = card_views(parts, bounds, views, res, spp, shaded=True)
-    a = img[..., 3:4]
+    a = img[..., 3:4]  # the share of samples that reached a surface: RGB / a is the mean over them
     return np.where(a > 1e-4, img[..., :3] / np.maximum(a, 1e-4), 0.0).astype(np.float32)
 
 
@@ -192,8 +192,12 @@ def card_views(parts, bounds: np.ndarray, views: int, res: int, spp: int = 8, *,
 
     ``shaded = False``: black opaque surfaces (RGB 0, alpha = coverage; a path
     ends at its first real hit, so depth only counts the transparent texels
-    crossed on the way).  ``shaded = True``: the parts' own materials under a
-    constant environment of radiance 1 (premultiplied RGB, alpha = coverage).
+    crossed on the way, and Russian roulette is off so none is cut short).
+    ``shaded = True``: the parts' own materials under a constant environment of
+    radiance 1 (premultiplied RGB).  Its paths bounce inside the crown, so it
+    uses Russian roulette from depth 8: a camera path it ends before its first
+    real hit adds nothing to RGB nor alpha, so RGB / alpha stays unbiased, but
+    the alpha of a shaded render is not the coverage.
     """
     from ..runtime import mitsuba
 
@@ -217,6 +221,20 @@ def card_views(parts, bounds: np.ndarray, views: int, res: int, spp: int = 8, *,
         f"part{i}": {"type": "ply", "filename": str(p.path), "face_normals": False, "bsdf": bsdf(p)}
         for i, p in enumerate(parts)
     }
+    # One scene (meshes, textures, acceleration structure) and one sensor per view.
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "integrator": {
+                "type": "path",
+                "max_depth": 128 if shaded else 512,
+                "rr_depth": 8 if shaded else 512,
+                "hide_emitters": True,
+            },
+            "env": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}},
+            **shapes,
+        }
+    )
     out = np.zeros((views, res, res, 4), dtype=np.float32)
     for k in range(views):
         phi = math.pi * k / views
@@ -225,10 +243,8 @@ def card_views(parts, bounds: np.ndarray, views: int, res: int, spp: int = 8, *,
         to_world = mi.ScalarTransform4f().look_at(
             origin=eye.tolist(), target=[0.0, cy, 0.0], up=[0, 1, 0]
         ) @ mi.ScalarTransform4f().scale([radius, 0.5 * height, 1.0])
-        scene = {
-            "type": "scene",
-            "integrator": {"type": "path", "max_depth": 512, "rr_depth": 512, "hide_emitters": True},
-            "sensor": {
+        sensor = mi.load_dict(
+            {
                 "type": "orthographic",
                 "to_world": to_world,
                 "near_clip": 1e-3,
@@ -241,11 +257,9 @@ def card_views(parts, bounds: np.ndarray, views: int, res: int, spp: int = 8, *,
                     "rfilter": {"type": "box"},
                 },
                 "sampler": {"type": "independent", "sample_count": spp, "seed": k},
-            },
-            "env": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}},
-            **shapes,
-        }
-        img = np.array(mi.render(mi.load_dict(scene), spp=spp, seed=k), dtype=np.float32)
+            }
+        )
+        img = np.array(mi.render(scene, sensor=sensor, spp=spp, seed=k), dtype=np.float32)
         out[k] = img.reshape(res, res, -1)[..., :4]
     out[..., 3] = np.clip(out[..., 3], 0.0, 1.0)
     return out
