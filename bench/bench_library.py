@@ -97,9 +97,11 @@ def main() -> None:
                 individuals(lib4, n, 4)  # individual 0 is cached: builds 1, 2 and 3
         four = t_more.wall + t_one.wall
         print(f"build 1 individual of {len(trees)} tree species:   {t_one}")
+        four_cpu = t_more.cpu + t_one.cpu
         print(
-            f"build 4 individuals of {len(trees)} tree species:  {four:6.2f} s wall, "
-            f"{t_more.cpu + t_one.cpu:6.2f} s CPU   (ratio to one individual: {four / t_one.wall:.2f}; 4 is linear)"
+            f"build 4 individuals of {len(trees)} tree species:  {four:6.2f} s wall, {four_cpu:6.2f} s CPU   "
+            f"(ratio to one individual: {four / t_one.wall:.2f} wall, {four_cpu / max(t_one.cpu, 1e-9):.2f} CPU; "
+            "4 is linear)"
         )
         with Timer() as t_gen:
             species = lib.build(previews=False)
