@@ -74,11 +74,16 @@ def test_budgets_bounds_and_files(lib, name):
                 assert part.tinted and 0 < part.translucency < 1
                 tex = read_texture(part.texture)
                 assert tex[..., 3].min() == 0.0 and tex[..., 3].max() == 1.0
-                # Straight alpha: the detail stays near white right up to the card's edge.
+                # Straight alpha: the colour stays as light at the card's edge as inside it
+                # (premultiplied alpha would darken the edge texels towards black).
                 edge = (tex[..., 3] > 0.05) & (tex[..., 3] < 0.95)
-                assert tex[..., :3][edge].mean() > 0.5
-            else:
-                assert not part.tinted and part.texture is None
+                inside = tex[..., 3] >= 0.95
+                assert tex[..., :3][edge].mean() > 0.6 * tex[..., :3][inside].mean()
+            else:  # bark: untinted, a tileable detail factor with mean 1 (colour stays the albedo)
+                assert not part.tinted and part.texture.name == "bark.exr"
+                tex = read_texture(part.texture)
+                np.testing.assert_allclose(tex[..., :3].mean(axis=(0, 1)), 1.0, atol=0.01)
+                assert tex[..., :3].max() > 1.2 and tex[..., :3].min() < 0.8 and tex[..., 3].min() == 1.0
         allv = np.concatenate(verts)
         assert count == lod.triangles
         # Exact bounds: the stored box is the vertices' box.
@@ -387,3 +392,166 @@ def test_import_textured_glb(tmp_lib, tmp_path):
     glb = part.load()
     order_o, order_g = np.lexsort(obj.vertices.T), np.lexsort(glb.vertices.T)
     np.testing.assert_allclose(obj.uv[order_o], glb.uv[order_g], atol=1e-5)
+
+
+def _faces_against_normals(m) -> tuple[int, int]:
+    """(faces whose winding's normal points against their stored vertex normals, faces with area)."""
+    v = m.vertices.astype(np.float64)
+    f = m.faces.astype(np.int64)
+    g = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    n = m.normals.astype(np.float64)[f].sum(axis=1)
+    real = np.linalg.norm(g, axis=1) > 1e-12
+    return int(((np.einsum("ij,ij->i", g, n) < 0) & real).sum()), int(real.sum())
+
+
+@pytest.mark.parametrize("name", PRESETS + ("tower", "apartment", "house", "warehouse"))
+def test_winding_agrees_with_normals(lib, name):
+    """Every triangle of every part and level is wound counter-clockwise about its stored normals
+    (renderers that take the front face from the winding see the side the normals describe)."""
+    sp = lib.get(name)
+    for lod in sp.lods:
+        for part in lod.parts:
+            bad, total = _faces_against_normals(part.load())
+            assert total > 0 and bad == 0, (lod.name, part.path.name, bad, total)
+
+
+def test_leaf_cards_are_rectangles_facing_up():
+    """Leaf cards: width ⟂ length (no sheared cards) and the face normal ŵ × d̂ points up."""
+    from forest.library.generator import grow, validate_recipe
+
+    for name in ("broadleaf", "conifer", "palm"):
+        sk = grow(validate_recipe(tomllib.loads((ROOT / f"library/presets/{name}.toml").read_text())), 1)
+        np.testing.assert_allclose(np.sum(sk.leaf_width * sk.leaf_dir, axis=1), 0.0, atol=1e-6)
+        assert (np.cross(sk.leaf_width, sk.leaf_dir)[:, 1] >= -1e-9).all()
+
+
+def test_textures_keep_the_colour_the_albedo(lib):
+    """Detail factors have mean 1 where the part is (leaves within 2 %, clipped at 1; bark exactly),
+    and the bark tiles: its opposite edges continue each other as neighbouring rows do."""
+    from forest.library.textures import BARK_STYLES, SHAPES, bark_rgb, cluster_rgba, leaf_rgba
+
+    for shape in SHAPES:
+        for tex in (leaf_rgba(shape), cluster_rgba(shape)):
+            covered = tex[..., 3] >= 0.5
+            mean = tex[..., :3][covered].mean(axis=0)
+            assert (mean > 0.98).all() and tex[..., :3].max() <= 1.0, (shape, mean)
+    for style in BARK_STYLES:
+        b = bark_rgb(style).astype(np.float64)
+        np.testing.assert_allclose(b.mean(axis=(0, 1)), 1.0, atol=1e-3)
+        inner_v = np.abs(np.diff(b, axis=0)).mean()
+        inner_u = np.abs(np.diff(b, axis=1)).mean()
+        assert np.abs(b[0] - b[-1]).mean() < 2.0 * inner_v, style
+        assert np.abs(b[:, 0] - b[:, -1]).mean() < 2.0 * inner_u, style
+
+
+def test_bark_uv_tiles_along_the_stem(lib):
+    """Trunk uv: u once around, v climbing one tile per circumference (∫ ds / 2πr), several tiles up."""
+    bark = [p for p in lib.get("broadleaf").lod("high").parts if p.kind == "bark"][0].load()
+    trunk = np.linalg.norm(bark.vertices[:, [0, 2]], axis=1) < 0.6
+    u, v, y = bark.uv[trunk, 0], bark.uv[trunk, 1], bark.vertices[trunk, 1]
+    assert u.min() == 0.0 and u.max() == 1.0
+    low, high = v[y < 1.0], v[(y > 3.0) & (y < 4.0)]
+    assert len(low) and len(high) and high.mean() > low.mean() + 1.0  # more than a tile in 3 m of a trunk
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_calibrated_colours(name):
+    """Presets hold measured albedos: green leaves of luminance 0.08–0.25 (PROSPECT-D / LOPEX93 range),
+    translucency 0.15–0.6, bark of luminance 0.07–0.25; the cited sources are in the preset."""
+    from forest.library.generator import validate_recipe
+
+    text = (ROOT / f"library/presets/{name}.toml").read_text()
+    tree = validate_recipe(tomllib.loads(text))["tree"]
+    y = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 / sRGB luminance of linear RGB
+    leaf, bark = np.array(tree["leaf_colour"]), np.array(tree["bark_colour"])
+    assert leaf[1] > leaf[0] > leaf[2] and 0.08 <= leaf @ y <= 0.25, leaf
+    assert 0.15 <= tree["translucency"] <= 0.6
+    assert 0.07 <= bark @ y <= 0.25, bark
+    assert "PROSPECT-D" in text and "Féret" in text
+
+
+def test_individuals_are_deterministic_and_different(tmp_path):
+    """individual(lib, name, k) is NAME@(seed + k); individuals differ in height, width and branch angles."""
+    from forest.library import individual, individuals
+    from forest.library.generator import grow, validate_recipe
+
+    root = tmp_path / "lib"
+    (root / "presets").mkdir(parents=True)
+    recipe = tomllib.loads((ROOT / "library/presets/fern.toml").read_text())
+    recipe["tree"]["trunks"] = 4
+    import tomli_w
+
+    (root / "presets/fern.toml").write_text(tomli_w.dumps(recipe))
+    (root / "manifest.toml").write_text(
+        'version = 1\n[species.fern]\nsource = "generated"\nrecipe = "presets/fern.toml"\nseed = 5\n'
+    )
+    lib = open_library(root, presets=False)
+    a0, a2 = individual(lib, "fern", 0), individual(lib, "fern", 2)
+    assert a0.folder == lib.get("fern").folder and a2.folder == lib.resolve("fern@7").folder
+    assert individual(open_library(root, presets=False), "fern", 2).hash == a2.hash
+    assert [s.hash for s in individuals(lib, "fern", 3)] == [a0.hash, lib.resolve("fern@6").hash, a2.hash]
+    with pytest.raises(ForestError, match="whole number"):
+        individual(lib, "fern", -1)
+    # Individuals of the trees: heights, crown widths and limb angles spread over the seeds.
+    for name in ("broadleaf", "conifer", "palm"):
+        r = validate_recipe(tomllib.loads((ROOT / f"library/presets/{name}.toml").read_text()))
+        stats = []
+        for seed in range(1, 7):
+            sk = grow(r, seed)
+            pts = np.concatenate([lv.points.reshape(-1, 3) for lv in sk.levels] + [sk.leaf_base])
+            limbs = sk.levels[1]
+            angle = np.degrees(np.arccos(np.clip(limbs.tangents[:, 0, 1], -1, 1))).mean()
+            stats.append([pts[:, 1].max(), np.ptp(pts[:, 0]) + np.ptp(pts[:, 2]), angle])
+        s = np.array(stats)
+        spread = np.ptp(s, axis=0) / s.mean(axis=0)
+        assert spread[0] > 0.08 and spread[1] > 0.08 and np.ptp(s[:, 2]) > 3.0, (name, s)
+
+
+def test_whorls_and_two_ranked_leaflets():
+    """Conifer branches come in whorls (same height, evenly spread around); palm leaflets in two ranks."""
+    from forest.library.generator import _children_offsets, grow, validate_recipe
+
+    rng = np.random.default_rng(0)
+    stem, t, _k, m, j = _children_offsets(np.array([10, 15]), np.array([0.1, 0.2]), rng, whorl=5)
+    for s in (0, 1):
+        tt = t[stem == s].reshape(-1, 5)
+        assert np.ptp(tt, axis=1).max() == 0.0 and (np.diff(tt[:, 0]) > 0).all()
+    assert list(j[:5]) == [0, 1, 2, 3, 4] and list(m[:10]) == [0] * 5 + [1] * 5
+    r = validate_recipe(tomllib.loads((ROOT / "library/presets/palm.toml").read_text()))
+    sk = grow(r, 1)
+    # Leaflets in two ranks: the azimuth about their rachis (0 = horizontal, sideways) is ±leaf_lift
+    # on either side, so a frond is a flat feather (a shallow V), not a bottle-brush.
+    from scipy.spatial import cKDTree
+
+    rachis = sk.levels[1]
+    _, i = cKDTree(rachis.points.reshape(-1, 3)).query(sk.leaf_base)
+    tan = rachis.tangents.reshape(-1, 3)[i]
+    hs = np.cross(tan, [0.0, 1.0, 0.0])
+    hs /= np.linalg.norm(hs, axis=1, keepdims=True)
+    hb = np.cross(hs, tan)
+    across = sk.leaf_dir - np.sum(sk.leaf_dir * tan, axis=1, keepdims=True) * tan
+    phi = np.degrees(np.arctan2(np.sum(across * hb, axis=1), np.abs(np.sum(across * hs, axis=1))))
+    lift = r["tree"]["leaf_lift"]
+    assert np.mean(np.abs(phi - lift) < 20.0) > 0.8, np.percentile(phi, [10, 50, 90])
+
+
+@pytest.mark.parametrize(
+    "table,key,value,field",
+    [
+        ("tree", "bark_texture", "mossy", r"tree\.bark_texture: must be one of furrowed"),
+        ("tree", "crown_var", 2.0, r"tree\.crown_var: must be a number in \[0, 0\.9\]"),
+        ("tree", "leaf_lift", -5.0, r"tree\.leaf_lift"),
+        ("level", "whorl", 0, r"level\[1\]\.whorl: must be a whole number"),
+        ("level", "whorl", 2.5, r"level\[1\]\.whorl"),
+    ],
+)
+def test_new_recipe_keys_are_checked(table, key, value, field):
+    from forest.library.generator import validate_recipe
+
+    recipe = tomllib.loads((ROOT / "library/presets/conifer.toml").read_text())
+    if table == "tree":
+        recipe["tree"][key] = value
+    else:
+        recipe["level"][1][key] = value
+    with pytest.raises(ConfigError, match=field):
+        validate_recipe(recipe, "conifer.toml")

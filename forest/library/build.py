@@ -1,8 +1,9 @@
 """Turn a recipe into a species' files: PLY per part per level of detail, textures, metadata.
 
 A species' asset folder holds ``<lod>_<part>.ply``, ``leaf.png`` (single-leaf
-card), ``cluster.png`` (leaf-cluster card of the lower levels), ``far.png`` (the
-crossed-card impostor atlas) and ``species.json`` — the measured triangle
+card), ``cluster.png`` (leaf-cluster card of the lower levels), ``bark.exr`` (the
+bark's tileable detail factor, mean 1), ``far.png`` (the crossed-card impostor
+atlas) and ``species.json`` — the measured triangle
 counts and bounds that :class:`forest.library.Library` reads without opening
 any mesh.  ``species.json`` is written last, so a folder with it is complete.
 """
@@ -11,15 +12,17 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 
 from ..atomic import atomic_path
+from ..images import write_image
 from . import lod as lodmod
 from .generator import grow, validate_recipe
-from .mesh import MeshData, mesh_bounds, write_ply
-from .textures import cluster_rgba, leaf_rgba, write_texture
+from .mesh import MeshData, mesh_bounds, orient_faces, write_ply
+from .textures import bark_rgb, cluster_rgba, leaf_rgba, write_texture
 
 _CODE_FILES = ("generator.py", "lod.py", "mesh.py", "textures.py", "build.py", "preview.py")
 
@@ -89,11 +92,28 @@ def ground(mesh: MeshData) -> MeshData:
     return mesh
 
 
-def far_coverage(folder: Path, high: dict, bounds: np.ndarray, res: int = 128) -> np.ndarray:
-    """Render the high level's exact coverage along each far card's normal (Mitsuba)."""
+FAR_RES = 128  # the far atlas's resolution per view
+COVER_STEPS = 3  # at most this many corrections of a cluster level's card scale
+COVER_TOLERANCE = 0.04  # relative coverage difference accepted without a correction
+COVER_EXPONENT = 0.7  # first guess of d ln(coverage) / d ln(card scale) for cluster cards
+
+
+def far_coverage(folder: Path, level: dict, bounds: np.ndarray, res: int = FAR_RES, spp: int = 8) -> np.ndarray:
+    """A level's exact coverage along each far card's normal, ``(views, res, res)`` (see :func:`far_views`)."""
+    return far_views(folder, level, bounds, res, spp)[..., 3]
+
+
+def far_views(
+    folder: Path, level: dict, bounds: np.ndarray, res: int = FAR_RES, spp: int = 8, shaded: bool = False
+) -> np.ndarray:
+    """Render a level along each far card's normal (Mitsuba), framed by ``bounds``: RGBA ``(views, res, res, 4)``.
+
+    Alpha is the exact coverage; with ``shaded`` the RGB is the level's radiance under a unit sky
+    (:func:`forest.library.preview.card_views`).
+    """
     from types import SimpleNamespace
 
-    from .preview import card_view_alpha
+    from .preview import card_views
 
     parts = [
         SimpleNamespace(
@@ -102,9 +122,9 @@ def far_coverage(folder: Path, high: dict, bounds: np.ndarray, res: int = 128) -
             colour=tuple(p["colour"]),
             texture=(folder / p["texture"]) if p["texture"] else None,
         )
-        for p in high["parts"]
+        for p in level["parts"]
     ]
-    return card_view_alpha(parts, bounds, lodmod.FAR_VIEWS, res)
+    return card_views(parts, bounds, lodmod.FAR_VIEWS, res, spp, shaded=shaded)
 
 
 def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "recipe") -> dict:
@@ -119,36 +139,59 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
     shape = tree["leaf_shape"]
     leaf_tex = leaf_rgba(shape)
     cluster_tex = cluster_rgba(shape)
+    bark_tex = bark_rgb(tree["bark_texture"])
     write_texture(out / "leaf.png", leaf_tex)
     write_texture(out / "cluster.png", cluster_tex)
+    write_image(out / "bark.exr", bark_tex)
     cov_leaf = float(leaf_tex[..., 3].mean())
     cov_cluster = float(cluster_tex[..., 3].mean())
     leaf_colour, bark_colour = tree["leaf_colour"], tree["bark_colour"]
     transl = tree["translucency"]
     lods = []
-    high_meshes = None
+    high_meshes: list[tuple[MeshData, np.ndarray, np.ndarray | None]] = []
+    coverage = shading = None
+    high_bounds = np.zeros((2, 3))
     for lod in ("high", "medium", "low"):
         target = lodmod.TARGETS[lod]
-        bark = ground(lodmod.bark_mesh(sk, lod, target * lodmod.BARK_SHARE[lod]))
+        bark = orient_faces(ground(lodmod.bark_mesh(sk, lod, target * lodmod.BARK_SHARE[lod])))
         cards_budget = max(target // 8, (target - bark.triangles) // 2)
-        leaves, clustered = lodmod.leaf_meshes(sk, lod, cards_budget, seed, cov_leaf, cov_cluster)
-        leaves = ground(leaves)
         parts = []
         if bark.triangles:
             write_ply(out / f"{lod}_bark.ply", bark)
-            parts.append(part_entry("bark", f"{lod}_bark.ply", bark, bark_colour, None, False, 0.0))
-        write_ply(out / f"{lod}_leaf.ply", leaves)
-        parts.append(
-            part_entry(
-                "leaf", f"{lod}_leaf.ply", leaves, leaf_colour, "cluster.png" if clustered else "leaf.png", True, transl
+            parts.append(part_entry("bark", f"{lod}_bark.ply", bark, bark_colour, "bark.exr", False, 0.0))
+        cover, seen = 1.0, []
+        for step in range(COVER_STEPS + 1):
+            leaves, clustered = lodmod.leaf_meshes(sk, lod, cards_budget, seed, cov_leaf, cov_cluster, cover)
+            leaves = orient_faces(ground(leaves))
+            write_ply(out / f"{lod}_leaf.ply", leaves)
+            tex = "cluster.png" if clustered else "leaf.png"
+            entry = lod_entry(
+                lod, parts + [part_entry("leaf", f"{lod}_leaf.ply", leaves, leaf_colour, tex, True, transl)]
             )
-        )
-        lods.append(lod_entry(lod, parts))
+            if coverage is None or not clustered or step == COVER_STEPS:
+                break
+            # Cluster cards: match the high level's rendered coverage c.  Locally c ∝ cover^p;
+            # p ≈ 0.7 on the presets (not 2: the cards overlap more as they grow), then the secant.
+            got = float(far_coverage(out, entry, high_bounds, res=64, spp=4).mean())
+            want = float(coverage.mean())
+            if got <= 0 or abs(got / want - 1.0) < COVER_TOLERANCE:
+                break
+            seen.append((math.log(cover), math.log(got)))
+            p = COVER_EXPONENT
+            if len(seen) >= 2 and abs(seen[-1][0] - seen[-2][0]) > 1e-6:
+                p = float(np.clip((seen[-1][1] - seen[-2][1]) / (seen[-1][0] - seen[-2][0]), 0.3, 2.0))
+            cover *= float(np.clip(want / got, 0.5, 2.0)) ** (1.0 / p)
+        lods.append(entry)
         if lod == "high":
-            high_meshes = [(bark, np.asarray(bark_colour), None), (leaves, np.asarray(leaf_colour), leaf_tex)]
-    bounds = np.array(lods[0]["bounds"])
-    coverage = far_coverage(out, lods[0], bounds)
-    far, atlas, scale = lodmod.impostor(high_meshes, bounds, seed=seed, coverage=coverage)
+            high_bounds = np.array(entry["bounds"])
+            coverage = far_coverage(out, entry, high_bounds)
+            # The self-occlusion is smooth: half the resolution, repeated to the atlas's.
+            views = far_views(out, entry, high_bounds, res=FAR_RES // 2, spp=8, shaded=True)
+            a = views[..., 3:4]
+            shading = np.where(a > 1e-4, views[..., :3] / np.maximum(a, 1e-4), 0.0).repeat(2, 1).repeat(2, 2)
+            bark_rgba = np.concatenate([bark_tex, np.ones(bark_tex.shape[:2] + (1,), np.float32)], axis=2)
+            high_meshes = [(bark, np.asarray(bark_colour), bark_rgba), (leaves, np.asarray(leaf_colour), leaf_tex)]
+    far, atlas, scale = lodmod.impostor(high_meshes, high_bounds, seed=seed, coverage=coverage, shading=shading)
     write_texture(out / "far.png", atlas)
     write_ply(out / "far_cards.ply", far)
     lods.append(lod_entry("far", [part_entry("leaf", "far_cards.ply", far, scale, "far.png", True, transl)]))

@@ -15,18 +15,34 @@ Per stem (all angles in degrees, as in the paper):
 * **Taper** — radius along the stem ``r(t) = r₀ (1 − taper·t)``, ``t ∈ [0, 1]``;
   trunks flare at the base by ``1 + flare·(1 − t)^6``.
 * **Children** — placed at offsets ``t`` spread evenly over ``[start, 1]`` with
-  jitter; the azimuth follows a phyllotactic spiral ``φ_k = k·rotate ± rotate_var``
-  and the *down angle* (from the parent's axis) is ``down_angle ± down_angle_var``
-  (linearly blended to ``down_angle_tip`` towards the parent's tip).  Heading:
-  ``d = cos(θ)·t̂ + sin(θ)·(cos φ·ŝ + sin φ·b̂)`` in the parent's frame.
+  jitter, in *whorls* of ``whorl`` children sharing one offset (1: a spiral; a
+  spruce's tiers: 4–6).  Azimuth ``φ = 2π·j/whorl + m·rotate ± rotate_var`` for
+  child ``j`` of node ``m`` (with ``whorl = 1``: the phyllotactic spiral
+  ``φ_k = k·rotate``); the *down angle* (from the parent's axis) is
+  ``down_angle ± down_angle_var`` (linearly blended to ``down_angle_tip``
+  towards the parent's tip).  Heading: ``d = cos(θ)·t̂ + sin(θ)·(cos φ·ŝ + sin φ·b̂)``
+  in the parent's frame.
 * **Lengths** — children of a trunk: ``len = length·L_trunk·shape_ratio(shape, r)`` with
   ``r = (1 − t)/(1 − base_size)`` (1 at the crown's base, 0 at the top), using the
   paper's eight crown shapes; deeper levels: ``len = length·(L_parent − 0.6·t·L_parent)``.
 * **Radii** — ``r_child = r_parent(t)·(len_child/len_parent)^ratio_power`` (never
   thicker than the parent there).
 * **Leaves** — alpha-masked cards on the last level's stems, ``leaves`` per stem
-  scaled by the stem's relative length, oriented by their own down/rotate
-  angles with a random roll; cards keep the faces' normals up-facing.
+  scaled by the stem's relative length.  Azimuth about the stem measured from
+  its horizontal side ``ŝ = t̂ × Ŷ`` towards ``b̂ = ŝ × t̂`` (up):
+  ``φ_k = k·leaf_rotate + (−1)^k·leaf_lift ± leaf_rotate_var`` (180 = all round;
+  ``leaf_rotate = 180`` with a small variation puts leaflets in two ranks, a
+  pinnate frond, lifted into a V by ``leaf_lift``).  The card's width axis
+  ``ŵ ⟂ d̂`` blends the horizontal ``d̂ × Ŷ`` (weight ``leaf_face_up``) with a
+  random roll and is signed so the face normal ``ŵ × d̂`` points up.
+* **The individual** — the seed also draws, once per tree: height
+  ``scale ± scale_var``, a crown width factor ``1 ± crown_var`` on the limbs'
+  lengths, an offset ``± angle_var`` on every down angle, the crown base
+  ``base_size ± base_size_var`` and a lean ``lean ± lean_var`` (one trunk), so
+  ``"NAME@SEED"`` is another tree of the same kind
+  (:func:`forest.library.individuals.individual`).
+* **Bark** — ``bark_texture`` picks the tileable detail of
+  :func:`forest.library.textures.bark_rgb` (furrowed, scaly, ringed, smooth).
 
 The result is a :class:`Skeleton` (stem polylines, radii, leaf frames) from which
 :mod:`forest.library.lod` builds meshes at every level of detail.  Everything is
@@ -37,6 +53,7 @@ same recipe and seed give the same tree, and each level has its own stream.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -54,7 +71,7 @@ SHAPES = (
     "tend_flame",
 )
 
-LEVEL_DEFAULTS = {
+LEVEL_DEFAULTS: dict[str, Any] = {
     "length": 1.0,
     "length_var": 0.0,
     "segments": 8,
@@ -68,9 +85,10 @@ LEVEL_DEFAULTS = {
     "down_angle_tip": None,
     "rotate": 137.5,
     "rotate_var": 15.0,
+    "whorl": 1,
     "sides": 6,
 }
-TREE_DEFAULTS = {
+TREE_DEFAULTS: dict[str, Any] = {
     "shape": "conical",
     "scale": 10.0,
     "scale_var": 0.0,
@@ -84,6 +102,11 @@ TREE_DEFAULTS = {
     "trunk_splay_var": 0.0,
     "trunk_spread": 0.0,
     "attract_up": 0.0,
+    "lean": 0.0,
+    "lean_var": 0.0,
+    "crown_var": 0.0,
+    "angle_var": 0.0,
+    "base_size_var": 0.0,
     "leaves": 10,
     "leaf_scale": 0.15,
     "leaf_scale_x": 0.6,
@@ -91,10 +114,13 @@ TREE_DEFAULTS = {
     "leaf_down_angle": 50.0,
     "leaf_down_angle_var": 15.0,
     "leaf_rotate": 137.5,
+    "leaf_rotate_var": 180.0,
+    "leaf_lift": 0.0,
     "leaf_start": 0.2,
     "leaf_shape": "broad",
     "leaf_colour": [0.06, 0.16, 0.03],
     "bark_colour": [0.12, 0.08, 0.05],
+    "bark_texture": "furrowed",
     "translucency": 0.3,
     "leaf_face_up": 0.5,
     "leaf_segments": 1,
@@ -175,7 +201,7 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
     """Fill defaults and check a recipe; raise :class:`ConfigError` naming the bad field."""
     if not isinstance(recipe, dict):
         raise ConfigError(where, None, "recipe must be a table")
-    tree = dict(TREE_DEFAULTS)
+    tree: dict[str, Any] = dict(TREE_DEFAULTS)
     t_in = recipe.get("tree", {})
     unknown = sorted(set(t_in) - set(TREE_DEFAULTS))
     if unknown:
@@ -191,6 +217,20 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
         raise ConfigError(
             where, "tree.leaf_shape", f"must be one of {', '.join(LEAF_SHAPES)}, got {tree['leaf_shape']!r}"
         )
+    from .textures import BARK_STYLES
+
+    if tree["bark_texture"] not in BARK_STYLES:
+        raise ConfigError(
+            where, "tree.bark_texture", f"must be one of {', '.join(BARK_STYLES)}, got {tree['bark_texture']!r}"
+        )
+    for key in ("lean", "lean_var", "angle_var", "leaf_lift", "leaf_rotate_var"):
+        v = tree[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (0 <= v <= 180):
+            raise ConfigError(where, f"tree.{key}", f"must be a number in [0, 180], got {v!r}")
+    for key in ("crown_var", "base_size_var"):
+        v = tree[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (0 <= v <= 0.9):
+            raise ConfigError(where, f"tree.{key}", f"must be a number in [0, 0.9], got {v!r}")
     for key in ("scale", "leaf_scale"):
         v = tree[key]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not (0 < v < 200):
@@ -210,7 +250,7 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
     levels_in = recipe.get("level", [])
     if not isinstance(levels_in, list) or not levels_in or len(levels_in) > 5:
         raise ConfigError(where, "level", "must be 1 to 5 [[level]] tables")
-    levels = []
+    levels: list[dict[str, Any]] = []
     for i, lv in enumerate(levels_in):
         unknown = sorted(set(lv) - set(LEVEL_DEFAULTS))
         if unknown:
@@ -227,6 +267,8 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
             raise ConfigError(
                 where, f"level[{i}].branches", f"must be a whole number in [0, 2000], got {d['branches']!r}"
             )
+        if isinstance(d["whorl"], bool) or not isinstance(d["whorl"], int) or not 1 <= d["whorl"] <= 64:
+            raise ConfigError(where, f"level[{i}].whorl", f"must be a whole number in [1, 64], got {d['whorl']!r}")
         if not isinstance(d["sides"], int) or not 3 <= d["sides"] <= 64:
             raise ConfigError(where, f"level[{i}].sides", f"must be a whole number in [3, 64], got {d['sides']!r}")
         levels.append(d)
@@ -276,19 +318,46 @@ def _sample_along(level: Level, stem: np.ndarray, t: np.ndarray):
     return pos, tan, rad, side
 
 
-def _children_offsets(counts: np.ndarray, start: np.ndarray, rng):
-    """Stem index and offset ``t`` for every child: evenly spread over ``[start, 1]`` with jitter."""
+def _children_offsets(counts: np.ndarray, start: np.ndarray, rng, whorl: int = 1):
+    """Stem index, offset ``t``, index and whorl slot of every child on its parent.
+
+    Children are grouped into *nodes* of ``whorl`` (1: one child a node, a spiral);
+    the nodes of a parent spread evenly over ``[start, 1]`` with jitter,
+    ``t = s + (1 − s)(m + ½ + 0.35·U)/M`` for node ``m`` of ``M``, and every
+    child of a node shares its ``t``.  Returns ``(stem, t, k, m, j)`` with
+    ``k`` the child's index on its parent, ``m = k // whorl`` and ``j = k mod whorl``.
+    """
     total = int(counts.sum())
+    w = max(1, int(whorl))
     stem = np.repeat(np.arange(len(counts)), counts)
     k = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)  # index within its parent
-    c = np.repeat(counts, counts).astype(np.float64)
+    m, j = k // w, k % w
+    nodes = np.repeat(-(-counts // w), counts).astype(np.float64)
     s0 = np.repeat(start, counts)
-    t = s0 + (1.0 - s0) * (k + 0.5 + 0.35 * rng.uniform(-1, 1, total)) / c
-    return stem, np.clip(t, 0.0, 1.0), k
+    jitter = rng.uniform(-1, 1, total)
+    jitter = jitter[np.arange(total) - j]  # one draw a node: its first child's
+    t = s0 + (1.0 - s0) * (m + 0.5 + 0.35 * jitter) / nodes
+    return stem, np.clip(t, 0.0, 1.0), k, m, j
+
+
+def _horizontal_frame(tan: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(ŝ, b̂)`` ⟂ the heading: ``ŝ = t̂ × Ŷ`` horizontal, ``b̂ = ŝ × t̂`` towards +Y (``fallback`` when vertical)."""
+    up = np.array([0.0, 1.0, 0.0])
+    s = np.cross(tan, up)
+    ok = np.linalg.norm(s, axis=-1, keepdims=True) > 1e-6
+    s = np.where(ok, s, fallback)
+    s = _perpendicular(tan, s)
+    return s, _norm(np.cross(s, tan))
 
 
 def grow(recipe: dict, seed: int) -> Skeleton:
-    """Grow the tree described by a validated ``recipe`` with ``seed``."""
+    """Grow the tree described by a validated ``recipe`` with ``seed``.
+
+    The seed also draws the *individual*: height ``scale ± scale_var``, crown
+    width factor ``1 ± crown_var`` (on the limbs' lengths), a branch-angle offset
+    ``± angle_var`` degrees (on every branching level's down angles), crown base
+    ``base_size ± base_size_var`` and lean ``lean ± lean_var`` degrees (single trunks).
+    """
     tree = recipe["tree"]
     levels_cfg = recipe["level"]
 
@@ -304,6 +373,13 @@ def grow(recipe: dict, seed: int) -> Skeleton:
     tilt = np.radians(tree["trunk_splay"] + tree["trunk_splay_var"] * rng.uniform(-1, 1, nt)) * (
         nt > 1 or tree["trunk_splay"] > 0
     )
+    # The individual: crown width, branch angles, crown base and lean (one draw each).
+    crown = max(0.2, 1.0 + tree["crown_var"] * rng.uniform(-1, 1))
+    angle_offset = tree["angle_var"] * rng.uniform(-1, 1)
+    base_size = float(np.clip(tree["base_size"] + tree["base_size_var"] * rng.uniform(-1, 1), 0.0, 0.98))
+    lean = np.radians(tree["lean"] + tree["lean_var"] * rng.uniform(-1, 1))
+    if nt == 1:
+        tilt = tilt + lean
     head = np.stack([np.sin(tilt) * np.cos(az), np.cos(tilt), np.sin(tilt) * np.sin(az)], axis=1)
     spread = tree["trunk_spread"] * np.sqrt(rng.uniform(0, 1, nt))
     origins = np.stack([spread * np.cos(az), np.zeros(nt), spread * np.sin(az)], axis=1)
@@ -319,30 +395,32 @@ def grow(recipe: dict, seed: int) -> Skeleton:
         rel = parent.length / parent.length.max()
         if L == 1:
             counts = np.full(len(parent.length), pcfg["branches"], dtype=np.int64)
-            start = np.full(len(parent.length), tree["base_size"])
+            start = np.full(len(parent.length), base_size)
         else:
             counts = np.round(pcfg["branches"] * (0.3 + 0.7 * rel)).astype(np.int64)
             start = np.full(len(parent.length), pcfg["start"])
         if counts.sum() == 0:
             break
-        stem, t, k = _children_offsets(counts, start, rng)
+        stem, t, k, m, j = _children_offsets(counts, start, rng, lv["whorl"])
         pos, ptan, prad, pside = _sample_along(parent, stem, t)
         pbin = _norm(np.cross(ptan, pside))
+        w = max(1, int(lv["whorl"]))
         phi = (
-            np.radians(k * lv["rotate"] + lv["rotate_var"] * rng.uniform(-1, 1, len(t)))
+            2.0 * np.pi * j / w
+            + np.radians(m * lv["rotate"] + lv["rotate_var"] * rng.uniform(-1, 1, len(t)))
             + rng.uniform(0, 2 * np.pi, len(counts))[stem]
         )
-        tip_angle = lv["down_angle"] if lv["down_angle_tip"] is None else lv["down_angle_tip"]
+        down, tip_angle = lv["down_angle"], lv["down_angle"] if lv["down_angle_tip"] is None else lv["down_angle_tip"]
         span = (t - start[stem]) / np.maximum(1.0 - start[stem], 1e-6)
         theta = np.radians(
-            lv["down_angle"] * (1 - span) + tip_angle * span + lv["down_angle_var"] * rng.uniform(-1, 1, len(t))
+            down * (1 - span) + tip_angle * span + angle_offset + lv["down_angle_var"] * rng.uniform(-1, 1, len(t))
         )
         radial = np.cos(phi)[:, None] * pside + np.sin(phi)[:, None] * pbin
         head = _norm(np.cos(theta)[:, None] * ptan + np.sin(theta)[:, None] * radial)
         plen = parent.length[stem]
         if L == 1:
-            r = (1.0 - t) / max(1.0 - tree["base_size"], 1e-6)
-            clen = lv["length"] * plen * shape_ratio(tree["shape"], r)
+            r = (1.0 - t) / max(1.0 - base_size, 1e-6)
+            clen = crown * lv["length"] * plen * shape_ratio(tree["shape"], r)
         else:
             clen = lv["length"] * (plen - 0.6 * t * plen)
         clen = clen * (1.0 + lv["length_var"] * rng.uniform(-1, 1, len(t)))
@@ -357,19 +435,30 @@ def grow(recipe: dict, seed: int) -> Skeleton:
     rel = last.length / last.length.max()
     counts = np.round(tree["leaves"] * (0.3 + 0.7 * rel)).astype(np.int64)
     leaf_start = np.full(len(counts), tree["leaf_start"])
-    stem, t, k = _children_offsets(counts, leaf_start, rng)
+    stem, t, k, _, _ = _children_offsets(counts, leaf_start, rng)
     pos, ptan, prad, pside = _sample_along(last, stem, t)
-    pbin = _norm(np.cross(ptan, pside))
-    phi = np.radians(k * tree["leaf_rotate"]) + rng.uniform(0, 2 * np.pi, len(t))
+    # Azimuth about the stem from its horizontal side ŝ towards b̂ (up): alternate
+    # leaves (rotate 180°) lie left and right, lifted by ±leaf_lift into a V.
+    hs, hb = _horizontal_frame(ptan, pside)
+    sign = np.where(k % 2 == 0, 1.0, -1.0)
+    phi = np.radians(
+        k * tree["leaf_rotate"] + sign * tree["leaf_lift"] + tree["leaf_rotate_var"] * rng.uniform(-1, 1, len(t))
+    )
     theta = np.radians(tree["leaf_down_angle"] + tree["leaf_down_angle_var"] * rng.uniform(-1, 1, len(t)))
-    radial = np.cos(phi)[:, None] * pside + np.sin(phi)[:, None] * pbin
+    radial = np.cos(phi)[:, None] * hs + np.sin(phi)[:, None] * hb
     ldir = _norm(np.cos(theta)[:, None] * ptan + np.sin(theta)[:, None] * radial)
-    # Card width axis: horizontal-ish (faces up) blended with the radial roll.
+    # Card width axis ŵ ⟂ d̂: the horizontal ``d̂ × Ŷ`` (card facing up) blended with a
+    # random roll by ``1 − leaf_face_up``; then signed so the face normal ŵ × d̂ points up.
     up = np.array([0.0, 1.0, 0.0])
-    w_flat = _norm(np.cross(ldir, up))
-    w_rand = _perpendicular(_norm(np.cross(ldir, radial)), ldir)
+    w_flat = _perpendicular(ldir, np.cross(ldir, up) + 1e-6 * hs)
+    roll = rng.uniform(0, 2 * np.pi, len(t))
+    w_ref, w_ref2 = _perpendicular(ldir, hs), _norm(np.cross(ldir, _perpendicular(ldir, hs)))
+    w_rand = np.cos(roll)[:, None] * w_ref + np.sin(roll)[:, None] * w_ref2
+    w_rand = w_rand * np.where(np.sum(w_rand * w_flat, axis=1, keepdims=True) < 0, -1.0, 1.0)
     fu = tree["leaf_face_up"]
-    width_axis = _perpendicular(_norm(fu * w_flat + (1 - fu) * w_rand + 1e-6 * pside), ldir)
+    width_axis = _perpendicular(ldir, fu * w_flat + (1 - fu) * w_rand)
+    face = np.cross(width_axis, ldir)
+    width_axis = np.where(face[:, 1:2] < 0, -width_axis, width_axis)
     size = tree["leaf_scale"] * (1.0 + tree["leaf_scale_var"] * rng.uniform(-1, 1, len(t)))
     lsize = np.stack([size, size * tree["leaf_scale_x"]], axis=1)
     base = pos + ldir * prad[:, None]

@@ -38,11 +38,30 @@ BARK_SHARE = {"high": 1.0, "medium": 0.4, "low": 0.35}
 TAG_LOD = 0x10D
 
 
+def stem_v(level: Level) -> np.ndarray:
+    """Bark ``v`` at every point of ``level``'s polylines: ``v(s) = ∫₀ˢ ds′ / (2π r(s′))``.
+
+    One texture tile up the stem per circumference, so with ``u = α/2π`` once
+    around a texel stays square however the stem tapers (the bark's furrows
+    converge as the stem thins, as they do on a tree).  Trapezoid rule on
+    ``1/r`` over the polyline; computed on the full polyline so that every level
+    of detail, which keeps a subset of its points, maps the bark identically.
+    """
+    seg = np.linalg.norm(np.diff(level.points, axis=1), axis=2)
+    inv = 1.0 / (2.0 * np.pi * np.maximum(level.radii, 1e-4))
+    dv = seg * 0.5 * (inv[:, 1:] + inv[:, :-1])
+    return np.concatenate([np.zeros((len(seg), 1)), np.cumsum(dv, axis=1)], axis=1)
+
+
 def tubes(level: Level, sides: int, rows: np.ndarray) -> MeshData:
     """Tubes around ``level``'s polylines using the points ``rows`` and ``sides`` per ring.
 
-    UV: ``u = α/2π`` around (a seam column duplicates ``u = 1``), ``v`` = arc
-    length / (2π r₀) along, so bark texels stay roughly square.
+    Ring vertex ``k`` at ``p + r(cos α_k n̂₁ + sin α_k n̂₂)`` with ``α_k = 2πk/sides``
+    and ``n̂₂ = t̂ × n̂₁``, so going around the ring turns counter-clockwise seen
+    from the stem's tip and the faces ``(j,k) (j,k+1) (j+1,k+1)`` face outward:
+    the winding's normal agrees with the stored radial normals.
+    UV: ``u = α/2π`` around (a seam column duplicates ``u = 1``), ``v`` from
+    :func:`stem_v`, so the bark texture tiles along the stem.
     """
     pts = level.points[:, rows]
     tan = level.tangents[:, rows]
@@ -55,12 +74,11 @@ def tubes(level: Level, sides: int, rows: np.ndarray) -> MeshData:
     ca, sa = np.cos(a), np.sin(a)
     nrm = ca[None, None, :, None] * n1[:, :, None, :] + sa[None, None, :, None] * n2[:, :, None, :]
     pos = pts[:, :, None, :] + rad[:, :, None, None] * nrm
-    arc = np.concatenate([np.zeros((S, 1)), np.cumsum(np.linalg.norm(np.diff(pts, axis=1), axis=2), axis=1)], axis=1)
-    v = arc / (2 * np.pi * np.maximum(rad[:, :1], 1e-4))
+    v = stem_v(level)[:, rows]
     uv = np.stack(
         np.broadcast_arrays(np.broadcast_to((a / (2 * np.pi))[None, None, :], (S, R, K + 1)), v[:, :, None]), axis=-1
     )
-    # Faces: quad (j, k) → (j,k) (j+1,k) (j+1,k+1) and (j,k) (j+1,k+1) (j,k+1); winding outward.
+    # Faces: quad (j, k) → (j,k) (j,k+1) (j+1,k+1) and (j,k) (j+1,k+1) (j+1,k); winding outward.
     j, k = np.meshgrid(np.arange(R - 1), np.arange(K), indexing="ij")
     i00 = j * (K + 1) + k
     i10 = (j + 1) * (K + 1) + k
@@ -80,18 +98,22 @@ def cards(base: np.ndarray, direction: np.ndarray, width: np.ndarray, size: np.n
     """Quads of ``size = [length, width]`` from ``base`` along ``direction``, scaled about their centre.
 
     Vertices: ``c ± ½·s·len·d̂ ± ½·s·wid·ŵ`` with ``c = base + ½·len·d̂``; normals
-    ``d̂ × ŵ`` flipped to face up (+Y), uv: u across, v from stalk (0) to tip (1).
+    ``ŵ × d̂`` flipped to face up (+Y), uv: u across, v from stalk (0) to tip (1).
+    The two triangles are wound counter-clockwise about the stored normal
+    (``(p₁ − p₀) × (p₂ − p₀)`` along it): a flipped card gets the reversed order.
     """
     n = len(base)
     c = base + 0.5 * size[:, :1] * direction
     hl = 0.5 * scale * size[:, :1] * direction
     hw = 0.5 * scale * size[:, 1:] * width
     quad = np.stack([c - hl - hw, c - hl + hw, c + hl + hw, c + hl - hw], axis=1)
-    nrm = _norm(np.cross(width, direction))
-    nrm = np.where(nrm[:, 1:2] < 0, -nrm, nrm)
+    nrm = _norm(np.cross(width, direction))  # the winding's normal of quad 0-1-2-3
+    flip = nrm[:, 1] < 0
+    nrm = np.where(flip[:, None], -nrm, nrm)
     nrms = np.repeat(nrm[:, None, :], 4, axis=1)
     uv = np.tile(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]), (n, 1, 1))
-    faces = (np.array([[0, 1, 2], [0, 2, 3]])[None] + 4 * np.arange(n)[:, None, None]).reshape(-1, 3)
+    tmpl = np.where(flip[:, None, None], np.array([[0, 2, 1], [0, 3, 2]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    faces = (tmpl + 4 * np.arange(n)[:, None, None]).reshape(-1, 3)
     return MeshData(
         quad.reshape(-1, 3).astype(np.float32),
         faces.astype(np.uint32),
@@ -126,6 +148,7 @@ def bent_cards(
     hw = 0.5 * size[:, 1:, None] * width[:, None, :]
     left, right = centre - hw, centre + hw
     pos = np.stack([left, right], axis=2)  # (n, K+1, 2, 3)
+    # Strip (j): left_j, right_j, right_{j+1} wind about ŵ × t̂, the normal before flipping.
     nrm = _norm(np.cross(np.broadcast_to(width[:, None, :], tangent.shape), tangent))
     flip = nrm[:, K // 2 : K // 2 + 1, 1:2] < 0
     nrm = np.where(flip, -nrm, nrm)
@@ -135,7 +158,8 @@ def bent_cards(
     j = np.arange(K)
     i0, i1, i2, i3 = 2 * j, 2 * j + 1, 2 * j + 3, 2 * j + 2
     tmpl = np.concatenate([np.stack([i0, i1, i2], -1), np.stack([i0, i2, i3], -1)])
-    faces = (tmpl[None] + (np.arange(n) * 2 * (K + 1))[:, None, None]).reshape(-1, 3)
+    tmpl = np.where(flip[:, 0, :, None], tmpl[None, :, [0, 2, 1]], tmpl[None])  # flipped cards: reversed order
+    faces = (tmpl + (np.arange(n) * 2 * (K + 1))[:, None, None]).reshape(-1, 3)
     return MeshData(
         pos.reshape(-1, 3).astype(np.float32),
         faces.astype(np.uint32),
@@ -179,11 +203,14 @@ def bark_mesh(sk: Skeleton, lod: str, budget: float) -> MeshData:
 
 
 def leaf_meshes(
-    sk: Skeleton, lod: str, budget_cards: int, seed: int, cov_leaf: float, cov_cluster: float
+    sk: Skeleton, lod: str, budget_cards: int, seed: int, cov_leaf: float, cov_cluster: float, cover: float = 1.0
 ) -> tuple[MeshData, bool]:
     """Leaf cards for ``lod``: every leaf at the high level, an area-preserving subset below.
 
-    Returns the mesh and whether it uses the cluster texture.
+    ``cover`` multiplies the cluster cards' scale beyond the area-preserving one
+    (the build matches the rendered coverage with it: clumped foliage overlaps
+    more within a clump than the fewer, larger cluster cards do).  Returns the
+    mesh and whether it uses the cluster texture.
     """
     N = len(sk.leaf_base)
     tree = sk.recipe["tree"]
@@ -203,7 +230,7 @@ def leaf_meshes(
         ), False
     area_leaf = float(np.sum(sk.leaf_size[:, 0] * sk.leaf_size[:, 1])) * cov_leaf
     area_kept = float(np.sum(sk.leaf_size[keep, 0] * sk.leaf_size[keep, 1])) * cov_cluster
-    s = math.sqrt(area_leaf / max(area_kept, 1e-12))
+    s = cover * math.sqrt(area_leaf / max(area_kept, 1e-12))
     return cards(sk.leaf_base[keep], sk.leaf_dir[keep], sk.leaf_width[keep], sk.leaf_size[keep], scale=s), True
 
 
@@ -301,8 +328,15 @@ def impostor(
     res: int = 128,
     seed: int = 0,
     coverage: np.ndarray | None = None,
+    shading: np.ndarray | None = None,
 ) -> tuple[MeshData, np.ndarray, np.ndarray]:
     """Crossed-card far form of ``parts`` (mesh, linear colour, RGBA texture or None).
+
+    ``shading (FAR_VIEWS, res, res, 3)``, when given, is each view rendered under a
+    unit sky (:func:`forest.library.preview.card_view_shading`): albedo times the
+    sky's visibility, so the atlas carries the crown's self-occlusion — darker
+    inside and below, as the high level renders — which three flat cards lit in a
+    scene would otherwise lack.  It replaces the splat's albedo where it hit.
 
     ``coverage (FAR_VIEWS, res, res)``, when given, is the exact coverage of
     each view (rendered, :func:`forest.library.preview.card_view_alpha`); the
@@ -311,8 +345,9 @@ def impostor(
     comes from the splat (albedo of the nearest surface).
 
     Returns the card mesh, the RGBA atlas (``res`` high, ``FAR_VIEWS·res`` wide;
-    RGB = albedo / colour scale) and the colour scale (per-channel maximum
-    albedo), so that ``colour × texture.rgb`` reproduces the albedo.
+    RGB = albedo / colour scale, clipped at 1) and the colour scale (per-channel
+    99th percentile of the albedo), so that ``colour × texture.rgb`` reproduces the albedo
+    (the brightest 1 % of texels clip).
     """
     rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, TAG_LOD, 77])))
     lo, hi = bounds
@@ -382,6 +417,9 @@ def impostor(
             mean_rgb = C.mean(axis=0) if len(C) else np.full(3, 0.5)
             rgb = np.where(hits[..., None] > 0, rgb, mean_rgb)
             cov = np.asarray(coverage[k], dtype=np.float64)
+        if shading is not None:
+            sh = np.asarray(shading[k], dtype=np.float64)
+            rgb = np.where(sh.sum(axis=-1, keepdims=True) > 0, sh, rgb)
         atlas[:, k * res : (k + 1) * res, :3] = rgb
         covs.append(cov)
         u0, u1 = k / FAR_VIEWS, (k + 1) / FAR_VIEWS
@@ -401,9 +439,11 @@ def impostor(
     for k in range(FAR_VIEWS):
         atlas[:, k * res : (k + 1) * res, 3] = 1.0 - (1.0 - cov[k]) ** gamma
     covered = atlas[..., 3] > 0
-    scale = atlas[..., :3][covered].max(axis=0) if covered.any() else np.ones(3)
+    # The 99th percentile, not the maximum: a few bright bark texels would otherwise squeeze
+    # the foliage into the bottom of the 8-bit range.
+    scale = np.percentile(atlas[..., :3][covered], 99.0, axis=0) if covered.any() else np.ones(3)
     scale = np.maximum(scale, 1e-4)
-    atlas[..., :3] = np.where(covered[..., None], atlas[..., :3] / scale, 1.0)
+    atlas[..., :3] = np.where(covered[..., None], np.minimum(atlas[..., :3] / scale, 1.0), 1.0)
     faces = (np.array([[0, 1, 2], [0, 2, 3]])[None] + 4 * np.arange(FAR_VIEWS)[:, None, None]).reshape(-1, 3)
     mesh = MeshData(
         np.concatenate(verts).astype(np.float32),

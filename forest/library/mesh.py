@@ -87,6 +87,33 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return (n / length[:, None]).astype(np.float32)
 
 
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unnormalised geometric normals ``(b − a) × (c − a)`` of the faces (float64): the winding's normal."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    return np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+
+
+def orient_faces(mesh: MeshData) -> MeshData:
+    """Wind every face so its geometric normal agrees with its stored vertex normals.
+
+    A face whose ``(b − a) × (c − a)`` points against the sum of its three
+    vertex normals gets the order ``a c b``.  Renderers that take the
+    front side from the winding (Cycles, RenderMan, USD's ``orientation``)
+    then see the side the normals describe.  Generated meshes are wound right by
+    construction; this catches faces that clamping or a tight bend turned over.
+    """
+    if len(mesh.faces) == 0:
+        return mesh
+    n = np.asarray(mesh.normals, dtype=np.float64)[np.asarray(mesh.faces, dtype=np.int64)].sum(axis=1)
+    bad = np.einsum("ij,ij->i", face_normals(mesh.vertices, mesh.faces), n) < 0
+    if not bad.any():
+        return mesh
+    faces = np.array(mesh.faces, copy=True)
+    faces[bad] = faces[bad][:, [0, 2, 1]]
+    return MeshData(mesh.vertices, faces, mesh.normals, mesh.uv)
+
+
 # ---------------------------------------------------------------------------
 # PLY
 # ---------------------------------------------------------------------------

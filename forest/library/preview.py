@@ -9,8 +9,9 @@ front left.  The film is RGBA with the background transparent (hidden
 emitter), so the alpha channel is the tree's coverage — comparable between
 levels of detail of one species, which share the framing of the high level.
 
-Materials: bark diffuse; leaves ``mask``(opacity = texture alpha) over a
-two-sided diffuse whose reflectance is ``colour × texture.rgb``.
+Materials: bark diffuse with reflectance ``colour × bark.exr`` (a tileable
+detail of mean 1); leaves ``mask`` (opacity = texture alpha) over a two-sided
+diffuse whose reflectance is ``colour × texture.rgb``.
 """
 
 from __future__ import annotations
@@ -169,6 +170,35 @@ def card_view_alpha(parts, bounds: np.ndarray, views: int, res: int, spp: int = 
     the layout of :func:`forest.library.lod.impostor`'s atlas.  Returns
     ``(views, res, res)`` alpha rendered with Mitsuba (alpha-tested leaves included).
     """
+    return card_views(parts, bounds, views, res, spp)[..., 3]
+
+
+def card_view_shading(parts, bounds: np.ndarray, views: int, res: int, spp: int = 8) -> np.ndarray:
+    """Straight RGB of ``parts`` under a uniform unit sky, along each far card's normal (as :func:`card_view_alpha`).
+
+    A Lambertian surface of albedo ``a`` that sees the whole sky of radiance 1
+    leaves with radiance ``a``; inside a crown it sees less of it, so the image
+    is ``a·V`` (plus light scattered between leaves), ``V`` the sky's visibility:
+    the crown's self-occlusion that a flat card, lit in a scene, lacks.  Returns
+    ``(views, res, res, 3)`` (zeros where nothing is hit).
+    """
+    img = card_views(parts, bounds, views, res, spp, shaded=True)
+    a = img[..., 3:4]  # the share of samples that reached a surface: RGB / a is the mean over them
+    return np.where(a > 1e-4, img[..., :3] / np.maximum(a, 1e-4), 0.0).astype(np.float32)
+
+
+def card_views(parts, bounds: np.ndarray, views: int, res: int, spp: int = 8, *, shaded: bool = False) -> np.ndarray:
+    """RGBA ``(views, res, res, 4)`` of ``parts`` in the far cards' orthographic views.
+
+    ``shaded = False``: black opaque surfaces (RGB 0, alpha = coverage; a path
+    ends at its first real hit, so depth only counts the transparent texels
+    crossed on the way, and Russian roulette is off so none is cut short).
+    ``shaded = True``: the parts' own materials under a constant environment of
+    radiance 1 (premultiplied RGB).  Its paths bounce inside the crown, so it
+    uses Russian roulette from depth 8: a camera path it ends before its first
+    real hit adds nothing to RGB nor alpha, so RGB / alpha stays unbiased, but
+    the alpha of a shaded render is not the coverage.
+    """
     from ..runtime import mitsuba
 
     mi = mitsuba("scalar_rgb")
@@ -179,19 +209,33 @@ def card_view_alpha(parts, bounds: np.ndarray, views: int, res: int, spp: int = 
     cache: dict = {}
     black = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}
 
-    def coverage_bsdf(p):
-        # Opaque black where the part is opaque: a path ends at its first real hit,
-        # so depth only counts the transparent texels crossed on the way.
+    def bsdf(p):
         b = part_bsdf(mi, p, cache)
+        if shaded:
+            return b
         if b["type"] == "mask":
             return {"type": "mask", "opacity": b["opacity"], "material": black}
         return black
 
     shapes = {
-        f"part{i}": {"type": "ply", "filename": str(p.path), "face_normals": False, "bsdf": coverage_bsdf(p)}
+        f"part{i}": {"type": "ply", "filename": str(p.path), "face_normals": False, "bsdf": bsdf(p)}
         for i, p in enumerate(parts)
     }
-    out = np.zeros((views, res, res), dtype=np.float32)
+    # One scene (meshes, textures, acceleration structure) and one sensor per view.
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "integrator": {
+                "type": "path",
+                "max_depth": 128 if shaded else 512,
+                "rr_depth": 8 if shaded else 512,
+                "hide_emitters": True,
+            },
+            "env": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}},
+            **shapes,
+        }
+    )
+    out = np.zeros((views, res, res, 4), dtype=np.float32)
     for k in range(views):
         phi = math.pi * k / views
         n = np.array([-math.sin(phi), 0.0, math.cos(phi)])
@@ -199,10 +243,8 @@ def card_view_alpha(parts, bounds: np.ndarray, views: int, res: int, spp: int = 
         to_world = mi.ScalarTransform4f().look_at(
             origin=eye.tolist(), target=[0.0, cy, 0.0], up=[0, 1, 0]
         ) @ mi.ScalarTransform4f().scale([radius, 0.5 * height, 1.0])
-        scene = {
-            "type": "scene",
-            "integrator": {"type": "path", "max_depth": 512, "rr_depth": 512, "hide_emitters": True},
-            "sensor": {
+        sensor = mi.load_dict(
+            {
                 "type": "orthographic",
                 "to_world": to_world,
                 "near_clip": 1e-3,
@@ -215,10 +257,9 @@ def card_view_alpha(parts, bounds: np.ndarray, views: int, res: int, spp: int = 
                     "rfilter": {"type": "box"},
                 },
                 "sampler": {"type": "independent", "sample_count": spp, "seed": k},
-            },
-            "env": {"type": "constant"},
-            **shapes,
-        }
-        img = np.array(mi.render(mi.load_dict(scene), spp=spp, seed=k), dtype=np.float32)
-        out[k] = img.reshape(res, res, -1)[..., 3]
-    return np.clip(out, 0.0, 1.0)
+            }
+        )
+        img = np.array(mi.render(scene, sensor=sensor, spp=spp, seed=k), dtype=np.float32)
+        out[k] = img.reshape(res, res, -1)[..., :4]
+    out[..., 3] = np.clip(out[..., 3], 0.0, 1.0)
+    return out

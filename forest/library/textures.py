@@ -1,8 +1,9 @@
 """Leaf textures the project draws itself: RGBA masks for alpha-tested leaf cards.
 
 Convention for every texture of the library: the RGB channels hold a
-*detail factor* (linear, mostly 0.7–1.0: veins and edges slightly darker) and
-alpha holds the card mask.  A renderer's leaf reflectance is therefore
+*detail factor* (linear, mean 1 over the covered texels, so that a part's
+``colour`` is its mean albedo: veins and edges darker than 1; the bark's
+:func:`bark_rgb` also lighter) and alpha holds the card mask.  A renderer's leaf reflectance is therefore
 ``part.colour × texture.rgb × tint`` and its opacity is ``texture.alpha``.
 Images are written as sRGB-encoded 8-bit PNG with *straight* (unassociated)
 alpha, as PNG defines it (:func:`write_texture`); read them with
@@ -33,7 +34,7 @@ def _grid(n: int) -> tuple[np.ndarray, np.ndarray]:
     return x, t
 
 
-def _smooth_mask(sd: np.ndarray, n: int) -> np.ndarray:
+def _smooth_mask(sd: np.ndarray, n: float) -> np.ndarray:
     """Anti-aliased coverage from a signed distance (negative inside), one pixel wide edge."""
     return np.clip(0.5 - sd * n / 2.0, 0.0, 1.0)
 
@@ -103,7 +104,22 @@ def leaf_rgba(shape: str, n: int = SIZE) -> np.ndarray:
     # A faint warm/cool shift across the blade keeps the detail from looking flat grey.
     rgba[..., 0] *= 0.97 + 0.03 * t
     rgba[..., 2] *= 0.97 + 0.03 * (1.0 - t)
+    rgba[..., :3] = unit_mean(rgba[..., :3], rgba[..., 3] >= 0.5)
     return rgba
+
+
+def unit_mean(rgb: np.ndarray, mask: np.ndarray, passes: int = 4) -> np.ndarray:
+    """Scale a detail factor towards mean 1 over ``mask`` while staying ≤ 1 (an 8-bit PNG's range).
+
+    Each pass divides by the current mean over the mask and clips at 1; the
+    veins and edges keep their darkening, the blade saturates at 1, and the
+    mean converges from below (within 1.5 % after four passes for every shape).
+    So ``part.colour`` is the leaf's mean albedo, as the presets' measured colours mean.
+    """
+    out = np.asarray(rgb, dtype=np.float64)
+    for _ in range(passes):
+        out = np.minimum(out / out[mask].mean(axis=0), 1.0)
+    return out.astype(np.float32)
 
 
 def coverage(shape: str) -> float:
@@ -117,13 +133,17 @@ def write_texture(path: str | Path, rgba: np.ndarray) -> Path:
 
 
 def read_texture(path: str | Path) -> np.ndarray:
-    """Read a texture as linear RGB + straight alpha, float32 ``(H, W, 4)`` (alpha 1 when absent)."""
-    from ..images import read_image, srgb_to_linear
+    """Read a texture as linear RGB + straight alpha, float32 ``(H, W, 4)`` (alpha 1 when absent).
+
+    PNG is sRGB-decoded; EXR (the bark's detail factor, which exceeds 1) is linear already.
+    """
+    from ..images import is_linear_file, read_image, srgb_to_linear
 
     img = read_image(path, what="texture", unassociated=True)
     c = img.shape[2]
     out = np.ones(img.shape[:2] + (4,), dtype=np.float32)
-    out[..., :3] = srgb_to_linear(img[..., :3] if c >= 3 else np.repeat(img[..., :1], 3, axis=2))
+    rgb = img[..., :3] if c >= 3 else np.repeat(img[..., :1], 3, axis=2)
+    out[..., :3] = rgb if is_linear_file(path) else srgb_to_linear(rgb)
     if c in (2, 4):
         out[..., 3] = img[..., c - 1]
     return out
@@ -166,3 +186,104 @@ def cluster_rgba(shape: str, n: int = SIZE, leaves: int = 14) -> np.ndarray:
         out[..., 3:4] = a + out[..., 3:4] * (1 - a)
     # Compositing over white keeps RGB white where nothing is drawn, so filtering at mask edges does not darken.
     return out
+
+
+# ---------------------------------------------------------------------------
+# Bark
+# ---------------------------------------------------------------------------
+
+BARK_STYLES = ("furrowed", "scaly", "ringed", "smooth")
+BARK_SIZE = 256
+BARK_TAG = 0xBA4C
+
+
+def periodic_noise(n: int, rng: np.random.Generator, scale_u: float, scale_v: float) -> np.ndarray:
+    """Tileable Gaussian noise ``(n, n)`` (rows ``v``, columns ``u``), zero mean, unit variance.
+
+    Spectral synthesis (J. P. Lewis, "Algorithms for solid noise synthesis",
+    SIGGRAPH 1989): white noise filtered in the Fourier domain by the Gaussian
+    ``exp(−½((f_u·scale_u)² + (f_v·scale_v)²)·(2π)²)``, ``f`` in cycles per tile, so
+    the field's correlation lengths are ``scale_u`` and ``scale_v`` (fractions of
+    the tile).  The discrete Fourier transform makes it periodic: the tile repeats
+    without a seam in both directions.
+    """
+    f = np.fft.fftfreq(n) * n
+    fv, fu = f[:, None], f[None, :]
+    h = np.exp(-0.5 * (2 * np.pi) ** 2 * ((fu * scale_u) ** 2 + (fv * scale_v) ** 2))
+    x = np.fft.ifft2(np.fft.fft2(rng.standard_normal((n, n))) * h).real
+    return (x - x.mean()) / max(float(x.std()), 1e-12)
+
+
+def _cells(n: int, rng: np.random.Generator, count: int, aspect: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Periodic Worley cells (S. Worley, "A cellular texture basis function", SIGGRAPH 1996).
+
+    ``count`` random sites on the torus ``[0, 1) × [0, aspect)`` (``v`` stretched
+    by ``aspect``, so cells are ``aspect`` times taller than wide); returns the
+    distances to the nearest and second-nearest site ``F₁, F₂`` and the nearest
+    site's index, per pixel (periodic nearest neighbours: ``cKDTree(boxsize=…)``).
+    """
+    from scipy.spatial import cKDTree
+
+    sites = rng.uniform(0.0, 1.0, (count, 2)) * [1.0, aspect]
+    c = (np.arange(n) + 0.5) / n
+    v, u = np.meshgrid(c * aspect, c, indexing="ij")
+    d, i = cKDTree(sites, boxsize=[1.0, aspect]).query(np.stack([u.ravel(), v.ravel()], axis=1), k=2)
+    return d[:, 0].reshape(n, n), d[:, 1].reshape(n, n), i[:, 0].reshape(n, n)
+
+
+def bark_rgb(style: str, n: int = BARK_SIZE) -> np.ndarray:
+    """A tileable bark *detail factor*, ``(n, n, 3)`` float32 with mean exactly 1 per channel.
+
+    Rows run along the stem (``v``, one tile per stem circumference, see
+    :func:`forest.library.lod.stem_v`), columns around it (``u``).  A part's
+    albedo is ``bark_colour × detail``, so ``bark_colour`` stays the bark's mean
+    albedo.  Built from :func:`periodic_noise` fields ``N(scale_u, scale_v)``:
+
+    * ``furrowed`` — ridges and furrows running up the stem (oak, ash, most
+      broadleaves): furrows where an elongated field ``N(0.02, 0.6)`` crosses
+      zero, ``1 − 0.75·exp(−(N/0.4)²)``, broken by faint cross-cracks;
+    * ``scaly`` — plates and scales (spruce, pine): 260 Worley cells 1.4 times taller
+      than wide, each plate its own brightness and lighter towards its upper
+      edge, dark cracks where ``F₂ − F₁`` is small;
+    * ``ringed`` — a palm's leaf scars: a dark ring every 1/18 of a tile, wavy by
+      ``0.15·N``, over fine fibres running up the stem;
+    * ``smooth`` — a thin mottled bark (beech, young stems): low-contrast noise.
+
+    Every style adds fine grain and a faint low-frequency hue shift (lichen and
+    weathering).  The style's stream is fixed, so every species of one style
+    shares its bark.  Species write it as a linear half-float EXR (``bark.exr``):
+    a detail factor with mean 1 exceeds 1 where the bark is light, which an
+    8-bit PNG cannot hold.
+    """
+    if style not in BARK_STYLES:
+        raise ValueError(f"unknown bark style {style!r}")
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([BARK_TAG, BARK_STYLES.index(style)])))
+    c = (np.arange(n) + 0.5) / n
+    v = c[:, None] * np.ones((1, n))
+    grain = periodic_noise(n, rng, 0.004, 0.012)
+    if style == "furrowed":
+        furrow = np.exp(-((periodic_noise(n, rng, 0.02, 0.6) / 0.4) ** 2))
+        crack = np.exp(-((periodic_noise(n, rng, 0.15, 0.015) / 0.15) ** 2)) * (1.0 - furrow)
+        relief = periodic_noise(n, rng, 0.01, 0.06)
+        d = (1.0 - 0.75 * furrow) * (1.0 - 0.3 * crack) * (1.0 + 0.12 * relief)
+    elif style == "scaly":
+        f1, f2, idx = _cells(n, rng, 260, 1.4)
+        bright = rng.uniform(0.7, 1.25, 260)[idx]
+        edge = f2 - f1
+        crack = np.exp(-((edge / 0.008) ** 2))
+        lift = np.clip(1.0 - f1 / 0.07, 0.0, 1.0)
+        d = bright * (0.85 + 0.2 * lift) * (1.0 - 0.75 * crack)
+    elif style == "ringed":
+        phase = v * 18.0 + 0.15 * periodic_noise(n, rng, 0.15, 0.5)
+        f = phase - np.floor(phase)
+        scar = np.exp(-(((f - 0.5) / 0.11) ** 2))
+        swell = 0.85 + 0.3 * np.sin(np.pi * f) ** 2
+        fibre = periodic_noise(n, rng, 0.004, 0.05)
+        d = swell * (1.0 - 0.6 * scar) * (1.0 + 0.12 * fibre)
+    else:  # smooth
+        d = 1.0 + 0.12 * periodic_noise(n, rng, 0.08, 0.08) + 0.05 * periodic_noise(n, rng, 0.02, 0.006)
+    d = np.clip(d * (1.0 + 0.06 * grain), 0.05, None)
+    tint = np.stack([1.0 + s * periodic_noise(n, rng, 0.15, 0.2) for s in (0.025, 0.02, 0.03)], axis=-1)
+    rgb = d[..., None] * tint
+    rgb /= rgb.reshape(-1, 3).mean(axis=0)
+    return rgb.astype(np.float32)
