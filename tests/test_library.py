@@ -555,3 +555,20 @@ def test_new_recipe_keys_are_checked(table, key, value, field):
         recipe["level"][1][key] = value
     with pytest.raises(ConfigError, match=field):
         validate_recipe(recipe, "conifer.toml")
+
+
+def test_build_prunes_stale_cache_folders_only_when_asked(tmp_path):
+    """The build cache is shared by every install of a user: a build leaves others' folders unless --prune."""
+    root = tmp_path / "lib"
+    (root / "presets").mkdir(parents=True)
+    shutil.copy(ROOT / "library/presets/grass.toml", root / "presets/grass.toml")
+    (root / "manifest.toml").write_text(
+        'version = 1\n[species.grass]\nsource = "generated"\nrecipe = "presets/grass.toml"\nseed = 1\n'
+    )
+    stale = root / "cache" / "grass-0123456789abcdef"
+    stale.mkdir(parents=True)
+    args = ["library", "build", "--library", str(root), "--quiet", "--no-previews"]
+    assert run_cli(args) == 0
+    assert stale.is_dir()  # another version's build is left alone
+    assert run_cli([*args, "--prune"]) == 0
+    assert not stale.exists() and open_library(root).is_fresh("grass")

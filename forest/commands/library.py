@@ -75,6 +75,11 @@ def register(app: typer.Typer) -> None:
         names: list[str] | None = typer.Argument(None, help="Species to build (default: all)."),
         library: Path | None = typer.Option(None, "--library", help="Library folder."),
         no_previews: bool = typer.Option(False, "--no-previews", help="Skip rendering previews."),
+        prune: bool = typer.Option(
+            False,
+            "--prune",
+            help="Remove cached species no current recipe makes (the cache is shared by every install).",
+        ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
     ):
         """Generate every species' levels of detail and previews into the user library's cache (skips fresh ones)."""
@@ -91,7 +96,7 @@ def register(app: typer.Typer) -> None:
         t0 = time.perf_counter()
         stale = [n for n in (names or lib.names()) if not lib.is_fresh(n)]
         with progress_bar("library", quiet=quiet) as progress:
-            built = lib.build(names or None, previews=not no_previews, progress=progress)
+            built = lib.build(names or None, previews=not no_previews, progress=progress, prune=prune)
         if not quiet:
             typer.echo(
                 f"{len(built)} species ready ({len(stale)} rebuilt) in {time.perf_counter() - t0:.1f} s "

@@ -346,11 +346,12 @@ class Library:
         return [self.get(n) for n in self.names()]
 
     def build(
-        self, names: list[str] | None = None, *, previews: bool = True, progress=None, prune: bool = True
+        self, names: list[str] | None = None, *, previews: bool = True, progress=None, prune: bool = False
     ) -> list[Species]:
         """Build (if stale) every species in ``names`` (all by default) and their previews.
 
-        With ``prune``, cache folders of generated species that no longer match
+        With ``prune`` (off by default: the cache is shared by every forest install
+        and version of a user), cache folders of generated species that no longer match
         any recipe are removed.
         """
         names = self.names() if names is None else names
