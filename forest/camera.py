@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import CameraConfig
-from .errors import ForestError
+from .errors import ParameterError
 
 
 @dataclass(frozen=True)
@@ -86,14 +86,14 @@ def parse_frames(spec: str) -> list[int]:
         part = part.strip()
         m = re.fullmatch(r"(-?\d+)(?:-(-?\d+)(?:x(\d+))?)?", part)
         if not m:
-            raise ForestError(f"--frames: cannot read {spec!r}; use e.g. 1-120, 1-120x2 or 1,5,9")
+            raise ParameterError("frames", f"cannot read {spec!r}; use e.g. 1-120, 1-120x2 or 1,5,9")
         a = int(m.group(1))
         b = int(m.group(2)) if m.group(2) is not None else a
         step = int(m.group(3) or 1)
         if b < a or step < 1:
-            raise ForestError(f"--frames: bad range {part!r}")
+            raise ParameterError("frames", f"bad range {part!r}")
         if (b - a) // step > 100000:
-            raise ForestError(f"--frames: range {part!r} has more than 100000 frames")
+            raise ParameterError("frames", f"range {part!r} has more than 100000 frames")
         out.update(range(a, b + 1, step))
     return sorted(out)
 

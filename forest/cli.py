@@ -12,7 +12,7 @@ import sys
 
 import typer
 
-from .errors import ForestError
+from .errors import ForestError, ParameterError
 
 app = typer.Typer(
     name="forest",
@@ -62,9 +62,20 @@ def fail(message: str, code: int = 2) -> None:
     raise SystemExit(code)
 
 
+#: Library parameters whose command-line flag is not ``--<param>``.
+FLAGS = {"output": "-o"}
+
+
+def flag(param: str) -> str:
+    """The command-line flag of a library parameter."""
+    return FLAGS.get(param, "--" + param.replace("_", "-"))
+
+
 def main(argv: list[str] | None = None) -> None:
     try:
         app(args=argv, prog_name="forest")
+    except ParameterError as e:
+        fail(e.named(flag(e.param)), e.exit_code)
     except ForestError as e:
         fail(str(e), e.exit_code)
     except KeyboardInterrupt:

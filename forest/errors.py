@@ -26,3 +26,21 @@ class ConfigError(ForestError):
         self.message = message
         parts = [p for p in (self.path, field) if p]
         super().__init__(": ".join(parts + [message]))
+
+
+class ParameterError(ForestError):
+    """A bad argument of a library function, named by its parameter (``frames``, ``variant``, …).
+
+    Library code names the parameter, never a front end's spelling of it: the CLI
+    shows it as its flag (``--frames: …``), the job service as the request's JSON
+    field (``settings.frames: …``), each through :meth:`named`.
+    """
+
+    def __init__(self, param: str, message: str):
+        self.param = param
+        self.message = message
+        super().__init__(f"{param}: {message}")
+
+    def named(self, name: str) -> str:
+        """The message with the parameter shown as ``name``."""
+        return f"{name}: {self.message}"

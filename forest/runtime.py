@@ -12,7 +12,7 @@ import os
 import sys
 from pathlib import Path
 
-from .errors import ForestError
+from .errors import ForestError, ParameterError
 
 VARIANTS = ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
 
@@ -66,7 +66,7 @@ def mitsuba(variant: str = "scalar_rgb"):
     """Import mitsuba with ``variant`` set and forest's plugins registered; return the module."""
     global _current
     if variant not in VARIANTS:
-        raise ForestError(f"--variant: must be one of {', '.join(VARIANTS)}, got {variant!r}")
+        raise ParameterError("variant", f"must be one of {', '.join(VARIANTS)}, got {variant!r}")
     if variant.startswith("llvm"):
         ensure_llvm()
     else:

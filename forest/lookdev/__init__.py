@@ -35,7 +35,7 @@ import numpy as np
 
 from ..atomic import atomic_dir
 from ..config import Config, load_config
-from ..errors import ForestError
+from ..errors import ForestError, ParameterError
 from .state import DEFAULT_PARAMS, PARAM_GROUPS, LookState, state_from_config
 
 MODES = ("aligned", "statistics")
@@ -112,8 +112,8 @@ class Settings:
     calibrate: bool = False
 
 
-def parse_params(value, where: str = "--params") -> tuple[str, ...]:
-    """``"colour_map,sun,sky"`` or a list → validated tuple of parameter groups."""
+def parse_params(value, param: str = "params") -> tuple[str, ...]:
+    """``"colour_map,sun,sky"`` or a list → validated tuple of parameter groups (errors name ``param``)."""
     items = value.split(",") if isinstance(value, str) else list(value)
     out = []
     for it in items:
@@ -121,11 +121,11 @@ def parse_params(value, where: str = "--params") -> tuple[str, ...]:
         if not it:
             continue
         if it not in PARAM_GROUPS:
-            raise ForestError(f"{where}: unknown parameter {it!r} (expected some of {', '.join(PARAM_GROUPS)})")
+            raise ParameterError(param, f"unknown parameter {it!r} (expected some of {', '.join(PARAM_GROUPS)})")
         if it not in out:
             out.append(it)
     if not out:
-        raise ForestError(f"{where}: give at least one of {', '.join(PARAM_GROUPS)}")
+        raise ParameterError(param, f"give at least one of {', '.join(PARAM_GROUPS)}")
     return tuple(out)
 
 
@@ -144,31 +144,31 @@ def resolve_settings(
     """Call arguments over ``[lookdev]`` over defaults, each validated with the field it came from."""
     f = config.section("lookdev", LOOKDEV_KEYS)
 
-    def pick(value, key, lo, hi, where):
+    def pick(value, key, lo, hi):
         if value is None:
             return f.integer(key, DEFAULTS[key], lo=lo, hi=hi)
         if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-            raise ForestError(f"{where}: must be a whole number from {lo} to {hi}, got {value!r}")
+            raise ParameterError(key, f"must be a whole number from {lo} to {hi}, got {value!r}")
         return int(value)
 
-    s_iter = pick(iterations, "iterations", 1, 100_000, "--iterations")
-    s_res = pick(resolution, "resolution", 8, 4096, "--resolution")
-    s_spp = pick(spp, "spp", 1, 4096, "--spp")
-    s_grid = pick(grid, "grid", 1, 64, "--grid")
+    s_iter = pick(iterations, "iterations", 1, 100_000)
+    s_res = pick(resolution, "resolution", 8, 4096)
+    s_spp = pick(spp, "spp", 1, 4096)
+    s_grid = pick(grid, "grid", 1, 64)
     if params is None:
         raw = f.table.get("params", list(DEFAULT_PARAMS))
         if not isinstance(raw, (list, str)):
             f.fail("params", f"must be a list of names, got {raw!r}")
         try:
-            s_params = parse_params(raw, "params")
-        except ForestError as e:
-            f.fail("params", str(e).split(": ", 1)[1])
+            s_params = parse_params(raw)
+        except ParameterError as e:
+            f.fail("params", e.message)
     else:
         s_params = parse_params(params)
     if mode is None:
         s_mode = f.string("mode", DEFAULTS["mode"], choices=MODES)
     elif mode not in MODES:
-        raise ForestError(f"--mode: must be one of {', '.join(MODES)}, got {mode!r}")
+        raise ParameterError("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
     else:
         s_mode = mode
     s_mask = Path(mask) if mask is not None else f.file("mask")
@@ -179,8 +179,8 @@ def resolve_settings(
 
         variant = "cuda_ad_rgb" if cuda_available() else "llvm_ad_rgb"
     if variant not in ("llvm_ad_rgb", "cuda_ad_rgb"):
-        raise ForestError(
-            f"--variant: look-dev needs a differentiable variant (llvm_ad_rgb or cuda_ad_rgb), got {variant!r}"
+        raise ParameterError(
+            "variant", f"look-dev needs a differentiable variant (llvm_ad_rgb or cuda_ad_rgb), got {variant!r}"
         )
     return Settings(
         iterations=s_iter,

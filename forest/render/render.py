@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import camera_at, frame_path, parse_frames, subframe_times
-from ..errors import ForestError
+from ..errors import ForestError, ParameterError
 from ..images import read_map_rgb, write_image, write_multilayer_exr
 from ..instances import InstanceSet
 from ..runtime import VARIANTS, cuda_available, mitsuba
@@ -108,9 +108,9 @@ def choose_variant(trees: int, requested: str | None = None, configured: str | N
     for v, why in ((requested, "requested"), (configured, "[render] variant")):
         if v is not None:
             if v not in VARIANTS:
-                raise ForestError(f"--variant: must be one of {', '.join(VARIANTS)}, got {v!r}")
+                raise ParameterError("variant", f"must be one of {', '.join(VARIANTS)}, got {v!r}")
             if v == "cuda_ad_rgb" and not cuda_available():
-                raise ForestError("--variant: cuda_ad_rgb needs an NVIDIA GPU and driver, none found")
+                raise ParameterError("variant", "cuda_ad_rgb needs an NVIDIA GPU and driver, none found")
             if v != "scalar_rgb" and trees > CUDA_MAX_TREES:
                 why += (
                     f"; note: {trees:,} instances in a JIT variant build in quadratic time in "
@@ -291,13 +291,23 @@ class _Renderer:
 
     # -- passes ----------------------------------------------------------------------
     def beauty(self, scene, sensor, spp: int, seed0: int, tick) -> np.ndarray:
+        """The mean of ``spp`` samples per pixel; ``tick(image so far)`` after each pass."""
         acc = np.zeros((self.height, self.width, 3), dtype=np.float64)
         parts = self.passes(spp)
         for i, n in enumerate(parts):
             img = self.mi.render(scene, sensor=sensor, spp=n, seed=seed0 + i)
             acc += np.asarray(img, dtype=np.float64)[..., :3] * n
-            tick()
+            tick(acc / sum(parts[: i + 1]))
         return (acc / spp).astype(np.float32)
+
+    def restart(self) -> None:
+        """Start the statistics of a new ``render_scene`` call that reuses this renderer."""
+        self.load_seconds = self.render_seconds = 0.0
+        self.lod_counts = {}
+        g = self.graph
+        self.max_instanced, self.max_unique, self.max_groups = (
+            (g.instanced_triangles, g.unique_triangles, g.shapegroups) if g is not None else (0, 0, 0)
+        )
 
     def ids_and_depth(self, scene, frame: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(depth, id, species) per pixel from one primary ray through each pixel centre.
@@ -415,7 +425,10 @@ class _Renderer:
             scene = self.scene_at(levels, t / cam.fps)
             sensor = self.sensor(t, spp_sub)
             t0 = time.perf_counter()
-            acc += self.beauty(scene, sensor, spp_sub, seed + 101 * k, tick)
+            # the frame so far: the finished sub-frames and the current one's passes, equally weighted
+            acc += self.beauty(
+                scene, sensor, spp_sub, seed + 101 * k, lambda img, a=acc, k=k: tick((a + img) / (k + 1))
+            )
             self.render_seconds += time.perf_counter() - t0
         rgb = (acc / len(times)).astype(np.float32)
         scene = None
@@ -476,7 +489,7 @@ def render_image(
         progress=None,
         size=(width, height, spp),
     )
-    return np.asarray(r.frame(1.0, lambda: None)["rgb"], np.float64)[..., :3]
+    return np.asarray(r.frame(1.0, lambda img: None)["rgb"], np.float64)[..., :3]
 
 
 def render_scene(
@@ -491,6 +504,8 @@ def render_scene(
     progress=None,
     library=None,
     announce=None,
+    on_pass=None,
+    reuse: dict | None = None,
 ) -> RenderResult:
     """Render the config's forest to ``output`` (EXR + PNG), a still or a frame sequence.
 
@@ -502,6 +517,13 @@ def render_scene(
     ``progress(fraction, message)`` is called as passes finish;
     ``announce(variant, reason)`` once the variant is chosen; ``library``
     defaults to :func:`forest.library.open_library`.
+    ``on_pass(frame, rgb, done, total)`` after each sample pass: ``rgb`` the
+    (H, W, 3) linear float32 mean of the frame's samples so far (before haze and
+    denoising), ``done`` of ``total`` passes of the whole call.
+    ``reuse``: a dict the caller keeps between calls; the renderer built for the
+    same ``config``, ``instances`` and ``library`` objects, variant, preview and
+    overrides is kept in it and reused (terrain, materials and the Mitsuba scene
+    of the last level-of-detail plan are not rebuilt).
     """
     # Validate everything the render reads before any work.
     config.camera, config.lights, config.render, config.lod, config.wind, config.maps, config.terrain  # noqa: B018
@@ -527,7 +549,16 @@ def render_scene(
         library = open_library()
     progress = progress or (lambda f, m="": None)
     progress(0.0, "building scene")
-    r = _Renderer(config, inst, chosen, library, preview=preview, overrides=overrides, progress=progress)
+    key = (config, inst, library, chosen, bool(preview), overrides)
+    old = (reuse or {}).get("key")
+    same = old is not None and all(a is b for a, b in zip(old[:3], key[:3])) and old[3:] == key[3:]
+    r = reuse["renderer"] if same else None
+    if r is None:
+        r = _Renderer(config, inst, chosen, library, preview=preview, overrides=overrides, progress=progress)
+        if reuse is not None:
+            reuse.update(key=key, renderer=r)
+    else:
+        r.restart()
     n_sub = r.subframes
     total = len(frame_list) * n_sub * len(r.passes(max(1, math.ceil(r.spp / n_sub))))
     done = [0]
@@ -536,9 +567,11 @@ def render_scene(
 
     for fi, (f, (exr, png)) in enumerate(zip(frame_list, targets)):
 
-        def tick(fi=fi):
+        def tick(img, fi=fi):
             done[0] += 1
             progress(done[0] / total, f"frame {frame_list[fi]} ({fi + 1}/{len(frame_list)})")
+            if on_pass is not None:
+                on_pass(frame_list[fi], img.astype(np.float32), done[0], total)
 
         out = r.frame(float(f), tick)
         denoised |= out["denoised"]
