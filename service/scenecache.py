@@ -1,0 +1,122 @@
+"""A worker's memory of loaded scenes, so frame after frame does not reload them.
+
+Loading is what makes a one-frame task slow: parsing the config, scattering the
+InstanceSet (seconds for tens of thousands of trees), opening the tree library, and
+the renderer's set-up (terrain, materials, the Mitsuba scene).  A worker is a
+long-lived process that takes task after task, and keeps
+
+* the last few loaded scenes by :attr:`~forest.service.models.TaskSpec.scene_key`
+  (config text, overrides and input bytes), each with the dict that
+  ``render_scene(reuse=…)`` keeps the built renderer in;
+* InstanceSets by their *scatter key* — the config without the sections that cannot
+  change a scatter (camera, lights, render, level of detail, wind, look-dev, export)
+  plus the input bytes — so a job that only moves the sun or the camera renders the
+  same trees without scattering again.
+
+:func:`load_scene` is the one place a task's scene is loaded.
+"""
+
+from __future__ import annotations
+
+import time
+import tomllib
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .models import TaskSpec, digest
+
+#: Config sections a scatter never reads.
+RENDER_ONLY = frozenset({"name", "camera", "lights", "render", "lod", "wind", "lookdev", "export"})
+
+
+@dataclass
+class LoadedScene:
+    """What a worker keeps of one scene between tasks."""
+
+    key: str
+    config: Any  # forest.config.Config
+    instances: Any  # forest.instances.InstanceSet
+    library: Any  # forest.library.Library
+    reuse: dict = field(default_factory=dict)  # render_scene(reuse=…): the built renderer
+    load_seconds: float = 0.0
+    scattered: bool = True  # False: the InstanceSet came from the cache
+
+
+def scatter_key(spec: TaskSpec) -> str:
+    """Same scatter-relevant config, overrides and inputs ⇒ the same InstanceSet."""
+    data = tomllib.loads(spec.config)
+    kept = {k: v for k, v in data.items() if k not in RENDER_ONLY}
+    overrides = {k: v for k, v in spec.overrides.items() if k.split(".", 1)[0] not in RENDER_ONLY}
+    return digest({"config": kept, "overrides": overrides, "inputs": spec.inputs})
+
+
+def load_scene(spec: TaskSpec, input_dir: Path, instances: Any | None = None) -> LoadedScene:
+    """Config, InstanceSet and tree library of a task, with its inputs in ``input_dir``.
+
+    ``instances``: an InstanceSet already scattered for this config (else it is scattered).
+    When ``forest.scene.load_scene(config, instances)`` is available, it replaces the
+    body of this function.
+    """
+    from forest.config import parse_config
+    from forest.library import open_library
+    from forest.scatter import scene_instances
+
+    t0 = time.perf_counter()
+    config = parse_config(spec.config, base_dir=input_dir, overrides=spec.overrides or None)
+    scattered = instances is None
+    if instances is None:
+        instances = scene_instances(config)
+    return LoadedScene(
+        key=spec.scene_key,
+        config=config,
+        instances=instances,
+        library=open_library(),
+        load_seconds=time.perf_counter() - t0,
+        scattered=scattered,
+    )
+
+
+class SceneCache:
+    """The last ``scenes`` loaded scenes and ``instance_sets`` InstanceSets of one worker (LRU)."""
+
+    def __init__(self, *, scenes: int = 2, instance_sets: int = 4):
+        self.scenes: OrderedDict[str, LoadedScene] = OrderedDict()
+        self.instance_sets: OrderedDict[str, Any] = OrderedDict()
+        self.max_scenes = max(0, scenes)
+        self.max_instance_sets = max(0, instance_sets)
+        self.hits = 0
+        self.misses = 0
+
+    def get(self, spec: TaskSpec, input_dir: Path) -> tuple[LoadedScene, bool]:
+        """The task's scene and whether it came from the cache."""
+        key = spec.scene_key
+        hit = self.scenes.get(key)
+        if hit is not None:
+            self.scenes.move_to_end(key)
+            self.hits += 1
+            return hit, True
+        self.misses += 1
+        skey = scatter_key(spec)
+        inst = self.instance_sets.get(skey)
+        scene = load_scene(spec, input_dir, inst)
+        self._put(self.instance_sets, skey, scene.instances, self.max_instance_sets)
+        self._put(self.scenes, key, scene, self.max_scenes)
+        return scene, False
+
+    @staticmethod
+    def _put(cache: OrderedDict, key: str, value: Any, limit: int) -> None:
+        if limit <= 0:
+            return
+        cache[key] = value
+        cache.move_to_end(key)
+        while len(cache) > limit:
+            cache.popitem(last=False)
+
+    def clear(self) -> None:
+        self.scenes.clear()
+        self.instance_sets.clear()
+
+    def keys(self) -> list[str]:
+        return list(self.scenes)
