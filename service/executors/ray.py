@@ -14,6 +14,9 @@ task names a path of the service's data folder:
   export — through a small reporter actor the driver drains; the dispatcher writes them
   into the job folder.  A frame that reached the service is not lost when its worker is.
 
+While an actor waits for its node (resources to free, a cold start), the executor holds
+its task's lease; once it runs, the worker's own heartbeats do.
+
 Resource requests: ``num_cpus`` (``settings.cpus``, default 1) and ``num_gpus``
 (``settings.gpus``, default 1 for ``cuda_*`` variants, so such tasks land on GPU nodes);
 an actor keeps its resources while it lives, and an idle actor of another shape is let
@@ -32,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..models import Exit, Failed, Log, TaskOrder, TaskSpec
+from ..models import Exit, Failed, Heartbeat, Log, TaskOrder, TaskSpec
 from ..store import TaskRun
 from ..transfer import file_sha256
 from .base import Executor, WorkerInfo
@@ -184,6 +187,9 @@ class RayExecutor(Executor):
         self._actors: list[_Actor] = []
         self._next = 0
         self._blobs: OrderedDict[str, tuple[Any, int]] = OrderedDict()
+        self._drain: Any = None  # the reporter's drain in flight
+        self._covered: list[Any] = []  # finished runs whose last reports that drain carries
+        self._waiting: list[Any] = []  # finished runs seen after it was issued
         self.lock = threading.Lock()
 
     # -- state -----------------------------------------------------------------------
@@ -296,7 +302,12 @@ class RayExecutor(Executor):
                 except Exception:
                     a.info = {}
                 a.info_ref = None
-        finished: list[Any] = []
+        # an actor still waiting for its node (resources, a cold start) holds its task's lease
+        finished: list[Any] = [
+            Heartbeat(task_id=a.current[0], attempt=a.current[1])
+            for a in running
+            if a.info_ref is not None and a.current is not None
+        ]
         if running:
             ready, _ = ray.wait([a.ref for a in running], num_returns=len(running), timeout=0)
             ready_set = set(ready)
@@ -317,14 +328,22 @@ class RayExecutor(Executor):
                     a.current, a.ref, a.since = None, None, time.time()
                     a.tasks_done += 1
                 finished.append(Exit(task_id=task_id, attempt=attempt, code=code))
+        # A run pings the reporter before it returns, so its last reports are in the first drain
+        # issued after the run was seen finished: its result waits for that drain (reports first,
+        # then the result).  A drain not back yet is kept, never dropped with what it carries.
+        self._waiting.extend(finished)
         out: list[Any] = []
-        try:
-            # drained after the finished refs were collected, and put before them: a task's
-            # last reports reached the reporter before its run returned
-            out.extend(ray.get(self.reporter.drain.remote(), timeout=max(timeout, 1.0)))
-        except Exception:
-            pass
-        out.extend(finished)
+        if self._drain is None and (running or self._waiting):
+            self._drain = self.reporter.drain.remote()
+            self._covered, self._waiting = self._waiting, []
+        ready = ray.wait([self._drain], timeout=max(timeout, 0.0))[0] if self._drain is not None else []
+        if ready:
+            try:
+                out.extend(ray.get(self._drain))
+            except Exception as e:
+                out.append(Log(task_id=-1, attempt=-1, line=f"reporter lost: {type(e).__name__}"))
+            out.extend(self._covered)
+            self._drain, self._covered = None, []
         if not out:
             time.sleep(min(timeout, 0.05))
         return out
