@@ -340,7 +340,9 @@ def _quick_look(spec: TaskSpec, ctx: TaskContext, scene: LoadedScene, rel: str) 
     if first_pass < QUICK_LOOK_RATIO * qw * qh:
         return
     t0 = time.monotonic()
-    rgb = render_image(scene.config, scene.instances, width=qw, height=qh, spp=1, library=scene.library)
+    rgb = render_image(
+        scene.config, scene.instances, width=qw, height=qh, spp=1, library=scene.library, reuse=scene.quick
+    )
     ctx.progress(0.0, "quick look", force=True, preview=_publish(ctx, rel, rgb, PREVIEW_MAX), frame=1)
     ctx.log(f"quick look {qw}x{qh} in {time.monotonic() - t0:.2f} s")
 

@@ -40,6 +40,7 @@ class LoadedScene:
     instances: Any  # forest.instances.InstanceSet
     library: Any  # forest.library.Library
     reuse: dict = field(default_factory=dict)  # render_scene(reuse=…): the built renderer
+    quick: dict = field(default_factory=dict)  # render_image(reuse=…): the quick look's renderer
     load_seconds: float = 0.0
     scattered: bool = True  # False: the InstanceSet came from the cache
 

@@ -10,7 +10,8 @@ Started by :class:`forest.service.executors.local.LocalExecutor` as
   ``progress``, ``frame`` and ``log`` from the runner, then exactly one ``done`` or
   ``error`` per task;
 * keeps a :class:`~forest.service.scenecache.SceneCache` (``$FOREST_WORKER_SCENES``
-  scenes, default 2) and its inputs in ``FOLDER`` (a content-addressed store of its own);
+  scenes, default 2; 0 loads every task's scene anew) and its inputs in ``FOLDER`` (a content-addressed store of its own);
+* imports the renderer as it starts, so the first task does not wait for it;
 * exits at once when stdin reaches end-of-file: the service that started it is gone,
   so every lease is void and the work would be redone anyway.
 
@@ -56,6 +57,19 @@ def _read_orders(orders: queue.Queue) -> None:
     os._exit(75)
 
 
+def _warm_up() -> None:
+    """Import the renderer and load Mitsuba's CPU variant now, before the first task asks for them."""
+    try:
+        import forest.library
+        import forest.render
+        import forest.scatter  # noqa: F401
+        from forest.runtime import mitsuba
+
+        mitsuba("scalar_rgb")
+    except Exception as e:  # the task that needs it reports the problem
+        print(f"warm-up: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
+
+
 def main(argv: list[str]) -> int:
     from forest.errors import ForestError, ParameterError
 
@@ -74,7 +88,8 @@ def main(argv: list[str]) -> int:
     chan = Channel(fd)
     orders: queue.Queue = queue.Queue()
     threading.Thread(target=_read_orders, args=(orders,), daemon=True).start()
-    cache = SceneCache(scenes=int(os.environ.get("FOREST_WORKER_SCENES", "2") or 2))
+    scenes = int(os.environ.get("FOREST_WORKER_SCENES", "2") or 0)
+    cache = SceneCache(scenes=scenes, instance_sets=2 * scenes)  # 0: every task loads its scene anew
     blobs = BlobStore(folder)
     current: list[tuple[int, int, float] | None] = [None]
 
@@ -88,6 +103,7 @@ def main(argv: list[str]) -> int:
                 time.sleep(0.2)
 
     threading.Thread(target=beat, daemon=True).start()
+    _warm_up()
     print(f"worker pid {os.getpid()} ready (folder {folder})", file=sys.stderr, flush=True)
     while True:
         order = TaskOrder.model_validate_json(orders.get())

@@ -56,6 +56,9 @@ def register(app: typer.Typer) -> None:
             min=1.0,
             help="Seconds an idle local worker keeps its loaded scenes before it exits.",
         ),
+        worker_scenes: int = typer.Option(
+            2, "--worker-scenes", min=0, max=64, help="Loaded scenes each local worker keeps (0: none, reload per task)."
+        ),
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No access log."),
     ):
         """Serve the job API and web page: queue renders, fly-throughs and colour matches."""
@@ -105,6 +108,7 @@ def register(app: typer.Typer) -> None:
             max_attempts=max_attempts,
             lease_s=lease,
             worker_idle_s=worker_idle,
+            worker_scenes=worker_scenes,
             retention=Retention(
                 max_age_s=keep_days * 86400.0,
                 max_jobs=keep_jobs,

@@ -467,27 +467,56 @@ class _Renderer:
         }
 
 
+def _kept(reuse: dict | None, key: tuple, build):
+    """The renderer ``reuse`` keeps for ``key`` (its first three parts compared by identity, the
+    rest by value), restarted; else a new one from ``build()``, kept in ``reuse``."""
+    old = (reuse or {}).get("key")
+    if old is not None and all(a is b for a, b in zip(old[:3], key[:3])) and old[3:] == key[3:]:
+        r = reuse["renderer"]  # type: ignore[index]
+        r.restart()
+        return r
+    r = build()
+    if reuse is not None:
+        reuse.update(key=key, renderer=r)
+    return r
+
+
 def render_image(
-    config, instances, *, width: int, height: int, spp: int, variant: str = "scalar_rgb", overrides=None, library=None
+    config,
+    instances,
+    *,
+    width: int,
+    height: int,
+    spp: int,
+    variant: str = "scalar_rgb",
+    overrides=None,
+    library=None,
+    reuse: dict | None = None,
 ) -> np.ndarray:
     """The beauty of frame 1 at ``width``×``height``×``spp`` as an (H, W, 3) linear array, no files, no blur.
 
     The same scene, materials, LODs and haze as :func:`render_scene`; for
-    callers that need the production image itself (look-dev's calibration).
+    callers that need the production image itself (look-dev's calibration, the
+    job service's quick look).  ``reuse`` as in :func:`render_scene`.
     """
     if library is None:
         from ..library import open_library
 
         library = open_library()
-    r = _Renderer(
-        config,
-        _resolve_instances(config, instances),
-        variant,
-        library,
-        preview=False,
-        overrides=overrides,
-        progress=None,
-        size=(width, height, spp),
+    inst = _resolve_instances(config, instances)
+    r = _kept(
+        reuse,
+        (config, inst, library, variant, (width, height, spp), overrides),
+        lambda: _Renderer(
+            config,
+            inst,
+            variant,
+            library,
+            preview=False,
+            overrides=overrides,
+            progress=None,
+            size=(width, height, spp),
+        ),
     )
     return np.asarray(r.frame(1.0, lambda img: None)["rgb"], np.float64)[..., :3]
 
@@ -549,16 +578,11 @@ def render_scene(
         library = open_library()
     progress = progress or (lambda f, m="": None)
     progress(0.0, "building scene")
-    key = (config, inst, library, chosen, bool(preview), overrides)
-    old = (reuse or {}).get("key")
-    same = old is not None and all(a is b for a, b in zip(old[:3], key[:3])) and old[3:] == key[3:]
-    r = reuse["renderer"] if same else None
-    if r is None:
-        r = _Renderer(config, inst, chosen, library, preview=preview, overrides=overrides, progress=progress)
-        if reuse is not None:
-            reuse.update(key=key, renderer=r)
-    else:
-        r.restart()
+    r = _kept(
+        reuse,
+        (config, inst, library, chosen, bool(preview), overrides),
+        lambda: _Renderer(config, inst, chosen, library, preview=preview, overrides=overrides, progress=progress),
+    )
     n_sub = r.subframes
     total = len(frame_list) * n_sub * len(r.passes(max(1, math.ceil(r.spp / n_sub))))
     done = [0]

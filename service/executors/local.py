@@ -4,8 +4,10 @@ A slot's process takes task after task (a :class:`~forest.service.models.TaskOrd
 line on its stdin) and keeps the scenes it loaded, so the frames of a fly-through after
 the first start at once.  A task goes to an idle slot whose worker last ran the same
 scene when there is one.  Workers run in their own session at lowered CPU priority;
-killing an attempt kills its worker's process group (the slot starts a fresh worker
-for its next task), and a worker idle for ``idle_s`` seconds is let go.
+killing an attempt kills its worker's process group, and a worker idle for ``idle_s``
+seconds is let go with the scenes it kept.  Each slot always has a worker process
+waiting (``prewarm``): started with the service, and again after one is killed or let
+go, so the first task of a job does not wait for Python and Mitsuba to load.
 
 Each slot has a folder under ``root`` (its content-addressed inputs) and a log file
 (``worker-<n>.log``: the process's own stdout and stderr).
@@ -31,6 +33,7 @@ from ..store import TaskRun
 from .base import Executor, WorkerInfo
 
 LOG_LIMIT = 16 * 2**20  # a slot's log starts afresh beyond this size
+RESPAWN_S = 5.0  # a waiting worker that died is replaced after this long at the soonest
 
 
 @dataclass
@@ -45,6 +48,7 @@ class _Slot:
     since: float = field(default_factory=time.time)
     tasks_done: int = 0
     scenes: set[str] = field(default_factory=set)
+    spawned: float = 0.0
 
 
 class LocalExecutor(Executor):
@@ -67,6 +71,7 @@ class LocalExecutor(Executor):
         idle_s: float = 600.0,
         scenes: int = 2,
         python: str | None = None,
+        prewarm: bool = True,
     ):
         self.root = Path(root)
         self.root.mkdir(parents=True, exist_ok=True)
@@ -80,6 +85,8 @@ class LocalExecutor(Executor):
         self._slots = [_Slot(i) for i in range(max(0, int(workers)))]
         self.lock = threading.Lock()
         self.closed = False
+        self.prewarm = prewarm
+        self._keep_warm()
 
     # -- state -----------------------------------------------------------------------
     def capacity(self) -> int:
@@ -160,7 +167,7 @@ class LocalExecutor(Executor):
         finally:
             os.close(w)
             log.close()
-        slot.proc, slot.stdin, slot.scenes = proc, proc.stdin, set()
+        slot.proc, slot.stdin, slot.scenes, slot.spawned = proc, proc.stdin, set(), time.monotonic()
         threading.Thread(target=self._read, args=(slot, proc, r), daemon=True, name=f"worker-{slot.index}").start()
 
     def start(self, run: TaskRun) -> str:
@@ -224,7 +231,18 @@ class LocalExecutor(Executor):
         except queue.Empty:
             pass
         self._let_idle_go()
+        self._keep_warm()
         return out
+
+    def _keep_warm(self) -> None:
+        """Every slot has a worker that has imported the renderer, waiting for its first task."""
+        if not self.prewarm or self.closed:
+            return
+        with self.lock:
+            now = time.monotonic()
+            for s in self._slots:
+                if s.proc is None and s.current is None and now - s.spawned > RESPAWN_S:
+                    self._spawn(s)
 
     def _let_idle_go(self) -> None:
         now = time.time()
