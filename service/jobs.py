@@ -53,30 +53,36 @@ class JobSettings(BaseModel):
     """Per-job settings; each overrides the matching key of the config."""
 
     model_config = ConfigDict(extra="forbid")
-    width: int | None = Field(None, ge=1, le=16384, description="Image width in pixels ([render] width).")
-    height: int | None = Field(None, ge=1, le=16384, description="Image height in pixels ([render] height).")
-    spp: int | None = Field(None, ge=1, le=65536, description="Samples per pixel ([render] spp).")
-    variant: Variant | None = Field(None, description="Mitsuba variant; default: the renderer's choice.")
-    seed: int | None = Field(None, ge=0, le=2**63 - 1, description="Scene seed (top-level seed).")
-    count: int | None = Field(None, ge=0, le=20_000_000, description="Candidate sites ([scatter] count).")
+    width: int | None = Field(default=None, ge=1, le=16384, description="Image width in pixels ([render] width).")
+    height: int | None = Field(default=None, ge=1, le=16384, description="Image height in pixels ([render] height).")
+    spp: int | None = Field(default=None, ge=1, le=65536, description="Samples per pixel ([render] spp).")
+    variant: Variant | None = Field(default=None, description="Mitsuba variant; default: the renderer's choice.")
+    seed: int | None = Field(default=None, ge=0, le=2**63 - 1, description="Scene seed (top-level seed).")
+    count: int | None = Field(default=None, ge=0, le=20_000_000, description="Candidate sites ([scatter] count).")
     frames: str | None = Field(
-        None,
+        default=None,
         max_length=200,
         pattern=r"^[0-9xX,\- ]+$",
         description="Fly-through (or export) frames, e.g. '1-24' or '1-120x2'; default: the camera keys' range.",
     )
-    frames_per_task: int | None = Field(None, ge=1, le=10000, description="Frames per fly-through task (default 1).")
-    cpus: float | None = Field(None, gt=0, le=1024, description="CPUs to reserve per task (Ray executor).")
-    gpus: float | None = Field(None, ge=0, le=64, description="GPUs to reserve per task (Ray executor).")
-    preview: bool = Field(False, description="Fast low-quality preview render.")
-    quick_look: bool = Field(True, description="Stills: show a small one-sample image before the first pass.")
-    reference: str | None = Field(None, max_length=512, description="Match jobs: reference photo (an asset name).")
-    iterations: int | None = Field(None, ge=1, le=100000, description="Match jobs: optimisation steps.")
-    resolution: int | None = Field(None, ge=8, le=4096, description="Match jobs: proxy render width in pixels.")
-    match_spp: int | None = Field(None, ge=1, le=1024, description="Match jobs: samples per pixel per step.")
-    params: list[str] | None = Field(None, max_length=32, description="Match jobs: which parameters to fit.")
-    mode: str | None = Field(None, max_length=64, pattern=r"^[A-Za-z0-9_-]+$", description="Match jobs: fit mode.")
-    renderman22: bool = Field(False, description="RIB jobs: RenderMan 22+ style (Procedural2, Pxr lights).")
+    frames_per_task: int | None = Field(
+        default=None, ge=1, le=10000, description="Frames per fly-through task (default 1)."
+    )
+    cpus: float | None = Field(default=None, gt=0, le=1024, description="CPUs to reserve per task (Ray executor).")
+    gpus: float | None = Field(default=None, ge=0, le=64, description="GPUs to reserve per task (Ray executor).")
+    preview: bool = Field(default=False, description="Fast low-quality preview render.")
+    quick_look: bool = Field(default=True, description="Stills: show a small one-sample image before the first pass.")
+    reference: str | None = Field(
+        default=None, max_length=512, description="Match jobs: reference photo (an asset name)."
+    )
+    iterations: int | None = Field(default=None, ge=1, le=100000, description="Match jobs: optimisation steps.")
+    resolution: int | None = Field(default=None, ge=8, le=4096, description="Match jobs: proxy render width in pixels.")
+    match_spp: int | None = Field(default=None, ge=1, le=1024, description="Match jobs: samples per pixel per step.")
+    params: list[str] | None = Field(default=None, max_length=32, description="Match jobs: which parameters to fit.")
+    mode: str | None = Field(
+        default=None, max_length=64, pattern=r"^[A-Za-z0-9_-]+$", description="Match jobs: fit mode."
+    )
+    renderman22: bool = Field(default=False, description="RIB jobs: RenderMan 22+ style (Procedural2, Pxr lights).")
 
 
 class JobRequest(BaseModel):
@@ -85,9 +91,9 @@ class JobRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     kind: Kind = Field(..., description="render (a still), flythrough, match, rib or usd (exports).")
     config: str = Field(..., min_length=1, max_length=1_000_000, description="The scene config as TOML text.")
-    settings: JobSettings = Field(default_factory=JobSettings)
+    settings: JobSettings = Field(default_factory=lambda: JobSettings())
     priority: int = Field(0, ge=-100, le=100, description="Higher runs first.")
-    name: str | None = Field(None, max_length=200, description="Default: the config's `name`.")
+    name: str | None = Field(default=None, max_length=200, description="Default: the config's `name`.")
 
 
 class RequestError(Exception):

@@ -62,7 +62,7 @@ class TaskSpec(_Frozen):
     overrides: dict[str, Any] = Field(default_factory=dict, description="Dotted config keys set by the request.")
     variant: Variant | None = None
     preview: bool = False
-    frames: tuple[int, ...] | None = Field(None, description="Frames of this task; None: not a frame task.")
+    frames: tuple[int, ...] | None = Field(default=None, description="Frames of this task; None: not a frame task.")
     output: str = Field(..., description="Job-relative output: a file, a #### pattern or a folder.")
     match: MatchSpec | None = None
     renderman22: bool = False
@@ -124,9 +124,9 @@ class Progress(_Report):
     frame: int | None = None
     passes_done: int | None = None
     passes_total: int | None = None
-    eta_s: float | None = Field(None, description="Seconds left, from the measured pass and frame times.")
+    eta_s: float | None = Field(default=None, description="Seconds left, from the measured pass and frame times.")
     preview: str | None = None
-    trees: int | None = Field(None, description="Trees in the scene, once it is loaded.")
+    trees: int | None = Field(default=None, description="Trees in the scene, once it is loaded.")
 
 
 class FrameDone(_Report):
@@ -171,7 +171,7 @@ class Failed(_Report):
     type: Literal["error"] = "error"
     error: str
     user: bool = False
-    param: str | None = Field(None, description="The library parameter the error is about (ParameterError).")
+    param: str | None = Field(default=None, description="The library parameter the error is about (ParameterError).")
     traceback: str | None = None
 
 

@@ -297,20 +297,20 @@ def _render(spec: TaskSpec, ctx: TaskContext) -> TaskResult:
         render_seconds += result.render_seconds
         stats.append(result)
         finished += 1
-        thumb = _thumbnail(ctx, png, f)
-        if thumb:
-            thumbs[f] = thumb
-        outputs += [exr, png] + ([thumb] if thumb else [])
+        made = _thumbnail(ctx, png, f)
+        if made:
+            thumbs[f] = made
+        outputs += [exr, png] + ([made] if made else [])
         ctx.send(
             FrameDone,
-            files=[exr, png] + ([thumb] if thumb else []),
+            files=[exr, png] + ([made] if made else []),
             frame=f,
             seconds=seconds,
             outputs=[exr, png],
-            thumb=thumb,
+            thumb=made,
         )
         ctx.log(f"{label} rendered in {seconds:.2f} s ({result.variant}, {result.trees:,} trees)")
-    final = _publish_file(ctx, preview_rel, frame_files(spec, todo[-1])[1])
+    final: str | None = _publish_file(ctx, preview_rel, frame_files(spec, todo[-1])[1])
     ctx.progress(1.0, "done", force=True, preview=final, eta_s=0.0)
     summary = _jsonable(stats[-1], ctx.job_dir)
     summary["frames"] = todo

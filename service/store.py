@@ -43,7 +43,7 @@ import sqlite3
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -237,7 +237,7 @@ class Store:
         def execute(self, sql: str, args: Iterable[Any] = ()) -> sqlite3.Cursor:
             return self.db.execute(sql, tuple(args))
 
-        def executemany(self, sql: str, rows: Iterable[Iterable[Any]]) -> sqlite3.Cursor:
+        def executemany(self, sql: str, rows: Iterable[Sequence[Any]]) -> sqlite3.Cursor:
             return self.db.executemany(sql, rows)
 
         def event(self, job_id: str, type_: str, data: dict) -> None:
@@ -247,14 +247,13 @@ class Store:
             )
             self.touched.add(job_id)
 
-        def __exit__(self, et, ev, tb) -> bool:
+        def __exit__(self, et: type[BaseException] | None, ev: object, tb: object) -> None:
             try:
                 self.db.execute("COMMIT" if et is None else "ROLLBACK")
             finally:
                 self.store._write_lock.release()
             if et is None and self.touched and self.store.on_events is not None:
                 self.store.on_events(self.touched)
-            return False
 
     def _tx(self) -> Store._Tx:
         return Store._Tx(self)

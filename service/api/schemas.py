@@ -20,12 +20,12 @@ class TaskView(BaseModel):
     message: str
     frames: list[int] | None = None
     frames_done: list[int] = Field(default_factory=list)
-    frame: int | None = Field(None, description="The frame being rendered.")
+    frame: int | None = Field(default=None, description="The frame being rendered.")
     passes_done: int | None = None
     passes_total: int | None = None
     started: float | None = None
     finished: float | None = None
-    seconds: float | None = Field(None, description="Time of the attempt (so far, while it runs).")
+    seconds: float | None = Field(default=None, description="Time of the attempt (so far, while it runs).")
     eta_s: float | None = None
     worker: str | None = None
     error: str | None = None
@@ -46,15 +46,15 @@ class JobView(BaseModel):
     started: float | None = None
     finished: float | None = None
     elapsed_s: float | None = None
-    eta_s: float | None = Field(None, description="Seconds left, from measured pass and task times.")
+    eta_s: float | None = Field(default=None, description="Seconds left, from measured pass and task times.")
     cancel_requested: bool
     settings: dict[str, Any]
-    trees: int | None = Field(None, description="Trees in the scene (known once a worker loaded it).")
+    trees: int | None = Field(default=None, description="Trees in the scene (known once a worker loaded it).")
     frames_total: int = 0
     frames_done: int = 0
     outputs_deleted: bool = False
     archived: bool = Field(False, description="Forgotten by the store; its folder is still on disk.")
-    preview: str | None = Field(None, description="URL of the newest image, when there is one.")
+    preview: str | None = Field(default=None, description="URL of the newest image, when there is one.")
     links: dict[str, str]
     tasks: list[TaskView] | None = None
 

@@ -30,15 +30,15 @@ class WorkerInfo(BaseModel):
     state: str = Field(..., description="idle, busy, starting or stopped")
     pid: int | None = None
     host: str | None = None
-    folder: str | None = Field(None, description="The worker's own working folder.")
+    folder: str | None = Field(default=None, description="The worker's own working folder.")
     task_id: int | None = None
     attempt: int | None = None
     job_id: str | None = None
-    task: int | None = Field(None, description="Index of the running task in its job.")
+    task: int | None = Field(default=None, description="Index of the running task in its job.")
     job_name: str | None = None
-    frame: int | None = Field(None, description="The frame being rendered.")
-    progress: float | None = Field(None, description="Of the running task, 0…1.")
-    since: float | None = Field(None, description="When the slot entered its state (epoch seconds).")
+    frame: int | None = Field(default=None, description="The frame being rendered.")
+    progress: float | None = Field(default=None, description="Of the running task, 0…1.")
+    since: float | None = Field(default=None, description="When the slot entered its state (epoch seconds).")
     tasks_done: int = 0
     scenes: int = Field(0, description="Scenes the worker keeps loaded.")
 

@@ -271,14 +271,16 @@ class RayExecutor(Executor):
         handle = self.actor_cls.options(num_cpus=shape[0], num_gpus=shape[1], max_restarts=0, max_concurrency=1).remote(
             self.scenes
         )
-        actor = _Actor(index=self._next, handle=handle, shape=shape, info_ref=handle.info.remote())
+        actor = _Actor(index=self._next, handle=handle, shape=shape, info_ref=handle.info.remote())  # type: ignore[attr-defined]
         self._next += 1
         self._actors.append(actor)
         return actor
 
     def start(self, run: TaskRun) -> str:
         res = self.resources(run.spec)
-        order = TaskOrder(task_id=run.task_id, attempt=run.attempt, spec=run.spec, heartbeat_s=self.heartbeat_s)
+        order = TaskOrder(
+            task_id=run.task_id, attempt=run.attempt, spec=run.spec, job_dir=None, heartbeat_s=self.heartbeat_s
+        )
         with self.lock:
             refs = self._blob_refs(run)
             actor = self._actor_for((res["num_cpus"], res["num_gpus"]), run.spec.scene_key)
@@ -334,7 +336,7 @@ class RayExecutor(Executor):
         self._waiting.extend(finished)
         out: list[Any] = []
         if self._drain is None and (running or self._waiting):
-            self._drain = self.reporter.drain.remote()
+            self._drain = self.reporter.drain.remote()  # type: ignore[attr-defined]
             self._covered, self._waiting = self._waiting, []
         ready = ray.wait([self._drain], timeout=max(timeout, 0.0))[0] if self._drain is not None else []
         if ready:
