@@ -58,7 +58,7 @@ class TaskSpec(_Frozen):
     job_id: str
     kind: Kind
     index: int = Field(..., ge=0, description="The task's position in its job.")
-    config: str = Field(..., description="The scene config as TOML text.")
+    config: str = Field(default="", description="The scene config as TOML text (kept once, with the job).")
     overrides: dict[str, Any] = Field(default_factory=dict, description="Dotted config keys set by the request.")
     variant: Variant | None = None
     preview: bool = False

@@ -6,7 +6,8 @@ Tables
             progress, result, trees) with an optional unique ``idempotency_key``.
 ``tasks``   the units an executor runs: one per frame of a fly-through (or per chunk of
             ``frames_per_task`` frames), one per still, match or export.  Each keeps its
-            :class:`~forest.service.models.TaskSpec`, an ``attempt`` counter, a lease
+            :class:`~forest.service.models.TaskSpec` (without the config text, which the job
+            keeps once and a claim puts back), an ``attempt`` counter, a lease
             (``lease_owner``, ``lease_expires``) renewed by the worker's heartbeats, and
             what the page shows: current frame, passes done, ETA, time, error.
 ``frames``  one row per frame on disk: the task and attempt that rendered it, its time,
@@ -105,7 +106,8 @@ CREATE TABLE IF NOT EXISTS tasks (
     passes_done INTEGER,
     passes_total INTEGER,
     eta_s REAL,
-    seconds REAL
+    seconds REAL,
+    frame_list TEXT
 );
 CREATE INDEX IF NOT EXISTS tasks_queue ON tasks(state, priority DESC, id);
 CREATE INDEX IF NOT EXISTS tasks_job ON tasks(job_id, idx);
@@ -146,8 +148,16 @@ ADDED_COLUMNS = {
         ("passes_total", "INTEGER"),
         ("eta_s", "REAL"),
         ("seconds", "REAL"),
+        ("frame_list", "TEXT"),
     ),
 }
+
+
+#: What a task's view shows (its frames from the column, or from the spec of a first-version row).
+TASK_VIEW_COLUMNS = (
+    "id, idx, state, attempt, max_attempts, progress, message, preview, error, worker, started, finished,"
+    " frame, passes_done, passes_total, eta_s, seconds, COALESCE(frame_list, json_extract(spec, '$.frames')) AS frames"
+)
 
 
 @dataclass(frozen=True)
@@ -346,8 +356,20 @@ class Store:
                 ),
             )
             tx.executemany(
-                "INSERT INTO tasks(job_id, idx, state, priority, spec, max_attempts) VALUES (?,?,?,?,?,?)",
-                [(job_id, s.index, "queued", priority, s.model_dump_json(), self.max_attempts) for s in task_specs],
+                "INSERT INTO tasks(job_id, idx, state, priority, spec, max_attempts, frame_list)"
+                " VALUES (?,?,?,?,?,?,?)",
+                [
+                    (
+                        job_id,
+                        s.index,
+                        "queued",
+                        priority,
+                        s.model_dump_json(exclude={"config"}),
+                        self.max_attempts,
+                        json.dumps(list(s.frames)) if s.frames is not None else None,
+                    )
+                    for s in task_specs
+                ],
             )
             tx.event(job_id, "state", {"state": "queued", "progress": 0.0})
             return self._job_row(tx.db, job_id), True  # type: ignore[return-value]
@@ -357,11 +379,13 @@ class Store:
         return _job_dict(r) if r is not None else None
 
     def get_job(self, job_id: str, *, with_tasks: bool = False) -> dict | None:
+        """A job; ``with_tasks``: and its tasks as views need them (no spec, no result)."""
         db = self._conn()
         job = self._job_row(db, job_id)
         if job is not None and with_tasks:
             job["tasks"] = [
-                _task_dict(t) for t in db.execute("SELECT * FROM tasks WHERE job_id=? ORDER BY idx", (job_id,))
+                {**dict(t), "frames": json.loads(t["frames"]) if t["frames"] else None}
+                for t in db.execute(f"SELECT {TASK_VIEW_COLUMNS} FROM tasks WHERE job_id=? ORDER BY idx", (job_id,))
             ]
         return job
 
@@ -547,7 +571,7 @@ class Store:
         now = time.time()
         with self._tx() as tx:
             r = tx.execute(
-                "SELECT t.id, t.job_id, t.idx, t.spec, t.attempt, j.kind FROM tasks t"
+                "SELECT t.id, t.job_id, t.idx, t.spec, t.attempt, j.kind, j.config FROM tasks t"
                 " JOIN jobs j ON j.id = t.job_id"
                 " WHERE t.state='queued' AND j.cancel_requested=0"
                 " ORDER BY t.priority DESC, t.id LIMIT 1"
@@ -569,7 +593,7 @@ class Store:
                 job_id=r["job_id"],
                 kind=r["kind"],
                 index=r["idx"],
-                spec=TaskSpec.model_validate_json(r["spec"]),
+                spec=TaskSpec.model_validate_json(r["spec"]).model_copy(update={"config": r["config"]}),
                 lease_owner=owner,
             )
 
@@ -891,7 +915,14 @@ def _job_dict(r: sqlite3.Row) -> dict:
 
 
 def _task_dict(r: sqlite3.Row) -> dict:
+    """A task row; ``spec`` stays JSON text (see :func:`task_spec`), ``frames`` is its frame list."""
     d = dict(r)
-    d["spec"] = TaskSpec.model_validate_json(d["spec"])
+    listed = d.pop("frame_list", None)
+    d["frames"] = json.loads(listed) if listed else json.loads(d["spec"]).get("frames")
     d["result"] = json.loads(d["result"]) if d["result"] else None
     return d
+
+
+def task_spec(task: dict) -> TaskSpec:
+    """The :class:`TaskSpec` of a task row (without the job's config text)."""
+    return TaskSpec.model_validate_json(task["spec"])

@@ -50,7 +50,6 @@ def _links(jid: str) -> dict[str, str]:
 
 
 def task_view(job_id: str, t: dict, frames_done: list[int], now: float) -> dict:
-    spec = t["spec"]
     started, finished = t.get("started"), t.get("finished")
     if t["state"] == "running" and started:
         seconds = now - started
@@ -65,7 +64,7 @@ def task_view(job_id: str, t: dict, frames_done: list[int], now: float) -> dict:
         "max_attempts": t["max_attempts"],
         "progress": min(1.0, max(0.0, float(t["progress"] or 0.0))),
         "message": t["message"],
-        "frames": list(spec.frames) if spec.frames is not None else None,
+        "frames": t["frames"],
         "frames_done": frames_done,
         "frame": t.get("frame"),
         "passes_done": t.get("passes_done"),
@@ -151,8 +150,7 @@ def frame_views(job: dict, frames: list[dict]) -> list[dict]:
     done = {f["frame"]: f for f in frames}
     out = []
     for t in job["tasks"]:
-        spec = t["spec"]
-        for frame in spec.frames or (1,):
+        for frame in t["frames"] or (1,):
             rec = done.get(frame)
             if rec is not None:
                 state = "done"

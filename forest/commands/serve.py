@@ -57,7 +57,11 @@ def register(app: typer.Typer) -> None:
             help="Seconds an idle local worker keeps its loaded scenes before it exits.",
         ),
         worker_scenes: int = typer.Option(
-            2, "--worker-scenes", min=0, max=64, help="Loaded scenes each local worker keeps (0: none, reload per task)."
+            2,
+            "--worker-scenes",
+            min=0,
+            max=64,
+            help="Loaded scenes each local worker keeps (0: none, reload per task).",
         ),
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No access log."),
     ):

@@ -28,7 +28,7 @@ from ..jobs import JobRequest, RequestError, prepare, request_hash
 from ..models import FRAME_KINDS
 from ..retention import write_manifest
 from ..runner import frame_files
-from ..store import JOB_STATES, TERMINAL, IdempotencyConflict
+from ..store import JOB_STATES, TERMINAL, IdempotencyConflict, task_spec
 from ..views import frame_views, job_view
 from .deps import Service, job_or_404, service
 from .schemas import ERRORS, FrameView, JobList, JobView
@@ -107,7 +107,7 @@ def submit(
             "max_attempts": store.max_attempts,
             "progress": 0.0,
             "message": "",
-            "spec": s,
+            "frames": list(s.frames) if s.frames is not None else None,
             "worker": None,
             "error": None,
         }
@@ -212,7 +212,9 @@ def retry(job_id: str, svc: Service = Depends(service)) -> dict:
 
 
 def _drop_frame_files(svc: Service, job: dict, task: dict, frames: list[int]) -> None:
-    spec = task["spec"]
+    if "spec" not in task:
+        return
+    spec = task_spec(task)
     if spec.kind not in FRAME_KINDS:
         return
     root = svc.datadir.job_dir(job["id"])
@@ -235,7 +237,7 @@ def requeue_task(job_id: str, index: int, svc: Service = Depends(service)) -> di
         raise HTTPException(404, f"job {job_id} has no task {index}")
     if task["state"] not in TERMINAL:
         raise HTTPException(409, f"task {index} is {task['state']}")
-    _drop_frame_files(svc, job, task, list(task["spec"].frames or ()))
+    _drop_frame_files(svc, job, task, list(task["frames"] or ()))
     try:
         svc.db.requeue_task(job_id, index)
     except ValueError as e:
@@ -252,12 +254,12 @@ def requeue_task(job_id: str, index: int, svc: Service = Depends(service)) -> di
 )
 def requeue_frame(job_id: str, frame: int, svc: Service = Depends(service)) -> dict:
     job = job_or_404(svc, job_id, tasks=True)
-    task = next((t for t in job["tasks"] if frame in (t["spec"].frames or ())), None)
+    task = next((t for t in job["tasks"] if frame in (t["frames"] or ())), None)
     if task is None or job["kind"] not in FRAME_KINDS:
         raise HTTPException(404, f"job {job_id} has no frame {frame}")
     if task["state"] not in TERMINAL:
         raise HTTPException(409, f"frame {frame} is in task {task['idx']}, which is {task['state']}")
-    _drop_frame_files(svc, job, task, [frame])
+    _drop_frame_files(svc, job, svc.db.get_task(job_id, task["idx"]) or {}, [frame])
     try:
         svc.db.requeue_task(job_id, task["idx"], frames=[frame])
     except ValueError as e:
