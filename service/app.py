@@ -58,7 +58,7 @@ class ServiceConfig:
     max_attempts: int = 3
     nice: int = 19
     worker_idle_s: float = 600.0
-    worker_scenes: int = 2
+    worker_scenes: int = 1
     seed_examples: bool = True  # copy the example scenes' maps into a data folder's assets/
     dispatch: bool = True  # False: accept jobs but start none (tests, maintenance)
 

@@ -5,9 +5,11 @@ InstanceSet (seconds for tens of thousands of trees), opening the tree library, 
 the renderer's set-up (terrain, materials, the Mitsuba scene).  A worker is a
 long-lived process that takes task after task, and keeps
 
-* the last few loaded scenes by :attr:`~forest.service.models.TaskSpec.scene_key`
-  (config text, overrides and input bytes), each with the dict that
-  ``render_scene(reuse=…)`` keeps the built renderer in;
+* the last loaded scene (or few: ``scenes``) by
+  :attr:`~forest.service.models.TaskSpec.scene_key` (config text, overrides and input
+  bytes), each with the dicts ``render_scene(reuse=…)`` and ``render_image(reuse=…)``
+  keep their built renderers in — the oldest is let go *before* a new one loads, so a
+  worker holds one scene's memory, not two;
 * InstanceSets by their *scatter key* — the config without the sections that cannot
   change a scatter (camera, lights, render, level of detail, wind, look-dev, export)
   plus the input bytes — so a job that only moves the sun or the camera renders the
@@ -18,6 +20,7 @@ long-lived process that takes task after task, and keeps
 
 from __future__ import annotations
 
+import gc
 import time
 import tomllib
 from collections import OrderedDict
@@ -82,7 +85,7 @@ def load_scene(spec: TaskSpec, input_dir: Path, instances: Any | None = None) ->
 class SceneCache:
     """The last ``scenes`` loaded scenes and ``instance_sets`` InstanceSets of one worker (LRU)."""
 
-    def __init__(self, *, scenes: int = 2, instance_sets: int = 4):
+    def __init__(self, *, scenes: int = 1, instance_sets: int = 2):
         self.scenes: OrderedDict[str, LoadedScene] = OrderedDict()
         self.instance_sets: OrderedDict[str, Any] = OrderedDict()
         self.max_scenes = max(0, scenes)
@@ -99,6 +102,9 @@ class SceneCache:
             self.hits += 1
             return hit, True
         self.misses += 1
+        while self.scenes and len(self.scenes) >= self.max_scenes:
+            self.scenes.popitem(last=False)  # let the oldest go before the new one is loaded
+        gc.collect()
         skey = scatter_key(spec)
         inst = self.instance_sets.get(skey)
         scene = load_scene(spec, input_dir, inst)

@@ -10,7 +10,7 @@ Started by :class:`forest.service.executors.local.LocalExecutor` as
   ``progress``, ``frame`` and ``log`` from the runner, then exactly one ``done`` or
   ``error`` per task;
 * keeps a :class:`~forest.service.scenecache.SceneCache` (``$FOREST_WORKER_SCENES``
-  scenes, default 2; 0 loads every task's scene anew) and its inputs in ``FOLDER`` (a content-addressed store of its own);
+  scenes, default 1; 0 loads every task's scene anew) and its inputs in ``FOLDER`` (a content-addressed store of its own);
 * imports the renderer as it starts, so the first task does not wait for it;
 * exits at once when stdin reaches end-of-file: the service that started it is gone,
   so every lease is void and the work would be redone anyway.
@@ -88,7 +88,7 @@ def main(argv: list[str]) -> int:
     chan = Channel(fd)
     orders: queue.Queue = queue.Queue()
     threading.Thread(target=_read_orders, args=(orders,), daemon=True).start()
-    scenes = int(os.environ.get("FOREST_WORKER_SCENES", "2") or 0)
+    scenes = int(os.environ.get("FOREST_WORKER_SCENES", "1") or 0)
     cache = SceneCache(scenes=scenes, instance_sets=2 * scenes)  # 0: every task loads its scene anew
     blobs = BlobStore(folder)
     current: list[tuple[int, int, float] | None] = [None]

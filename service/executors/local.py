@@ -69,7 +69,7 @@ class LocalExecutor(Executor):
         heartbeat_s: float = 1.0,
         nice: int = 19,
         idle_s: float = 600.0,
-        scenes: int = 2,
+        scenes: int = 1,
         python: str | None = None,
         prewarm: bool = True,
     ):

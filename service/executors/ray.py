@@ -44,7 +44,7 @@ from .base import Executor, WorkerInfo
 class RayWorker:
     """One slot: runs task after task in its own folder (a Ray actor; see the module docstring)."""
 
-    def __init__(self, scenes: int = 2):
+    def __init__(self, scenes: int = 1):
         from ..scenecache import SceneCache
         from ..transfer import BlobStore
 
@@ -52,7 +52,7 @@ class RayWorker:
         if base:
             Path(base).mkdir(parents=True, exist_ok=True)
         self.root = Path(tempfile.mkdtemp(prefix="forest-ray-worker-", dir=base))
-        self.cache = SceneCache(scenes=scenes)
+        self.cache = SceneCache(scenes=scenes, instance_sets=2 * scenes)
         self.blobs = BlobStore(self.root / "store")
 
     def info(self) -> dict:
@@ -155,7 +155,7 @@ class RayExecutor(Executor):
         slots: int = 1,
         jobs: str | Path,
         heartbeat_s: float = 1.0,
-        scenes: int = 2,
+        scenes: int = 1,
         init_kwargs: dict | None = None,
         blob_cache_bytes: int = 2 * 2**30,
     ):
