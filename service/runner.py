@@ -238,8 +238,8 @@ def _render(spec: TaskSpec, ctx: TaskContext) -> TaskResult:
     for f in on_disk:
         exr, png = frame_files(spec, f)
         thumb = f"thumbs/frame_{f:04d}.png"
-        if f not in skip and not (ctx.job_dir / thumb).is_file():
-            thumb = _thumbnail(ctx, png, f) or thumb
+        if not (ctx.job_dir / thumb).is_file() and (ctx.job_dir / png).is_file():
+            thumb = _thumbnail(ctx, png, f) or thumb  # it died between the frame and its thumbnail
         finished += 1
         outputs += [exr, png, thumb]
         thumbs[f] = thumb

@@ -24,7 +24,6 @@ FIELDS = {
     "resolution": "settings.resolution",
     "params": "settings.params",
     "mode": "settings.mode",
-    "grid": "config: lookdev.grid",
 }
 #: Library parameters whose JSON field differs by job kind.
 KIND_FIELDS = {("match", "spp"): "settings.match_spp"}
