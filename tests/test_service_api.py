@@ -128,6 +128,17 @@ def test_still_refines_pass_by_pass_with_eta_and_times(server):
     assert (server.data / "jobs" / jid / "config.toml").read_text() == tiny_config()
 
 
+def test_a_large_still_shows_a_quick_look_before_its_first_pass(server):
+    c = server.client
+    jid = submit(c, kind="render", settings={"width": 400, "height": 300, "spp": 8})
+    events = read_events(c, jid)
+    shown = [(d["message"], d.get("passes_done")) for k, d in events if k == "progress" and "preview" in d]
+    assert shown[0] == ("quick look", None) and shown[1][1] == 1, shown
+    quick = next(d for k, d in events if k == "progress" and d["message"] == "quick look")
+    assert quick["preview"] == "preview/task-0.png"
+    assert read_png(c.get(c.get(f"/jobs/{jid}").json()["preview"]).content) == (400, 300)
+
+
 # -- frames as tasks -------------------------------------------------------------------
 
 
