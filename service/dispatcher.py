@@ -11,7 +11,8 @@ Each tick (``tick_s``, 50 ms by default) it
    worker whose attempt turns out stale (it lost its lease and the task moved on);
 2. every ``housekeeping_s``: kills and requeues attempts whose lease expired (no
    heartbeat for ``lease_s``), and stops the running attempts of canceled jobs; every
-   ``retention.interval_s``: applies the retention policy (:mod:`.retention`);
+   ``retention.interval_s``: applies the retention policy (:mod:`.retention`) in a thread
+   of its own;
 3. starts queued tasks (highest priority first, then oldest) while the executor has
    room, telling each frame task which of its frames are already on disk.
 
@@ -77,6 +78,7 @@ class Dispatcher:
         self._thread: threading.Thread | None = None
         self.errors = 0
         self.last_sweep = 0.0
+        self._sweeping = threading.Thread()  # the retention sweep (never blocks the dispatcher)
 
     # -- lifecycle -------------------------------------------------------------
     def start(self) -> None:
@@ -101,15 +103,22 @@ class Dispatcher:
                 if now - last_house >= self.housekeeping_s:
                     last_house = now
                     self.housekeeping()
-                if now - self.last_sweep >= self.retention.interval_s:
+                if now - self.last_sweep >= self.retention.interval_s and not self._sweeping.is_alive():
                     self.last_sweep = now
-                    sweep(self.store, self.datadir, self.retention)
+                    self._sweeping = threading.Thread(target=self._sweep, name="retention", daemon=True)
+                    self._sweeping.start()
                 if not self.paused:
                     self.fill()
             except Exception:
                 self.errors += 1
                 log.exception("dispatcher tick failed")
                 time.sleep(0.2)
+
+    def _sweep(self) -> None:
+        try:
+            sweep(self.store, self.datadir, self.retention)
+        except Exception:
+            log.exception("retention sweep failed")
 
     # -- logs in the job's folder ------------------------------------------------
     def job_log(self, key: tuple[int, int] | None, line: str, *, job_id: str | None = None) -> None:

@@ -182,7 +182,7 @@ def test_cancel_and_resume_from_the_job_page(browser, tmp_path):
         d.execute_script("document.getElementById('config').value = arguments[0]", tiny_config())
         Select(d.find_element(By.ID, "kind")).select_by_value("flythrough")
         d.find_element(By.ID, "name").send_keys("long one")
-        for field, value in (("frames", "1-8"), ("frames-per-task", "8"), ("spp", "256"), ("width", "96")):
+        for field, value in (("frames", "1-6"), ("frames-per-task", "6"), ("spp", "128"), ("width", "96")):
             d.find_element(By.ID, field).send_keys(value)
         d.find_element(By.ID, "submit").click()
         wait(lambda: d.find_element(By.ID, "job-state").get_attribute("textContent") == "running")
@@ -195,5 +195,5 @@ def test_cancel_and_resume_from_the_job_page(browser, tmp_path):
         )
         d.find_element(By.ID, "job-resume").click()
         wait(lambda: d.find_element(By.ID, "job-state").get_attribute("textContent") == "succeeded", timeout=180)
-        wait(lambda: "8 / 8" in d.find_element(By.ID, "job-facts").text, timeout=10)
+        wait(lambda: "6 / 6" in d.find_element(By.ID, "job-facts").text, timeout=10)
         wait(lambda: "EXR frames (zip)" in d.find_element(By.ID, "downloads").text, timeout=10)
