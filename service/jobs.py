@@ -142,6 +142,17 @@ def _overrides(s: JobSettings, data: dict) -> dict[str, Any]:
     return out
 
 
+def _apply(data: dict, overrides: dict[str, Any]) -> dict:
+    """Set each dotted key of ``overrides`` in the parsed config (in place; tables made as needed)."""
+    for dotted, value in overrides.items():
+        node = data
+        *parents, last = dotted.split(".")
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[last] = value
+    return data
+
+
 def _library_error(e: Exception, kind: str) -> RequestError:
     from forest.errors import ParameterError
 
@@ -153,7 +164,7 @@ def _library_error(e: Exception, kind: str) -> RequestError:
 def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dict[str, bool]) -> PreparedJob:
     """Validate a request completely and lay out its job folder; raise :class:`RequestError`."""
     from forest.camera import parse_frames
-    from forest.config import parse_config
+    from forest.config import Config
     from forest.errors import ForestError
 
     if not capabilities.get(req.kind):
@@ -185,9 +196,12 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
     job_id = uuid.uuid4().hex
     job_dir = datadir.job_dir(job_id)
     overrides = _overrides(s, data)
+    named = isinstance(data.get("name"), str)
     try:
-        config = parse_config(req.config, path=Path("config.toml"), base_dir=job_dir, overrides=overrides)
-        name = req.name or (config.name if isinstance(data.get("name"), str) else None)
+        # the TOML is parsed once: its tree, with the settings applied as forest.config's
+        # parse_config applies overrides, becomes the Config that is validated
+        config = Config(_apply(data, overrides), path=Path("config.toml"), base_dir=job_dir)
+        name = req.name or (config.name if named else None)
     except ForestError as e:
         raise _library_error(e, req.kind) from None
     try:
