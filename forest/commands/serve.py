@@ -57,7 +57,7 @@ def register(app: typer.Typer) -> None:
             help="Seconds an idle local worker keeps its loaded scenes before it exits.",
         ),
         worker_scenes: int = typer.Option(
-            2,
+            1,
             "--worker-scenes",
             min=0,
             max=64,
