@@ -168,6 +168,11 @@ def test_submit_the_demo_with_its_maps_folder_watch_it_refine_and_download_an_ex
         assert "local-0" in d.find_element(By.ID, "workers").text
         d.find_element(By.ID, "filter-name").send_keys("no such name")
         wait(lambda: d.find_element(By.ID, "no-jobs").is_displayed())
+        d.find_element(By.ID, "filter-name").clear()
+        Select(d.find_element(By.ID, "filter-state")).select_by_visible_text("failed")
+        wait(lambda: d.find_element(By.ID, "no-jobs").is_displayed())
+        Select(d.find_element(By.ID, "filter-state")).select_by_visible_text("succeeded")
+        wait(lambda: d.find_elements(By.CSS_SELECTOR, f"#jobs tr[data-id='{jid}']"))
         d.save_screenshot(str(tmp_path / "list.png"))
 
 

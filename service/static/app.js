@@ -61,6 +61,14 @@ function elapsed(job) {
 function pct(x) { return `${Math.round((x || 0) * 100)}%`; }
 function jobLabel(job) { return job.name || `${job.kind} ${job.id.slice(0, 8)}`; }
 
+// Replace a table's rows, keeping each row element whose content did not change (no flicker,
+// and an element someone is about to click stays the same element).
+function keepRows(tbody, rows) {
+  const old = [...tbody.children];
+  const same = rows.length === old.length && rows.every((r, i) => r.outerHTML === old[i].outerHTML);
+  if (!same) tbody.replaceChildren(...rows.map((r, i) => (old[i] && old[i].outerHTML === r.outerHTML ? old[i] : r)));
+}
+
 // ---- views -----------------------------------------------------------------------------
 let current = null;  // the open job page: {id, job, source, frames, ...}
 function route() {
@@ -197,7 +205,7 @@ async function refreshList() {
     if ($("#filter-state").value) params.set("state", $("#filter-state").value);
     if ($("#filter-name").value.trim()) params.set("name", $("#filter-name").value.trim());
     const list = await api("GET", `/jobs?${params}`);
-    $("#jobs tbody").replaceChildren(...list.jobs.map(jobRow));
+    keepRows($("#jobs tbody"), list.jobs.map(jobRow));
     $("#no-jobs").hidden = list.jobs.length > 0;
     const c = list.counts;
     $("#counts").textContent = STATES.map(s => `${c[s]} ${s}`).join(" · ") + ` = ${c.total} job${c.total === 1 ? "" : "s"}`;
@@ -210,7 +218,7 @@ async function refreshWorkers() {
     $("#health").textContent = `${h.executor} executor · ${h.workers} worker(s)`;
     for (const opt of $("#kind").options) opt.disabled = !h.capabilities[opt.value];
     const { workers } = await api("GET", "/workers");
-    $("#workers tbody").replaceChildren(...workers.map(w => el("tr", { dataset: { state: w.state } },
+    keepRows($("#workers tbody"), workers.map(w => el("tr", { dataset: { state: w.state } },
       el("td", {}, w.name),
       el("td", {}, el("span", { class: "state" }, w.state)),
       el("td", {}, w.job_id
@@ -408,6 +416,9 @@ async function selectFrame(frame, showLog = true) {
   if (!f) return;
   for (const c of $("#frame-grid").querySelectorAll(".cell")) c.classList.toggle("selected", c.dataset.frame === String(frame));
   const task = (current.job.tasks || []).find(t => t.index === f.task) || {};
+  const shown = JSON.stringify([f, task.state, task.worker, task.frames]);
+  if (!showLog && $("#frame-detail").dataset.shown === shown) return;  // unchanged: keep its elements
+  $("#frame-detail").dataset.shown = shown;
   $("#frame-detail").hidden = false;
   $("#frame-title").textContent = `Frame ${frame}`;
   $("#frame-facts").replaceChildren(...[
@@ -431,6 +442,8 @@ async function selectFrame(frame, showLog = true) {
 function selectTask(index) {
   const t = (current.job.tasks || []).find(x => x.index === index);
   if (!t) return;
+  current.selected = null;
+  $("#frame-detail").dataset.shown = "";
   $("#frame-detail").hidden = false;
   $("#frame-title").textContent = `Task ${index}`;
   $("#frame-facts").replaceChildren(...[
