@@ -63,6 +63,9 @@ def register(app: typer.Typer) -> None:
             max=64,
             help="Loaded scenes each local worker keeps (0: none, reload per task).",
         ),
+        worker_nice: int = typer.Option(
+            19, "--worker-nice", min=0, max=19, help="CPU niceness of local workers (the service itself stays at 0)."
+        ),
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No access log."),
     ):
         """Serve the job API and web page: queue renders, fly-throughs and colour matches."""
@@ -113,6 +116,7 @@ def register(app: typer.Typer) -> None:
             lease_s=lease,
             worker_idle_s=worker_idle,
             worker_scenes=worker_scenes,
+            nice=worker_nice,
             retention=Retention(
                 max_age_s=keep_days * 86400.0,
                 max_jobs=keep_jobs,
