@@ -351,15 +351,19 @@ function scheduleJob() {
 }
 
 $("#job-cancel").addEventListener("click", () => act("cancel"));
-$("#job-resume").addEventListener("click", async () => { await act("resume"); if (current && !current.source) watch(current.id); });
+$("#job-resume").addEventListener("click", () => act("resume"));
 $("#job-delete").addEventListener("click", async () => {
   if (!current || !confirm(`Delete ${jobLabel(current.job)} and its outputs?`)) return;
   try { await api("DELETE", `/jobs/${current.id}`); location.hash = "#"; } catch (e) { $("#job-error").textContent = e.message; }
 });
 async function act(what, url) {
   if (!current) return;
-  try { renderJob(await api("POST", url || `/jobs/${current.id}/${what}`)); scheduleFrames(); }
-  catch (e) { $("#job-error").textContent = e.message; }
+  try {
+    const job = await api("POST", url || `/jobs/${current.id}/${what}`);
+    renderJob(job);
+    scheduleFrames();
+    if (current && !current.source && !TERMINAL.has(job.state)) watch(current.id);  // it runs again: follow it
+  } catch (e) { $("#job-error").textContent = e.message; }
 }
 
 // ---- frame grid --------------------------------------------------------------------------------
