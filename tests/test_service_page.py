@@ -180,7 +180,8 @@ def test_cancel_and_resume_from_the_job_page(browser, tmp_path):
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import Select
 
-    with ServerThread(create_app(ServiceConfig(data_dir=tmp_path / "data", workers=1, seed_examples=False))) as srv:
+    data = tmp_path / "data"
+    with ServerThread(create_app(ServiceConfig(data_dir=data, workers=1, seed_examples=False))) as srv:
         d = browser
         d.get(srv.url + "/")
         wait(lambda: "executor" in d.find_element(By.ID, "health").text)
@@ -202,3 +203,14 @@ def test_cancel_and_resume_from_the_job_page(browser, tmp_path):
         wait(lambda: d.find_element(By.ID, "job-state").get_attribute("textContent") == "succeeded", timeout=180)
         wait(lambda: "6 / 6" in d.find_element(By.ID, "job-facts").text, timeout=10)
         wait(lambda: "EXR frames (zip)" in d.find_element(By.ID, "downloads").text, timeout=10)
+
+        # render one frame again from its cell in the grid
+        jid = js(d, "return location.hash").partition("#job=")[2]
+        exr = data / "jobs" / jid / "out" / "frame_0003.exr"
+        before = exr.stat().st_mtime_ns
+        wait(lambda: d.find_elements(By.CSS_SELECTOR, "#frame-grid .cell[data-frame='3'][data-state='done']"))
+        d.find_element(By.CSS_SELECTOR, "#frame-grid .cell[data-frame='3']").click()
+        wait(lambda: d.find_element(By.ID, "frame-title").text == "Frame 3")
+        d.find_element(By.CSS_SELECTOR, "#frame-links button.requeue").click()
+        wait(lambda: exr.exists() and exr.stat().st_mtime_ns != before, timeout=120)
+        wait(lambda: d.find_element(By.ID, "job-state").get_attribute("textContent") == "succeeded", timeout=60)
