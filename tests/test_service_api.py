@@ -302,6 +302,32 @@ def test_export_jobs_download_as_the_cli_writes_them(server, tmp_path):
     assert got == want
 
 
+def test_usd_export_downloads_as_the_cli_writes_it(server, tmp_path):
+    c = server.client
+    if not c.get("/health").json()["capabilities"]["usd"]:
+        pytest.skip("usd-core is not installed")
+    jid = submit(c, kind="usd", settings={"frames": "1-2"})
+    job = wait_job(c, jid)
+    assert job["state"] == "succeeded", job
+    res = c.get(f"/jobs/{jid}/result").json()
+    url = {d["label"]: d["url"] for d in res["downloads"]}["USD stage and species layers (zip)"]
+    with zipfile.ZipFile(io.BytesIO(c.get(url).content)) as zf:
+        got = {n: zf.read(n) for n in zf.namelist()}
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(tiny_config())
+    out = tmp_path / "usd"
+    cli = subprocess.run(
+        [str(FOREST), "export", "usd", str(scene), "--frames", "1-2", "-o", str(out / "tiny.usdc")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert cli.returncode == 0, cli.stderr
+    want = {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert "tiny.usdc" in got and sorted(got) == sorted(want)
+    assert got == want
+
+
 # -- retention ----------------------------------------------------------------------------
 
 
