@@ -173,6 +173,8 @@ class Dispatcher:
         elif isinstance(msg, Done):
             if self.store.finish_task(msg):
                 self.job_log(key, f"succeeded: {len(msg.result.outputs)} files")
+                if entry is not None and entry[2] in FRAME_KINDS:  # its frames replace its pass preview
+                    (self.datadir.job_dir(entry[0]) / "preview" / f"task-{entry[1]}.png").unlink(missing_ok=True)
                 self._after(key)
         elif isinstance(msg, Failed):
             error = msg.error

@@ -12,7 +12,8 @@ Frame tasks (stills and fly-throughs) render frame by frame with
 * a frame whose EXR and PNG are already in the job folder (or that the service says it
   holds, ``spec.skip_frames``) is not rendered again: it is reported ``resumed``;
 * after every sample pass the image so far is published as the task's preview
-  (``preview/task-<i>.png``, at most every ``PREVIEW_INTERVAL_S``, always the last);
+  (``preview/task-<i>.png``, at most every ``PREVIEW_INTERVAL_S``, always the last;
+  once the task is done its last frame's PNG takes that place);
   a still first shows a *quick look* — the same scene at a fraction of the size with
   one sample per pixel — so the first pixels appear before the first full pass;
 * each finished frame gets a thumbnail (``thumbs/frame_NNNN.png``) and a ``frame`` report;
@@ -313,7 +314,10 @@ def _render(spec: TaskSpec, ctx: TaskContext) -> TaskResult:
             thumb=made,
         )
         ctx.log(f"{label} rendered in {seconds:.2f} s ({result.variant}, {result.trees:,} trees)")
-    final: str | None = _publish_file(ctx, preview_rel, frame_files(spec, todo[-1])[1])
+    # the finished frame is the task's image now: its pass preview goes (one file per task
+    # would otherwise stay for every frame of a long fly-through)
+    final = frame_files(spec, todo[-1])[1]
+    (ctx.job_dir / preview_rel).unlink(missing_ok=True)
     ctx.progress(1.0, "done", force=True, preview=final, eta_s=0.0)
     summary = _jsonable(stats[-1], ctx.job_dir)
     summary["frames"] = todo
