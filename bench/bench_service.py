@@ -72,6 +72,13 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def cpu() -> str:
+    for line in Path("/proc/cpuinfo").read_text().splitlines() if Path("/proc/cpuinfo").exists() else []:
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return "an unknown CPU"
+
+
 def load() -> str:
     return f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
 
@@ -319,7 +326,7 @@ def main() -> None:
     args = ap.parse_args()
     only = set(filter(None, args.only.split(",")))
     want = lambda name: not only or name in only  # noqa: E731
-    print(f"load average at start: {load()}", flush=True)
+    print(f"measured on {cpu()}, {os.cpu_count()} cores; load average at start: {os.getloadavg()[0]:.1f}", flush=True)
     with tempfile.TemporaryDirectory(prefix="forest-bench-") as d:
         tmp = Path(d)
         if want("submit"):
