@@ -3,7 +3,8 @@
 Layout of a data folder::
 
     jobs.sqlite3            the store (WAL)
-    assets/                 uploaded maps, meshes and reference photos (flat names)
+    assets/                 uploaded maps, meshes and reference photos (folders kept: maps/height.png)
+    workers/                the local workers' folders and logs
     configs/                example scene configs offered by the web page (optional)
     jobs/<id>/              one folder per job: its config, linked assets, outputs, log
 
@@ -26,12 +27,12 @@ import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path, PurePosixPath
-from typing import Any
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr")
 MESH_EXTS = (".ply", ".obj", ".stl", ".glb", ".gltf", ".off")
 ASSET_EXTS = IMAGE_EXTS + MESH_EXTS
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+MAX_DEPTH = 8  # folders in an asset's name
 
 
 class AssetError(Exception):
@@ -50,6 +51,7 @@ class DataDir:
         self.assets = self.root / "assets"
         self.jobs = self.root / "jobs"
         self.configs = self.root / "configs"
+        self.workers = self.root / "workers"
         for p in (self.root, self.assets, self.jobs):
             p.mkdir(parents=True, exist_ok=True)
         self.db = self.root / "jobs.sqlite3"
@@ -129,34 +131,16 @@ def asset_kind(name: str) -> str | None:
     return None
 
 
-def path_strings(data: Any, where: str = "") -> Iterator[tuple[str, str]]:
-    """Every string value in a TOML tree, with its dotted field name."""
-    if isinstance(data, dict):
-        for k, v in data.items():
-            yield from path_strings(v, f"{where}.{k}" if where else str(k))
-    elif isinstance(data, list):
-        for i, v in enumerate(data):
-            yield from path_strings(v, f"{where}[{i}]")
-    elif isinstance(data, str):
-        yield where, data
-
-
-def looks_like_path(s: str) -> bool:
-    return (
-        "/" in s
-        or "\\" in s
-        or s.startswith("~")
-        or Path(s).suffix.lower() in ASSET_EXTS
-        or bool(re.match(r"^[A-Za-z]:", s))
-    )
-
-
 def collect_assets(data: dict, datadir: DataDir) -> dict[str, Path]:
-    """Check every path-like string of a parsed config; return ``{relative name: asset file}``."""
+    """Check every file a parsed config names; return ``{relative name: asset file}``.
+
+    Which strings are files comes from the scene schema (:func:`forest.config.file_values`:
+    its file fields and mesh species), never from what a string looks like.
+    """
+    from forest.config import file_values
+
     out: dict[str, Path] = {}
-    for field, s in path_strings(data):
-        if not looks_like_path(s):
-            continue
+    for field, s in file_values(data):
         rel = check_relative(s, field=f"config: {field}")
         if Path(s).suffix.lower() not in ASSET_EXTS:
             raise AssetError(
@@ -224,10 +208,25 @@ def check_mesh(path: Path) -> dict:
     return {"vertices": int(len(verts)), "triangles": int(len(faces))}
 
 
+def check_asset_name(name: str) -> PurePosixPath:
+    """An upload's name: a relative path of up to ``MAX_DEPTH`` folders, each part plain."""
+    parts = (name or "").split("/")
+    if len(parts) > MAX_DEPTH + 1 or not all(NAME_RE.fullmatch(p) and p not in (".", "..") for p in parts):
+        raise AssetError(
+            f"asset name {name!r}: use folders and file names of letters, digits, '.', '-' or '_'"
+            f" (up to 128 each, {MAX_DEPTH} folders deep), e.g. maps/height.png",
+            422,
+        )
+    return PurePosixPath(*parts)
+
+
 def store_upload(datadir: DataDir, name: str, chunks: Iterator[bytes], max_bytes: int) -> dict:
-    """Stream an upload to a temporary file, check it, and move it to ``assets/name`` atomically."""
-    if not NAME_RE.fullmatch(name or "") or name in (".", ".."):
-        raise AssetError(f"asset name {name!r}: use letters, digits, '.', '-' or '_' (up to 128)", 422)
+    """Stream an upload to a temporary file, check it, and move it to ``assets/name`` atomically.
+
+    ``name`` may name folders (``maps/height.png``): they are kept, so a config's relative
+    paths find its maps as they do beside the config on disk.
+    """
+    rel = check_asset_name(name)
     kind = asset_kind(name)
     if kind is None:
         raise AssetError(f"asset name {name!r}: extension must be one of {', '.join(ASSET_EXTS)}", 415)
@@ -245,9 +244,17 @@ def store_upload(datadir: DataDir, name: str, chunks: Iterator[bytes], max_bytes
             raise AssetError("upload is empty", 422)
         info = check_image(tmp_path) if kind == "image" else check_mesh(tmp_path)
         os.chmod(tmp_path, 0o644)
-        dest = datadir.assets / name
+        dest = datadir.assets / rel
+        if not is_inside(dest.parent.resolve(), datadir.assets):
+            raise AssetError(f"asset name {name!r}: resolves outside the data folder", 422)
+        try:
+            dest.parent.mkdir(parents=True, exist_ok=True)
+        except OSError:
+            raise AssetError(f"asset name {name!r}: a part of {rel.parent} is a file", 409) from None
+        if dest.is_dir():
+            raise AssetError(f"asset name {name!r}: is a folder", 409)
         os.replace(tmp_path, dest)
-        return {"name": name, "kind": kind, "bytes": size, **info}
+        return {"name": rel.as_posix(), "kind": kind, "bytes": size, **info}
     finally:
         if tmp_path.exists():
             tmp_path.unlink()

@@ -2,30 +2,53 @@
 
 Each tick (``tick_s``, 50 ms by default) it
 
-1. applies the executor's reports — heartbeats renew leases, progress and previews
-   are recorded, ``done``/``error`` finish the attempt, and an ``exit`` without either
-   means the worker was lost (requeue within the retry limit).  Every report names its
-   attempt; the store ignores stale ones, and the dispatcher kills a worker whose
-   attempt turns out stale (it lost its lease and the task moved on);
+1. applies the executor's reports — heartbeats renew leases; files a worker shipped
+   (it shares no disk with the service) are written into the job folder first; progress,
+   finished frames and log lines are recorded; ``done``/``error`` finish the attempt (an
+   error about a library parameter is named by the request's JSON field); an ``exit``
+   without either means the worker was lost (requeue within the retry limit).  Every
+   report names its attempt; the store ignores stale ones, and the dispatcher kills a
+   worker whose attempt turns out stale (it lost its lease and the task moved on);
 2. every ``housekeeping_s``: kills and requeues attempts whose lease expired (no
-   heartbeat for ``lease_s``), and stops the running attempts of canceled jobs;
-3. starts queued tasks (highest priority first, then oldest) while the executor has room.
+   heartbeat for ``lease_s``), and stops the running attempts of canceled jobs; every
+   ``retention.interval_s``: applies the retention policy (:mod:`.retention`) in a thread
+   of its own;
+3. starts queued tasks (highest priority first, then oldest) while the executor has
+   room, telling each frame task which of its frames are already on disk.
+
+Each job folder gets a log (``job.log``) and one per task (``logs/task-NNNN.log``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import socket
 import threading
 import time
 import uuid
+from pathlib import Path
+from typing import Any
 
 from .assets import DataDir
 from .executors import Executor
-from .store import Store
+from .models import FRAME_KINDS, Done, Exit, Failed, FrameDone, Heartbeat, Log, Progress, TaskSpec
+from .retention import Retention, sweep, write_manifest
+from .store import TERMINAL, Store, TaskRun
+from .transfer import write_shipped
+from .views import field_name
 
 log = logging.getLogger("forest.service")
+
+
+def frames_on_disk(job_dir: Path, spec: TaskSpec) -> list[int]:
+    """Frames of a frame task whose EXR and PNG are in the job folder."""
+    from .runner import frame_files
+
+    if spec.kind not in FRAME_KINDS:
+        return []
+    return [f for f in spec.frames or (1,) if all((job_dir / p).is_file() for p in frame_files(spec, f))]
 
 
 class Dispatcher:
@@ -38,6 +61,7 @@ class Dispatcher:
         lease_s: float = 15.0,
         tick_s: float = 0.05,
         housekeeping_s: float = 0.25,
+        retention: Retention | None = None,
     ):
         self.store = store
         self.executor = executor
@@ -45,13 +69,16 @@ class Dispatcher:
         self.lease_s = lease_s
         self.tick_s = tick_s
         self.housekeeping_s = housekeeping_s
+        self.retention = retention or Retention()
         self.owner = f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
-        self.jobs: dict[tuple[int, int], str] = {}  # (task, attempt) → job id
+        self.jobs: dict[tuple[int, int], tuple[str, int, str]] = {}  # (task, attempt) → (job id, index, kind)
         self.canceling: set[tuple[int, int]] = set()
         self.paused = False
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.errors = 0
+        self.last_sweep = 0.0
+        self._sweeping = threading.Thread()  # the retention sweep (never blocks the dispatcher)
 
     # -- lifecycle -------------------------------------------------------------
     def start(self) -> None:
@@ -76,6 +103,10 @@ class Dispatcher:
                 if now - last_house >= self.housekeeping_s:
                     last_house = now
                     self.housekeeping()
+                if now - self.last_sweep >= self.retention.interval_s and not self._sweeping.is_alive():
+                    self.last_sweep = now
+                    self._sweeping = threading.Thread(target=self._sweep, name="retention", daemon=True)
+                    self._sweeping.start()
                 if not self.paused:
                     self.fill()
             except Exception:
@@ -83,54 +114,88 @@ class Dispatcher:
                 log.exception("dispatcher tick failed")
                 time.sleep(0.2)
 
-    # -- logging into the job's folder ------------------------------------------
-    def job_log(self, job_id: str | None, line: str) -> None:
+    def _sweep(self) -> None:
+        try:
+            sweep(self.store, self.datadir, self.retention)
+        except Exception:
+            log.exception("retention sweep failed")
+
+    # -- logs in the job's folder ------------------------------------------------
+    def job_log(self, key: tuple[int, int] | None, line: str, *, job_id: str | None = None) -> None:
+        """Append a line to the job's log (and, for a task's line, to the task's log)."""
+        entry = self.jobs.get(key) if key is not None else None
+        job_id = job_id or (entry[0] if entry else None)
         if not job_id:
             return
         try:
             d = self.datadir.job_dir(job_id)
             d.mkdir(parents=True, exist_ok=True)
             stamp = time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime())
+            prefix = f"task {entry[1]} attempt {key[1]}: " if entry and key else ""
             with open(d / "job.log", "a", encoding="utf-8") as f:
-                f.write(f"{stamp} {line}\n")
+                f.write(f"{stamp} {prefix}{line}\n")
+            if entry and key:
+                (d / "logs").mkdir(exist_ok=True)
+                with open(d / "logs" / f"task-{entry[1]:04d}.log", "a", encoding="utf-8") as f:
+                    f.write(f"{stamp} attempt {key[1]}: {line}\n")
         except OSError:
             pass
 
+    def _after(self, key: tuple[int, int]) -> None:
+        """Write the job's manifest once it has ended."""
+        entry = self.jobs.get(key)
+        if entry is None:
+            return
+        job = self.store.get_job(entry[0])
+        if job is not None and job["state"] in TERMINAL:
+            write_manifest(self.datadir, self.store, entry[0])
+
     # -- reports ---------------------------------------------------------------
-    def handle(self, msg: dict) -> None:
-        key = (int(msg.get("task_id", -1)), int(msg.get("attempt", -1)))
-        typ = msg.get("type")
-        job_id = self.jobs.get(key)
-        if typ == "heartbeat":
+    def handle(self, msg: Any) -> None:
+        key = (msg.task_id, msg.attempt)
+        entry = self.jobs.get(key)
+        if msg.files and entry is not None and key not in self.canceling:
+            try:
+                write_shipped(self.datadir.job_dir(entry[0]), msg.files)
+            except OSError as e:
+                self.job_log(key, f"cannot store shipped files: {e}")
+        if isinstance(msg, Heartbeat):
             if not self.store.heartbeat(*key, self.lease_s):
                 self._stale(key)
-        elif typ == "progress":
-            ok = self.store.report_progress(
-                *key, msg.get("fraction", 0.0), str(msg.get("message", "")), msg.get("preview"), self.lease_s
-            )
-            if not ok:
+        elif isinstance(msg, Progress):
+            if not self.store.report_progress(msg, self.lease_s):
                 self._stale(key)
-        elif typ == "log":
-            # local workers write their own lines into the job log; remote ones report them
-            if job_id and key not in self.canceling and self.executor.name != "local":
-                self.job_log(job_id, f"task {key[0]} attempt {key[1]}: {msg.get('line', '')}")
-        elif typ == "done":
-            if self.store.finish_task(*key, "succeeded", result=msg.get("result") or {}):
-                self.job_log(job_id, f"task {key[0]} attempt {key[1]}: succeeded")
-        elif typ == "error":
-            err = str(msg.get("error", "failed"))
-            if self.store.finish_task(*key, "failed", error=err):
-                self.job_log(job_id, f"task {key[0]} attempt {key[1]}: failed: {err}")
-        elif typ == "exit":
-            code = msg.get("code")
+        elif isinstance(msg, FrameDone):
+            self.store.frame_done(msg)
+        elif isinstance(msg, Log):
+            if key not in self.canceling:
+                self.job_log(key, msg.line)
+        elif isinstance(msg, Done):
+            if self.store.finish_task(msg):
+                self.job_log(key, f"succeeded: {len(msg.result.outputs)} files")
+                if entry is not None and entry[2] in FRAME_KINDS:  # its frames replace its pass preview
+                    (self.datadir.job_dir(entry[0]) / "preview" / f"task-{entry[1]}.png").unlink(missing_ok=True)
+                self._after(key)
+        elif isinstance(msg, Failed):
+            error = msg.error
+            if msg.param:
+                error = f"{field_name(msg.param, entry[2] if entry else None)}: {error}"
+            if self.store.finish_task(msg.model_copy(update={"error": error})):
+                self.job_log(key, f"failed: {error}")
+                if msg.traceback:
+                    self.job_log(key, msg.traceback.rstrip())
+                self._after(key)
+        elif isinstance(msg, Exit):
+            code = msg.code
             if key in self.canceling:
                 self.canceling.discard(key)
                 if self.store.cancel_running(*key):
-                    self.job_log(job_id, f"task {key[0]} attempt {key[1]}: canceled (worker stopped)")
+                    self.job_log(key, "canceled (worker stopped)")
             else:
                 new = self.store.lose_attempt(*key, f"worker exited with code {code} before reporting")
                 if new is not None:
-                    self.job_log(job_id, f"task {key[0]} attempt {key[1]}: worker lost (exit {code}); task {new}")
+                    self.job_log(key, f"worker lost (exit {code}); task {new}")
+            self._after(key)
             self.jobs.pop(key, None)
 
     def _stale(self, key: tuple[int, int]) -> None:
@@ -145,7 +210,8 @@ class Dispatcher:
             self.canceling.discard(key)
             new = self.store.lose_attempt(*key, "lease expired (no heartbeat)")
             if new is not None:
-                self.job_log(self.jobs.get(key), f"task {key[0]} attempt {key[1]}: lease expired; task {new}")
+                self.job_log(key, f"lease expired; task {new}")
+                self._after(key)
         active = self.executor.active()
         for t in self.store.running_tasks():
             key = (t["id"], t["attempt"])
@@ -154,8 +220,8 @@ class Dispatcher:
                     if key not in self.canceling:
                         self.canceling.add(key)
                         self.executor.kill(*key)
-                else:
-                    self.store.cancel_running(*key)
+                elif self.store.cancel_running(*key):
+                    write_manifest(self.datadir, self.store, t["job_id"])
 
     def fill(self) -> None:
         while self.executor.capacity() > 0 and not self._stop.is_set():
@@ -163,12 +229,30 @@ class Dispatcher:
             if run is None:
                 return
             key = (run.task_id, run.attempt)
-            self.jobs[key] = run.job_id
+            self.jobs[key] = (run.job_id, run.index, run.kind)
             try:
+                run = self._prepare(run)
                 worker = self.executor.start(run)
             except Exception as e:
-                self.store.finish_task(*key, "failed", error=f"cannot start worker: {type(e).__name__}: {e}")
-                self.job_log(run.job_id, f"task {run.task_id} attempt {run.attempt}: cannot start: {e}")
+                error = f"cannot start the task: {type(e).__name__}: {e}"
+                self.store.finish_task(Failed(task_id=run.task_id, attempt=run.attempt, error=error))
+                self.job_log(key, error)
+                self._after(key)
                 continue
             self.store.set_worker(*key, worker)
-            self.job_log(run.job_id, f"task {run.task_id} (#{run.index}) attempt {run.attempt}: started on {worker}")
+            skipped = f"; {len(run.spec.skip_frames)} frames already on disk" if run.spec.skip_frames else ""
+            self.job_log(key, f"started on {worker}{skipped}")
+
+    def _prepare(self, run: TaskRun) -> TaskRun:
+        """Keep the config in the job folder, and tell a frame task which frames are on disk."""
+        job_dir = self.datadir.job_dir(run.job_id)
+        job_dir.mkdir(parents=True, exist_ok=True)
+        kept = job_dir / "config.toml"
+        if not kept.exists():
+            tmp = job_dir / ".config.toml.tmp"
+            tmp.write_text(run.spec.config, encoding="utf-8")
+            os.replace(tmp, kept)
+        on_disk = frames_on_disk(job_dir, run.spec)
+        if on_disk:
+            run = dataclasses.replace(run, spec=run.spec.model_copy(update={"skip_frames": tuple(on_disk)}))
+        return run

@@ -4,7 +4,15 @@ A request is checked in this order, each failure answering a 4xx with one line t
 names the field: the JSON schema (pydantic), the config's TOML syntax, every asset path
 in the config (inside the data folder, see :mod:`forest.service.assets`), the config's own
 validation (``forest.config``), then the service's limits on resolution, samples,
-tree count and frames.  Only then is the job stored, so a bad request leaves nothing.
+candidates and frames.  Only then is the job stored, so a bad request leaves nothing.
+
+A library error about a parameter (:class:`forest.errors.ParameterError`) is answered
+with the request's JSON field for it (:func:`forest.service.views.field_name`).
+
+Tasks: a fly-through of N frames is N tasks by default (``frames_per_task`` groups
+them); a still, a match and an export are one task each.  Every task's
+:class:`~forest.service.models.TaskSpec` carries the config text, the overrides and the
+SHA-256 of each input file, so any worker can fetch and cache them.
 """
 
 from __future__ import annotations
@@ -12,18 +20,19 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
-import tomllib
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from .assets import AssetError, DataDir, collect_assets, link_into
+from forest.config import MAX_CONFIG_BYTES
 
-Kind = Literal["render", "flythrough", "match"]
-Variant = Literal["scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb"]
+from .assets import AssetError, DataDir, collect_assets, link_into
+from .models import Kind, MatchSpec, Resources, TaskSpec, Variant
+from .transfer import file_sha256
+from .views import field_name
 
 
 @dataclass(frozen=True)
@@ -37,7 +46,7 @@ class Limits:
     max_trees: int = 2_000_000
     max_frames: int = 2000
     max_upload_bytes: int = 64 * 2**20
-    max_config_bytes: int = 256 * 1024
+    max_config_bytes: int = MAX_CONFIG_BYTES  # the CLI's limit too
     max_iterations: int = 2000
 
 
@@ -45,36 +54,47 @@ class JobSettings(BaseModel):
     """Per-job settings; each overrides the matching key of the config."""
 
     model_config = ConfigDict(extra="forbid")
-    width: int | None = Field(None, ge=1, le=16384, description="Image width in pixels ([render] width).")
-    height: int | None = Field(None, ge=1, le=16384, description="Image height in pixels ([render] height).")
-    spp: int | None = Field(None, ge=1, le=65536, description="Samples per pixel ([render] spp).")
-    variant: Variant | None = Field(None, description="Mitsuba variant; default: the renderer's choice.")
-    seed: int | None = Field(None, ge=0, le=2**63 - 1, description="Scene seed (top-level seed).")
-    count: int | None = Field(None, ge=0, le=20_000_000, description="Tree count ([scatter] count).")
+    width: int | None = Field(default=None, ge=1, le=16384, description="Image width in pixels ([render] width).")
+    height: int | None = Field(default=None, ge=1, le=16384, description="Image height in pixels ([render] height).")
+    spp: int | None = Field(default=None, ge=1, le=65536, description="Samples per pixel ([render] spp).")
+    variant: Variant | None = Field(default=None, description="Mitsuba variant; default: the renderer's choice.")
+    seed: int | None = Field(default=None, ge=0, le=2**63 - 1, description="Scene seed (top-level seed).")
+    count: int | None = Field(default=None, ge=0, le=20_000_000, description="Candidate sites ([scatter] count).")
     frames: str | None = Field(
-        None, max_length=200, pattern=r"^[0-9xX,\- ]+$", description="Fly-through frames, e.g. '1-24' or '1-120x2'."
+        default=None,
+        max_length=200,
+        pattern=r"^[0-9xX,\- ]+$",
+        description="Fly-through (or export) frames, e.g. '1-24' or '1-120x2'; default: the camera keys' range.",
     )
-    frames_per_task: int | None = Field(None, ge=1, le=10000, description="Frames per fly-through task.")
-    cpus: float | None = Field(None, gt=0, le=1024, description="CPUs to reserve per task (Ray executor).")
-    gpus: float | None = Field(None, ge=0, le=64, description="GPUs to reserve per task (Ray executor).")
-    preview: bool = Field(False, description="Fast low-quality preview render.")
-    reference: str | None = Field(None, max_length=512, description="Match jobs: reference photo (an asset name).")
-    iterations: int | None = Field(None, ge=1, le=100000, description="Match jobs: optimisation steps.")
-    resolution: int | None = Field(None, ge=8, le=4096, description="Match jobs: proxy render width in pixels.")
-    match_spp: int | None = Field(None, ge=1, le=1024, description="Match jobs: samples per pixel per step.")
-    params: list[str] | None = Field(None, max_length=32, description="Match jobs: which parameters to fit.")
-    mode: str | None = Field(None, max_length=64, pattern=r"^[A-Za-z0-9_-]+$", description="Match jobs: fit mode.")
+    frames_per_task: int | None = Field(
+        default=None, ge=1, le=10000, description="Frames per fly-through task (default 1)."
+    )
+    cpus: float | None = Field(default=None, gt=0, le=1024, description="CPUs to reserve per task (Ray executor).")
+    gpus: float | None = Field(default=None, ge=0, le=64, description="GPUs to reserve per task (Ray executor).")
+    preview: bool = Field(default=False, description="Fast low-quality preview render.")
+    quick_look: bool = Field(default=True, description="Stills: show a small one-sample image before the first pass.")
+    reference: str | None = Field(
+        default=None, max_length=512, description="Match jobs: reference photo (an asset name)."
+    )
+    iterations: int | None = Field(default=None, ge=1, le=100000, description="Match jobs: optimisation steps.")
+    resolution: int | None = Field(default=None, ge=8, le=4096, description="Match jobs: proxy render width in pixels.")
+    match_spp: int | None = Field(default=None, ge=1, le=1024, description="Match jobs: samples per pixel per step.")
+    params: list[str] | None = Field(default=None, max_length=32, description="Match jobs: which parameters to fit.")
+    mode: str | None = Field(
+        default=None, max_length=64, pattern=r"^[A-Za-z0-9_-]+$", description="Match jobs: fit mode."
+    )
+    renderman22: bool = Field(default=False, description="RIB jobs: RenderMan 22+ style (Procedural2, Pxr lights).")
 
 
 class JobRequest(BaseModel):
     """``POST /jobs`` body."""
 
     model_config = ConfigDict(extra="forbid")
-    kind: Kind
-    config: str = Field(..., min_length=1, max_length=1_000_000, description="The scene config as TOML text.")
-    settings: JobSettings = Field(default_factory=JobSettings)
+    kind: Kind = Field(..., description="render (a still), flythrough, match, rib or usd (exports).")
+    config: str = Field(..., min_length=1, description="The scene config as TOML text (at most 1 MiB).")
+    settings: JobSettings = Field(default_factory=lambda: JobSettings())
     priority: int = Field(0, ge=-100, le=100, description="Higher runs first.")
-    name: str | None = Field(None, max_length=200)
+    name: str | None = Field(default=None, max_length=200, description="Default: the config's `name`.")
 
 
 class RequestError(Exception):
@@ -91,31 +111,57 @@ def request_hash(req: JobRequest) -> str:
 class PreparedJob:
     job_id: str
     job_dir: Path
+    name: str | None
     settings: dict
-    task_specs: list[dict]
+    task_specs: list[TaskSpec]
 
 
-def _overrides(s: JobSettings) -> dict:
-    o = {}
-    for key, dotted in (
-        ("width", "render.width"),
-        ("height", "render.height"),
-        ("spp", "render.spp"),
-        ("seed", "seed"),
-        ("count", "scatter.count"),
-    ):
-        v = getattr(s, key)
-        if v is not None:
-            o[dotted] = v
-    if s.variant is not None:
-        o["render.variant"] = s.variant
-    return o
+OVERRIDES = (
+    ("width", "render.width"),
+    ("height", "render.height"),
+    ("spp", "render.spp"),
+    ("seed", "seed"),
+    ("count", "scatter.count"),
+    ("variant", "render.variant"),
+)
+
+
+def _overrides(s: JobSettings, data: dict) -> dict[str, Any]:
+    """The config keys the settings set (refusing a setting whose table is not a table)."""
+    out: dict[str, Any] = {}
+    for key, dotted in OVERRIDES:
+        value = getattr(s, key)
+        if value is None:
+            continue
+        *parents, _ = dotted.split(".")
+        node: Any = data
+        for part in parents:
+            node = node.get(part, {}) if isinstance(node, dict) else None
+            if not isinstance(node, dict):
+                raise RequestError(f"config: {part}: must be a table")
+        out[dotted] = value
+    return out
+
+
+#: The request setting behind each config field a setting overrides.
+SETTING_OF = {dotted: f"settings.{key}" for key, dotted in OVERRIDES}
+
+
+def _library_error(e: Exception, kind: str, overrides: dict[str, Any] | None = None) -> RequestError:
+    """A library error as the request's words: a parameter or an overridden field by its JSON setting."""
+    from forest.errors import ConfigError, ParameterError
+
+    if isinstance(e, ParameterError):
+        return RequestError(f"{field_name(e.field or '', kind)}: {e.message}")
+    if isinstance(e, ConfigError) and overrides and e.field in overrides and e.field in SETTING_OF:
+        return RequestError(f"{SETTING_OF[e.field]}: {e.message}")
+    return RequestError(str(e))
 
 
 def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dict[str, bool]) -> PreparedJob:
     """Validate a request completely and lay out its job folder; raise :class:`RequestError`."""
     from forest.camera import parse_frames
-    from forest.config import Config, apply_overrides
+    from forest.config import Config, apply_overrides, read_toml
     from forest.errors import ForestError
 
     if not capabilities.get(req.kind):
@@ -126,9 +172,9 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
     if len(req.config.encode()) > limits.max_config_bytes:
         raise RequestError(f"config: larger than the {limits.max_config_bytes} byte limit", 413)
     try:
-        data = tomllib.loads(req.config)
-    except tomllib.TOMLDecodeError as e:
-        raise RequestError(f"config: invalid TOML: {e}") from None
+        data = read_toml(req.config)  # the CLI's parser: the same size and nesting limits, the same messages
+    except ForestError as e:
+        raise RequestError(f"config: {e.message}") from None
     s = req.settings
     try:
         assets = collect_assets(data, datadir)
@@ -146,23 +192,28 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
 
     job_id = uuid.uuid4().hex
     job_dir = datadir.job_dir(job_id)
-    overrides = _overrides(s)
-    # The TOML is parsed once; the settings are applied as the CLI applies its flags.
+    overrides = _overrides(s, data)
+    named = isinstance(data.get("name"), str)
     try:
+        # the TOML is parsed once; the settings are applied as the CLI applies its flags, and the
+        # whole config is validated now (its files once they are linked into the job folder, below)
         data = apply_overrides(data, overrides)
         config = Config(data, path=Path("config.toml"), base_dir=job_dir, check_files=False)
+        name = req.name or (config.name if named else None)
     except ForestError as e:
-        raise RequestError(str(e)) from None
+        raise _library_error(e, req.kind, overrides) from None
     try:
+        inputs: dict[str, str] = {}
         if assets:
             # the job folder exists from submission on only when the config names assets;
-            # otherwise the worker creates it (and writes config.toml) when the task starts
+            # otherwise the dispatcher creates it when the first task starts
             job_dir.mkdir(parents=True)
             link_into(job_dir, assets)
+            inputs = {rel: file_sha256(job_dir / rel) for rel in sorted(assets)}
         try:
             config = Config(data, path=Path("config.toml"), base_dir=job_dir)
         except ForestError as e:
-            raise RequestError(str(e)) from None
+            raise _library_error(e, req.kind, overrides) from None
         r = config.render
         width, height, spp = r.width, r.height, r.spp
         if width > limits.max_width:
@@ -176,100 +227,123 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
             )
         if spp > limits.max_spp:
             raise RequestError(f"settings.spp: {spp} is over the service limit of {limits.max_spp}")
-        trees = config.scatter.count
-        if trees > limits.max_trees:
-            raise RequestError(f"settings.count: {trees} trees is over the service limit of {limits.max_trees}")
-        base = {
+        candidates = config.scatter.count
+        if candidates > limits.max_trees:
+            raise RequestError(
+                f"settings.count: {candidates} candidate trees is over the service limit of {limits.max_trees}"
+            )
+        base: dict[str, Any] = {
+            "job_id": job_id,
             "kind": req.kind,
-            "job_dir": str(job_dir),
             "config": req.config,
             "overrides": overrides,
             "variant": s.variant,
             "preview": s.preview,
+            "quick_look": s.quick_look,
+            "inputs": inputs,
+            "resources": Resources(cpus=s.cpus, gpus=s.gpus if s.gpus is not None else _gpus(s.variant or r.variant)),
         }
-        res = {k: v for k, v in (("cpus", s.cpus), ("gpus", s.gpus)) if v is not None}
-        if res:
-            base["resources"] = res
-        specs: list[dict] = []
-        if req.kind == "render":
-            if s.frames is not None:
-                raise RequestError("settings.frames: applies to flythrough jobs only")
-            specs.append({**base, "index": 0, "output": "out/render.exr", "frames": None})
-        elif req.kind == "flythrough":
-            if not s.frames:
-                keys = config.camera.keys
-                if len(keys) < 2:
-                    raise RequestError(
-                        "settings.frames: give a frame range, e.g. '1-24' "
-                        "(the config has no [camera] keys to take it from)"
-                    )
-                frames = list(range(int(keys[0].frame), int(keys[-1].frame) + 1))
-            else:
-                try:
-                    frames = parse_frames(s.frames)
-                except ForestError as e:
-                    raise RequestError(f"settings.frames: {str(e).split(': ', 1)[-1]}") from None
-            if len(frames) > limits.max_frames:
+        frames: list[int] | None = None
+        if s.frames is not None and req.kind not in ("flythrough", "rib", "usd"):
+            raise RequestError("settings.frames: applies to flythrough, rib and usd jobs only")
+        if req.kind in ("flythrough", "rib", "usd"):
+            frames = _frames(s.frames, config, parse_frames, required=req.kind == "flythrough")
+            if frames is not None and len(frames) > limits.max_frames:
                 raise RequestError(
                     f"settings.frames: {len(frames)} frames is over the service limit of {limits.max_frames}"
                 )
-            per = s.frames_per_task or max(1, -(-len(frames) // 8))
+        specs: list[TaskSpec] = []
+        if req.kind == "render":
+            specs.append(TaskSpec(**base, index=0, output="out/render.exr", frames=(1,)))
+        elif req.kind == "flythrough":
+            assert frames is not None
+            per = s.frames_per_task or 1
             for i in range(0, len(frames), per):
                 specs.append(
-                    {**base, "index": len(specs), "output": "out/frame_####.exr", "frames": frames[i : i + per]}
+                    TaskSpec(**base, index=len(specs), output="out/frame_####.exr", frames=tuple(frames[i : i + per]))
                 )
-        else:
+        elif req.kind == "match":
             if s.iterations is not None and s.iterations > limits.max_iterations:
                 raise RequestError(
                     f"settings.iterations: {s.iterations} is over the service limit of {limits.max_iterations}"
                 )
-            match = {
-                "reference": s.reference,
-                "iterations": s.iterations,
-                "resolution": s.resolution,
-                "spp": s.match_spp,
-                "params": s.params,
-                "mode": s.mode,
-            }
+            assert s.reference is not None
+            match = MatchSpec(
+                reference=s.reference,
+                iterations=s.iterations,
+                resolution=s.resolution,
+                spp=s.match_spp,
+                params=tuple(s.params) if s.params is not None else None,
+                mode=s.mode,
+            )
             _check_match(config, match, s.variant, limits)
-            specs.append({**base, "index": 0, "output": "out", "frames": None, "match": match})
+            specs.append(TaskSpec(**base, index=0, output="out", match=match))
+        elif req.kind == "rib":
+            specs.append(
+                TaskSpec(
+                    **base,
+                    index=0,
+                    output="out/rib",
+                    frames=tuple(frames) if frames else None,
+                    renderman22=s.renderman22,
+                )
+            )
+        else:
+            stem = "".join(c if c.isalnum() or c in "-_" else "_" for c in (name or "scene")) or "scene"
+            specs.append(
+                TaskSpec(**base, index=0, output=f"out/usd/{stem}.usdc", frames=tuple(frames) if frames else None)
+            )
+        if s.renderman22 and req.kind != "rib":
+            raise RequestError("settings.renderman22: applies to rib jobs only")
     except BaseException:
         shutil.rmtree(job_dir, ignore_errors=True)
         raise
-    settings = s.model_dump(mode="json", exclude_none=True)
-    settings.update({"width": width, "height": height, "spp": spp, "trees": trees})
-    if req.name:
-        settings["name"] = req.name
-    return PreparedJob(job_id=job_id, job_dir=job_dir, settings=settings, task_specs=specs)
+    settings = s.model_dump(mode="json", exclude_none=True, exclude_defaults=True)
+    settings.update({"width": width, "height": height, "spp": spp, "candidates": candidates})
+    if frames is not None:
+        settings["frame_range"] = [frames[0], frames[-1], len(frames)]
+    return PreparedJob(job_id=job_id, job_dir=job_dir, name=name, settings=settings, task_specs=specs)
 
 
-def _check_match(config, match: dict, variant: str | None, limits: Limits) -> None:
+def _gpus(variant: str | None) -> float | None:
+    """A GPU for the CUDA variant (so a Ray cluster places the task on a GPU node)."""
+    return 1.0 if str(variant or "").startswith("cuda") else None
+
+
+def _frames(text: str | None, config: Any, parse_frames: Any, *, required: bool) -> list[int] | None:
+    from forest.errors import ForestError
+
+    if text:
+        try:
+            return parse_frames(text)
+        except ForestError as e:
+            raise _library_error(e, "flythrough") from None
+    keys = config.camera.keys
+    if len(keys) >= 2:
+        return list(range(int(keys[0].frame), int(keys[-1].frame) + 1))
+    if required:
+        raise RequestError(
+            "settings.frames: give a frame range, e.g. '1-24' (the config has no [camera] keys to take it from)"
+        )
+    return None
+
+
+def _check_match(config: Any, match: MatchSpec, variant: str | None, limits: Limits) -> None:
     """Validate look-dev settings now (the same resolution look-dev does), so mistakes answer 422."""
-    from forest.errors import ForestError, ParameterError
+    from forest.errors import ForestError
     from forest.lookdev import resolve_settings
 
-    names = {
-        "lookdev.iterations": "settings.iterations",
-        "lookdev.resolution": "settings.resolution",
-        "lookdev.spp": "settings.match_spp",
-        "lookdev.mode": "settings.mode",
-        "lookdev.variant": "settings.variant",
-        "lookdev.params": "settings.params",
-    }
     try:
         st = resolve_settings(
             config,
-            iterations=match["iterations"],
-            resolution=match["resolution"],
-            spp=match["spp"],
-            params=match["params"],
-            mode=match["mode"],
+            iterations=match.iterations,
+            resolution=match.resolution,
+            spp=match.spp,
+            params=list(match.params) if match.params is not None else None,
+            mode=match.mode,
             variant=variant,
         )
     except ForestError as e:
-        # an error in a job setting names the setting's JSON field; one in the config, the config's field
-        if isinstance(e, ParameterError) and e.field in names:
-            raise RequestError(f"{names[e.field]}: {e.message}") from None
-        raise RequestError(str(e)) from None
+        raise _library_error(e, "match") from None
     if st.iterations > limits.max_iterations:
         raise RequestError(f"lookdev.iterations: {st.iterations} is over the service limit of {limits.max_iterations}")

@@ -1,37 +1,44 @@
-"""A local worker process: runs exactly one task attempt, then exits.
+"""A local worker process: takes task after task and keeps loaded scenes between them.
 
-Started by :class:`forest.service.executors.LocalExecutor` as ``python -m forest.service.worker FD``:
+Started by :class:`forest.service.executors.local.LocalExecutor` as
+``python -m forest.service.worker FD FOLDER``, one per executor slot:
 
-* reads one JSON line from stdin: ``{"task_id", "attempt", "spec", "heartbeat_s", "nice"}``;
-* writes JSON-line reports to file descriptor ``FD``: ``heartbeat`` every
-  ``heartbeat_s`` seconds from a thread (the lease), ``progress`` and ``log`` from the
-  render loop, and finally exactly one ``done`` (with the result) or ``error``;
+* reads one :class:`~forest.service.models.TaskOrder` per line from stdin and runs it
+  with :func:`forest.service.runner.execute`, one at a time;
+* writes JSON-line reports to file descriptor ``FD``: a ``heartbeat`` every
+  ``order.heartbeat_s`` seconds while a task runs (from a thread: the lease),
+  ``progress``, ``frame`` and ``log`` from the runner, then exactly one ``done`` or
+  ``error`` per task;
+* keeps a :class:`~forest.service.scenecache.SceneCache` (``$FOREST_WORKER_SCENES``
+  scenes, default 1; 0 loads every task's scene anew) and its inputs in ``FOLDER`` (a content-addressed store of its own);
+* imports the renderer as it starts, so the first task does not wait for it;
 * exits at once when stdin reaches end-of-file: the service that started it is gone,
-  so the lease is void and the work would be redone anyway.
+  so every lease is void and the work would be redone anyway.
 
-stdout and stderr go to the job's log file.
+Its stdout and stderr go to the slot's log file; task logs travel as ``log`` reports.
 """
 
 from __future__ import annotations
 
-import json
 import os
+import queue
 import sys
 import threading
 import time
 import traceback
+from pathlib import Path
+from typing import Any
 
 
 class Channel:
-    """Serialised JSON-line writes to the report pipe."""
+    """Serialised JSON-line writes of reports to the report pipe."""
 
-    def __init__(self, fd: int, task_id: int, attempt: int):
+    def __init__(self, fd: int):
         self.f = os.fdopen(fd, "w", buffering=1, encoding="utf-8")
         self.lock = threading.Lock()
-        self.base = {"task_id": task_id, "attempt": attempt}
 
-    def send(self, type_: str, payload: dict | None = None) -> None:
-        line = json.dumps({**self.base, "type": type_, **(payload or {})}, separators=(",", ":"))
+    def send(self, report: Any) -> None:
+        line = report.model_dump_json()
         with self.lock:
             try:
                 self.f.write(line + "\n")
@@ -40,63 +47,106 @@ class Channel:
                 os._exit(75)  # the service is gone
 
 
-def _watch_stdin() -> None:
+def _read_orders(orders: queue.Queue) -> None:
     try:
-        while sys.stdin.buffer.read(1):
-            pass
+        for line in sys.stdin:
+            if line.strip():
+                orders.put(line)
     except OSError:
         pass
     os._exit(75)
 
 
+def _warm_up() -> None:
+    """Import the renderer and load Mitsuba's CPU variant now, before the first task asks for them."""
+    try:
+        import forest.library
+        import forest.render
+        import forest.scatter  # noqa: F401
+        from forest.runtime import mitsuba
+
+        mitsuba("scalar_rgb")
+    except Exception as e:  # the task that needs it reports the problem
+        print(f"warm-up: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
+
+
 def main(argv: list[str]) -> int:
-    fd = int(argv[0])
-    msg = json.loads(sys.stdin.readline())
-    task_id, attempt, spec = msg["task_id"], msg["attempt"], msg["spec"]
-    if msg.get("nice"):
+    from forest.errors import ForestError, ParameterError
+
+    from .models import Done, Failed, Heartbeat, TaskOrder
+    from .runner import TaskContext, execute
+    from .scenecache import SceneCache
+    from .transfer import BlobStore
+
+    fd, folder = int(argv[0]), Path(argv[1])
+    nice = int(os.environ.get("FOREST_WORKER_NICE", "0") or 0)
+    if nice:
         try:
-            os.nice(int(msg["nice"]))
+            os.nice(nice)
         except OSError:
             pass
-    chan = Channel(fd, task_id, attempt)
-    threading.Thread(target=_watch_stdin, daemon=True).start()
-    period = float(msg.get("heartbeat_s", 1.0))
+    chan = Channel(fd)
+    orders: queue.Queue = queue.Queue()
+    threading.Thread(target=_read_orders, args=(orders,), daemon=True).start()
+    scenes = int(os.environ.get("FOREST_WORKER_SCENES", "1") or 0)
+    cache = SceneCache(scenes=scenes, instance_sets=2 * scenes)  # 0: every task loads its scene anew
+    blobs = BlobStore(folder)
+    current: list[tuple[int, int, float] | None] = [None]
 
     def beat() -> None:
         while True:
-            chan.send("heartbeat")
-            time.sleep(period)
+            cur = current[0]
+            if cur is not None:
+                chan.send(Heartbeat(task_id=cur[0], attempt=cur[1]))
+                time.sleep(cur[2])
+            else:
+                time.sleep(0.2)
 
     threading.Thread(target=beat, daemon=True).start()
-    tag = f"[task {spec.get('index', 0)} attempt {attempt} pid {os.getpid()}]"
+    _warm_up()
+    print(f"worker pid {os.getpid()} ready (folder {folder})", file=sys.stderr, flush=True)
+    while True:
+        order = TaskOrder.model_validate_json(orders.get())
+        spec = order.spec
+        tag = f"[job {spec.job_id[:8]} task {spec.index} attempt {order.attempt}]"
+        assert order.job_dir is not None, "a local worker writes into the service's job folder"
+        job_dir = Path(order.job_dir)
 
-    def report(kind: str, payload: dict) -> None:
-        if kind == "log":
-            print(f"{tag} {payload.get('line', '')}", file=sys.stderr, flush=True)
-        elif kind == "progress" and payload.get("message"):
-            print(f"{tag} {payload['fraction'] * 100:5.1f}% {payload['message']}", file=sys.stderr, flush=True)
-        chan.send(kind, payload)
+        def inputs(order: TaskOrder = order, job_dir: Path = job_dir) -> Path:
+            return blobs.inputs(order.spec.inputs, lambda rel, sha: job_dir / rel)
 
-    from forest.errors import ForestError
-    from forest.service.runner import execute
+        def emit(report: Any, tag: str = tag) -> None:
+            if getattr(report, "type", "") == "log":
+                print(f"{tag} {report.line}", file=sys.stderr, flush=True)
+            chan.send(report)
 
-    try:
-        result = execute(spec, report)
-    except ForestError as e:
-        print(f"{tag} error: {e}", file=sys.stderr, flush=True)
-        chan.send("error", {"error": str(e), "user": True})
-        return 0
-    except BaseException as e:
-        traceback.print_exc()
-        chan.send("error", {"error": f"{type(e).__name__}: {e}", "user": False})
-        return 1
-    print(f"{tag} done: {len(result.get('outputs', []))} files", file=sys.stderr, flush=True)
-    chan.send("done", {"result": result})
-    return 0
+        ctx = TaskContext(order.task_id, order.attempt, job_dir, inputs, cache, emit)
+        current[0] = (order.task_id, order.attempt, order.heartbeat_s)
+        chan.send(Heartbeat(task_id=order.task_id, attempt=order.attempt))
+        try:
+            result = execute(spec, ctx)
+            report: Any = Done(task_id=order.task_id, attempt=order.attempt, result=result)
+        except ParameterError as e:
+            report = Failed(task_id=order.task_id, attempt=order.attempt, error=e.message, param=e.field, user=True)
+        except ForestError as e:
+            report = Failed(task_id=order.task_id, attempt=order.attempt, error=str(e), user=True)
+        except MemoryError:
+            chan.send(Failed(task_id=order.task_id, attempt=order.attempt, error="out of memory"))
+            os._exit(1)
+        except Exception as e:
+            tb = traceback.format_exc()
+            print(f"{tag} crashed:\n{tb}", file=sys.stderr, flush=True)
+            report = Failed(
+                task_id=order.task_id, attempt=order.attempt, error=f"{type(e).__name__}: {e}", traceback=tb
+            )
+            cache.clear()  # a crash may leave a loaded scene in a bad state
+        current[0] = None
+        print(f"{tag} {report.type}", file=sys.stderr, flush=True)
+        chan.send(report)
 
 
 if __name__ == "__main__":
     code = main(sys.argv[1:])
     sys.stdout.flush()
     sys.stderr.flush()
-    os._exit(code)  # do not wait on the heartbeat thread or renderer thread pools
+    os._exit(code)  # do not wait on the heartbeat thread or the renderer's thread pools

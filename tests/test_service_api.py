@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import asyncio
+import io
 import os
 import signal
 import struct
+import subprocess
+import zipfile
 from pathlib import Path
 
 import httpx
@@ -14,8 +17,19 @@ import pytest
 
 from forest.service.app import ServiceConfig, create_app
 from forest.service.jobs import Limits
+from forest.service.retention import Retention, sweep
 
-from test_service_support import ServerThread, pid_alive, read_events, tiny_config, wait_for, wait_job
+from test_service_support import (
+    FOREST,
+    ServerThread,
+    file_stamps,
+    pid_alive,
+    read_events,
+    stream_events,
+    tiny_config,
+    wait_for,
+    wait_job,
+)
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
@@ -27,11 +41,13 @@ def server(tmp_path_factory):
         data_dir=data,
         workers=2,
         limits=Limits(
-            max_width=512, max_height=512, max_pixels=512 * 384, max_spp=64, max_trees=5000, max_upload_bytes=200_000
+            max_width=512, max_height=512, max_pixels=512 * 384, max_spp=256, max_trees=5000, max_upload_bytes=200_000
         ),
     )
-    with ServerThread(create_app(cfg)) as srv:
+    app = create_app(cfg)
+    with ServerThread(app) as srv:
         srv.data = data
+        srv.app = app
         with httpx.Client(base_url=srv.url, timeout=30) as client:
             srv.client = client
             yield srv
@@ -65,139 +81,317 @@ def read_png(data: bytes) -> tuple[int, int]:
     return struct.unpack(">II", data[16:24])
 
 
-# -- a real render, end to end --------------------------------------------------------
-
-
-def test_render_job_end_to_end(server):
-    c = server.client
-    # 12 spp: more than a quick look's worth, so the still shows a quick look first, then the final image
-    r = c.post(
-        "/jobs", json={"kind": "render", "config": tiny_config(), "settings": {"width": 40, "height": 30, "spp": 12}}
-    )
+def submit(c: httpx.Client, **body) -> str:
+    body.setdefault("config", tiny_config())
+    r = c.post("/jobs", json=body)
     assert r.status_code == 202, r.text
-    job = r.json()
-    assert r.headers["location"] == f"/jobs/{job['id']}"
-    assert job["state"] in ("queued", "running") and job["settings"]["width"] == 40
+    return r.json()["id"]
 
-    events = read_events(c, job["id"])
+
+# -- a still: passes published live, ETA, times, names ---------------------------------
+
+
+def test_still_refines_pass_by_pass_with_eta_and_times(server):
+    c = server.client
+    jid = submit(c, kind="render", settings={"width": 48, "height": 36, "spp": 64})
+    events = read_events(c, jid)
     states = [d["state"] for k, d in events if k == "state"]
     assert states[0] == "queued" and states[-1] == "succeeded" and "running" in states
+    passes = [d for k, d in events if k == "progress" and "passes_done" in d]
+    # 64 samples in scalar_rgb: eight passes of eight, each reported with the image so far
+    assert [d["passes_done"] for d in passes] == list(range(1, 9)) and {d["passes_total"] for d in passes} == {8}
+    shown = [d for d in passes if "preview" in d]
+    assert shown[0]["passes_done"] == 1 and shown[-1]["passes_done"] == 8 and len(shown) >= 2
     progress = [d["progress"] for k, d in events if k == "progress"]
-    assert progress and progress == sorted(progress) and progress[-1] == pytest.approx(1.0)
-    previews = [(d["message"], d["progress"]) for k, d in events if k == "progress" and "preview" in d]
-    assert previews[0][0] == "quick look ready" and previews[0][1] < 0.5 and previews[-1][1] == 1.0
-    order = [(k, d.get("state")) for k, d in events if k in ("state", "progress")]
-    assert order.index(("state", "running")) < order.index(("progress", None)) < order.index(("state", "succeeded"))
+    assert progress == sorted(progress) and progress[-1] == pytest.approx(1.0)
+    etas = [d["eta_s"] for d in passes if d.get("eta_s") is not None]
+    assert etas and etas[-1] == 0.0 and all(e >= 0 for e in etas)
+    frames = [d for k, d in events if k == "frame"]
+    assert [f["frame"] for f in frames] == [1] and frames[0]["thumb"] == "thumbs/frame_0001.png"
 
-    job = c.get(f"/jobs/{job['id']}").json()
-    assert job["state"] == "succeeded" and job["progress"] == 1.0 and job["tasks"][0]["attempt"] == 1
-    res = c.get(f"/jobs/{job['id']}/result").json()
+    job = c.get(f"/jobs/{jid}").json()
+    assert job["state"] == "succeeded" and job["progress"] == 1.0 and job["eta_s"] == 0.0
+    assert job["name"] == "tiny"  # the config's name
+    assert job["created"] <= job["started"] <= job["finished"] and job["elapsed_s"] > 0
+    task = job["tasks"][0]
+    assert task["attempt"] == 1 and task["seconds"] > 0 and task["frames_done"] == [1]
+    res = c.get(f"/jobs/{jid}/result").json()
     paths = {o["path"] for o in res["outputs"]}
-    assert {"out/render.exr", "out/render.png"} <= paths
-    assert res["stats"][0]["trees"] > 0 and res["stats"][0]["width"] == 40
-    img = c.get(res["image"])
-    assert img.status_code == 200 and read_png(img.content) == (40, 30)
-    prev = c.get(job["preview"])
-    assert prev.status_code == 200 and read_png(prev.content) == (40, 30)
-    log = c.get(f"/jobs/{job['id']}/log").text
+    assert {"out/render.exr", "out/render.png", "thumbs/frame_0001.png"} <= paths
+    # trees: the trees rendered, not the candidate count of the config
+    assert job["trees"] == res["stats"][0]["trees"] and 0 < job["trees"] <= job["settings"]["candidates"] == 300
+    assert read_png(c.get(res["image"]).content) == (48, 36)
+    assert read_png(c.get(job["preview"]).content) == (48, 36)
+    log = c.get(f"/jobs/{jid}/log").text
     assert "started on pid:" in log and "succeeded" in log
-    # the job folder is self-contained: the config is kept beside the outputs
-    assert (server.data / "jobs" / job["id"] / "config.toml").read_text() == tiny_config()
+    assert "still rendered" in c.get(task["log"]).text
+    assert (server.data / "jobs" / jid / "config.toml").read_text() == tiny_config()
 
 
-def test_flythrough_is_split_into_frame_tasks(server):
+def test_a_large_still_shows_a_quick_look_before_its_first_pass(server):
     c = server.client
-    r = c.post(
-        "/jobs",
-        json={"kind": "flythrough", "config": tiny_config(), "settings": {"frames": "1-3", "frames_per_task": 2}},
-    )
+    jid = submit(c, kind="render", settings={"width": 400, "height": 300, "spp": 8})
+    events = read_events(c, jid)
+    shown = [(d["message"], d.get("passes_done")) for k, d in events if k == "progress" and "preview" in d]
+    assert shown[0] == ("quick look", None) and shown[1][1] == 1, shown
+    quick = next(d for k, d in events if k == "progress" and d["message"] == "quick look")
+    assert quick["preview"] == "preview/task-0.png"
+    assert read_png(c.get(c.get(f"/jobs/{jid}").json()["preview"]).content) == (400, 300)
+
+
+# -- frames as tasks -------------------------------------------------------------------
+
+
+def test_six_frame_flythrough_is_six_tasks_on_workers_that_keep_the_scene(server):
+    c = server.client
+    r = c.post("/jobs", json={"kind": "flythrough", "config": tiny_config(), "settings": {"frames": "1-6"}})
     assert r.status_code == 202, r.text
-    assert [t["frames"] for t in r.json()["tasks"]] == [[1, 2], [3]]
-    job = wait_job(c, r.json()["id"])
-    assert job["state"] == "succeeded", job
-    res = c.get(f"/jobs/{job['id']}/result").json()
-    pngs = sorted(o["path"] for o in res["outputs"] if o["path"].endswith(".png"))
-    assert pngs == ["out/frame_0001.png", "out/frame_0002.png", "out/frame_0003.png"]
-    assert [s["frames"] for s in res["stats"]] == [[1, 2], [3]]
-
-
-def test_worker_killed_mid_render_is_requeued_and_finishes(server):
-    c = server.client
-    r = c.post(
-        "/jobs",
-        json={
-            "kind": "flythrough",
-            "config": tiny_config(),
-            "settings": {"frames": "1-12", "frames_per_task": 12, "spp": 16},
-        },
-    )
+    assert [t["frames"] for t in r.json()["tasks"]] == [[f] for f in range(1, 7)]
     jid = r.json()["id"]
-    # wait until the worker reports progress from inside the render, then SIGKILL it
-    # (twelve frames, so the render is still running when the poll sees it)
-    task = wait_for(
-        lambda: next(
-            (
-                t
-                for t in c.get(f"/jobs/{jid}").json()["tasks"]
-                if t["state"] == "running" and t["message"].startswith(("building", "frame"))
-            ),
-            None,
-        )
-    )
-    pid = int(task["worker"].split(":")[1])
-    os.kill(pid, signal.SIGKILL)
     job = wait_job(c, jid)
     assert job["state"] == "succeeded", job
-    assert job["tasks"][0]["attempt"] == 2
-    assert not pid_alive(pid)
+    assert job["frames_total"] == job["frames_done"] == 6
+    for t in job["tasks"]:
+        assert t["state"] == "succeeded" and t["attempt"] == 1 and t["seconds"] > 0
+        assert t["frames_done"] == t["frames"] and t["worker"].startswith("pid:")
+        assert f"frame {t['frames'][0]} rendered" in c.get(t["log"]).text
+    # two worker processes at most: each loads the scene once and keeps it for the frames after
     log = c.get(f"/jobs/{jid}/log").text
-    assert "worker lost" in log and "task queued" in log
+    workers = {t["worker"] for t in job["tasks"]}
+    assert log.count(" loaded in ") <= len(workers) <= 2 and log.count(" cached: ") >= 6 - len(workers)
+    frames = c.get(f"/jobs/{jid}/frames").json()
+    assert [f["frame"] for f in frames] == list(range(1, 7)) and {f["state"] for f in frames} == {"done"}
+    thumb = c.get(frames[0]["thumb"])
+    assert thumb.status_code == 200 and read_png(thumb.content) == (32, 24)
+    assert read_png(c.get(frames[5]["png"]).content) == (32, 24)
     res = c.get(f"/jobs/{jid}/result").json()
-    assert len([o for o in res["outputs"] if o["path"].endswith(".exr")]) == 12
-
-
-def test_cancel_stops_the_worker_process(server):
-    c = server.client
-    r = c.post(
-        "/jobs",
-        json={
-            "kind": "flythrough",
-            "config": tiny_config(),
-            "priority": 50,
-            "settings": {"frames": "1-8", "frames_per_task": 8},
-        },
+    assert sorted(o["path"] for o in res["outputs"] if o["path"].startswith("out/")) == sorted(
+        f"out/frame_{f:04d}.{e}" for f in range(1, 7) for e in ("exr", "png")
     )
-    jid = r.json()["id"]
+    assert [s["frames"] for s in res["stats"]] == [[f] for f in range(1, 7)]
+
+
+def test_worker_killed_during_frame_3_keeps_frames_1_and_2(server):
+    c = server.client
+    jid = submit(
+        c,
+        kind="flythrough",
+        name="kill test",
+        settings={"frames": "1-6", "frames_per_task": 6, "width": 96, "height": 72, "spp": 128},
+    )
+    out = server.data / "jobs" / jid / "out"
+    for kind, d in stream_events(c, jid):
+        if kind == "progress" and d.get("frame") == 3 and d.get("passes_done", 0) < d.get("passes_total", 0):
+            break
+    before = file_stamps(out, "frame_*")
+    task = c.get(f"/jobs/{jid}").json()["tasks"][0]
+    pid = int(task["worker"].split(":")[1])
+    busy = [w for w in c.get("/workers").json()["workers"] if w["state"] == "busy" and w["job_id"] == jid]
+    os.kill(pid, signal.SIGKILL)
+    assert set(before) == {"frame_0001.exr", "frame_0001.png", "frame_0002.exr", "frame_0002.png"}
+    assert busy and busy[0]["pid"] == pid and busy[0]["job_name"] == "kill test" and busy[0]["task"] == 0
+
+    job = wait_job(c, jid)
+    assert job["state"] == "succeeded", job
+    assert job["tasks"][0]["attempt"] == 2 and not pid_alive(pid)
+    after = file_stamps(out, "frame_*")
+    assert len(after) == 12
+    assert {k: after[k] for k in before} == before  # frames 1 and 2 were not written again
+    frames = {f["frame"]: f for f in c.get(f"/jobs/{jid}/frames").json()}
+    assert [frames[f]["attempt"] for f in range(1, 7)] == [1, 1, 2, 2, 2, 2]
+    log = c.get(f"/jobs/{jid}/log").text
+    assert "worker lost" in log and "frames on disk, not rendered again: 1-2" in log
+
+
+def test_requeue_one_frame_renders_it_alone_again(server):
+    c = server.client
+    jid = submit(c, kind="flythrough", settings={"frames": "1-3"})
+    assert wait_job(c, jid)["state"] == "succeeded"
+    out = server.data / "jobs" / jid / "out"
+    before = file_stamps(out)
+    r = c.post(f"/jobs/{jid}/frames/2/requeue")
+    assert r.status_code == 202 and r.json()["state"] in ("queued", "running")
+    assert r.json()["finished"] is None and r.json()["frames_done"] == 2
+    job = wait_job(c, jid)
+    assert job["state"] == "succeeded" and job["frames_done"] == 3
+    after = file_stamps(out)
+    changed = {k for k in before if after[k] != before[k]}
+    assert changed == {"frame_0002.exr", "frame_0002.png"}
+    assert [t["attempt"] for t in job["tasks"]] == [1, 1, 1]
+    assert c.post(f"/jobs/{jid}/frames/9/requeue").status_code == 404
+    assert c.post(f"/jobs/{jid}/tasks/7/requeue").status_code == 404
+    # a whole task, by index
+    r = c.post(f"/jobs/{jid}/tasks/0/requeue")
+    assert r.status_code == 202
+    assert wait_job(c, jid)["state"] == "succeeded"
+    again = file_stamps(out)
+    assert again["frame_0001.exr"] != before["frame_0001.exr"] and again["frame_0003.exr"] == before["frame_0003.exr"]
+
+
+def test_requeue_of_a_task_that_still_runs_is_refused(idle):
+    c = idle.client
+    jid = submit(c, kind="flythrough", settings={"frames": "1-2"})
+    r = c.post(f"/jobs/{jid}/tasks/0/requeue")
+    assert r.status_code == 409 and "queued" in r.json()["detail"]
+
+
+# -- downloads ---------------------------------------------------------------------------
+
+
+def test_downloads_return_the_right_bytes(server, tmp_path):
+    c = server.client
+    jid = submit(c, kind="flythrough", settings={"frames": "1-2"})
+    assert wait_job(c, jid)["state"] == "succeeded"
+    root = server.data / "jobs" / jid
+    for rel in ("out/frame_0001.exr", "out/frame_0002.png", "thumbs/frame_0002.png"):
+        r = c.get(f"/jobs/{jid}/files/{rel}")
+        assert r.status_code == 200 and r.content == (root / rel).read_bytes()
+    res = c.get(f"/jobs/{jid}/result").json()
+    labels = {d["label"]: d["url"] for d in res["downloads"]}
+    z = c.get(labels["EXR frames (zip)"])
+    assert z.status_code == 200 and z.headers["content-type"] == "application/zip"
+    assert 'filename="tiny-exr.zip"' in z.headers["content-disposition"]
+    with zipfile.ZipFile(io.BytesIO(z.content)) as zf:
+        assert zf.namelist() == ["frame_0001.exr", "frame_0002.exr"]
+        for name in zf.namelist():
+            assert zf.read(name) == (root / "out" / name).read_bytes()
+    # the same archive again: the same bytes
+    assert c.get(labels["EXR frames (zip)"]).content == z.content
+    assert c.get(f"/jobs/{jid}/outputs.zip", params={"ext": "tif"}).status_code == 404
+    assert c.get(f"/jobs/{jid}/outputs.zip", params={"folder": "out/../.."}).status_code == 422
+    assert c.get(f"/jobs/{jid}/files/config.toml").status_code == 404
+    assert c.get(f"/jobs/{jid}/files/out/../config.toml").status_code == 404
+
+    # what the service rendered is what `forest render` renders for the same frame
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(tiny_config())
+    cli = subprocess.run(
+        [str(FOREST), "render", str(scene), "--frames", "2", "-o", str(tmp_path / "cli" / "frame_####.exr")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert cli.returncode == 0, cli.stderr
+    assert (tmp_path / "cli" / "frame_0002.exr").read_bytes() == (root / "out" / "frame_0002.exr").read_bytes()
+
+
+def test_export_jobs_download_as_the_cli_writes_them(server, tmp_path):
+    c = server.client
+    if not c.get("/health").json()["capabilities"]["rib"]:
+        pytest.skip("the RIB export is not installed")
+    jid = submit(c, kind="rib", settings={"frames": "1-2"})
+    job = wait_job(c, jid)
+    assert job["state"] == "succeeded", job
+    res = c.get(f"/jobs/{jid}/result").json()
+    url = {d["label"]: d["url"] for d in res["downloads"]}["RIB export (zip)"]
+    with zipfile.ZipFile(io.BytesIO(c.get(url).content)) as zf:
+        got = {n: zf.read(n) for n in zf.namelist()}
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(tiny_config())
+    cli = subprocess.run(
+        [str(FOREST), "export", "rib", str(scene), "--frames", "1-2", "-o", str(tmp_path / "rib")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert cli.returncode == 0, cli.stderr
+    want = {
+        p.relative_to(tmp_path / "rib").as_posix(): p.read_bytes() for p in (tmp_path / "rib").rglob("*") if p.is_file()
+    }
+    assert sorted(got) == sorted(want) and any(n.endswith(".rib") for n in got)
+    assert got == want
+
+
+def test_usd_export_downloads_as_the_cli_writes_it(server, tmp_path):
+    c = server.client
+    if not c.get("/health").json()["capabilities"]["usd"]:
+        pytest.skip("usd-core is not installed")
+    jid = submit(c, kind="usd", settings={"frames": "1-2"})
+    job = wait_job(c, jid)
+    assert job["state"] == "succeeded", job
+    res = c.get(f"/jobs/{jid}/result").json()
+    url = {d["label"]: d["url"] for d in res["downloads"]}["USD stage and species layers (zip)"]
+    with zipfile.ZipFile(io.BytesIO(c.get(url).content)) as zf:
+        got = {n: zf.read(n) for n in zf.namelist()}
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(tiny_config())
+    out = tmp_path / "usd"
+    cli = subprocess.run(
+        [str(FOREST), "export", "usd", str(scene), "--frames", "1-2", "-o", str(out / "tiny.usdc")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert cli.returncode == 0, cli.stderr
+    want = {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert "tiny.usdc" in got and sorted(got) == sorted(want)
+    assert got == want
+
+
+# -- retention ----------------------------------------------------------------------------
+
+
+def test_retention_forgets_finished_jobs_but_keeps_their_outputs(server):
+    c = server.client
+    jid = submit(c, kind="render")
+    assert wait_job(c, jid)["state"] == "succeeded"
+    png = c.get(f"/jobs/{jid}/files/out/render.png").content
+    svc = server.app.state.service
+    done = sweep(svc.store, svc.datadir, Retention(max_jobs=0, events_max_age_s=0.0))
+    assert jid in done["pruned"]
+    assert jid not in {j["id"] for j in c.get("/jobs", params={"limit": 500}).json()["jobs"]}
+    assert svc.store.events_after(jid, 0) == []
+    # its folder stays: the job is still shown (archived) and its files still download
+    job = c.get(f"/jobs/{jid}").json()
+    assert job["archived"] and job["state"] == "succeeded" and job["name"] == "tiny"
+    assert c.get(f"/jobs/{jid}/files/out/render.png").content == png
+    assert c.get(f"/jobs/{jid}/frames").json()[0]["state"] == "done"
+    # until the user deletes it
+    assert c.delete(f"/jobs/{jid}").status_code == 204
+    assert c.get(f"/jobs/{jid}").status_code == 404 and not (server.data / "jobs" / jid).exists()
+
+
+# -- cancel and resume ----------------------------------------------------------------------
+
+
+def test_cancel_stops_the_worker_and_resume_finishes_the_job(server):
+    c = server.client
+    jid = submit(c, kind="flythrough", priority=50, settings={"frames": "1-8", "frames_per_task": 8, "spp": 64})
     task = wait_for(
         lambda: next(
             (t for t in c.get(f"/jobs/{jid}").json()["tasks"] if t["state"] == "running" and t["worker"]), None
         )
     )
     pid = int(task["worker"].split(":")[1])
-    r = c.post(f"/jobs/{jid}/cancel")
-    assert r.status_code == 202
+    assert c.post(f"/jobs/{jid}/cancel").status_code == 202
     job = wait_job(c, jid)
     assert job["state"] == "canceled" and job["tasks"][0]["state"] == "canceled"
     wait_for(lambda: not pid_alive(pid), timeout=10)
     assert c.post(f"/jobs/{jid}/cancel").status_code == 409
     assert c.get(f"/jobs/{jid}/result").status_code == 409
-    # a canceled job can be retried and then finishes
-    assert c.post(f"/jobs/{jid}/retry").status_code == 202
-    assert wait_job(c, jid)["state"] == "succeeded"
+    kept = file_stamps(server.data / "jobs" / jid / "out", "frame_*.exr")
+    assert c.post(f"/jobs/{jid}/resume").status_code == 202
+    job = wait_job(c, jid)
+    assert job["state"] == "succeeded" and job["frames_done"] == 8
+    after = file_stamps(server.data / "jobs" / jid / "out", "frame_*.exr")
+    assert {k: after[k] for k in kept} == kept  # what was on disk stayed
 
 
-def test_cancel_of_a_queued_job_is_immediate(idle):
+def test_cancel_of_a_queued_job_is_immediate_and_counted(idle):
     c = idle.client
-    jid = c.post("/jobs", json={"kind": "flythrough", "config": tiny_config(), "settings": {"frames": "1-4"}}).json()[
-        "id"
-    ]
+    jid = submit(c, kind="flythrough", settings={"frames": "1-4"})
     r = c.post(f"/jobs/{jid}/cancel")
     assert r.status_code == 202 and r.json()["state"] == "canceled"
     assert {t["state"] for t in r.json()["tasks"]} == {"canceled"}
     assert c.post(f"/jobs/{jid}/cancel").status_code == 409
-    r = c.post(f"/jobs/{jid}/retry")
+    counts = c.get("/jobs").json()["counts"]
+    assert counts["canceled"] == 1 and counts["total"] == sum(counts[s] for s in counts if s != "total") == 1
+    r = c.post(f"/jobs/{jid}/retry")  # the old name of resume
     assert r.status_code == 202 and r.json()["state"] == "queued"
-    assert c.post(f"/jobs/{jid}/retry").status_code == 409
+    assert c.post(f"/jobs/{jid}/resume").status_code == 409
+
+
+# -- errors ----------------------------------------------------------------------------------
 
 
 def test_a_render_error_fails_the_job_once_with_its_message(server):
@@ -207,10 +401,26 @@ def test_a_render_error_fails_the_job_once_with_its_message(server):
     assert r.status_code == 202, r.text
     job = wait_job(c, r.json()["id"])
     assert job["state"] == "failed" and "no_such_species" in job["error"]
-    assert job["tasks"][0]["attempt"] == 1  # a user mistake is not retried
+    assert job["tasks"][0]["attempt"] == 1 and "no_such_species" in job["tasks"][0]["error"]
     res = c.get(f"/jobs/{job['id']}/result")
     assert res.status_code == 409 and "no_such_species" in res.json()["detail"]
     assert "no_such_species" in c.get(f"/jobs/{job['id']}/log").text
+
+
+def test_library_errors_name_the_request_field_not_a_cli_flag(server):
+    c = server.client
+    r = c.post("/jobs", json={"kind": "flythrough", "config": tiny_config(), "settings": {"frames": "9-2"}})
+    assert r.status_code == 422 and r.json()["detail"] == "settings.frames: bad range '9-2'"
+    from forest.runtime import cuda_available
+
+    if cuda_available():
+        return
+    # raised inside the worker by the renderer; the task's error names the JSON field
+    jid = submit(c, kind="render", settings={"variant": "cuda_ad_rgb"})
+    job = wait_job(c, jid)
+    assert job["state"] == "failed"
+    assert job["tasks"][0]["error"].startswith("settings.variant: cuda_ad_rgb needs an NVIDIA GPU"), job
+    assert "--" not in job["error"]
 
 
 def test_bad_config_fails_cleanly_before_any_job(server):
@@ -234,7 +444,7 @@ def test_bad_config_fails_cleanly_before_any_job(server):
     "settings, field",
     [
         ({"width": 4000}, "settings.width"),
-        ({"spp": 65}, "settings.spp"),
+        ({"spp": 257}, "settings.spp"),
         ({"count": 6000}, "settings.count"),
         ({"width": 512, "height": 512}, "settings.width×height"),
     ],
@@ -256,7 +466,7 @@ def test_unknown_job_and_bad_request_shapes(server):
     )
 
 
-# -- assets ---------------------------------------------------------------------------
+# -- assets ------------------------------------------------------------------------------------
 
 
 def test_uploads_are_checked_and_size_limited(server):
@@ -267,15 +477,31 @@ def test_uploads_are_checked_and_size_limited(server):
     assert c.put("/assets/huge.png", content=b"\0" * 200_001).status_code == 413
     assert c.put("/assets/notes.txt", content=b"hello").status_code == 415
     assert c.put("/assets/..png", content=png_bytes()).status_code == 422
+    assert c.put("/assets/" + "/".join("abcdefghij") + ".png", content=png_bytes()).status_code == 422
+    assert c.put("/assets/maps/.hidden.png", content=png_bytes()).status_code == 422
+    assert c.put("/assets/maps/%2E%2E/up.png", content=png_bytes()).status_code in (404, 422)
     import trimesh
 
     ply = trimesh.creation.box().export(file_type="ply")
-    mesh = c.put("/assets/box.ply", content=ply)
-    assert mesh.status_code == 201 and mesh.json()["triangles"] == 12
+    mesh = c.put("/assets/meshes/box.ply", content=ply)
+    assert mesh.status_code == 201 and mesh.json()["triangles"] == 12 and mesh.json()["name"] == "meshes/box.ply"
     assert c.put("/assets/empty.ply", content=b"ply\nformat ascii 1.0\nend_header\n").status_code == 415
+    assert c.put("/assets/presence.png/x.png", content=png_bytes()).status_code == 409
     names = {a["name"] for a in c.get("/assets").json()}
-    assert {"presence.png", "box.ply"} <= names and "fake.png" not in names
-    assert not [p for p in (server.data / "assets").iterdir() if p.name.startswith(".upload")]
+    assert {"presence.png", "meshes/box.ply"} <= names and "fake.png" not in names
+    assert not [p for p in (server.data / "assets").rglob(".upload*")]
+
+
+def test_uploads_keep_their_folders_so_configs_submit_unchanged(server):
+    c = server.client
+    assert c.put("/assets/scene7/maps/mask.png", content=png_bytes(16, 16)).status_code == 201
+    text = tiny_config().replace("[scatter]", '[maps]\npresence = "scene7/maps/mask.png"\n[scatter]')
+    r = c.post("/jobs", json={"kind": "render", "config": text})
+    assert r.status_code == 202, r.text
+    jid = r.json()["id"]
+    linked = server.data / "jobs" / jid / "scene7" / "maps" / "mask.png"
+    assert linked.read_bytes() == (server.data / "assets" / "scene7" / "maps" / "mask.png").read_bytes()
+    assert wait_job(c, jid)["state"] == "succeeded"
 
 
 def test_config_assets_resolve_inside_the_data_folder_only(server, tmp_path):
@@ -298,15 +524,12 @@ def test_config_assets_resolve_inside_the_data_folder_only(server, tmp_path):
             ref,
             r.text,
         )
-    text = tiny_config().replace("[scatter]", '[maps]\npresence = "mask.png"\n[scatter]')
-    r = c.post("/jobs", json={"kind": "render", "config": text})
-    assert r.status_code == 202, r.text
-    linked = server.data / "jobs" / r.json()["id"] / "mask.png"
-    assert linked.is_file() and linked.read_bytes() == (server.data / "assets" / "mask.png").read_bytes()
-    assert wait_job(c, r.json()["id"])["state"] == "succeeded"
 
 
-def test_match_job_fits_the_look_to_a_reference(server):
+# -- look-dev ----------------------------------------------------------------------------------
+
+
+def test_match_job_fits_the_look_and_offers_the_fitted_scene(server):
     c = server.client
     if not c.get("/health").json()["capabilities"]["match"]:
         pytest.skip("look-dev is not installed")
@@ -314,37 +537,39 @@ def test_match_job_fits_the_look_to_a_reference(server):
     bad = c.post(
         "/jobs", json={"kind": "match", "config": tiny_config(), "settings": {"reference": "ref.png", "mode": "bogus"}}
     )
-    assert bad.status_code == 422 and "settings.mode" in bad.json()["detail"]
-    r = c.post(
-        "/jobs",
-        json={
-            "kind": "match",
-            "config": tiny_config(),
-            "settings": {"reference": "ref.png", "iterations": 2, "resolution": 16, "match_spp": 1},
-        },
-    )
-    assert r.status_code == 202, r.text
-    job = wait_job(c, r.json()["id"], timeout=120)
+    assert bad.status_code == 422 and bad.json()["detail"].startswith("settings.mode: must be one of")
+    jid = submit(c, kind="match", settings={"reference": "ref.png", "iterations": 2, "resolution": 16, "match_spp": 1})
+    job = wait_job(c, jid, timeout=180)
     assert job["state"] == "succeeded", job
-    res = c.get(f"/jobs/{job['id']}/result").json()
+    res = c.get(f"/jobs/{jid}/result").json()
     paths = {o["path"] for o in res["outputs"]}
-    assert "out/match.json" in paths and any(p.endswith(".png") for p in paths)
+    assert "out/match.json" in paths and "out/scene.toml" in paths
+    labels = {d["label"]: d["url"] for d in res["downloads"]}
+    scene = c.get(labels["fitted scene (scene.toml)"])
+    assert (
+        scene.status_code == 200 and scene.content == (server.data / "jobs" / jid / "out" / "scene.toml").read_bytes()
+    )
+    assert read_png(c.get(labels["look-dev report (report.png)"]).content)[0] > 0
     assert res["stats"][0]["losses"] and c.get(job["preview"]).status_code == 200
 
 
-def test_match_jobs_need_a_reference_and_the_capability(server):
-    c = server.client
-    caps = c.get("/health").json()["capabilities"]
-    assert caps["render"] and caps["flythrough"]
-    r = c.post("/jobs", json={"kind": "match", "config": tiny_config(), "settings": {"reference": "nope.png"}})
-    assert r.status_code == 422
-    if not caps["match"]:
-        assert "not available" in r.json()["detail"]
-    else:
-        assert "nope.png" in r.json()["detail"]
+# -- names, filters, counts, idempotency, concurrency, auth (no renders) -------------------------
 
 
-# -- idempotency, concurrency, auth (no renders) ------------------------------------
+def test_names_filters_and_counts_that_add_up(idle):
+    c = idle.client
+    a = submit(c, kind="render")  # named by its config
+    b = submit(c, kind="render", name="Valley take 2")
+    d = submit(c, kind="flythrough", name="valley fly", settings={"frames": "1-2"})
+    c.post(f"/jobs/{d}/cancel")
+    jobs = {j["id"]: j for j in c.get("/jobs").json()["jobs"]}
+    assert jobs[a]["name"] == "tiny" and jobs[b]["name"] == "Valley take 2"
+    assert [j["id"] for j in c.get("/jobs", params={"name": "VALLEY"}).json()["jobs"]] == [d, b]
+    assert [j["id"] for j in c.get("/jobs", params={"name": "valley", "state": "canceled"}).json()["jobs"]] == [d]
+    assert c.get("/jobs", params={"name": "100%_"}).json()["jobs"] == []
+    counts = c.get("/jobs").json()["counts"]
+    assert counts == {"queued": 2, "running": 0, "succeeded": 0, "failed": 0, "canceled": 1, "total": 3}
+    assert c.get("/health").json()["counts"] == counts
 
 
 def test_idempotency_key_makes_resubmits_safe(idle):
@@ -385,10 +610,33 @@ def test_hundred_concurrent_submissions_all_accounted_for(idle):
     assert sorted(j["name"] for j in listed["jobs"]) == sorted(f"job {n}" for n in range(90))
 
 
+def test_event_streams_sleep_on_notifications_and_close(idle):
+    c = idle.client
+    jid = submit(c, kind="render")
+    seen = []
+
+    def watch():
+        for kind, data in stream_events(c, jid, timeout=30):
+            seen.append((kind, data))
+            if kind == "cancel":
+                return
+
+    import threading
+
+    t = threading.Thread(target=watch)
+    t.start()
+    wait_for(lambda: c.get("/health").json()["streams"] == 1, timeout=10)
+    c.post(f"/jobs/{jid}/cancel")  # a write to the store wakes the stream at once
+    t.join(10)
+    assert not t.is_alive() and ("cancel", {"message": "cancel requested"}) in seen
+    wait_for(lambda: c.get("/health").json()["streams"] == 0, timeout=10)
+
+
 def test_token_is_required_when_configured(tmp_path):
     app = create_app(ServiceConfig(data_dir=tmp_path / "d", workers=0, dispatch=False, token="s3cret-token"))
     with ServerThread(app) as srv, httpx.Client(base_url=srv.url) as c:
         assert c.get("/jobs").status_code == 401
+        assert c.get("/workers").status_code == 401
         assert c.get("/jobs", headers={"Authorization": "Bearer wrong-token"}).status_code == 401
         assert c.get("/jobs", headers={"Authorization": "Bearer s3cret-token"}).status_code == 200
         assert c.get("/jobs", params={"access_token": "s3cret-token"}).status_code == 200
@@ -400,10 +648,6 @@ def test_token_is_required_when_configured(tmp_path):
 
 
 def test_one_service_per_data_folder(server):
-    import subprocess
-
-    from test_service_support import FOREST
-
     r = subprocess.run(
         [str(FOREST), "serve", "--data", str(server.data), "--port", "0"], capture_output=True, text=True, timeout=60
     )
@@ -411,10 +655,6 @@ def test_one_service_per_data_folder(server):
 
 
 def test_serve_refuses_non_loopback_without_token(tmp_path):
-    import subprocess
-
-    from test_service_support import FOREST
-
     r = subprocess.run(
         [str(FOREST), "serve", "--host", "0.0.0.0", "--data", str(tmp_path / "d")],
         capture_output=True,

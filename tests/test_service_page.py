@@ -1,4 +1,4 @@
-"""The web page in real headless Chromium: submit, watch progress, see the image, cancel."""
+"""The web page in real headless Chromium: an artist's session, from the scene on disk to the EXR downloaded."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import shutil
 import time
 from pathlib import Path
 
+import httpx
 import pytest
 
 from forest.service.app import ServiceConfig, create_app
@@ -39,19 +40,23 @@ def browser(tmp_path):
         "--disable-component-update",
         "--disable-sync",
         "--no-first-run",
-        "--window-size=1200,1400",
+        "--window-size=1280,1600",
         f"--user-data-dir={tmp_path / 'chromium-profile'}",
     ):
         opts.add_argument(a)
     driver = webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=opts)
     driver.set_page_load_timeout(60)
+    downloads = tmp_path / "downloads"
+    downloads.mkdir()
+    driver.execute_cdp_cmd("Browser.setDownloadBehavior", {"behavior": "allow", "downloadPath": str(downloads)})
+    driver.downloads = downloads
     try:
         yield driver
     finally:
         driver.quit()
 
 
-def wait(predicate, timeout=90.0, step=0.05):
+def wait(predicate, timeout=120.0, step=0.05):
     deadline = time.monotonic() + timeout
     while True:
         v = predicate()
@@ -62,88 +67,150 @@ def wait(predicate, timeout=90.0, step=0.05):
         time.sleep(step)
 
 
-def card_state(driver, job_id):
-    return driver.execute_script(
-        "const el = document.querySelector(`article.job[data-id='${arguments[0]}']`);"
-        "return el ? {state: el.dataset.state, bar: el.querySelector('.bar').value,"
-        " msg: el.querySelector('.message').textContent,"
-        " img: el.querySelector('img.preview').hidden ? 0 : el.querySelector('img.preview').naturalWidth} : null;",
-        job_id,
-    )
+def js(d, script, *args):
+    return d.execute_script(script, *args)
 
 
-def newest_job_id(driver, previous: set[str]) -> str:
-    def find():
-        ids = driver.execute_script("return [...document.querySelectorAll('article.job')].map(e => e.dataset.id)")
-        new = [i for i in ids if i not in previous]
-        return new[0] if new else None
-
-    return wait(find, timeout=30)
-
-
-def test_page_submit_watch_see_cancel(browser, tmp_path):
+def test_submit_the_demo_with_its_maps_folder_watch_it_refine_and_download_an_exr(browser, tmp_path):
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import Select
 
-    with ServerThread(create_app(ServiceConfig(data_dir=tmp_path / "data", workers=1))) as srv:
+    from forest.example_scenes import copy_example
+
+    # the demo as an artist has it on disk: demo.toml with its maps/ folder beside it
+    scene = copy_example("demo", tmp_path / "scene")
+    data = tmp_path / "data"
+    app = create_app(ServiceConfig(data_dir=data, workers=1, seed_examples=False))
+    with ServerThread(app) as srv, httpx.Client(base_url=srv.url) as c:
         d = browser
         d.get(srv.url + "/")
         wait(lambda: "executor" in d.find_element(By.ID, "health").text)
+        assert c.get("/assets").json() == []  # nothing of the demo's on the service yet
 
-        # load the scene from a file, as a user picking it from disk would
-        scene = tmp_path / "tiny.toml"
-        scene.write_text(tiny_config())
         d.find_element(By.ID, "config-file").send_keys(str(scene))
-        wait(lambda: "[terrain]" in d.find_element(By.ID, "config").get_attribute("value"))
+        wait(lambda: 'heightmap = "maps/height.png"' in d.find_element(By.ID, "config").get_attribute("value"))
+        d.find_element(By.ID, "folder-files").send_keys(str(scene.parent / "maps"))
+        wait(lambda: d.find_element(By.ID, "asset-status").get_attribute("data-uploaded") == "5")
+        names = sorted(a["name"] for a in c.get("/assets").json())
+        assert names == sorted(f"maps/{p.name}" for p in (scene.parent / "maps").iterdir())
 
-        # a twelve-frame fly-through in one task: progress moves a frame at a time
+        # a three-frame fly-through, small enough for a test; the config itself is submitted unchanged
         Select(d.find_element(By.ID, "kind")).select_by_value("flythrough")
-        d.find_element(By.ID, "frames").send_keys("1-12")
-        d.find_element(By.ID, "frames-per-task").send_keys("12")
-        d.find_element(By.ID, "width").send_keys("40")
-        d.find_element(By.ID, "height").send_keys("30")
+        for field, value in (("frames", "1-3"), ("width", "160"), ("height", "90"), ("spp", "32"), ("count", "3000")):
+            d.find_element(By.ID, field).send_keys(value)
         d.find_element(By.ID, "submit").click()
-        job = newest_job_id(d, set())
-        seen = []
+        jid = wait(lambda: js(d, "return location.hash").partition("#job=")[2] or None, timeout=30)
+        job_dir = data / "jobs" / jid
+        assert (job_dir / "maps" / "height.png").read_bytes() == (scene.parent / "maps" / "height.png").read_bytes()
 
-        def done():
-            s = card_state(d, job)
-            if s:
-                seen.append(s)
-            return s and s["state"] in ("succeeded", "failed", "canceled") and (s["img"] or s["state"] != "succeeded")
+        # watch it refine: the preview is replaced pass after pass while the frames render
+        seen = set()
 
-        wait(done)
-        assert seen[-1]["state"] == "succeeded", seen[-1]
-        bars = [s["bar"] for s in seen]
-        assert any(0 < b < 1 for b in bars), bars  # watched it progress
-        assert bars == sorted(bars) and bars[-1] == 1
-        assert "running" in {s["state"] for s in seen}
-        assert seen[-1]["img"] == 40  # the latest pass is shown
+        def refined():
+            s = js(
+                d,
+                "const i = document.getElementById('job-preview');"
+                "return {state: document.getElementById('job-view').dataset.state, passes: i.dataset.passes,"
+                " shown: !i.hidden && i.complete && i.naturalWidth, label: document.getElementById('pass-label').textContent};",
+            )
+            if s["shown"] and s["passes"]:
+                seen.add((s["label"], s["passes"]))
+            return s["state"] == "succeeded"
+
+        wait(refined, timeout=300)
+        passes = {p for _, p in seen}
+        assert len(passes) >= 2 and any(label.startswith("frame ") for label, _ in seen), seen
+        assert js(d, "return document.getElementById('job-preview').naturalWidth") == 160
+
+        # the frame grid: one cell per frame, coloured by state, thumbnails loaded
+        grid = "return [...document.querySelectorAll('#frame-grid .cell')].map(c => [c.dataset.frame, c.dataset.state])"
+        wait(lambda: js(d, grid) == [["1", "done"], ["2", "done"], ["3", "done"]])
+        cells = js(
+            d,
+            "return [...document.querySelectorAll('#frame-grid .cell')].map(c => [c.querySelector('img').naturalWidth,"
+            " getComputedStyle(c).borderTopColor])",
+        )
+        assert all(w > 0 for w, _ in cells) and len({colour for _, colour in cells}) == 1
+        d.find_element(By.CSS_SELECTOR, "#frame-grid .cell[data-frame='2']").click()
+        wait(lambda: d.find_element(By.ID, "frame-title").text == "Frame 2")
+        d.save_screenshot(str(tmp_path / "job-page.png"))
+
+        # download the EXR of frame 2: the browser saves the bytes the render wrote
+        d.find_element(By.CSS_SELECTOR, "#frame-links a.exr").click()
+        saved = wait(lambda: next(iter(d.downloads.glob("frame_0002.exr")), None), timeout=30)
+        wait(lambda: not list(d.downloads.glob("*.crdownload")), timeout=30)
+        assert saved.read_bytes() == (job_dir / "out" / "frame_0002.exr").read_bytes()
+
+        # the flip-book plays the finished frames
+        assert d.find_element(By.ID, "flipbook-panel").is_displayed()
+        d.find_element(By.ID, "flip-play").click()
+        shown = set()
+        wait(
+            lambda: shown.add(d.find_element(By.ID, "flip-image").get_attribute("data-frame")) or len(shown) >= 3,
+            timeout=20,
+        )
+        d.find_element(By.ID, "flip-play").click()
+
+        # downloads offer every output
+        wait(lambda: "EXR frames (zip)" in d.find_element(By.ID, "downloads").text)
+
+        # back to the table: the job by its name, counts that add up, the worker that ran it
+        d.find_element(By.CSS_SELECTOR, "#job-head a.back").click()
+        wait(lambda: d.find_element(By.ID, "list-view").is_displayed())
+        row = wait(lambda: d.find_elements(By.CSS_SELECTOR, f"#jobs tr[data-id='{jid}']"))[0]
+        assert "demo" in row.text and "SUCCEEDED" in row.text.upper() and "3/3 frames" in row.text
         wait(
             lambda: (
-                d.execute_script(
-                    "const i = document.querySelector(`#gallery figure[data-id='${arguments[0]}'] img`);"
-                    "return i && i.complete && i.naturalWidth",
-                    job,
-                )
-                == 40
+                "1 succeeded" in d.find_element(By.ID, "counts").text
+                and "= 1 job" in d.find_element(By.ID, "counts").text
             )
         )
-        caption = d.find_element(By.CSS_SELECTOR, f"#gallery figure[data-id='{job}'] figcaption").text
-        assert "40×30" in caption and "trees" in caption
-        d.save_screenshot(str(tmp_path / "page.png"))
+        assert "local-0" in d.find_element(By.ID, "workers").text
+        d.find_element(By.ID, "filter-name").send_keys("no such name")
+        wait(lambda: d.find_element(By.ID, "no-jobs").is_displayed())
+        d.find_element(By.ID, "filter-name").clear()
+        Select(d.find_element(By.ID, "filter-state")).select_by_visible_text("failed")
+        wait(lambda: d.find_element(By.ID, "no-jobs").is_displayed())
+        Select(d.find_element(By.ID, "filter-state")).select_by_visible_text("succeeded")
+        wait(lambda: d.find_elements(By.CSS_SELECTOR, f"#jobs tr[data-id='{jid}']"))
+        d.save_screenshot(str(tmp_path / "list.png"))
 
-        # a long one, canceled from the page
-        d.find_element(By.ID, "frames").clear()
-        d.find_element(By.ID, "frames").send_keys("1-8")
-        d.find_element(By.ID, "frames-per-task").clear()
-        d.find_element(By.ID, "frames-per-task").send_keys("8")
+
+def test_cancel_and_resume_from_the_job_page(browser, tmp_path):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    data = tmp_path / "data"
+    with ServerThread(create_app(ServiceConfig(data_dir=data, workers=1, seed_examples=False))) as srv:
+        d = browser
+        d.get(srv.url + "/")
+        wait(lambda: "executor" in d.find_element(By.ID, "health").text)
+        d.execute_script("document.getElementById('config').value = arguments[0]", tiny_config())
+        Select(d.find_element(By.ID, "kind")).select_by_value("flythrough")
+        d.find_element(By.ID, "name").send_keys("long one")
+        for field, value in (("frames", "1-6"), ("frames-per-task", "6"), ("spp", "128"), ("width", "96")):
+            d.find_element(By.ID, field).send_keys(value)
         d.find_element(By.ID, "submit").click()
-        job2 = newest_job_id(d, {job})
-        wait(lambda: (card_state(d, job2) or {}).get("state") == "running")
-        d.find_element(By.CSS_SELECTOR, f"article.job[data-id='{job2}'] button.cancel").click()
-        wait(lambda: (card_state(d, job2) or {}).get("state") == "canceled", timeout=30)
-        assert d.find_element(By.CSS_SELECTOR, f"article.job[data-id='{job2}'] button.cancel").get_attribute("disabled")
-        # and the log button shows the job's log
-        d.find_element(By.CSS_SELECTOR, f"article.job[data-id='{job2}'] button.show-log").click()
-        wait(lambda: "canceled" in d.find_element(By.CSS_SELECTOR, f"article.job[data-id='{job2}'] pre.log").text)
+        wait(lambda: d.find_element(By.ID, "job-state").get_attribute("textContent") == "running")
+        assert d.find_element(By.ID, "job-title").text.startswith("long one")
+        d.find_element(By.ID, "job-cancel").click()
+        wait(lambda: d.find_element(By.ID, "job-state").get_attribute("textContent") == "canceled", timeout=30)
+        assert d.find_element(By.ID, "job-cancel").get_attribute("disabled")
+        wait(
+            lambda: "canceled" in d.find_element(By.ID, "job-log").text or d.find_element(By.ID, "log-refresh").click()
+        )
+        d.find_element(By.ID, "job-resume").click()
+        wait(lambda: d.find_element(By.ID, "job-state").get_attribute("textContent") == "succeeded", timeout=180)
+        wait(lambda: "6 / 6" in d.find_element(By.ID, "job-facts").text, timeout=10)
+        wait(lambda: "EXR frames (zip)" in d.find_element(By.ID, "downloads").text, timeout=10)
+
+        # render one frame again from its cell in the grid
+        jid = js(d, "return location.hash").partition("#job=")[2]
+        exr = data / "jobs" / jid / "out" / "frame_0003.exr"
+        before = exr.stat().st_mtime_ns
+        wait(lambda: d.find_elements(By.CSS_SELECTOR, "#frame-grid .cell[data-frame='3'][data-state='done']"))
+        d.find_element(By.CSS_SELECTOR, "#frame-grid .cell[data-frame='3']").click()
+        wait(lambda: d.find_element(By.ID, "frame-title").text == "Frame 3")
+        d.find_element(By.CSS_SELECTOR, "#frame-links button.requeue").click()
+        wait(lambda: exr.exists() and exr.stat().st_mtime_ns != before, timeout=120)
+        wait(lambda: d.find_element(By.ID, "job-state").get_attribute("textContent") == "succeeded", timeout=60)

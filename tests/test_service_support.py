@@ -1,8 +1,9 @@
 """Helpers shared by the job-service tests (no tests here).
 
 A tiny scene (procedural terrain, a few hundred shrubs, 32×24 pixels, 2 spp,
-``scalar_rgb``) keeps every real render around a second; servers run on loopback
-ports picked by the OS, either in a thread (uvicorn) or as a ``forest serve`` process.
+``scalar_rgb``) keeps every real render well under a second once a worker has loaded
+it; servers run on loopback ports picked by the OS, either in a thread (uvicorn) or as
+a ``forest serve`` process.
 """
 
 from __future__ import annotations
@@ -164,9 +165,8 @@ def wait_for(predicate, timeout: float = 60.0, step: float = 0.05):
         time.sleep(step)
 
 
-def read_events(client: httpx.Client, job_id: str, after: int = 0, timeout: float = 90.0) -> list[tuple[str, dict]]:
-    """Consume a job's event stream to its end; return ``[(type, data), …]``."""
-    events: list[tuple[str, dict]] = []
+def stream_events(client: httpx.Client, job_id: str, after: int = 0, timeout: float = 90.0):
+    """A job's event stream as it arrives: yields ``(type, data)`` until the stream ends."""
     with client.stream("GET", f"/jobs/{job_id}/events", params={"after": after}, timeout=timeout) as r:
         assert r.status_code == 200
         assert r.headers["content-type"].startswith("text/event-stream")
@@ -177,9 +177,22 @@ def read_events(client: httpx.Client, job_id: str, after: int = 0, timeout: floa
             elif line.startswith("data: "):
                 data = json.loads(line[6:])
             elif line == "" and kind is not None:
-                events.append((kind, data))
+                yield kind, data
                 kind, data = None, None
-    return events
+
+
+def read_events(client: httpx.Client, job_id: str, after: int = 0, timeout: float = 90.0) -> list[tuple[str, dict]]:
+    """Consume a job's event stream to its end; return ``[(type, data), …]``."""
+    return list(stream_events(client, job_id, after, timeout))
+
+
+def file_stamps(folder: Path, pattern: str = "*") -> dict[str, tuple[int, int]]:
+    """``{name: (inode, mtime_ns)}`` of the files in a folder: a file written again changes both."""
+    out = {}
+    for p in sorted(folder.glob(pattern)):
+        st = p.stat()
+        out[p.name] = (st.st_ino, st.st_mtime_ns)
+    return out
 
 
 def pid_alive(pid: int) -> bool:

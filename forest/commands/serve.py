@@ -35,6 +35,37 @@ def register(app: typer.Typer) -> None:
         lease: float = typer.Option(
             15.0, "--lease", min=1.0, help="Seconds without a heartbeat before a task is taken back from its worker."
         ),
+        keep_days: float = typer.Option(
+            30.0, "--keep-days", min=0.0, help="Forget finished jobs after this many days (their outputs stay)."
+        ),
+        keep_jobs: int = typer.Option(
+            10_000, "--keep-jobs", min=0, help="Forget finished jobs beyond this many (their outputs stay)."
+        ),
+        keep_events_hours: float = typer.Option(
+            1.0, "--keep-events-hours", min=0.0, help="Delete a finished job's event log after this many hours."
+        ),
+        output_quota: float = typer.Option(
+            None,
+            "--output-quota",
+            min=0.0,
+            help="GiB of job folders to keep; beyond it the oldest finished jobs' outputs are deleted.",
+        ),
+        worker_idle: float = typer.Option(
+            600.0,
+            "--worker-idle",
+            min=1.0,
+            help="Seconds an idle local worker keeps its loaded scenes before it exits.",
+        ),
+        worker_scenes: int = typer.Option(
+            1,
+            "--worker-scenes",
+            min=0,
+            max=64,
+            help="Loaded scenes each local worker keeps (0: none, reload per task).",
+        ),
+        worker_nice: int = typer.Option(
+            19, "--worker-nice", min=0, max=19, help="CPU niceness of local workers (the service itself stays at 0)."
+        ),
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No access log."),
     ):
         """Serve the job API and web page: queue renders, fly-throughs and colour matches."""
@@ -43,6 +74,7 @@ def register(app: typer.Typer) -> None:
         if executor not in ("local", "ray"):
             raise ForestError(f"--executor: must be local or ray, got {executor!r}")
         from forest.service.app import ServiceConfig, create_app, is_loopback
+        from forest.service.retention import Retention
 
         if not is_loopback(host) and not token:
             raise ForestError(
@@ -82,6 +114,15 @@ def register(app: typer.Typer) -> None:
             token=token,
             max_attempts=max_attempts,
             lease_s=lease,
+            worker_idle_s=worker_idle,
+            worker_scenes=worker_scenes,
+            nice=worker_nice,
+            retention=Retention(
+                max_age_s=keep_days * 86400.0,
+                max_jobs=keep_jobs,
+                events_max_age_s=keep_events_hours * 3600.0,
+                output_quota_bytes=int(output_quota * 2**30) if output_quota is not None else None,
+            ),
         )
         typer.echo(
             f"forest service on http://{host if ':' not in host else f'[{host}]'}:{port}/ "

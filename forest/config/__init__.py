@@ -246,6 +246,41 @@ def rebase_paths(data: dict[str, Any], base_dir: Path, out_dir: Path) -> dict[st
     return out
 
 
+def file_values(data: dict[str, Any]) -> list[tuple[str, str]]:
+    """``(dotted field, string)`` of every file a config's TOML data names, for consumers of raw data.
+
+    The schema's file fields (:func:`file_fields`, e.g. ``maps.colour``) and each
+    ``species[i].model`` that names a mesh.  Values are as written (relative to
+    the config's folder); nothing is validated here.
+    """
+    from .schema import MESH_SUFFIXES
+
+    out: list[tuple[str, str]] = []
+
+    def walk(node: Any, keys: list[str], where: str) -> None:
+        if not keys:
+            if isinstance(node, str):
+                out.append((where, node))
+            return
+        key = keys[0]
+        if key.endswith("[]"):
+            items = node.get(key[:-2]) if isinstance(node, dict) else None
+            for i, item in enumerate(items if isinstance(items, list) else []):
+                walk(item, keys[1:], f"{where}{key[:-2]}[{i}].")
+            return
+        if isinstance(node, dict) and key in node:
+            walk(node[key], keys[1:], f"{where}{key}" + ("." if len(keys) > 1 else ""))
+
+    for dotted in file_fields():
+        walk(data, dotted.split("."), "")
+    species = data.get("species")
+    for i, sp in enumerate(species if isinstance(species, list) else []):
+        model = sp.get("model") if isinstance(sp, dict) else None
+        if isinstance(model, str) and Path(model).suffix.lower() in MESH_SUFFIXES:
+            out.append((f"species[{i}].model", model))
+    return out
+
+
 def _rewrite(node: Any, keys: list[str], fn: Callable[[Any], Any]) -> None:
     key = keys[0]
     if key.endswith("[]"):
@@ -296,6 +331,7 @@ __all__ = [
     "WindConfig",
     "apply_overrides",
     "file_fields",
+    "file_values",
     "load_config",
     "parse_config",
     "read_toml",

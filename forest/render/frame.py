@@ -100,6 +100,15 @@ class FrameRenderer:
         self.max_unique = 0
         self.max_groups = 0
 
+    def restart(self) -> None:
+        """Start the statistics of a new render that reuses this renderer (and its built scene)."""
+        self.load_seconds = self.render_seconds = 0.0
+        self.lod_counts = {}
+        g = self.graph
+        self.max_instanced, self.max_unique, self.max_groups = (
+            (g.instanced_triangles, g.unique_triangles, g.shapegroups) if g is not None else (0, 0, 0)
+        )
+
     # -- scene ---------------------------------------------------------------------
     def scene_at(self, levels: np.ndarray, time_s: float):
         """The scene for an LOD assignment and a wind time (rebuilt only when either changes)."""

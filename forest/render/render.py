@@ -15,6 +15,7 @@ import resource
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -101,13 +102,37 @@ def _header_value(v):
     return str(v)
 
 
-def render_image(scene: Scene, *, width: int, height: int, spp: int, variant: str = "scalar_rgb") -> np.ndarray:
+def _kept(reuse: dict[str, Any] | None, key: tuple[Any, ...], build: Callable[[], FrameRenderer]) -> FrameRenderer:
+    """The renderer ``reuse`` keeps for ``key`` (the Scene compared by identity, the rest by value),
+    restarted; else a new one from ``build()``, kept in ``reuse``."""
+    old = (reuse or {}).get("key")
+    if reuse is not None and old is not None and old[0] is key[0] and old[1:] == key[1:]:
+        r: FrameRenderer = reuse["renderer"]
+        r.restart()
+        return r
+    r = build()
+    if reuse is not None:
+        reuse.update(key=key, renderer=r)
+    return r
+
+
+def render_image(
+    scene: Scene,
+    *,
+    width: int,
+    height: int,
+    spp: int,
+    variant: str = "scalar_rgb",
+    reuse: dict[str, Any] | None = None,
+) -> np.ndarray:
     """The beauty of frame 1 at ``width``×``height``×``spp`` as an (H, W, 3) linear array, no files, no blur.
 
     The same scene, materials, LODs and haze as :func:`render_scene`; for
-    callers that need the production image itself (look-dev's calibration).
+    callers that need the production image itself (look-dev's calibration, the
+    job service's quick look).  ``reuse`` as in :func:`render_scene`.
     """
-    r = FrameRenderer(scene, variant, FrameSize(int(width), int(height), int(spp), 1))
+    size = FrameSize(int(width), int(height), int(spp), 1)
+    r = _kept(reuse, (scene, variant, size, False), lambda: FrameRenderer(scene, variant, size))
     return np.asarray(r.frame(1.0)["rgb"], np.float64)[..., :3]
 
 
@@ -121,6 +146,7 @@ def render_scene(
     progress: Callable[[float, str], None] | None = None,
     announce: Callable[[str, str], None] | None = None,
     on_pass: FramePassCallback | None = None,
+    reuse: dict[str, Any] | None = None,
 ) -> RenderResult:
     """Render the scene's forest to ``output`` (EXR + PNG), a still or a frame sequence.
 
@@ -129,7 +155,11 @@ def render_scene(
     (``out/frame_####.exr``).  ``progress(fraction, message)`` is called as
     passes finish, ``on_pass(frame, image so far, passes done, passes in the
     frame)`` with the frame's running image, ``announce(variant, reason)``
-    once the variant is chosen.
+    once the variant is chosen.  ``reuse``: a dict the caller keeps between
+    calls (the job service's workers); the renderer built for the same Scene
+    object, variant, size and preview is kept in it and reused — terrain,
+    materials and the Mitsuba scene of the last level-of-detail plan are not
+    rebuilt, and the frames are the same bytes as a fresh render's.
     """
     config = scene.config
     if isinstance(frames, str):
@@ -151,7 +181,7 @@ def render_scene(
     progress = progress or (lambda f, m="": None)
     progress(0.0, "building scene")
     size = frame_size(config, preview=preview)
-    r = FrameRenderer(scene, chosen, size, preview=preview)
+    r = _kept(reuse, (scene, chosen, size, bool(preview)), lambda: FrameRenderer(scene, chosen, size, preview=preview))
     n_sub = size.subframes
     per_frame = n_sub * len(r.passes(max(1, math.ceil(size.spp / n_sub))))
     total = len(frame_list) * per_frame

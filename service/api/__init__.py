@@ -1,0 +1,1 @@
+"""The HTTP API, one router per concern (see :mod:`forest.service.app`)."""

@@ -1,0 +1,43 @@
+"""Assets: ``PUT /assets/{path}`` uploads a map, mesh or photo (folders kept), ``GET /assets`` lists them."""
+
+from __future__ import annotations
+
+import asyncio
+
+from fastapi import APIRouter, Depends, HTTPException, Request
+
+from ..assets import AssetError, store_upload
+from .deps import Service, service
+from .schemas import ERRORS, AssetView
+
+router = APIRouter()
+
+
+@router.put(
+    "/assets/{name:path}",
+    status_code=201,
+    response_model=AssetView,
+    responses=ERRORS,
+    summary="Upload a map, mesh or reference photo (the raw file as the body; e.g. maps/height.png)",
+)
+async def upload(name: str, request: Request, svc: Service = Depends(service)) -> dict:
+    limit = svc.config.limits.max_upload_bytes
+    length = request.headers.get("content-length")
+    if length is not None and length.isdigit() and int(length) > limit:
+        raise HTTPException(413, f"upload is larger than the {limit} byte limit")
+    chunks: list[bytes] = []
+    size = 0
+    async for chunk in request.stream():
+        size += len(chunk)
+        if size > limit:
+            raise HTTPException(413, f"upload is larger than the {limit} byte limit")
+        chunks.append(chunk)
+    try:
+        return await asyncio.to_thread(store_upload, svc.datadir, name, iter(chunks), limit)
+    except AssetError as e:
+        raise HTTPException(e.status, f"{name}: {e}") from None
+
+
+@router.get("/assets", response_model=list[AssetView], summary="Uploaded assets (paths inside assets/)")
+def assets(svc: Service = Depends(service)) -> list[dict]:
+    return svc.datadir.list_assets()

@@ -1,0 +1,58 @@
+"""The service itself: ``GET /health``, ``GET /workers`` (what each runs), ``GET /examples``."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends
+
+from ..store import JOB_STATES
+from .deps import Service, service
+from .schemas import Example, Health, WorkerList
+
+router = APIRouter()
+
+
+@router.get("/health", response_model=Health, summary="Liveness and queue counts")
+def health(svc: Service = Depends(service)) -> dict:
+    counts = svc.db.counts()
+    counts["total"] = sum(counts[s] for s in JOB_STATES)
+    return {
+        "status": "ok",
+        "executor": svc.executor.name if svc.executor else "none",
+        "workers": svc.config.workers,
+        "counts": counts,
+        "capabilities": svc.caps,
+        "requeued_at_start": svc.db.requeued_on_open,
+        "streams": svc.notifier.subscribers(),
+    }
+
+
+@router.get("/workers", response_model=WorkerList, summary="Worker slots and what each runs")
+def workers(svc: Service = Depends(service)) -> dict:
+    if svc.executor is None:
+        return {"workers": []}
+    out = []
+    for w in svc.executor.workers():
+        if w.job_id is not None and w.task is not None:
+            job = svc.db.get_job(w.job_id)
+            task = svc.db.get_task(w.job_id, w.task)
+            w = w.model_copy(
+                update={
+                    "job_name": job.get("name") if job else None,
+                    "frame": task.get("frame") if task else None,
+                    "progress": task.get("progress") if task else None,
+                }
+            )
+        out.append(w.model_dump())
+    return {"workers": out}
+
+
+@router.get("/examples", response_model=list[Example], summary="Example scene configs")
+def examples(svc: Service = Depends(service)) -> list[dict]:
+    from ..app import example_folders
+
+    out: list[dict] = []
+    for folder in example_folders(svc.datadir):
+        for p in sorted(folder.glob("*.toml")):
+            if p.stat().st_size <= svc.config.limits.max_config_bytes and p.name not in {e["name"] for e in out}:
+                out.append({"name": p.name, "text": p.read_text(encoding="utf-8", errors="replace")})
+    return out
