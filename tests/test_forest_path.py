@@ -7,14 +7,18 @@ a closed form.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from test_render import make_config, read_exr
 
+from forest.images import write_image
 from forest.instances import InstanceSet, yaw_tilt_quaternion
 from forest.render import render_scene
-from forest.render.path import Material, PathCamera, PathInputs, PathScene, SunLight, Surface
+from forest.render.path import Material, PathCamera, PathInputs, PathScene, SkyLight, SunLight, Surface, sun_direction
 from forest.render.path.from_config import path_inputs
+from forest.render.render import render_image
 
 from render_fixtures import BoxLibrary
 
@@ -139,3 +143,137 @@ def test_layers_on_a_known_layout(library):
     assert layers["depth"][card_clear] == pytest.approx(depth_at(*card_clear, 0.0), abs=0.01)
     # Outside the ground: nothing is hit, the far clip.
     assert layers["depth"][0, 0] == pytest.approx(1e5)
+
+
+# ---------------------------------------------------------------------------
+# Stage 2/3: materials, sun and sky, cut-outs; agreement with scalar_rgb
+# ---------------------------------------------------------------------------
+
+
+def no_trees() -> InstanceSet:
+    return forest_set(np.zeros((0, 3)), np.zeros(0, np.int64), names=("box",))
+
+
+def surfaces_only(surfaces, camera, *, sun=None, sky=None, max_depth=2, spp=16, library=None) -> PathInputs:
+    inst = no_trees()
+    return PathInputs(
+        instances=inst,
+        species=[library.resolve("box")] if library is not None else [None],
+        levels=np.zeros(0, np.int64),
+        matrices=np.zeros((0, 4, 4)),
+        camera=camera,
+        surfaces=surfaces,
+        sun=sun,
+        sky=sky,
+        max_depth=max_depth,
+        spp=spp,
+    )
+
+
+def test_agrees_with_the_scalar_renderer_within_noise(tmp_path, library):
+    """Boxes on a ground under sun and sky with indirect light: the same image as scalar_rgb, up to noise.
+
+    The noise level of each renderer is measured from two seeds; the mean of the
+    two-seed averages must differ by less than that level, and their overall
+    brightness by less than 1.5 %.
+    """
+    cam = "position = [0.0, 30.0, -60.0]\ntarget = [0.0, 2.0, 0.0]\nfov = 40.0"
+    sun = "[lights.sun]\nelevation = 40.0\nazimuth = 30.0\nirradiance = 3.0\n"
+    inst = forest_set([[x, 0.0, z] for x in (-15.0, 0.0, 15.0) for z in (-10.0, 10.0)], [0] * 6, scale=1.5)
+    w, h, spp = 48, 36, 48
+    scalar, path = [], []
+    for seed in (1, 2):
+        cfg = make_config(tmp_path, camera=cam, replace_camera=True, render=f"max_depth = 3\nseed = {seed}", extra=sun)
+        scalar.append(render_image(cfg, inst, width=w, height=h, spp=spp, variant="scalar_rgb", library=library))
+        scene = PathScene(path_inputs(cfg, inst, library, width=w, height=h, spp=spp), VARIANT)
+        path.append(scene.render(seed=seed).rgb.astype(np.float64))
+    noise_s = np.std(scalar[0] - scalar[1]) / np.sqrt(2)
+    noise_p = np.std(path[0] - path[1]) / np.sqrt(2)
+    mean_s, mean_p = (scalar[0] + scalar[1]) / 2, (path[0] + path[1]) / 2
+    level = np.sqrt((noise_s**2 + noise_p**2) / 2)
+    assert np.abs(mean_p - mean_s).mean() < level
+    assert mean_p.mean() == pytest.approx(mean_s.mean(), rel=0.015)
+
+
+def test_a_leaf_lit_from_behind_transmits(tmp_path):
+    """A horizontal leaf under an overhead sun, seen from below: L = T/π · E with T = τ·a; black without τ."""
+    camera = PathCamera(look([0.0, 0.0, 0.0], [0.0, 1.0, 0.0], (0.0, 0.0, 1.0)), 20.0, 8, 8)
+    sun = SunLight((0.0, 1.0, 0.0), (2.0, 2.0, 2.0))
+    values = {}
+    for tau in (0.0, 0.4):
+        leaf = Surface(quad(1.0, 5.0), Material("leaf", (0.5, 0.6, 0.3), translucency=tau))
+        img = PathScene(surfaces_only([leaf], camera, sun=sun, spp=4), VARIANT).render().rgb
+        values[tau] = img.reshape(-1, 3).mean(axis=0)
+    np.testing.assert_allclose(values[0.0], 0.0, atol=1e-6)
+    expected = 0.4 * np.array([0.5, 0.6, 0.3]) / np.pi * 2.0
+    np.testing.assert_allclose(values[0.4], expected, rtol=1e-3)
+
+
+def card_texture(path: Path, alpha_left: float, alpha_right: float) -> Path:
+    rgba = np.ones((16, 16, 4), np.float32)
+    rgba[:, :8, 3] = alpha_left
+    rgba[:, 8:, 3] = alpha_right
+    return write_image(path, rgba)
+
+
+def ground_mask(camera: PathCamera, x_range, z_range) -> np.ndarray:
+    """Pixels whose centre ray meets the plane y = 0 inside x_range × z_range."""
+    o = np.asarray(camera.to_world)[:3, 3]
+    mask = np.zeros((camera.height, camera.width), bool)
+    for i in range(camera.height):
+        for j in range(camera.width):
+            d = pixel_direction(camera, i, j)
+            if d[1] < 0:
+                x, _, z = o + d * (-o[1] / d[1])
+                mask[i, j] = x_range[0] <= x <= x_range[1] and z_range[0] <= z <= z_range[1]
+    return mask
+
+
+def test_cut_out_cards_cast_partial_shadows(tmp_path):
+    """A card 5 m up, sun at 45° from +Z: its shadow falls 5 m towards −Z.  Under the transparent half the
+    ground is lit, under the opaque half it is dark, under a half of opacity ½ it receives half the light."""
+    camera = PathCamera(look([0.0, 60.0, -7.5], [0.0, 0.0, -7.5], (0.0, 0.0, 1.0)), 12.0, 24, 24)
+    sun = SunLight((0.0, np.sqrt(0.5), np.sqrt(0.5)), (1.0, 1.0, 1.0))
+    ground = Surface(quad(0.0, 20.0), Material("surface", (0.5, 0.5, 0.5)))
+    lit = 0.5 / np.pi * np.sqrt(0.5)
+    # The card covers x, z ∈ ±5 m (u < ½ ↔ x < 0); its shadow x ∈ ±5, z ∈ [−10, 0], seen where z < −5.
+    under_left = ground_mask(camera, (-4.0, -1.0), (-9.5, -5.5))  # 1 m off the bilinear alpha edges
+    under_right = ground_mask(camera, (1.0, 4.0), (-9.5, -5.5))
+    outside = ground_mask(camera, (-9.0, 9.0), (-13.0, -10.5))
+    assert under_left.sum() > 10 and under_right.sum() > 10 and outside.sum() > 10
+    for alpha_left, alpha_right in ((0.0, 1.0), (0.5, 1.0)):
+        tex = card_texture(tmp_path / f"card_{alpha_left}.png", alpha_left, alpha_right)
+        card = Surface(quad(5.0, 5.0), Material("leaf", (0.8, 0.8, 0.8), texture=tex))
+        img = PathScene(surfaces_only([ground, card], camera, sun=sun, spp=16), VARIANT).render().rgb[..., 0]
+        np.testing.assert_allclose(img[outside], lit, rtol=5e-3)  # the 0.53° disc: cos varies ±0.5 %
+        np.testing.assert_allclose(img[under_right], 0.0, atol=1e-6)
+        stored = round(alpha_left * 255) / 255  # the PNG keeps 8 bits
+        np.testing.assert_allclose(img[under_left], lit * (1.0 - stored), rtol=5e-3)
+
+
+def test_camera_rays_see_through_cut_outs_in_proportion(tmp_path):
+    """A card of opacity ½ over a black ground, lit from above: half the paths stop on it (stochastic alpha)."""
+    camera = PathCamera(look([0.0, 30.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 10.0, 8, 8)
+    sun = SunLight((0.0, 1.0, 0.0), (1.0, 1.0, 1.0))
+    tex = card_texture(tmp_path / "half.png", 0.5, 0.5)
+    card = Surface(quad(5.0, 5.0), Material("leaf", (0.8, 0.8, 0.8), texture=tex))
+    ground = Surface(quad(0.0, 20.0), Material("surface", (0.0, 0.0, 0.0)))
+    img = PathScene(surfaces_only([ground, card], camera, sun=sun, spp=256), VARIANT).render()
+    assert img.rgb[..., 0].mean() == pytest.approx(128 / 255 * 0.8 / np.pi, rel=0.03)  # α = 128/255 in the PNG
+    np.testing.assert_allclose(img.alpha, 1.0)  # every path hit something (the card or the ground)
+
+
+def test_sunsky_lights_the_scene_from_above(tmp_path):
+    """Mitsuba's sunsky is Z-up; rotated to Y-up the sky is above the horizon and the sun lights the ground."""
+    ground = Surface(quad(0.0, 50.0), Material("surface", (0.5, 0.5, 0.5)))
+    down = PathCamera(look([0.0, 10.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 20.0, 8, 8)
+    up = PathCamera(look([0.0, 1.0, 0.0], [0.0, 2.0, 0.0], (0.0, 0.0, 1.0)), 20.0, 8, 8)
+    sun = SunLight(sun_direction(40.0, 120.0), (0.0, 0.0, 0.0))
+    scene = PathScene(surfaces_only([ground], down, sun=sun, sky=SkyLight("sunsky"), spp=16), VARIANT)
+    lit = scene.render().rgb.reshape(-1, 3).mean(axis=0)
+    zenith = scene.render(up).rgb.reshape(-1, 3).mean(axis=0)
+    assert lit.min() > 0.01  # the ground is lit: sun and sky are above the horizon
+    assert zenith[2] > zenith[0]  # a clear sky is blue at the zenith
+    # Without its sun the ground is lit by the sky alone: much darker.
+    scene.params["sun_scale"] = scene.mi.Color3f(0.0)
+    assert scene.render().rgb.mean() < 0.5 * lit.mean()

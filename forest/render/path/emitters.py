@@ -6,10 +6,10 @@ s · ℓ(ω) where s is an RGB scale read from the scene parameters at render ti
 without rebuilding anything) and ℓ a fixed shape:
 
 * :class:`DiscSun` — uniform over a cone of half-angle α around the sun
-  direction: ℓ = 1/(π sin²α) inside, so ∫ ℓ cos θ dω = 1 for a surface facing
+  direction: ℓ = 1/(π sin²α) inside, so ∫ ℓ cos θ dω = π sin²α · ℓ = 1 for a surface facing
   the sun and s is the irradiance E; sampled uniformly in the cone,
   pdf = 1/(2π(1 − cos α)) (``mi.warp.square_to_uniform_cone``).
-* :class:`ConstantSky` — ℓ = 1, s the radiance; sampled uniformly over the sphere.
+* :class:`ConstantSky` — ℓ = 1, s the radiance; sampled cosine-weighted over the upper hemisphere.
 * :class:`EmitterLight` — a Mitsuba ``envmap`` or ``sunsky`` (sky only, or its
   sun only) with ``scale`` 1, importance-sampled by Mitsuba itself (native calls
   on one emitter object: no virtual dispatch over the scene).  ``sunsky`` is
@@ -64,9 +64,14 @@ class DiscSun:
         d = np.asarray(sun.direction, dtype=np.float64)
         self.direction = d / np.linalg.norm(d)
         alpha = math.radians(float(sun.angular_diameter)) / 2.0
-        self.cos_alpha = math.cos(alpha)
-        self.radiance_per_irradiance = 1.0 / (math.pi * math.sin(alpha) ** 2)
-        self.inv_solid_angle = 1.0 / (2.0 * math.pi * (1.0 - self.cos_alpha))
+        # The cone as float32 samples it: its rim, solid angle and density all use this cos α.
+        self.cos_alpha = float(np.float32(math.cos(alpha)))
+        one_minus = 1.0 - self.cos_alpha
+        self.radiance_per_irradiance = 1.0 / (math.pi * one_minus * (1.0 + self.cos_alpha))
+        self.inv_solid_angle = 1.0 / (2.0 * math.pi * one_minus)
+        # Inside test on the chord, |d − s|² = 2(1 − cos θ) ≤ 2(1 − cos α): well conditioned in
+        # float32 where 1 − cos θ itself is not; the margin covers the rounding of sampled directions.
+        self.chord2 = 2.0 * one_minus * (1.0 + 1e-3)
         self.initial = np.asarray(sun.irradiance, dtype=np.float64)
         self.mi = mi
 
@@ -90,7 +95,8 @@ class DiscSun:
         import drjit as dr
 
         s = self.direction
-        return dr.fma(d.x, float(s[0]), dr.fma(d.y, float(s[1]), d.z * float(s[2]))) >= self.cos_alpha
+        dx, dy, dz = d.x - float(s[0]), d.y - float(s[1]), d.z - float(s[2])
+        return dr.fma(dx, dx, dr.fma(dy, dy, dz * dz)) <= self.chord2
 
     def eval(self, scale, d, active):
         import drjit as dr
@@ -104,7 +110,14 @@ class DiscSun:
 
 
 class ConstantSky:
-    """Radiance s in every direction."""
+    """Radiance s in every direction; light samples are drawn over the upper hemisphere only.
+
+    Sampling density p(ω) = max(ω_y, 0)/π (cosine-weighted about +Y): outdoors,
+    light from below the horizon is blocked by the ground, so samples there
+    would cost a shadow ray for nothing.  Directions below the horizon are still
+    reached by BSDF sampling, whose MIS weight is 1 where p = 0, so the estimate
+    stays unbiased.
+    """
 
     param = "sky_radiance"
 
@@ -119,8 +132,9 @@ class ConstantSky:
         import drjit as dr
 
         mi = self.mi
-        d = mi.warp.square_to_uniform_sphere(u)
-        return d, dr.full(mi.Float, 1.0 / (4.0 * math.pi), dr.width(u)), mi.Color3f(scale)
+        local = mi.warp.square_to_cosine_hemisphere(u)
+        d = mi.Vector3f(local.x, local.z, -local.y)  # local +Z → world +Y
+        return d, dr.maximum(d.y, 0.0) * dr.inv_pi, mi.Color3f(scale)
 
     def eval(self, scale, d, active):
         import drjit as dr
@@ -130,7 +144,7 @@ class ConstantSky:
     def pdf(self, d, active):
         import drjit as dr
 
-        return dr.select(active, 1.0 / (4.0 * math.pi), 0.0)
+        return dr.select(active, dr.maximum(d.y, 0.0) * dr.inv_pi, 0.0)
 
 
 class EmitterLight:

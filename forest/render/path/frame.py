@@ -116,8 +116,13 @@ class PathScene:
         self.pose(inputs.levels, inputs.matrices)
 
     # -- scene state ----------------------------------------------------------------------
+    def activate(self) -> None:
+        """Make this scene's variant Mitsuba's current one (``mi.Float`` etc. follow the current variant)."""
+        mitsuba(self.variant)
+
     def pose(self, levels: np.ndarray | None = None, matrices: np.ndarray | None = None) -> None:
         """Rebuild the traversal scene for new levels of detail and/or tree transforms."""
+        self.activate()
         levels = self.inputs.levels if levels is None else np.asarray(levels)
         matrices = self.inputs.matrices if matrices is None else np.asarray(matrices)
         n = self.geometry.n_trees
@@ -141,6 +146,7 @@ class PathScene:
 
     def kernel(self, *, max_depth: int | None = None) -> PathKernel:
         """The render kernel over the current pose and parameter values (gradients kept)."""
+        self.activate()
         mi = self.mi
         assert self.traversal is not None and self._parts is not None and self._mats is not None
         grid = self.params.get("colour_grid")
@@ -184,7 +190,8 @@ class PathScene:
         spp = int(sampler.sample_count())
         w, h = int(camera.width), int(camera.height)
         n = w * h * spp
-        sampler.seed(seed, n)
+        # An opaque seed: one compiled kernel serves every pass and render (a literal would recompile).
+        sampler.seed(dr.opaque(mi.UInt32, seed & 0xFFFFFFFF), n)
         idx = dr.arange(mi.UInt32, n)
         pixel = idx // spp
         x = mi.Float(pixel % w)
@@ -217,8 +224,10 @@ class PathScene:
             for k, n in enumerate(split_passes(w, h, spp)):
                 sampler, ray, used = self._camera_rays(camera, n, pass_seed(seed, k))
                 L, covered, _ = kernel.sample(dr.ADMode.Primal, sampler, ray, None, None, mi_bool(self.mi, True))
+                covered = mi_float(self.mi, covered)
+                dr.eval(L, covered)  # one kernel for all outputs
                 out = np.stack(
-                    [np.asarray(L.x), np.asarray(L.y), np.asarray(L.z), np.asarray(mi_float(self.mi, covered))],
+                    [np.asarray(L.x), np.asarray(L.y), np.asarray(L.z), np.asarray(covered)],
                     axis=1,
                 ).astype(np.float64)
                 acc += out.reshape(h * w, used, 4).sum(axis=1)
@@ -251,6 +260,7 @@ class PathScene:
             valid, _, row, p, *_ = kernel.trace(ray.o, ray.d, ray.maxt, None, mi_bool(mi, True), threshold=LAYER_ALPHA)
             origin = np.asarray(camera.to_world, np.float64)[:3, 3]
             dist = dr.norm(p - mi.Point3f(*[float(v) for v in origin]))
+            dr.eval(valid, row, dist)
             valid_np = np.asarray(valid).astype(bool)
             depth = np.where(valid_np, np.asarray(dist, np.float64), float(camera.far))
             rows = np.asarray(row, np.int64)

@@ -50,7 +50,7 @@ which ``cuda_ad_rgb`` provides as well.
 
 from __future__ import annotations
 
-from .geometry import PartArrays, TraversalScene, resolve, surface
+from .geometry import Hit, PartArrays, TraversalScene, hit_uv, resolve, surface
 from .materials import MaterialArrays, bsdf_eval, bsdf_sample, shading
 
 #: Cut-out surfaces a camera, bounce or shadow ray may pass before it is taken as blocked.
@@ -107,72 +107,73 @@ class PathKernel:
         side = dr.select(dr.dot(ng, d) >= 0.0, mag, -mag)
         return dr.fma(ng, side, p)
 
-    def _resolve(self, o, d, maxt, active):
+    def _hit(self, o, d, maxt, active) -> Hit:
         mi = self.mi
         ray = mi.Ray3f(o, d, maxt, 0.0, mi.Color0f())
         pi = self.scene.scene.ray_intersect_preliminary(ray, coherent=False, active=active)
-        hit = resolve(mi, self.scene, self.parts, pi, active)
-        sp = surface(mi, self.scene, self.parts, hit, hit.valid)
-        return hit, sp
+        return resolve(mi, self.scene, self.parts, pi, active)
+
+    def _alpha(self, hit: Hit, active):
+        import drjit as dr
+
+        mi = self.mi
+        material = dr.gather(mi.UInt32, self.parts.material, hit.part, active)
+        return self.mats.alpha(mi, material, hit_uv(mi, self.parts, hit, active), active)
+
+    def _past(self, origin, d, t):
+        """Distance to advance along ``d`` to leave a surface hit at distance ``t`` behind (Mitsuba's ray epsilon)."""
+        import drjit as dr
+
+        return t + (1.0 + dr.max(dr.abs(dr.fma(d, t, origin)))) * RAY_EPSILON
 
     def trace(self, o, d, maxt, rng, active, threshold: float | None = None):
         """The first surface along a ray that is not a skipped cut-out texel.
 
         Returns (valid, t from ``o``, row, p, n_geo, n_sh, uv, material, rng).
         With ``threshold`` (the layers pass) a texel is opaque when α ≥ threshold;
-        otherwise it stops the ray with probability α, drawn from ``rng``.
+        otherwise it stops the ray with probability α, drawn from ``rng``.  A
+        skipped texel costs one traversal, the hit's triangle and uv and one
+        texture lookup; only the surface finally hit is rebuilt in full.
         """
-        return self._trace(o, d, maxt, rng, active, threshold)
-
-    def _trace(self, o, d, maxt, rng, active, threshold):
         import drjit as dr
 
         mi = self.mi
-        mats = self.mats
-        hit, sp = self._resolve(o, d, maxt, active)
-        if not mats.has_cutouts:
-            return hit.valid, hit.t, hit.row, sp.p, sp.n_geo, sp.n_sh, sp.uv, sp.material, rng
-        valid = mi.Bool(hit.valid)
-        t_hit = mi.Float(hit.t)
-        row = mi.UInt32(hit.row)
-        p, ng, ns, uv, material = sp.p, sp.n_geo, sp.n_sh, sp.uv, sp.material
-        travelled = dr.zeros(mi.Float, dr.width(valid))
-        origin = mi.Point3f(o)
-        remaining = mi.Float(maxt)
-        skips = mi.UInt32(0)
-        alpha = mats.alpha(mi, material, uv, valid)
-        u = rng.next_float32() if threshold is None else mi.Float(threshold)
-        through = valid & (u >= alpha)
-        loop_state = (valid, t_hit, row, p, ng, ns, uv, material, travelled, origin, remaining, skips, through, rng)
-
-        def cond(valid, t_hit, row, p, ng, ns, uv, material, travelled, origin, remaining, skips, through, rng):
-            return through
-
-        def body(valid, t_hit, row, p, ng, ns, uv, material, travelled, origin, remaining, skips, through, rng):
-            step = dr.norm(p - origin)
-            new_origin = self.offset(p, ng, d)
-            travelled = travelled + step
-            remaining = remaining - step
-            origin = new_origin
-            skips = skips + 1
-            h, s = self._resolve(origin, d, remaining, through)
-            a = mats.alpha(mi, s.material, s.uv, h.valid)
+        hit = self._hit(o, d, maxt, active)
+        if self.mats.has_cutouts:
             u = rng.next_float32() if threshold is None else mi.Float(threshold)
-            again = h.valid & (u >= a) & (skips < MAX_SKIPS)
-            valid = dr.select(through, h.valid, valid)
-            t_hit = dr.select(through, travelled + h.t, t_hit)
-            row = dr.select(through, h.row, row)
-            p = dr.select(through, s.p, p)
-            ng = dr.select(through, s.n_geo, ng)
-            ns = dr.select(through, s.n_sh, ns)
-            uv = dr.select(through, s.uv, uv)
-            material = dr.select(through, s.material, material)
-            through = through & again
-            return valid, t_hit, row, p, ng, ns, uv, material, travelled, origin, remaining, skips, through, rng
+            through = hit.valid & (u >= self._alpha(hit, hit.valid))
+            state = (
+                hit.valid, hit.t, hit.row, hit.tri, hit.part, hit.b1, hit.b2,
+                mi.Float(0.0), through, mi.UInt32(0), rng, mi.Point3f(o), mi.Float(maxt), mi.Vector3f(d),
+            )  # fmt: skip
 
-        out = dr.while_loop(loop_state, cond, body, label="forest_path: cut-outs")
-        valid, t_hit, row, p, ng, ns, uv, material = out[:8]
-        return valid, t_hit, row, p, ng, ns, uv, material, out[13]
+            def cond(valid, t, row, tri, part, b1, b2, base, through, skips, rng, origin, remaining, d):
+                return through
+
+            def body(valid, t, row, tri, part, b1, b2, base, through, skips, rng, origin, remaining, d):
+                step = self._past(origin, d, t - base)
+                origin = dr.fma(d, step, origin)
+                remaining = remaining - step
+                base = base + step
+                skips = skips + 1
+                h = self._hit(origin, d, remaining, through)
+                u = rng.next_float32() if threshold is None else mi.Float(threshold)
+                again = h.valid & (u >= self._alpha(h, h.valid)) & (skips < MAX_SKIPS)
+                valid = dr.select(through, h.valid, valid)
+                t = dr.select(through, base + h.t, t)
+                row = dr.select(through, h.row, row)
+                tri = dr.select(through, h.tri, tri)
+                part = dr.select(through, h.part, part)
+                b1 = dr.select(through, h.b1, b1)
+                b2 = dr.select(through, h.b2, b2)
+                through = through & again
+                return valid, t, row, tri, part, b1, b2, base, through, skips, rng, origin, remaining, d
+
+            out = dr.while_loop(state, cond, body, label="forest_path: cut-outs")
+            hit = Hit(*out[:7])
+            rng = out[10]
+        sp = surface(mi, self.scene, self.parts, hit, hit.valid)
+        return hit.valid, hit.t, hit.row, sp.p, sp.n_geo, sp.n_sh, sp.uv, sp.material, rng
 
     def transmittance(self, p, ng, d, active):
         """V = Π (1 − α) over the surfaces a ray from ``p`` towards a light at infinity crosses."""
@@ -180,29 +181,26 @@ class PathKernel:
 
         mi = self.mi
         o = self.offset(p, ng, d)
+        # An any-hit query first (≈ 8× cheaper than a closest hit here): open sky needs nothing more.
+        blocked = self.scene.scene.ray_test(mi.Ray3f(o, d, dr.inf, 0.0, mi.Color0f()), active)
         if not self.mats.has_cutouts:
-            ray = mi.Ray3f(o, d, dr.inf, 0.0, mi.Color0f())
-            blocked = self.scene.scene.ray_test(ray, active)
             return dr.select(active & ~blocked, 1.0, 0.0)
-        vis = dr.select(active, mi.Float(1.0), 0.0)
-        live = mi.Bool(active)
-        origin = mi.Point3f(o)
-        skips = mi.UInt32(0)
+        active = active & blocked
 
-        def cond(vis, live, origin, skips):
+        def cond(vis, live, origin, skips, d):
             return live
 
-        def body(vis, live, origin, skips):
-            h, s = self._resolve(origin, d, dr.inf, live)
-            a = self.mats.alpha(mi, s.material, s.uv, h.valid)
-            vis = dr.select(h.valid, vis * (1.0 - a), vis)
+        def body(vis, live, origin, skips, d):
+            h = self._hit(origin, d, dr.inf, live)
+            vis = dr.select(h.valid, vis * (1.0 - self._alpha(h, h.valid)), vis)
             skips = skips + 1
             vis = dr.select(h.valid & (skips >= MAX_SKIPS), 0.0, vis)
             live = live & h.valid & (vis > 0.0)
-            origin = dr.select(live, self.offset(s.p, s.n_geo, d), origin)
-            return vis, live, origin, skips
+            origin = dr.select(live, dr.fma(d, self._past(origin, d, h.t), origin), origin)
+            return vis, live, origin, skips, d
 
-        vis, live, origin, skips = dr.while_loop((vis, live, origin, skips), cond, body, label="forest_path: shadow")
+        state = (mi.Float(1.0), mi.Bool(active), mi.Point3f(o), mi.UInt32(0), mi.Vector3f(d))
+        vis, *_ = dr.while_loop(state, cond, body, label="forest_path: shadow")
         return vis
 
     # -- the estimator ------------------------------------------------------------------
