@@ -277,3 +277,42 @@ def test_sunsky_lights_the_scene_from_above(tmp_path):
     # Without its sun the ground is lit by the sky alone: much darker.
     scene.params["sun_scale"] = scene.mi.Color3f(0.0)
     assert scene.render().rgb.mean() < 0.5 * lit.mean()
+
+
+def test_sun_and_sky_light_an_open_ground_exactly(tmp_path):
+    """Ground of albedo a under a sun of irradiance E at elevation θ and a constant sky L:
+    L_out = a·(E sin θ / π + L).  Light sampling and BSDF sampling combined by MIS converge to it."""
+    camera = PathCamera(look([0.0, 10.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 10.0, 6, 6)
+    ground = Surface(quad(0.0, 1000.0), Material("surface", (0.5, 0.4, 0.3)))
+    sun = SunLight(sun_direction(30.0, 45.0), (2.0, 2.0, 2.0))
+    sky = SkyLight("constant", radiance=(0.2, 0.3, 0.5))
+    img = PathScene(surfaces_only([ground], camera, sun=sun, sky=sky, spp=256, max_depth=2), VARIANT).render()
+    expected = np.array([0.5, 0.4, 0.3]) * (2.0 * 0.5 / np.pi + np.array([0.2, 0.3, 0.5]))
+    np.testing.assert_allclose(img.rgb.reshape(-1, 3).mean(axis=0), expected, rtol=0.01)
+
+
+def test_white_furnace_with_leaves_and_indirect_light():
+    """Two stacked leaves with R + T = 1 in a uniform sky: with enough bounces every leaf shows the sky's
+    radiance (energy is conserved through reflection and transmission); with direct light only the lower
+    leaf hides part of the sky from the upper one."""
+    camera = PathCamera(look([0.0, 10.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 10.0, 6, 6)
+    leaves = [Surface(quad(y, 20.0), Material("leaf", (1.0, 1.0, 1.0), translucency=0.5)) for y in (0.0, 1.0)]
+    sky = SkyLight("constant", radiance=(0.5, 0.5, 0.5))
+    deep = PathScene(surfaces_only(leaves, camera, sky=sky, spp=256, max_depth=64), VARIANT).render()
+    np.testing.assert_allclose(deep.rgb.mean(), 0.5, rtol=0.02)
+    direct = PathScene(surfaces_only(leaves, camera, sky=sky, spp=64, max_depth=2), VARIANT).render()
+    # The upper leaf, direct light only: it reflects the sky above, R·L; the lower leaf hides the sky below,
+    # so nothing is transmitted.
+    np.testing.assert_allclose(direct.rgb.mean(), 0.5 * 0.5, rtol=0.02)
+
+
+def test_envmap_sky_is_y_up_and_scaled(tmp_path):
+    """A latitude–longitude sky bright above the horizon, black below: an upward ground sees a·L·scale."""
+    env = np.zeros((32, 64, 3), np.float32)
+    env[:16] = 0.4  # the image's upper half is the sky above the horizon
+    path = write_image(tmp_path / "sky.exr", env)
+    camera = PathCamera(look([0.0, 10.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 10.0, 6, 6)
+    ground = Surface(quad(0.0, 1000.0), Material("surface", (0.5, 0.5, 0.5)))
+    sky = SkyLight("envmap", envmap=path, scale=2.0)
+    img = PathScene(surfaces_only([ground], camera, sky=sky, spp=256, max_depth=2), VARIANT).render()
+    np.testing.assert_allclose(img.rgb.mean(), 0.5 * 0.4 * 2.0, rtol=0.02)
