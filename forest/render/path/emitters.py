@@ -17,8 +17,8 @@ without rebuilding anything) and ℓ a fixed shape:
   local +Y to world −Z), and its ``sun_direction`` is given in world space.
 
 Next-event estimation picks light k with probability P_k (proportional to an
-estimate of the power it sends onto an upward surface, each kept ≥
-:data:`MIN_PICK`), so the light-sampling density of a direction is
+estimate of the power it sends onto an upward surface at its initial scale,
+each kept ≥ :data:`MIN_PICK`), so the light-sampling density of a direction is
 p_L(ω) = Σ_k P_k p_k(ω), the density the power heuristic of Veach (1997,
 §9.2.4) weighs against the BSDF's.
 """
@@ -240,9 +240,9 @@ class LightSet:
         self.mi = mi
         self.lights = lights
         self.scales = [params[light.param] for light in lights]
-        power = np.array(
-            [max(light.power(np.asarray(s, dtype=np.float64).ravel()), 0.0) for light, s in zip(lights, self.scales)]
-        )
+        # Picks follow the lights' *initial* values: fixed while parameters change (an optimiser's
+        # steps, finite differences), so the estimate stays a smooth function of the light scales.
+        power = np.array([max(light.power(light.initial), 0.0) for light in lights])
         if len(lights) == 0 or power.sum() <= 0:
             pick = np.full(len(lights), 1.0 / max(len(lights), 1))
         else:

@@ -35,7 +35,7 @@ from ...runtime import mitsuba
 from .emitters import LightSet, make_lights
 from .geometry import ForestGeometry, PartArrays, TraversalScene
 from .inputs import PathCamera, PathInputs
-from .integrator import LAYER_ALPHA, PathKernel
+from .integrator import LAYER_ALPHA, PathKernel, integrator_class
 from .materials import MaterialArrays, MaterialStore, world_map_texture
 
 #: Largest number of paths (pixels × samples) traced in one pass.
@@ -49,9 +49,9 @@ def pass_seed(seed: int, k: int) -> int:
     return int(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, SEED_TAG, int(k)]).generate_state(1)[0])
 
 
-def split_passes(width: int, height: int, spp: int, max_lanes: int = MAX_LANES) -> list[int]:
-    """Samples per pixel of each pass: as equal as possible, each pass ≤ ``max_lanes`` paths."""
-    per = max(1, max_lanes // max(1, width * height))
+def split_passes(width: int, height: int, spp: int, max_lanes: int | None = None) -> list[int]:
+    """Samples per pixel of each pass: as equal as possible, each pass ≤ ``max_lanes`` (:data:`MAX_LANES`) paths."""
+    per = max(1, (MAX_LANES if max_lanes is None else max_lanes) // max(1, width * height))
     n = max(1, math.ceil(spp / per))
     base, extra = divmod(spp, n)
     return [base + (1 if i < extra else 0) for i in range(n)]
@@ -168,6 +168,20 @@ class PathScene:
             rr_depth=int(self.inputs.rr_depth),
         )
 
+    def integrator(self, *, max_depth: int | None = None):
+        """A ``forest_path`` Mitsuba integrator bound to this scene, for ``mi.render(self.traversal.scene, ...)``.
+
+        ``mi.render`` splats with Mitsuba's film (atomic adds): use :meth:`render`
+        where bit-identical images matter.
+        """
+        cls = integrator_class(self.mi)
+        return cls(self.mi.Properties()).bind(self.kernel(max_depth=max_depth))
+
+    def scene_parameters(self):
+        """:attr:`params` as a read-only ``mi.SceneParameters`` view, the ``params`` argument ``mi.render`` takes."""
+        self.activate()
+        return self.mi.SceneParameters({k: (v, None, None, 0) for k, v in self.params.items()})
+
     def sensor(self, camera: PathCamera | None = None):
         camera = camera or self.inputs.camera
         key = (
@@ -241,6 +255,103 @@ class PathScene:
             seconds=time.perf_counter() - t0,
         )
 
+    # -- derivatives ------------------------------------------------------------------------
+    def _passes(self, camera: PathCamera, spp: int, seed: int):
+        """(pass index, sampler, rays, samples per pixel) of each sample pass of a render."""
+        w, h = int(camera.width), int(camera.height)
+        for k, n in enumerate(split_passes(w, h, spp)):
+            sampler, ray, used = self._camera_rays(camera, n, pass_seed(seed, k))
+            yield k, sampler, ray, used
+
+    def _spp_total(self, camera: PathCamera, spp: int) -> int:
+        """Samples per pixel a render of ``spp`` actually takes (the sampler may round each pass)."""
+        mi = self.mi
+        total = 0
+        for n in split_passes(int(camera.width), int(camera.height), spp):
+            total += int(mi.load_dict({"type": self.inputs.sampler, "sample_count": int(n)}).sample_count())
+        return total
+
+    def render_forward(
+        self, camera: PathCamera | None = None, *, spp: int | None = None, seed: int | None = None
+    ) -> np.ndarray:
+        """Forward-mode derivative of the image, (H, W, 3), along the tangents set on ``params``.
+
+        Set them first: ``dr.enable_grad(p)`` and ``dr.set_grad(p, tangent)`` on
+        entries of :attr:`params`.  Path replay (see :mod:`.integrator`): a primal
+        pass gives each path's radiance, a second pass over the same paths
+        accumulates ``dr.forward_to`` of each vertex's differentiable terms.
+        """
+        import drjit as dr
+
+        self.activate()
+        mi = self.mi
+        camera = camera or self.inputs.camera
+        spp = int(self.inputs.spp if spp is None else spp)
+        seed = int(self.inputs.seed if seed is None else seed)
+        w, h = int(camera.width), int(camera.height)
+        kernel = self.kernel()
+        # Push the tangents into the textures built from the parameters (the loops below
+        # differentiate in isolation and must find them there already).
+        attached = [v for v in self.params.values() if dr.grad_enabled(v)]
+        if attached:
+            dr.enqueue(dr.ADMode.Forward, *attached)
+            dr.traverse(dr.ADMode.Forward, dr.ADFlag.ClearEdges)
+        acc = np.zeros((h * w, 3), np.float64)
+        total = 0
+        with dr.suspend_grad():
+            for _, sampler, ray, used in self._passes(camera, spp, seed):
+                L, _, _ = kernel.sample(dr.ADMode.Primal, sampler.clone(), ray, None, None, mi.Bool(True))
+                dr.eval(L)
+                δL, _, _ = kernel.sample(dr.ADMode.Forward, sampler, ray, None, L, mi.Bool(True))
+                dr.eval(δL)
+                out = np.stack([np.asarray(δL.x), np.asarray(δL.y), np.asarray(δL.z)], axis=1).astype(np.float64)
+                acc += out.reshape(h * w, used, 3).sum(axis=1)
+                total += used
+        return (acc / total).reshape(h, w, 3).astype(np.float32)
+
+    def render_backward(
+        self, grad_image, camera: PathCamera | None = None, *, spp: int | None = None, seed: int | None = None
+    ) -> None:
+        """Reverse mode: accumulate ∂(Σ grad_image · image)/∂p into ``dr.grad(p)`` of every ``params`` entry with
+        gradients enabled.  ``grad_image``: (H, W, 3) array or ``TensorXf``, the adjoint of the image."""
+        import drjit as dr
+
+        self.activate()
+        mi = self.mi
+        camera = camera or self.inputs.camera
+        spp = int(self.inputs.spp if spp is None else spp)
+        seed = int(self.inputs.seed if seed is None else seed)
+        w, h = int(camera.width), int(camera.height)
+        g = np.asarray(grad_image, dtype=np.float32).reshape(h * w, 3)
+        total = self._spp_total(camera, spp)
+        kernel = self.kernel()
+        with dr.suspend_grad():
+            for _, sampler, ray, used in self._passes(camera, spp, seed):
+                # Each path's share of its pixel's adjoint: the image is the mean of all its paths.
+                lanes = np.repeat(g / total, used, axis=0)
+                δL = mi.Color3f(*[mi.Float(np.ascontiguousarray(lanes[:, c])) for c in range(3)])
+                L, _, _ = kernel.sample(dr.ADMode.Primal, sampler.clone(), ray, None, None, mi.Bool(True))
+                dr.eval(L)
+                kernel.sample(dr.ADMode.Backward, sampler, ray, δL, L, mi.Bool(True))
+                dr.eval()  # run the kernel whose side effects are the parameter gradients
+
+    def render_ad(self, camera: PathCamera | None = None, *, spp: int | None = None, seed: int | None = None):
+        """The image as a ``TensorXf`` (H, W, 3) attached to the AD graph of :attr:`params`.
+
+        Use it like ``mi.render``: build a loss from it and call ``dr.backward``
+        (reverse mode, through :meth:`render_backward`) or ``dr.forward``
+        (through :meth:`render_forward`); only the parameters with gradients
+        enabled are differentiated.
+        """
+        import drjit as dr
+
+        self.activate()
+        global _RenderOp
+        if not issubclass(_RenderOp, dr.CustomOp):
+            _RenderOp = _make_render_op()
+        attached = {k: v for k, v in self.params.items() if dr.grad_enabled(v)}
+        return dr.custom(_RenderOp, self, camera or self.inputs.camera, spp, seed, attached)
+
     def layers(self, camera: PathCamera | None = None) -> dict[str, np.ndarray]:
         """Per pixel, from one ray through its centre: ``depth`` (metres from the camera to the first opaque
         hit; the far clip where nothing is hit), ``id`` (InstanceSet id, −1 none), ``species`` (index, −1 none).
@@ -277,6 +388,37 @@ class PathScene:
             "id": ids.reshape(shape).astype(np.float32),
             "species": species.reshape(shape).astype(np.float32),
         }
+
+
+class _RenderOp:  # a drjit CustomOp, defined on first use (drjit is imported lazily)
+    pass
+
+
+def _make_render_op():
+    import drjit as dr
+
+    class RenderOp(dr.CustomOp):
+        """Primal: :meth:`PathScene.render`; derivatives: :meth:`PathScene.render_forward` / ``render_backward``."""
+
+        def eval(self, scene, camera, spp, seed, params):
+            self.scene, self.camera, self.spp, self.seed = scene, camera, spp, seed
+            mi = scene.mi
+            img = scene.render(camera, spp=spp, seed=seed).rgb
+            return mi.TensorXf(np.ascontiguousarray(img, dtype=np.float32))
+
+        def forward(self):
+            mi = self.scene.mi
+            d = self.scene.render_forward(self.camera, spp=self.spp, seed=self.seed)
+            self.set_grad_out(mi.TensorXf(np.ascontiguousarray(d, dtype=np.float32)))
+
+        def backward(self):
+            g = np.asarray(self.grad_out(), dtype=np.float32)
+            self.scene.render_backward(g, self.camera, spp=self.spp, seed=self.seed)
+
+        def name(self):
+            return "forest_path render"
+
+    return RenderOp
 
 
 def mi_bool(mi, value: bool):

@@ -302,3 +302,47 @@ class PathKernel:
         state = dr.while_loop(state, cond, body, label="forest_path")
         L, δL = state[0], state[1]
         return (L if primal else δL), covered, L
+
+
+_CLASSES: dict[str, type] = {}
+
+
+def integrator_class(mi) -> type:
+    """``forest_path`` as a Mitsuba integrator class for the active variant (registered on first use).
+
+    It derives from Mitsuba's ``RBIntegrator`` (the base of ``prb``), so ``mi.render(scene, params,
+    sensor=..., integrator=...)`` renders and differentiates it like Mitsuba's
+    ``prb``; the instance must be bound to a :class:`PathKernel` (``bind``) —
+    :meth:`forest.render.path.PathScene.integrator` returns one ready to use
+    with ``PathScene.traversal.scene``.
+    """
+    variant = mi.variant()
+    if variant in _CLASSES:
+        return _CLASSES[variant]
+    from mitsuba.python.ad.integrators.common import RBIntegrator as base
+
+    class ForestPathIntegrator(base):  # type: ignore[misc, valid-type]
+        def __init__(self, props):
+            super().__init__(props)
+            self.kernel: PathKernel | None = None
+
+        def bind(self, kernel: PathKernel):
+            self.kernel = kernel
+            self.max_depth = kernel.max_depth
+            return self
+
+        def sample(self, mode, scene, sampler, ray, δL, state_in, active, **kwargs):
+            if self.kernel is None:
+                raise RuntimeError("forest_path: bind the integrator to a PathKernel first (PathScene.integrator())")
+            L, valid, state = self.kernel.sample(mode, sampler, ray, δL, state_in, active)
+            return L, valid, [], state
+
+        def aov_names(self):
+            return []
+
+        def to_string(self):
+            return "ForestPathIntegrator[]"
+
+    mi.register_integrator("forest_path", lambda props: ForestPathIntegrator(props))
+    _CLASSES[variant] = ForestPathIntegrator
+    return ForestPathIntegrator
