@@ -111,6 +111,7 @@ class PathScene:
         self.traversal: TraversalScene | None = None
         self._parts: PartArrays | None = None
         self._mats: MaterialArrays | None = None
+        self._mats_count = 0
         self._sensors: dict[bytes, Any] = {}
         self.load_seconds = 0.0
         self.pose(inputs.levels, inputs.matrices)
@@ -346,11 +347,9 @@ class PathScene:
         import drjit as dr
 
         self.activate()
-        global _RenderOp
-        if not issubclass(_RenderOp, dr.CustomOp):
-            _RenderOp = _make_render_op()
         attached = {k: v for k, v in self.params.items() if dr.grad_enabled(v)}
-        return dr.custom(_RenderOp, self, camera or self.inputs.camera, spp, seed, attached)
+        op: Any = _render_op()
+        return dr.custom(op, self, camera or self.inputs.camera, spp, seed, attached)
 
     def layers(self, camera: PathCamera | None = None) -> dict[str, np.ndarray]:
         """Per pixel, from one ray through its centre: ``depth`` (metres from the camera to the first opaque
@@ -390,11 +389,13 @@ class PathScene:
         }
 
 
-class _RenderOp:  # a drjit CustomOp, defined on first use (drjit is imported lazily)
-    pass
+_RENDER_OP: list[type] = []
 
 
-def _make_render_op():
+def _render_op() -> type:
+    """The drjit ``CustomOp`` behind :meth:`PathScene.render_ad` (defined on first use: drjit loads lazily)."""
+    if _RENDER_OP:
+        return _RENDER_OP[0]
     import drjit as dr
 
     class RenderOp(dr.CustomOp):
@@ -418,6 +419,7 @@ def _make_render_op():
         def name(self):
             return "forest_path render"
 
+    _RENDER_OP.append(RenderOp)
     return RenderOp
 
 

@@ -47,12 +47,12 @@ def path_lights(config) -> tuple[SunLight | None, SkyLight | None]:
         irradiance = np.asarray(s.colour, np.float64) * float(s.irradiance)
         if s.elevation <= 0:
             irradiance = irradiance * 0.0
-        sun = SunLight(direction, tuple(irradiance.tolist()))
+        sun = SunLight(tuple(direction.tolist()), tuple(irradiance.tolist()))
     k = lights.sky
     if k is not None:
         if k.kind == "sunsky":
             if sun is None:
-                sun = SunLight(sun_direction(35.0, 120.0), (0.0, 0.0, 0.0))
+                sun = SunLight(tuple(sun_direction(35.0, 120.0).tolist()), (0.0, 0.0, 0.0))
             sky = SkyLight(
                 "sunsky",
                 scale=float(k.scale),
@@ -67,6 +67,11 @@ def path_lights(config) -> tuple[SunLight | None, SkyLight | None]:
     if sun is not None and sky is not None and sky.kind != "sunsky" and max(sun.irradiance) <= 0:
         sun = None
     return sun, sky
+
+
+def inputs_extent(extent) -> tuple[float, float, float, float]:
+    xmin, zmin, xmax, zmax = (float(v) for v in extent)
+    return (xmin, zmin, xmax, zmax)
 
 
 def path_inputs(
@@ -121,7 +126,7 @@ def path_inputs(
         sun=sun,
         sky=sky,
         colour_grid=colour_grid,
-        extent=tuple(float(v) for v in terrain.extent),
+        extent=inputs_extent(terrain.extent),
         terrain_colour=terrain_colour,
         terrain_tinted=tinted,
         max_depth=int(rc.max_depth),

@@ -365,7 +365,7 @@ def resolve(mi, scene: TraversalScene, parts: PartArrays, pi, active) -> Hit:
     shape = dr.reinterpret_array(mi.UInt32, pi.shape)
     is_inst = valid & (inst != 0)
     top = valid & ~is_inst
-    reg = dr.select(is_inst, inst, shape)
+    reg: Any = dr.select(is_inst, inst, shape)
     row = dr.gather(mi.UInt32, scene.reg_row, reg, valid)
     part_top = dr.gather(mi.UInt32, scene.reg_part, reg, top)
     flat = dr.gather(mi.Int32, scene.reg_flat, reg, top)
@@ -385,7 +385,7 @@ def hit_uv(mi, parts: PartArrays, hit: Hit, active):
     """Texture coordinates at a hit (barycentric interpolation)."""
     import drjit as dr
 
-    f = dr.gather(mi.Vector3u, parts.faces, hit.tri, active)
+    f: Any = dr.gather(mi.Vector3u, parts.faces, hit.tri, active)
     b0 = 1.0 - hit.b1 - hit.b2
     uv0 = dr.gather(mi.Point2f, parts.uv, f.x, active)
     uv1 = dr.gather(mi.Point2f, parts.uv, f.y, active)

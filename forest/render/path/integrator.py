@@ -321,7 +321,7 @@ def integrator_class(mi) -> type:
         return _CLASSES[variant]
     from mitsuba.python.ad.integrators.common import RBIntegrator as base
 
-    class ForestPathIntegrator(base):  # type: ignore[misc, valid-type]
+    class ForestPathIntegrator(base):
         def __init__(self, props):
             super().__init__(props)
             self.kernel: PathKernel | None = None
