@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -223,8 +224,12 @@ class PathScene:
         spp: int | None = None,
         seed: int | None = None,
         max_depth: int | None = None,
+        progress: Callable[[float], None] | None = None,
     ) -> PathImage:
-        """Render the beauty and coverage in passes (primal only; see :meth:`render_forward` for gradients)."""
+        """Render the beauty and coverage in passes (primal only; see :meth:`render_forward` for gradients).
+
+        ``progress(fraction)`` is called after each pass.
+        """
         import drjit as dr
 
         camera = camera or self.inputs.camera
@@ -235,8 +240,9 @@ class PathScene:
         total = 0
         t0 = time.perf_counter()
         kernel = self.kernel(max_depth=max_depth)
+        passes = split_passes(w, h, spp)
         with dr.suspend_grad():
-            for k, n in enumerate(split_passes(w, h, spp)):
+            for k, n in enumerate(passes):
                 sampler, ray, used = self._camera_rays(camera, n, pass_seed(seed, k))
                 L, covered, _ = kernel.sample(dr.ADMode.Primal, sampler, ray, None, None, mi_bool(self.mi, True))
                 covered = mi_float(self.mi, covered)
@@ -248,6 +254,8 @@ class PathScene:
                 acc += out.reshape(h * w, used, 4).sum(axis=1)
                 total += used
                 del sampler, ray, L, covered, out
+                if progress is not None:
+                    progress((k + 1) / len(passes))
         img = (acc / total).reshape(h, w, 4)
         return PathImage(
             rgb=img[..., :3].astype(np.float32),

@@ -107,10 +107,10 @@ class PathKernel:
         side = dr.select(dr.dot(ng, d) >= 0.0, mag, -mag)
         return dr.fma(ng, side, p)
 
-    def _hit(self, o, d, maxt, active) -> Hit:
+    def _hit(self, o, d, maxt, active, coherent: bool = False) -> Hit:
         mi = self.mi
         ray = mi.Ray3f(o, d, maxt, 0.0, mi.Color0f())
-        pi = self.scene.scene.ray_intersect_preliminary(ray, coherent=False, active=active)
+        pi = self.scene.scene.ray_intersect_preliminary(ray, coherent=coherent, active=active)
         return resolve(mi, self.scene, self.parts, pi, active)
 
     def _alpha(self, hit: Hit, active):
@@ -126,7 +126,7 @@ class PathKernel:
 
         return t + (1.0 + dr.max(dr.abs(dr.fma(d, t, origin)))) * RAY_EPSILON
 
-    def trace(self, o, d, maxt, rng, active, threshold: float | None = None):
+    def trace(self, o, d, maxt, rng, active, threshold: float | None = None, coherent: bool = False):
         """The first surface along a ray that is not a skipped cut-out texel.
 
         Returns (valid, t from ``o``, row, p, n_geo, n_sh, uv, material, rng).
@@ -138,7 +138,7 @@ class PathKernel:
         import drjit as dr
 
         mi = self.mi
-        hit = self._hit(o, d, maxt, active)
+        hit = self._hit(o, d, maxt, active, coherent)
         if self.mats.has_cutouts:
             u = rng.next_float32() if threshold is None else mi.Float(threshold)
             through = hit.valid & (u >= self._alpha(hit, hit.valid))
@@ -156,7 +156,7 @@ class PathKernel:
                 remaining = remaining - step
                 base = base + step
                 skips = skips + 1
-                h = self._hit(origin, d, remaining, through)
+                h = self._hit(origin, d, remaining, through, coherent)
                 u = rng.next_float32() if threshold is None else mi.Float(threshold)
                 again = h.valid & (u >= self._alpha(h, h.valid)) & (skips < MAX_SKIPS)
                 valid = dr.select(through, h.valid, valid)
@@ -252,7 +252,9 @@ class PathKernel:
             u_pick = sampler.next_1d(active_em)
             u_dir = sampler.next_2d(active_em)
             dl, pdf_l = lights.sample_direction(u_pick, u_dir, active_em)
-            active_em &= pdf_l > 0.0
+            # No shadow ray where the light sample cannot contribute (behind an opaque surface, no light).
+            f_probe, _ = bsdf_eval(mi, sh.detached(), ns, wi, dl)
+            active_em &= (pdf_l > 0.0) & (dr.max(f_probe) > 0.0)
             vis = self.transmittance(p, ng, dl, active_em)
             active_em &= vis > 0.0
             with dr.resume_grad(when=not primal):
