@@ -488,3 +488,26 @@ def test_same_inputs_and_seed_give_identical_images(ad_scene, library):
         frame.MAX_LANES = cap
     assert np.array_equal(c.rgb, d.rgb) and c.spp == 4 and not np.array_equal(c.rgb, a.rgb)
     assert c.rgb.mean() == pytest.approx(a.rgb.mean(), rel=0.05)
+
+
+def test_a_forest_too_large_for_memory_fails_before_loading(library, monkeypatch):
+    """The instance records' memory is checked against what is available: one line naming [lod] distances."""
+    import forest.render.path.frame as frame
+    from forest.errors import ForestError
+
+    inst = forest_set([[x, 0.0, 0.0] for x in range(-20, 21, 4)], [0] * 11)
+    inputs = PathInputs(
+        instances=inst,
+        species=[library.resolve("box")],
+        levels=np.zeros(11, np.int64),
+        matrices=inst.matrices(),
+        camera=PathCamera(look([0.0, 10.0, -30.0], [0.0, 0.0, 0.0]), 40.0, 8, 8),
+        sun=SunLight((0.0, 1.0, 0.0), (1.0, 1.0, 1.0)),
+        flatten_triangles=0,
+    )
+    monkeypatch.setattr(frame, "available_bytes", lambda: frame.MEMORY_HEADROOM + 10 * 16 * 1024)
+    with pytest.raises(ForestError, match=r"\[lod\] distances: 11 instanced trees .* GB") as err:
+        PathScene(inputs, VARIANT)
+    assert "\n" not in str(err.value)
+    monkeypatch.setattr(frame, "available_bytes", lambda: frame.MEMORY_HEADROOM + 11 * 16 * 1024)
+    assert PathScene(inputs, VARIANT).stats.instances == 11

@@ -34,7 +34,7 @@ import numpy as np
 from ...errors import ForestError
 from ...runtime import mitsuba
 from .emitters import LightSet, make_lights
-from .geometry import ForestGeometry, PartArrays, TraversalScene
+from .geometry import ForestGeometry, PartArrays, TraversalScene, available_bytes, memory_plan
 from .inputs import PathCamera, PathInputs
 from .integrator import LAYER_ALPHA, PathKernel, integrator_class
 from .materials import MaterialArrays, MaterialStore, world_map_texture
@@ -43,6 +43,8 @@ from .materials import MaterialArrays, MaterialStore, world_map_texture
 MAX_LANES = 1 << 21
 SEED_TAG = 0x5041_5448  # "PATH"
 JIT_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb")
+#: Memory kept free for the render's wavefronts, textures and the rest of the process.
+MEMORY_HEADROOM = 1 << 30
 
 
 def pass_seed(seed: int, k: int) -> int:
@@ -131,6 +133,7 @@ class PathScene:
         if levels.shape != (n,) or matrices.shape != (n, 4, 4):
             raise ForestError(f"path scene: pose needs {n} levels and ({n}, 4, 4) matrices")
         self.traversal = None  # free the previous scene before building the next
+        self.check_memory(levels)
         t0 = time.perf_counter()
         self.traversal = TraversalScene(self.mi, self.geometry, levels, matrices)
         if self._parts is None or self._parts.count != len(self.geometry.parts.triangles):
@@ -140,6 +143,19 @@ class PathScene:
             self._mats_count = len(self.materials)
         self.levels = np.asarray(levels)
         self.load_seconds += time.perf_counter() - t0
+
+    def check_memory(self, levels: np.ndarray) -> None:
+        """Fail before loading when the instance records alone would not fit in memory (llvm only)."""
+        if self.variant != "llvm_ad_rgb":
+            return
+        instances, flat, need = memory_plan(self.geometry, np.asarray(levels))
+        have = available_bytes()
+        if have is not None and need > have - MEMORY_HEADROOM:
+            raise ForestError(
+                f"[lod] distances: {instances:,} instanced trees and {flat:,} merged far-level triangles need about "
+                f"{need / 2**30:.1f} GB, {max(have - MEMORY_HEADROOM, 0) / 2**30:.1f} GB is available; bring the "
+                "level-of-detail distances closer so more trees use the merged far level"
+            )
 
     @property
     def stats(self):

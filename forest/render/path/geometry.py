@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -55,6 +56,30 @@ from .materials import MaterialStore
 
 #: Trees transformed per block when flattening (bounds the float64 temporaries).
 FLATTEN_BLOCK = 131_072
+#: Resident memory of one Mitsuba instance in llvm_ad_rgb (``bench/bench_forest_path.py``: 15.7 KB).
+INSTANCE_BYTES = 16 * 1024
+#: Resident memory per merged triangle: world-space vertices and faces in Mitsuba plus Embree's BVH.
+FLAT_TRIANGLE_BYTES = 128
+
+
+def memory_plan(geometry: ForestGeometry, levels: np.ndarray) -> tuple[int, int, int]:
+    """(instances, merged triangles, estimated bytes) of the traversal scene for a level-of-detail plan."""
+    proto_of_tree, protos = geometry.tree_prototypes(levels)
+    counts = np.bincount(proto_of_tree, minlength=len(protos)) if len(proto_of_tree) else np.zeros(len(protos), int)
+    instances = int(sum(int(c) for c, p in zip(counts, protos) if not p.flatten))
+    flat = int(sum(int(c) * p.triangles for c, p in zip(counts, protos) if p.flatten))
+    return instances, flat, instances * INSTANCE_BYTES + flat * FLAT_TRIANGLE_BYTES
+
+
+def available_bytes() -> int | None:
+    """MemAvailable of this machine (Linux), or None where it cannot be read."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError):
+        return None
+    return None
 
 
 @dataclass
