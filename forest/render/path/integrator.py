@@ -20,7 +20,8 @@ Camera and bounce rays pass through cut-out texels stochastically: a hit of
 opacity α stops the ray with probability α (else the ray continues from just
 past the surface, at most :data:`MAX_SKIPS` times), the estimator Mitsuba's
 ``mask`` BSDF uses.  The random numbers of these tests come from a per-lane
-PCG32 stream (O'Neill 2014), so the sampler's dimensions stay aligned across lanes.
+PCG32 stream (O'Neill 2014).  The whole path runs as one loop in which every
+iteration traces one ray segment per lane (see :meth:`PathKernel.sample`).
 
 Hits come from ``Scene.ray_intersect_preliminary`` and are rebuilt by
 :mod:`.geometry`: no surface interaction, BSDF or emitter is ever asked of
@@ -175,135 +176,216 @@ class PathKernel:
         sp = surface(mi, self.scene, self.parts, hit, hit.valid)
         return hit.valid, hit.t, hit.row, sp.p, sp.n_geo, sp.n_sh, sp.uv, sp.material, rng
 
-    def transmittance(self, p, ng, d, active):
-        """V = Π (1 − α) over the surfaces a ray from ``p`` towards a light at infinity crosses."""
-        import drjit as dr
-
-        mi = self.mi
-        o = self.offset(p, ng, d)
-        # An any-hit query first (≈ 8× cheaper than a closest hit here): open sky needs nothing more.
-        blocked = self.scene.scene.ray_test(mi.Ray3f(o, d, dr.inf, 0.0, mi.Color0f()), active)
-        if not self.mats.has_cutouts:
-            return dr.select(active & ~blocked, 1.0, 0.0)
-        active = active & blocked
-
-        def cond(vis, live, origin, skips, d):
-            return live
-
-        def body(vis, live, origin, skips, d):
-            h = self._hit(origin, d, dr.inf, live)
-            vis = dr.select(h.valid, vis * (1.0 - self._alpha(h, h.valid)), vis)
-            skips = skips + 1
-            vis = dr.select(h.valid & (skips >= MAX_SKIPS), 0.0, vis)
-            live = live & h.valid & (vis > 0.0)
-            origin = dr.select(live, dr.fma(d, self._past(origin, d, h.t), origin), origin)
-            return vis, live, origin, skips, d
-
-        state = (mi.Float(1.0), mi.Bool(active), mi.Point3f(o), mi.UInt32(0), mi.Vector3f(d))
-        vis, *_ = dr.while_loop(state, cond, body, label="forest_path: shadow")
-        return vis
-
     # -- the estimator ------------------------------------------------------------------
     def sample(self, mode, sampler, ray, δL, state_in, active):
-        """One path per lane: (L or δL, hit flag of the camera ray, L as state).  See the module docstring."""
+        """One path per lane: (L, or δL in a derivative mode; the camera ray's hit flag; L as state).
+
+        The estimator (module docstring) runs as one loop of ray *segments*.
+
+        Each iteration traces exactly one ray per lane — a camera or bounce ray
+        (past cut-out texels one segment at a time) or a shadow ray — and then
+        does what that segment calls for: pass a texel, collect the sky, shade a
+        vertex (sample a light and a direction, start its shadow ray), or finish
+        a shadow.  Lanes of one SIMD packet therefore stay busy until their
+        paths end, where nested loops (a skip loop inside a shadow loop inside
+        the path loop) leave most lanes of a packet idle while one lane passes
+        its many texels; a packet with 1 of 16 lanes active costs Embree about
+        3.6× more per ray than a full one (``bench/bench_forest_path.py``).
+
+        Path replay: the contributions of a vertex whose shadow ray is still
+        under way — its direct light and the derivative of its BSDF along the
+        continued path — are differentiated when the shadow ray finishes, from
+        the vertex's cached hit (material, uv, position, normal, directions).
+        The vertex's remaining radiance is then exactly what PRB needs there:
+        everything later along the path has not been subtracted yet.
+        """
         import drjit as dr
 
         mi = self.mi
         primal = mode == dr.ADMode.Primal
+        lights = self.lights
         n = dr.width(ray.d)
-        # Per-lane PCG32 stream for cut-out tests, seeded from the sampler (replayed identically).
         seed = dr.reinterpret_array(mi.UInt32, sampler.next_1d())
         rng = mi.PCG32(size=n, initstate=mi.UInt64(seed), initseq=mi.UInt64(dr.arange(mi.UInt32, n)))
-        o = mi.Point3f(dr.detach(ray.o))
-        d = mi.Vector3f(dr.detach(ray.d))
-        valid, _, _, p, ng, ns, uv, material, rng = self.trace(o, d, mi.Float(ray.maxt), rng, active)
-        covered = mi.Bool(valid)
-        L = mi.Color3f(0.0) if primal else mi.Color3f(state_in)
-        δL = mi.Color3f(δL if δL is not None else 0.0)
-        β = mi.Color3f(1.0)
-        depth = mi.UInt32(0)
-        prev_pdf = mi.Float(1.0)
-        prev_delta = mi.Bool(True)
-        active = mi.Bool(active)
-        lights = self.lights
-        state = (L, δL, β, depth, prev_pdf, prev_delta, active, d, valid, p, ng, ns, uv, material, rng, sampler)
+        zeros3 = mi.Vector3f(0.0)
+        state = dict(
+            L=mi.Color3f(0.0) if primal else mi.Color3f(state_in),
+            δL=mi.Color3f(δL if δL is not None else 0.0),
+            β=mi.Color3f(1.0),
+            depth=mi.UInt32(0),
+            prev_pdf=mi.Float(1.0),
+            prev_delta=mi.Bool(True),
+            active=mi.Bool(active),
+            covered=mi.Bool(False),
+            rng=rng,
+            sampler=sampler,
+            eo=mi.Point3f(dr.detach(ray.o)),
+            ed=mi.Vector3f(dr.detach(ray.d)),
+            emaxt=mi.Float(ray.maxt),
+            eskips=mi.UInt32(0),
+            shadowing=mi.Bool(False),
+            so=mi.Point3f(0.0),
+            sd=mi.Vector3f(0.0, 1.0, 0.0),
+            vis=mi.Float(1.0),
+            sskips=mi.UInt32(0),
+            C=mi.Color3f(0.0),
+            cont=mi.Bool(False),
+        )
+        if not primal:  # the vertex a pending shadow ray belongs to
+            state.update(
+                vp=mi.Point3f(0.0), vuv=mi.Point2f(0.0), vmat=mi.UInt32(0), vns=mi.Vector3f(zeros3),
+                vwi=mi.Vector3f(zeros3), vwo=mi.Vector3f(zeros3), vdl=mi.Vector3f(zeros3), vβ=mi.Color3f(0.0),
+                vw=mi.Float(0.0),
+            )  # fmt: skip
+        keys = list(state)
 
-        def cond(L, δL, β, depth, prev_pdf, prev_delta, active, d, valid, p, ng, ns, uv, material, rng, sampler):
-            return active
+        def cond(*values):
+            return values[keys.index("active")]
 
-        def body(L, δL, β, depth, prev_pdf, prev_delta, active, d, valid, p, ng, ns, uv, material, rng, sampler):
-            # ---- light reaching the previous vertex from where this ray left the scene
-            escaped = active & ~valid
-            p_light = lights.pdf(d, escaped)
-            mis = dr.select(prev_delta, 1.0, mis_weight(prev_pdf, p_light))
-            with dr.resume_grad(when=not primal):
-                Le = β * mis * lights.eval(d, escaped)
-            active_next = active & valid
-            # ---- the surface
-            wi = -d
-            # Two-sided: seen from behind, the surface shades as its front (Mitsuba's ``twosided``).
-            flip = dr.dot(ns, wi) < 0.0
-            ng = dr.select(flip, -ng, ng)
-            ns = dr.select(flip, -ns, ns)
-            with dr.resume_grad(when=not primal):
-                sh = shading(mi, self.mats, material, uv, p, self.grid, self.extent, self.terrain_map, active_next)
-            # ---- next-event estimation
-            active_em = active_next & (depth + 1 < self.max_depth)
-            u_pick = sampler.next_1d(active_em)
-            u_dir = sampler.next_2d(active_em)
-            dl, pdf_l = lights.sample_direction(u_pick, u_dir, active_em)
-            # No shadow ray where the light sample cannot contribute (behind an opaque surface, no light).
-            f_probe, _ = bsdf_eval(mi, sh.detached(), ns, wi, dl)
-            active_em &= (pdf_l > 0.0) & (dr.max(f_probe) > 0.0)
-            vis = self.transmittance(p, ng, dl, active_em)
-            active_em &= vis > 0.0
-            with dr.resume_grad(when=not primal):
-                f_l, pdf_b = bsdf_eval(mi, sh, ns, wi, dl)
-                Ll = lights.eval(dl, active_em)
-                w_l = mis_weight(pdf_l, dr.detach(pdf_b))
-                Lr_dir = dr.select(active_em, β * f_l * Ll * (w_l * vis / dr.maximum(pdf_l, 1e-30)), 0.0)
-            # ---- continue the path
-            active_next &= depth + 1 < self.max_depth
-            u_lobe = sampler.next_1d(active_next)
-            u_bsdf = sampler.next_2d(active_next)
-            frame = mi.Frame3f(ns)
-            wo, weight, pdf_o = bsdf_sample(mi, sh.detached(), frame, u_lobe, u_bsdf)
-            active_next &= pdf_o > 0.0
-            L = (L + Le + Lr_dir) if primal else (L - Le - Lr_dir)
-            if not primal:
+        # A term may not depend on the parameters being differentiated (the sky's emission when only the
+        # colour grid has gradients): allowed here, since the terms are propagated one by one.
+        flags = dr.ADFlag.Default | dr.ADFlag.AllowNoGrad
+
+        def differentiate(S, Lo):
+            if mode == dr.ADMode.Backward:
+                dr.backward_from(S["δL"] * Lo, flags=flags)
+            else:
+                S["δL"] = S["δL"] + dr.forward_to(Lo, flags=flags)
+
+        def body(*values):
+            S = dict(zip(keys, values))
+            active = S["active"]
+            shadow = active & S["shadowing"]
+            o = dr.select(shadow, S["so"], S["eo"])
+            d = dr.select(shadow, S["sd"], S["ed"])
+            maxt = dr.select(shadow, dr.inf, S["emaxt"])
+            hit = self._hit(o, d, maxt, active)
+            alpha = self._alpha(hit, hit.valid) if self.mats.has_cutouts else mi.Float(1.0)
+
+            # ---- a shadow segment: attenuate, pass on, or finish
+            s_hit = shadow & hit.valid
+            vis = dr.select(s_hit, S["vis"] * (1.0 - alpha), S["vis"])
+            sskips = dr.select(s_hit, S["sskips"] + 1, S["sskips"])
+            vis = dr.select(s_hit & (sskips >= MAX_SKIPS), 0.0, vis)
+            s_done = shadow & (~hit.valid | (vis <= 0.0))
+            S["so"] = dr.select(shadow & ~s_done, dr.fma(d, self._past(o, d, hit.t), o), S["so"])
+            S["vis"], S["sskips"] = vis, sskips
+            if primal:
+                S["L"] = dr.select(s_done, S["L"] + S["C"] * vis, S["L"])
+            else:
                 with dr.resume_grad():
-                    f_o, _ = bsdf_eval(mi, sh, ns, wi, wo)
-                    Lr_ind = L * dr.select(active_next, dr.relative_grad(f_o), 0.0)
-                    Lo = Le + Lr_dir + Lr_ind
-                    if mode == dr.ADMode.Backward:
-                        dr.backward_from(δL * Lo)
-                    else:
-                        δL += dr.forward_to(Lo)
-            β = β * dr.select(active_next, weight, 0.0)
-            prev_pdf = pdf_o
-            prev_delta = mi.Bool(False)
-            # ---- Russian roulette
+                    sh = shading(mi, self.mats, S["vmat"], S["vuv"], S["vp"], self.grid, self.extent,
+                                 self.terrain_map, s_done)  # fmt: skip
+                    f_l, _ = bsdf_eval(mi, sh, S["vns"], S["vwi"], S["vdl"])
+                    Lr_dir = dr.select(s_done, S["vβ"] * f_l * lights.eval(S["vdl"], s_done) * (S["vw"] * vis), 0.0)
+                L = dr.select(s_done, S["L"] - dr.detach(Lr_dir), S["L"])
+                with dr.resume_grad():
+                    f_o, _ = bsdf_eval(mi, sh, S["vns"], S["vwi"], S["vwo"])
+                    Lr_ind = L * dr.select(s_done & S["cont"], dr.relative_grad(f_o), 0.0)
+                    differentiate(S, Lr_dir + Lr_ind)
+                S["L"] = L
+            S["shadowing"] = S["shadowing"] & ~s_done
+            active = active & ~(s_done & ~S["cont"])
+
+            # ---- an extension segment (camera or bounce ray): pass a cut-out texel, leave, or stop
+            ext = active & ~shadow
+            u = S["rng"].next_float32()
+            through = ext & hit.valid & (u >= alpha) & (S["eskips"] < MAX_SKIPS)
+            step = self._past(o, d, hit.t)
+            S["eo"] = dr.select(through, dr.fma(d, step, o), S["eo"])
+            S["emaxt"] = dr.select(through, S["emaxt"] - step, S["emaxt"])
+            S["eskips"] = dr.select(through, S["eskips"] + 1, S["eskips"])
+            stop = ext & ~through
+            escaped = stop & ~hit.valid
+            vertex = stop & hit.valid
+            S["covered"] = S["covered"] | (vertex & (S["depth"] == 0))
+            # Light from where the ray left the scene, weighed against light sampling (power heuristic).
+            mis = dr.select(S["prev_delta"], 1.0, mis_weight(S["prev_pdf"], lights.pdf(d, escaped)))
+            with dr.resume_grad(when=not primal):
+                Le = S["β"] * mis * lights.eval(d, escaped)
+            if primal:
+                S["L"] = S["L"] + Le
+            else:
+                S["L"] = S["L"] - dr.detach(Le)
+                with dr.resume_grad():
+                    differentiate(S, Le)
+            active = active & ~escaped
+
+            # ---- a vertex: shade, sample a light (start its shadow ray) and a direction.  A symbolic
+            # branch: a packet in which no lane stopped at a surface skips the shading code.
+            S["active"] = active
+            hit_args = (hit.valid, hit.t, hit.row, hit.tri, hit.part, hit.b1, hit.b2, d)
+            out = dr.if_stmt(
+                tuple(S[k] for k in keys) + hit_args,
+                vertex,
+                lambda *a: shade_vertex(dict(zip(keys, a[: len(keys)])), *a[len(keys) :]),
+                lambda *a: a[: len(keys)],
+                label="forest_path: vertex",
+            )
+            return tuple(out)
+
+        def shade_vertex(S, h_valid, h_t, h_row, h_tri, h_part, h_b1, h_b2, d):
+            vertex = mi.Bool(True)
+            hit = Hit(h_valid, h_t, h_row, h_tri, h_part, h_b1, h_b2)
+            sp = surface(mi, self.scene, self.parts, hit, vertex)
+            wi = -d
+            flip = dr.dot(sp.n_sh, wi) < 0.0  # two-sided, as Mitsuba's ``twosided``
+            ng = dr.select(flip, -sp.n_geo, sp.n_geo)
+            ns = dr.select(flip, -sp.n_sh, sp.n_sh)
+            with dr.resume_grad(when=not primal):
+                sh = shading(mi, self.mats, sp.material, sp.uv, sp.p, self.grid, self.extent, self.terrain_map, vertex)
+            depth = S["depth"]
+            nee = depth + 1 < self.max_depth
+            u_pick = S["sampler"].next_1d(nee)
+            u_dir = S["sampler"].next_2d(nee)
+            dl, pdf_l = lights.sample_direction(u_pick, u_dir, nee)
+            shd = sh.detached()
+            f_l, pdf_b = bsdf_eval(mi, shd, ns, wi, dl)
+            nee &= (pdf_l > 0.0) & (dr.max(f_l) > 0.0)
+            w_l = mis_weight(pdf_l, pdf_b) / dr.maximum(pdf_l, 1e-30)
+            S["C"] = dr.select(nee, S["β"] * f_l * lights.eval(dl, nee) * w_l, S["C"])
+            u_lobe = S["sampler"].next_1d()
+            u_bsdf = S["sampler"].next_2d()
+            wo, weight, pdf_o = bsdf_sample(mi, shd, mi.Frame3f(ns), u_lobe, u_bsdf)
+            cont = (depth + 1 < self.max_depth) & (pdf_o > 0.0)
+            β_vertex = S["β"]
+            β = S["β"] * dr.select(cont, weight, 0.0)
             β_max = dr.max(β)
-            active_next &= β_max > 0.0
+            cont &= β_max > 0.0
             q = dr.minimum(β_max, 0.95)
             rr = depth >= self.rr_depth
-            u_rr = sampler.next_1d(active_next)
+            u_rr = S["sampler"].next_1d()
             β = dr.select(rr, β / dr.maximum(q, 1e-12), β)
-            active_next &= ~rr | (u_rr < q)
-            # ---- the next surface
-            o_next = self.offset(p, ng, wo)
-            v2, _, _, p2, ng2, ns2, uv2, m2, rng = self.trace(o_next, wo, mi.Float(dr.inf), rng, active_next)
-            d = dr.select(active_next, wo, d)
-            valid = dr.select(active_next, v2, False)
-            p, ng, ns, uv, material = p2, ng2, ns2, uv2, m2
-            # A lane whose new ray escaped stays active one more iteration to collect the sky it sees.
-            depth = dr.select(active & valid, depth + 1, depth)
-            active = active_next
-            return L, δL, β, depth, prev_pdf, prev_delta, active, d, valid, p, ng, ns, uv, material, rng, sampler
+            cont &= ~rr | (u_rr < q)
+            if not primal:
+                # No shadow ray pending: this vertex's path derivative can be taken now.
+                with dr.resume_grad():
+                    f_o, _ = bsdf_eval(mi, sh, ns, wi, wo)
+                    Lr_ind = S["L"] * dr.select(~nee & cont, dr.relative_grad(f_o), 0.0)
+                    differentiate(S, Lr_ind)
+                for k, v in (("vp", sp.p), ("vuv", sp.uv), ("vmat", sp.material), ("vns", ns), ("vwi", wi),
+                             ("vwo", wo), ("vdl", dl), ("vβ", β_vertex), ("vw", w_l)):  # fmt: skip
+                    S[k] = dr.select(nee, v, S[k])
+            S["β"] = β
+            S["cont"] = cont
+            S["eo"] = dr.select(cont, self.offset(sp.p, ng, wo), S["eo"])
+            S["ed"] = dr.select(cont, wo, S["ed"])
+            S["emaxt"] = dr.select(cont, dr.inf, S["emaxt"])
+            S["eskips"] = dr.select(cont, 0, S["eskips"])
+            S["shadowing"] = S["shadowing"] | nee
+            S["so"] = dr.select(nee, self.offset(sp.p, ng, dl), S["so"])
+            S["sd"] = dr.select(nee, dl, S["sd"])
+            S["vis"] = dr.select(nee, 1.0, S["vis"])
+            S["sskips"] = dr.select(nee, 0, S["sskips"])
+            S["prev_pdf"] = pdf_o
+            S["prev_delta"] = mi.Bool(False)
+            S["depth"] = depth + 1
+            S["active"] = cont | nee
+            return tuple(S[k] for k in keys)
 
-        state = dr.while_loop(state, cond, body, label="forest_path")
-        L, δL = state[0], state[1]
-        return (L if primal else δL), covered, L
+        out = dict(zip(keys, dr.while_loop(tuple(state.values()), cond, body, label="forest_path: segments")))
+        L = out["L"]
+        return (L if primal else out["δL"]), out["covered"], L
 
 
 _CLASSES: dict[str, type] = {}
