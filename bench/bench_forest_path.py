@@ -110,9 +110,19 @@ def rss_now() -> int:
     return 0
 
 
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown CPU"
+
+
 def load_average() -> str:
     try:
-        return os.getloadavg().__repr__()
+        return " / ".join(f"{v:.1f}" for v in os.getloadavg())
     except OSError:
         return "?"
 
@@ -277,7 +287,8 @@ def worker_atlas(args) -> dict:
         for k in range(4):
             t0 = time.perf_counter()
             v = fn(k)
-            dr.eval(v)
+            dr.eval(*v)
+            dr.sync_thread()  # kernels run asynchronously: wait for this one
             best = min(best, time.perf_counter() - t0) if k else best  # k = 0 compiles
         times[name] = best
     return {"lanes": n, "textures": len(images), **times}
@@ -306,7 +317,7 @@ def run_worker(kind: str, **kw) -> dict:
 
 
 def case_scale(tmp: Path, scale: float, width: int, height: int, spp: int, depth: int) -> None:
-    print(f"forest_path scale: machine load average at start {load_average()} (2 cores, shared)")
+    print(f"forest_path scale: {cpu_model()}, {os.cpu_count()} cores; load average {load_average()} at start")
     per_tree = {}
     for count in (1_000, 10_000, 50_000, 130_000):
         n = max(200, int(count * scale))
@@ -338,7 +349,7 @@ def case_scale(tmp: Path, scale: float, width: int, height: int, spp: int, depth
             f"(ratio {b130 / b10:.2f}), whole frame {f10 * 1e6:.0f} → {f130 * 1e6:.0f} µs (ratio {f130 / f10:.2f}); "
             f"flat within 2×: {'yes' if max(b130 / b10, f130 / f10) <= 2 else 'no'}"
         )
-    print(f"forest_path scale: machine load average at end {load_average()}")
+    print(f"forest_path scale: load average {load_average()} at end")
 
 
 def case_noise(tmp: Path, scale: float, width: int, height: int, spp: int, depth: int) -> None:

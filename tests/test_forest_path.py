@@ -511,3 +511,15 @@ def test_a_forest_too_large_for_memory_fails_before_loading(library, monkeypatch
     assert "\n" not in str(err.value)
     monkeypatch.setattr(frame, "available_bytes", lambda: frame.MEMORY_HEADROOM + 11 * 16 * 1024)
     assert PathScene(inputs, VARIANT).stats.instances == 11
+
+
+def test_render_frame_returns_every_layer(ad_scene):
+    """``render_frame``: beauty, coverage and the depth/id/species layers of one still, all (H, W)."""
+    from forest.render.path import render_frame
+
+    out = render_frame(ad_scene.inputs)
+    h, w = 18, 24
+    assert out["rgb"].shape == (h, w, 3) and out["alpha"].shape == (h, w)
+    assert {k: out[k].shape for k in ("depth", "id", "species")} == {k: (h, w) for k in ("depth", "id", "species")}
+    assert set(np.unique(out["id"]).astype(int)) <= {-1, 500, 501, 502, 503}
+    assert (out["alpha"][out["id"] >= 0] > 0.5).all() and out["spp"] == 8
