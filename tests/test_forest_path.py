@@ -523,3 +523,29 @@ def test_render_frame_returns_every_layer(ad_scene):
     assert {k: out[k].shape for k in ("depth", "id", "species")} == {k: (h, w) for k in ("depth", "id", "species")}
     assert set(np.unique(out["id"]).astype(int)) <= {-1, 500, 501, 502, 503}
     assert (out["alpha"][out["id"] >= 0] > 0.5).all() and out["spp"] == 8
+
+
+def test_colour_grid_follows_the_map_convention(library):
+    """A 2×3 colour grid over the terrain: row i → +Z (row 0 at zmin), column j → +X, seen where each cell lies."""
+    from forest.terrain import grid_terrain
+
+    grid = np.array(
+        [
+            [[0.9, 0.1, 0.1], [0.1, 0.9, 0.1], [0.1, 0.1, 0.9]],  # z < 0: red, green, blue from −X to +X
+            [[0.9, 0.9, 0.1], [0.1, 0.9, 0.9], [0.9, 0.1, 0.9]],  # z > 0: yellow, cyan, magenta
+        ],
+        np.float32,
+    )
+    camera = PathCamera(look([0.0, 200.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 30.0, 60, 60)
+    inputs = surfaces_only([], camera, sky=SkyLight("constant", radiance=(1.0, 1.0, 1.0)), spp=4, library=library)
+    inputs.terrain = grid_terrain(np.zeros((9, 9)), (96.0, 96.0))
+    inputs.terrain_colour = (1.0, 1.0, 1.0)
+    inputs.colour_grid = grid
+    img = PathScene(inputs, VARIANT).render().rgb
+    for i, z in enumerate((-24.0, 24.0)):
+        for j, x in enumerate((-32.0, 0.0, 32.0)):
+            # Near a texel centre (bilinear weights ≥ 94 % on the cell itself).
+            mask = ground_mask(camera, (x - 2.0, x + 2.0), (z - 2.0, z + 2.0))
+            assert mask.any()
+            colour = img[mask].mean(axis=0)
+            np.testing.assert_allclose(colour / colour.max(), grid[i, j] / grid[i, j].max(), atol=0.07)
