@@ -1,0 +1,295 @@
+"""Sun and sky for the forest path tracer: sampling, evaluation and the MIS densities.
+
+Every light is *at infinity*: it is a radiance function of direction L(ω) =
+s · ℓ(ω) where s is an RGB scale read from the scene parameters at render time
+(a drjit ``Color3f`` the caller may differentiate or change between passes
+without rebuilding anything) and ℓ a fixed shape:
+
+* :class:`DiscSun` — uniform over a cone of half-angle α around the sun
+  direction: ℓ = 1/(π sin²α) inside, so ∫ ℓ cos θ dω = π sin²α · ℓ = 1 for a surface facing
+  the sun and s is the irradiance E; sampled uniformly in the cone,
+  pdf = 1/(2π(1 − cos α)) (``mi.warp.square_to_uniform_cone``).
+* :class:`ConstantSky` — ℓ = 1, s the radiance; sampled cosine-weighted over the upper hemisphere.
+* :class:`EmitterLight` — a Mitsuba ``envmap`` or ``sunsky`` (sky only, or its
+  sun only) with ``scale`` 1, importance-sampled by Mitsuba itself (native calls
+  on one emitter object: no virtual dispatch over the scene).  ``sunsky`` is
+  Z-up in Mitsuba 3.9.1; its ``to_world`` here maps local +Z to world +Y (and
+  local +Y to world −Z), and its ``sun_direction`` is given in world space.
+
+Next-event estimation picks light k with probability P_k (proportional to an
+estimate of the power it sends onto an upward surface at its initial scale,
+each kept ≥ :data:`MIN_PICK`), so the light-sampling density of a direction is
+p_L(ω) = Σ_k P_k p_k(ω), the density the power heuristic of Veach (1997,
+§9.2.4) weighs against the BSDF's.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .inputs import SkyLight, SunLight
+
+#: Smallest probability of picking a light for next-event estimation when there are two.
+MIN_PICK = 0.2
+#: Directions over the upper hemisphere used to estimate a sky's mean radiance.
+SKY_PROBES = 512
+
+#: Local (Mitsuba sunsky, Z up) → world (Y up): x → x, y → −z, z → y.
+Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+
+
+def luminance(rgb) -> float:
+    r, g, b = (float(x) for x in np.asarray(rgb, dtype=np.float64).ravel()[:3])
+    return 0.2126 * r + 0.7152 * g + 0.0722 * b
+
+
+def fibonacci_hemisphere(n: int) -> np.ndarray:
+    """(n, 3) directions spread evenly over the upper (+Y) hemisphere (a Fibonacci lattice)."""
+    i = np.arange(n) + 0.5
+    y = 1.0 - i / n
+    r = np.sqrt(np.maximum(0.0, 1.0 - y * y))
+    phi = i * math.pi * (3.0 - math.sqrt(5.0))
+    return np.stack([r * np.cos(phi), y, r * np.sin(phi)], axis=1)
+
+
+class DiscSun:
+    """A sun of finite angular radius α; its parameter is the irradiance E (RGB)."""
+
+    param = "sun_irradiance"
+
+    def __init__(self, mi, sun: SunLight):
+        d = np.asarray(sun.direction, dtype=np.float64)
+        self.direction = d / np.linalg.norm(d)
+        alpha = math.radians(float(sun.angular_diameter)) / 2.0
+        # The cone as float32 samples it: its rim, solid angle and density all use this cos α.
+        self.cos_alpha = float(np.float32(math.cos(alpha)))
+        one_minus = 1.0 - self.cos_alpha
+        self.radiance_per_irradiance = 1.0 / (math.pi * one_minus * (1.0 + self.cos_alpha))
+        self.inv_solid_angle = 1.0 / (2.0 * math.pi * one_minus)
+        # Inside test on the chord, |d − s|² = 2(1 − cos θ) ≤ 2(1 − cos α): well conditioned in
+        # float32 where 1 − cos θ itself is not; the margin covers the rounding of sampled directions.
+        self.chord2 = 2.0 * one_minus * (1.0 + 1e-3)
+        self.initial = np.asarray(sun.irradiance, dtype=np.float64)
+        self.mi = mi
+
+    def power(self, scale) -> float:
+        return luminance(scale) * max(self.direction[1], 0.05)
+
+    def _frame(self):
+        mi = self.mi
+        return mi.Frame3f(mi.Vector3f(*[float(x) for x in self.direction]))
+
+    def sample(self, scale, u, active):
+        import drjit as dr
+
+        mi = self.mi
+        local = mi.warp.square_to_uniform_cone(u, self.cos_alpha)
+        d = self._frame().to_world(local)
+        pdf = dr.full(mi.Float, self.inv_solid_angle, dr.width(u))
+        return d, pdf, scale * self.radiance_per_irradiance
+
+    def inside(self, d):
+        import drjit as dr
+
+        s = self.direction
+        dx, dy, dz = d.x - float(s[0]), d.y - float(s[1]), d.z - float(s[2])
+        return dr.fma(dx, dx, dr.fma(dy, dy, dz * dz)) <= self.chord2
+
+    def eval(self, scale, d, active):
+        import drjit as dr
+
+        return dr.select(active & self.inside(d), scale * self.radiance_per_irradiance, 0.0)
+
+    def pdf(self, d, active):
+        import drjit as dr
+
+        return dr.select(active & self.inside(d), self.inv_solid_angle, 0.0)
+
+
+class ConstantSky:
+    """Radiance s in every direction; light samples are drawn over the upper hemisphere only.
+
+    Sampling density p(ω) = max(ω_y, 0)/π (cosine-weighted about +Y): outdoors,
+    light from below the horizon is blocked by the ground, so samples there
+    would cost a shadow ray for nothing.  Directions below the horizon are still
+    reached by BSDF sampling, whose MIS weight is 1 where p = 0, so the estimate
+    stays unbiased.
+    """
+
+    param = "sky_radiance"
+
+    def __init__(self, mi, sky: SkyLight):
+        self.mi = mi
+        self.initial = np.asarray(sky.radiance, dtype=np.float64)
+
+    def power(self, scale) -> float:
+        return math.pi * luminance(scale)
+
+    def sample(self, scale, u, active):
+        import drjit as dr
+
+        mi = self.mi
+        local = mi.warp.square_to_cosine_hemisphere(u)
+        d = mi.Vector3f(local.x, local.z, -local.y)  # local +Z → world +Y
+        return d, dr.maximum(d.y, 0.0) * dr.inv_pi, mi.Color3f(scale)
+
+    def eval(self, scale, d, active):
+        import drjit as dr
+
+        return dr.select(active, scale, 0.0)
+
+    def pdf(self, d, active):
+        import drjit as dr
+
+        return dr.select(active, dr.maximum(d.y, 0.0) * dr.inv_pi, 0.0)
+
+
+class EmitterLight:
+    """A Mitsuba environment emitter (``envmap`` or ``sunsky``) at unit scale, times s."""
+
+    def __init__(self, mi, emitter, param: str, initial):
+        import drjit as dr
+
+        self.mi = mi
+        self.emitter = emitter
+        # Infinite emitters sample directions from their scene's bounding sphere: give them one.
+        self._holder = mi.load_dict({"type": "scene", "light": emitter})
+        self.param = param
+        self.initial = np.asarray(initial, dtype=np.float64)
+        probes = fibonacci_hemisphere(SKY_PROBES)
+        d = mi.Vector3f(*[mi.Float(probes[:, k].astype(np.float32)) for k in range(3)])
+        with dr.suspend_grad():
+            value = np.asarray(self._eval_unit(d, mi.Bool(True)), dtype=np.float64).reshape(-1, 3)
+        # E on an upward plane ≈ 2π · mean(ℓ cos θ) over the hemisphere (uniform probes).
+        self.unit_power = luminance((2.0 * math.pi * value * probes[:, 1:2]).mean(axis=0))
+        self.peak = float(value.max()) if value.size else 0.0
+
+    def power(self, scale) -> float:
+        return luminance(scale) * self.unit_power
+
+    def _eval_unit(self, d, active):
+        import drjit as dr
+
+        mi = self.mi
+        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(d))
+        si.wi = -d
+        return self.emitter.eval(si, active)
+
+    def sample(self, scale, u, active):
+        import drjit as dr
+
+        mi = self.mi
+        it = dr.zeros(mi.Interaction3f, dr.width(u))
+        ds, w = self.emitter.sample_direction(it, u, active)
+        ok = active & (ds.pdf > 0.0)
+        return ds.d, dr.select(ok, ds.pdf, 0.0), dr.select(ok, scale * w * ds.pdf, 0.0)
+
+    def eval(self, scale, d, active):
+        import drjit as dr
+
+        return dr.select(active, scale * self._eval_unit(d, active), 0.0)
+
+    def pdf(self, d, active):
+        import drjit as dr
+
+        mi = self.mi
+        it = dr.zeros(mi.Interaction3f, dr.width(d))
+        ds = dr.zeros(mi.DirectionSample3f, dr.width(d))
+        ds.d = d
+        return dr.select(active, self.emitter.pdf_direction(it, ds, active), 0.0)
+
+
+def make_lights(mi, sun: SunLight | None, sky: SkyLight | None) -> list[Any]:
+    """The light objects for a sun and sky description (see the module docstring)."""
+    lights: list[Any] = []
+    if sky is not None and sky.kind == "sunsky":
+        assert sun is not None
+        d = np.asarray(sun.direction, dtype=np.float64)
+        d = d / np.linalg.norm(d)
+        base = {
+            "type": "sunsky",
+            "sun_direction": [float(x) for x in d],
+            "turbidity": float(sky.turbidity),
+            "albedo": float(sky.albedo),
+            "to_world": mi.ScalarTransform4f(Z_UP_TO_Y_UP),
+        }
+        if d[1] > 0.0:
+            sun_em = mi.load_dict({**base, "sky_scale": 0.0, "sun_scale": 1.0})
+            lights.append(EmitterLight(mi, sun_em, "sun_scale", [sky.sun_scale] * 3))
+        sky_em = mi.load_dict({**base, "sky_scale": 1.0, "sun_scale": 0.0})
+        lights.append(EmitterLight(mi, sky_em, "sky_scale", [sky.scale] * 3))
+        return lights
+    if sun is not None and float(np.asarray(sun.direction, dtype=np.float64)[1]) > -1.0:
+        lights.append(DiscSun(mi, sun))
+    if sky is not None:
+        if sky.kind == "envmap":
+            em = mi.load_dict({"type": "envmap", "filename": str(sky.envmap), "scale": 1.0})
+            lights.append(EmitterLight(mi, em, "sky_scale", [sky.scale] * 3))
+        else:
+            lights.append(ConstantSky(mi, sky))
+    return lights
+
+
+class LightSet:
+    """The lights of a render with their current scales and pick probabilities."""
+
+    def __init__(self, mi, lights: list[Any], params: dict):
+        self.mi = mi
+        self.lights = lights
+        self.scales = [params[light.param] for light in lights]
+        # Picks follow the lights' *initial* values: fixed while parameters change (an optimiser's
+        # steps, finite differences), so the estimate stays a smooth function of the light scales.
+        power = np.array([max(light.power(light.initial), 0.0) for light in lights])
+        if len(lights) == 0 or power.sum() <= 0:
+            pick = np.full(len(lights), 1.0 / max(len(lights), 1))
+        else:
+            pick = power / power.sum()
+            if len(lights) > 1:
+                pick = np.maximum(pick, MIN_PICK)
+                pick /= pick.sum()
+        self.pick = [float(p) for p in pick]
+
+    def eval(self, d, active):
+        """Radiance arriving from direction ``d`` (a ray that left the scene), all lights summed."""
+        mi = self.mi
+        total = mi.Color3f(0.0)
+        for light, s in zip(self.lights, self.scales):
+            total += light.eval(s, d, active)
+        return total
+
+    def pdf(self, d, active):
+        """Light-sampling density p_L(d) = Σ P_k p_k(d) (solid angle)."""
+        import drjit as dr
+
+        mi = self.mi
+        total = dr.zeros(mi.Float, dr.width(d))
+        for light, p in zip(self.lights, self.pick):
+            total += p * light.pdf(d, active)
+        return total
+
+    def sample_direction(self, u_pick, u, active):
+        """Pick light k with probability P_k and sample d ~ p_k: (d, p_L(d)).
+
+        The pick-then-sample mixture is one strategy of density p_L; its
+        estimate f·L(d)/p_L(d) takes L summed over all lights (:meth:`eval`),
+        which is unbiased where lights overlap (the sun's disc lies inside the
+        sky), and p_L is what the BSDF strategy's MIS weight needs.
+        """
+        import drjit as dr
+
+        mi = self.mi
+        if not self.lights:
+            return mi.Vector3f(0.0, 1.0, 0.0), dr.zeros(mi.Float, dr.width(u))
+        d = mi.Vector3f(0.0, 1.0, 0.0)
+        edge = 0.0
+        for k, (light, s, p) in enumerate(zip(self.lights, self.scales, self.pick)):
+            lo, edge = edge, edge + p
+            sel = active & (u_pick >= lo)
+            if k + 1 < len(self.lights):
+                sel &= u_pick < edge
+            dk, _, _ = light.sample(s, u, sel)
+            d = dr.select(sel, dk, d)
+        return d, self.pdf(d, active)

@@ -1,0 +1,473 @@
+"""The forest path tracer's driver: a reusable :class:`PathScene` and :func:`render_frame`.
+
+Building the Mitsuba traversal scene is the expensive step, so a
+:class:`PathScene` keeps it (and forest's part buffers, materials, textures and
+lights) across sample passes, cameras and frames; :meth:`PathScene.pose`
+rebuilds only the traversal scene for a new level-of-detail plan or new tree
+transforms (wind, a motion-blur sub-frame).
+
+An image is rendered in *passes* of at most :data:`MAX_LANES` paths (pixels ×
+samples) so memory stays bounded at any resolution.  Within a pass the paths
+of pixel (x, y) are the consecutive lanes ``(y·W + x)·s … + s − 1``, which is
+the layout Mitsuba's stratified samplers (``multijitter``, ``orthogonal``,
+``ldsampler``) stratify over; each pass has its own seed, derived from the
+render seed by ``np.random.SeedSequence([seed, SEED_TAG, pass])``.  Samples
+are summed per pixel in numpy (float64, fixed order) rather than splatted
+with atomics, so the same inputs and seed give the same image bit for bit.
+
+Parameters (``PathScene.params``, drjit values the caller may change or
+differentiate between renders): ``colour_grid`` (TensorXf (H, W, 3)),
+``sun_irradiance`` (disc sun), ``sky_radiance`` (constant sky),
+``sky_scale`` (envmap / sunsky sky), ``sun_scale`` (sunsky sun), each RGB.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ...errors import ForestError
+from ...runtime import mitsuba
+from .emitters import LightSet, make_lights
+from .geometry import ForestGeometry, PartArrays, TraversalScene, available_bytes, memory_plan
+from .inputs import PathCamera, PathInputs
+from .integrator import LAYER_ALPHA, PathKernel, integrator_class
+from .materials import MaterialArrays, MaterialStore, world_map_texture
+
+#: Largest number of paths (pixels × samples) traced in one pass.
+MAX_LANES = 1 << 21
+SEED_TAG = 0x5041_5448  # "PATH"
+JIT_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb")
+#: Memory kept free for the render's wavefronts, textures and the rest of the process.
+MEMORY_HEADROOM = 1 << 30
+
+
+def pass_seed(seed: int, k: int) -> int:
+    """The 32-bit seed of sample pass ``k`` of a render seeded with ``seed``."""
+    return int(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, SEED_TAG, int(k)]).generate_state(1)[0])
+
+
+def split_passes(width: int, height: int, spp: int, max_lanes: int | None = None) -> list[int]:
+    """Samples per pixel of each pass: as equal as possible, each pass ≤ ``max_lanes`` (:data:`MAX_LANES`) paths."""
+    per = max(1, (MAX_LANES if max_lanes is None else max_lanes) // max(1, width * height))
+    n = max(1, math.ceil(spp / per))
+    base, extra = divmod(spp, n)
+    return [base + (1 if i < extra else 0) for i in range(n)]
+
+
+def sensor_dict(mi, camera: PathCamera) -> dict:
+    """A Mitsuba ``perspective`` sensor for ``camera`` (horizontal fov, box filter)."""
+    return {
+        "type": "perspective",
+        "fov": float(camera.fov),
+        "fov_axis": "x",
+        "near_clip": float(camera.near),
+        "far_clip": float(camera.far),
+        "to_world": mi.ScalarTransform4f(np.asarray(camera.to_world, dtype=np.float64)),
+        "film": {
+            "type": "hdrfilm",
+            "width": int(camera.width),
+            "height": int(camera.height),
+            "pixel_format": "rgba",
+            "rfilter": {"type": "box"},
+        },
+        "sampler": {"type": "independent", "sample_count": 1},
+    }
+
+
+@dataclass
+class PathImage:
+    """A rendered frame: linear RGB and coverage (fraction of a pixel's paths whose camera ray hit a surface)."""
+
+    rgb: np.ndarray  # (H, W, 3) float32
+    alpha: np.ndarray  # (H, W) float32
+    spp: int
+    seconds: float
+
+
+class PathScene:
+    """A forest ready to render with the forest path tracer in a JIT variant (see the module docstring)."""
+
+    def __init__(self, inputs: PathInputs, variant: str = "llvm_ad_rgb"):
+        if variant not in JIT_VARIANTS:
+            raise ForestError(f"--variant: the forest path tracer runs in {' or '.join(JIT_VARIANTS)}, not {variant}")
+        inputs.validate()
+        self.variant = variant
+        self.mi = mi = mitsuba(variant)
+        self.inputs = inputs
+        self.materials = MaterialStore()
+        self.geometry = ForestGeometry(inputs, self.materials)
+        self.extent = inputs.grid_extent()
+        self.lights = make_lights(mi, inputs.sun, inputs.sky)
+        self.params: dict[str, Any] = {}
+        for light in self.lights:
+            self.params[light.param] = mi.Color3f(*[float(x) for x in light.initial])
+        if inputs.colour_grid is not None:
+            self.params["colour_grid"] = mi.TensorXf(np.ascontiguousarray(inputs.colour_grid, dtype=np.float32))
+        tc = np.asarray(inputs.terrain_colour, dtype=np.float32)
+        self.terrain_map = world_map_texture(mi, tc) if tc.ndim == 3 else None
+        self.traversal: TraversalScene | None = None
+        self._parts: PartArrays | None = None
+        self._mats: MaterialArrays | None = None
+        self._mats_count = 0
+        self._sensors: dict[bytes, Any] = {}
+        self.load_seconds = 0.0
+        self.pose(inputs.levels, inputs.matrices)
+
+    # -- scene state ----------------------------------------------------------------------
+    def activate(self) -> None:
+        """Make this scene's variant Mitsuba's current one (``mi.Float`` etc. follow the current variant)."""
+        mitsuba(self.variant)
+
+    def pose(self, levels: np.ndarray | None = None, matrices: np.ndarray | None = None) -> None:
+        """Rebuild the traversal scene for new levels of detail and/or tree transforms."""
+        self.activate()
+        levels = self.inputs.levels if levels is None else np.asarray(levels)
+        matrices = self.inputs.matrices if matrices is None else np.asarray(matrices)
+        n = self.geometry.n_trees
+        if levels.shape != (n,) or matrices.shape != (n, 4, 4):
+            raise ForestError(f"path scene: pose needs {n} levels and ({n}, 4, 4) matrices")
+        self.traversal = None  # free the previous scene before building the next
+        self.check_memory(levels)
+        t0 = time.perf_counter()
+        self.traversal = TraversalScene(self.mi, self.geometry, levels, matrices)
+        if self._parts is None or self._parts.count != len(self.geometry.parts.triangles):
+            self._parts = PartArrays(self.mi, self.geometry.parts)
+        if self._mats is None or self._mats_count != len(self.materials):
+            self._mats = MaterialArrays.build(self.mi, self.materials.table())
+            self._mats_count = len(self.materials)
+        self.levels = np.asarray(levels)
+        self.load_seconds += time.perf_counter() - t0
+
+    def check_memory(self, levels: np.ndarray) -> None:
+        """Fail before loading when the instance records alone would not fit in memory (llvm only)."""
+        if self.variant != "llvm_ad_rgb":
+            return
+        instances, flat, need = memory_plan(self.geometry, np.asarray(levels))
+        have = available_bytes()
+        if have is not None and need > have - MEMORY_HEADROOM:
+            raise ForestError(
+                f"[lod] distances: {instances:,} instanced trees and {flat:,} merged far-level triangles need about "
+                f"{need / 2**30:.1f} GB, {max(have - MEMORY_HEADROOM, 0) / 2**30:.1f} GB is available; bring the "
+                "level-of-detail distances closer so more trees use the merged far level"
+            )
+
+    @property
+    def stats(self):
+        assert self.traversal is not None
+        return self.traversal.stats
+
+    def kernel(self, *, max_depth: int | None = None) -> PathKernel:
+        """The render kernel over the current pose and parameter values (gradients kept)."""
+        self.activate()
+        mi = self.mi
+        assert self.traversal is not None and self._parts is not None and self._mats is not None
+        grid = self.params.get("colour_grid")
+        grid_tex = None
+        if grid is not None:
+            import drjit as dr
+
+            grid_tex = world_map_texture(mi, grid, differentiable=dr.grad_enabled(grid))
+        return PathKernel(
+            mi,
+            self.traversal,
+            self._parts,
+            self._mats,
+            grid=grid_tex,
+            terrain_map=self.terrain_map,
+            extent=self.extent,
+            lights=LightSet(mi, self.lights, self.params),
+            max_depth=int(self.inputs.max_depth if max_depth is None else max_depth),
+            rr_depth=int(self.inputs.rr_depth),
+        )
+
+    def integrator(self, *, max_depth: int | None = None):
+        """A ``forest_path`` Mitsuba integrator bound to this scene, for ``mi.render(self.traversal.scene, ...)``.
+
+        ``mi.render`` splats with Mitsuba's film (atomic adds): use :meth:`render`
+        where bit-identical images matter.
+        """
+        cls = integrator_class(self.mi)
+        return cls(self.mi.Properties()).bind(self.kernel(max_depth=max_depth))
+
+    def scene_parameters(self):
+        """:attr:`params` as a read-only ``mi.SceneParameters`` view, the ``params`` argument ``mi.render`` takes."""
+        self.activate()
+        return self.mi.SceneParameters({k: (v, None, None, 0) for k, v in self.params.items()})
+
+    def sensor(self, camera: PathCamera | None = None):
+        camera = camera or self.inputs.camera
+        key = (
+            np.asarray(camera.to_world, np.float64).tobytes()
+            + repr((camera.fov, camera.width, camera.height, camera.near, camera.far)).encode()
+        )
+        if key not in self._sensors:
+            if len(self._sensors) > 8:
+                self._sensors.clear()
+            self._sensors[key] = self.mi.load_dict(sensor_dict(self.mi, camera))
+        return self._sensors[key]
+
+    # -- sampling -------------------------------------------------------------------------
+    def _camera_rays(self, camera: PathCamera, spp: int, seed: int):
+        """(sampler, rays, spp actually used) for one pass: lanes pixel-major, ``spp`` consecutive per pixel."""
+        import drjit as dr
+
+        mi = self.mi
+        sampler = mi.load_dict({"type": self.inputs.sampler, "sample_count": int(spp)})
+        spp = int(sampler.sample_count())
+        w, h = int(camera.width), int(camera.height)
+        n = w * h * spp
+        # An opaque seed: one compiled kernel serves every pass and render (a literal would recompile).
+        sampler.seed(dr.opaque(mi.UInt32, seed & 0xFFFFFFFF), n)
+        idx = dr.arange(mi.UInt32, n)
+        pixel = idx // spp
+        x = mi.Float(pixel % w)
+        y = mi.Float(pixel // w)
+        u = sampler.next_2d()
+        pos = mi.Point2f((x + u.x) / w, (y + u.y) / h)
+        ray, _ = self.sensor(camera).sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
+        return sampler, ray, spp
+
+    def render(
+        self,
+        camera: PathCamera | None = None,
+        *,
+        spp: int | None = None,
+        seed: int | None = None,
+        max_depth: int | None = None,
+        progress: Callable[[float], None] | None = None,
+    ) -> PathImage:
+        """Render the beauty and coverage in passes (primal only; see :meth:`render_forward` for gradients).
+
+        ``progress(fraction)`` is called after each pass.
+        """
+        import drjit as dr
+
+        camera = camera or self.inputs.camera
+        spp = int(self.inputs.spp if spp is None else spp)
+        seed = int(self.inputs.seed if seed is None else seed)
+        w, h = int(camera.width), int(camera.height)
+        acc = np.zeros((h * w, 4), np.float64)
+        total = 0
+        t0 = time.perf_counter()
+        kernel = self.kernel(max_depth=max_depth)
+        passes = split_passes(w, h, spp)
+        with dr.suspend_grad():
+            for k, n in enumerate(passes):
+                sampler, ray, used = self._camera_rays(camera, n, pass_seed(seed, k))
+                L, covered, _ = kernel.sample(dr.ADMode.Primal, sampler, ray, None, None, mi_bool(self.mi, True))
+                covered = mi_float(self.mi, covered)
+                dr.eval(L, covered)  # one kernel for all outputs
+                out = np.stack(
+                    [np.asarray(L.x), np.asarray(L.y), np.asarray(L.z), np.asarray(covered)],
+                    axis=1,
+                ).astype(np.float64)
+                acc += out.reshape(h * w, used, 4).sum(axis=1)
+                total += used
+                del sampler, ray, L, covered, out
+                if progress is not None:
+                    progress((k + 1) / len(passes))
+        img = (acc / total).reshape(h, w, 4)
+        return PathImage(
+            rgb=img[..., :3].astype(np.float32),
+            alpha=img[..., 3].astype(np.float32),
+            spp=total,
+            seconds=time.perf_counter() - t0,
+        )
+
+    # -- derivatives ------------------------------------------------------------------------
+    def _passes(self, camera: PathCamera, spp: int, seed: int):
+        """(pass index, sampler, rays, samples per pixel) of each sample pass of a render."""
+        w, h = int(camera.width), int(camera.height)
+        for k, n in enumerate(split_passes(w, h, spp)):
+            sampler, ray, used = self._camera_rays(camera, n, pass_seed(seed, k))
+            yield k, sampler, ray, used
+
+    def _spp_total(self, camera: PathCamera, spp: int) -> int:
+        """Samples per pixel a render of ``spp`` actually takes (the sampler may round each pass)."""
+        mi = self.mi
+        total = 0
+        for n in split_passes(int(camera.width), int(camera.height), spp):
+            total += int(mi.load_dict({"type": self.inputs.sampler, "sample_count": int(n)}).sample_count())
+        return total
+
+    def render_forward(
+        self, camera: PathCamera | None = None, *, spp: int | None = None, seed: int | None = None
+    ) -> np.ndarray:
+        """Forward-mode derivative of the image, (H, W, 3), along the tangents set on ``params``.
+
+        Set them first: ``dr.enable_grad(p)`` and ``dr.set_grad(p, tangent)`` on
+        entries of :attr:`params`.  Path replay (see :mod:`.integrator`): a primal
+        pass gives each path's radiance, a second pass over the same paths
+        accumulates ``dr.forward_to`` of each vertex's differentiable terms.
+        """
+        import drjit as dr
+
+        self.activate()
+        mi = self.mi
+        camera = camera or self.inputs.camera
+        spp = int(self.inputs.spp if spp is None else spp)
+        seed = int(self.inputs.seed if seed is None else seed)
+        w, h = int(camera.width), int(camera.height)
+        kernel = self.kernel()
+        # Push the tangents into the textures built from the parameters (the loops below
+        # differentiate in isolation and must find them there already).
+        attached = [v for v in self.params.values() if dr.grad_enabled(v)]
+        if attached:
+            dr.enqueue(dr.ADMode.Forward, *attached)
+            dr.traverse(dr.ADMode.Forward, dr.ADFlag.ClearEdges)
+        acc = np.zeros((h * w, 3), np.float64)
+        total = 0
+        with dr.suspend_grad():
+            for _, sampler, ray, used in self._passes(camera, spp, seed):
+                L, _, _ = kernel.sample(dr.ADMode.Primal, sampler.clone(), ray, None, None, mi.Bool(True))
+                dr.eval(L)
+                δL, _, _ = kernel.sample(dr.ADMode.Forward, sampler, ray, None, L, mi.Bool(True))
+                dr.eval(δL)
+                out = np.stack([np.asarray(δL.x), np.asarray(δL.y), np.asarray(δL.z)], axis=1).astype(np.float64)
+                acc += out.reshape(h * w, used, 3).sum(axis=1)
+                total += used
+        return (acc / total).reshape(h, w, 3).astype(np.float32)
+
+    def render_backward(
+        self, grad_image, camera: PathCamera | None = None, *, spp: int | None = None, seed: int | None = None
+    ) -> None:
+        """Reverse mode: accumulate ∂(Σ grad_image · image)/∂p into ``dr.grad(p)`` of every ``params`` entry with
+        gradients enabled.  ``grad_image``: (H, W, 3) array or ``TensorXf``, the adjoint of the image."""
+        import drjit as dr
+
+        self.activate()
+        mi = self.mi
+        camera = camera or self.inputs.camera
+        spp = int(self.inputs.spp if spp is None else spp)
+        seed = int(self.inputs.seed if seed is None else seed)
+        w, h = int(camera.width), int(camera.height)
+        g = np.asarray(grad_image, dtype=np.float32).reshape(h * w, 3)
+        total = self._spp_total(camera, spp)
+        kernel = self.kernel()
+        with dr.suspend_grad():
+            for _, sampler, ray, used in self._passes(camera, spp, seed):
+                # Each path's share of its pixel's adjoint: the image is the mean of all its paths.
+                lanes = np.repeat(g / total, used, axis=0)
+                δL = mi.Color3f(*[mi.Float(np.ascontiguousarray(lanes[:, c])) for c in range(3)])
+                L, _, _ = kernel.sample(dr.ADMode.Primal, sampler.clone(), ray, None, None, mi.Bool(True))
+                dr.eval(L)
+                kernel.sample(dr.ADMode.Backward, sampler, ray, δL, L, mi.Bool(True))
+                dr.eval()  # run the kernel whose side effects are the parameter gradients
+
+    def render_ad(self, camera: PathCamera | None = None, *, spp: int | None = None, seed: int | None = None):
+        """The image as a ``TensorXf`` (H, W, 3) attached to the AD graph of :attr:`params`.
+
+        Use it like ``mi.render``: build a loss from it and call ``dr.backward``
+        (reverse mode, through :meth:`render_backward`) or ``dr.forward``
+        (through :meth:`render_forward`); only the parameters with gradients
+        enabled are differentiated.
+        """
+        import drjit as dr
+
+        self.activate()
+        attached = {k: v for k, v in self.params.items() if dr.grad_enabled(v)}
+        op: Any = _render_op()
+        return dr.custom(op, self, camera or self.inputs.camera, spp, seed, attached)
+
+    def layers(self, camera: PathCamera | None = None) -> dict[str, np.ndarray]:
+        """Per pixel, from one ray through its centre: ``depth`` (metres from the camera to the first opaque
+        hit; the far clip where nothing is hit), ``id`` (InstanceSet id, −1 none), ``species`` (index, −1 none).
+
+        A cut-out texel counts as opaque where α ≥ 0.5, up to the tracer's skip limit.
+        """
+        import drjit as dr
+
+        mi = self.mi
+        camera = camera or self.inputs.camera
+        w, h = int(camera.width), int(camera.height)
+        kernel = self.kernel()
+        with dr.suspend_grad():
+            idx = dr.arange(mi.UInt32, w * h)
+            pos = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
+            ray, _ = self.sensor(camera).sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
+            valid, _, row, p, *_ = kernel.trace(ray.o, ray.d, ray.maxt, None, mi_bool(mi, True), threshold=LAYER_ALPHA)
+            origin = np.asarray(camera.to_world, np.float64)[:3, 3]
+            dist = dr.norm(p - mi.Point3f(*[float(v) for v in origin]))
+            dr.eval(valid, row, dist)
+            valid_np = np.asarray(valid).astype(bool)
+            depth = np.where(valid_np, np.asarray(dist, np.float64), float(camera.far))
+            rows = np.asarray(row, np.int64)
+        n = self.geometry.n_trees
+        tree = valid_np & (rows < n)
+        inst = self.inputs.instances
+        ids = np.full(w * h, -1.0)
+        species = np.full(w * h, -1.0)
+        ids[tree] = inst.id[rows[tree]].astype(np.float64)
+        species[tree] = np.asarray(inst.species)[rows[tree]].astype(np.float64)
+        shape = (h, w)
+        return {
+            "depth": depth.reshape(shape).astype(np.float32),
+            "id": ids.reshape(shape).astype(np.float32),
+            "species": species.reshape(shape).astype(np.float32),
+        }
+
+
+_RENDER_OP: list[type] = []
+
+
+def _render_op() -> type:
+    """The drjit ``CustomOp`` behind :meth:`PathScene.render_ad` (defined on first use: drjit loads lazily)."""
+    if _RENDER_OP:
+        return _RENDER_OP[0]
+    import drjit as dr
+
+    class RenderOp(dr.CustomOp):
+        """Primal: :meth:`PathScene.render`; derivatives: :meth:`PathScene.render_forward` / ``render_backward``."""
+
+        def eval(self, scene, camera, spp, seed, params):
+            self.scene, self.camera, self.spp, self.seed = scene, camera, spp, seed
+            mi = scene.mi
+            img = scene.render(camera, spp=spp, seed=seed).rgb
+            return mi.TensorXf(np.ascontiguousarray(img, dtype=np.float32))
+
+        def forward(self):
+            mi = self.scene.mi
+            d = self.scene.render_forward(self.camera, spp=self.spp, seed=self.seed)
+            self.set_grad_out(mi.TensorXf(np.ascontiguousarray(d, dtype=np.float32)))
+
+        def backward(self):
+            g = np.asarray(self.grad_out(), dtype=np.float32)
+            self.scene.render_backward(g, self.camera, spp=self.spp, seed=self.seed)
+
+        def name(self):
+            return "forest_path render"
+
+    _RENDER_OP.append(RenderOp)
+    return RenderOp
+
+
+def mi_bool(mi, value: bool):
+    return mi.Bool(value)
+
+
+def mi_float(mi, mask):
+    import drjit as dr
+
+    return dr.select(mask, mi.Float(1.0), mi.Float(0.0))
+
+
+def render_frame(inputs: PathInputs, variant: str = "llvm_ad_rgb") -> dict[str, Any]:
+    """Render one frame of ``inputs``: ``rgb`` (H, W, 3), ``alpha`` (coverage), ``depth``, ``id``, ``species``.
+
+    A convenience over :class:`PathScene` for a single still; keep the
+    ``PathScene`` to render more passes, cameras or poses of the same forest.
+    """
+    scene = PathScene(inputs, variant)
+    img = scene.render()
+    out: dict[str, Any] = {"rgb": img.rgb, "alpha": img.alpha, "spp": img.spp}
+    out.update(scene.layers())
+    out["stats"] = scene.stats
+    out["render_seconds"] = img.seconds
+    out["load_seconds"] = scene.load_seconds
+    return out

@@ -1,0 +1,209 @@
+"""Plain-data inputs of the forest path tracer: what to render, decoupled from any config file.
+
+A caller (the scene hub, look-dev, a test) fills a :class:`PathInputs` from
+whatever it reads; nothing here knows about TOML.  Conventions are the
+product's (see ``forest.render.scene``): metres, Y up, maps laid over the
+terrain's X/Z extent (column j → +X, row i → +Z, row 0 at ``zmin``), linear
+RGB, the camera looking along +Z of its frame with +X to the left and a
+*horizontal* field of view.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...errors import ForestError
+
+#: Angular diameter of the sun seen from the earth, degrees (0.5332° at 1 AU).
+SUN_ANGULAR_DIAMETER = 0.53
+SAMPLERS = ("multijitter", "independent", "stratified", "orthogonal", "ldsampler")
+SKY_KINDS = ("constant", "envmap", "sunsky")
+#: Prototypes with at most this many triangles are merged per species into world-space
+#: meshes instead of instanced (≤ 64 triangles ≈ 2.3 KB of vertices per tree, against
+#: 13–17 KB per Mitsuba instance record in llvm).
+FLATTEN_MAX_TRIANGLES = 64
+
+
+@dataclass(frozen=True)
+class PathCamera:
+    """A pinhole camera: ``to_world`` camera→world 4×4 (looks along +Z, +Y up, +X left), horizontal ``fov``."""
+
+    to_world: np.ndarray
+    fov: float
+    width: int
+    height: int
+    near: float = 0.5
+    far: float = 100_000.0
+
+
+@dataclass(frozen=True)
+class SunLight:
+    """A sun of finite angular size: soft shadows.
+
+    ``direction`` points *towards* the sun (world, Y up); ``irradiance`` is the
+    RGB irradiance (W/m²) on a plane facing the sun; ``angular_diameter`` in
+    degrees.  Its radiance is uniform over the disc, L = E / (π sin²α) with α
+    the angular radius, so that ∫_disc L cos θ dω = E exactly.
+    """
+
+    direction: Sequence[float]
+    irradiance: Sequence[float]
+    angular_diameter: float = SUN_ANGULAR_DIAMETER
+
+
+@dataclass(frozen=True)
+class SkyLight:
+    """The sky dome.
+
+    * ``constant`` — ``radiance`` (RGB) in every direction;
+    * ``envmap`` — a latitude–longitude image (``envmap``; +Y up), times ``scale``;
+    * ``sunsky`` — Mitsuba's Hosek–Wilkie sky and its sun (``turbidity``, ``albedo``),
+      the sky times ``scale`` and its sun times ``sun_scale``, pointed at
+      :attr:`PathInputs.sun`'s direction.  Mitsuba's model is Z-up; the renderer
+      rotates it to Y-up.  It replaces the disc sun (whose irradiance is then unused).
+    """
+
+    kind: str = "constant"
+    radiance: Sequence[float] = (0.35, 0.35, 0.35)
+    envmap: Path | None = None
+    scale: float = 1.0
+    turbidity: float = 3.0
+    albedo: float = 0.15
+    sun_scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class Material:
+    """A surface material with the fields of a library ``Part``.
+
+    ``kind`` ``"leaf"`` (diffuse reflection R = (1 − τ)·a and transmission
+    T = τ·a) or anything else (two-sided Lambertian, albedo a); a = ``colour`` ×
+    texture RGB (a linear detail factor) × the colour grid where ``tinted``;
+    ``texture``'s alpha cuts the surface out.
+    """
+
+    kind: str
+    colour: Sequence[float]
+    texture: Path | None = None
+    tinted: bool = False
+    translucency: float = 0.0
+
+
+@dataclass(frozen=True)
+class Surface:
+    """Any other world-space mesh (a ground plane, a prop): ``mesh`` is a ``MeshData``."""
+
+    mesh: Any
+    material: Material
+
+
+@dataclass
+class PathInputs:
+    """Everything the forest path tracer needs for one frame.
+
+    ``instances`` is the :class:`~forest.instances.InstanceSet`; ``species[s]``
+    the library species (or a list of individuals, picked per tree by
+    ``individuals``) of species index s; ``levels`` the level of detail of each
+    tree (0 high … last = far); ``matrices`` (N, 4, 4) object→world at the
+    rendered instant (wind applied).  ``colour_grid`` (H, W, 3, linear) is
+    the tint looked up at each hit's world X/Z over ``extent`` (default the
+    terrain's); ``terrain_colour`` is an RGB triple or an (H, W, 3) map over
+    the extent, multiplied by the grid where ``terrain_tinted``.  Russian
+    roulette starts at path vertex ``rr_depth`` (0 = the first surface): on
+    the demo forest 1 gave the noise of 2 in 64 % of the time, 0 another 44 %
+    less time for 16 % more noise.  Prototypes
+    of at most ``flatten_triangles`` triangles are merged into world-space
+    meshes instead of instanced (see :mod:`.geometry`).
+    """
+
+    instances: Any
+    species: Sequence[Any]
+    levels: np.ndarray
+    matrices: np.ndarray
+    camera: PathCamera
+    terrain: Any = None
+    sun: SunLight | None = None
+    sky: SkyLight | None = field(default_factory=SkyLight)
+    colour_grid: np.ndarray | None = None
+    extent: tuple[float, float, float, float] | None = None
+    terrain_colour: Any = (0.18, 0.16, 0.11)
+    terrain_tinted: bool = True
+    surfaces: Sequence[Surface] = ()
+    individuals: np.ndarray | None = None
+    max_depth: int = 4
+    rr_depth: int = 1
+    spp: int = 16
+    seed: int = 0
+    sampler: str = "multijitter"
+    flatten_triangles: int = FLATTEN_MAX_TRIANGLES
+
+    def grid_extent(self) -> tuple[float, float, float, float]:
+        """(xmin, zmin, xmax, zmax) that the colour grid and a terrain colour map span."""
+        if self.extent is not None:
+            return tuple(float(v) for v in self.extent)  # type: ignore[return-value]
+        if self.terrain is not None:
+            return tuple(float(v) for v in self.terrain.extent)  # type: ignore[return-value]
+        ext = getattr(self.instances, "extent", None)
+        if ext is not None and float(ext[2]) > float(ext[0]) and float(ext[3]) > float(ext[1]):
+            return tuple(float(v) for v in ext)  # type: ignore[return-value]
+        return (-1.0, -1.0, 1.0, 1.0)
+
+    def validate(self) -> None:
+        """Raise :class:`ForestError` naming the first field that cannot be rendered."""
+        n = len(self.instances)
+        if np.asarray(self.levels).shape != (n,):
+            raise ForestError(f"path inputs: levels must have one entry per tree ({n}), got {np.shape(self.levels)}")
+        if np.asarray(self.matrices).shape != (n, 4, 4):
+            raise ForestError(f"path inputs: matrices must be ({n}, 4, 4), got {np.shape(self.matrices)}")
+        if n and int(np.max(self.instances.species)) >= len(self.species):
+            raise ForestError("path inputs: a tree's species index has no entry in species")
+        if self.individuals is not None and np.asarray(self.individuals).shape != (n,):
+            raise ForestError("path inputs: individuals must have one entry per tree")
+        cam = self.camera
+        if not (0.0 < float(cam.fov) < 180.0):
+            raise ForestError(f"path inputs: camera fov must be in (0, 180) degrees, got {cam.fov}")
+        if int(cam.width) < 1 or int(cam.height) < 1:
+            raise ForestError(f"path inputs: camera size must be at least 1×1, got {cam.width}×{cam.height}")
+        if int(self.max_depth) < 1:
+            raise ForestError(f"path inputs: max_depth must be ≥ 1, got {self.max_depth}")
+        if int(self.spp) < 1:
+            raise ForestError(f"path inputs: spp must be ≥ 1, got {self.spp}")
+        if self.sampler not in SAMPLERS:
+            raise ForestError(f"path inputs: sampler must be one of {', '.join(SAMPLERS)}, got {self.sampler!r}")
+        if self.colour_grid is not None:
+            g = np.asarray(self.colour_grid)
+            if g.ndim != 3 or g.shape[2] != 3 or min(g.shape[:2]) < 1 or not np.isfinite(g).all():
+                raise ForestError(f"path inputs: colour_grid must be a finite (H, W, 3) array, got shape {g.shape}")
+        tc = np.asarray(self.terrain_colour, dtype=np.float64)
+        if tc.shape != (3,) and (tc.ndim != 3 or tc.shape[2] != 3):
+            raise ForestError(f"path inputs: terrain_colour must be RGB or an (H, W, 3) map, got shape {tc.shape}")
+        sky = self.sky
+        if sky is not None:
+            if sky.kind not in SKY_KINDS:
+                raise ForestError(f"path inputs: sky kind must be one of {', '.join(SKY_KINDS)}, got {sky.kind!r}")
+            if sky.kind == "envmap" and (sky.envmap is None or not Path(sky.envmap).is_file()):
+                raise ForestError(f"path inputs: sky envmap {sky.envmap}: no such file")
+            if sky.kind == "sunsky" and self.sun is None:
+                raise ForestError("path inputs: a sunsky sky needs a sun (its direction)")
+        if self.sun is not None:
+            d = np.asarray(self.sun.direction, dtype=np.float64)
+            if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) == 0:
+                raise ForestError(f"path inputs: sun direction must be a non-zero 3-vector, got {self.sun.direction}")
+            if not (0.0 < float(self.sun.angular_diameter) < 90.0):
+                raise ForestError(
+                    f"path inputs: sun angular_diameter must be in (0, 90) degrees, got {self.sun.angular_diameter}"
+                )
+        if self.sun is None and self.sky is None:
+            raise ForestError("path inputs: no light (neither sun nor sky)")
+
+
+def sun_direction(elevation: float, azimuth: float) -> np.ndarray:
+    """Unit vector towards the sun, (sin A cos E, sin E, cos A cos E); degrees in (as ``forest.render.scene``)."""
+    e, a = math.radians(elevation), math.radians(azimuth)
+    return np.array([math.sin(a) * math.cos(e), math.sin(e), math.cos(a) * math.cos(e)])

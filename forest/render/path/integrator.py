@@ -1,0 +1,432 @@
+"""``forest_path``: a unidirectional path tracer over forest's own buffers, with path replay for gradients.
+
+The estimator (Kajiya 1986; Veach 1997) at each path vertex x with incoming
+direction ωi, throughput β and BSDF f:
+
+* **emission** — a ray that leaves the scene in direction ω adds
+  β · w_b · L(ω), with w_b = p_b² / (p_b² + p_L²) the power heuristic
+  (Veach 1997, §9.2.4) of the BSDF sample that produced it against the light
+  sampling density p_L (1 for camera rays);
+* **next-event estimation** — a light direction ω_l ~ p_L (see
+  :mod:`.emitters`) adds β · w_l · f(ωi, ω_l)|cos θ_l| · L(ω_l) · V(x, ω_l) / p_L(ω_l)
+  with w_l = p_L² / (p_L² + p_b²), where V ∈ [0, 1] is the product of
+  (1 − α) over the cut-out surfaces the shadow ray crosses (0 at an opaque one:
+  alpha-cut leaves cast partial shadows, deterministically);
+* **continuation** — ωo ~ p_b (the BSDF's lobes, :mod:`.materials`),
+  β ← β · f|cos θo| / p_b; from depth ``rr_depth`` on, Russian roulette keeps the
+  path with probability q = min(max β, 0.95) and divides β by q.
+
+Camera and bounce rays pass through cut-out texels stochastically: a hit of
+opacity α stops the ray with probability α (else the ray continues from just
+past the surface, at most :data:`MAX_SKIPS` times), the estimator Mitsuba's
+``mask`` BSDF uses.  The random numbers of these tests come from a per-lane
+PCG32 stream (O'Neill 2014).  The whole path runs as one loop in which every
+iteration traces one ray segment per lane (see :meth:`PathKernel.sample`).
+
+Hits come from ``Scene.ray_intersect_preliminary`` and are rebuilt by
+:mod:`.geometry`: no surface interaction, BSDF or emitter is ever asked of
+Mitsuba's shapes, so the quadratic instancing cost of the JIT variants never
+arises.  Depth semantics follow Mitsuba's ``prb``: ``max_depth`` = 1 shows
+only the sky, 2 adds direct light, 3 one bounce of indirect light, and so on.
+
+**Gradients** (colour grid, light scales): Path Replay Backpropagation
+(Vicini, Speierer & Jakob 2021), structured like Mitsuba's ``prb.py``.  A
+primal pass computes the pixel radiance L; a second pass replays the same
+paths (same sampler, same PCG32 streams) with L as its state, subtracting each
+vertex's emitted and directly reflected radiance so that at vertex k it holds
+the radiance L_k arriving along the rest of the path, and differentiates
+
+    Lo_k = Le_k + Lr,dir,k + L_k · f_k(ωo) / detach(f_k(ωo))
+
+at that vertex only: reverse mode calls ``dr.backward_from(δL · Lo_k)``,
+forward mode accumulates ``dr.forward_to(Lo_k)``.  Sampling is detached (the
+paths do not depend on the parameters), which is exact here because geometry
+and visibility do not depend on albedos or light scales.  Memory stays
+constant in the path length.
+
+No construct here is specific to LLVM: the loops are drjit symbolic loops and
+everything else is gathers, texture lookups and Mitsuba's native ray queries,
+which ``cuda_ad_rgb`` provides as well.
+"""
+
+from __future__ import annotations
+
+from .geometry import Hit, PartArrays, TraversalScene, hit_uv, resolve, surface
+from .materials import MaterialArrays, bsdf_eval, bsdf_sample, shading
+
+#: Cut-out surfaces a camera, bounce or shadow ray may pass before it is taken as blocked.
+MAX_SKIPS = 24
+#: Mitsuba's ray offset: (1 + max |x_i|) · 1500 · 2⁻²⁴ metres along the geometric normal.
+RAY_EPSILON = 1500.0 * 2.0**-24
+#: Alpha at or above which the pixel-centre layers pass takes a hit as opaque.
+LAYER_ALPHA = 0.5
+
+
+def mis_weight(pdf_a, pdf_b):
+    """Power heuristic p_a² / (p_a² + p_b²) (0 where both are 0)."""
+    import drjit as dr
+
+    a2 = dr.square(pdf_a)
+    s = a2 + dr.square(pdf_b)
+    return dr.select(s > 0.0, a2 / s, 0.0)
+
+
+class PathKernel:
+    """Everything one render reads: traversal tables, part buffers, materials, textures, lights, settings."""
+
+    def __init__(
+        self,
+        mi,
+        scene: TraversalScene,
+        parts: PartArrays,
+        mats: MaterialArrays,
+        *,
+        grid,
+        terrain_map,
+        extent,
+        lights,
+        max_depth: int,
+        rr_depth: int,
+    ):
+        self.mi = mi
+        self.scene = scene
+        self.parts = parts
+        self.mats = mats
+        self.grid = grid
+        self.terrain_map = terrain_map
+        self.extent = tuple(float(v) for v in extent)
+        self.lights = lights
+        self.max_depth = int(max_depth)
+        self.rr_depth = int(rr_depth)
+
+    # -- rays -------------------------------------------------------------------------
+    def offset(self, p, ng, d):
+        """Origin for a ray leaving ``p`` along ``d``: pushed off the surface to ``d``'s side (as Mitsuba)."""
+        import drjit as dr
+
+        mag = (1.0 + dr.max(dr.abs(p))) * RAY_EPSILON
+        side = dr.select(dr.dot(ng, d) >= 0.0, mag, -mag)
+        return dr.fma(ng, side, p)
+
+    def _hit(self, o, d, maxt, active, coherent: bool = False) -> Hit:
+        mi = self.mi
+        ray = mi.Ray3f(o, d, maxt, 0.0, mi.Color0f())
+        pi = self.scene.scene.ray_intersect_preliminary(ray, coherent=coherent, active=active)
+        return resolve(mi, self.scene, self.parts, pi, active)
+
+    def _alpha(self, hit: Hit, active):
+        import drjit as dr
+
+        mi = self.mi
+        material = dr.gather(mi.UInt32, self.parts.material, hit.part, active)
+        return self.mats.alpha(mi, material, hit_uv(mi, self.parts, hit, active), active)
+
+    def _past(self, origin, d, t):
+        """Distance to advance along ``d`` to leave a surface hit at distance ``t`` behind (Mitsuba's ray epsilon)."""
+        import drjit as dr
+
+        return t + (1.0 + dr.max(dr.abs(dr.fma(d, t, origin)))) * RAY_EPSILON
+
+    def trace(self, o, d, maxt, rng, active, threshold: float | None = None, coherent: bool = False):
+        """The first surface along a ray that is not a skipped cut-out texel.
+
+        Returns (valid, t from ``o``, row, p, n_geo, n_sh, uv, material, rng).
+        With ``threshold`` (the layers pass) a texel is opaque when α ≥ threshold;
+        otherwise it stops the ray with probability α, drawn from ``rng``.  A
+        skipped texel costs one traversal, the hit's triangle and uv and one
+        texture lookup; only the surface finally hit is rebuilt in full.
+        """
+        import drjit as dr
+
+        mi = self.mi
+        hit = self._hit(o, d, maxt, active, coherent)
+        if self.mats.has_cutouts:
+            u = rng.next_float32() if threshold is None else mi.Float(threshold)
+            through = hit.valid & (u >= self._alpha(hit, hit.valid))
+            state = (
+                hit.valid, hit.t, hit.row, hit.tri, hit.part, hit.b1, hit.b2,
+                mi.Float(0.0), through, mi.UInt32(0), rng, mi.Point3f(o), mi.Float(maxt), mi.Vector3f(d),
+            )  # fmt: skip
+
+            def cond(valid, t, row, tri, part, b1, b2, base, through, skips, rng, origin, remaining, d):
+                return through
+
+            def body(valid, t, row, tri, part, b1, b2, base, through, skips, rng, origin, remaining, d):
+                step = self._past(origin, d, t - base)
+                origin = dr.fma(d, step, origin)
+                remaining = remaining - step
+                base = base + step
+                skips = skips + 1
+                h = self._hit(origin, d, remaining, through, coherent)
+                u = rng.next_float32() if threshold is None else mi.Float(threshold)
+                again = h.valid & (u >= self._alpha(h, h.valid)) & (skips < MAX_SKIPS)
+                valid = dr.select(through, h.valid, valid)
+                t = dr.select(through, base + h.t, t)
+                row = dr.select(through, h.row, row)
+                tri = dr.select(through, h.tri, tri)
+                part = dr.select(through, h.part, part)
+                b1 = dr.select(through, h.b1, b1)
+                b2 = dr.select(through, h.b2, b2)
+                through = through & again
+                return valid, t, row, tri, part, b1, b2, base, through, skips, rng, origin, remaining, d
+
+            out = dr.while_loop(state, cond, body, label="forest_path: cut-outs")
+            hit = Hit(*out[:7])
+            rng = out[10]
+        sp = surface(mi, self.scene, self.parts, hit, hit.valid)
+        return hit.valid, hit.t, hit.row, sp.p, sp.n_geo, sp.n_sh, sp.uv, sp.material, rng
+
+    # -- the estimator ------------------------------------------------------------------
+    def sample(self, mode, sampler, ray, δL, state_in, active):
+        """One path per lane: (L, or δL in a derivative mode; the camera ray's hit flag; L as state).
+
+        The estimator (module docstring) runs as one loop of ray *segments*.
+
+        Each iteration traces exactly one ray per lane — a camera or bounce ray
+        (past cut-out texels one segment at a time) or a shadow ray — and then
+        does what that segment calls for: pass a texel, collect the sky, shade a
+        vertex (sample a light and a direction, start its shadow ray), or finish
+        a shadow.  Lanes of one SIMD packet therefore stay busy until their
+        paths end, where nested loops (a skip loop inside a shadow loop inside
+        the path loop) leave most lanes of a packet idle while one lane passes
+        its many texels; a packet with 1 of 16 lanes active costs Embree about
+        3.6× more per ray than a full one (``bench/bench_forest_path.py``).
+
+        Path replay: the contributions of a vertex whose shadow ray is still
+        under way — its direct light and the derivative of its BSDF along the
+        continued path — are differentiated when the shadow ray finishes, from
+        the vertex's cached hit (material, uv, position, normal, directions).
+        The vertex's remaining radiance is then exactly what PRB needs there:
+        everything later along the path has not been subtracted yet.
+        """
+        import drjit as dr
+
+        mi = self.mi
+        primal = mode == dr.ADMode.Primal
+        lights = self.lights
+        n = dr.width(ray.d)
+        seed = dr.reinterpret_array(mi.UInt32, sampler.next_1d())
+        rng = mi.PCG32(size=n, initstate=mi.UInt64(seed), initseq=mi.UInt64(dr.arange(mi.UInt32, n)))
+        zeros3 = mi.Vector3f(0.0)
+        state = dict(
+            L=mi.Color3f(0.0) if primal else mi.Color3f(state_in),
+            δL=mi.Color3f(δL if δL is not None else 0.0),
+            β=mi.Color3f(1.0),
+            depth=mi.UInt32(0),
+            prev_pdf=mi.Float(1.0),
+            prev_delta=mi.Bool(True),
+            active=mi.Bool(active),
+            covered=mi.Bool(False),
+            rng=rng,
+            sampler=sampler,
+            eo=mi.Point3f(dr.detach(ray.o)),
+            ed=mi.Vector3f(dr.detach(ray.d)),
+            emaxt=mi.Float(ray.maxt),
+            eskips=mi.UInt32(0),
+            shadowing=mi.Bool(False),
+            so=mi.Point3f(0.0),
+            sd=mi.Vector3f(0.0, 1.0, 0.0),
+            vis=mi.Float(1.0),
+            sskips=mi.UInt32(0),
+            C=mi.Color3f(0.0),
+            cont=mi.Bool(False),
+        )
+        if not primal:  # the vertex a pending shadow ray belongs to
+            state.update(
+                vp=mi.Point3f(0.0), vuv=mi.Point2f(0.0), vmat=mi.UInt32(0), vns=mi.Vector3f(zeros3),
+                vwi=mi.Vector3f(zeros3), vwo=mi.Vector3f(zeros3), vdl=mi.Vector3f(zeros3), vβ=mi.Color3f(0.0),
+                vw=mi.Float(0.0),
+            )  # fmt: skip
+        keys = list(state)
+
+        def cond(*values):
+            return values[keys.index("active")]
+
+        # A term may not depend on the parameters being differentiated (the sky's emission when only the
+        # colour grid has gradients): allowed here, since the terms are propagated one by one.
+        flags = dr.ADFlag.Default | dr.ADFlag.AllowNoGrad
+
+        def differentiate(S, Lo):
+            if mode == dr.ADMode.Backward:
+                dr.backward_from(S["δL"] * Lo, flags=flags)
+            else:
+                S["δL"] = S["δL"] + dr.forward_to(Lo, flags=flags)
+
+        def body(*values):
+            S = dict(zip(keys, values))
+            active = S["active"]
+            shadow = active & S["shadowing"]
+            o = dr.select(shadow, S["so"], S["eo"])
+            d = dr.select(shadow, S["sd"], S["ed"])
+            maxt = dr.select(shadow, dr.inf, S["emaxt"])
+            hit = self._hit(o, d, maxt, active)
+            alpha = self._alpha(hit, hit.valid) if self.mats.has_cutouts else mi.Float(1.0)
+
+            # ---- a shadow segment: attenuate, pass on, or finish
+            s_hit = shadow & hit.valid
+            vis = dr.select(s_hit, S["vis"] * (1.0 - alpha), S["vis"])
+            sskips = dr.select(s_hit, S["sskips"] + 1, S["sskips"])
+            vis = dr.select(s_hit & (sskips >= MAX_SKIPS), 0.0, vis)
+            s_done = shadow & (~hit.valid | (vis <= 0.0))
+            S["so"] = dr.select(shadow & ~s_done, dr.fma(d, self._past(o, d, hit.t), o), S["so"])
+            S["vis"], S["sskips"] = vis, sskips
+            if primal:
+                S["L"] = dr.select(s_done, S["L"] + S["C"] * vis, S["L"])
+            else:
+                with dr.resume_grad():
+                    sh = shading(mi, self.mats, S["vmat"], S["vuv"], S["vp"], self.grid, self.extent,
+                                 self.terrain_map, s_done)  # fmt: skip
+                    f_l, _ = bsdf_eval(mi, sh, S["vns"], S["vwi"], S["vdl"])
+                    Lr_dir = dr.select(s_done, S["vβ"] * f_l * lights.eval(S["vdl"], s_done) * (S["vw"] * vis), 0.0)
+                L = dr.select(s_done, S["L"] - dr.detach(Lr_dir), S["L"])
+                with dr.resume_grad():
+                    f_o, _ = bsdf_eval(mi, sh, S["vns"], S["vwi"], S["vwo"])
+                    Lr_ind = L * dr.select(s_done & S["cont"], dr.relative_grad(f_o), 0.0)
+                    differentiate(S, Lr_dir + Lr_ind)
+                S["L"] = L
+            S["shadowing"] = S["shadowing"] & ~s_done
+            active = active & ~(s_done & ~S["cont"])
+
+            # ---- an extension segment (camera or bounce ray): pass a cut-out texel, leave, or stop
+            ext = active & ~shadow
+            u = S["rng"].next_float32()
+            through = ext & hit.valid & (u >= alpha) & (S["eskips"] < MAX_SKIPS)
+            step = self._past(o, d, hit.t)
+            S["eo"] = dr.select(through, dr.fma(d, step, o), S["eo"])
+            S["emaxt"] = dr.select(through, S["emaxt"] - step, S["emaxt"])
+            S["eskips"] = dr.select(through, S["eskips"] + 1, S["eskips"])
+            stop = ext & ~through
+            escaped = stop & ~hit.valid
+            vertex = stop & hit.valid
+            S["covered"] = S["covered"] | (vertex & (S["depth"] == 0))
+            # Light from where the ray left the scene, weighed against light sampling (power heuristic).
+            mis = dr.select(S["prev_delta"], 1.0, mis_weight(S["prev_pdf"], lights.pdf(d, escaped)))
+            with dr.resume_grad(when=not primal):
+                Le = S["β"] * mis * lights.eval(d, escaped)
+            if primal:
+                S["L"] = S["L"] + Le
+            else:
+                S["L"] = S["L"] - dr.detach(Le)
+                with dr.resume_grad():
+                    differentiate(S, Le)
+            active = active & ~escaped
+
+            # ---- a vertex: shade, sample a light (start its shadow ray) and a direction.  A symbolic
+            # branch: a packet in which no lane stopped at a surface skips the shading code.
+            S["active"] = active
+            hit_args = (hit.valid, hit.t, hit.row, hit.tri, hit.part, hit.b1, hit.b2, d)
+            out = dr.if_stmt(
+                tuple(S[k] for k in keys) + hit_args,
+                vertex,
+                lambda *a: shade_vertex(dict(zip(keys, a[: len(keys)])), *a[len(keys) :]),
+                lambda *a: a[: len(keys)],
+                label="forest_path: vertex",
+            )
+            return tuple(out)
+
+        def shade_vertex(S, h_valid, h_t, h_row, h_tri, h_part, h_b1, h_b2, d):
+            vertex = mi.Bool(True)
+            hit = Hit(h_valid, h_t, h_row, h_tri, h_part, h_b1, h_b2)
+            sp = surface(mi, self.scene, self.parts, hit, vertex)
+            wi = -d
+            flip = dr.dot(sp.n_sh, wi) < 0.0  # two-sided, as Mitsuba's ``twosided``
+            ng = dr.select(flip, -sp.n_geo, sp.n_geo)
+            ns = dr.select(flip, -sp.n_sh, sp.n_sh)
+            with dr.resume_grad(when=not primal):
+                sh = shading(mi, self.mats, sp.material, sp.uv, sp.p, self.grid, self.extent, self.terrain_map, vertex)
+            depth = S["depth"]
+            nee = depth + 1 < self.max_depth
+            u_pick = S["sampler"].next_1d(nee)
+            u_dir = S["sampler"].next_2d(nee)
+            dl, pdf_l = lights.sample_direction(u_pick, u_dir, nee)
+            shd = sh.detached()
+            f_l, pdf_b = bsdf_eval(mi, shd, ns, wi, dl)
+            nee &= (pdf_l > 0.0) & (dr.max(f_l) > 0.0)
+            w_l = mis_weight(pdf_l, pdf_b) / dr.maximum(pdf_l, 1e-30)
+            S["C"] = dr.select(nee, S["β"] * f_l * lights.eval(dl, nee) * w_l, S["C"])
+            u_lobe = S["sampler"].next_1d()
+            u_bsdf = S["sampler"].next_2d()
+            wo, weight, pdf_o = bsdf_sample(mi, shd, mi.Frame3f(ns), u_lobe, u_bsdf)
+            cont = (depth + 1 < self.max_depth) & (pdf_o > 0.0)
+            β_vertex = S["β"]
+            β = S["β"] * dr.select(cont, weight, 0.0)
+            β_max = dr.max(β)
+            cont &= β_max > 0.0
+            q = dr.minimum(β_max, 0.95)
+            rr = depth >= self.rr_depth
+            u_rr = S["sampler"].next_1d()
+            β = dr.select(rr, β / dr.maximum(q, 1e-12), β)
+            cont &= ~rr | (u_rr < q)
+            if not primal:
+                # No shadow ray pending: this vertex's path derivative can be taken now.
+                with dr.resume_grad():
+                    f_o, _ = bsdf_eval(mi, sh, ns, wi, wo)
+                    Lr_ind = S["L"] * dr.select(~nee & cont, dr.relative_grad(f_o), 0.0)
+                    differentiate(S, Lr_ind)
+                for k, v in (("vp", sp.p), ("vuv", sp.uv), ("vmat", sp.material), ("vns", ns), ("vwi", wi),
+                             ("vwo", wo), ("vdl", dl), ("vβ", β_vertex), ("vw", w_l)):  # fmt: skip
+                    S[k] = dr.select(nee, v, S[k])
+            S["β"] = β
+            S["cont"] = cont
+            S["eo"] = dr.select(cont, self.offset(sp.p, ng, wo), S["eo"])
+            S["ed"] = dr.select(cont, wo, S["ed"])
+            S["emaxt"] = dr.select(cont, dr.inf, S["emaxt"])
+            S["eskips"] = dr.select(cont, 0, S["eskips"])
+            S["shadowing"] = S["shadowing"] | nee
+            S["so"] = dr.select(nee, self.offset(sp.p, ng, dl), S["so"])
+            S["sd"] = dr.select(nee, dl, S["sd"])
+            S["vis"] = dr.select(nee, 1.0, S["vis"])
+            S["sskips"] = dr.select(nee, 0, S["sskips"])
+            S["prev_pdf"] = pdf_o
+            S["prev_delta"] = mi.Bool(False)
+            S["depth"] = depth + 1
+            S["active"] = cont | nee
+            return tuple(S[k] for k in keys)
+
+        out = dict(zip(keys, dr.while_loop(tuple(state.values()), cond, body, label="forest_path: segments")))
+        L = out["L"]
+        return (L if primal else out["δL"]), out["covered"], L
+
+
+_CLASSES: dict[str, type] = {}
+
+
+def integrator_class(mi) -> type:
+    """``forest_path`` as a Mitsuba integrator class for the active variant (registered on first use).
+
+    It derives from Mitsuba's ``RBIntegrator`` (the base of ``prb``), so ``mi.render(scene, params,
+    sensor=..., integrator=...)`` renders and differentiates it like Mitsuba's
+    ``prb``; the instance must be bound to a :class:`PathKernel` (``bind``) —
+    :meth:`forest.render.path.PathScene.integrator` returns one ready to use
+    with ``PathScene.traversal.scene``.
+    """
+    variant = mi.variant()
+    if variant in _CLASSES:
+        return _CLASSES[variant]
+    from mitsuba.python.ad.integrators.common import RBIntegrator as base
+
+    class ForestPathIntegrator(base):
+        def __init__(self, props):
+            super().__init__(props)
+            self.kernel: PathKernel | None = None
+
+        def bind(self, kernel: PathKernel):
+            self.kernel = kernel
+            self.max_depth = kernel.max_depth
+            return self
+
+        def sample(self, mode, scene, sampler, ray, δL, state_in, active, **kwargs):
+            if self.kernel is None:
+                raise RuntimeError("forest_path: bind the integrator to a PathKernel first (PathScene.integrator())")
+            L, valid, state = self.kernel.sample(mode, sampler, ray, δL, state_in, active)
+            return L, valid, [], state
+
+        def aov_names(self):
+            return []
+
+        def to_string(self):
+            return "ForestPathIntegrator[]"
+
+    mi.register_integrator("forest_path", lambda props: ForestPathIntegrator(props))
+    _CLASSES[variant] = ForestPathIntegrator
+    return ForestPathIntegrator

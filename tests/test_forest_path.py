@@ -1,0 +1,560 @@
+"""forest_path, forest's path tracer for the JIT variants: hits, layers, look, light, gradients, determinism.
+
+Small scenes and tiny images; where an independent reference exists it is
+the ``scalar_rgb`` renderer (Mitsuba's own surface interactions and BSDFs) or
+a closed form.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_render import make_config, read_exr
+
+from forest.images import write_image
+from forest.instances import InstanceSet, yaw_tilt_quaternion
+from forest.render import render_scene
+from forest.render.path import Material, PathCamera, PathInputs, PathScene, SkyLight, SunLight, Surface, sun_direction
+from forest.render.path.from_scene import path_inputs
+from forest.render.render import render_image
+from forest.scene import load_scene
+
+from render_fixtures import BoxLibrary
+
+VARIANT = "llvm_ad_rgb"
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory):
+    return BoxLibrary(tmp_path_factory.mktemp("pathlib"))
+
+
+#: The second species of the sets below, for configs (scatter gives it no share).
+CARD = '\n[[species]]\nmodel = "card"\npercent = 0\n'
+
+
+def forest_set(positions, species, names=("box", "card"), scale=1.0) -> InstanceSet:
+    p = np.asarray(positions, np.float32)
+    n = len(p)
+    up = np.tile([0.0, 1.0, 0.0], (n, 1))
+    return InstanceSet(
+        id=np.arange(500, 500 + n),
+        position=p,
+        rotation=yaw_tilt_quaternion(np.zeros(n), up, np.zeros(n)),
+        yaw=np.zeros(n),
+        scale=np.full(n, scale),
+        species=np.asarray(species),
+        tint=np.ones((n, 3)),
+        partition=np.zeros(n),
+        normal=up,
+        phase=np.zeros(n),
+        species_names=list(names),
+        extent=(-50.0, -50.0, 50.0, 50.0),
+    )
+
+
+def quad(y: float, half: float, *, up: bool = True):
+    """A horizontal square at height y (normals up), as MeshData."""
+    from forest.library.mesh import MeshData
+
+    v = np.array([[-half, y, -half], [half, y, -half], [half, y, half], [-half, y, half]], np.float32)
+    f = np.array([[0, 2, 1], [0, 3, 2]] if up else [[0, 1, 2], [0, 2, 3]], np.uint32)
+    n = np.tile(np.array([[0.0, 1.0 if up else -1.0, 0.0]], np.float32), (4, 1))
+    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
+    return MeshData(v, f, n, uv)
+
+
+def look(position, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    from forest.camera import look_at_matrix
+
+    return look_at_matrix(position, target, up)
+
+
+# ---------------------------------------------------------------------------
+# Stage 1: hits rebuilt from preliminary intersections; depth, id, species
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("flatten", [0, 10_000])
+def test_layers_match_the_scalar_renderer(tmp_path, library, flatten):
+    """Instanced (flatten 0) or merged (10 000) trees: the id/species/depth layers agree with scalar_rgb's."""
+    cfg = make_config(tmp_path, extra="[lod]\ndistances = [221.0, 222.0, 223.0]\n" + CARD)
+    pos = [[-20.0, 0.0, -20.0], [20.0, 0.0, -20.0], [-20.0, 0.0, 20.0], [20.0, 0.0, 22.0], [0.0, 0.0, 0.0]]
+    inst = forest_set(pos, [0, 0, 0, 0, 1], scale=2.0)
+    render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "s.exr", variant="scalar_rgb")
+    ref = read_exr(tmp_path / "s.exr")
+    inputs = path_inputs(load_scene(cfg, inst, library=library))
+    inputs.flatten_triangles = flatten
+    scene = PathScene(inputs, VARIANT)
+    stats = scene.stats
+    assert (stats.instances, stats.flattened_trees) == ((5, 0) if flatten == 0 else (0, 5))
+    layers = scene.layers()
+    # The LOD plan gave some trees the high box (6 m) and others the low one (3 m): both kinds are seen.
+    assert set(np.unique(layers["id"]).astype(int)) == {-1, 500, 501, 502, 503, 504}
+    same = layers["id"] == ref["id"]
+    assert same.mean() > 0.99  # a pixel centre exactly on a box edge may go either way
+    np.testing.assert_array_equal(layers["species"][same], ref["species"][same])
+    hit = same & (ref["depth"] < 1e4)
+    # The scalar depth is measured from the near plane (0.5 m in front of the camera), ours from the camera:
+    # they differ by 0.5 / cos θ along a ray θ off the view axis.
+    cam = inputs.camera
+    forward = np.asarray(cam.to_world)[:3, 2]
+    cos = np.array([[pixel_direction(cam, i, j) @ forward for j in range(cam.width)] for i in range(cam.height)])
+    np.testing.assert_allclose(layers["depth"][hit], ref["depth"][hit] + 0.5 / cos[hit], atol=0.01)
+    assert (layers["depth"][ref["depth"] >= 1e4] >= 1e4).all()
+
+
+def pixel_direction(camera: PathCamera, i: int, j: int) -> np.ndarray:
+    """Unit world direction of the ray through the centre of pixel (row i, column j) (pinhole, fov along x)."""
+    t = np.tan(np.radians(camera.fov) / 2)
+    x = (1 - 2 * (j + 0.5) / camera.width) * t  # camera +X is image left
+    y = (1 - 2 * (i + 0.5) / camera.height) * t * camera.height / camera.width
+    d = np.asarray(camera.to_world)[:3, :3] @ np.array([x, y, 1.0])
+    return d / np.linalg.norm(d)
+
+
+def test_layers_on_a_known_layout(library):
+    """Straight down from 100 m: box tops, the card's opaque half and, through its transparent half, the ground."""
+    inst = forest_set([[-8.0, 0.0, 0.0], [8.0, 0.0, 0.0]], [0, 1])
+    camera = PathCamera(look([0.0, 100.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 30.0, 61, 61)
+    inputs = PathInputs(
+        instances=inst,
+        species=[library.resolve("box"), library.resolve("card")],
+        levels=np.array([3, 0]),  # the far box: 2×3×2 m
+        matrices=inst.matrices(),
+        camera=camera,
+        surfaces=[Surface(quad(0.0, 15.0), Material("surface", (0.2, 0.2, 0.2)))],
+        sun=SunLight((0.0, 1.0, 0.0), (1.0, 1.0, 1.0)),
+    )
+    layers = PathScene(inputs, VARIANT).layers()
+    half = 100.0 * np.tan(np.radians(15.0))  # half the ground width seen at the image's centre row
+
+    def pixel(x, z):  # the pixel looking at world (x, ·, z): image left is +X, image up is +Z
+        return int(np.floor((1 - z / half) * 61 / 2)), int(np.floor((1 - x / half) * 61 / 2))
+
+    def depth_at(i, j, height):
+        d = pixel_direction(camera, i, j)
+        return (100.0 - height) / -d[1]
+
+    box, card_opaque, card_clear = pixel(-8.0, 0.0), pixel(11.0, 2.0), pixel(5.0, 2.0)
+    assert layers["id"][box] == 500 and layers["species"][box] == 0
+    assert layers["depth"][box] == pytest.approx(depth_at(*box, 3.0), abs=0.01)
+    # The card (10×10 m at 5 m, centred on x = 8): its alpha is 0 for u < ½ (x < 8 m) and 1 beyond.
+    assert layers["id"][card_opaque] == 501 and layers["species"][card_opaque] == 1
+    assert layers["depth"][card_opaque] == pytest.approx(depth_at(*card_opaque, 5.0), abs=0.01)
+    assert layers["id"][card_clear] == -1 and layers["species"][card_clear] == -1
+    assert layers["depth"][card_clear] == pytest.approx(depth_at(*card_clear, 0.0), abs=0.01)
+    # Outside the ground: nothing is hit, the far clip.
+    assert layers["depth"][0, 0] == pytest.approx(1e5)
+
+
+# ---------------------------------------------------------------------------
+# Stage 2/3: materials, sun and sky, cut-outs; agreement with scalar_rgb
+# ---------------------------------------------------------------------------
+
+
+def no_trees() -> InstanceSet:
+    return forest_set(np.zeros((0, 3)), np.zeros(0, np.int64), names=("box",))
+
+
+def surfaces_only(surfaces, camera, *, sun=None, sky=None, max_depth=2, spp=16, library=None) -> PathInputs:
+    inst = no_trees()
+    return PathInputs(
+        instances=inst,
+        species=[library.resolve("box")] if library is not None else [None],
+        levels=np.zeros(0, np.int64),
+        matrices=np.zeros((0, 4, 4)),
+        camera=camera,
+        surfaces=surfaces,
+        sun=sun,
+        sky=sky,
+        max_depth=max_depth,
+        spp=spp,
+    )
+
+
+def test_agrees_with_the_scalar_renderer_within_noise(tmp_path, library):
+    """Boxes on a ground under sun and sky with indirect light: the same image as scalar_rgb, up to noise.
+
+    The noise level of each renderer is measured from two seeds; the mean of the
+    two-seed averages must differ by less than that level, and their overall
+    brightness by less than 1.5 %.
+    """
+    cam = "position = [0.0, 30.0, -60.0]\ntarget = [0.0, 2.0, 0.0]\nfov = 40.0"
+    sun = "[lights.sun]\nelevation = 40.0\nazimuth = 30.0\nirradiance = 3.0\n"
+    inst = forest_set([[x, 0.0, z] for x in (-15.0, 0.0, 15.0) for z in (-10.0, 10.0)], [0] * 6, scale=1.5)
+    w, h, spp = 48, 36, 48
+    scalar, path = [], []
+    for seed in (1, 2):
+        cfg = make_config(
+            tmp_path, camera=cam, replace_camera=True, render=f"max_depth = 3\nseed = {seed}", extra=sun + CARD
+        )
+        scalar.append(
+            render_image(load_scene(cfg, inst, library=library), width=w, height=h, spp=spp, variant="scalar_rgb")
+        )
+        scene = PathScene(path_inputs(load_scene(cfg, inst, library=library), width=w, height=h, spp=spp), VARIANT)
+        path.append(scene.render(seed=seed).rgb.astype(np.float64))
+    noise_s = np.std(scalar[0] - scalar[1]) / np.sqrt(2)
+    noise_p = np.std(path[0] - path[1]) / np.sqrt(2)
+    mean_s, mean_p = (scalar[0] + scalar[1]) / 2, (path[0] + path[1]) / 2
+    level = np.sqrt((noise_s**2 + noise_p**2) / 2)
+    assert np.abs(mean_p - mean_s).mean() < level
+    assert mean_p.mean() == pytest.approx(mean_s.mean(), rel=0.015)
+
+
+def test_a_leaf_lit_from_behind_transmits(tmp_path):
+    """A horizontal leaf under an overhead sun, seen from below: L = T/π · E with T = τ·a; black without τ."""
+    camera = PathCamera(look([0.0, 0.0, 0.0], [0.0, 1.0, 0.0], (0.0, 0.0, 1.0)), 20.0, 8, 8)
+    sun = SunLight((0.0, 1.0, 0.0), (2.0, 2.0, 2.0))
+    values = {}
+    for tau in (0.0, 0.4):
+        leaf = Surface(quad(1.0, 5.0), Material("leaf", (0.5, 0.6, 0.3), translucency=tau))
+        img = PathScene(surfaces_only([leaf], camera, sun=sun, spp=4), VARIANT).render().rgb
+        values[tau] = img.reshape(-1, 3).mean(axis=0)
+    np.testing.assert_allclose(values[0.0], 0.0, atol=1e-6)
+    expected = 0.4 * np.array([0.5, 0.6, 0.3]) / np.pi * 2.0
+    np.testing.assert_allclose(values[0.4], expected, rtol=1e-3)
+
+
+def card_texture(path: Path, alpha_left: float, alpha_right: float) -> Path:
+    rgba = np.ones((16, 16, 4), np.float32)
+    rgba[:, :8, 3] = alpha_left
+    rgba[:, 8:, 3] = alpha_right
+    return write_image(path, rgba)
+
+
+def ground_mask(camera: PathCamera, x_range, z_range) -> np.ndarray:
+    """Pixels whose centre ray meets the plane y = 0 inside x_range × z_range."""
+    o = np.asarray(camera.to_world)[:3, 3]
+    mask = np.zeros((camera.height, camera.width), bool)
+    for i in range(camera.height):
+        for j in range(camera.width):
+            d = pixel_direction(camera, i, j)
+            if d[1] < 0:
+                x, _, z = o + d * (-o[1] / d[1])
+                mask[i, j] = x_range[0] <= x <= x_range[1] and z_range[0] <= z <= z_range[1]
+    return mask
+
+
+def test_cut_out_cards_cast_partial_shadows(tmp_path):
+    """A card 5 m up, sun at 45° from +Z: its shadow falls 5 m towards −Z.  Under the transparent half the
+    ground is lit, under the opaque half it is dark, under a half of opacity ½ it receives half the light."""
+    camera = PathCamera(look([0.0, 60.0, -7.5], [0.0, 0.0, -7.5], (0.0, 0.0, 1.0)), 12.0, 24, 24)
+    sun = SunLight((0.0, np.sqrt(0.5), np.sqrt(0.5)), (1.0, 1.0, 1.0))
+    ground = Surface(quad(0.0, 20.0), Material("surface", (0.5, 0.5, 0.5)))
+    lit = 0.5 / np.pi * np.sqrt(0.5)
+    # The card covers x, z ∈ ±5 m (u < ½ ↔ x < 0); its shadow x ∈ ±5, z ∈ [−10, 0], seen where z < −5.
+    under_left = ground_mask(camera, (-4.0, -1.0), (-9.5, -5.5))  # 1 m off the bilinear alpha edges
+    under_right = ground_mask(camera, (1.0, 4.0), (-9.5, -5.5))
+    outside = ground_mask(camera, (-9.0, 9.0), (-13.0, -10.5))
+    assert under_left.sum() > 10 and under_right.sum() > 10 and outside.sum() > 10
+    for alpha_left, alpha_right in ((0.0, 1.0), (0.5, 1.0)):
+        tex = card_texture(tmp_path / f"card_{alpha_left}.png", alpha_left, alpha_right)
+        card = Surface(quad(5.0, 5.0), Material("leaf", (0.8, 0.8, 0.8), texture=tex))
+        img = PathScene(surfaces_only([ground, card], camera, sun=sun, spp=16), VARIANT).render().rgb[..., 0]
+        np.testing.assert_allclose(img[outside], lit, rtol=5e-3)  # the 0.53° disc: cos varies ±0.5 %
+        np.testing.assert_allclose(img[under_right], 0.0, atol=1e-6)
+        stored = round(alpha_left * 255) / 255  # the PNG keeps 8 bits
+        np.testing.assert_allclose(img[under_left], lit * (1.0 - stored), rtol=5e-3)
+
+
+def test_camera_rays_see_through_cut_outs_in_proportion(tmp_path):
+    """A card of opacity ½ over a black ground, lit from above: half the paths stop on it (stochastic alpha)."""
+    camera = PathCamera(look([0.0, 30.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 10.0, 8, 8)
+    sun = SunLight((0.0, 1.0, 0.0), (1.0, 1.0, 1.0))
+    tex = card_texture(tmp_path / "half.png", 0.5, 0.5)
+    card = Surface(quad(5.0, 5.0), Material("leaf", (0.8, 0.8, 0.8), texture=tex))
+    ground = Surface(quad(0.0, 20.0), Material("surface", (0.0, 0.0, 0.0)))
+    img = PathScene(surfaces_only([ground, card], camera, sun=sun, spp=256), VARIANT).render()
+    assert img.rgb[..., 0].mean() == pytest.approx(128 / 255 * 0.8 / np.pi, rel=0.03)  # α = 128/255 in the PNG
+    np.testing.assert_allclose(img.alpha, 1.0)  # every path hit something (the card or the ground)
+
+
+def test_sunsky_lights_the_scene_from_above(tmp_path):
+    """Mitsuba's sunsky is Z-up; rotated to Y-up the sky is above the horizon and the sun lights the ground."""
+    ground = Surface(quad(0.0, 50.0), Material("surface", (0.5, 0.5, 0.5)))
+    down = PathCamera(look([0.0, 10.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 20.0, 8, 8)
+    up = PathCamera(look([0.0, 1.0, 0.0], [0.0, 2.0, 0.0], (0.0, 0.0, 1.0)), 20.0, 8, 8)
+    sun = SunLight(sun_direction(40.0, 120.0), (0.0, 0.0, 0.0))
+    scene = PathScene(surfaces_only([ground], down, sun=sun, sky=SkyLight("sunsky"), spp=16), VARIANT)
+    lit = scene.render().rgb.reshape(-1, 3).mean(axis=0)
+    zenith = scene.render(up).rgb.reshape(-1, 3).mean(axis=0)
+    assert lit.min() > 0.01  # the ground is lit: sun and sky are above the horizon
+    assert zenith[2] > zenith[0]  # a clear sky is blue at the zenith
+    # Without its sun the ground is lit by the sky alone: much darker.
+    scene.params["sun_scale"] = scene.mi.Color3f(0.0)
+    assert scene.render().rgb.mean() < 0.5 * lit.mean()
+
+
+def test_sun_and_sky_light_an_open_ground_exactly(tmp_path):
+    """Ground of albedo a under a sun of irradiance E at elevation θ and a constant sky L:
+    L_out = a·(E sin θ / π + L).  Light sampling and BSDF sampling combined by MIS converge to it."""
+    camera = PathCamera(look([0.0, 10.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 10.0, 6, 6)
+    ground = Surface(quad(0.0, 1000.0), Material("surface", (0.5, 0.4, 0.3)))
+    sun = SunLight(sun_direction(30.0, 45.0), (2.0, 2.0, 2.0))
+    sky = SkyLight("constant", radiance=(0.2, 0.3, 0.5))
+    img = PathScene(surfaces_only([ground], camera, sun=sun, sky=sky, spp=256, max_depth=2), VARIANT).render()
+    expected = np.array([0.5, 0.4, 0.3]) * (2.0 * 0.5 / np.pi + np.array([0.2, 0.3, 0.5]))
+    np.testing.assert_allclose(img.rgb.reshape(-1, 3).mean(axis=0), expected, rtol=0.01)
+
+
+def test_white_furnace_with_leaves_and_indirect_light():
+    """Two stacked leaves with R + T = 1 in a uniform sky: with enough bounces every leaf shows the sky's
+    radiance (energy is conserved through reflection and transmission); with direct light only the lower
+    leaf hides part of the sky from the upper one."""
+    camera = PathCamera(look([0.0, 10.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 10.0, 6, 6)
+    leaves = [Surface(quad(y, 20.0), Material("leaf", (1.0, 1.0, 1.0), translucency=0.5)) for y in (0.0, 1.0)]
+    sky = SkyLight("constant", radiance=(0.5, 0.5, 0.5))
+    deep = PathScene(surfaces_only(leaves, camera, sky=sky, spp=256, max_depth=64), VARIANT).render()
+    np.testing.assert_allclose(deep.rgb.mean(), 0.5, rtol=0.02)
+    direct = PathScene(surfaces_only(leaves, camera, sky=sky, spp=64, max_depth=2), VARIANT).render()
+    # The upper leaf, direct light only: it reflects the sky above, R·L; the lower leaf hides the sky below,
+    # so nothing is transmitted.
+    np.testing.assert_allclose(direct.rgb.mean(), 0.5 * 0.5, rtol=0.02)
+
+
+def test_envmap_sky_is_y_up_and_scaled(tmp_path):
+    """A latitude–longitude sky bright above the horizon, black below: an upward ground sees a·L·scale."""
+    env = np.zeros((32, 64, 3), np.float32)
+    env[:16] = 0.4  # the image's upper half is the sky above the horizon
+    path = write_image(tmp_path / "sky.exr", env)
+    camera = PathCamera(look([0.0, 10.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 10.0, 6, 6)
+    ground = Surface(quad(0.0, 1000.0), Material("surface", (0.5, 0.5, 0.5)))
+    sky = SkyLight("envmap", envmap=path, scale=2.0)
+    img = PathScene(surfaces_only([ground], camera, sky=sky, spp=256, max_depth=2), VARIANT).render()
+    np.testing.assert_allclose(img.rgb.mean(), 0.5 * 0.4 * 2.0, rtol=0.02)
+
+
+# ---------------------------------------------------------------------------
+# Stage 4: derivatives (path replay) against finite differences
+# ---------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def ad_scene(library):
+    """Boxes (tinted leaves, τ = 0.3) on a tinted ground under sun and sky, a 2×2 colour grid, indirect light."""
+    inst = forest_set([[x, 0.0, z] for x in (-12.0, 4.0) for z in (-8.0, 10.0)], [0] * 4, scale=2.0)
+    lib = BoxLibrary(library.species["box"].lods[0].parts[0].path.parent / "ad", translucency=0.3)
+    grid = np.array([[[0.9, 0.6, 0.4], [0.5, 0.9, 0.5]], [[0.4, 0.5, 0.9], [0.8, 0.8, 0.3]]], np.float32)
+    from forest.terrain import grid_terrain
+
+    inputs = PathInputs(
+        instances=inst,
+        species=[lib.resolve("box")],
+        levels=np.zeros(4, np.int64),
+        matrices=inst.matrices(),
+        camera=PathCamera(look([0.0, 40.0, -50.0], [0.0, 0.0, 0.0]), 45.0, 24, 18),
+        terrain=grid_terrain(np.zeros((5, 5)), (60.0, 60.0)),
+        sun=SunLight(sun_direction(50.0, 20.0), (2.0, 1.8, 1.6)),
+        sky=SkyLight("constant", radiance=(0.3, 0.35, 0.5)),
+        colour_grid=grid,
+        terrain_colour=(0.3, 0.25, 0.2),
+        max_depth=3,
+        rr_depth=100,  # no Russian roulette: its decisions would jump under finite differences
+        spp=8,
+    )
+    return PathScene(inputs, VARIANT)
+
+
+def _loss(scene, weights, **values):
+    """Σ w · image for parameter values set by name (numpy), same seed every time."""
+    mi = scene.mi
+    saved = dict(scene.params)
+    try:
+        for k, v in values.items():
+            scene.params[k] = (
+                mi.TensorXf(np.asarray(v, np.float32)) if k == "colour_grid" else mi.Color3f(*map(float, v))
+            )
+        return float((scene.render(seed=3).rgb.astype(np.float64) * weights).sum())
+    finally:
+        scene.params.update(saved)
+
+
+def test_reverse_mode_gradients_match_finite_differences(ad_scene):
+    import drjit as dr
+
+    scene = ad_scene
+    rng = np.random.default_rng(5)
+    weights = rng.uniform(0.5, 1.5, (18, 24, 3))
+    grid0 = np.asarray(scene.params["colour_grid"], np.float64)
+    sun0 = np.asarray(scene.params["sun_irradiance"], np.float64).ravel()
+    sky0 = np.asarray(scene.params["sky_radiance"], np.float64).ravel()
+    params = {k: scene.params[k] for k in ("colour_grid", "sun_irradiance", "sky_radiance")}
+    for v in params.values():
+        dr.enable_grad(v)
+    scene.render_backward(weights, seed=3)
+    grads = {k: np.asarray(dr.grad(v), np.float64) for k, v in params.items()}
+    for v in params.values():
+        dr.disable_grad(v)
+    # The colour grid: every cell and channel, central differences.
+    h = 0.02
+    for idx in np.ndindex(2, 2, 3):
+        up, down = grid0.copy(), grid0.copy()
+        up[idx] += h
+        down[idx] -= h
+        fd = (_loss(scene, weights, colour_grid=up) - _loss(scene, weights, colour_grid=down)) / (2 * h)
+        assert grads["colour_grid"][idx] == pytest.approx(fd, rel=0.02, abs=1e-3), idx
+    # Light scales: the image is linear in each, so the difference quotient is exact.
+    for name, base in (("sun_irradiance", sun0), ("sky_radiance", sky0)):
+        for c in range(3):
+            up = base.copy()
+            up[c] += 0.1
+            fd = (_loss(scene, weights, **{name: up}) - _loss(scene, weights, **{name: base})) / 0.1
+            assert grads[name].ravel()[c] == pytest.approx(fd, rel=0.01), (name, c)
+    assert np.abs(grads["colour_grid"]).min() > 0  # every cell is seen (directly or by its light)
+
+
+def test_forward_mode_derivative_matches_finite_differences(ad_scene):
+    import drjit as dr
+
+    scene = ad_scene
+    mi = scene.mi
+    rng = np.random.default_rng(8)
+    weights = rng.uniform(0.5, 1.5, (18, 24, 3))
+    grid0 = np.asarray(scene.params["colour_grid"], np.float64)
+    tangent = rng.normal(size=grid0.shape)
+    g = scene.params["colour_grid"]
+    dr.enable_grad(g)
+    dr.set_grad(g, mi.TensorXf(tangent.astype(np.float32)))
+    image_tangent = scene.render_forward(seed=3)
+    dr.disable_grad(g)
+    h = 0.01
+    fd = (
+        _loss(scene, weights, colour_grid=grid0 + h * tangent) - _loss(scene, weights, colour_grid=grid0 - h * tangent)
+    ) / (2 * h)
+    assert float((image_tangent * weights).sum()) == pytest.approx(fd, rel=0.01)
+    # The sun scale: the derivative image of a linear parameter is the image it lights.
+    sun = scene.params["sun_irradiance"]
+    dr.enable_grad(sun)
+    dr.set_grad(sun, mi.Color3f(1.0, 0.0, 0.0))
+    d_sun = scene.render_forward(seed=3)
+    dr.disable_grad(sun)
+    base = _loss(scene, weights)
+    bumped = _loss(scene, weights, sun_irradiance=np.asarray(sun, np.float64).ravel() + [0.5, 0.0, 0.0])
+    assert float((d_sun * weights).sum()) == pytest.approx((bumped - base) / 0.5, rel=0.01)
+
+
+def test_render_ad_composes_with_a_loss(ad_scene):
+    """``render_ad`` behaves like ``mi.render``: dr.backward of a loss built on it fills the parameters' grads."""
+    import drjit as dr
+
+    scene = ad_scene
+    mi = scene.mi
+    weights = np.random.default_rng(2).uniform(0.5, 1.5, (18, 24, 3)).astype(np.float32)
+    sky = scene.params["sky_radiance"]
+    dr.enable_grad(sky)
+    img = scene.render_ad(spp=8, seed=3)
+    loss = dr.sum(img.array * mi.Float(weights.ravel()))
+    dr.backward(loss)
+    via_op = np.asarray(dr.grad(sky), np.float64).ravel()
+    dr.set_grad(sky, mi.Color3f(0.0))
+    scene.render_backward(weights, spp=8, seed=3)
+    direct = np.asarray(dr.grad(sky), np.float64).ravel()
+    dr.disable_grad(sky)
+    np.testing.assert_allclose(via_op, direct, rtol=1e-5)
+    assert (via_op > 0).all()
+    np.testing.assert_allclose(np.asarray(dr.detach(img)), scene.render(spp=8, seed=3).rgb, rtol=1e-6)
+
+
+def test_registered_integrator_works_with_mi_render(ad_scene):
+    """``forest_path`` as a Mitsuba integrator: ``mi.render`` gives the driver's image up to noise, and gradients."""
+    import drjit as dr
+
+    scene = ad_scene
+    mi = scene.mi
+    integrator = scene.integrator()
+    sensor = scene.sensor()
+    img = np.asarray(mi.render(scene.traversal.scene, sensor=sensor, integrator=integrator, spp=64, seed=1))
+    ours = scene.render(spp=64, seed=1).rgb
+    assert img[..., :3].mean() == pytest.approx(ours.mean(), rel=0.03)
+    sky = scene.params["sky_radiance"]
+    dr.enable_grad(sky)
+    params = scene.scene_parameters()
+    out = mi.render(scene.traversal.scene, params, sensor=sensor, integrator=integrator, spp=8, seed=1)
+    dr.backward(dr.mean(out.array))
+    assert (np.asarray(dr.grad(sky)) > 0).all()
+    dr.disable_grad(sky)
+
+
+def test_same_inputs_and_seed_give_identical_images(ad_scene, library):
+    """Bit-identical images for the same inputs and seed (also from a freshly built scene); another seed differs."""
+    a = ad_scene.render(spp=4, seed=11)
+    b = ad_scene.render(spp=4, seed=11)
+    fresh = PathScene(ad_scene.inputs, VARIANT).render(spp=4, seed=11)
+    assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.rgb, fresh.rgb) and np.array_equal(a.alpha, fresh.alpha)
+    assert not np.array_equal(a.rgb, ad_scene.render(spp=4, seed=12).rgb)
+    # Passes: a wavefront cap that splits the samples gives another, equally valid, deterministic image.
+    import forest.render.path.frame as frame
+
+    cap = frame.MAX_LANES
+    try:
+        frame.MAX_LANES = 24 * 18 * 2  # two samples per pixel per pass
+        c = ad_scene.render(spp=4, seed=11)
+        d = ad_scene.render(spp=4, seed=11)
+    finally:
+        frame.MAX_LANES = cap
+    assert np.array_equal(c.rgb, d.rgb) and c.spp == 4 and not np.array_equal(c.rgb, a.rgb)
+    assert c.rgb.mean() == pytest.approx(a.rgb.mean(), rel=0.05)
+
+
+def test_a_forest_too_large_for_memory_fails_before_loading(library, monkeypatch):
+    """The instance records' memory is checked against what is available: one line naming [lod] distances."""
+    import forest.render.path.frame as frame
+    from forest.errors import ForestError
+
+    inst = forest_set([[x, 0.0, 0.0] for x in range(-20, 21, 4)], [0] * 11)
+    inputs = PathInputs(
+        instances=inst,
+        species=[library.resolve("box")],
+        levels=np.zeros(11, np.int64),
+        matrices=inst.matrices(),
+        camera=PathCamera(look([0.0, 10.0, -30.0], [0.0, 0.0, 0.0]), 40.0, 8, 8),
+        sun=SunLight((0.0, 1.0, 0.0), (1.0, 1.0, 1.0)),
+        flatten_triangles=0,
+    )
+    monkeypatch.setattr(frame, "available_bytes", lambda: frame.MEMORY_HEADROOM + 10 * 16 * 1024)
+    with pytest.raises(ForestError, match=r"\[lod\] distances: 11 instanced trees .* GB") as err:
+        PathScene(inputs, VARIANT)
+    assert "\n" not in str(err.value)
+    monkeypatch.setattr(frame, "available_bytes", lambda: frame.MEMORY_HEADROOM + 11 * 16 * 1024)
+    assert PathScene(inputs, VARIANT).stats.instances == 11
+
+
+def test_render_frame_returns_every_layer(ad_scene):
+    """``render_frame``: beauty, coverage and the depth/id/species layers of one still, all (H, W)."""
+    from forest.render.path import render_frame
+
+    out = render_frame(ad_scene.inputs)
+    h, w = 18, 24
+    assert out["rgb"].shape == (h, w, 3) and out["alpha"].shape == (h, w)
+    assert {k: out[k].shape for k in ("depth", "id", "species")} == {k: (h, w) for k in ("depth", "id", "species")}
+    assert set(np.unique(out["id"]).astype(int)) <= {-1, 500, 501, 502, 503}
+    assert (out["alpha"][out["id"] >= 0] > 0.5).all() and out["spp"] == 8
+
+
+def test_colour_grid_follows_the_map_convention(library):
+    """A 2×3 colour grid over the terrain: row i → +Z (row 0 at zmin), column j → +X, seen where each cell lies."""
+    from forest.terrain import grid_terrain
+
+    grid = np.array(
+        [
+            [[0.9, 0.1, 0.1], [0.1, 0.9, 0.1], [0.1, 0.1, 0.9]],  # z < 0: red, green, blue from −X to +X
+            [[0.9, 0.9, 0.1], [0.1, 0.9, 0.9], [0.9, 0.1, 0.9]],  # z > 0: yellow, cyan, magenta
+        ],
+        np.float32,
+    )
+    camera = PathCamera(look([0.0, 200.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 30.0, 60, 60)
+    inputs = surfaces_only([], camera, sky=SkyLight("constant", radiance=(1.0, 1.0, 1.0)), spp=4, library=library)
+    inputs.terrain = grid_terrain(np.zeros((9, 9)), (96.0, 96.0))
+    inputs.terrain_colour = (1.0, 1.0, 1.0)
+    inputs.colour_grid = grid
+    img = PathScene(inputs, VARIANT).render().rgb
+    for i, z in enumerate((-24.0, 24.0)):
+        for j, x in enumerate((-32.0, 0.0, 32.0)):
+            # Near a texel centre (bilinear weights ≥ 94 % on the cell itself).
+            mask = ground_mask(camera, (x - 2.0, x + 2.0), (z - 2.0, z + 2.0))
+            assert mask.any()
+            colour = img[mask].mean(axis=0)
+            np.testing.assert_allclose(colour / colour.max(), grid[i, j] / grid[i, j].max(), atol=0.07)
