@@ -22,6 +22,7 @@ FLAGS = {
     "up": "--up",
     "units": "--units",
     "height": "--height",
+    "name": "--name",
     "seed": "--seed",
     "scatter.count": "--count",
     "render.spp": "--spp",
