@@ -140,11 +140,13 @@ def test_real_library_species_export(tmp_path, real_library):
     (tmp_path / "scene.toml").write_text(REAL)
     assert run(["export", "rib", tmp_path / "scene.toml", "-o", tmp_path / "rib", "--library", real_library, "-q"]) == 0
     calls = ribcheck.check_export(tmp_path / "rib")
+    objects = ribcheck.objects(calls["objects.rib"])
     lib = open_library(real_library)
     for name in ("broadleaf", "shrub"):
         sp = lib.resolve(name)
         for lod in sp.lods[:3]:  # two distances: three bands
-            meshes = ribcheck.points_polygons(calls[f"archives/{name}_{lod.name}.rib"])
+            arch = calls[f"archives/{name}_{lod.name}.rib"]
+            meshes = [objects[c.args[0]] for c in arch if c.name == "ObjectInstance"]
             assert sum(len(m["faces"]) for m in meshes) == lod.triangles
             lo, hi = np.asarray(lod.bounds)
             for m in meshes:

@@ -55,9 +55,12 @@ def test_stage_opens_and_composes(exported, lib):
             for mesh, part in zip(meshes, sp.lods[0].parts):
                 src = part.load()
                 np.testing.assert_array_equal(np.array(mesh.GetPointsAttr().Get()), src.vertices)
-                np.testing.assert_array_equal(
-                    np.array(mesh.GetFaceVertexIndicesAttr().Get()), src.faces.ravel().astype(np.int64)
-                )
+                # the library's triangles, each wound counter-clockwise about its normals
+                f = np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)
+                np.testing.assert_array_equal(np.sort(f, axis=1), np.sort(src.faces.astype(np.int64), axis=1))
+                v, n = src.vertices.astype(np.float64), src.normals.astype(np.float64)
+                ng = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+                assert (np.einsum("ij,ij->i", ng, n[f].sum(axis=1)) > 0).all()
                 st = np.array(UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st").Get())
                 np.testing.assert_allclose(st, np.stack([src.uv[:, 0], 1 - src.uv[:, 1]], 1), atol=1e-7)
                 colour = mesh.GetDisplayColorPrimvar()

@@ -20,6 +20,7 @@ Conventions (both exporters, and the same as the Mitsuba renderer):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass, field
@@ -134,8 +135,35 @@ def species_plans(scene, *, used_only: bool = True) -> list[SpeciesPlan]:
     return plans
 
 
+def wound_with_normals(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """``faces`` with every triangle wound counter-clockwise about its stored normals.
+
+    A triangle (a, b, c) faces n_g = (b − a) × (c − a); where n_g points away
+    from the mean of its three stored vertex normals (n_g · n̄ < 0) the
+    triangle is rewound (a, c, b).  Renderers that take a polygon's front from
+    its winding (Cycles, USD consumers, RenderMan's ``Orientation``) then agree
+    with the shading normals, as Mitsuba does regardless.  Triangles that
+    already agree, or have no usable normal, are kept as they are, so meshes
+    wound correctly come back unchanged.
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0 or normals is None or len(normals) != len(vertices):
+        return f
+    v = np.asarray(vertices, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
+    ng = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    nbar = n[f[:, 0]] + n[f[:, 1]] + n[f[:, 2]]
+    flip = np.einsum("ij,ij->i", ng, nbar) < 0
+    if not flip.any():
+        return f
+    out = f.copy()
+    out[flip, 1], out[flip, 2] = f[flip, 2], f[flip, 1]
+    return out
+
+
 def lod_mesh(lod):
-    """All parts of one level as ``[(part, MeshData)]`` with float32/uint32 arrays checked."""
+    """All parts of one level as ``[(part, MeshData)]``, indices checked and triangles wound with
+    their normals (:func:`wound_with_normals`)."""
     out = []
     for part in lod.parts:
         m = part.load()
@@ -143,8 +171,37 @@ def lod_mesh(lod):
         f = np.asarray(m.faces, dtype=np.int64)
         if len(f) and (f.min() < 0 or f.max() >= len(v)):
             raise ForestError(f"{part.path}: face indices out of range")
+        wound = wound_with_normals(v, f, m.normals)
+        if wound is not f:
+            m = dataclasses.replace(m, faces=wound.astype(np.asarray(m.faces).dtype))
         out.append((part, m))
     return out
+
+
+def remove_stale(out_dir: Path, fresh: Path, owned: tuple[str, ...]) -> list[Path]:
+    """Delete the files of an earlier export in ``out_dir`` that this export (in ``fresh``) does not write.
+
+    Only paths matching ``owned`` (glob patterns of files, or folders the
+    exporter owns entirely) are touched, so a user's own files — renders,
+    notes — stay.  Returns the paths removed.
+    """
+    removed: list[Path] = []
+    if not out_dir.is_dir():
+        return removed
+    for pattern in owned:
+        for p in sorted(out_dir.glob(pattern)):
+            files = sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else [p]
+            for q in files:
+                if not (fresh / q.relative_to(out_dir)).exists():
+                    q.unlink()
+                    removed.append(q)
+            if p.is_dir():
+                for d in sorted((d for d in p.rglob("*") if d.is_dir()), reverse=True):
+                    if not any(d.iterdir()):
+                        d.rmdir()
+                if not any(p.iterdir()) and not (fresh / p.relative_to(out_dir)).exists():
+                    p.rmdir()
+    return removed
 
 
 def measured_bounds(lod, meshes=None) -> np.ndarray:
