@@ -7,6 +7,7 @@ tests neither build nor read the real tree cache.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -99,12 +100,29 @@ def fake_species(name: str, height: float, seed: int, levels=("high", "medium", 
     return FakeSpecies(name, "generated", lods)
 
 
+def leaf_texture(path: Path, size: int = 16) -> Path:
+    """An RGBA leaf texture: a disk of alpha 1 in a transparent square, RGB a green ramp (8-bit sRGB PNG)."""
+    from conftest import write_png
+
+    y, x = (np.mgrid[0:size, 0:size] + 0.5) / size
+    alpha = ((x - 0.5) ** 2 + (y - 0.5) ** 2 < 0.16).astype(float)
+    rgb = np.stack([0.3 + 0.5 * x, 0.6 + 0.3 * y, 0.2 + 0.0 * x], axis=2)
+    return write_png(path, np.concatenate([rgb, alpha[..., None]], axis=2))
+
+
 class FakeLibrary:
-    def __init__(self):
+    """Species ``oak`` (four levels) and ``pine`` (two); with ``textures``, leaves carry :func:`leaf_texture`."""
+
+    def __init__(self, textures: Path | None = None):
         self.species = {
             "oak": fake_species("oak", 12.0, 1),
             "pine": fake_species("pine", 18.0, 2, levels=("high", "low")),
         }
+        if textures is not None:
+            tex = leaf_texture(Path(textures) / "leaf.png")
+            for sp in self.species.values():
+                for lod in sp.lods:
+                    lod.parts = tuple(dataclasses.replace(p, texture=tex) if p.kind == "leaf" else p for p in lod.parts)
 
     def names(self):
         return sorted(self.species)

@@ -199,7 +199,7 @@ def remove_stale(out_dir: Path, fresh: Path, owned: tuple[str, ...]) -> list[Pat
                 for d in sorted((d for d in p.rglob("*") if d.is_dir()), reverse=True):
                     if not any(d.iterdir()):
                         d.rmdir()
-                if not any(p.iterdir()) and not (fresh / p.relative_to(out_dir)).exists():
+                if not any(p.iterdir()):
                     p.rmdir()
     return removed
 

@@ -1008,7 +1008,6 @@ def export_rib(
                 (tmp / "shaders" / f"{SHADER}.sl").write_text(shader_source())
                 result.shaders.append(out_dir / "shaders" / f"{SHADER}.sl")
             # textures: each library texture once, as TIFF
-            (tmp / "textures").mkdir()
             textures: dict[str, str] = {}  # source path → name in the RIB
             tiffs: list[str] = []
             for plan in plans:
