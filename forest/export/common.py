@@ -252,3 +252,52 @@ def partition_rows(instances: InstanceSet) -> list[tuple[int, str, np.ndarray]]:
     if part.max() >= len(instances.partition_names) or part.min() < 0:
         raise ForestError("instances: partition index out of range of partition_names")
     return out
+
+
+def texture_mean_detail(path) -> np.ndarray:
+    """Mean linear RGB detail of a part texture over its opaque texels (alpha ≥ ½), as
+    :mod:`forest.render.materials` averages it for ``scalar_rgb``."""
+    from ..images import read_image, srgb_to_linear
+
+    img = read_image(path, what="texture", unassociated=True)
+    c = img.shape[2]
+    rgb = img[..., :3] if c >= 3 else np.repeat(img[..., :1], 3, axis=2)
+    rgb = srgb_to_linear(rgb) if Path(path).suffix.lower() not in (".exr", ".hdr") else rgb
+    alpha = img[..., 3] if c == 4 else (img[..., 1] if c == 2 else None)
+    mask = alpha >= 0.5 if alpha is not None else np.ones(rgb.shape[:2], bool)
+    return (rgb[mask] if mask.any() else rgb.reshape(-1, 3)).mean(axis=0).astype(np.float32)
+
+
+def canopy_colour(lod) -> np.ndarray | None:
+    """The colour of a level's first tinted part before the tint: base colour × mean texture detail.
+
+    The per-tree display colour of viewers and of materials that cannot multiply
+    a texture by a per-tree colour (UsdPreviewSurface) is tint × this.  None when
+    no part is tinted.
+    """
+    for part in lod.parts:
+        if getattr(part, "tinted", False):
+            c = np.asarray(part.colour, np.float32)
+            tex = getattr(part, "texture", None)
+            return c * texture_mean_detail(tex) if tex else c
+    return None
+
+
+def bound_radius(bound: np.ndarray) -> float:
+    """Largest distance of a (2, 3) bound's corners from the object origin (the tree's base)."""
+    b = np.asarray(bound, np.float64)
+    corners = np.array([[b[i, 0], b[j, 1], b[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    return float(np.linalg.norm(corners, axis=1).max())
+
+
+def terrain_texture(scene) -> np.ndarray | None:
+    """Linear RGB (H, W, 3) over the terrain (map convention): ``terrain_texture``, or ``terrain_colour`` ×
+    the colour map; None when the terrain is one constant colour."""
+    rc = scene.config.render
+    if rc.terrain_texture is not None:
+        from ..images import read_map_rgb
+
+        return read_map_rgb(rc.terrain_texture, what="terrain texture")
+    if scene.colour is None:
+        return None
+    return np.asarray(scene.colour.rgb, np.float32) * np.asarray(rc.terrain_colour, np.float32)

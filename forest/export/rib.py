@@ -140,6 +140,7 @@ from .common import (
     slug,
     species_plans,
     sun_direction,
+    terrain_texture,
 )
 from .text import Field, LeftInt, RowWriter, format_numbers
 
@@ -576,19 +577,6 @@ def write_texture(dest: Path, source: Path) -> None:
         pixels = np.concatenate([pixels, alpha], axis=2)
     attrs = {"oiio:UnassociatedAlpha": 1} if alpha is not None else None
     write_image(dest, pixels, attributes=attrs)
-
-
-def terrain_texture(scene: Scene) -> np.ndarray | None:
-    """Linear RGB (H, W, 3) over the terrain (map convention): ``terrain_texture``, or ``terrain_colour`` ×
-    the colour map; None when the terrain is one constant colour."""
-    rc = scene.config.render
-    if rc.terrain_texture is not None:
-        from ..images import read_map_rgb
-
-        return read_map_rgb(rc.terrain_texture, what="terrain texture")
-    if scene.colour is None:
-        return None
-    return np.asarray(scene.colour.rgb, np.float32) * np.asarray(rc.terrain_colour, np.float32)
 
 
 # ---------------------------------------------------------------------------
