@@ -10,6 +10,7 @@ from conftest import write_png
 
 from forest.camera import camera_at
 from forest.config import ConfigError
+from forest.errors import ParameterError
 from forest.export import radiometry
 from forest.export.common import sun_direction
 from forest.export.rib import DOME_ORIENTATION, export_rib
@@ -165,7 +166,7 @@ def test_displays(tmp_path, textured):
     export_rib(scene, tmp_path / "b", display="openexr")
     disp = next(c for c in ribcheck.parse((tmp_path / "b" / "scene_0001.rib").read_bytes()) if c.name == "Display")
     assert disp.args[:2] == ["testwood_0001.exr", "openexr"]
-    with pytest.raises(ConfigError, match=r"export\.rib_display: unknown display 'nuke'"):
+    with pytest.raises(ParameterError, match=r"display: unknown display 'nuke'; use one of file, tiff"):
         export_rib(scene, tmp_path / "c", display="nuke")
     with pytest.raises(ConfigError, match=r"scene\.toml: export\.rib_display"):
         make_config(tmp_path, '[export]\nrib_display = "nuke"\n')

@@ -13,6 +13,8 @@ from typing import Any
 #: Parameter (or config field a flag overrides) → the flag a user typed.
 FLAGS = {
     "output": "-o",
+    "display": "--display",
+    "export target": "forest export",
     "frames": "--frames",
     "variant": "--variant",
     "instances": "--instances",

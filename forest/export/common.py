@@ -25,6 +25,7 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -86,7 +87,7 @@ def export_options(config: Config) -> dict:
 class Band:
     """One level of detail used for a band of camera distances [near, far) metres."""
 
-    lod: object
+    lod: Any  # a forest.library Lod
     near: float
     far: float  # math.inf for the last band
 

@@ -124,7 +124,7 @@ import numpy as np
 from ..atomic import atomic_dir
 from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import Config, ConfigError
-from ..errors import ForestError
+from ..errors import ForestError, ParameterError
 from ..instances import InstanceSet, quaternion_to_matrix
 from ..scene import Scene
 from . import radiometry
@@ -289,9 +289,10 @@ def rib_options(config: Config, renderman22: bool, display: str | None = None) -
     e = config.export
     disp = display if display is not None else e.rib_display
     if disp not in DISPLAYS:
-        raise ConfigError(
-            config.path, "export.rib_display", f"unknown display {disp!r}; use one of {', '.join(DISPLAYS)}"
-        )
+        message = f"unknown display {disp!r}; use one of {', '.join(DISPLAYS)}"
+        if display is not None:
+            raise ParameterError("display", message)
+        raise ConfigError(config.path, "export.rib_display", message)
     tex = e.rib_textures or ("tex" if renderman22 else "tif")
     opts = export_options(config)
     return RibOptions(renderman22, disp, "." + tex, opts["lod_transition"], opts["rib_lod"])
@@ -331,10 +332,12 @@ def sky_terms(config: Config) -> tuple[float, tuple[float, float, float]] | None
     if k is None:
         return None
     if k.kind == "constant":
-        return float(k.radiance), tuple(float(c) for c in k.colour)
+        r, g, b = (float(c) for c in k.colour)
+        return float(k.radiance), (r, g, b)
     if k.kind == "envmap":
         return float(k.scale), (1.0, 1.0, 1.0)
-    return 0.35 * float(k.sunsky.scale), (0.6, 0.75, 1.0)  # physical sun-sky: a neutral blue dome stands in
+    scale = k.sunsky.scale if k.sunsky is not None else 1.0
+    return 0.35 * float(scale), (0.6, 0.75, 1.0)  # physical sun-sky: a neutral blue dome stands in
 
 
 def lights_text(config: Config, renderman22: bool, envmap: str | None = None) -> str:
@@ -1082,8 +1085,9 @@ def export_rib(
             result.instance_seconds = time.perf_counter() - t1
             result.instance_cpu_seconds = time.process_time() - c1
             envmap = None
-            if config.lights.sky is not None and config.lights.sky.kind == "envmap":
-                envmap = relative_reference(config.lights.sky.envmap, out_dir)
+            sky = config.lights.sky
+            if sky is not None and sky.kind == "envmap" and sky.envmap is not None:
+                envmap = relative_reference(sky.envmap, out_dir)
             for f in frame_list:
                 rel = f"scene_{f:04d}.rib"
                 files = [p.name for p in result.frame_instance_files.get(f, [])]
