@@ -167,3 +167,32 @@ def test_bad_input(tmp_path, library, monkeypatch):
     bad = cfg.with_overrides({"export.blender_lod": "huge"})
     with pytest.raises(ForestError, match=r"export\.blender_lod: 'huge' is not a level of 'box'"):
         write_manifest(load_scene(bad, forest_trees(5), library=library), tmp_path, [1])
+
+
+@needs_blender
+def test_command_line(tmp_path, monkeypatch, capsys):
+    import forest.library
+    from forest.cli import main
+
+    from export_support import FakeLibrary
+
+    monkeypatch.setattr(forest.library, "open_library", lambda *a, **k: FakeLibrary(textures=tmp_path / "lib"))
+    cfg = make_config(tmp_path, "")
+    with pytest.raises(SystemExit) as e:
+        main(
+            [
+                "export",
+                "blender",
+                str(cfg.path),
+                "-o",
+                str(tmp_path / "out" / "s.blend"),
+                "--render",
+                str(tmp_path / "s.png"),
+            ]
+        )
+    assert (e.value.code or 0) == 0
+    out = capsys.readouterr().out
+    assert "trees as instances of 2 species" in out and "wrote" in out
+    assert (tmp_path / "out" / "s.blend").stat().st_size > 0
+    assert read_image(tmp_path / "s.png").shape == (48, 64, 4)
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["s.blend"]

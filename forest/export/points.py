@@ -147,25 +147,22 @@ CSV_COLUMNS = "id,species,species_name,P.x,P.y,P.z,orient.x,orient.y,orient.z,or
 
 
 def _write_csv(tmp: Path, attrs: dict, names: list[str]) -> None:
+    """One row per tree; ``%.9g`` prints every float32 so that it reads back to the same bits."""
+
     def quote(s: str) -> str:
         return '"' + s.replace('"', '""') + '"'
 
-    label = np.array([quote(s) for s in names] or [""], dtype=object)
-    floats = np.concatenate([attrs["P"], attrs["orient"], attrs["pscale"][:, None], attrs["Cd"]], axis=1).astype(
-        np.float64
-    )
+    label = [quote(s) for s in names]
+    row = "%d,%d,%s," + ",".join(["%.9g"] * 11)
+    floats = np.concatenate([attrs["P"], attrs["orient"], attrs["pscale"][:, None], attrs["Cd"]], axis=1)
     with open(tmp, "w", newline="\n") as fh:
         fh.write(CSV_COLUMNS + "\n")
         step = 65536
         for s in range(0, len(floats), step):
-            block = floats[s : s + step]
-            text = np.char.mod("%.9g", block)
-            ids = attrs["id"][s : s + step]
-            sp = attrs["species"][s : s + step]
-            lines = [
-                f"{i},{k},{label[k]}," + ",".join(row) for i, k, row in zip(ids.tolist(), sp.tolist(), text.tolist())
-            ]
-            fh.write("\n".join(lines) + "\n")
+            block = floats[s : s + step].astype(np.float64).tolist()
+            ids = attrs["id"][s : s + step].tolist()
+            sp = attrs["species"][s : s + step].tolist()
+            fh.write("".join(row % (i, k, label[k], *f) + "\n" for i, k, f in zip(ids, sp, block)))
 
 
 def export_points(scene: Scene, path: str | Path, *, progress=None) -> PointsExport:
