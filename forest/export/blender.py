@@ -33,7 +33,8 @@ background of strength L (a constant sky's radiance) or an environment map
 turned +90° about Z so it lies as Mitsuba's ``envmap`` does (both map the
 image's centre column to forest's +Z and its first quarter to +X); Cycles
 with ``[render] spp``, ``max_depth`` − 1 bounces and the Standard view
-transform, so the image compares with forest's sRGB PNG.  UVs: Blender's v
+transform, so the image compares with forest's sRGB PNG; ``[render] haze``
+(aerial perspective) applied in the compositor from the depth pass.  UVs: Blender's v
 runs up the image, the library's down, so v ↦ 1 − v.
 """
 
@@ -56,6 +57,7 @@ from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import ConfigError
 from ..errors import ForestError, ParameterError
 from ..instances import quaternion_to_matrix
+from ..render.post import haze_colour
 from ..scene import Scene
 from . import radiometry
 from .common import check_instances, export_frames, lod_mesh, species_plans, sun_direction, terrain_texture
@@ -267,6 +269,8 @@ def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
             "max_depth": r.max_depth,
             "seed": r.seed,
             "fps": float(config.camera.fps),
+            "haze": float(r.haze),
+            "haze_colour": [float(c) for c in haze_colour(config)],
             "frame_start": int(frames[0]),
             "frame_end": int(frames[-1]),
         },

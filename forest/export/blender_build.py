@@ -20,7 +20,8 @@ datablocks:
 * the terrain (textured by the colour map when there is one), the camera
   (animated over the exported frames), a Sun lamp and the World background;
 * Cycles settings from ``[render]`` and the Standard view transform, so an
-  image compares with forest's own sRGB PNG.
+  image compares with forest's own sRGB PNG; ``[render] haze`` as forest's
+  aerial perspective in the compositor, from the depth pass.
 
 With ``--render PNG`` it also renders the scene (used by tests, and as a
 preview), with ``--coverage`` holding out the terrain and the sky so the
@@ -308,6 +309,43 @@ def set_render(manifest: dict) -> None:
     scene.unit_settings.scale_length = 1.0
 
 
+def make_haze(manifest: dict) -> None:
+    """forest's aerial perspective, L·e^(−σd) + H·(1 − e^(−σd)) on surfaces, in the compositor.
+
+    d is Cycles' depth pass (distance along the view axis: within cos(fov/2) of
+    forest's distance along the ray); sky pixels keep their colour.
+    """
+    r = manifest["render"]
+    if r.get("haze", 0.0) <= 0:
+        return
+    scene = bpy.context.scene
+    bpy.context.view_layer.use_pass_z = True
+    scene.use_nodes = True
+    nodes, links = scene.node_tree.nodes, scene.node_tree.links
+    nodes.clear()
+    layers = nodes.new("CompositorNodeRLayers")
+
+    def math(op, a, b):
+        node = nodes.new("CompositorNodeMath")
+        node.operation = op
+        for k, v in enumerate((a, b)):
+            if isinstance(v, (int, float)):
+                node.inputs[k].default_value = float(v)
+            else:
+                links.new(v, node.inputs[k])
+        return node.outputs[0]
+
+    depth = layers.outputs["Depth"]
+    transmitted = math("EXPONENT", math("MULTIPLY", depth, -float(r["haze"])), 0.0)
+    fac = math("MULTIPLY", math("SUBTRACT", 1.0, transmitted), math("LESS_THAN", depth, 1e9))
+    mix = nodes.new("CompositorNodeMixRGB")
+    links.new(fac, mix.inputs["Fac"])
+    links.new(layers.outputs["Image"], mix.inputs[1])
+    mix.inputs[2].default_value = (*r["haze_colour"], 1.0)
+    out = nodes.new("CompositorNodeComposite")
+    links.new(mix.outputs["Image"], out.inputs["Image"])
+
+
 def main(argv: list[str]) -> None:
     args = argv[argv.index("--") + 1 :] if "--" in argv else []
     manifest_path, out = Path(args[0]), Path(args[1])
@@ -323,12 +361,14 @@ def main(argv: list[str]) -> None:
     make_camera(manifest)
     make_lights(manifest)
     set_render(manifest)
+    make_haze(manifest)
     bpy.ops.wm.save_as_mainfile(filepath=str(out), compress=True)
     if render_to:
         scene = bpy.context.scene
         if coverage:  # alpha = trees: the terrain held out, the sky transparent, samples kept in their pixel
             terrain.is_holdout = True
             scene.render.film_transparent = True
+            scene.use_nodes = False  # no haze over the alpha
             scene.cycles.filter_width = 0.01
         scene.render.image_settings.file_format = "PNG"
         scene.render.image_settings.color_mode = "RGBA"
