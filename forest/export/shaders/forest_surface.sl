@@ -18,14 +18,6 @@
  *   3Delight:    shaderdl forest_surface.sl    Pixie: sdrc forest_surface.sl
  */
 
-float forest_srgb_decode(float c)
-{
-    float lin = c / 12.92;
-    if (c > 0.04045)
-        lin = pow((c + 0.055) / 1.055, 2.4);
-    return lin;
-}
-
 surface forest_surface(
     color basecolour = 1;
     float tinted = 1;
@@ -39,8 +31,16 @@ surface forest_surface(
     if (tinted != 0)
         albedo *= Cs;
     if (texturename != "") {
+        /* sRGB decoding (IEC 61966-2-1), channel by channel, written out: some compilers (aqsl 1.8)
+           inline a user function called three times in one expression into a single result */
         color c = color texture(texturename, s, t);
-        albedo *= color(forest_srgb_decode(comp(c, 0)), forest_srgb_decode(comp(c, 1)), forest_srgb_decode(comp(c, 2)));
+        float r = comp(c, 0);
+        float g = comp(c, 1);
+        float b = comp(c, 2);
+        if (r > 0.04045) r = pow((r + 0.055) / 1.055, 2.4); else r = r / 12.92;
+        if (g > 0.04045) g = pow((g + 0.055) / 1.055, 2.4); else g = g / 12.92;
+        if (b > 0.04045) b = pow((b + 0.055) / 1.055, 2.4); else b = b / 12.92;
+        albedo *= color(r, g, b);
         alpha = float texture(texturename[3], s, t, "fill", 1);
     }
     normal Nf = faceforward(normalize(N), I);
