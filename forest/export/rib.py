@@ -477,31 +477,42 @@ def part_material(part, handle: str, renderman22: bool, texture: str | None) -> 
     return "\n".join(lines) + "\n"
 
 
-@dataclass
 class ObjectTable:
-    """Retained objects: one per (species, level, part), numbered in definition order."""
+    """Retained objects, streamed to ``objects.rib``: one per (species, level, part), numbered in order."""
 
-    renderman22: bool
-    handles: dict[tuple[int, str, int], str] = field(default_factory=dict)
-    chunks: list[bytes] = field(default_factory=list)
+    def __init__(self, path: Path, renderman22: bool):
+        self.path = path
+        self.renderman22 = renderman22
+        self.handles: dict[tuple[int, str, int], str] = {}
+        self.bytes = 0
+        self._fh = None
 
     def define(self, key: tuple[int, str, int], name: str, mesh) -> str:
+        if self._fh is None:
+            self._fh = open(self.path, "wb")
+            self._write(
+                HEADER + b"# forest retained objects (object space: metres, Y up, base at the origin),\n"
+                b"# one per species level and part, defined once and instanced by the archives (ObjectInstance)\n"
+            )
         handle = rib_string(name) if self.renderman22 else str(len(self.handles) + 1)
         self.handles[key] = handle
         st = np.asarray(mesh.uv, dtype=np.float64).reshape(-1, 2)
-        self.chunks += [
-            f"ObjectBegin {handle}  # {name}: {len(mesh.faces)} triangles\n".encode(),
-            points_polygons(mesh.vertices, mesh.faces, mesh.normals, st, indent="  "),
-            b"ObjectEnd\n",
-        ]
+        self._write(f"ObjectBegin {handle}  # {name}: {len(mesh.faces)} triangles\n".encode())
+        self._write(points_polygons(mesh.vertices, mesh.faces, mesh.normals, st, indent="  "))
+        self._write(b"ObjectEnd\n")
         return handle
 
-    def data(self) -> bytes:
-        head = (
-            f"# forest retained objects: {len(self.handles)} parts (object space: metres, Y up, base at the origin)\n"
-            "# defined once, instanced by the archives (ObjectInstance)\n"
-        ).encode()
-        return HEADER + head + b"".join(self.chunks)
+    def _write(self, data: bytes) -> None:
+        assert self._fh is not None
+        self._fh.write(data)
+        self.bytes += len(data)
+
+    def close(self) -> bool:
+        """Close the file; whether any object was written."""
+        if self._fh is None:
+            return False
+        self._fh.close()
+        return True
 
 
 def archive_bytes(plan: SpeciesPlan, lod, meshes, bound, renderman22: bool, handles: dict, textures: dict) -> bytes:
@@ -748,7 +759,11 @@ def write_chunk(
     Numbers are fixed-width (:class:`forest.export.text.RowWriter`): RIB only
     needs whitespace between tokens, and the columns line up.
     """
-    m = block_matrices(instances, rows, time_s, wind)
+    if time_s is not None and wind is not None and wind.strength > 0:
+        m = block_matrices(instances, rows, time_s, wind)[:, :3, :3]
+    else:  # no sway: R·S straight from the quaternions (the common case, kept lean)
+        m = quaternion_to_matrix(instances.rotation[rows].astype(np.float64))
+        m *= instances.scale[rows].astype(np.float64)[:, None, None]
     md, pd, cd = widths["matrix"], widths["position"], widths["colour"]
     # RIB row k of Mᵀ = column k of M
     return out.write(
@@ -756,13 +771,13 @@ def write_chunk(
             b'AttributeBegin\n  Attribute "identifier" "string name" ["tree_',
             LeftInt(instances.id[rows], b'"]', widths["id"]),
             b"\n  ConcatTransform [",
-            Field(m[:, :3, 0], MATRIX_DECIMALS, pad=True, int_digits=md),
+            Field(m[:, :, 0], MATRIX_DECIMALS, pad=True, int_digits=md),
             b" 0",
-            Field(m[:, :3, 1], MATRIX_DECIMALS, pad=True, int_digits=md),
+            Field(m[:, :, 1], MATRIX_DECIMALS, pad=True, int_digits=md),
             b" 0",
-            Field(m[:, :3, 2], MATRIX_DECIMALS, pad=True, int_digits=md),
+            Field(m[:, :, 2], MATRIX_DECIMALS, pad=True, int_digits=md),
             b" 0",
-            Field(m[:, :3, 3], POSITION_DECIMALS, pad=True, int_digits=pd),
+            Field(instances.position[rows].astype(np.float64), POSITION_DECIMALS, pad=True, int_digits=pd),
             b" 1]\n  Color [",
             Field(instances.tint[rows].astype(np.float64), COLOUR_DECIMALS, pad=True, int_digits=cd),
             b"]\n",
@@ -869,6 +884,7 @@ def scene_text(
     opts: RibOptions,
     *,
     has_terrain: bool = True,
+    has_objects: bool = True,
     envmap: str | None = None,
 ) -> str:
     cam = config.camera
@@ -912,7 +928,7 @@ def scene_text(
         out.append(f"  Transform [{nums(rib_matrix(world_to_camera(state.position, state.target, state.up)))}]")
     out.append("  WorldBegin")
     out.append(lights_text(config, r22, envmap).rstrip("\n"))
-    if instance_files:
+    if instance_files and has_objects:
         out.append('  ReadArchive "objects.rib"')
     if has_terrain:
         out.append('  ReadArchive "terrain.rib"')
@@ -1024,7 +1040,7 @@ def export_rib(
                 terrain_tex = "textures/terrain" + opts.texture_suffix
             result.textures = [out_dir / t for t in tiffs]
             # retained objects and archives: one per species × level, written once
-            objects = ObjectTable(r22)
+            objects = ObjectTable(tmp / "objects.rib", r22)
             archive_paths, bounds = {}, {}
             (tmp / "archives").mkdir()
             for plan in plans:
@@ -1041,11 +1057,9 @@ def export_rib(
                     bounds[(plan.index, lod.name)] = bound
                     result.archives.append(out_dir / rel)
                     result.bytes += len(data)
-            if plans:
-                data = objects.data()
-                (tmp / "objects.rib").write_bytes(data)
+            if objects.close():
                 result.objects = out_dir / "objects.rib"
-                result.bytes += len(data)
+                result.bytes += objects.bytes
             report(0.05, "archives")
             data = terrain_bytes(terrain, config.render.terrain_colour, r22, terrain_tex)
             (tmp / "terrain.rib").write_bytes(data)
@@ -1091,7 +1105,7 @@ def export_rib(
             for f in frame_list:
                 rel = f"scene_{f:04d}.rib"
                 files = [p.name for p in result.frame_instance_files.get(f, [])]
-                text = scene_text(config, f, files, opts, envmap=envmap)
+                text = scene_text(config, f, files, opts, has_objects=result.objects is not None, envmap=envmap)
                 (tmp / rel).write_text(text)
                 result.scenes.append(out_dir / rel)
                 result.bytes += len(text)
