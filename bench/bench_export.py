@@ -2,9 +2,10 @@
 
     .venv/bin/python bench/bench_export.py [--trees 1000000] [--sample 20000]
 
-The scene is configs/demo.toml (its camera, lights, [lod] distances, terrain and
-species from the tree library) with a synthetic InstanceSet of ``--trees`` rows
-over its three partitions.  Printed figures:
+The scene is configs/demo.toml (its camera, lights, [lod] distances, [wind],
+terrain and species from the tree library) with a synthetic InstanceSet of
+``--trees`` rows over its three partitions; its wind sways the trees, so every
+RIB tree matrix includes the renderer's sway at frame 1.  Printed figures:
 
 * RIB: time to write the partitions' instance files (the per-tree text), the
   whole export, bytes written and memory; and the same text produced by a
