@@ -118,6 +118,7 @@ import time
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -485,7 +486,7 @@ class ObjectTable:
         self.renderman22 = renderman22
         self.handles: dict[tuple[int, str, int], str] = {}
         self.bytes = 0
-        self._fh = None
+        self._fh: BinaryIO | None = None
 
     def define(self, key: tuple[int, str, int], name: str, mesh) -> str:
         if self._fh is None:
