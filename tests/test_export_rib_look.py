@@ -210,8 +210,11 @@ def test_lod_areas_use_each_frames_fov(tmp_path, textured):
 
 
 def test_trees_keep_their_identifiers(tmp_path, textured):
-    export_rib(load_scene(make_config(tmp_path, LOD), make_instances(60), library=textured), tmp_path / "out")
+    cfg = make_config(tmp_path, LOD + '[export]\nrib_lod = "archive"\n')
+    export_rib(load_scene(cfg, make_instances(60), library=textured), tmp_path / "out")
     calls = ribcheck.check_export(tmp_path / "out")
+    for p in (tmp_path / "out").rglob("*.rib"):
+        p.read_bytes().decode("ascii")  # RIB text is ASCII, comments included
     for rel, cs in calls.items():
         if rel.startswith(("archives/", "objects")):
             assert not [c for c in cs if c.name == "Attribute" and c.args[0] == "identifier"], rel

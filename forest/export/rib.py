@@ -361,7 +361,7 @@ def lights_text(config: Config, renderman22: bool, envmap: str | None = None) ->
         if renderman22:
             out += [
                 "  AttributeBegin",
-                "    # sun: irradiance E = L·π·sin²(α/2) from a disk of α = 0.53°, so L = E / (π sin²(α/2))",
+                "    # sun: a disk of angular diameter a = 0.53 deg and radiance L gives E = L*pi*sin^2(a/2): L = E/(pi*sin^2(a/2))",
                 f"    ConcatTransform [{nums(rib_matrix(frame_from_z(-d)))}]",
                 f'    Light "PxrDistantLight" "sun" "float intensity" [{num(radiometry.disk_radiance(s.irradiance))}] '
                 f'"float exposure" [0] "color lightColor" [{nums(s.colour)}] '
@@ -369,7 +369,9 @@ def lights_text(config: Config, renderman22: bool, envmap: str | None = None) ->
                 "  AttributeEnd",
             ]
         else:
-            out.append("  # sun: diffuse() has no 1/pi, so a distantlight of intensity E/pi gives a/pi·E·cos θ")
+            out.append(
+                "  # sun: diffuse() has no 1/pi, so a distantlight of intensity E/pi gives albedo/pi * E * cos(theta)"
+            )
             out.append(
                 f'  LightSource "distantlight" 1 "intensity" [{num(radiometry.distantlight_intensity(s.irradiance))}] '
                 f'"lightcolor" [{nums(s.colour)}] "from" [{nums(d)}] "to" [0 0 0]'
@@ -381,14 +383,14 @@ def lights_text(config: Config, renderman22: bool, envmap: str | None = None) ->
             extra = f' "string lightColorMap" [{rib_string(envmap)}]' if envmap else ""
             out += [
                 "  AttributeBegin",
-                "    # sky: the dome's radiance is intensity × colour; its pole turned from +Z onto +Y",
+                "    # sky: the dome's radiance is intensity * colour; its pole turned from +Z onto +Y",
                 f"    ConcatTransform [{nums(rib_matrix(DOME_ORIENTATION))}]",
                 f'    Light "PxrDomeLight" "sky" "float intensity" [{num(intensity)}] "float exposure" [0] '
                 f'"color lightColor" [{nums(colour)}]{extra}',
                 "  AttributeEnd",
             ]
         else:
-            out.append("  # sky: ambient() gives a·L on open ground: intensity = the sky radiance")
+            out.append("  # sky: ambient() gives albedo * L on open ground: intensity = the sky radiance")
             out.append(
                 f'  LightSource "ambientlight" 2 "intensity" [{num(radiometry.ambient_intensity(intensity))}] '
                 f'"lightcolor" [{nums(colour)}]'
@@ -693,7 +695,7 @@ def tree_suffixes(
                     HEADER.decode().rstrip("\n"),
                     f"# forest level-of-detail switch: species {plan.model!r}, levels "
                     + ", ".join(f"{b.lod.name} from {b.near:g} m" for b in plan.bands),
-                    f"# raster areas for a {width} px wide image and a {fov:g}° field of view",
+                    f"# raster areas for a {width} px wide image and a {fov:g} degree field of view",
                     "# read by every tree: Detail and the bounds are in the tree's object space",
                     "AttributeBegin",
                     *switch,
