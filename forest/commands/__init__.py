@@ -14,6 +14,8 @@ from typing import Any
 FLAGS = {
     "output": "-o",
     "library": "--library",
+    "display": "--display",
+    "export target": "forest export",
     "frames": "--frames",
     "variant": "--variant",
     "instances": "--instances",

@@ -543,6 +543,19 @@ class ExportConfig(Section):
     )
     rib_lod: Literal["inline", "archive"] = Field("inline", description="Where RIB's Detail/DetailRange go.")
     usd_lod: Str | None = Field(None, description="The `lod` variant USD prototypes select.")
+    rib_display: Literal["file", "tiff", "openexr", "exr", "png", "framebuffer", "it"] = Field(
+        "file",
+        description="RIB Display driver: 'file' and 'framebuffer' every RenderMan-compliant renderer has "
+        "('file' writes a TIFF); 'tiff', 'openexr', 'it' PRMan / RenderMan 22+; 'exr' Aqsis, 3Delight; "
+        "'png' RenderMan 22+.",
+    )
+    rib_textures: Literal["tif", "tex"] | None = Field(
+        None,
+        description="Texture files the RIB names: 'tif' (read by RI 3.2 renderers as written) or 'tex' "
+        "(made from the TIFFs by prepare.sh with txmake, tdlmake, teqser or texmake). "
+        "Default 'tif', 'tex' with --renderman22.",
+    )
+    blender_lod: Str | None = Field(None, description="The level Blender instances (default each species' first).")
 
 
 # ---------------------------------------------------------------------------
