@@ -10,9 +10,10 @@ boundary:
     v' = c + (v − c)_xz · R / |v − c|_xz,   y' = mean(y of the boundary vertices)
 
 so the ground runs on from its own edge height and becomes one level plane
-far away (a slope of (ȳ − y)/(R − r), a fraction of a degree).  Its shading
-normals run from the terrain's vertex normals at the edge to +Y at the ring;
-its faces wind upward.  R (:func:`skirt_radius`) reaches the camera's far clip
+far away (a slope of (ȳ − y)/(R − r), a fraction of a degree).  A first,
+narrow band level with the edge turns the shading normal from the terrain's
+own to +Y (interpolating a tilted edge normal over the whole long band drew
+stripes to the horizon); its faces wind upward.  R (:func:`skirt_radius`) reaches the camera's far clip
 or at least :data:`MIN_SKIRT_RADIUS` metres (and 20 terrain widths): from
 hundreds of metres up the ring lies a fraction of a pixel below the horizon.
 
@@ -37,6 +38,8 @@ import numpy as np
 MIN_SKIRT_RADIUS = 30_000.0
 #: The skirt reaches at least this many terrain widths from the centre.
 SKIRT_WIDTHS = 20.0
+#: Width of the skirt's first band, as a fraction of the terrain's width: its normal turns up over it.
+SKIRT_RAMP = 0.03
 
 
 def skirt_radius(extent, far: float) -> float:
@@ -66,7 +69,11 @@ class Skirt:
 
 
 def skirt_mesh(terrain, radius: float) -> Skirt | None:
-    """The skirt around ``terrain`` (see the module docstring); None for a terrain without a boundary."""
+    """The skirt around ``terrain`` (see the module docstring); None for a terrain without a boundary.
+
+    Two bands per boundary edge: a short one (:data:`SKIRT_RAMP` of the terrain's width, level with the edge)
+    over which the shading normal turns from the terrain's to +Y, then the long one out to ``radius``.
+    """
     v = np.asarray(terrain.vertices, np.float64)
     edges = boundary_edges(terrain.faces)
     if len(edges) == 0:
@@ -77,19 +84,31 @@ def skirt_mesh(terrain, radius: float) -> Skirt | None:
     inner = v[used]
     rel = inner[:, [0, 2]] - c
     dist = np.maximum(np.linalg.norm(rel, axis=1), 1e-9)
+    unit = rel / dist[:, None]
+    ramp = max(SKIRT_RAMP * max(xmax - xmin, zmax - zmin), 1.0)
+    mid = inner.copy()
+    mid[:, [0, 2]] = inner[:, [0, 2]] + unit * ramp
     outer = np.empty_like(inner)
-    outer[:, [0, 2]] = c + rel * (float(radius) / dist)[:, None]
+    outer[:, [0, 2]] = c + unit * max(float(radius), float(dist.max()) + 2.0 * ramp)
     outer[:, 1] = inner[:, 1].mean()
     k = len(used)
     local = np.searchsorted(used, edges)  # boundary vertex → 0..k-1
     a, b = local[:, 0], local[:, 1]
-    faces = np.concatenate([np.stack([a, b, b + k], 1), np.stack([a, b + k, a + k], 1)])
-    verts = np.concatenate([inner, outer])
+    faces = np.concatenate(
+        [
+            np.stack([a, b, b + k], 1),
+            np.stack([a, b + k, a + k], 1),
+            np.stack([a + k, b + k, b + 2 * k], 1),
+            np.stack([a + k, b + 2 * k, a + 2 * k], 1),
+        ]
+    )
+    verts = np.concatenate([inner, mid, outer])
     # Wind every face upward (+Y) whatever the terrain's own winding.
     p0, p1, p2 = (verts[faces[:, i]] for i in range(3))
     down = np.cross(p1 - p0, p2 - p0)[:, 1] < 0
     faces[down] = faces[down][:, [0, 2, 1]]
-    normals = np.concatenate([np.asarray(terrain.vertex_normals, np.float64)[used], np.tile([0.0, 1.0, 0.0], (k, 1))])
+    up = np.tile([0.0, 1.0, 0.0], (2 * k, 1))
+    normals = np.concatenate([np.asarray(terrain.vertex_normals, np.float64)[used], up])
     return Skirt(verts.astype(np.float32), faces.astype(np.uint32), normals.astype(np.float32))
 
 
