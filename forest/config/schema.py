@@ -38,6 +38,8 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from ..errors import ForestError
+
 MAX_TREES = 20_000_000
 MAX_IMAGE_SIDE = 16384
 MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb", ".stl", ".off")
@@ -400,7 +402,11 @@ class SunConfig(Section):
 
 
 class SunskyConfig(Section):
-    """Mitsuba's Hosek–Wilkie sky and sun model, pointed at the [lights.sun] direction."""
+    """Mitsuba's Hosek–Wilkie sky and sun model (rotated to Y-up), pointed at the [lights.sun] direction.
+
+    Its sun is scaled to send [lights.sun] irradiance (facing it) and its sky by the same factor,
+    so the model's colours and sun-to-sky ratio are kept; ``scale`` multiplies both.
+    """
 
     turbidity: Annotated[float, Field(ge=1.0, le=10.0, allow_inf_nan=False)] = 3.0
     albedo: Unit = Field(0.15, description="Ground albedo the sky model assumes.")
@@ -440,7 +446,8 @@ class SkyConfig(Section):
 
 
 class LightsConfig(Section):
-    """``sun`` and ``sky``; an empty or missing [lights] gives both at their defaults."""
+    """``sun`` and ``sky``; an empty or missing [lights] gives an outdoor daylight: the default sun
+    (35° high, from the south-east) in Mitsuba's physical ``sunsky`` sky."""
 
     sun: SunConfig | None = None
     sky: SkyConfig | None = None
@@ -449,7 +456,7 @@ class LightsConfig(Section):
     @classmethod
     def _defaults(cls, data: Any) -> Any:
         if data is None or data == {}:
-            return {"sun": {}, "sky": {}}
+            return {"sun": {}, "sky": {"sunsky": {}}}
         return data
 
 
@@ -458,6 +465,24 @@ class LightsConfig(Section):
 # ---------------------------------------------------------------------------
 
 Side = Annotated[Int, Field(ge=1, le=MAX_IMAGE_SIDE)]
+
+
+def _view(value: Any) -> str:
+    from ..imaging.view import check_view
+
+    try:
+        return check_view(value)
+    except ForestError as e:
+        raise fail(e.message) from None
+
+
+def _exposure(value: Any) -> float:
+    from ..imaging.view import check_exposure
+
+    try:
+        return check_exposure(value)
+    except ForestError as e:
+        raise fail(e.message) from None
 
 
 class RenderConfig(Section):
@@ -469,14 +494,33 @@ class RenderConfig(Section):
     )
     max_depth: Annotated[Int, Field(ge=1, le=64)] = Field(6, description="Longest light path, in bounces + 1.")
     subframes: Annotated[Int, Field(ge=1, le=64)] = Field(5, description="Sub-frames averaged for motion blur.")
-    haze: NonNegative = Field(0.0, description="Aerial perspective: extinction per metre.")
-    haze_colour: RGB | None = Field(None, description="Haze radiance (default: the sky's).")
+    haze: NonNegative = Field(0.0, description="Aerial perspective: extinction per metre at the ground.")
+    haze_height: Annotated[float, Field(gt=0.0, le=100_000.0, allow_inf_nan=False)] = Field(
+        600.0, description="Aerial perspective: height over which the haze thins by e (scale height), metres."
+    )
+    haze_colour: RGB | None = Field(
+        None, description="Radiance the haze tends to away from the sun (default: the sky's mean radiance)."
+    )
+    haze_anisotropy: Annotated[float, Field(ge=-0.95, le=0.95, allow_inf_nan=False)] = Field(
+        0.7, description="Henyey-Greenstein g of the haze: > 0 glows toward the sun, 0 scatters evenly."
+    )
     terrain_colour: RGB = Field((0.18, 0.16, 0.11), description="Ground albedo, linear RGB.")
     terrain_texture: InputFile | None = Field(
         None, description="Image laid over the extent (map convention); overrides terrain_colour."
     )
+    horizon_ground: Bool = Field(
+        True, description="The ground runs on past the terrain's edge to the horizon (a skirt at its edge height)."
+    )
     seed: Annotated[Int, Field(ge=0)] = Field(0, description="Sampler seed.")
-    alpha_shadows: Bool = Field(False, description="Shadow rays see through leaf-card alpha.")
+    alpha_shadows: Bool = Field(
+        True, description="scalar_rgb: shadow rays see through leaf-card alpha (forest_path always does)."
+    )
+    view: Annotated[str, AfterValidator(_view)] = Field(
+        "agx", description="View transform of the PNG: agx, filmic or standard (the EXR stays scene-linear)."
+    )
+    exposure: Annotated[Any, AfterValidator(_exposure)] = Field(
+        0.0, description="Exposure of the PNG, EV (stops), -10 to 10.", json_schema_extra={"type": "number"}
+    )
 
 
 class LodConfig(Section):
