@@ -42,8 +42,8 @@ TAG_LOD = 0x10D
 HIGH_MAX = 70_000
 #: Most triangles a cut card may take per strip, per level (the quad takes 2).
 MAX_CARD_TRIANGLES = {"high": 4, "medium": 4, "low": 4, "far": 4}
-#: An extra triangle a strip must shrink the card's hit area by at least this share (see :func:`pick_outline`).
-TRIANGLE_PENALTY = 0.1
+#: Cost of a card's triangles relative to the quad's, as a power (see :func:`pick_outline`): log 1.1 / log 1.5.
+TRIANGLE_EXPONENT = math.log(1.1) / math.log(1.5)
 
 
 def stem_v(level: Level) -> np.ndarray:
@@ -125,8 +125,8 @@ def card_template(outline: Outline | None = None, segments: int = 1) -> CardTemp
     """The card's outline (default: the whole quad) cut into ``segments`` strips along ``v``.
 
     Each strip ``v ∈ [j/K, (j+1)/K]`` holds the convex piece ``outline ∩ strip``
-    (Sutherland–Hodgman), triangulated as a fan; pieces meet on the strip
-    boundaries, so a bent card stays closed.  The quad gives the two triangles
+    (Sutherland–Hodgman), triangulated as a fan; pieces share their vertices on
+    the strip boundaries, so a bent card stays one connected sheet.  The quad gives the two triangles
     per strip of :func:`cards` / :func:`bent_cards`.
     """
     poly = (outline or quad()).uv
@@ -144,7 +144,14 @@ def card_template(outline: Outline | None = None, segments: int = 1) -> CardTemp
         uvs.append(piece)
         bands.append(np.full(len(piece), j))
         count += len(piece)
-    return CardTemplate(np.concatenate(uvs), np.concatenate(bands), np.concatenate(faces).astype(np.int64))
+    uv, band, f = np.concatenate(uvs), np.concatenate(bands), np.concatenate(faces).astype(np.int64)
+    # Pieces of neighbouring strips share their vertices on the boundary (one card, one connected mesh).
+    _, first, inverse = np.unique(np.round(uv, 9), axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    remap = np.empty(len(order), np.int64)
+    remap[order] = np.arange(len(order))
+    keep = first[order]
+    return CardTemplate(uv[keep], band[keep], remap[inverse.ravel()][f])
 
 
 def _place(template: CardTemplate, pos: np.ndarray, nrm: np.ndarray, flip: np.ndarray) -> MeshData:
@@ -280,22 +287,23 @@ def bark_mesh(sk: Skeleton, lod: str, budget: float) -> MeshData:
 
 
 def pick_outline(options: dict[int, Outline], segments: int = 1, cards: int = 0, budget: int | None = None) -> Outline:
-    """The outline a level cuts its cards to: least ``area · (1 + TRIANGLE_PENALTY · extra / segments)``.
+    """The outline a level cuts its cards to: least ``area · (tris / quad_tris)^TRIANGLE_EXPONENT``.
 
     ``options`` maps a triangle count to the best outline with at most that many
-    (:func:`forest.library.outline.card_outlines`); ``extra`` is the card's
-    triangles (:func:`card_template` with ``segments`` strips) beyond the quad's
-    ``2·segments``.  The area is the share of the quad a ray can hit, so it is
-    what the transparent hits scale with; the penalty makes an extra triangle a
-    strip buy at least :data:`TRIANGLE_PENALTY` less area.  With ``budget``,
-    only outlines whose ``cards`` cards fit in it are considered (the quad always is).
+    (:func:`forest.library.outline.card_outlines`); ``tris`` is the card's
+    triangles (:func:`card_template` with ``segments`` strips) and
+    ``quad_tris = 2·segments`` the quad's.  The area is the share of the quad a
+    ray can hit, so it is what the transparent hits scale with; the exponent
+    makes a third triangle on a flat card buy at least 10 % less area
+    (``1.5^0.235 = 1.1``).  With ``budget``, only outlines whose ``cards`` cards
+    fit in it are considered (the quad always is).
     """
     best, best_score = quad(), float("inf")
     for o in [quad()] + [options[t] for t in sorted(options)]:
         tris = card_template(o, segments).triangles
         if budget is not None and o.triangles > 2 and cards * tris > budget:
             continue
-        score = o.area * (1.0 + TRIANGLE_PENALTY * (tris - 2 * segments) / segments)
+        score = o.area * (tris / (2.0 * segments)) ** TRIANGLE_EXPONENT
         if score < best_score - 1e-9:
             best, best_score = o, score
     return best
