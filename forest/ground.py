@@ -77,13 +77,20 @@ RAMP = {"slope": 6.0, "altitude": 0.05, "moisture": 0.1, "canopy": 0.15}
 RANGE = {"slope": (0.0, 90.0), "altitude": (-np.inf, np.inf), "moisture": (0.0, 1.0), "canopy": (0.0, 1.0)}
 MESH_RESOLUTION = 512  # mesh terrains: heights come from ray casts, so the grid is capped at this side
 
-#: The rules of a ``[ground]`` that gives none: grass on gentle open ground, litter under the trees,
-#: dry grass and bare soil on the steeper open slopes, rock on the steepest (landscape defaults).
+#: The rules of a ``[ground]`` that gives none (landscape defaults): green grass on gentle open ground,
+#: straw-dry grass where that ground is dry (high, or sloping: :func:`forest.maps.terrain_moisture`),
+#: leaf litter under the crowns, rock on the steepest slopes; bare soil shows between.
 DEFAULT_RULES: tuple[dict, ...] = (
-    {"material": "dry_grass", "slope": [0.0, 0.0, 30.0, 40.0], "canopy": [0.0, 0.0, 0.3, 0.6], "noise": 1.0},
-    {"material": "grass", "slope": [0.0, 0.0, 18.0, 28.0], "canopy": [0.0, 0.0, 0.25, 0.5], "noise": 1.0},
-    {"material": "litter", "canopy": [0.3, 0.6, 1.0, 1.0], "noise": 0.8},
-    {"material": "rock", "slope": [32.0, 45.0, 90.0, 90.0], "noise": 1.0, "noise_scale": 15.0},
+    {"material": "grass", "slope": [0.0, 0.0, 24.0, 34.0], "canopy": [0.0, 0.0, 0.35, 0.75], "noise_scale": 40.0},
+    {
+        "material": "dry_grass",
+        "slope": [0.0, 0.0, 28.0, 38.0],
+        "moisture": [0.0, 0.0, 0.3, 0.5],
+        "canopy": [0.0, 0.0, 0.35, 0.75],
+        "noise_scale": 60.0,
+    },
+    {"material": "litter", "canopy": [0.3, 0.7, 1.0, 1.0], "noise": 0.4},
+    {"material": "rock", "slope": [30.0, 42.0, 90.0, 90.0], "noise": 1.0, "noise_scale": 15.0},
 )
 
 
