@@ -462,7 +462,8 @@ class GroundCoverConfig(Section):
         description="Plants per square metre of terrain surface."
     )
     max_distance: Annotated[float, Field(gt=0.0, le=100000.0, allow_inf_nan=False)] = Field(
-        60.0, description="Only within this many metres of the camera (any point of its path)."
+        60.0,
+        description="Within this many metres of the camera (any point of its path), thinning out over the last 30 %.",
     )
     name: Str | None = Field(None, description="A label for reports (default: the model).")
     scale: tuple[Positive, Positive] = Field((0.8, 1.2), description="Uniform scale range [min, max].")

@@ -13,10 +13,13 @@ camera can see a small plant: within ``max_distance`` of its path.
   warp, as :meth:`forest.terrain.Terrain.sample_points`), so the expected
   number of plants per square metre of surface is ``density`` wherever the
   rules keep them.
-* **Rules**, in order: farther than ``max_distance`` from every path point
-  (the distance to the densely sampled path, so the edge is exact to
-  ``max_distance / 64``), outside ``[maps] presence`` (with ``presence =
-  true``), outside the slope window [``slope_min``, ``slope_max``] or the
+* **Rules**, in order: the distance d to the path (to the densely sampled
+  path, so exact to ``max_distance / 64``) thins the plants smoothly to none
+  at ``max_distance`` — kept where ξ_fade < f(d) = 1 − s((d − (1 − φ)R)/(φR)),
+  with R = ``max_distance``, φ = :data:`FADE` and s the smoothstep, so the
+  density is ``density`` up to 0.7 R and there is no visible edge where the
+  cover ends; then outside ``[maps] presence`` (with ``presence = true``),
+  outside the slope window [``slope_min``, ``slope_max``] or the
   ``altitude`` window.
 * **Attributes** — yaw, scale in ``scale``, wind phase, individual, tilt by
   ``align`` towards the terrain normal, tint (:mod:`forest.tint`) and
@@ -51,7 +54,8 @@ from .attributes import draw_individuals
 from .candidates import SLOPE_TOLERANCE, outside, slope_degrees
 
 TAG = 0x6C0BE4
-STREAMS = ("position", "yaw", "scale", "phase", "individual")
+STREAMS = ("position", "yaw", "scale", "phase", "individual", "fade")
+FADE = 0.3  # the outer share of max_distance over which the density falls to 0
 PATH_SAMPLES_PER_DISTANCE = 32  # path points per max_distance of camera travel
 MAX_PATH_POINTS = 200_000
 
@@ -135,7 +139,7 @@ def scatter_cover(
     normal = terrain.normals_at(faces[face], bary)
     u, v = terrain.to_uv(position[:, 0], position[:, 2])
     d, _ = tree.query(position)
-    keep = d <= cover.max_distance
+    keep = rng["fade"].random(n) < fade(d, cover.max_distance)
     if cover.presence:
         keep &= maps.present(u, v)
     keep &= ~outside(slope_degrees(normal), np.float64(cover.slope_min), np.float64(cover.slope_max), SLOPE_TOLERANCE)
@@ -164,6 +168,12 @@ def scatter_cover(
         "individual": individual,
     }
     return CoverResult(name, n, {c: np.asarray(a, dtype=COLUMNS[c][0]) for c, a in columns.items()})
+
+
+def fade(d: np.ndarray, reach: float) -> np.ndarray:
+    """Share of the density kept at distance ``d``: 1 up to (1 − FADE)·reach, smoothly 0 at ``reach`` and beyond."""
+    t = np.clip((np.asarray(d, np.float64) - (1.0 - FADE) * reach) / (FADE * reach), 0.0, 1.0)
+    return 1.0 - t * t * (3.0 - 2.0 * t)
 
 
 def empty_columns() -> dict[str, np.ndarray]:
