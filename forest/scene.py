@@ -148,7 +148,7 @@ class Scene:
         return dataclasses.replace(self, config=config, colour=colour, instances=inst, terrain_albedo=ground)
 
 
-def _ground_inputs(config: Config) -> tuple:
+def _ground_inputs(config: Config) -> tuple[object, ...]:
     rc = config.render
     colour = rc.terrain_colour if "terrain_colour" in rc.model_fields_set else None
     return (config.model.ground, rc.terrain_texture, colour, config.maps.moisture)

@@ -142,9 +142,10 @@ def scatter_cover(
     keep = rng["fade"].random(n) < fade(d, cover.max_distance)
     if cover.presence:
         keep &= maps.present(u, v)
-    keep &= ~outside(slope_degrees(normal), np.float64(cover.slope_min), np.float64(cover.slope_max), SLOPE_TOLERANCE)
+    slope_lo, slope_hi = np.full(n, cover.slope_min), np.full(n, cover.slope_max)
+    keep &= ~outside(slope_degrees(normal), slope_lo, slope_hi, SLOPE_TOLERANCE)
     if cover.altitude is not None:
-        keep &= ~outside(position[:, 1], np.float64(cover.altitude[0]), np.float64(cover.altitude[1]))
+        keep &= ~outside(position[:, 1], np.full(n, cover.altitude[0]), np.full(n, cover.altitude[1]))
     sel = np.flatnonzero(keep)
     yaw = rng["yaw"].random(n)[sel] * (2 * np.pi)
     scale = rng["scale"].random(n)[sel]
