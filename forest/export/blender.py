@@ -57,7 +57,6 @@ from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import ConfigError
 from ..errors import ForestError, ParameterError
 from ..instances import quaternion_to_matrix
-from ..render.post import haze_colour
 from ..scene import Scene
 from . import radiometry
 from .common import check_instances, export_frames, lod_mesh, species_plans, sun_direction, terrain_texture
@@ -67,6 +66,22 @@ Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 #: The environment map's turn about Blender's Z that lays it as Mitsuba's ``envmap`` (module docstring).
 ENVMAP_ROTATION_Z = 90.0
 SCRIPT = Path(__file__).with_name("blender_build.py")
+
+
+def haze_colour(config) -> tuple[float, float, float]:
+    """The haze's colour for Cycles' constant-colour fog: ``[render] haze_colour``, else the constant sky's
+    radiance, else a daylight blue (forest_path's own default, the sky's mean radiance, needs the sky model)."""
+    hc = config.render.haze_colour
+    if hc is not None:
+        return (float(hc[0]), float(hc[1]), float(hc[2]))
+    sky = config.lights.sky
+    if sky is not None and sky.kind == "constant":
+        return (
+            float(sky.radiance * sky.colour[0]),
+            float(sky.radiance * sky.colour[1]),
+            float(sky.radiance * sky.colour[2]),
+        )
+    return (0.5, 0.6, 0.75)
 
 
 @dataclass
