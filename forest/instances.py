@@ -48,6 +48,7 @@ import json
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -109,7 +110,7 @@ class InstanceSet:
     # -- construction --------------------------------------------------------
     @classmethod
     def empty(cls, species_names=(), partition_names=("default",), **kw) -> InstanceSet:
-        cols = {k: np.zeros((0, *s), dtype=d) for k, (d, s) in COLUMNS.items()}
+        cols: dict[str, Any] = {k: np.zeros((0, *s), dtype=d) for k, (d, s) in COLUMNS.items()}
         return cls(**cols, species_names=list(species_names), partition_names=list(partition_names), **kw)
 
     def subset(self, mask_or_index) -> InstanceSet:

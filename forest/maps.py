@@ -91,7 +91,7 @@ def label_partitions(img8: np.ndarray, partitions: tuple[Partition, ...], tolera
         names.append("unlabelled")
         labels_u[unl] = len(names) - 1
     order = np.argsort(-counts[unl], kind="stable")
-    unl_cols = [tuple(int(x) for x in c) for c in colours[unl][order][:5]]
+    unl_cols = [(int(c[0]), int(c[1]), int(c[2])) for c in colours[unl][order][:5]]
     return PartitionMap(labels_u[inverse.ravel()].reshape(h, w), names, n_unl, unl_cols)
 
 

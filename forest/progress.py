@@ -13,7 +13,11 @@ ProgressFn = Callable[[float, str], None]  # (fraction in [0, 1], message)
 def progress_bar(description: str, *, quiet: bool = False) -> Iterator[ProgressFn]:
     """Yield ``update(fraction, message)``; draws a rich progress bar on stderr."""
     if quiet or not sys.stderr.isatty():
-        yield lambda fraction, message="": None
+
+        def ignore(fraction: float, message: str = "") -> None:
+            return None
+
+        yield ignore
         return
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn

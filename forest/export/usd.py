@@ -399,14 +399,16 @@ def _lights(stage, config: Config, out_dir: Path):
             sky.CreateColorAttr(Gf.Vec3f(*k.colour))
         elif k.kind == "envmap":
             sky.CreateIntensityAttr(float(k.scale))
+            assert k.envmap is not None  # the schema requires it for this kind
             try:
-                ref = os.path.relpath(k.envmap, out_dir)
+                ref = os.path.relpath(str(k.envmap), str(out_dir))
             except ValueError:
                 ref = str(k.envmap)
             sky.CreateTextureFileAttr(Sdf.AssetPath(Path(ref).as_posix()))
             sky.CreateTextureFormatAttr(UsdLux.Tokens.latlong)
         else:  # physical sun-sky: a neutral blue dome stands in
-            sky.CreateIntensityAttr(0.35 * float(k.sunsky.scale))
+            scale = float(k.sunsky.scale) if k.sunsky is not None else 1.0
+            sky.CreateIntensityAttr(0.35 * scale)
             sky.CreateColorAttr(Gf.Vec3f(0.6, 0.75, 1.0))
 
 

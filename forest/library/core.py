@@ -305,6 +305,8 @@ class Library:
             finally:
                 shutil.rmtree(tmp, ignore_errors=True)
             meta = _load_meta(folder)
+            if meta is None:
+                raise ForestError(f"library: {folder} has no complete species metadata after building {label}")
         return _species_from_meta(self, meta, folder, desc)
 
     def is_fresh(self, name: str) -> bool:

@@ -39,6 +39,7 @@ import re
 import shutil
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -110,7 +111,8 @@ def _material(geom) -> tuple[str, tuple[float, float, float], np.ndarray | None]
         c = np.asarray(vis.face_colors if vis.kind == "face" else vis.vertex_colors, dtype=np.float64)
         if len(c):
             colour = tuple(srgb_to_linear(c[:, :3].mean(axis=0) / 255.0).tolist())
-    return name, tuple(float(x) for x in colour), image
+    r, g, b = (float(x) for x in colour)
+    return name, (r, g, b), image
 
 
 def _size(n: int) -> str:
@@ -139,7 +141,7 @@ def load_parts(path: Path, *, up: str = "auto", units: str = "auto", height: flo
     import trimesh
 
     try:
-        scene = trimesh.load(str(path), force="scene", process=False)
+        scene: Any = trimesh.load(str(path), force="scene", process=False)
     except Exception as e:
         msg = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise ForestError(f"{path}: cannot read mesh: {msg}") from None
@@ -263,7 +265,7 @@ def convert(
     parts = load_parts(path, up=up, units=units, height=height)
     classes = _classify(parts)
     out.mkdir(parents=True, exist_ok=True)
-    textures = []
+    textures: list[str | None] = []
     for i, (_label, _mesh, _colour, image) in enumerate(parts):
         if image is not None:
             write_texture(out / f"texture{i}.png", image)
