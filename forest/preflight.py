@@ -241,17 +241,19 @@ def input_file(path: str | Path, *, field: str | None, what: str = "file") -> Pa
 
 
 def check_species(config, library) -> None:
-    """Every ``[[species]] model`` names a library species, ``NAME@SEED`` of one, or an existing mesh.
+    """Every ``[[species]]`` and ``[[ground_cover]]`` model names a library species, ``NAME@SEED`` of one, or a mesh.
 
     Resolving (building a species, importing a mesh) is left to the scene;
     this only catches what would fail there.  A misspelled name gets the
-    closest library names as suggestions.
+    closest library names as suggestions.  The job service runs it at submission.
     """
     names = library.names()
     known = set(names)
-    for i, sp in enumerate(config.species):
+    cover = getattr(getattr(config, "model", None), "ground_cover", None) or []
+    models = [(f"species[{i}].model", sp) for i, sp in enumerate(config.species)]
+    models += [(f"ground_cover[{j}].model", gc) for j, gc in enumerate(cover)]
+    for field, sp in models:
         model = sp.model
-        field = f"species[{i}].model"
         if sp.is_mesh:
             p = Path(model).expanduser()
             p = p if p.is_absolute() else config.base_dir / p
