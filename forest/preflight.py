@@ -12,8 +12,9 @@ temporary file that is removed at once.
   missing folders below it are created when the output is written), a file
   must not be asked for where a folder stands and vice versa, and every name
   must fit the file system's name limit.
-* **Species** (:func:`check_species`): every ``[[species]] model`` names a
-  library species, ``NAME@SEED`` of one, or an existing mesh file — checked
+* **Species** (:func:`check_species`): every ``[[species]]`` and
+  ``[[ground_cover]]`` model names a library species, ``NAME@SEED`` of one, or
+  an existing mesh file — checked
   before scatter, so a misspelling fails at ``forest scatter`` and not at the
   end of a render (with the closest names as a suggestion).
 * **Memory** (:func:`render_estimate`, :func:`check_render_memory`): a render

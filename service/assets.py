@@ -205,7 +205,7 @@ def check_mesh(path: Path) -> dict:
         raise AssetError("upload is not a mesh with triangles", 415)
     if not np.isfinite(np.asarray(verts)).all():
         raise AssetError("mesh has NaN or infinite vertices", 422)
-    if not float(m.area) > 0.0:
+    if not float(getattr(m, "area", 0.0)) > 0.0:
         raise AssetError("has zero surface area", 422)
     return {"vertices": int(len(verts)), "triangles": int(len(faces))}
 

@@ -84,8 +84,14 @@ FLAG_FIELDS = {
 #: Flags that name a file (the service names it by the uploaded file's name).
 FILE_FLAGS = {"--reference"}
 #: Option cases that are job settings (the other option cases are CLI syntax).
-SETTING_OPTIONS = {"spp_zero", "width_not_a_number", "frames_reversed", "frames_garbage", "variant_unknown"}
-SETTING_OPTIONS |= {"count_negative_flag"}
+SETTING_OPTIONS = {
+    "spp_zero",
+    "width_not_a_number",
+    "frames_reversed",
+    "frames_garbage",
+    "variant_unknown",
+    "count_negative_flag",
+}
 #: Memory cases the service sees (by its size limit).
 SIZE_CASES = {"render_16384_square", "render_16384_flags"}
 #: Words of the CLI's line that belong to a check the service makes differently, and the service's words.
