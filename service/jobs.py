@@ -431,11 +431,10 @@ def _check_inputs(config: Any) -> None:
     """
     from forest.errors import ConfigError, ForestError
     from forest.images import read_map_rgb
-    from forest.library import open_library
     from forest.preflight import check_species
     from forest.render.scene import check_envmap
 
-    check_species(config, open_library())
+    check_species(config, _library())
     check_envmap(config)
     texture = getattr(config.render, "terrain_texture", None)
     if texture is not None:
@@ -443,6 +442,42 @@ def _check_inputs(config: Any) -> None:
             read_map_rgb(texture, what="terrain texture")
         except ForestError as e:
             raise ConfigError(config.path, "render.terrain_texture", str(e)) from None
+
+
+class _Names:
+    """A library's species names, read again only when one of its manifests changes."""
+
+    def __init__(self) -> None:
+        self._key: tuple | None = None
+        self._names: list[str] = []
+        self._lib: Any = None
+
+    def names(self) -> list[str]:
+        from forest.library import open_library
+        from forest.library.core import MANIFEST
+
+        if self._lib is None:
+            self._lib = open_library()  # its folders are fixed for the process; its manifests are not
+        lib = self._lib
+        stamps = []
+        for folder in (lib.root, lib.base):
+            if folder is not None:
+                try:
+                    st = (folder / MANIFEST).stat()
+                    stamps.append((str(folder), st.st_mtime_ns, st.st_size))
+                except OSError:
+                    stamps.append((str(folder), 0, 0))
+        if tuple(stamps) != self._key:
+            self._names, self._key = lib.names(), tuple(stamps)
+        return list(self._names)
+
+
+_NAMES = _Names()
+
+
+def _library() -> _Names:
+    """What :func:`forest.preflight.check_species` asks of the library: its names (cached by manifest)."""
+    return _NAMES
 
 
 def _check_match(config: Any, match: MatchSpec, variant: str | None, limits: Limits, job_dir: Path) -> None:
