@@ -12,8 +12,9 @@ temporary file that is removed at once.
   missing folders below it are created when the output is written), a file
   must not be asked for where a folder stands and vice versa, and every name
   must fit the file system's name limit.
-* **Species** (:func:`check_species`): every ``[[species]] model`` names a
-  library species, ``NAME@SEED`` of one, or an existing mesh file — checked
+* **Species** (:func:`check_species`): every ``[[species]]`` and
+  ``[[ground_cover]]`` model names a library species, ``NAME@SEED`` of one, or
+  an existing mesh file — checked
   before scatter, so a misspelling fails at ``forest scatter`` and not at the
   end of a render (with the closest names as a suggestion).
 * **Memory** (:func:`render_estimate`, :func:`check_render_memory`): a render
@@ -241,17 +242,19 @@ def input_file(path: str | Path, *, field: str | None, what: str = "file") -> Pa
 
 
 def check_species(config, library) -> None:
-    """Every ``[[species]] model`` names a library species, ``NAME@SEED`` of one, or an existing mesh.
+    """Every ``[[species]]`` and ``[[ground_cover]]`` model names a library species, ``NAME@SEED`` of one, or a mesh.
 
     Resolving (building a species, importing a mesh) is left to the scene;
     this only catches what would fail there.  A misspelled name gets the
-    closest library names as suggestions.
+    closest library names as suggestions.  The job service runs it at submission.
     """
     names = library.names()
     known = set(names)
-    for i, sp in enumerate(config.species):
+    cover = getattr(getattr(config, "model", None), "ground_cover", None) or []
+    models = [(f"species[{i}].model", sp) for i, sp in enumerate(config.species)]
+    models += [(f"ground_cover[{j}].model", gc) for j, gc in enumerate(cover)]
+    for field, sp in models:
         model = sp.model
-        field = f"species[{i}].model"
         if sp.is_mesh:
             p = Path(model).expanduser()
             p = p if p.is_absolute() else config.base_dir / p

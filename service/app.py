@@ -9,7 +9,8 @@ Routers, one concern each (every route is documented in its module and in ``/ope
 * :mod:`.api.assets` — uploads (folders kept) and their list;
 * :mod:`.api.system` — health, workers, example scenes.
 
-Errors are ``{"detail": "<one line>"}``.  Safety: the service binds to loopback unless
+Errors are ``{"detail": "<one line>"}``, a malformed request's too (the first problem,
+named by its JSON field in the config's words: ``settings.spp: must be >= 1, got 0``).  Safety: the service binds to loopback unless
 told otherwise, and then a bearer token is required (``Authorization: Bearer …``;
 ``?access_token=`` for GETs, which the page needs for ``EventSource`` and ``<img>``).
 """
@@ -24,6 +25,7 @@ from pathlib import Path
 from typing import Literal
 
 from fastapi import APIRouter, Depends, FastAPI, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 
@@ -33,7 +35,7 @@ from .api.schemas import Problem
 from .assets import DataDir, asset_kind
 from .dispatcher import Dispatcher
 from .executors import Executor, LocalExecutor, RayExecutor
-from .jobs import Limits, RequestError
+from .jobs import Limits, RequestError, validation_line
 from .notify import Notifier
 from .retention import Retention
 from .runner import capabilities
@@ -139,7 +141,7 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
         description="Queue renders, fly-throughs, colour matches and exports; watch them refine; download the results.",
     )
     app.state.service = svc
-    api = APIRouter(dependencies=[Depends(authorize)], responses={401: {"model": Problem}})
+    api = APIRouter(dependencies=[Depends(authorize)], responses={401: {"model": Problem}, 422: {"model": Problem}})
     for module in (jobs, files, events, assets, system):
         api.include_router(module.router)
     app.include_router(api)
@@ -149,6 +151,10 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
         return FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-cache"})
 
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+        return JSONResponse({"detail": validation_line(list(exc.errors()), exc.body)}, status_code=422)
 
     @app.exception_handler(RequestError)
     async def _request_error(request: Request, exc: RequestError) -> JSONResponse:

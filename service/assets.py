@@ -15,8 +15,10 @@ config that looks like a file path is checked: it must be relative, must not cli
 is then hard-linked (or copied) into the job's folder under the same relative path, so
 each job is self-contained and later uploads cannot change it.
 
-Uploads are accepted only when OpenImageIO reads them as an image or trimesh reads them
-as a mesh with at least one triangle; anything else is refused before it is stored.
+Uploads are accepted only when they decode as the CLI decodes an input image
+(:func:`forest.images.read_image`: the whole file, finite values) or trimesh reads them as
+a mesh with finite vertices and some surface area; anything else is refused before it is
+stored, in the CLI's words, naming the upload (``maps/colour.png: cannot read image: …``).
 """
 
 from __future__ import annotations
@@ -166,45 +168,45 @@ def link_into(job_dir: Path, assets: dict[str, Path]) -> None:
 # -- uploads --------------------------------------------------------------------
 
 
-def check_image(path: Path) -> dict:
-    """Open with OpenImageIO and read the pixels; raise :class:`AssetError` if it is not an image."""
-    import numpy as np
-    import OpenImageIO as oiio
+def check_image(path: Path, name: str | None = None) -> dict:
+    """Decode with :func:`forest.images.read_image` (the CLI's reader); raise :class:`AssetError` if it fails.
 
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        oiio.geterror()
-        raise AssetError("upload is not a readable image", 415)
+    The reader's one line — ``cannot read image: <decoder's words>``, ``image contains NaN
+    or infinite values (n of N)`` — is the CLI's, with the file named by ``name`` (the
+    upload's name) rather than the temporary file it was streamed to.
+    """
+    from forest.errors import ForestError
+    from forest.images import read_image
+
     try:
-        spec = inp.spec()
-        if spec.width <= 0 or spec.height <= 0 or spec.width * spec.height > 16384 * 16384:
-            raise AssetError(f"image size {spec.width}x{spec.height} is out of range", 422)
-        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
-        if data is None or not hasattr(data, "shape"):
-            inp.geterror()
-            raise AssetError("upload is a corrupt image", 415)
-        if not np.isfinite(np.asarray(data)).all():
-            raise AssetError("image contains NaN or infinite values", 422)
-        return {"width": spec.width, "height": spec.height, "channels": spec.nchannels}
-    finally:
-        inp.close()
+        data = read_image(path, what="image")
+    except ForestError as e:
+        text = str(e).replace(str(path), name or path.name)
+        if name is not None and text.startswith(f"{name}: "):
+            text = text[len(name) + 2 :]
+        status = 422 if ("NaN" in text or "limit" in text) else 415
+        raise AssetError(text, status) from None
+    h, w, c = data.shape
+    return {"width": int(w), "height": int(h), "channels": int(c)}
 
 
 def check_mesh(path: Path) -> dict:
-    """Load with trimesh; refuse anything without finite vertices and at least one face."""
+    """Load with trimesh; refuse anything without finite vertices, at least one face and some area."""
     import numpy as np
     import trimesh
 
     try:
         m = trimesh.load(str(path), force="mesh", process=False)
     except Exception as e:
-        raise AssetError(f"upload is not a readable mesh: {type(e).__name__}", 415) from None
+        raise AssetError(f"cannot read mesh: {type(e).__name__}", 415) from None
     faces = getattr(m, "faces", None)
     verts = getattr(m, "vertices", None)
     if faces is None or verts is None or len(faces) == 0:
         raise AssetError("upload is not a mesh with triangles", 415)
     if not np.isfinite(np.asarray(verts)).all():
         raise AssetError("mesh has NaN or infinite vertices", 422)
+    if not float(getattr(m, "area", 0.0)) > 0.0:
+        raise AssetError("has zero surface area", 422)
     return {"vertices": int(len(verts)), "triangles": int(len(faces))}
 
 
@@ -241,8 +243,8 @@ def store_upload(datadir: DataDir, name: str, chunks: Iterator[bytes], max_bytes
                     raise AssetError(f"upload is larger than the {max_bytes} byte limit", 413)
                 f.write(chunk)
         if size == 0:
-            raise AssetError("upload is empty", 422)
-        info = check_image(tmp_path) if kind == "image" else check_mesh(tmp_path)
+            raise AssetError(f"{kind} is empty", 422)
+        info = check_image(tmp_path, name) if kind == "image" else check_mesh(tmp_path)
         os.chmod(tmp_path, 0o644)
         dest = datadir.assets / rel
         if not is_inside(dest.parent.resolve(), datadir.assets):

@@ -3,8 +3,15 @@
 A request is checked in this order, each failure answering a 4xx with one line that
 names the field: the JSON schema (pydantic), the config's TOML syntax, every asset path
 in the config (inside the data folder, see :mod:`forest.service.assets`), the config's own
-validation (``forest.config``), then the service's limits on resolution, samples,
-candidates and frames.  Only then is the job stored, so a bad request leaves nothing.
+validation (``forest.config``), the service's limits on resolution, samples, candidates
+and frames, then what the CLI checks before it starts work (:func:`_check_inputs`: the
+species against the library, the environment map and terrain texture; a match job's
+reference at the fit's size).  Only then is the job stored, so a bad request leaves
+nothing.  The words are the CLI's: a malformed request's first problem is worded as the
+config's (:func:`validation_line`), an upload is decoded by the CLI's image reader, and
+files are named as the request names them, never by their place in the job folder.
+A limit is named by the setting that gave the value (``settings.width``) or else by the
+config's field (``config: render.width``).
 
 A library error about a parameter (:class:`forest.errors.ParameterError`) is answered
 with the request's JSON field for it (:func:`forest.service.views.field_name`).
@@ -51,9 +58,12 @@ class Limits:
 
 
 class JobSettings(BaseModel):
-    """Per-job settings; each overrides the matching key of the config."""
+    """Per-job settings; each overrides the matching key of the config.
 
-    model_config = ConfigDict(extra="forbid")
+    Strict, as the config is: ``"width": "64"`` is refused (a string is not a number).
+    """
+
+    model_config = ConfigDict(extra="forbid", strict=True)
     width: int | None = Field(default=None, ge=1, le=16384, description="Image width in pixels ([render] width).")
     height: int | None = Field(default=None, ge=1, le=16384, description="Image height in pixels ([render] height).")
     spp: int | None = Field(default=None, ge=1, le=65536, description="Samples per pixel ([render] spp).")
@@ -89,7 +99,7 @@ class JobSettings(BaseModel):
 class JobRequest(BaseModel):
     """``POST /jobs`` body."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
     kind: Kind = Field(..., description="render (a still), flythrough, match, rib or usd (exports).")
     config: str = Field(..., min_length=1, description="The scene config as TOML text (at most 1 MiB).")
     settings: JobSettings = Field(default_factory=lambda: JobSettings())
@@ -101,6 +111,54 @@ class RequestError(Exception):
     def __init__(self, message: str, status: int = 422):
         super().__init__(message)
         self.status = status
+
+
+class _Errors:
+    """Pydantic's error list in the shape :func:`forest.config.messages.first_error` reads."""
+
+    def __init__(self, errors: list[dict[str, Any]]):
+        self._errors = errors
+
+    def errors(self, include_url: bool = False) -> list[dict[str, Any]]:
+        return self._errors
+
+
+def validation_line(errors: list[dict[str, Any]], body: Any = None) -> str:
+    """A request's first validation error as one line, in the config's words: ``settings.spp: must be >= 1, got 0``.
+
+    The wording is :func:`forest.config.messages.first_error`'s — the words the CLI uses
+    for the same value in a config — with the request's JSON field (``body`` dropped from
+    the location; a query or header parameter keeps its place: ``query.limit``).
+    """
+    from forest.config.messages import dotted, first_error
+
+    if not errors:
+        return "invalid request"
+    e = dict(errors[0])
+    loc = tuple(e.get("loc") or ())
+    if loc[:1] == ("body",):
+        loc = loc[1:]
+        data = body
+    else:
+        data = None
+    e["loc"] = loc
+    if e.get("type") == "extra_forbidden":
+        model: type[BaseModel] = JobSettings if loc[:1] == ("settings",) else JobRequest
+        return f"{dotted(loc)}: unknown key (expected one of: {', '.join(sorted(model.model_fields))})"
+    if e.get("type") == "json_invalid":
+        return f"body: invalid JSON: {(e.get('ctx') or {}).get('error', e.get('msg', ''))}"
+    if e.get("type") == "string_pattern_mismatch":
+        return f"{dotted(loc)}: {_pattern_words(loc)}, got {e.get('input')!r}"
+    field, message = first_error(_Errors([e]), data)  # type: ignore[arg-type]
+    return f"{field}: {message}" if field else message
+
+
+def _pattern_words(loc: tuple[Any, ...]) -> str:
+    if loc == ("settings", "frames"):
+        return "must be frames such as '1-24', '1-120x2' or '1,5,9'"
+    if loc == ("settings", "mode"):
+        return "must be a word of letters, digits, '-' or '_'"
+    return "has characters it may not hold"
 
 
 def request_hash(req: JobRequest) -> str:
@@ -143,19 +201,33 @@ def _overrides(s: JobSettings, data: dict) -> dict[str, Any]:
     return out
 
 
+#: The config's file name in a job folder (and in the library's messages about it).
+CONFIG_NAME = "config.toml"
+
 #: The request setting behind each config field a setting overrides.
 SETTING_OF = {dotted: f"settings.{key}" for key, dotted in OVERRIDES}
 
 
-def _library_error(e: Exception, kind: str, overrides: dict[str, Any] | None = None) -> RequestError:
-    """A library error as the request's words: a parameter or an overridden field by its JSON setting."""
+def _library_error(
+    e: Exception, kind: str, overrides: dict[str, Any] | None = None, job_dir: Path | None = None
+) -> RequestError:
+    """A library error as the request's words: a parameter or an overridden field by its JSON setting.
+
+    Files are named as the request names them (``sky.exr``), never by their place in the job folder.
+    """
     from forest.errors import ConfigError, ParameterError
 
     if isinstance(e, ParameterError):
-        return RequestError(f"{field_name(e.field or '', kind)}: {e.message}")
-    if isinstance(e, ConfigError) and overrides and e.field in overrides and e.field in SETTING_OF:
-        return RequestError(f"{SETTING_OF[e.field]}: {e.message}")
-    return RequestError(str(e))
+        line = f"{field_name(e.field or '', kind)}: {e.message}"
+    elif isinstance(e, ConfigError) and overrides and e.field in overrides and e.field in SETTING_OF:
+        line = f"{SETTING_OF[e.field]}: {e.message}"
+    else:
+        line = str(e)
+    if job_dir is not None:
+        line = line.replace(f"{job_dir}/", "").replace(str(job_dir), ".")
+    if line.startswith(f"{CONFIG_NAME}: "):
+        line = "config: " + line[len(CONFIG_NAME) + 2 :]  # the request's field, as for the TOML and the assets
+    return RequestError(line)
 
 
 def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dict[str, bool]) -> PreparedJob:
@@ -170,7 +242,7 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
             f"(available: {', '.join(k for k, v in capabilities.items() if v) or 'none'})"
         )
     if len(req.config.encode()) > limits.max_config_bytes:
-        raise RequestError(f"config: larger than the {limits.max_config_bytes} byte limit", 413)
+        raise RequestError(f"config: the config is over {limits.max_config_bytes // 1024} KiB", 413)
     try:
         data = read_toml(req.config)  # the CLI's parser: the same size and nesting limits, the same messages
     except ForestError as e:
@@ -198,7 +270,7 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
         # the TOML is parsed once; the settings are applied as the CLI applies its flags, and the
         # whole config is validated now (its files once they are linked into the job folder, below)
         data = apply_overrides(data, overrides)
-        config = Config(data, path=Path("config.toml"), base_dir=job_dir, check_files=False)
+        config = Config(data, path=Path(CONFIG_NAME), base_dir=job_dir, check_files=False)
         name = req.name or (config.name if named else None)
     except ForestError as e:
         raise _library_error(e, req.kind, overrides) from None
@@ -211,27 +283,17 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
             link_into(job_dir, assets)
             inputs = {rel: file_sha256(job_dir / rel) for rel in sorted(assets)}
         try:
-            config = Config(data, path=Path("config.toml"), base_dir=job_dir)
+            config = Config(data, path=Path(CONFIG_NAME), base_dir=job_dir)
         except ForestError as e:
-            raise _library_error(e, req.kind, overrides) from None
+            raise _library_error(e, req.kind, overrides, job_dir) from None
         r = config.render
         width, height, spp = r.width, r.height, r.spp
-        if width > limits.max_width:
-            raise RequestError(f"settings.width: {width} is over the service limit of {limits.max_width}")
-        if height > limits.max_height:
-            raise RequestError(f"settings.height: {height} is over the service limit of {limits.max_height}")
-        if width * height > limits.max_pixels:
-            raise RequestError(
-                f"settings.width×height: {width}×{height} = {width * height} pixels is over the "
-                f"service limit of {limits.max_pixels}"
-            )
-        if spp > limits.max_spp:
-            raise RequestError(f"settings.spp: {spp} is over the service limit of {limits.max_spp}")
+        _check_limits(config, overrides, limits)
         candidates = config.scatter.count
-        if candidates > limits.max_trees:
-            raise RequestError(
-                f"settings.count: {candidates} candidate trees is over the service limit of {limits.max_trees}"
-            )
+        try:
+            _check_inputs(config)
+        except ForestError as e:
+            raise _library_error(e, req.kind, overrides, job_dir) from None
         base: dict[str, Any] = {
             "job_id": job_id,
             "kind": req.kind,
@@ -276,7 +338,7 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
                 params=tuple(s.params) if s.params is not None else None,
                 mode=s.mode,
             )
-            _check_match(config, match, s.variant, limits)
+            _check_match(config, match, s.variant, limits, job_dir)
             specs.append(TaskSpec(**base, index=0, output="out", match=match))
         elif req.kind == "rib":
             specs.append(
@@ -328,10 +390,103 @@ def _frames(text: str | None, config: Any, parse_frames: Any, *, required: bool)
     return None
 
 
-def _check_match(config: Any, match: MatchSpec, variant: str | None, limits: Limits) -> None:
-    """Validate look-dev settings now (the same resolution look-dev does), so mistakes answer 422."""
-    from forest.errors import ForestError
-    from forest.lookdev import resolve_settings
+def _field(dotted: str, overrides: dict[str, Any]) -> str:
+    """The request's name for a config field: its setting when a setting gave the value, else ``config: <field>``."""
+    return SETTING_OF[dotted] if dotted in overrides else f"config: {dotted}"
+
+
+def _check_limits(config: Any, overrides: dict[str, Any], limits: Limits) -> None:
+    """The service's limits on image size, samples and candidates, named as the request gave each value."""
+    r = config.render
+    width, height, spp = r.width, r.height, r.spp
+    w_field, h_field = _field("render.width", overrides), _field("render.height", overrides)
+    both = f"{w_field}/{h_field.removeprefix('config: ')}" if w_field.startswith("config") else f"{w_field}/{h_field}"
+    if width > limits.max_width or height > limits.max_height:
+        raise RequestError(
+            f"{both}: {width}x{height} is over the service limit of "
+            f"{limits.max_width}x{limits.max_height} ({w_field if width > limits.max_width else h_field})"
+        )
+    if width * height > limits.max_pixels:
+        raise RequestError(
+            f"{w_field}×height: {width}×{height} = {width * height} pixels is over the "
+            f"service limit of {limits.max_pixels}"
+        )
+    if spp > limits.max_spp:
+        raise RequestError(f"{_field('render.spp', overrides)}: {spp} is over the service limit of {limits.max_spp}")
+    candidates = config.scatter.count
+    if candidates > limits.max_trees:
+        raise RequestError(
+            f"{_field('scatter.count', overrides)}: {candidates} candidate trees is over the service limit of "
+            f"{limits.max_trees}"
+        )
+
+
+def _check_inputs(config: Any) -> None:
+    """What the CLI checks before work starts, on the job's linked files (raises ``ForestError``).
+
+    The species against the library (:func:`forest.preflight.check_species`), the
+    environment map (:func:`forest.render.scene.check_envmap`: format, decodable,
+    finite and non-negative radiance) and the terrain texture.  Mitsuba's own test
+    load of an environment map is left to the worker, which has the renderer loaded.
+    """
+    from forest.errors import ConfigError, ForestError
+    from forest.images import read_map_rgb
+    from forest.preflight import check_species
+    from forest.render.scene import check_envmap
+
+    check_species(config, _library())
+    check_envmap(config)
+    texture = getattr(config.render, "terrain_texture", None)
+    if texture is not None:
+        try:
+            read_map_rgb(texture, what="terrain texture")
+        except ForestError as e:
+            raise ConfigError(config.path, "render.terrain_texture", str(e)) from None
+
+
+class _Names:
+    """A library's species names, read again only when one of its manifests changes."""
+
+    def __init__(self) -> None:
+        self._key: tuple | None = None
+        self._names: list[str] = []
+        self._lib: Any = None
+
+    def names(self) -> list[str]:
+        from forest.library import open_library
+        from forest.library.core import MANIFEST
+
+        if self._lib is None:
+            self._lib = open_library()  # its folders are fixed for the process; its manifests are not
+        lib = self._lib
+        stamps = []
+        for folder in (lib.root, lib.base):
+            if folder is not None:
+                try:
+                    st = (folder / MANIFEST).stat()
+                    stamps.append((str(folder), st.st_mtime_ns, st.st_size))
+                except OSError:
+                    stamps.append((str(folder), 0, 0))
+        if tuple(stamps) != self._key:
+            self._names, self._key = lib.names(), tuple(stamps)
+        return list(self._names)
+
+
+_NAMES = _Names()
+
+
+def _library() -> _Names:
+    """What :func:`forest.preflight.check_species` asks of the library: its names (cached by manifest)."""
+    return _NAMES
+
+
+def _check_match(config: Any, match: MatchSpec, variant: str | None, limits: Limits, job_dir: Path) -> None:
+    """Validate look-dev settings and the reference now (as ``forest match`` does), so mistakes answer 422."""
+    import warnings
+
+    from forest.errors import ForestError, ParameterError
+    from forest.lookdev import optimiser_size, resolve_settings
+    from forest.lookdev.reference import load_reference
 
     try:
         st = resolve_settings(
@@ -344,6 +499,15 @@ def _check_match(config: Any, match: MatchSpec, variant: str | None, limits: Lim
             variant=variant,
         )
     except ForestError as e:
-        raise _library_error(e, "match") from None
+        raise _library_error(e, "match", job_dir=job_dir) from None
     if st.iterations > limits.max_iterations:
         raise RequestError(f"lookdev.iterations: {st.iterations} is over the service limit of {limits.max_iterations}")
+    width, height = optimiser_size(config, st.resolution)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            load_reference(job_dir / match.reference, width, height, mask=st.mask, fit=st.fit)
+    except ParameterError as e:
+        raise _library_error(e, "match", job_dir=job_dir) from None
+    except ForestError as e:
+        raise _library_error(ParameterError("reference", str(e)), "match", job_dir=job_dir) from None

@@ -76,6 +76,10 @@ def load_scene(spec: TaskSpec, input_dir: Path, instances: Any | None = None) ->
 
     t0 = time.perf_counter()
     config = parse_config(spec.config, base_dir=input_dir, overrides=spec.overrides or None)
+    if spec.kind in ("render", "flythrough", "match"):
+        from forest.render.scene import check_render_inputs
+
+        check_render_inputs(config)  # Mitsuba's test load of an environment map, named by its field
     scattered = instances is None
     return LoadedScene(
         key=spec.scene_key,

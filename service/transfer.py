@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import shutil
 import tempfile
 import threading
@@ -93,6 +94,17 @@ class BlobStore:
             _link_or_copy(src, tmp)
             os.replace(tmp, dst)
         return dst
+
+    def relative(self, text: str, *folders: Path) -> str:
+        """``text`` with the places of a task's files (its inputs folder, ``folders``) cut: files as the job names them.
+
+        A user's mistake is reported against ``sky.exr``, the name in the config, not the
+        worker's copy of it.
+        """
+        text = re.sub(re.escape(str(self.folders)) + r"/[^/\s]+/", "", text)
+        for folder in folders:
+            text = text.replace(f"{folder}/", "")
+        return text
 
     def inputs(self, table: Mapping[str, str], fetch: Callable[[str, str], Path]) -> Path:
         """A folder holding every input under its job-relative name; ``fetch(rel, sha)`` gives a missing blob.

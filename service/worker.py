@@ -127,9 +127,11 @@ def main(argv: list[str]) -> int:
             result = execute(spec, ctx)
             report: Any = Done(task_id=order.task_id, attempt=order.attempt, result=result)
         except ParameterError as e:
-            report = Failed(task_id=order.task_id, attempt=order.attempt, error=e.message, param=e.field, user=True)
+            error = blobs.relative(e.message, job_dir)  # files as the job names them
+            report = Failed(task_id=order.task_id, attempt=order.attempt, error=error, param=e.field, user=True)
         except ForestError as e:
-            report = Failed(task_id=order.task_id, attempt=order.attempt, error=str(e), user=True)
+            error = blobs.relative(str(e), job_dir)
+            report = Failed(task_id=order.task_id, attempt=order.attempt, error=error, user=True)
         except MemoryError:
             chan.send(Failed(task_id=order.task_id, attempt=order.attempt, error="out of memory"))
             os._exit(1)

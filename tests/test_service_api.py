@@ -394,17 +394,36 @@ def test_cancel_of_a_queued_job_is_immediate_and_counted(idle):
 # -- errors ----------------------------------------------------------------------------------
 
 
-def test_a_render_error_fails_the_job_once_with_its_message(server):
+def test_a_misspelled_species_is_refused_at_submission(server):
     c = server.client
+    before = c.get("/jobs").json()["counts"]
     text = tiny_config().replace('model = "shrub"', 'model = "no_such_species"')
+    r = c.post("/jobs", json={"kind": "render", "config": text})
+    assert r.status_code == 422 and r.json()["detail"].startswith("config: species[0].model: unknown species"), r.text
+    assert c.get("/jobs").json()["counts"] == before
+
+
+def test_a_render_error_fails_the_job_once_with_its_message(server, tmp_path):
+    import OpenImageIO as oiio
+
+    c = server.client
+    # an EXR of two channels decodes, but Mitsuba's envmap refuses it: only the worker can tell
+    path = tmp_path / "two.exr"
+    out = oiio.ImageOutput.create(str(path))
+    out.open(str(path), oiio.ImageSpec(8, 4, 2, oiio.FLOAT))
+    out.write_image(np.ones((4, 8, 2), np.float32))
+    out.close()
+    assert c.put("/assets/skies/two.exr", content=path.read_bytes()).status_code == 201
+    text = tiny_config() + '[lights]\nsky = { envmap = "skies/two.exr" }\n'
     r = c.post("/jobs", json={"kind": "render", "config": text})
     assert r.status_code == 202, r.text
     job = wait_job(c, r.json()["id"])
-    assert job["state"] == "failed" and "no_such_species" in job["error"]
-    assert job["tasks"][0]["attempt"] == 1 and "no_such_species" in job["tasks"][0]["error"]
+    assert job["state"] == "failed" and "lights.sky.envmap: skies/two.exr" in job["error"], job
+    assert job["tasks"][0]["attempt"] == 1 and "skies/two.exr" in job["tasks"][0]["error"]
+    assert str(server.data) not in job["error"]
     res = c.get(f"/jobs/{job['id']}/result")
-    assert res.status_code == 409 and "no_such_species" in res.json()["detail"]
-    assert "no_such_species" in c.get(f"/jobs/{job['id']}/log").text
+    assert res.status_code == 409 and "skies/two.exr" in res.json()["detail"]
+    assert "skies/two.exr" in c.get(f"/jobs/{job['id']}/log").text
 
 
 def test_library_errors_name_the_request_field_not_a_cli_flag(server):

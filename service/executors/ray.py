@@ -93,9 +93,11 @@ class RayWorker:
         try:
             result: Any = Done(task_id=order.task_id, attempt=order.attempt, result=execute(spec, ctx))
         except ParameterError as e:
-            result = Failed(task_id=order.task_id, attempt=order.attempt, error=e.message, param=e.field, user=True)
+            error = self.blobs.relative(e.message, job_dir)  # files as the job names them
+            result = Failed(task_id=order.task_id, attempt=order.attempt, error=error, param=e.field, user=True)
         except ForestError as e:
-            result = Failed(task_id=order.task_id, attempt=order.attempt, error=str(e), user=True)
+            error = self.blobs.relative(str(e), job_dir)
+            result = Failed(task_id=order.task_id, attempt=order.attempt, error=error, user=True)
         except Exception as e:
             self.cache.clear()
             result = Failed(
