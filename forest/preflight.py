@@ -26,17 +26,31 @@ temporary file that is removed at once.
   detail, W·H the image (the film, the running and accumulated beauty in
   float64, the depth/id/species layers and the copies made to write the EXR and
   PNG) and L the rays one sample pass traces at once in the JIT variants
-  (``forest.render.frame.JIT_LANES`` at most).  The coefficients are measured
-  peak resident sizes of ``forest render`` in Mitsuba 3.9.1, rounded up:
-  M₀ ≈ 0.27 GB (a few trees, a small image); scalar_rgb ≈ 183 B per pixel
-  (256² → 1024²); llvm_ad_rgb ≈ 281 B per pixel and ≈ 1.6 B per lane; per tree
-  ≈ 4.6 KB in scalar_rgb between 100 000 and 1 000 000 instances
-  (bench/RESULTS.md, "render million": 4.83 GB) and ≈ 13 KB more in the JIT
-  variants.  ``bench/bench_preflight.py`` compares estimate and measurement.  The estimate is compared with the memory this process may use
+  (``forest.render.frame.JIT_LANES`` at most).  In the JIT variants
+  (forest_path) the trees at the far level are not instances: they are merged
+  into one world-space mesh per species and part
+  (:mod:`forest.render.path.geometry`), so there
+
+      m_tree · N  →  m_inst · N_inst + m_flat · T_far + m_row · N
+
+  with N_inst the trees that stay instances, T_far the merged triangles and
+  m_row each tree's own arrays (transform, normal matrix, ids).  The
+  coefficients are measured peak resident sizes of ``forest render`` in
+  Mitsuba 3.9.1, rounded up: M₀ ≈ 0.27 GB (a few trees, a small image);
+  scalar_rgb ≈ 183 B per pixel (256² → 1024²); llvm_ad_rgb ≈ 281 B per pixel
+  and ≈ 1.6 B per lane; per tree ≈ 4.6 KB in scalar_rgb between 100 000 and
+  1 000 000 instances (bench/RESULTS.md, "render million": 4.83 GB); in
+  llvm_ad_rgb 14.0 KB per instance (``bench/bench_forest_path.py --case
+  memory``; :data:`BYTES_PER_INSTANCE` rounds it up to the 16 KB forest_path's
+  own check uses), ≈ 200 B per merged triangle and ≈ 400 B per tree (1 000 000
+  trees, 56 481 instances and 5.66 M merged triangles: 2.27 GB measured, 2.6 GB
+  estimated).  ``bench/bench_preflight.py`` compares estimate and measurement.
+  The estimate is compared with the memory this process may use
   (:func:`available_memory`: ``MemAvailable`` and the cgroup's limit, or
-  ``$FOREST_MEMORY_GB``); a render that does not fit fails naming
-  ``render.width``/``render.height`` and the largest image of the same aspect
-  ratio that fits.
+  ``$FOREST_MEMORY_GB``); a render that does not fit fails before rendering
+  naming ``render.width``/``render.height`` and the largest image of the same
+  aspect ratio that fits or, when the trees alone do not fit, ``scatter.count``
+  and about how many trees would.
 * **Time**: samples × seconds-per-sample + trees × seconds-per-tree, with the
   rates measured by this machine's last render of the same variant
   (:func:`record_render`, kept in the user state folder) or, before any, rates
@@ -65,6 +79,11 @@ GiB = 1 << 30
 BASE_BYTES = 300 << 20
 BYTES_PER_TRIANGLE = 200
 BYTES_PER_TREE = {"scalar": 4_700, "jit": 18_000}
+#: JIT variants (forest_path): bytes per tree that stays an instance, per merged far-level triangle,
+#: and per tree whatever its level (its rows in forest's own buffers).
+BYTES_PER_INSTANCE = 16 * 1024
+BYTES_PER_FLAT_TRIANGLE = 200
+BYTES_PER_ROW = 400
 BYTES_PER_PIXEL = {"scalar": 200, "jit": 300}
 BYTES_PER_LANE = 2
 #: Rays one JIT sample pass traces at most (forest.render.frame.JIT_LANES).
@@ -334,6 +353,8 @@ class RenderEstimate:
     memory: int
     seconds: float
     measured: bool  # the time comes from this machine's last render (else from the built-in rates)
+    far_trees: int | None = None  # JIT variants: trees merged at the far level (None: not known yet)
+    far_triangles: int = 0
 
     def line(self, available: int | None = None) -> str:
         """One line for the user: size, samples, trees, memory and time."""
@@ -345,11 +366,37 @@ class RenderEstimate:
         )
 
 
-def render_memory(width: int, height: int, spp: int, trees: int, variant: str, triangles: int = 0) -> int:
-    """Peak bytes of a render (the model in the module docstring)."""
+def tree_bytes(trees: int, variant: str, *, far_trees: int | None = None, far_triangles: int = 0) -> int:
+    """Bytes the trees themselves take in ``variant`` (see the module docstring).
+
+    ``far_trees`` (JIT variants): how many of the ``trees`` are merged at the far level, with
+    ``far_triangles`` triangles in all; None when unknown (before the scene is loaded): every tree
+    is then counted as an instance, the bound of :data:`BYTES_PER_TREE`."""
+    trees = int(trees)
+    if _kind(variant) == "scalar":
+        return BYTES_PER_TREE["scalar"] * trees
+    if far_trees is None:
+        return BYTES_PER_TREE["jit"] * trees
+    far = min(max(int(far_trees), 0), trees)
+    return BYTES_PER_INSTANCE * (trees - far) + BYTES_PER_FLAT_TRIANGLE * int(far_triangles) + BYTES_PER_ROW * trees
+
+
+def render_memory(
+    width: int,
+    height: int,
+    spp: int,
+    trees: int,
+    variant: str,
+    triangles: int = 0,
+    *,
+    far_trees: int | None = None,
+    far_triangles: int = 0,
+) -> int:
+    """Peak bytes of a render (the model in the module docstring; ``far_*`` as in :func:`tree_bytes`)."""
     kind = _kind(variant)
     pixels = int(width) * int(height)
-    mem = BASE_BYTES + BYTES_PER_TRIANGLE * int(triangles) + BYTES_PER_TREE[kind] * int(trees)
+    mem = BASE_BYTES + BYTES_PER_TRIANGLE * int(triangles)
+    mem += tree_bytes(trees, variant, far_trees=far_trees, far_triangles=far_triangles)
     mem += BYTES_PER_PIXEL[kind] * pixels
     if kind == "jit":
         mem += BYTES_PER_LANE * min(JIT_LANES, pixels * max(1, int(spp)))
@@ -366,8 +413,11 @@ def render_estimate(
     frames: int = 1,
     subframes: int = 1,
     triangles: int = 0,
+    far_trees: int | None = None,
+    far_triangles: int = 0,
 ) -> RenderEstimate:
-    """Memory and time of rendering ``frames`` frames (time from :func:`throughput`)."""
+    """Memory and time of rendering ``frames`` frames (time from :func:`throughput`; ``far_*`` as in
+    :func:`tree_bytes`)."""
     kind = _kind(variant)
     sample_s, tree_s, measured = throughput(variant)
     samples = int(width) * int(height) * max(int(spp), int(subframes))
@@ -380,9 +430,13 @@ def render_estimate(
         trees=int(trees),
         variant=variant,
         triangles=int(triangles),
-        memory=render_memory(width, height, spp, trees, variant, triangles),
+        memory=render_memory(
+            width, height, spp, trees, variant, triangles, far_trees=far_trees, far_triangles=far_triangles
+        ),
         seconds=seconds,
         measured=measured,
+        far_trees=far_trees,
+        far_triangles=int(far_triangles),
     )
 
 
@@ -418,12 +472,33 @@ def check_render_memory(
         return room
 
     def need(w: int, h: int) -> int:
-        return render_memory(w, h, estimate.spp, estimate.trees, estimate.variant, estimate.triangles)
+        return render_memory(
+            w,
+            h,
+            estimate.spp,
+            estimate.trees,
+            estimate.variant,
+            estimate.triangles,
+            far_trees=estimate.far_trees,
+            far_triangles=estimate.far_triangles,
+        )
 
     trees = f" of {estimate.trees:,} trees" if estimate.trees else ""
     what = f"a {estimate.width}x{estimate.height} render{trees} needs about {format_bytes(estimate.memory)}, "
     what += f"{format_bytes(room)} available"
     fits = largest_fitting(estimate.width, estimate.height, room, need)
+    if fits is None and estimate.trees:
+        # The trees alone do not fit: how many would, at the same share of far-level trees.
+        fixed = need(64, 36) - tree_bytes(
+            estimate.trees, estimate.variant, far_trees=estimate.far_trees, far_triangles=estimate.far_triangles
+        )
+        each = (need(64, 36) - fixed) / estimate.trees
+        can = int(max(0, room - fixed) / each) if each > 0 else 0
+        kept = f"about {can:,} trees fit" if can > 0 else "no trees fit"
+        message = what + f"; even a small image does not fit: {kept} (render fewer trees, or --instances)"
+        if _kind(estimate.variant) == "jit":
+            message += "; or bring [lod] distances closer so more trees merge at the far level"
+        raise ConfigError(config.path, "scatter.count", message)
     if fits is None:
         message = what + "; even a small image does not fit: render fewer trees (scatter.count, --instances)"
     else:
