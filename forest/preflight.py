@@ -40,11 +40,14 @@ temporary file that is removed at once.
   scalar_rgb ≈ 183 B per pixel (256² → 1024²); llvm_ad_rgb ≈ 281 B per pixel
   and ≈ 1.6 B per lane; per tree ≈ 4.6 KB in scalar_rgb between 100 000 and
   1 000 000 instances (bench/RESULTS.md, "render million": 4.83 GB); in
-  llvm_ad_rgb 14.0 KB per instance (``bench/bench_forest_path.py --case
-  memory``; :data:`BYTES_PER_INSTANCE` rounds it up to the 16 KB forest_path's
-  own check uses), ≈ 200 B per merged triangle and ≈ 400 B per tree (1 000 000
-  trees, 56 481 instances and 5.66 M merged triangles: 2.27 GB measured, 2.6 GB
-  estimated).  ``bench/bench_preflight.py`` compares estimate and measurement.
+  llvm_ad_rgb 14.0–15.8 KB per instance (``bench/bench_render.py --case
+  jit_memory``; :data:`BYTES_PER_INSTANCE` rounds it up to the 16 KB
+  forest_path's own check uses), 128 B per merged triangle, ≈ 1 KB per tree
+  and ≈ 800 B per unique triangle, fitted to two measured peaks: 130 000
+  trees (46 647 instances, 480×270, 64 spp) 1.48 GiB measured, 1.45
+  estimated; 1 000 000 trees (56 481 instances, 9.58 M merged triangles)
+  2.73 GiB measured, 3.43 estimated.
+  ``bench/bench_preflight.py`` compares estimate and measurement.
   The estimate is compared with the memory this process may use
   (:func:`available_memory`: ``MemAvailable`` and the cgroup's limit, or
   ``$FOREST_MEMORY_GB``); a render that does not fit fails before rendering
@@ -78,12 +81,14 @@ GiB = 1 << 30
 # -- memory model (bytes), see the module docstring --------------------------------------------
 BASE_BYTES = 300 << 20
 BYTES_PER_TRIANGLE = 200
+#: JIT variants: bytes per unique triangle (forest_path's part buffers and Mitsuba's shapegroup meshes).
+BYTES_PER_TRIANGLE_JIT = 800
 BYTES_PER_TREE = {"scalar": 4_700, "jit": 18_000}
 #: JIT variants (forest_path): bytes per tree that stays an instance, per merged far-level triangle,
 #: and per tree whatever its level (its rows in forest's own buffers).
 BYTES_PER_INSTANCE = 16 * 1024
-BYTES_PER_FLAT_TRIANGLE = 200
-BYTES_PER_ROW = 400
+BYTES_PER_FLAT_TRIANGLE = 128
+BYTES_PER_ROW = 1000
 BYTES_PER_PIXEL = {"scalar": 200, "jit": 300}
 BYTES_PER_LANE = 2
 #: Rays one JIT sample pass traces at most (forest.render.frame.JIT_LANES).
@@ -395,7 +400,7 @@ def render_memory(
     """Peak bytes of a render (the model in the module docstring; ``far_*`` as in :func:`tree_bytes`)."""
     kind = _kind(variant)
     pixels = int(width) * int(height)
-    mem = BASE_BYTES + BYTES_PER_TRIANGLE * int(triangles)
+    mem = BASE_BYTES + (BYTES_PER_TRIANGLE if kind == "scalar" else BYTES_PER_TRIANGLE_JIT) * int(triangles)
     mem += tree_bytes(trees, variant, far_trees=far_trees, far_triangles=far_triangles)
     mem += BYTES_PER_PIXEL[kind] * pixels
     if kind == "jit":
