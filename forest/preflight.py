@@ -37,8 +37,10 @@ temporary file that is removed at once.
   m_row each tree's own arrays (transform, normal matrix, ids).  The
   coefficients are measured peak resident sizes of ``forest render`` in
   Mitsuba 3.9.1, rounded up: M₀ ≈ 0.27 GB (a few trees, a small image);
-  scalar_rgb ≈ 183 B per pixel (256² → 1024²); llvm_ad_rgb ≈ 281 B per pixel
-  and ≈ 1.6 B per lane; per tree ≈ 4.6 KB in scalar_rgb between 100 000 and
+  scalar_rgb ≈ 183 B per pixel (256² → 1024²); forest_path ≈ 770 B per
+  pixel (its beauty, alpha, albedo, normal and per-sample id accumulators:
+  130 000 trees at 480×270 and 960×540, 64 spp, 1.48 → 1.76 GiB) and ≈ 1.6 B
+  per lane; per tree ≈ 4.6 KB in scalar_rgb between 100 000 and
   1 000 000 instances (bench/RESULTS.md, "render million": 4.83 GB); in
   llvm_ad_rgb 14.0–15.8 KB per instance (``bench/bench_render.py --case
   jit_memory``; :data:`BYTES_PER_INSTANCE` rounds it up to the 16 KB
@@ -89,7 +91,7 @@ BYTES_PER_TREE = {"scalar": 4_700, "jit": 18_000}
 BYTES_PER_INSTANCE = 16 * 1024
 BYTES_PER_FLAT_TRIANGLE = 128
 BYTES_PER_ROW = 1000
-BYTES_PER_PIXEL = {"scalar": 200, "jit": 300}
+BYTES_PER_PIXEL = {"scalar": 200, "jit": 800}
 BYTES_PER_LANE = 2
 #: Rays one JIT sample pass traces at most (forest.render.frame.JIT_LANES).
 JIT_LANES = 1 << 22
