@@ -56,7 +56,11 @@ Notes (2-core machine shared with other work, load average 4.5–6, Nov 2026; no
 * original, llvm_ad_rgb, max_depth 3: 130 000 trees (128.6 M instanced
   triangles) at 480×270 64 spp 52 CPU-s end to end, 16 spp 22 CPU-s → fixed
   ≈ 12 CPU-s + 4.86 µs per sample → EXTRAPOLATED 1920×1080 64 spp ≈ 656
-  CPU-s ≈ 328 s on 2 idle cores (target 180 s: missed by 1.8×).
+  CPU-s; at 960×540: 179 CPU-s (64 spp; the 480×270 line predicted 173) and
+  58 CPU-s (16 spp) → 4.89 µs per sample, EXTRAPOLATED ≈ 666 CPU-s ≈ 333 s on
+  2 idle cores (target 180 s: missed by 1.85×).  Peak 1.48 GiB (480×270),
+  1.76 GiB (960×540); the pre-flight model gives 2.96 GiB at 1920×1080.
+  The full frame was not run: ~21 minutes of wall clock on the loaded machine.
 * earlier scalar_rgb runs (plain look, before forest_path): million 1 000 000
   trees × 57 626 triangles, 1280×720 16 spp, peak 4.83 GB; flatten 2 000 trees
   179×; original max_depth 2 295 CPU-s, max_depth 3 397 CPU-s.

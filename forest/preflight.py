@@ -567,9 +567,15 @@ def throughput(variant: str) -> tuple[float, float, bool]:
     return SECONDS_PER_SAMPLE[kind] * scale, SECONDS_PER_TREE[kind], False
 
 
+#: Renders with fewer camera samples are not recorded: their time is mostly fixed cost (kernel
+#: compilation, the coverage pass), and a 32×24 test render's seconds per sample forecast hours for a frame.
+RECORD_MIN_SAMPLES = 1 << 20
+
+
 def record_render(variant: str, *, samples: int, trees: int, render_seconds: float, load_seconds: float) -> None:
-    """Remember this machine's render rates from a finished render (for the next estimate)."""
-    if samples > 0 and render_seconds > 0:
+    """Remember this machine's render rates from a finished render of at least :data:`RECORD_MIN_SAMPLES`
+    samples (for the next estimate)."""
+    if samples >= RECORD_MIN_SAMPLES and render_seconds > 0:
         rates = {"sample_s": render_seconds / samples, "tree_s": load_seconds / trees if trees > 0 else 0.0}
         _record(f"render:{variant}", rates)
 

@@ -248,3 +248,16 @@ def test_far_plan_counts_the_trees_forest_path_merges(scene):
     n = len(sc.instances)
     merged = render_memory(64, 36, 1, n, "llvm_ad_rgb", far_trees=far, far_triangles=far_tri)
     assert merged < render_memory(64, 36, 1, n, "llvm_ad_rgb")  # merged far trees cost less than instances
+
+
+def test_a_tiny_render_does_not_set_the_time_forecast(tmp_path, monkeypatch):
+    """A test-sized render's seconds per sample (mostly kernel compilation) must not become the machine's rate."""
+    from forest import preflight
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path))
+    before = preflight.render_estimate(1920, 1080, 64, 130_000, "llvm_ad_rgb")
+    preflight.record_render("llvm_ad_rgb", samples=32 * 24 * 2, trees=60, render_seconds=3.0, load_seconds=1.0)
+    after = preflight.render_estimate(1920, 1080, 64, 130_000, "llvm_ad_rgb")
+    assert not after.measured and after.seconds == before.seconds
+    preflight.record_render("llvm_ad_rgb", samples=480 * 270 * 64, trees=130_000, render_seconds=40.0, load_seconds=8)
+    assert preflight.render_estimate(1920, 1080, 64, 130_000, "llvm_ad_rgb").measured
