@@ -557,27 +557,42 @@ def _record(key: str, rates: dict[str, float]) -> None:
 
 
 def throughput(variant: str) -> tuple[float, float, bool]:
-    """(seconds per camera sample, seconds per tree, measured?) of a render in ``variant`` on this machine."""
+    """(seconds per camera sample, seconds per tree, measured?) of a render in ``variant`` on this machine.
+
+    A recorded rate counts only when it came from a render of at least :data:`RECORD_MIN_SAMPLES` samples."""
     kind = _kind(variant)
-    sample_s, tree_s = _rate(f"render:{variant}", "sample_s"), _rate(f"render:{variant}", "tree_s")
-    if sample_s and tree_s is not None:
+    key = f"render:{variant}"
+    sample_s, tree_s, samples = _rate(key, "sample_s"), _rate(key, "tree_s"), _rate(key, "samples")
+    if sample_s and tree_s is not None and samples is not None and samples >= RECORD_MIN_SAMPLES:
         return sample_s, tree_s, True
     cores = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
     scale = 2.0 / cores if kind == "scalar" else 1.0
     return SECONDS_PER_SAMPLE[kind] * scale, SECONDS_PER_TREE[kind], False
 
 
-#: Renders with fewer camera samples are not recorded: their time is mostly fixed cost (kernel
-#: compilation, the coverage pass), and a 32×24 test render's seconds per sample forecast hours for a frame.
+#: Recorded rates from renders with fewer camera samples do not set the forecast: their time is mostly
+#: fixed cost (kernel compilation, the coverage pass), and a 32×24 test render's seconds per sample
+#: forecast hours for a frame.
 RECORD_MIN_SAMPLES = 1 << 20
 
 
 def record_render(variant: str, *, samples: int, trees: int, render_seconds: float, load_seconds: float) -> None:
-    """Remember this machine's render rates from a finished render of at least :data:`RECORD_MIN_SAMPLES`
-    samples (for the next estimate)."""
-    if samples >= RECORD_MIN_SAMPLES and render_seconds > 0:
-        rates = {"sample_s": render_seconds / samples, "tree_s": load_seconds / trees if trees > 0 else 0.0}
-        _record(f"render:{variant}", rates)
+    """Remember this machine's render rates from a finished render (for the next estimate).
+
+    A render under :data:`RECORD_MIN_SAMPLES` samples is recorded only where no larger one is, so a
+    test render never replaces a real one's rates (and :func:`throughput` does not use it)."""
+    if samples <= 0 or render_seconds <= 0:
+        return
+    key = f"render:{variant}"
+    kept = _rate(key, "samples")
+    if samples < RECORD_MIN_SAMPLES and kept is not None and kept >= RECORD_MIN_SAMPLES:
+        return
+    rates = {
+        "sample_s": render_seconds / samples,
+        "tree_s": load_seconds / trees if trees > 0 else 0.0,
+        "samples": float(samples),
+    }
+    _record(key, rates)
 
 
 #: Look-dev: seconds per fitted sample (optimiser pixels × spp × iterations) and the fit's memory, measured on

@@ -261,3 +261,5 @@ def test_a_tiny_render_does_not_set_the_time_forecast(tmp_path, monkeypatch):
     assert not after.measured and after.seconds == before.seconds
     preflight.record_render("llvm_ad_rgb", samples=480 * 270 * 64, trees=130_000, render_seconds=40.0, load_seconds=8)
     assert preflight.render_estimate(1920, 1080, 64, 130_000, "llvm_ad_rgb").measured
+    preflight.record_render("llvm_ad_rgb", samples=32 * 24 * 2, trees=60, render_seconds=3.0, load_seconds=1.0)
+    assert preflight.render_estimate(1920, 1080, 64, 130_000, "llvm_ad_rgb").measured  # the real render's rate kept
