@@ -48,11 +48,17 @@ Notes (2-core machine shared with other work, load average 4.5–6, Nov 2026; no
   1.91× (10 000), 1.90× (50 000), 1.87× (130 000); peak 0.54–1.34 GB (llvm)
   vs 0.61–1.62 GB (scalar).  llvm CPU per tree 1 080 µs at 10 000 → 101 µs
   at 130 000 (the frame's fixed cost shared by more trees; linear or better).
-* look (10 000 trees, 320×180, 16 spp): over plain scalar_rgb (8.3 CPU-s) —
-  leaf transmission 1.09× (llvm 0.85×), alpha-cut shadows 1.82× (0.78×),
-  disc sun 1.21× (0.85×), sunsky 1.17× (0.90×), haze 1.09× (0.78×), ground
-  skirt 1.18× (0.85×), terrain albedo 1.04× (0.72×), all 2.00× (1.08×);
-  scalar/llvm 1.29–2.32×, 1.86× for the full look.
+* look (10 000 trees, 320×180; three runs): over plain scalar_rgb — at
+  16 spp (8.3 and 9.0 CPU-s; the two runs differ by up to 25 % per row) only
+  alpha-cut shadows (1.82×, 1.62×) and the full look (2.00×, 1.86×) stand
+  out of the noise, forest_path 0.68–0.90× for every feature and 1.08×, 0.99×
+  for the full look.  At 64 spp (plain 20.3 CPU-s): forest_path and scalar's
+  plain ``path`` cost the same per sample (scalar/llvm 0.87–1.08× for every
+  feature but one), alpha-cut shadows 2.16× in scalar (volpath) vs 0.95×
+  in forest_path, the full look 2.73× vs 1.35× (scalar/llvm 2.02×).
+* original, scalar_rgb (volpath, the same look), 480×270: 119 CPU-s at 64 spp
+  (2.29× llvm's 52), 46 at 16 spp → 11.76 µs per sample (2.42× llvm),
+  EXTRAPOLATED ≈ 1 582 CPU-s ≈ 791 s on 2 idle cores at 1920×1080 64 spp.
 * original, llvm_ad_rgb, max_depth 3: 130 000 trees (128.6 M instanced
   triangles) at 480×270 64 spp 52 CPU-s end to end, 16 spp 22 CPU-s → fixed
   ≈ 12 CPU-s + 4.86 µs per sample → EXTRAPOLATED 1920×1080 64 spp ≈ 656
