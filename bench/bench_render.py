@@ -44,10 +44,11 @@ shared machine (wall clock is printed too).  Peak memory is ru_maxrss.
 
 Notes (2-core machine shared with other work, load average 4.5–6, Nov 2026; no GPU):
 
-* scale (320×180, 16 spp, max_depth 3): scalar/llvm CPU 2.15× (1 000 trees),
-  1.91× (10 000), 1.90× (50 000), 1.87× (130 000); peak 0.54–1.34 GB (llvm)
-  vs 0.61–1.62 GB (scalar).  llvm CPU per tree 1 080 µs at 10 000 → 101 µs
-  at 130 000 (the frame's fixed cost shared by more trees; linear or better).
+* scale (320×180, 16 spp, max_depth 3; two runs): scalar/llvm CPU 2.15×,
+  2.00× (1 000 trees), 1.91×, 1.99× (10 000), 1.90×, 1.86× (50 000), 1.87×,
+  1.84× (130 000); peak 0.54–1.34 GB (llvm) vs 0.61–1.62 GB (scalar).  llvm
+  CPU per tree 1 030–1 080 µs at 10 000 → 101–107 µs at 130 000 (the frame's
+  fixed cost shared by more trees; linear or better).
 * look (10 000 trees, 320×180; three runs): over plain scalar_rgb — at
   16 spp (8.3 and 9.0 CPU-s; the two runs differ by up to 25 % per row) only
   alpha-cut shadows (1.82×, 1.62×) and the full look (2.00×, 1.86×) stand

@@ -16,9 +16,9 @@ EXR and PNG; max_depth 3, on a 2-core machine shared with other work, load
 average 4.5–6.6):
 
 * ``--case scale`` — the default look, 320×180, 16 spp, 1 000 / 10 000 /
-  50 000 / 130 000 trees: scalar_rgb took 2.15× / 1.91× / 1.90× / 1.87× forest_path's CPU
-  time (wall 3.4× / 2.3× / 2.2× / 1.35×, noisier), peak memory 0.61–1.62 GB
-  against 0.54–1.34 GB;
+  50 000 / 130 000 trees, two runs: scalar_rgb took 2.15× / 1.91× / 1.90× /
+  1.87× and 2.00× / 1.99× / 1.86× / 1.84× forest_path's CPU time (wall
+  1.35–3.4×, noisier), peak memory 0.61–1.62 GB against 0.54–1.34 GB;
 * ``--case original`` — the case study's 130 000 trees through ``forest
   render`` at 480×270, 64 spp: 119 against 52 CPU-s (2.29×), 11.8 against
   4.9 CPU-µs per sample (2.4×);
@@ -29,7 +29,7 @@ average 4.5–6.6):
   render, forest_path traces them always at no extra cost.  The full look:
   2.02× (64 spp), 1.86× and 1.88× (16 spp, two runs).
 
-So :data:`SCALAR_COST` is 1.9–2.4 for the look forest renders by default,
+So :data:`SCALAR_COST` is 1.8–2.4 for the look forest renders by default,
 and scalar_rgb was never the faster at equal samples for it; it is chosen
 only when asked (with ``alpha_shadows = false`` — cards shadowing as
 rectangles — it costs about what forest_path does).
@@ -48,7 +48,7 @@ from ..runtime import VARIANTS, cuda_available, find_llvm
 #: scalar_rgb's CPU time over forest_path's (llvm_ad_rgb) for forest's default look, the range measured by
 #: ``bench/bench_render.py --case scale`` (1 000 to 130 000 trees), ``--case original`` and ``--case look`` (see the
 #: module docstring).
-SCALAR_COST = "1.9-2.4"
+SCALAR_COST = "1.8-2.4"
 #: What the choice rests on, printed with it.
 MEASURED = (
     "forest_path renders forest's look (leaf transmission, alpha-cut shadows, disc sun) in "
