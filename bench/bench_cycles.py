@@ -29,11 +29,12 @@ and exits 0.
 
 Measured (Blender 3.4.1, 2 000 trees × ~60 k triangles = ~120 M instanced,
 320×180, 16 spp, max_depth 3; 2-core machine shared with other work, load
-average 6.4 at start and end): forest 13.2 CPU-s per frame (render 21.2 s
-wall), σ 0.0098; Cycles 15.3 CPU-s (render 24.3 s), σ 0.0073; means 0.0704
-and 0.0706.  forest/Cycles time 0.86 at equal samples (CPU of the whole
-command; render phase 0.87), 1.55 at equal noise (σ² ratio 1.81) — the goal
-(≤ 0.5 at equal noise) is not met: Cycles' samples carry less noise.
+average 4.4–6.4; two runs): forest 13.2 / 12.6 CPU-s per frame (render 21.2
+/ 16.1 s wall), σ 0.0098; Cycles 15.3 / 15.4 CPU-s (render 24.3 / 21.3 s),
+σ 0.0073; means 0.0704 and 0.0706.  forest/Cycles time 0.86 / 0.82 at equal
+samples (CPU of the whole command; render phase 0.87 / 0.75), 1.55 / 1.47 at
+equal noise (σ² ratio 1.81) — the goal (≤ 0.5 at equal noise) is not met:
+Cycles' samples carry less noise.
 """
 
 from __future__ import annotations
