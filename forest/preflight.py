@@ -27,17 +27,36 @@ temporary file that is removed at once.
   detail, W·H the image (the film, the running and accumulated beauty in
   float64, the depth/id/species layers and the copies made to write the EXR and
   PNG) and L the rays one sample pass traces at once in the JIT variants
-  (``forest.render.frame.JIT_LANES`` at most).  The coefficients are measured
-  peak resident sizes of ``forest render`` in Mitsuba 3.9.1, rounded up:
-  M₀ ≈ 0.27 GB (a few trees, a small image); scalar_rgb ≈ 183 B per pixel
-  (256² → 1024²); llvm_ad_rgb ≈ 281 B per pixel and ≈ 1.6 B per lane; per tree
-  ≈ 4.6 KB in scalar_rgb between 100 000 and 1 000 000 instances
-  (bench/RESULTS.md, "render million": 4.83 GB) and ≈ 13 KB more in the JIT
-  variants.  ``bench/bench_preflight.py`` compares estimate and measurement.  The estimate is compared with the memory this process may use
+  (``forest.render.frame.JIT_LANES`` at most).  In the JIT variants
+  (forest_path) the trees at the far level are not instances: they are merged
+  into one world-space mesh per species and part
+  (:mod:`forest.render.path.geometry`), so there
+
+      m_tree · N  →  m_inst · N_inst + m_flat · T_far + m_row · N
+
+  with N_inst the trees that stay instances, T_far the merged triangles and
+  m_row each tree's own arrays (transform, normal matrix, ids).  The
+  coefficients are measured peak resident sizes of ``forest render`` in
+  Mitsuba 3.9.1, rounded up: M₀ ≈ 0.27 GB (a few trees, a small image);
+  scalar_rgb ≈ 183 B per pixel (256² → 1024²); forest_path ≈ 770 B per
+  pixel (its beauty, alpha, albedo, normal and per-sample id accumulators:
+  130 000 trees at 480×270 and 960×540, 64 spp, 1.48 → 1.76 GiB) and ≈ 1.6 B
+  per lane; per tree ≈ 4.6 KB in scalar_rgb between 100 000 and
+  1 000 000 instances (bench/RESULTS.md, "render million": 4.83 GB); in
+  llvm_ad_rgb 14.0–15.8 KB per instance (``bench/bench_render.py --case
+  jit_memory``; :data:`BYTES_PER_INSTANCE` rounds it up to the 16 KB
+  forest_path's own check uses), 128 B per merged triangle, ≈ 1 KB per tree
+  and ≈ 800 B per unique triangle, fitted to two measured peaks: 130 000
+  trees (46 647 instances, 480×270, 64 spp) 1.48 GiB measured, 1.45
+  estimated; 1 000 000 trees (56 481 instances, 9.58 M merged triangles)
+  2.73 GiB measured, 3.43 estimated.
+  ``bench/bench_preflight.py`` compares estimate and measurement.
+  The estimate is compared with the memory this process may use
   (:func:`available_memory`: ``MemAvailable`` and the cgroup's limit, or
-  ``$FOREST_MEMORY_GB``); a render that does not fit fails naming
-  ``render.width``/``render.height`` and the largest image of the same aspect
-  ratio that fits.
+  ``$FOREST_MEMORY_GB``); a render that does not fit fails before rendering
+  naming ``render.width``/``render.height`` and the largest image of the same
+  aspect ratio that fits or, when the trees alone do not fit, ``scatter.count``
+  and about how many trees would.
 * **Time**: samples × seconds-per-sample + trees × seconds-per-tree, with the
   rates measured by this machine's last render of the same variant
   (:func:`record_render`, kept in the user state folder) or, before any, rates
@@ -65,8 +84,15 @@ GiB = 1 << 30
 # -- memory model (bytes), see the module docstring --------------------------------------------
 BASE_BYTES = 300 << 20
 BYTES_PER_TRIANGLE = 200
+#: JIT variants: bytes per unique triangle (forest_path's part buffers and Mitsuba's shapegroup meshes).
+BYTES_PER_TRIANGLE_JIT = 800
 BYTES_PER_TREE = {"scalar": 4_700, "jit": 18_000}
-BYTES_PER_PIXEL = {"scalar": 200, "jit": 300}
+#: JIT variants (forest_path): bytes per tree that stays an instance, per merged far-level triangle,
+#: and per tree whatever its level (its rows in forest's own buffers).
+BYTES_PER_INSTANCE = 16 * 1024
+BYTES_PER_FLAT_TRIANGLE = 128
+BYTES_PER_ROW = 1000
+BYTES_PER_PIXEL = {"scalar": 200, "jit": 800}
 BYTES_PER_LANE = 2
 #: Rays one JIT sample pass traces at most (forest.render.frame.JIT_LANES).
 JIT_LANES = 1 << 22
@@ -337,6 +363,8 @@ class RenderEstimate:
     memory: int
     seconds: float
     measured: bool  # the time comes from this machine's last render (else from the built-in rates)
+    far_trees: int | None = None  # JIT variants: trees merged at the far level (None: not known yet)
+    far_triangles: int = 0
 
     def line(self, available: int | None = None) -> str:
         """One line for the user: size, samples, trees, memory and time."""
@@ -348,11 +376,37 @@ class RenderEstimate:
         )
 
 
-def render_memory(width: int, height: int, spp: int, trees: int, variant: str, triangles: int = 0) -> int:
-    """Peak bytes of a render (the model in the module docstring)."""
+def tree_bytes(trees: int, variant: str, *, far_trees: int | None = None, far_triangles: int = 0) -> int:
+    """Bytes the trees themselves take in ``variant`` (see the module docstring).
+
+    ``far_trees`` (JIT variants): how many of the ``trees`` are merged at the far level, with
+    ``far_triangles`` triangles in all; None when unknown (before the scene is loaded): every tree
+    is then counted as an instance, the bound of :data:`BYTES_PER_TREE`."""
+    trees = int(trees)
+    if _kind(variant) == "scalar":
+        return BYTES_PER_TREE["scalar"] * trees
+    if far_trees is None:
+        return BYTES_PER_TREE["jit"] * trees
+    far = min(max(int(far_trees), 0), trees)
+    return BYTES_PER_INSTANCE * (trees - far) + BYTES_PER_FLAT_TRIANGLE * int(far_triangles) + BYTES_PER_ROW * trees
+
+
+def render_memory(
+    width: int,
+    height: int,
+    spp: int,
+    trees: int,
+    variant: str,
+    triangles: int = 0,
+    *,
+    far_trees: int | None = None,
+    far_triangles: int = 0,
+) -> int:
+    """Peak bytes of a render (the model in the module docstring; ``far_*`` as in :func:`tree_bytes`)."""
     kind = _kind(variant)
     pixels = int(width) * int(height)
-    mem = BASE_BYTES + BYTES_PER_TRIANGLE * int(triangles) + BYTES_PER_TREE[kind] * int(trees)
+    mem = BASE_BYTES + (BYTES_PER_TRIANGLE if kind == "scalar" else BYTES_PER_TRIANGLE_JIT) * int(triangles)
+    mem += tree_bytes(trees, variant, far_trees=far_trees, far_triangles=far_triangles)
     mem += BYTES_PER_PIXEL[kind] * pixels
     if kind == "jit":
         mem += BYTES_PER_LANE * min(JIT_LANES, pixels * max(1, int(spp)))
@@ -369,8 +423,11 @@ def render_estimate(
     frames: int = 1,
     subframes: int = 1,
     triangles: int = 0,
+    far_trees: int | None = None,
+    far_triangles: int = 0,
 ) -> RenderEstimate:
-    """Memory and time of rendering ``frames`` frames (time from :func:`throughput`)."""
+    """Memory and time of rendering ``frames`` frames (time from :func:`throughput`; ``far_*`` as in
+    :func:`tree_bytes`)."""
     kind = _kind(variant)
     sample_s, tree_s, measured = throughput(variant)
     samples = int(width) * int(height) * max(int(spp), int(subframes))
@@ -383,9 +440,13 @@ def render_estimate(
         trees=int(trees),
         variant=variant,
         triangles=int(triangles),
-        memory=render_memory(width, height, spp, trees, variant, triangles),
+        memory=render_memory(
+            width, height, spp, trees, variant, triangles, far_trees=far_trees, far_triangles=far_triangles
+        ),
         seconds=seconds,
         measured=measured,
+        far_trees=far_trees,
+        far_triangles=int(far_triangles),
     )
 
 
@@ -421,12 +482,33 @@ def check_render_memory(
         return room
 
     def need(w: int, h: int) -> int:
-        return render_memory(w, h, estimate.spp, estimate.trees, estimate.variant, estimate.triangles)
+        return render_memory(
+            w,
+            h,
+            estimate.spp,
+            estimate.trees,
+            estimate.variant,
+            estimate.triangles,
+            far_trees=estimate.far_trees,
+            far_triangles=estimate.far_triangles,
+        )
 
     trees = f" of {estimate.trees:,} trees" if estimate.trees else ""
     what = f"a {estimate.width}x{estimate.height} render{trees} needs about {format_bytes(estimate.memory)}, "
     what += f"{format_bytes(room)} available"
     fits = largest_fitting(estimate.width, estimate.height, room, need)
+    if fits is None and estimate.trees:
+        # The trees alone do not fit: how many would, at the same share of far-level trees.
+        fixed = need(64, 36) - tree_bytes(
+            estimate.trees, estimate.variant, far_trees=estimate.far_trees, far_triangles=estimate.far_triangles
+        )
+        each = (need(64, 36) - fixed) / estimate.trees
+        can = int(max(0, room - fixed) / each) if each > 0 else 0
+        kept = f"about {can:,} trees fit" if can > 0 else "no trees fit"
+        message = what + f"; even a small image does not fit: {kept} (render fewer trees, or --instances)"
+        if _kind(estimate.variant) == "jit":
+            message += "; or bring [lod] distances closer so more trees merge at the far level"
+        raise ConfigError(config.path, "scatter.count", message)
     if fits is None:
         message = what + "; even a small image does not fit: render fewer trees (scatter.count, --instances)"
     else:
@@ -478,21 +560,42 @@ def _record(key: str, rates: dict[str, float]) -> None:
 
 
 def throughput(variant: str) -> tuple[float, float, bool]:
-    """(seconds per camera sample, seconds per tree, measured?) of a render in ``variant`` on this machine."""
+    """(seconds per camera sample, seconds per tree, measured?) of a render in ``variant`` on this machine.
+
+    A recorded rate counts only when it came from a render of at least :data:`RECORD_MIN_SAMPLES` samples."""
     kind = _kind(variant)
-    sample_s, tree_s = _rate(f"render:{variant}", "sample_s"), _rate(f"render:{variant}", "tree_s")
-    if sample_s and tree_s is not None:
+    key = f"render:{variant}"
+    sample_s, tree_s, samples = _rate(key, "sample_s"), _rate(key, "tree_s"), _rate(key, "samples")
+    if sample_s and tree_s is not None and samples is not None and samples >= RECORD_MIN_SAMPLES:
         return sample_s, tree_s, True
     cores = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
     scale = 2.0 / cores if kind == "scalar" else 1.0
     return SECONDS_PER_SAMPLE[kind] * scale, SECONDS_PER_TREE[kind], False
 
 
+#: Recorded rates from renders with fewer camera samples do not set the forecast: their time is mostly
+#: fixed cost (kernel compilation, the coverage pass), and a 32×24 test render's seconds per sample
+#: forecast hours for a frame.
+RECORD_MIN_SAMPLES = 1 << 20
+
+
 def record_render(variant: str, *, samples: int, trees: int, render_seconds: float, load_seconds: float) -> None:
-    """Remember this machine's render rates from a finished render (for the next estimate)."""
-    if samples > 0 and render_seconds > 0:
-        rates = {"sample_s": render_seconds / samples, "tree_s": load_seconds / trees if trees > 0 else 0.0}
-        _record(f"render:{variant}", rates)
+    """Remember this machine's render rates from a finished render (for the next estimate).
+
+    A render under :data:`RECORD_MIN_SAMPLES` samples is recorded only where no larger one is, so a
+    test render never replaces a real one's rates (and :func:`throughput` does not use it)."""
+    if samples <= 0 or render_seconds <= 0:
+        return
+    key = f"render:{variant}"
+    kept = _rate(key, "samples")
+    if samples < RECORD_MIN_SAMPLES and kept is not None and kept >= RECORD_MIN_SAMPLES:
+        return
+    rates = {
+        "sample_s": render_seconds / samples,
+        "tree_s": load_seconds / trees if trees > 0 else 0.0,
+        "samples": float(samples),
+    }
+    _record(key, rates)
 
 
 #: Look-dev: seconds per fitted sample (optimiser pixels × spp × iterations) and the fit's memory, measured on

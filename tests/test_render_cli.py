@@ -176,3 +176,90 @@ def test_real_library_renders_the_same_forest_in_both_variants(scene):
     ida, idb = a[..., names.index("id.Z")], b[..., names.index("id.Z")]
     assert (ida >= 0).any() and (ida == idb).mean() > 0.95  # the same trees in the same pixels
     assert np.isfinite(a).all() and a[..., :3].mean() > 0
+
+
+MANY = """
+seed = 4
+[terrain]
+flat = {{ size = 400.0 }}
+[scatter]
+count = {count}
+[[species]]
+model = "shrub"
+percent = 100
+[camera]
+position = [0.0, 30.0, -220.0]
+target = [0.0, 0.0, 0.0]
+fov = 45.0
+[render]
+width = 32
+height = 24
+spp = 2
+[lod]
+distances = {lod}
+"""
+
+
+def test_render_too_many_trees_for_memory_fails_before_rendering(tmp_path):
+    """llvm_ad_rgb: trees that stay instances need ~16 KB each; with every tree an instance and the memory
+    stated by $FOREST_MEMORY_GB, the render stops before rendering: one line naming scatter.count, how many
+    trees fit, exit 2, nothing written.  With the far level near (most trees merged) the same count fits."""
+    import os
+
+    cfg = tmp_path / "many.toml"
+    cfg.write_text(MANY.format(count=40_000, lod="[1000.0, 2000.0, 3000.0]"))
+    env = {**os.environ, "FOREST_MEMORY_GB": "0.5"}
+    out = tmp_path / "many.exr"
+    r = subprocess.run(
+        [*FOREST, "render", cfg, "-o", out, "--variant", "llvm_ad_rgb"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
+        env=env,
+    )
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    lines = [line for line in r.stderr.strip().splitlines() if line.strip()]
+    error = lines[-1]
+    assert "many.toml: scatter.count: " in error and "40,000 trees" in error and "Traceback" not in r.stderr
+    fit = int(error.split("about ")[-1].split(" trees fit")[0].replace(",", ""))
+    assert 1_000 < fit < 40_000  # (0.5 GB − 0.3 GB base) / ~16.4 KB ≈ 12 800
+    assert "[lod] distances" in error
+    assert not out.exists() and not out.with_suffix(".png").exists()
+    assert not any(line.startswith("rendered") for line in r.stdout.splitlines())
+
+
+def test_far_plan_counts_the_trees_forest_path_merges(scene):
+    """The pre-flight's far-level count is what forest_path's geometry then merges (its own statistics)."""
+    from forest.config import load_config
+    from forest.instances import InstanceSet
+    from forest.preflight import render_memory
+    from forest.render.path import PathScene
+    from forest.render.path.from_scene import far_plan, path_inputs
+    from forest.scene import load_scene
+
+    cfg = load_config(scene / "scene.toml")
+    sc = load_scene(cfg, InstanceSet.load(scene / "trees.npz"))
+    far, far_tri = far_plan(sc, [1.0])
+    built = PathScene(path_inputs(sc, width=8, height=6, spp=1), "llvm_ad_rgb")
+    assert 0 < far < len(sc.instances)
+    assert (far, far_tri) == (built.stats.flattened_trees, built.stats.flattened_triangles)
+    assert built.stats.instances == len(sc.instances) - far
+    n = len(sc.instances)
+    merged = render_memory(64, 36, 1, n, "llvm_ad_rgb", far_trees=far, far_triangles=far_tri)
+    assert merged < render_memory(64, 36, 1, n, "llvm_ad_rgb")  # merged far trees cost less than instances
+
+
+def test_a_tiny_render_does_not_set_the_time_forecast(tmp_path, monkeypatch):
+    """A test-sized render's seconds per sample (mostly kernel compilation) must not become the machine's rate."""
+    from forest import preflight
+
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path))
+    before = preflight.render_estimate(1920, 1080, 64, 130_000, "llvm_ad_rgb")
+    preflight.record_render("llvm_ad_rgb", samples=32 * 24 * 2, trees=60, render_seconds=3.0, load_seconds=1.0)
+    after = preflight.render_estimate(1920, 1080, 64, 130_000, "llvm_ad_rgb")
+    assert not after.measured and after.seconds == before.seconds
+    preflight.record_render("llvm_ad_rgb", samples=480 * 270 * 64, trees=130_000, render_seconds=40.0, load_seconds=8)
+    assert preflight.render_estimate(1920, 1080, 64, 130_000, "llvm_ad_rgb").measured
+    preflight.record_render("llvm_ad_rgb", samples=32 * 24 * 2, trees=60, render_seconds=3.0, load_seconds=1.0)
+    assert preflight.render_estimate(1920, 1080, 64, 130_000, "llvm_ad_rgb").measured  # the real render's rate kept

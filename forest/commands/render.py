@@ -88,6 +88,11 @@ def register(app: typer.Typer) -> None:
         # 3. With the trees known: the whole render's memory, then say what will happen.
         trees = len(scene.instances)
         chosen, reason = choose_variant(trees, variant, cfg.render.variant)
+        far_trees, far_triangles = None, 0
+        if not chosen.startswith("scalar"):
+            from ..render.path.from_scene import far_plan
+
+            far_trees, far_triangles = far_plan(scene, [float(f) for f in frame_list])
         estimate = preflight.render_estimate(
             size.width,
             size.height,
@@ -97,6 +102,8 @@ def register(app: typer.Typer) -> None:
             frames=len(frame_list),
             subframes=size.subframes,
             triangles=sum(lod.triangles for sp in scene.species for lod in sp.lods),
+            far_trees=far_trees,
+            far_triangles=far_triangles,
         )
         room = preflight.check_render_memory(cfg, estimate, flags=flags)
         if not quiet:

@@ -166,6 +166,43 @@ def path_inputs(
     )
 
 
+def far_plan(scene: Scene, frames: list[float] | None = None, flatten_triangles: int | None = None) -> tuple[int, int]:
+    """(trees merged at the far level, their triangles) for the pre-flight memory model.
+
+    A tree is merged when its level's prototype has at most ``flatten_triangles`` triangles
+    (:data:`~forest.render.path.inputs.FLATTEN_MAX_TRIANGLES`, as :mod:`.geometry` decides); of
+    ``frames`` (default frame 1; at most the first, middle and last are looked at) the one with
+    the fewest merged trees — the most instances — is reported."""
+    from .inputs import FLATTEN_MAX_TRIANGLES
+
+    limit = FLATTEN_MAX_TRIANGLES if flatten_triangles is None else int(flatten_triangles)
+    inst = scene.instances
+    if not len(inst):
+        return 0, 0
+    lists, individual = scene_species(scene)
+    nlev = max(len(sp.lods) for group in lists for sp in group)
+    nind = max(len(group) for group in lists)
+    tri = np.zeros((len(lists), nind, nlev), np.int64)  # triangles of each (species, individual, level) prototype
+    for s, group in enumerate(lists):
+        for k in range(nind):
+            sp = group[min(k, len(group) - 1)]
+            for lv in range(nlev):
+                tri[s, k, lv] = sum(p.triangles for p in sp.lods[min(lv, len(sp.lods) - 1)].parts)
+    fl = sorted(set(frames or [1.0]))
+    picks = sorted({fl[0], fl[len(fl) // 2], fl[-1]})
+    species = np.asarray(inst.species, np.int64)
+    ind = np.zeros(len(inst), np.int64) if individual is None else np.asarray(individual, np.int64)
+    best: tuple[int, int] | None = None
+    for f in picks:
+        t = tri[species, ind, np.asarray(scene.levels(float(f)), np.int64)]
+        merged = t <= limit
+        plan = (int(merged.sum()), int(t[merged].sum()))
+        if best is None or plan[0] < best[0]:
+            best = plan
+    assert best is not None
+    return best
+
+
 def preview_size(config, preview_width: int = 480) -> tuple[int, int]:
     """The ``--preview`` size of a config: at most ``preview_width`` pixels wide, same aspect."""
     rc = config.render
@@ -178,4 +215,13 @@ def with_size(inputs: PathInputs, width: int, height: int) -> PathInputs:
     return replace(inputs, camera=replace(inputs.camera, width=int(width), height=int(height)))
 
 
-__all__ = ["haze_inputs", "path_camera", "path_inputs", "path_lights", "preview_size", "scene_species", "with_size"]
+__all__ = [
+    "far_plan",
+    "haze_inputs",
+    "path_camera",
+    "path_inputs",
+    "path_lights",
+    "preview_size",
+    "scene_species",
+    "with_size",
+]
