@@ -370,7 +370,12 @@ def test_leaf_card_alpha(tmp_path, library, variant):
     inst = trees([[0.0, 0.0, 0.0]], names=("card",), scale=3.0)  # 30 × 30 m card, 15 m up
     ground = {}
     for alpha_shadows in ("false", "true"):
-        text = BASE.format(maps="", camera=TOP_DOWN_CAMERA, render=f"alpha_shadows = {alpha_shadows}\nmax_depth = 2")
+        text = BASE.format(
+            maps="",
+            camera=TOP_DOWN_CAMERA,
+            render=f"alpha_shadows = {alpha_shadows}\nmax_depth = 2",
+            ground="[0.1, 0.1, 0.1]",
+        )
         text = text.replace("[lights]\n", "[lights]\n" + sun).replace('model = "box"', 'model = "card"')
         (tmp_path / "card.toml").write_text(text)
         cfg = parse_config(text, path=tmp_path / "card.toml", base_dir=tmp_path)
