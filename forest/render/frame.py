@@ -40,6 +40,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -50,11 +51,14 @@ from ..runtime import mitsuba
 from ..scene import Scene
 from .coverage import SampleCoverage, frame_mattes, sample_ids
 from .ground import skirt_radius
-from .instancing import ForestBuilder, tree_matrices
+from .instancing import ForestBuilder, ForestGraph, tree_matrices
 from .materials import MaterialBuilder
 from .output import FrameImage
 from .post import apply_haze
 from .scene import emitter_dicts, sensor_dict, terrain_dict
+
+if TYPE_CHECKING:
+    from .path import PathScene
 
 #: Samples per pass in scalar_rgb (more passes = finer progress, same image statistics).
 SCALAR_PASS_SPP = 8
@@ -114,11 +118,11 @@ class FrameRenderer:
             "max_depth": int(rc.max_depth),
             "rr_depth": RR_DEPTH,
         }
-        self._scene_key = None
-        self._scene = None
-        self._path = None  # forest_path's scene of the coverage and layers passes, built on first use
-        self._path_key = None
-        self.graph = None
+        self._scene_key: tuple[bytes, float | None] | None = None
+        self._scene: Any = None
+        self._path: PathScene | None = None  # forest_path's scene of the coverage and layers passes, on first use
+        self._path_key: tuple[bytes, float | None] | None = None
+        self.graph: ForestGraph | None = None
         self.load_seconds = 0.0
         self.render_seconds = 0.0
         self.lod_counts: dict = {}
@@ -142,6 +146,8 @@ class FrameRenderer:
     def stats(self) -> dict[str, object]:
         """The current Mitsuba scene's statistics for the EXR header."""
         g = self.graph
+        if g is None:
+            return {}
         return {
             "trees": g.trees,
             "instanced_triangles": g.instanced_triangles,
@@ -164,7 +170,7 @@ class FrameRenderer:
         mats = tree_matrices(self.instances, time_s, wind)
         graph = self.forest.graph(levels, mats)
         scene = {"type": "scene", "integrator": self.integrator, "terrain": self.terrain_obj, **self.emitters}
-        scene.update(graph.entries)
+        scene.update(graph.entries or {})
         try:
             self._scene = self.mi.load_dict(scene, parallel=True)
         except Exception as e:
@@ -292,6 +298,7 @@ class FrameRenderer:
         t0 = time.perf_counter()
         cov = self.coverage(frame, levels)
         self.render_seconds += time.perf_counter() - t0
+        assert self.graph is not None  # scene_at built it
         for name, c in self.graph.lod_counts.items():
             self.lod_counts[name] = self.lod_counts.get(name, 0) + c
         path = self._path

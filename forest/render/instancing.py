@@ -9,6 +9,7 @@ triangles — the role ``DelayedReadArchive`` played in the original pipeline.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -58,7 +59,7 @@ def tree_matrices(instances: InstanceSet, time_s: float, wind) -> np.ndarray:
 class ForestGraph:
     """A forest as scene-dict entries plus what it cost."""
 
-    entries: dict  # shapegroups, shared BSDFs and instances, ready for a scene dict
+    entries: dict | None  # shapegroups, shared BSDFs and instances, ready for a scene dict (None once loaded)
     trees: int
     instanced_triangles: int
     unique_triangles: int
@@ -108,7 +109,7 @@ class ForestBuilder:
         options = self.individuals[s]
         sp = options[individual % len(options)]
         lod = sp.lods[min(level, len(sp.lods) - 1)]
-        group = {"type": "shapegroup"}
+        group: dict[str, Any] = {"type": "shapegroup"}
         for k, part in enumerate(lod.parts):
             group[f"part_{k}"] = {"type": "ply", "filename": str(part.path), "bsdf": self._bsdf_ref(part)}
         if len(group) == 1:

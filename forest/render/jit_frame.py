@@ -150,6 +150,7 @@ class PathFrameRenderer:
             camera = path_camera(config, t, w, h)
             t0 = time.perf_counter()
             for p in self.path.passes(camera, spp=spp_sub, seed=seed + 101 * k, aux=True):
+                assert p.albedo is not None and p.normal is not None and p.rows is not None  # aux=True
                 rgb += p.rgb
                 alpha += p.alpha
                 albedo += p.albedo

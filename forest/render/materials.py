@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -123,6 +124,7 @@ class MaterialBuilder:
         texture = getattr(part, "texture", None)
         tinted = bool(getattr(part, "tinted", False))
         tau = float(getattr(part, "translucency", 0.0) or 0.0)
+        bsdf: dict[str, Any]
         if part.kind == "leaf" and self.exact and tau > 0:
             bsdf = {
                 "type": "forest_leaf",

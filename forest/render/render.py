@@ -145,6 +145,10 @@ def render_image(
     return np.asarray(r.frame(1.0).rgb, np.float64)[..., :3]
 
 
+def _no_progress(fraction: float, message: str = "") -> None:
+    return None
+
+
 def render_scene(
     scene: Scene,
     *,
@@ -187,7 +191,7 @@ def render_scene(
     chosen, reason = choose_variant(len(inst), variant, config.render.variant)
     if announce is not None:
         announce(chosen, reason)
-    progress = progress or (lambda f, m="": None)
+    progress = progress or _no_progress
     progress(0.0, "building scene")
     size = frame_size(config, preview=preview)
     r = _kept(reuse, (scene, chosen, size, bool(preview)), lambda: make_renderer(scene, chosen, size, preview=preview))

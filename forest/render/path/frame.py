@@ -37,7 +37,7 @@ from ...errors import ForestError
 from ...runtime import mitsuba
 from .emitters import LightSet, make_lights, sky_mean_radiance
 from .geometry import ForestGeometry, PartArrays, TraversalScene, available_bytes, memory_plan
-from .haze import HazeModel
+from .haze import HazeInputs, HazeModel
 from .inputs import PathCamera, PathInputs
 from .integrator import LAYER_ALPHA, NO_HIT, PathKernel, integrator_class
 from .materials import MaterialArrays, MaterialStore, world_map_texture
@@ -134,14 +134,13 @@ class PathScene:
             self.params[light.param] = mi.Color3f(*[float(x) for x in light.initial])
         if inputs.colour_grid is not None:
             self.params["colour_grid"] = mi.TensorXf(np.ascontiguousarray(inputs.colour_grid, dtype=np.float32))
+        self.haze: HazeInputs | None = None
         if inputs.haze is not None:
             haze = inputs.haze
             if haze.colour is None:
                 haze = replace(haze, colour=tuple(float(c) for c in sky_mean_radiance(self.lights)))
             self.haze = haze
             self.params.update(HazeModel.initial_params(mi, haze))
-        else:
-            self.haze = None
         tc = np.asarray(inputs.terrain_colour, dtype=np.float32)
         terrain_extent = inputs.terrain_extent or self.extent
         self.terrain_map = (

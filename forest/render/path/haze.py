@@ -74,7 +74,7 @@ class HazeInputs:
 
     density: float
     height: float = 600.0
-    colour: tuple[float, float, float] | None = None
+    colour: tuple[float, ...] | None = None  # three values (checked)
     anisotropy: float = 0.7
     ground: float = 0.0
     sky_distance: float = 20_000.0
