@@ -18,7 +18,9 @@ with atomics, so the same inputs and seed give the same image bit for bit.
 Parameters (``PathScene.params``, drjit values the caller may change or
 differentiate between renders): ``colour_grid`` (TensorXf (H, W, 3)),
 ``sun_irradiance`` (disc sun), ``sky_radiance`` (constant sky),
-``sky_scale`` (envmap / sunsky sky), ``sun_scale`` (sunsky sun), each RGB.
+``sky_scale`` (envmap / sunsky sky), ``sun_scale`` (sunsky sun), ``sky_zenith`` and
+``sky_horizon`` (gradient sky), each RGB; ``leaf_tint`` (Float, S·3: an RGB multiplier
+of each species' leaf albedo) and ``ground_tint`` (RGB, the terrain's albedo).
 """
 
 from __future__ import annotations
@@ -107,6 +109,9 @@ class PathScene:
         self.params: dict[str, Any] = {}
         for light in self.lights:
             self.params[light.param] = mi.Color3f(*[float(x) for x in light.initial])
+        leaf, ground = inputs.tints()
+        self.params["leaf_tint"] = mi.Float(leaf.astype(np.float32).ravel())
+        self.params["ground_tint"] = mi.Color3f(*[float(x) for x in ground])
         if inputs.colour_grid is not None:
             self.params["colour_grid"] = mi.TensorXf(np.ascontiguousarray(inputs.colour_grid, dtype=np.float32))
         tc = np.asarray(inputs.terrain_colour, dtype=np.float32)
@@ -173,11 +178,16 @@ class PathScene:
             import drjit as dr
 
             grid_tex = world_map_texture(mi, grid, differentiable=dr.grad_enabled(grid))
+        import drjit as dr
+
+        g = self.params["ground_tint"]
+        table = dr.concat([self.params["leaf_tint"], g.x, g.y, g.z])
+        mats = self._mats.tinted_colours(mi, table)
         return PathKernel(
             mi,
             self.traversal,
             self._parts,
-            self._mats,
+            mats,
             grid=grid_tex,
             terrain_map=self.terrain_map,
             extent=self.extent,
