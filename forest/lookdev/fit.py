@@ -48,6 +48,8 @@ def holdout_spp(spp: int) -> int:
     n = 2 * int(spp)
     a = max(1, math.isqrt(n))
     return a * -(-n // a)
+
+
 #: Stop when the held-out objective improved by less than this share twice in a row.
 STALL = 2e-3
 

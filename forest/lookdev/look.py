@@ -57,12 +57,14 @@ def lights(look: Look, start: Start) -> Lights:
         sun = y * c
     zenith = horizon = scale = None
     if start.sky_kind == "constant":
-        rho = math.exp(_v(look, "horizon_ratio", 0.0))
+        tied = start.sky_tied
+        rho = 1.0 if tied else math.exp(_v(look, "horizon_ratio", 0.0))
         e_sky = (1.0 - share) * g
         yz = 3.0 * e_sky / (math.pi * (rho + 2.0))
-        sk = 1e6 / _v(look, "zenith_mired", 1e6 / start.sky_kelvin)
         hk = 1e6 / _v(look, "horizon_mired", 1e6 / start.sky_kelvin)
-        zenith = yz * locus_rgb(sk, _v(look, "zenith_tint", start.sky_duv))
+        sk = hk if tied else 1e6 / _v(look, "zenith_mired", 1e6 / start.sky_kelvin)
+        zt = "horizon_tint" if tied else "zenith_tint"
+        zenith = yz * locus_rgb(sk, _v(look, zt, start.sky_duv))
         horizon = rho * yz * locus_rgb(hk, _v(look, "horizon_tint", start.sky_duv))
     elif start.sky_kind in ("envmap", "sunsky"):
         s = (1.0 - share) * g / start.sky_power if start.sky_power > 0 else 1.0

@@ -223,9 +223,19 @@ def match(
     say(0.01, "building the production scene")
     renderer = FitRenderer(scene, width=width, height=height, spp=st.spp, variant=st.variant, base_map=base)
     start = renderer.start
+    lay = renderer.layers
+    sky_px = ~lay["hit"]
+    from .params import GRADIENT_MIN_ELEVATION
+
+    top = float(lay["dir"][..., 1][sky_px].max()) if sky_px.any() else -1.0
+    start.sky_tied = top < np.sin(np.radians(GRADIENT_MIN_ELEVATION))
+    if start.sky_tied and "sky" in groups and start.sky_kind == "constant":
+        notes.append(
+            f"the sky in frame reaches {np.degrees(np.arcsin(max(min(top, 1.0), -1.0))):.0f}° above the horizon "
+            f"(under {GRADIENT_MIN_ELEVATION:g}°): its gradient is held, the sky is fitted as one colour"
+        )
     specs = specs_for(start, groups)
     look0 = Look(start_values(start, specs), np.zeros((st.grid, st.grid, 3)) if fit_map else None)
-    lay = renderer.layers
     image = ImageModel(haze_depth(lay["depth"], lay["hit"]), clip=ref.display_referred)
     rseed = int(config.seed if seed is None else seed)
     problem = Problem(specs, start, image, None, renderer.n_species, cells=cells)

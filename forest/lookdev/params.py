@@ -62,6 +62,11 @@ prior N(start, 0.0008²) (V ≈ 5 km at 1σ); its radiance is the horizon sky's
 (airlight tends to the horizon radiance at large distance, Koschmieder) times
 the start's ratio.
 
+When the sky seen in the frame reaches less than :data:`GRADIENT_MIN_ELEVATION` above
+the horizon, the zenith's brightness is an extrapolation that trades against the
+albedos, so the sky is fitted as one colour (zenith = horizon, ``sky_tied``)
+and the gradient reported as held.
+
 **Colour map** (group ``colour_map``, aligned mode): a smooth ln-correction
 field of :mod:`.correction`, σ = 0.5 per cell.
 """
@@ -75,6 +80,8 @@ import numpy as np
 
 from .daylight import D65_CCT, daylight_duv, mired
 
+#: Highest elevation (degrees) the visible sky must reach for its gradient to be fitted.
+GRADIENT_MIN_ELEVATION = 30.0
 GROUPS = ("camera", "sun", "sky", "leaves", "ground", "haze", "colour_map")
 #: What a fit varies when ``--params`` is not given, by mode.
 DEFAULT_GROUPS = {
@@ -155,6 +162,7 @@ class Start:
     terrain_texture: bool
     leaf_colours: np.ndarray  # (S, 3) mean leaf colour per species (for albedo bounds)
     species: list[str]
+    sky_tied: bool = False  # the sky's gradient is not visible enough to fit: one colour, zenith = horizon
 
     @property
     def g0(self) -> float:
@@ -206,7 +214,21 @@ def specs_for(start: Start, groups: set[str]) -> list[Spec]:
             Spec("sun_tint", "sun", "sun tint (Duv)", -0.02, 0.02, float(daylight_duv(1e6 / m0)), 0.003),
             Spec("sun_share", "sun", "sun share of the irradiance", 0.0, 0.95, min(start.share0, 0.95), 0.3),
         ]
-    if "sky" in groups and start.sky_kind == "constant":
+    if "sky" in groups and start.sky_kind == "constant" and start.sky_tied:
+        out += [
+            Spec(
+                "horizon_mired",
+                "sky",
+                "sky colour temperature",
+                mired(40000.0),
+                mired(1800.0),
+                mired(9000.0),
+                70.0,
+                kind="mired",
+            ),
+            Spec("horizon_tint", "sky", "sky tint (Duv)", -0.03, 0.03, 0.0, 0.01),
+        ]
+    elif "sky" in groups and start.sky_kind == "constant":
         out += [
             Spec(
                 "zenith_mired",
