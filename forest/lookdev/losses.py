@@ -17,14 +17,20 @@ shadow edges, noisy at low spp, are weighed down where their noise dominates
 
 **statistics** — an unrelated photo: per region k (:mod:`.regions`: sky high
 and low, canopy and ground, each lit and shadowed) and for the whole frame,
+with m_k the region's mean linear colour,
 
-    r_k = (Lab(mean_k Q) − Lab(mean_k photo)) / τ_Lab,
+    r_k = ( ln(Y(m_k)/Y(p_k)),  ln(r/g)_m − ln(r/g)_p,  ln(b/g)_m − ln(b/g)_p ) / τ_ln,
 
-the CIELAB difference of the regions' mean colours (D65) over
-τ_Lab = :data:`LAB_TOLERANCE`, about one just-noticeable difference (ΔE*ab ≈ 2.3,
-Mahy, Van Eycken & Oosterlinck 1994).  Mean colours, not pixels: where an
-unrelated photo puts its trees says nothing about the scene's, but what colour
-its sky, its sunlit and shadowed foliage and its ground are, does.
+its luminance and two chromaticity ratios in logarithms, τ_ln =
+:data:`LOG_TOLERANCE` (2 % in luminance is about one CIELAB lightness step at
+mid-grey, ΔL* ≈ 0.9).  Logarithms rather than CIELAB differences because a
+render can start far from the photo — a forest interior 9 EV too dark — where
+CIELAB's slope vanishes (L* = 903.3·Y near black) and the data would look
+uninformative; in logarithms exposure moves every residual at the same rate
+wherever it starts.  At the match the two agree: equal means, equal CIELAB.
+Mean colours, not pixels: where an unrelated photo puts its trees says nothing
+about the scene's, but what colour its sky, its sunlit and shadowed foliage
+and its ground are, does.  The report gives CIEDE2000 between the means.
 """
 
 from __future__ import annotations
@@ -33,13 +39,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .colour import luminance, rgb_to_lab
+from .colour import luminance
 from .reference import Reference
 from .regions import Region, region_means
 
 PIXEL_TOLERANCE = 0.02
-LAB_TOLERANCE = 2.3
+LOG_TOLERANCE = 0.02
 NOISE_BALANCE = 0.1
+
+
+def log_colour(rgb: np.ndarray) -> np.ndarray:
+    """(ln Y, ln r/g, ln b/g) of linear colours (..., 3), floored at 10⁻⁶."""
+    c = np.maximum(np.asarray(rgb, np.float64), 1e-6)
+    y = np.maximum(luminance(c), 1e-6)
+    return np.stack([np.log(y), np.log(c[..., 0] / c[..., 1]), np.log(c[..., 2] / c[..., 1])], axis=-1)
 
 
 def _box3(a: np.ndarray) -> np.ndarray:
@@ -102,7 +115,7 @@ class RegionLoss:
         photo_means = region_means(self.photo, self._photo_masks)
         whole = self.photo.reshape(-1, 3)[valid_photo].mean(axis=0)[None]
         self.target_rgb = np.concatenate([photo_means, whole]) if len(photo_means) else whole
-        self.target = rgb_to_lab(self.target_rgb)
+        self.target = log_colour(self.target_rgb)
 
     def means(self, image: np.ndarray) -> np.ndarray:
         """(K + 1, 3) mean linear colours of the image's regions, the whole frame last."""
@@ -111,8 +124,7 @@ class RegionLoss:
         return np.concatenate([m, whole]) if len(m) else whole
 
     def residuals(self, image: np.ndarray) -> np.ndarray:
-        lab = rgb_to_lab(np.maximum(self.means(image), 1e-6))
-        return ((lab - self.target) / LAB_TOLERANCE).ravel()
+        return ((log_colour(self.means(image)) - self.target) / LOG_TOLERANCE).ravel()
 
     def delta_e(self, image: np.ndarray) -> dict[str, float]:
         """CIEDE2000 between the image's and the photo's mean colour of each region (and the whole frame)."""

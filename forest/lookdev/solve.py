@@ -324,7 +324,8 @@ def step(problem: Problem, lin: Linearisation, *, trust: float = TRUST, max_nfev
         if nc:
             blocks.append(_grid_jacobian(problem, look, lin))
         data = sp.hstack(blocks, format="csr")
-        return sp.vstack([data, prior_jacobian(problem, look)], format="csr")
+        full = sp.vstack([data, prior_jacobian(problem, look)], format="csr")
+        return full if nc else full.toarray()
 
     scale = np.r_[np.array([s.sigma for s in free]), np.full(nc, CELL_SIGMA)]
     res = least_squares(
@@ -333,7 +334,7 @@ def step(problem: Problem, lin: Linearisation, *, trust: float = TRUST, max_nfev
         jac=jac,
         bounds=(lo, hi),
         method="trf",
-        tr_solver="lsmr",
+        tr_solver="lsmr" if nc else "exact",
         x_scale=scale,
         max_nfev=max_nfev,
         xtol=1e-6,
