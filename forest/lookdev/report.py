@@ -128,21 +128,36 @@ def write_toml(path: Path, data: dict) -> Path:
     return path
 
 
-def production_image(scene, *, width: int, height: int, spp: int, seed: int, variant: str) -> np.ndarray:
-    """The production render of a Scene (forest path tracer + the renderer's haze), linear (H, W, 3)."""
-    from ..render.path import PathScene
-    from ..render.path.from_scene import path_inputs
-    from ..render.post import apply_haze, haze_colour
+class Production:
+    """The production renderer of one Scene (forest path tracer + the renderer's haze), built once, rendered at
+    any size."""
 
-    inputs = path_inputs(scene, width=width, height=height, spp=spp)
-    ps = PathScene(inputs, variant)
-    rgb = ps.render(spp=spp, seed=seed).rgb
-    rc = scene.config.render
-    if rc.haze > 0:
-        lay = ps.layers()
-        hit = lay["depth"] < inputs.camera.far * 0.999
-        rgb = apply_haze(rgb, lay["depth"], hit, rc.haze, haze_colour(scene.config))
-    return np.asarray(rgb, np.float64)
+    def __init__(self, scene, variant: str):
+        from ..render.path import PathScene
+        from ..render.path.from_scene import path_inputs
+
+        self.config = scene.config
+        self.inputs = path_inputs(scene)
+        self.scene = PathScene(self.inputs, variant)
+
+    def image(self, *, width: int, height: int, spp: int, seed: int) -> np.ndarray:
+        """Linear (H, W, 3) at ``width × height``."""
+        from ..render.path.from_scene import with_size
+        from ..render.post import apply_haze, haze_colour
+
+        cam = with_size(self.inputs, width, height).camera
+        rgb = self.scene.render(cam, spp=spp, seed=seed).rgb
+        rc = self.config.render
+        if rc.haze > 0:
+            lay = self.scene.layers(cam)
+            hit = lay["depth"] < cam.far * 0.999
+            rgb = apply_haze(rgb, lay["depth"], hit, rc.haze, haze_colour(self.config))
+        return np.asarray(rgb, np.float64)
+
+
+def production_image(scene, *, width: int, height: int, spp: int, seed: int, variant: str) -> np.ndarray:
+    """The production render of a Scene at one size (see :class:`Production`)."""
+    return Production(scene, variant).image(width=width, height=height, spp=spp, seed=seed)
 
 
 def parameter_table(problem, result) -> list[dict]:
@@ -227,9 +242,8 @@ def write_outputs(
         write_toml(tmp / "scene.toml", data)
         fitted_scene = scene.with_config(load_config(tmp / "scene.toml"))
         # Production renders of the start and of the written scene: figures at the fit's size, pictures larger.
-        ev = {}
-        for name, sc in (("start", scene), ("fitted", fitted_scene)):
-            ev[name] = production_image(sc, width=w, height=h, spp=spp_eval, seed=seed + 101, variant=renderer.variant)
+        prod = {name: Production(sc, renderer.variant) for name, sc in (("start", scene), ("fitted", fitted_scene))}
+        ev = {name: p.image(width=w, height=h, spp=spp_eval, seed=seed + 101) for name, p in prod.items()}
         clip = (lambda x: np.minimum(x, 1.0)) if reference.display_referred else (lambda x: x)
         figures: dict = {
             "objective_start": _r(sum(result.start_objective)),
@@ -250,12 +264,8 @@ def write_outputs(
         rw = int(settings.report_width)
         rh = max(1, round(rw * h / w))
         pics = {
-            name: clip(
-                production_image(
-                    sc, width=rw, height=rh, spp=max(16, settings.spp), seed=seed + 202, variant=renderer.variant
-                )
-            )
-            for name, sc in (("start", scene), ("fitted", fitted_scene))
+            name: clip(p.image(width=rw, height=rh, spp=max(16, settings.spp), seed=seed + 202))
+            for name, p in prod.items()
         }
         table = parameter_table(problem, result)
         write_report(
