@@ -2,9 +2,10 @@
 
     .venv/bin/python bench/bench_export.py [--trees 1000000] [--sample 20000]
 
-The scene is configs/demo.toml (its camera, lights, [lod] distances, terrain and
-species from the tree library) with a synthetic InstanceSet of ``--trees`` rows
-over its three partitions.  Printed figures:
+The scene is configs/demo.toml (its camera, lights, [lod] distances, [wind],
+terrain and species from the tree library) with a synthetic InstanceSet of
+``--trees`` rows over its three partitions; its wind sways the trees, so every
+RIB tree matrix includes the renderer's sway at frame 1.  Printed figures:
 
 * RIB: time to write the partitions' instance files (the per-tree text), the
   whole export, bytes written and memory; and the same text produced by a
@@ -13,7 +14,10 @@ over its three partitions.  Printed figures:
   Detail/DetailRange switch inline per tree and in one archive per species;
 * USD: time to author the PointInstancers and save the stage (usdc), the whole
   export; and a per-instance loop building the same arrays from Gf values on
-  the sample, for the ratio.
+  the sample, for the ratio;
+* points: the same trees as a points file (.usdc, .ply, .csv);
+* Blender: ``forest export blender`` of ``--blender-trees`` (100 000) trees, next
+  to Blender starting and saving an empty scene (its fixed cost).
 
 Targets (2-core machine): RIB instance files ≤ 3 s, USD ≤ 1 s for 1 M trees.
 Each figure is the best of ``--repeat`` runs (other work on a shared machine
@@ -107,11 +111,50 @@ def best_of(n: int, fn):
     return min(runs, key=lambda r: r[0]), runs
 
 
+def blender_bench(inst: InstanceSet, n: int, lib, tmp: Path) -> None:
+    """``forest export blender`` of ``n`` trees of the demo scene, against Blender starting and saving an
+    empty scene (its fixed cost) in the same run."""
+    import subprocess
+
+    from forest.export.blender import export_blender, find_blender
+
+    try:
+        exe = find_blender()
+    except Exception:
+        print("blender: skipped — Blender is not installed (scripts/setup.sh installs Debian's blender)")
+        return
+    cfg = load_config(ROOT / "configs" / "demo.toml")
+    sub = inst.subset(np.arange(min(n, len(inst))))
+    scene = load_scene(cfg, sub, library=lib)
+    t = time.perf_counter()
+    subprocess.run(
+        [
+            exe,
+            "-b",
+            "--factory-startup",
+            "--python-expr",
+            f"import bpy; bpy.ops.wm.save_as_mainfile(filepath={str(tmp / 'empty.blend')!r})",
+        ],
+        check=True,
+        capture_output=True,
+    )
+    t_empty = time.perf_counter() - t
+    res = export_blender(scene, tmp / "forest.blend")
+    size = res.path.stat().st_size
+    print(
+        f"blender {len(sub):,} trees (forest export blender, demo species at their high level): {res.seconds:.1f} s "
+        f"(writing the data {res.prepare_seconds:.1f} s, Blender building and saving {res.blender_seconds:.1f} s; "
+        f"{size / 2**20:.0f} MiB .blend); Blender starting and saving an empty scene {t_empty:.1f} s -> "
+        f"{res.seconds / t_empty:.1f}x that fixed cost"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--trees", type=int, default=1_000_000)
     ap.add_argument("--sample", type=int, default=20_000)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--blender-trees", type=int, default=100_000)
     args = ap.parse_args()
     cfg = load_config(ROOT / "configs" / "demo.toml")
 
@@ -145,6 +188,13 @@ def main() -> None:
         size = res.path.stat().st_size
         shutil.rmtree(tmp / "usd")
         return res.instance_seconds, res.seconds, size
+
+    def points(suffix: str):
+        from forest.export.points import export_points
+
+        res = export_points(load_scene(cfg, inst, library=lib), tmp / f"trees{suffix}")
+        res.path.unlink()
+        return (res.seconds,)
 
     sample = np.arange(min(args.sample, len(inst)))
     archive = {
@@ -216,6 +266,16 @@ def main() -> None:
             f"USD per-instance Gf loop (arrays only, measured on {len(sample):,}, scaled): {t_naive_u:.1f} s "
             f"-> {t_naive_u / t_usd:.1f}x"
         )
+        pts_runs = {}
+        for suffix in (".usdc", ".ply", ".csv"):
+            (t_pts,), _ = best_of(1 if suffix == ".csv" else args.repeat, lambda sfx=suffix: points(sfx))
+            pts_runs[suffix] = t_pts
+        print(
+            f"points {len(inst):,} trees (P, orient, pscale, id, species, Cd): "
+            + ", ".join(f"{sfx} {t:.2f} s" for sfx, t in pts_runs.items())
+            + f" -> usdc {t_usd / pts_runs['.usdc']:.1f}x the time of the USD point instancers"
+        )
+        blender_bench(inst, args.blender_trees, lib, tmp)
         print(f"machine load average at end: {os.getloadavg()[0]:.1f}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

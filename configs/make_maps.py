@@ -69,6 +69,7 @@ def main() -> None:
 
     jungle()
     city()
+    meadow()
 
 
 def jungle() -> None:
@@ -103,6 +104,22 @@ def city() -> None:
     part[r >= 0.75] = (0, 0, 1)
     save("city_partition.png", part)
     save("city_colour.png", np.stack([0.75 + 0.1 * X, 0.72 + 0.0 * X, 0.68 - 0.1 * Z], axis=2))
+
+
+def meadow() -> None:
+    """Close-up at a forest edge: a clearing with a wavy edge (presence 0) in the forest, and a colour map."""
+    x = np.linspace(-1, 1, N)
+    X, Z = np.meshgrid(x, x)
+    angle = np.arctan2(Z, X)
+    rng = np.random.default_rng(17)
+    wobble = sum(
+        a * np.sin(k * angle + p) for a, k, p in zip(rng.uniform(0.03, 0.08, 4), (2, 3, 5, 7), rng.random(4) * 6)
+    )
+    edge = 0.25 + wobble  # the clearing's radius (map units): about 150 m across on a 600 m terrain
+    r = np.sqrt((X + 0.05) ** 2 + ((Z + 0.1) / 1.3) ** 2)
+    save("meadow_presence.png", (r > edge).astype(np.float32))
+    t = fbm_heights(N, 5, 0.55, seed=53)[..., None]
+    save("meadow_colour.png", np.array([0.32, 0.5, 0.2]) * (1 - t) + np.array([0.5, 0.58, 0.22]) * t)
 
 
 if __name__ == "__main__":

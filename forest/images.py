@@ -222,7 +222,8 @@ def write_image(path: str | Path, pixels: np.ndarray, *, attributes: dict | None
         spec.alpha_channel = 3
     if ext == ".exr":
         spec.attribute("compression", "zip")
-        spec.attribute("DateTime", "")  # OpenEXR output otherwise stamps the time: not byte-identical
+    if ext in (".exr", ".tif", ".tiff"):
+        spec.attribute("DateTime", "")  # OpenEXR and TIFF output otherwise stamp the time: not byte-identical
     if ext == ".png":
         spec.attribute("png:compressionLevel", 6)
     _set_attributes(spec, attributes)

@@ -14,11 +14,22 @@ rotation      f4 (N, 4)    orientation quaternion (w, x, y, z): yaw about Y,
 yaw           f4 (N,)      yaw in radians, [0, 2π)
 scale         f4 (N,)      uniform scale
 species       u2 (N,)      index into ``species_names``
-tint          f4 (N, 3)    linear RGB from the colour map (1 = untinted)
+tint          f4 (N, 3)    linear RGB factor of tinted parts (1 = untinted)
 partition     i2 (N,)      index into ``partition_names``
 normal        f4 (N, 3)    terrain normal at the tree
 phase         f4 (N,)      wind phase, radians
+individual    u1 (N,)      which individual of its species the tree is: k of
+                           ``forest.scene.Scene.individuals[species]`` (the
+                           library recipe grown with seed + k); 0 in files
+                           written before the column existed
 ============  ===========  ====================================================
+
+``tint`` is the colour map's tint at the tree (normalised to mean 1,
+:func:`forest.maps.colour_tint_grid`) with the tree's hue/value jitter applied
+(:func:`forest.tint.tree_tints`): the factor every backend multiplies a tinted
+part's colour by.  Ground cover (``[[ground_cover]]``) are rows like trees,
+whose species come after the ``[[species]]`` ones in ``species_names``
+(:func:`forest.scatter.scatter_models`).
 
 Metadata: ``species_names`` (the ``model`` strings of ``[[species]]``),
 ``partition_names``, ``extent`` (xmin, zmin, xmax, zmax), ``seed``, and in
@@ -54,7 +65,11 @@ COLUMNS = {
     "partition": (np.int16, ()),
     "normal": (np.float32, (3,)),
     "phase": (np.float32, ()),
+    "individual": (np.uint8, ()),
 }
+#: Columns a saved set may lack (written before they existed), with the value they load as.
+OPTIONAL_COLUMNS = {"individual": 0}
+_UNSET = np.zeros(0, dtype=np.uint8)
 FORMAT_VERSION = 1
 
 
@@ -70,6 +85,7 @@ class InstanceSet:
     partition: np.ndarray
     normal: np.ndarray
     phase: np.ndarray
+    individual: np.ndarray = field(default_factory=lambda: _UNSET.copy())  # not given: individual 0 everywhere
     species_names: list[str] = field(default_factory=list)
     partition_names: list[str] = field(default_factory=lambda: ["default"])
     extent: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
@@ -79,7 +95,10 @@ class InstanceSet:
     def __post_init__(self):
         n = len(self.id)
         for name, (dtype, shape) in COLUMNS.items():
-            a = np.ascontiguousarray(getattr(self, name), dtype=dtype)
+            value = getattr(self, name)
+            if name in OPTIONAL_COLUMNS and (value is None or len(value) == 0):
+                value = np.full((n, *shape), OPTIONAL_COLUMNS[name], dtype=dtype)
+            a = np.ascontiguousarray(value, dtype=dtype)
             if a.shape != (n, *shape):
                 raise ValueError(f"InstanceSet column {name} has shape {a.shape}, expected {(n, *shape)}")
             setattr(self, name, a)
@@ -160,7 +179,7 @@ class InstanceSet:
         try:
             with np.load(path, allow_pickle=False) as z:
                 meta = json.loads(bytes(z["meta"]).decode())
-                cols = {k: z[k] for k in COLUMNS}
+                cols = {k: z[k] for k in COLUMNS if k not in OPTIONAL_COLUMNS or k in z.files}
             species_names = [str(x) for x in meta.pop("species_names")]
             partition_names = [str(x) for x in meta.pop("partition_names")]
             xmin, zmin, xmax, zmax = (float(x) for x in meta.pop("extent"))

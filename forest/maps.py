@@ -5,7 +5,8 @@ row 0 at the smallest Z, each pixel a cell of the extent.
 
 * presence  — binary: grey ≥ threshold allows trees (nearest pixel).
 * density   — grey level = relative density in [0, 1] (bilinear).
-* colour    — sRGB image → linear RGB tint (bilinear, in linear light).
+* colour    — sRGB image → linear RGB, normalised to a tint of mean 1
+  (:func:`colour_tint_grid`), bilinear in linear light (:func:`colour_at`).
 * partition — label colours → region index, nearest pixel, matched within a
   tolerance (max per-channel difference in 8-bit sRGB units).
 """
@@ -113,7 +114,8 @@ class MapSet:
 
         self.presence = load(read_map_grey, "presence", m.presence)
         self.density = load(read_map_grey, "density", m.density)
-        self.colour = load(lambda p, what: read_colour_map(p), "colour", m.colour)
+        raw_colour = load(lambda p, what: read_colour_map(p), "colour", m.colour)
+        self.colour = None if raw_colour is None else colour_tint_grid(raw_colour, m.colour_normalise)[0]
         self.partition: PartitionMap | None = None
         if m.partition is not None:
             raw = load(read_image, "partition", m.partition)
@@ -144,10 +146,11 @@ class MapSet:
             return np.ones(len(u), dtype=np.float32)
         return np.clip(sample_bilinear(self.density, u, v), 0.0, 1.0)
 
-    def tint_at(self, u, v) -> np.ndarray:
+    def tint_at(self, x: np.ndarray, z: np.ndarray, extent: tuple[float, float, float, float]) -> np.ndarray:
+        """The colour map's tint (mean 1) at world (x, z), bilinear: ``(N, 3)`` float32 (1 without a map)."""
         if self.colour is None:
-            return np.ones((len(u), 3), dtype=np.float32)
-        return sample_bilinear(self.colour, u, v).astype(np.float32)
+            return np.ones((len(x), 3), dtype=np.float32)
+        return colour_at(self.colour, extent, x, z)
 
     def partition_at(self, u, v) -> np.ndarray:
         if self.partition is None:
@@ -163,3 +166,76 @@ def read_colour_map(path: Path) -> np.ndarray:
     :class:`MapSet` or :func:`forest.scene.load_scene`).
     """
     return read_map_rgb(path, what="colour map")
+
+
+#: A normalised tint is clipped to this: a map that is black but for a few bright pixels would
+#: otherwise push those trees' albedo past 1 (the mean then stays just under 1).
+TINT_MAX = 4.0
+#: Below this mean a channel carries no tint (a map with no red at all leaves red as the species has it).
+TINT_MIN_MEAN = 1e-6
+
+
+def colour_tint_grid(rgb: np.ndarray, mode: str = "rgb") -> tuple[np.ndarray, np.ndarray]:
+    """The colour map as a tint around each species' own colour: ``(tint (H, W, 3) float32, divisor (3,))``.
+
+    A painted map is a *relative* colour: multiplied as painted, an 8-bit map
+    (values ≤ 1, typically 0.05–0.5 in linear light) can only darken the
+    calibrated leaf albedos of the library, by 3–10× for the example maps.  So
+    the map m is divided by its mean over the terrain's extent (every pixel
+    covers the same area of the X/Z extent, so the mean is the pixel mean),
+    in linear light because reflectance multiplies linearly:
+
+    * ``"rgb"`` (default) — per channel, t_c = m_c / ⟨m_c⟩.  The canopy's mean
+      colour is then each species' measured leaf colour and the map carries the
+      variation only (a greener patch, a yellow one).  A channel whose mean is
+      0 (< :data:`TINT_MIN_MEAN`) stays 1.
+    * ``"luminance"`` — t = m / ⟨Y(m)⟩ with Y the luminance of linear sRGB
+      (Rec. 709 primaries, D65: Y = 0.2126 R + 0.7152 G + 0.0722 B): the mean
+      brightness is the species' own, but the map's overall hue stays (paint a
+      whole forest autumnal).
+    * ``"none"`` — t = m: an absolute multiplier (what look-dev fits and writes).
+
+    The tint is clipped to [0, :data:`TINT_MAX`].  ``divisor`` is what the map
+    was divided by (per channel; 1 for ``"none"``).
+    """
+    m = np.asarray(rgb, dtype=np.float64)
+    if mode == "none":
+        divisor = np.ones(3)
+    elif mode == "rgb":
+        mean = m.reshape(-1, 3).mean(axis=0)
+        divisor = np.where(mean < TINT_MIN_MEAN, 1.0, mean)
+        m = np.where(mean < TINT_MIN_MEAN, 1.0, m)
+    elif mode == "luminance":
+        import colour
+
+        weights = colour.models.RGB_COLOURSPACE_sRGB.matrix_RGB_to_XYZ[1]
+        y = float((m.reshape(-1, 3) @ weights).mean())
+        divisor = np.full(3, y if y >= TINT_MIN_MEAN else 1.0)
+    else:
+        raise ValueError(f"unknown colour normalisation {mode!r}")
+    tint = np.clip(m / divisor, 0.0, TINT_MAX)
+    return tint.astype(np.float32), divisor
+
+
+def colour_at(tint: np.ndarray, extent: tuple[float, float, float, float], x: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of a grid laid over ``extent`` (map convention) at world (x, z), clamped: ``(N, 3)`` float32.
+
+    The one lookup of the colour map at a position: scatter's tint column and
+    the Scene's colour grid both use it, so they agree bit for bit.
+    """
+    xmin, zmin, xmax, zmax = extent
+    u = (np.asarray(x, np.float64) - xmin) / max(xmax - xmin, 1e-12)
+    v = (np.asarray(z, np.float64) - zmin) / max(zmax - zmin, 1e-12)
+    return np.asarray(sample_bilinear(tint, u, v), dtype=np.float32)
+
+
+def terrain_moisture(height: np.ndarray, slope_deg: np.ndarray, height_range: tuple[float, float]) -> np.ndarray:
+    """Soil moisture in [0, 1] where no moisture map is painted: low and flat ground is wet.
+
+    m = (1 − ĥ)(1 − θ/90°) with ĥ = (h − h_min)/(h_max − h_min) the normalised
+    height and θ the slope (the ecosystem's site moisture and the ground's
+    ``moisture`` windows both read it).
+    """
+    hmin, hmax = height_range
+    hn = (np.asarray(height, np.float64) - hmin) / max(hmax - hmin, 1e-9)
+    return np.clip((1.0 - hn) * (1.0 - np.asarray(slope_deg, np.float64) / 90.0), 0.0, 1.0)

@@ -8,16 +8,46 @@ Data flows one way::
 
 :func:`load_scene` loads the terrain, reads the colour map (once, through
 :func:`forest.maps.read_colour_map`), takes or scatters the InstanceSet,
-resolves every species through the tree library and plans the levels of
-detail.  Render, the exporters and look-dev take a :class:`Scene`; none of
-them calls scatter, re-reads a map or resolves a species again.
+resolves every species and its individuals through the tree library, computes
+the trees' tints and the ground's albedo, and plans the levels of detail.
+Render, the exporters and look-dev take a :class:`Scene`; none of them calls
+scatter, re-reads a map or resolves a species again.
 
-The InstanceSet's ``tint`` column is each tree's colour (the colour map at
-its base, bilinear, map convention, when scatter made it) and every backend
-uses it as given.  When the colour map a config names is not the one the
-InstanceSet was scattered from (look-dev writes a new map; an artist repaints
-it), the Scene takes the tints from the new map: placement comes from the
-InstanceSet, colour from the map it names now.
+**The colour map is a tint around each species' leaf colour, of mean 1.**  The
+map m (sRGB decoded to linear) is divided, per channel, by its mean over the
+terrain's extent (``[maps] colour_normalise = "rgb"``, the default;
+:func:`forest.maps.colour_tint_grid`): t = m / ⟨m⟩.  A tinted part's albedo is
+its measured colour × t, so the canopy's mean colour is the species' own
+(the library's PROSPECT-D leaf albedos) and painting a map never darkens a
+forest: as painted, the example maps (linear values 0.01–0.5) darkened the
+canopies 3–10× below measured canopy albedos.  Per channel in linear light
+because albedo multiplies linearly and each channel's mean then stays the
+species'; ``"luminance"`` keeps the map's overall hue (one divisor, the mean
+luminance), ``"none"`` takes the values as they are (look-dev's fitted maps).
+``scene.colour`` (:class:`ColourGrid`) holds the normalised tint, the grid a
+renderer looks up per hit, and the divisor.
+
+**Per-tree tint.**  ``scene.instances.tint`` is every tree's factor
+t_i = J_i(c_s ⊙ m(x_i)) ⊘ c_s: the map's tint at the tree with its hue/value
+jitter (:mod:`forest.tint`).  Scatter writes the column with the same function
+and the Scene recomputes it for a set that scatter made (it records its
+inputs), so a repainted map, a new jitter or a recalibrated leaf colour is
+applied without scattering again — placement comes from the InstanceSet,
+colour from the config.  Sets made elsewhere keep their tints.
+
+**Individuals.**  ``scene.individuals[s]`` are the different trees of species
+index s (element 0 is ``scene.species[s]``; the recipe grown with seed + k,
+:func:`forest.library.individual`; one for a mesh or imported species), and
+``scene.instances.individual`` picks one per tree, folded into range (k mod
+the count) when the config asks for fewer than the set was scattered with.
+
+**Ground.**  ``scene.terrain_albedo`` (:class:`forest.ground.TerrainAlbedo`) is
+the terrain's own albedo by slope, altitude, moisture, canopy and maps, or
+``[render] terrain_texture`` / ``terrain_colour``; the colour map does not
+tint the ground.
+
+**Ground cover** rows follow the trees' in the InstanceSet with their own
+species indices (``species_names`` = :func:`forest.scatter.scatter_models`).
 """
 
 from __future__ import annotations
@@ -32,12 +62,15 @@ import numpy as np
 from .camera import CameraState, camera_at
 from .config import Config
 from .errors import ConfigError, ForestError
-from .instances import InstanceSet, file_digest
+from .ground import TerrainAlbedo, terrain_albedo
+from .instances import InstanceSet
 from .library import Library, Species
 from .lod import LodPlan
-from .maps import read_colour_map, sample_bilinear
+from .maps import colour_at, colour_tint_grid, read_colour_map
 from .preflight import check_species
+from .scatter.models import model_settings, resolve_individuals, resolve_models, scatter_models
 from .terrain import Terrain, load_terrain
+from .tint import TintParams, tint_params
 
 Progress = Callable[[float, str], None]
 
@@ -48,28 +81,29 @@ def _silent(fraction: float, message: str = "") -> None:
 
 @dataclass(frozen=True)
 class ColourGrid:
-    """The colour map: linear RGB ``(H, W, 3)`` laid over the terrain's extent (map convention).
+    """The colour map as a tint: linear RGB ``(H, W, 3)`` of mean 1 laid over the terrain's extent (map convention).
 
     Pixel (i, j) covers x ∈ xmin + [j, j+1]·Δx, z ∈ zmin + [i, i+1]·Δz
-    (column → +X, row → +Z, row 0 at the smallest Z); values are sRGB-decoded
-    tints, 1 = the species' own colour.
+    (column → +X, row → +Z, row 0 at the smallest Z); ``rgb`` is the map
+    sRGB-decoded and divided by ``divisor`` (its mean per channel with
+    ``normalise = "rgb"``, :func:`forest.maps.colour_tint_grid`), so 1 = the
+    species' own colour and the mean over the extent is 1.
     """
 
     rgb: np.ndarray
     extent: tuple[float, float, float, float]  # xmin, zmin, xmax, zmax
     path: Path | None = None
+    divisor: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    normalise: str = "none"
 
     def at(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
         """Bilinear tint at world (x, z), clamped at the edges: ``(N, 3)`` float32."""
-        xmin, zmin, xmax, zmax = self.extent
-        u = (np.asarray(x, np.float64) - xmin) / max(xmax - xmin, 1e-12)
-        v = (np.asarray(z, np.float64) - zmin) / max(zmax - zmin, 1e-12)
-        return np.asarray(sample_bilinear(self.rgb, u, v), dtype=np.float32)
+        return colour_at(self.rgb, self.extent, x, z)
 
 
 @dataclass(frozen=True)
 class Scene:
-    """A config with its terrain, colour map, InstanceSet, resolved species and LOD plan."""
+    """A config with its terrain, colour map, InstanceSet, resolved species, LOD plan, individuals and ground."""
 
     config: Config
     terrain: Terrain
@@ -78,6 +112,8 @@ class Scene:
     library: Library
     species: tuple[Species, ...]  # per species index of the InstanceSet
     lod: LodPlan
+    individuals: tuple[tuple[Species, ...], ...] = ()  # per species index; [s][0] is species[s]
+    terrain_albedo: TerrainAlbedo | None = None
 
     @property
     def path(self) -> Path | None:
@@ -93,14 +129,29 @@ class Scene:
         return self.lod.levels(inst.position, inst.species, self.camera_at(frame).position)
 
     def with_config(self, config: Config) -> Scene:
-        """The same trees and terrain with another config's look (lights, camera, render, colour map).
+        """The same trees and terrain with another config's look (lights, camera, render, colour map, jitter, ground).
 
-        When ``config`` names another colour map, it is read and the trees take their tints from it.
+        A colour map named or normalised differently is read again, the tints
+        are recomputed (a set scatter made), and the ground's albedo is
+        recomputed when ``[ground]`` or the terrain's texture or colour changed.
         """
-        if config.maps.colour == (self.colour.path if self.colour is not None else None):
-            return dataclasses.replace(self, config=config)
-        colour = _colour_grid(config, self.terrain)
-        return dataclasses.replace(self, config=config, colour=colour, instances=retint(self.instances, colour))
+        colour = self.colour
+        old = self.config
+        if (config.maps.colour, config.maps.colour_normalise) != (old.maps.colour, old.maps.colour_normalise):
+            colour = _colour_grid(config, self.terrain)
+        inst = self.instances
+        if _scattered(inst):
+            inst = retint(inst, colour, tint_params(model_settings(config), self.species, config.seed))
+        ground = self.terrain_albedo
+        if _ground_inputs(config) != _ground_inputs(old):
+            ground = terrain_albedo(config, self.terrain, inst, self.species)
+        return dataclasses.replace(self, config=config, colour=colour, instances=inst, terrain_albedo=ground)
+
+
+def _ground_inputs(config: Config) -> tuple[object, ...]:
+    rc = config.render
+    colour = rc.terrain_colour if "terrain_colour" in rc.model_fields_set else None
+    return (config.model.ground, rc.terrain_texture, colour, config.maps.moisture)
 
 
 def _colour_grid(config: Config, terrain: Terrain) -> ColourGrid | None:
@@ -108,56 +159,62 @@ def _colour_grid(config: Config, terrain: Terrain) -> ColourGrid | None:
     if path is None:
         return None
     try:
-        rgb = read_colour_map(path)
+        raw = read_colour_map(path)
     except ForestError as e:
         raise ConfigError(config.path, "maps.colour", str(e)) from None
-    return ColourGrid(rgb, terrain.extent, path)
+    mode = config.maps.colour_normalise
+    rgb, divisor = colour_tint_grid(raw, mode)
+    d = (float(divisor[0]), float(divisor[1]), float(divisor[2]))
+    return ColourGrid(rgb, terrain.extent, path, d, mode)
 
 
-def retint(instances: InstanceSet, colour: ColourGrid | None) -> InstanceSet:
-    """The trees with their tints taken from ``colour`` at their bases (1 without a map)."""
-    if colour is None:
-        tint = np.ones((len(instances), 3), np.float32)
-    else:
-        tint = colour.at(instances.position[:, 0], instances.position[:, 2])
+def retint(instances: InstanceSet, colour: ColourGrid | None, params: TintParams) -> InstanceSet:
+    """The trees with their tints computed from ``colour`` at their bases and their jitter (:mod:`forest.tint`).
+
+    The same function scatter writes the column with; returns ``instances``
+    itself when nothing changes.
+    """
+    pos = instances.position
+    map_tint = np.ones((len(instances), 3), np.float32) if colour is None else colour.at(pos[:, 0], pos[:, 2])
+    tint = params.tints(map_tint, instances.species, instances.id)
     if np.array_equal(tint, instances.tint):
         return instances
     return dataclasses.replace(instances, tint=tint)
 
 
-def _scattered_with(instances: InstanceSet, colour: ColourGrid | None) -> bool:
-    """Whether the InstanceSet's tints came from this colour map (or no record says otherwise).
+def _scattered(instances: InstanceSet) -> bool:
+    """Whether scatter made the set (it records its input files, :mod:`forest.scatter.provenance`).
 
-    Scatter records the sha256 of each input file under ``meta["inputs"]``
-    (:mod:`forest.scatter.provenance`); sets made elsewhere (another tool, a
-    test) carry no record and keep their tints.
+    Sets made elsewhere (another tool, a test) carry no record and keep their tints.
     """
-    inputs = instances.meta.get("inputs") if isinstance(instances.meta, dict) else None
-    if not isinstance(inputs, dict):
-        return True
-    entry = inputs.get("maps.colour")
-    recorded = entry.get("sha256") if isinstance(entry, dict) else None
-    if colour is None or colour.path is None:
-        return recorded is None
-    return recorded == file_digest(colour.path)
+    return isinstance(instances.meta, dict) and isinstance(instances.meta.get("inputs"), dict)
+
+
+def fold_individuals(instances: InstanceSet, individuals: tuple[tuple[Species, ...], ...]) -> InstanceSet:
+    """The set with every ``individual`` index inside its species' individuals (k mod their count)."""
+    counts = np.array([len(ind) for ind in individuals], dtype=np.int64)
+    if not len(instances) or not len(counts):
+        return instances
+    n = counts[instances.species.astype(np.int64)]
+    k = instances.individual.astype(np.int64)
+    if (k < n).all():
+        return instances
+    return dataclasses.replace(instances, individual=(k % n).astype(np.uint8))
 
 
 def resolve_species(config: Config, names: list[str], library: Library) -> tuple[Species, ...]:
-    """The library species of each ``model`` in ``names``; a failure names ``species[i].model``."""
-    models = [s.model for s in config.species]
-    out = []
-    for model in names:
-        field = f"species[{models.index(model)}].model" if model in models else "species"
-        try:
-            sp = library.resolve(model, config.base_dir)
-        except ForestError as e:
-            raise ConfigError(config.path, field, e.message) from None
-        except (OSError, KeyError, ValueError) as e:
-            raise ConfigError(config.path, field, f"cannot resolve tree model {model!r}: {e}") from None
-        if not sp.lods:
-            raise ConfigError(config.path, field, f"tree model {model!r} has no levels of detail")
-        out.append(sp)
-    return tuple(out)
+    """The library species of every species index (``[[species]]`` then ``[[ground_cover]]`` models).
+
+    ``names`` must be :func:`forest.scatter.scatter_models` of the config; a
+    failure names ``species[i].model`` or ``ground_cover[j].model``.
+    """
+    expected = scatter_models(config)
+    if list(names) != expected:
+        raise ForestError(
+            f"instances: species {list(names)} do not match the config's [[species]] and [[ground_cover]] "
+            f"models {expected}; scatter again"
+        )
+    return resolve_models(config, library)
 
 
 def load_scene(
@@ -187,21 +244,25 @@ def load_scene(
     if instances is None or isinstance(instances, (str, Path)):
         from .scatter import scene_instances
 
-        inst = scene_instances(config, instances, progress=lambda f, m="": step(0.1 + 0.6 * f, m), terrain=terrain)
+        inst = scene_instances(
+            config,
+            instances,
+            progress=lambda f, m="": step(0.1 + 0.6 * f, m),
+            terrain=terrain,
+            library=library,
+        )
     else:
         inst = instances
-        expected = [s.model for s in config.species]
-        if list(inst.species_names) != expected:
-            raise ForestError(
-                f"instances: species {inst.species_names} do not match the config's [[species]] models "
-                f"{expected}; scatter again"
-            )
-    step(0.75, "colour map")
-    colour = _colour_grid(config, terrain)
-    if not _scattered_with(inst, colour):
-        inst = retint(inst, colour)
-    step(0.8, "species")
+    step(0.75, "species")
     species = resolve_species(config, list(inst.species_names), library)
+    individuals = resolve_individuals(config, library, species)
+    inst = fold_individuals(inst, individuals)
+    step(0.8, "colour map")
+    colour = _colour_grid(config, terrain)
+    if _scattered(inst):
+        inst = retint(inst, colour, tint_params(model_settings(config), species, config.seed))
+    step(0.85, "ground")
+    ground = terrain_albedo(config, terrain, inst, species)
     lod = LodPlan(config.lod.bands, tuple(len(sp.lods) for sp in species))
     step(1.0, "scene")
-    return Scene(config, terrain, inst, colour, library, species, lod)
+    return Scene(config, terrain, inst, colour, library, species, lod, individuals, ground)

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # One-shot, idempotent set-up of a fresh checkout:
 #   * LLVM 19 (drjit's CPU backend; older LLVMs crash in drjit 1.5),
+#   * Chromium (the service page tests) and Blender (the Blender export tests), from Debian,
 #   * a virtual environment at .venv/ with the exact versions of requirements.lock and forest itself,
 #   * the generated tree library (built into the user library's cache: $FOREST_LIBRARY, else
 #     the per-user data folder, e.g. ~/.local/share/forest/library/cache/).
@@ -41,6 +42,18 @@ if ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; the
         DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium chromium-driver >/dev/null
     fi
     command -v chromedriver >/dev/null || { echo "setup: chromium-driver not found and could not be installed" >&2; exit 2; }
+fi
+
+# --- Blender (forest export blender is tested by rendering its .blend in Cycles) ----
+# Debian 12's blender 3.4.1; without recommended packages it installs in about two minutes.
+if ! command -v blender >/dev/null; then
+    say "installing Blender (Debian package blender)"
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    if command -v apt-get >/dev/null; then
+        $SUDO apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends blender >/dev/null
+    fi
+    command -v blender >/dev/null || { echo "setup: blender not found and could not be installed" >&2; exit 2; }
 fi
 
 # --- virtual environment -----------------------------------------------------

@@ -7,6 +7,7 @@ tests neither build nor read the real tree cache.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -99,12 +100,29 @@ def fake_species(name: str, height: float, seed: int, levels=("high", "medium", 
     return FakeSpecies(name, "generated", lods)
 
 
+def leaf_texture(path: Path, size: int = 16) -> Path:
+    """An RGBA leaf texture: a disk of alpha 1 in a transparent square, RGB a green ramp (8-bit sRGB PNG)."""
+    from conftest import write_png
+
+    y, x = (np.mgrid[0:size, 0:size] + 0.5) / size
+    alpha = ((x - 0.5) ** 2 + (y - 0.5) ** 2 < 0.16).astype(float)
+    rgb = np.stack([0.3 + 0.5 * x, 0.6 + 0.3 * y, 0.2 + 0.0 * x], axis=2)
+    return write_png(path, np.concatenate([rgb, alpha[..., None]], axis=2))
+
+
 class FakeLibrary:
-    def __init__(self):
+    """Species ``oak`` (four levels) and ``pine`` (two); with ``textures``, leaves carry :func:`leaf_texture`."""
+
+    def __init__(self, textures: Path | None = None):
         self.species = {
             "oak": fake_species("oak", 12.0, 1),
             "pine": fake_species("pine", 18.0, 2, levels=("high", "low")),
         }
+        if textures is not None:
+            tex = leaf_texture(Path(textures) / "leaf.png")
+            for sp in self.species.values():
+                for lod in sp.lods:
+                    lod.parts = tuple(dataclasses.replace(p, texture=tex) if p.kind == "leaf" else p for p in lod.parts)
 
     def names(self):
         return sorted(self.species)
@@ -191,12 +209,34 @@ def make_instances(
     )
 
 
+#: MaterialX standard-library nodes the exporters use.  usd-core is built without MaterialX's Sdr
+#: plugin, so its validator reports them as missing from the shader registry; nothing else is excused.
+MATERIALX_NODES = {
+    "ND_UsdPreviewSurface_surfaceshader",
+    "ND_geompropvalue_color3",
+    "ND_geompropvalue_vector2",
+    "ND_image_color4",
+    "ND_convert_color4_color3",
+    "ND_extract_color4",
+    "ND_multiply_color3",
+}
+
+
 def validation_errors(stage) -> list[str]:
-    """Every error usd-core's validators report (composition, types, stage metadata, shading…)."""
+    """Every error usd-core's validators report (composition, types, stage metadata, shading…),
+    except registry look-ups of the MaterialX nodes in :data:`MATERIALX_NODES`."""
+    import re
+
     from pxr import UsdValidation
 
     ctx = UsdValidation.ValidationContext(UsdValidation.ValidationRegistry().GetOrLoadAllValidators())
-    return [f"{e.GetName()}: {e.GetMessage()}" for e in ctx.Validate(stage)]
+    out = []
+    for e in ctx.Validate(stage):
+        m = re.match(r"shaderId '(\w+)' specified on shader prim .* not found in sdrRegistry", e.GetMessage())
+        if e.GetName() == "MissingShaderIdInRegistry" and m and m.group(1) in MATERIALX_NODES:
+            continue
+        out.append(f"{e.GetName()}: {e.GetMessage()}")
+    return out
 
 
 def fly_keys(last_frame: int) -> str:

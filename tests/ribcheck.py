@@ -24,6 +24,7 @@ primitive variables, the number of points the vertex indices reach.
 
 from __future__ import annotations
 
+import itertools
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -154,9 +155,15 @@ TABLE = {
     "Detail": (["a6"], False, "any"),
     "DetailRange": (["c4"], False, "any"),
     "ReadArchive": (["s"], False, "world"),
+    "ObjectBegin": (["h"], False, "any"),
+    "ObjectEnd": ([], False, "any"),
+    "ObjectInstance": (["h"], False, "world"),
 }
+#: RI 3.2 retained objects hold geometry only (section 5.6): the calls allowed between ObjectBegin and ObjectEnd.
+OBJECT_CALLS = {"PointsPolygons", "Polygon", "GeneralPolygon", "PointsGeneralPolygons", "Sphere", "Patch", "NuPatch"}
 TRANSFORMS = {"Transform", "ConcatTransform", "Identity"}
 BLOCKS = {
+    "ObjectBegin": "ObjectEnd",
     "FrameBegin": "FrameEnd",
     "WorldBegin": "WorldEnd",
     "AttributeBegin": "AttributeEnd",
@@ -316,6 +323,10 @@ def check_calls(calls: list[Call], *, in_world: bool = False) -> None:
         check_call(call)
         name = call.name
         where = f"line {call.line}: {name}"
+        if "ObjectBegin" in stack and name not in OBJECT_CALLS and name != "ObjectEnd":
+            raise RibError(f"{where}: only geometric primitives may appear inside ObjectBegin/ObjectEnd")
+        if name == "ObjectBegin" and "ObjectBegin" in stack:
+            raise RibError(f"{where}: nested ObjectBegin")
         if motion is not None and name != "MotionEnd":
             if name not in TRANSFORMS:
                 raise RibError(f"{where}: only transformations may appear inside MotionBegin/MotionEnd")
@@ -381,24 +392,217 @@ def check_file(path: Path, *, in_world: bool = False) -> list[Call]:
     return calls
 
 
+TEXTURE_SUFFIXES = (".tex", ".tx", ".tdl", ".txr")
+
+
+def shader_parameters(source: Path) -> tuple[str, dict[str, str]]:
+    """``(shader type, {parameter: type})`` of an RSL source's shader declaration."""
+    text = re.sub(r"/\*.*?\*/|//[^\n]*", " ", Path(source).read_text(), flags=re.S)
+    m = re.search(r"\b(surface|displacement|light|volume|imager)\s+([A-Za-z_]\w*)\s*\((.*?)\)\s*\{", text, re.S)
+    if not m:
+        raise RibError(f"{source}: no shader declaration")
+    params = {}
+    typ = None
+    for decl in re.split(r"[;]", m.group(3)):
+        for item in decl.split(","):
+            item = item.strip()
+            if not item:
+                continue
+            words = item.split("=")[0].split()
+            if len(words) >= 2:
+                typ = [w for w in words[:-1] if w not in ("uniform", "varying", "output")][-1]
+            if typ is None:
+                raise RibError(f"{source}: parameter {item!r} has no type")
+            params[words[-1]] = typ
+    return m.group(1), params
+
+
+def references(call: Call) -> list[tuple[str, str]]:
+    """Files a call refers to: ``("archive", path)``, ``("shader", name)`` or ``("texture", path)``."""
+    out = []
+    a = call.args
+    if call.name == "ReadArchive":
+        out.append(("archive", a[0]))
+    elif call.name == "Procedural":
+        out.append(("archive", a[1][0]))
+    elif call.name == "Procedural2":
+        out.append(("archive", a[a.index("string filename") + 1][0]))
+    elif call.name == "Surface":
+        out.append(("shader", a[0]))
+    for tok, val in itertools.pairwise(a[1:]):
+        if (isinstance(tok, str) and tok.split()[-1] in ("texturename", "lightColorMap")) or (
+            call.name == "Pattern" and a[0] == "PxrTexture" and tok == "string filename"
+        ):
+            v = val[0] if isinstance(val, list) else val
+            if v:
+                out.append(("texture", v))
+    return out
+
+
+def texture_present(root: Path, ref: str) -> bool:
+    """A texture exists, or it is a renderer's texture format made from the TIFF beside it."""
+    p = Path(root) / ref
+    if p.is_file():
+        return True
+    return p.suffix in TEXTURE_SUFFIXES and p.with_suffix(".tif").is_file()
+
+
+def _matrix(call: Call) -> np.ndarray:
+    return np.array(call.args[0], dtype=np.float64).reshape(4, 4)
+
+
+class ExportChecker:
+    """Cross-file checks of an export folder, following each scene file as a renderer reads it.
+
+    * every referenced archive, shader source and texture exists;
+    * every ``Surface`` parameter is a parameter of that shader's RSL source, with its type;
+    * ``ObjectInstance`` names an object defined earlier in the world (scope);
+    * every ``Procedural`` bound contains the geometry its archive draws — the
+      extents of its ``PointsPolygons`` and of the objects it instances, through
+      the archive's own transforms, and the bounds of the procedurals it calls —
+      and every ``Detail`` bound contains the bounds of the levels it switches.
+    """
+
+    TOL = 1.01e-6
+
+    def __init__(self, root: Path, calls: dict[str, list[Call]]):
+        self.root = Path(root)
+        self.calls = calls
+        self.shaders: dict[str, dict[str, str]] = {}
+        self.extents: dict[str, np.ndarray | None] = {}
+
+    def shader(self, name: str) -> dict[str, str]:
+        if name not in self.shaders:
+            for folder in ("shaders", "."):
+                src = self.root / folder / f"{name}.sl"
+                if src.is_file():
+                    self.shaders[name] = shader_parameters(src)[1]
+                    break
+            else:
+                self.shaders[name] = {}
+        return self.shaders[name]
+
+    def check_references(self, rel: str, calls: list[Call]) -> None:
+        for c in calls:
+            for kind, ref in references(c):
+                where = f"{rel}: line {c.line}: {c.name}"
+                if kind == "archive" and not (self.root / ref).is_file():
+                    raise RibError(f"{where} refers to missing {ref}")
+                if kind == "texture" and not texture_present(self.root, ref):
+                    raise RibError(f"{where} refers to missing texture {ref}")
+                if kind == "shader" and ref not in ("matte", "plastic", "constant", "defaultsurface"):
+                    declared = self.shader(ref)
+                    if not declared:
+                        raise RibError(f"{where}: no source for shader {ref!r}")
+                    for name, (decl, _vals) in check_call(c).items():
+                        if name not in declared:
+                            raise RibError(f"{where}: shader {ref!r} has no parameter {name!r}")
+                        if declared[name] != decl[1]:
+                            raise RibError(f"{where}: {name!r} is a {declared[name]} in {ref!r}, given as {decl[1]}")
+
+    def walk(self, rel: str, objects: dict, seen: set) -> np.ndarray | None:
+        """Check one file in reading order; return the extents [min, max] of what it draws, in its own space."""
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        stack = [np.eye(4)]
+        defining = None
+        detail = None  # (bound, depth) of the last Detail
+
+        def add(points: np.ndarray) -> None:
+            nonlocal lo, hi
+            if not len(points):
+                return
+            ph = np.c_[points, np.ones(len(points))] @ stack[-1]  # row vectors: p' = p·M
+            lo, hi = np.minimum(lo, ph[:, :3].min(0)), np.maximum(hi, ph[:, :3].max(0))
+
+        def corners(b) -> np.ndarray:
+            return np.array([[x, y, z] for x in b[0:2] for y in b[2:4] for z in b[4:6]], dtype=np.float64)
+
+        for c in self.calls[rel]:
+            where = f"{rel}: line {c.line}: {c.name}"
+            if c.name in ("AttributeBegin", "TransformBegin"):
+                stack.append(stack[-1].copy())
+            elif c.name in ("AttributeEnd", "TransformEnd"):
+                stack.pop()
+                if detail is not None and len(stack) < detail[1]:
+                    detail = None
+            elif c.name in ("ConcatTransform",) and defining is None:
+                stack[-1] = _matrix(c) @ stack[-1]
+            elif c.name in ("Transform", "Identity") and defining is None:
+                stack[-1] = _matrix(c) if c.name == "Transform" else np.eye(4)
+            elif c.name == "ObjectBegin":
+                defining = (c.args[0], [])
+            elif c.name == "ObjectEnd":
+                pts = defining[1]
+                objects[defining[0]] = (
+                    np.stack([np.min([p.min(0) for p in pts], 0), np.max([p.max(0) for p in pts], 0)]) if pts else None
+                )
+                defining = None
+            elif c.name == "PointsPolygons":
+                params = check_call(c)
+                P = np.array(params["P"][1], dtype=np.float64).reshape(-1, 3)
+                if defining is not None:
+                    defining[1].append(P)
+                else:
+                    add(P)
+            elif c.name == "ObjectInstance":
+                if c.args[0] not in objects:
+                    raise RibError(f"{where}: object {c.args[0]!r} is not defined before it is instanced")
+                ext = objects[c.args[0]]
+                if ext is not None:
+                    add(corners([ext[0, 0], ext[1, 0], ext[0, 1], ext[1, 1], ext[0, 2], ext[1, 2]]))
+            elif c.name == "Detail":
+                detail = (np.array(c.args[0], dtype=np.float64), len(stack))
+            elif c.name in ("ReadArchive", "Procedural", "Procedural2"):
+                ref = references(c)[0][1]
+                if c.name == "ReadArchive":
+                    if ref in seen:
+                        raise RibError(f"{where}: {ref} read twice")
+                    seen.add(ref)
+                    ext = self.walk(ref, objects, seen)
+                    if ext is not None:
+                        add(ext)
+                    continue
+                a = c.args
+                bound = np.array(a[2] if c.name == "Procedural" else a[a.index("float[6] bound") + 1], dtype=np.float64)
+                if ref not in self.extents:
+                    self.extents[ref] = self.walk(ref, objects, set())
+                ext = self.extents[ref]
+                if ext is not None:
+                    b = bound.reshape(3, 2)
+                    if np.any(ext[0] < b[:, 0] - self.TOL) or np.any(ext[1] > b[:, 1] + self.TOL):
+                        raise RibError(f"{where}: bound {list(bound)} does not contain {ref}'s extents {ext.tolist()}")
+                if detail is not None:
+                    d = detail[0].reshape(3, 2)
+                    b = bound.reshape(3, 2)
+                    if np.any(b[:, 0] < d[:, 0] - self.TOL) or np.any(b[:, 1] > d[:, 1] + self.TOL):
+                        raise RibError(f"{where}: bound {list(bound)} is not inside Detail {list(detail[0])}")
+                add(corners(bound))
+        if not np.isfinite(lo).all():
+            return None
+        return np.stack([lo, hi])
+
+
 def check_export(root: Path) -> dict[str, list[Call]]:
-    """Check every ``.rib`` under an export folder and that every referenced file exists."""
+    """Check every ``.rib`` under an export folder, then each scene as a renderer reads it.
+
+    Per file: :func:`check_file` (calls, arity, parameter lists, block
+    structure).  Across files (:class:`ExportChecker`): references, shader
+    parameters, object scope, and procedural and detail bounds against the
+    geometry they stand for.
+    """
     out = {}
-    for p in sorted(Path(root).rglob("*.rib")):
+    root = Path(root)
+    for p in sorted(root.rglob("*.rib")):
         rel = p.relative_to(root).as_posix()
         in_world = not rel.startswith("scene_")
-        calls = check_file(p, in_world=in_world)
-        out[rel] = calls
-        for c in calls:
-            ref = None
-            if c.name == "ReadArchive":
-                ref = c.args[0]
-            elif c.name == "Procedural":
-                ref = c.args[1][0]
-            elif c.name == "Procedural2":
-                ref = c.args[c.args.index("string filename") + 1][0]
-            if ref is not None and not (Path(root) / ref).is_file():
-                raise RibError(f"{p}: line {c.line}: {c.name} refers to missing {ref}")
+        out[rel] = check_file(p, in_world=in_world)
+    checker = ExportChecker(root, out)
+    for rel, calls in out.items():
+        checker.check_references(rel, calls)
+    for rel in out:
+        if rel.startswith("scene_"):
+            checker.extents = {}
+            checker.walk(rel, {}, set())
     return out
 
 
@@ -454,4 +658,20 @@ def points_polygons(calls: list[Call]) -> list[dict]:
         for k, (decl, vals) in params.items():
             m[k] = np.array(vals, dtype=np.float64).reshape(-1, TYPE_SIZE[decl[1]] * decl[2])
         out.append(m)
+    return out
+
+
+def objects(calls: list[Call]) -> dict:
+    """Retained objects of a file: {handle: mesh} with the mesh as in :func:`points_polygons`."""
+    out = {}
+    handle = None
+    body: list[Call] = []
+    for c in calls:
+        if c.name == "ObjectBegin":
+            handle, body = c.args[0], []
+        elif c.name == "ObjectEnd":
+            (out[handle],) = points_polygons(body)
+            handle = None
+        elif handle is not None:
+            body.append(c)
     return out

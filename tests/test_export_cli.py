@@ -62,6 +62,8 @@ def test_rib_and_usd_from_the_command_line(tmp_path, fake_library, capsys):
     ).read_bytes()
     assert run(["export", "rib", cfg.path, "-o", tmp_path / "r22", "--renderman22", "-q"]) == 0
     ribcheck.check_export(tmp_path / "r22")
+    assert run(["export", "points", cfg.path, "-o", tmp_path / "trees.csv", "-q"]) == 0
+    assert len((tmp_path / "trees.csv").read_text().splitlines()) == trees + 1
     assert run(["export", "usd", cfg.path, "-o", tmp_path / "f.usdc", "-q"]) == 0
     stage = Usd.Stage.Open(str(tmp_path / "f.usdc"))
     pi = UsdGeom.PointInstancer(stage.GetPrimAtPath("/World/Forest/default"))
@@ -74,6 +76,10 @@ def test_rib_and_usd_from_the_command_line(tmp_path, fake_library, capsys):
         (["export", "rib", "{cfg}", "-o", "{tmp}/out", "--frames", "9-1"], "--frames: bad range"),
         (["export", "usd", "{cfg}", "-o", "{tmp}/out.abc"], "must end in .usda, .usdc or .usd"),
         (["export", "rib", "{tmp}/missing.toml", "-o", "{tmp}/out"], "config file not found"),
+        (["export", "fbx", "{cfg}", "-o", "{tmp}/out"], "forest export: unknown target 'fbx'; use one of rib, usd"),
+        (["export", "rib", "{cfg}", "-o", "{tmp}/out", "--display", "nuke"], "--display: unknown display 'nuke'"),
+        (["export", "points", "{cfg}", "-o", "{tmp}/out.abc"], "-o: {tmp}/out.abc: a points file must end in"),
+        (["export", "blender", "{cfg}", "-o", "{tmp}/out.usd"], "-o: {tmp}/out.usd: a Blender file name must end"),
         (
             ["export", "usd", "{cfg}", "-o", "{tmp}/out.usda", "--instances", "{tmp}/nope.npz"],
             "instance file not found",
@@ -83,6 +89,7 @@ def test_rib_and_usd_from_the_command_line(tmp_path, fake_library, capsys):
 def test_bad_input_exits_2_with_one_line(tmp_path, fake_library, capsys, argv, message):
     cfg = make_config(tmp_path, "")
     argv = [a.format(cfg=cfg.path, tmp=tmp_path) for a in argv]
+    message = message.format(tmp=tmp_path)
     assert run(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("forest: error:") and message in err[0]
@@ -140,11 +147,13 @@ def test_real_library_species_export(tmp_path, real_library):
     (tmp_path / "scene.toml").write_text(REAL)
     assert run(["export", "rib", tmp_path / "scene.toml", "-o", tmp_path / "rib", "--library", real_library, "-q"]) == 0
     calls = ribcheck.check_export(tmp_path / "rib")
+    objects = ribcheck.objects(calls["objects.rib"])
     lib = open_library(real_library)
     for name in ("broadleaf", "shrub"):
         sp = lib.resolve(name)
         for lod in sp.lods[:3]:  # two distances: three bands
-            meshes = ribcheck.points_polygons(calls[f"archives/{name}_{lod.name}.rib"])
+            arch = calls[f"archives/{name}_{lod.name}.rib"]
+            meshes = [objects[c.args[0]] for c in arch if c.name == "ObjectInstance"]
             assert sum(len(m["faces"]) for m in meshes) == lod.triangles
             lo, hi = np.asarray(lod.bounds)
             for m in meshes:

@@ -44,8 +44,10 @@ def test_every_file_passes_the_checker(exported):
 def test_no_file_for_an_empty_partition_and_no_strays(exported):
     _cfg, _inst, res, out = exported
     assert sorted(res.instance_files) == ["north", "south"]
-    assert not (out / "instances_east.rib").exists()
-    assert sorted(p.name for p in out.glob("instances_*")) == ["instances_north.rib", "instances_south.rib"]
+    assert not list(out.glob("instances_east*"))
+    # the camera's fov changes along the path and LOD is on: each frame has its own raster areas
+    want = [f"instances_{p}_{f:04d}.rib" for p in ("north", "south") for f in (1, 2, 3)]
+    assert sorted(p.name for p in out.glob("instances_*")) == want
     assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]  # no temp folders left
     scenes = sorted(p.name for p in out.glob("scene_*.rib"))
     assert scenes == ["scene_0001.rib", "scene_0002.rib", "scene_0003.rib"]
@@ -106,22 +108,28 @@ def test_detail_ranges_switch_levels_at_the_configured_distances(exported):
 
 
 def test_archives_hold_the_library_meshes_inside_their_bounds(exported, lib):
-    _cfg, inst, res, _out = exported
+    _cfg, inst, res, out = exported
+    objects = ribcheck.objects(ribcheck.check_file(out / "objects.rib", in_world=True))
     for path in res.archives:
         name, level = path.stem.rsplit("_", 1)
         lod = next(l for l in lib.resolve(name).lods if l.name == level)
-        meshes = ribcheck.points_polygons(ribcheck.check_file(path, in_world=True))
-        assert len(meshes) == len(lod.parts)
+        handles = [c.args[0] for c in ribcheck.check_file(path, in_world=True) if c.name == "ObjectInstance"]
+        meshes = [objects[h] for h in handles]  # one retained object per part, each instanced once
+        assert len(meshes) == len(lod.parts) and len(set(handles)) == len(handles)
         b = np.asarray(lod.bounds)
         for m, part in zip(meshes, lod.parts):
             src = part.load()
-            np.testing.assert_array_equal(m["faces"], src.faces)
+            # the same triangles, each wound counter-clockwise about its stored normals
+            np.testing.assert_array_equal(np.sort(m["faces"], axis=1), np.sort(src.faces, axis=1))
+            v, f = m["P"], m["faces"]
+            ng = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+            assert (np.einsum("ij,ij->i", ng, m["N"][f].sum(axis=1)) > 0).all()
             np.testing.assert_allclose(m["P"], src.vertices, atol=1e-6)
             np.testing.assert_allclose(m["N"], src.normals, atol=1e-6)
             np.testing.assert_allclose(m["st"], src.uv, atol=1e-6)
             assert np.all(m["P"] >= b[0] - 1e-6) and np.all(m["P"] <= b[1] + 1e-6)
     # archives are written once per species × level, however many trees and partitions use them
-    text = "".join(p.read_text() for p in res.instance_files.values())
+    text = "".join(p.read_text() for p in res.frame_instance_files[1])
     for path in res.archives:
         assert text.count(f'"archives/{path.name}"') == int(
             (inst.species == inst.species_names.index(path.stem.rsplit("_", 1)[0])).sum()
@@ -155,7 +163,12 @@ def test_camera_is_left_handed_and_blurred(exported):
         want = math.degrees(2 * math.atan(math.tan(math.radians(fov) / 2) * cfg.render.height / cfg.render.width))
         assert proj.args[2][0] == pytest.approx(want, rel=1e-7)
         reads = [c.args[0] for c in calls if c.name == "ReadArchive"]
-        assert reads == ["terrain.rib", "instances_north.rib", "instances_south.rib"]
+        assert reads == [
+            "objects.rib",
+            "terrain.rib",
+            f"instances_north_{frame:04d}.rib",
+            f"instances_south_{frame:04d}.rib",
+        ]
 
 
 def test_sun_direction_convention(tmp_path, lib):
@@ -201,7 +214,7 @@ def test_same_input_gives_identical_bytes(tmp_path, lib):
     export_rib(load_scene(cfg, inst, library=lib), tmp_path / "b")
     fa = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
     fb = sorted(p.relative_to(tmp_path / "b") for p in (tmp_path / "b").rglob("*") if p.is_file())
-    assert fa == fb and len(fa) == len(a.files) + 1  # + the RSL shader source
+    assert fa == fb and len(fa) == len(a.files) + 2  # + the RSL shader source and prepare.sh
     for rel in fa:
         assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes(), rel
 

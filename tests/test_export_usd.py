@@ -55,9 +55,12 @@ def test_stage_opens_and_composes(exported, lib):
             for mesh, part in zip(meshes, sp.lods[0].parts):
                 src = part.load()
                 np.testing.assert_array_equal(np.array(mesh.GetPointsAttr().Get()), src.vertices)
-                np.testing.assert_array_equal(
-                    np.array(mesh.GetFaceVertexIndicesAttr().Get()), src.faces.ravel().astype(np.int64)
-                )
+                # the library's triangles, each wound counter-clockwise about its normals
+                f = np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)
+                np.testing.assert_array_equal(np.sort(f, axis=1), np.sort(src.faces.astype(np.int64), axis=1))
+                v, n = src.vertices.astype(np.float64), src.normals.astype(np.float64)
+                ng = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+                assert (np.einsum("ij,ij->i", ng, n[f].sum(axis=1)) > 0).all()
                 st = np.array(UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st").Get())
                 np.testing.assert_allclose(st, np.stack([src.uv[:, 0], 1 - src.uv[:, 1]], 1), atol=1e-7)
                 colour = mesh.GetDisplayColorPrimvar()
@@ -74,7 +77,7 @@ def test_stage_passes_usd_validation(exported):
     assert validation_errors(stage) == []
 
 
-def test_every_instance_round_trips(exported):
+def test_every_instance_round_trips(exported, lib):
     _cfg, inst, res, stage = exported
     M = inst.matrices()
     seen = []
@@ -88,9 +91,18 @@ def test_every_instance_round_trips(exported):
         xf = np.array(pi.ComputeInstanceTransformsAtTime(Usd.TimeCode.Default(), Usd.TimeCode.Default()))
         got = np.transpose(xf, (0, 2, 1))  # USD row vectors → column vectors
         np.testing.assert_allclose(got, M[rows], rtol=0, atol=2e-6 * max(1.0, np.abs(M).max()))
+        tint = UsdGeom.PrimvarsAPI(pi).GetPrimvar("forest:tint")
+        assert tint.GetInterpolation() == UsdGeom.Tokens.vertex
+        np.testing.assert_array_equal(np.array(tint.Get(), dtype=np.float32), inst.tint[rows])
+        # displayColor: the tree's canopy colour, tint × the species' leaf colour (no texture here)
         colour = UsdGeom.PrimvarsAPI(pi).GetPrimvar("displayColor")
         assert colour.GetInterpolation() == UsdGeom.Tokens.vertex
-        np.testing.assert_array_equal(np.array(colour.Get(), dtype=np.float32), inst.tint[rows])
+        leaf = np.array([lib.resolve(n).lods[0].parts[1].colour for n in inst.species_names], np.float32)
+        np.testing.assert_allclose(np.array(colour.Get()), inst.tint[rows] * leaf[inst.species[rows]], rtol=1e-6)
+        # the instancer's extent contains the one USD computes from the prototypes
+        ext = np.array(pi.GetExtentAttr().Get())
+        exact = np.array(pi.ComputeExtentAtTime(Usd.TimeCode.Default(), Usd.TimeCode.Default()))
+        assert np.all(ext[0] <= exact[0] + 1e-4) and np.all(ext[1] >= exact[1] - 1e-4)
         protos = [stage.GetPrimAtPath(t).GetName() for t in pi.GetPrototypesRel().GetTargets()]
         idx = np.array(pi.GetProtoIndicesAttr().Get())
         assert [protos[i] for i in idx] == [inst.species_names[s] for s in inst.species[rows]]
@@ -124,7 +136,10 @@ def test_lights_and_terrain(exported):
     xf = np.array(UsdGeom.Xformable(sun).ComputeLocalToWorldTransform(Usd.TimeCode.Default())).T
     emission = xf[:3, :3] @ np.array([0.0, 0.0, -1.0])  # a DistantLight shines along −Z
     np.testing.assert_allclose(emission, -sun_direction(cfg.lights.sun), atol=1e-12)
-    assert sun.GetIntensityAttr().Get() == pytest.approx(cfg.lights.sun.irradiance)
+    # unnormalised disk radiance: E = L·π·sin²(α/2)
+    half = math.radians(sun.GetAngleAttr().Get()) / 2
+    assert not sun.GetNormalizeAttr().Get()
+    assert sun.GetIntensityAttr().Get() * math.pi * math.sin(half) ** 2 == pytest.approx(cfg.lights.sun.irradiance)
     dome = UsdLux.DomeLight(stage.GetPrimAtPath("/World/Lights/Sky"))
     assert dome.GetIntensityAttr().Get() == pytest.approx(cfg.lights.sky.radiance)
     terrain = load_terrain(cfg.terrain, cfg.path)

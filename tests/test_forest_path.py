@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from test_render import make_config, read_exr
 
+from forest.config import parse_config
 from forest.images import write_image
 from forest.instances import InstanceSet, yaw_tilt_quaternion
 from forest.render import render_scene
 from forest.render.path import Material, PathCamera, PathInputs, PathScene, SkyLight, SunLight, Surface, sun_direction
 from forest.render.path.from_scene import path_inputs
-from forest.render.render import render_image
 from forest.scene import load_scene
 
 from render_fixtures import BoxLibrary
@@ -77,27 +77,68 @@ def look(position, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
 # ---------------------------------------------------------------------------
 
 
+def mitsuba_layers(scene, frame: float = 1.0) -> dict:
+    """The reference: depth (from the near plane) and id per pixel centre from Mitsuba's own scalar_rgb
+    ``Scene.ray_intersect`` on the scene Mitsuba's integrators render, looking past transparent texels."""
+    from forest.render.frame import FrameRenderer, FrameSize
+
+    rc = scene.config.render
+    r = FrameRenderer(scene, "scalar_rgb", FrameSize(rc.width, rc.height, 1))
+    mscene = r.scene_at(scene.levels(frame), frame / scene.config.camera.fps)
+    mi = r.mi
+    sensor = r.sensor(frame, 1)
+    h, w = rc.height, rc.width
+    depth = np.full((h, w), 1e5)
+    ids = np.full((h, w), -1.0)
+    for i in range(h):
+        for j in range(w):
+            ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f((j + 0.5) / w, (i + 0.5) / h), mi.Point2f(0.5, 0.5))
+            travelled = 0.0
+            for _ in range(32):
+                si = mscene.ray_intersect(ray)
+                if not si.is_valid():
+                    break
+                bsdf = si.bsdf()
+                if (
+                    mi.has_flag(bsdf.flags(), mi.BSDFFlags.Null)
+                    and float(np.mean(bsdf.eval_null_transmission(si))) > 0.5
+                ):
+                    travelled += si.t
+                    ray = si.spawn_ray(ray.d)
+                    continue
+                depth[i, j] = travelled + si.t
+                if si.instance is not None and si.instance.id().startswith("tree_"):
+                    ids[i, j] = scene.instances.id[int(si.instance.id()[5:])]
+                break
+    return {"depth": depth, "id": ids}
+
+
 @pytest.mark.parametrize("flatten", [0, 10_000])
-def test_layers_match_the_scalar_renderer(tmp_path, library, flatten):
-    """Instanced (flatten 0) or merged (10 000) trees: the id/species/depth layers agree with scalar_rgb's."""
-    cfg = make_config(tmp_path, extra="[lod]\ndistances = [221.0, 222.0, 223.0]\n" + CARD)
+def test_layers_match_mitsubas_own_intersections(tmp_path, library, flatten):
+    """Instanced (flatten 0) or merged (10 000) trees: forest_path's id/species/depth layers agree with
+    Mitsuba's own scalar_rgb surface interactions on the scene its integrators render."""
+    cfg = make_config(
+        tmp_path, extra="[lod]\ndistances = [221.0, 222.0, 223.0]\n" + CARD, render="horizon_ground = false"
+    )
     pos = [[-20.0, 0.0, -20.0], [20.0, 0.0, -20.0], [-20.0, 0.0, 20.0], [20.0, 0.0, 22.0], [0.0, 0.0, 0.0]]
     inst = forest_set(pos, [0, 0, 0, 0, 1], scale=2.0)
-    render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "s.exr", variant="scalar_rgb")
-    ref = read_exr(tmp_path / "s.exr")
-    inputs = path_inputs(load_scene(cfg, inst, library=library))
+    scene = load_scene(cfg, inst, library=library)
+    ref = mitsuba_layers(scene)
+    inputs = path_inputs(scene)
     inputs.flatten_triangles = flatten
-    scene = PathScene(inputs, VARIANT)
-    stats = scene.stats
+    path = PathScene(inputs, VARIANT)
+    stats = path.stats
     assert (stats.instances, stats.flattened_trees) == ((5, 0) if flatten == 0 else (0, 5))
-    layers = scene.layers()
+    layers = path.layers()
     # The LOD plan gave some trees the high box (6 m) and others the low one (3 m): both kinds are seen.
     assert set(np.unique(layers["id"]).astype(int)) == {-1, 500, 501, 502, 503, 504}
     same = layers["id"] == ref["id"]
     assert same.mean() > 0.99  # a pixel centre exactly on a box edge may go either way
-    np.testing.assert_array_equal(layers["species"][same], ref["species"][same])
+    species = {500: 0, 501: 0, 502: 0, 503: 0, 504: 1}
+    tree = same & (ref["id"] >= 0)
+    np.testing.assert_array_equal(layers["species"][tree], [species[int(i)] for i in ref["id"][tree]])
     hit = same & (ref["depth"] < 1e4)
-    # The scalar depth is measured from the near plane (0.5 m in front of the camera), ours from the camera:
+    # Mitsuba's depth is measured from the near plane (0.5 m in front of the camera), ours from the camera:
     # they differ by 0.5 / cos θ along a ray θ off the view axis.
     cam = inputs.camera
     forward = np.asarray(cam.to_world)[:3, 2]
@@ -175,33 +216,54 @@ def surfaces_only(surfaces, camera, *, sun=None, sky=None, max_depth=2, spp=16, 
     )
 
 
-def test_agrees_with_the_scalar_renderer_within_noise(tmp_path, library):
-    """Boxes on a ground under sun and sky with indirect light: the same image as scalar_rgb, up to noise.
+AGREEMENT_FEATURES = {
+    # name: (extra config, translucency of the box leaves)
+    "sun and sky, indirect light": ("", 0.0),
+    "translucent leaves": ("", 0.4),
+    "sunsky": ("", 0.0),
+    "haze": ("", 0.0),
+}
+
+
+@pytest.mark.parametrize("feature", list(AGREEMENT_FEATURES))
+def test_render_scene_agrees_in_both_variants_within_noise(tmp_path, library, feature):
+    """Boxes on a ground under sun and sky, rendered by ``render_scene`` with Mitsuba's integrators
+    (scalar_rgb) and with forest_path (llvm_ad_rgb): the same image up to noise, feature by feature.
 
     The noise level of each renderer is measured from two seeds; the mean of the
     two-seed averages must differ by less than that level, and their overall
-    brightness by less than 1.5 %.
+    brightness by less than 2 %.
     """
+    extra, tau = AGREEMENT_FEATURES[feature]
+    lib = library if tau == 0 else BoxLibrary(tmp_path / "lib", translucency=tau)
     cam = "position = [0.0, 30.0, -60.0]\ntarget = [0.0, 2.0, 0.0]\nfov = 40.0"
     sun = "[lights.sun]\nelevation = 40.0\nazimuth = 30.0\nirradiance = 3.0\n"
+    depth = 2 if feature == "haze" else 3  # haze: scalar_rgb hazes camera rays only (module forest.render.post)
+    render = f"max_depth = {depth}\n"
+    if feature == "haze":
+        render += "haze = 0.004\nhaze_height = 40.0\n"
     inst = forest_set([[x, 0.0, z] for x in (-15.0, 0.0, 15.0) for z in (-10.0, 10.0)], [0] * 6, scale=1.5)
-    w, h, spp = 48, 36, 48
-    scalar, path = [], []
+    images: dict[str, list[np.ndarray]] = {"scalar_rgb": [], VARIANT: []}
     for seed in (1, 2):
-        cfg = make_config(
-            tmp_path, camera=cam, replace_camera=True, render=f"max_depth = 3\nseed = {seed}", extra=sun + CARD
-        )
-        scalar.append(
-            render_image(load_scene(cfg, inst, library=library), width=w, height=h, spp=spp, variant="scalar_rgb")
-        )
-        scene = PathScene(path_inputs(load_scene(cfg, inst, library=library), width=w, height=h, spp=spp), VARIANT)
-        path.append(scene.render(seed=seed).rgb.astype(np.float64))
+        text = render + f"seed = {seed}"
+        cfg = make_config(tmp_path, camera=cam, replace_camera=True, render=text, extra=sun + extra + CARD)
+        if feature == "sunsky":
+            body = (tmp_path / "scene.toml").read_text()
+            body = body.replace("sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }", "sky = { sunsky = {} }")
+            cfg = parse_config(body, path=tmp_path / "scene.toml", base_dir=tmp_path)
+            assert cfg.lights.sky.kind == "sunsky"
+        cfg = cfg.with_overrides({"render.width": 48, "render.height": 36, "render.spp": 48})
+        for variant in images:
+            out = tmp_path / f"{variant}_{seed}.exr"
+            render_scene(load_scene(cfg, inst, library=lib), output=out, variant=variant)
+            images[variant].append(read_exr(out)["rgb"].astype(np.float64))
+    scalar, path = images["scalar_rgb"], images[VARIANT]
     noise_s = np.std(scalar[0] - scalar[1]) / np.sqrt(2)
     noise_p = np.std(path[0] - path[1]) / np.sqrt(2)
     mean_s, mean_p = (scalar[0] + scalar[1]) / 2, (path[0] + path[1]) / 2
     level = np.sqrt((noise_s**2 + noise_p**2) / 2)
     assert np.abs(mean_p - mean_s).mean() < level
-    assert mean_p.mean() == pytest.approx(mean_s.mean(), rel=0.015)
+    assert mean_p.mean() == pytest.approx(mean_s.mean(), rel=0.02)
 
 
 def test_a_leaf_lit_from_behind_transmits(tmp_path):
@@ -558,3 +620,134 @@ def test_colour_grid_follows_the_map_convention(library):
             assert mask.any()
             colour = img[mask].mean(axis=0)
             np.testing.assert_allclose(colour / colour.max(), grid[i, j] / grid[i, j].max(), atol=0.07)
+
+
+# ---------------------------------------------------------------------------
+# Aerial perspective
+# ---------------------------------------------------------------------------
+
+
+def test_haze_closed_forms_agree_in_numpy_and_drjit():
+    """The transmittance of the exponential height fog against a numerical integral, the numpy and drjit
+    forms against each other, and the Henyey–Greenstein phase function integrating to 1 over the sphere."""
+    import drjit as dr
+
+    from forest.render.path.haze import HazeInputs, HazeModel, hg_np, transmittance_np
+    from forest.runtime import mitsuba
+
+    mi = mitsuba(VARIANT)
+    haze = HazeInputs(density=0.003, height=80.0, colour=(0.2, 0.3, 0.4), anisotropy=0.6, ground=-5.0)
+    rng = np.random.default_rng(1)
+    oy = rng.uniform(-5.0, 300.0, 64)
+    d = rng.normal(size=(64, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d[:4, 1] = [0.0, 1e-6, -1e-6, 1e-3]  # level rays: the series branch
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    ell = rng.uniform(1.0, 2000.0, 64)
+    ref = []
+    for y0, dy, length in zip(oy, d[:, 1], ell):
+        s = np.linspace(0.0, length, 20_001)
+        ref.append(np.exp(-np.trapezoid(0.003 * np.exp(-(y0 + s * dy + 5.0) / 80.0), s)))
+    np.testing.assert_allclose(transmittance_np(oy, d[:, 1], ell, haze), ref, rtol=1e-6, atol=1e-9)
+    model = HazeModel(mi, haze, HazeModel.initial_params(mi, haze), None)
+    o = mi.Point3f(
+        mi.Float(np.zeros(64, np.float32)), mi.Float(oy.astype(np.float32)), mi.Float(np.zeros(64, np.float32))
+    )
+    t = model.transmittance(o, mi.Vector3f(*[mi.Float(d[:, k].astype(np.float32)) for k in range(3)]), mi.Float(ell))
+    np.testing.assert_allclose(np.asarray(t), ref, rtol=2e-4, atol=1e-6)
+    mu = np.linspace(-1.0, 1.0, 200_001)
+    for g in (0.0, 0.6, -0.3):
+        assert 2 * np.pi * np.trapezoid(hg_np(mu, g), mu) == pytest.approx(1.0, rel=1e-4)
+    assert dr.width(t) == 64
+
+
+def test_haze_glows_toward_the_sun_and_fades_distant_ground(library):
+    """Sky seen through a uniform haze: brighter looking toward the sun than away from it (forward
+    scattering, g = 0.7); a dark ground far away tends to the haze's radiance J, near it stays dark."""
+    from forest.render.path.haze import HazeInputs, hg_np
+
+    sun = SunLight(sun_direction(10.0, 0.0), (3.0, 3.0, 3.0))  # low in the north (+Z)
+    ground = Surface(quad(0.0, 5000.0), Material("surface", (0.0, 0.0, 0.0)))
+    haze = HazeInputs(density=0.002, height=1e5, colour=(0.1, 0.1, 0.1), anisotropy=0.7, sky_distance=4000.0)
+    images = {}
+    for name, target in (("toward", (0.0, 12.0, 100.0)), ("away", (0.0, 12.0, -100.0))):
+        camera = PathCamera(look([0.0, 10.0, 0.0], target), 30.0, 16, 16)
+        inputs = surfaces_only([ground], camera, sun=sun, sky=None, spp=8, max_depth=2)
+        inputs.haze = haze
+        images[name] = PathScene(inputs, VARIANT).render().rgb
+    assert images["toward"][:4].mean() > 3 * images["away"][:4].mean()  # the upper rows: sky
+    # Sky rows looking away from the sun: J = C + E·p(μ) with μ ≈ −cos(10° + 1°), hazed over 4 km.
+    mu = -np.cos(np.radians(11.0))
+    j = 0.1 + 3.0 * hg_np(mu, 0.7)
+    t = np.exp(-0.002 * 4000.0)
+    assert images["away"][0].mean() == pytest.approx(j * (1 - t), rel=0.1)
+    # The ground 10 m below: far rows (near the horizon) brighter than near ones, below J.
+    assert images["away"][-1].mean() < images["away"][9].mean() < j
+
+
+@pytest.fixture(scope="module")
+def haze_scene(library):
+    """Boxes on a tinted ground under sun and sky seen through a height-falloff haze."""
+    from forest.render.path.haze import HazeInputs
+    from forest.terrain import grid_terrain
+
+    inst = forest_set([[x, 0.0, z] for x in (-12.0, 4.0) for z in (-8.0, 10.0)], [0] * 4, scale=2.0)
+    inputs = PathInputs(
+        instances=inst,
+        species=[library.resolve("box")],
+        levels=np.zeros(4, np.int64),
+        matrices=inst.matrices(),
+        camera=PathCamera(look([0.0, 40.0, -50.0], [0.0, 0.0, 0.0]), 45.0, 24, 18),
+        terrain=grid_terrain(np.zeros((5, 5)), (60.0, 60.0)),
+        sun=SunLight(sun_direction(50.0, 20.0), (2.0, 1.8, 1.6)),
+        sky=SkyLight("constant", radiance=(0.3, 0.35, 0.5)),
+        terrain_colour=(0.3, 0.25, 0.2),
+        haze=HazeInputs(density=0.01, height=30.0, colour=(0.4, 0.45, 0.6), anisotropy=0.5, sky_distance=500.0),
+        max_depth=3,
+        rr_depth=100,
+        spp=8,
+    )
+    return PathScene(inputs, VARIANT)
+
+
+def test_haze_gradients_match_finite_differences(haze_scene):
+    """Reverse and forward mode with respect to the haze's density, height, colour and anisotropy."""
+    import drjit as dr
+
+    scene = haze_scene
+    mi = scene.mi
+    weights = np.random.default_rng(3).uniform(0.5, 1.5, (18, 24, 3))
+    names = ("haze_density", "haze_height", "haze_anisotropy", "haze_colour")
+    base = {k: np.asarray(scene.params[k], np.float64).ravel().copy() for k in names}
+
+    def loss(**values) -> float:
+        saved = dict(scene.params)
+        try:
+            for k, v in values.items():
+                scene.params[k] = mi.Color3f(*map(float, v)) if k == "haze_colour" else mi.Float(float(v[0]))
+            return float((scene.render(seed=3).rgb.astype(np.float64) * weights).sum())
+        finally:
+            scene.params.update(saved)
+
+    params = {k: scene.params[k] for k in names}
+    for v in params.values():
+        dr.enable_grad(v)
+    scene.render_backward(weights, seed=3)
+    grads = {k: np.asarray(dr.grad(v), np.float64).ravel() for k, v in params.items()}
+    for v in params.values():
+        dr.disable_grad(v)
+    steps = {"haze_density": 1e-4, "haze_height": 0.5, "haze_anisotropy": 0.01, "haze_colour": 0.02}
+    for k in names:
+        for c in range(len(base[k])):
+            up, down = base[k].copy(), base[k].copy()
+            up[c] += steps[k]
+            down[c] -= steps[k]
+            fd = (loss(**{k: up}) - loss(**{k: down})) / (2 * steps[k])
+            assert grads[k][c] == pytest.approx(fd, rel=0.02), (k, c)
+    # Forward mode along the density.
+    d = scene.params["haze_density"]
+    dr.enable_grad(d)
+    dr.set_grad(d, mi.Float(1.0))
+    tangent = scene.render_forward(seed=3)
+    dr.disable_grad(d)
+    assert float((tangent * weights).sum()) == pytest.approx(grads["haze_density"][0], rel=0.01)

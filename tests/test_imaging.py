@@ -400,3 +400,18 @@ def test_albedo_and_normal_buffers_keep_texture_the_denoiser_would_smear():
     assert err(guided) < 0.3 * err(noisy)
     # OIDN takes no normal without an albedo: such a normal is dropped, not an error
     assert np.array_equal(denoise(noisy, normal=normal), plain)
+
+
+def test_image_files_carry_no_time_stamp(tmp_path):
+    """Same pixels ⇒ same bytes: no writer may stamp the time (TIFF and OpenEXR do unless told)."""
+    import OpenImageIO as oiio
+
+    from forest.images import write_image
+
+    img = np.random.default_rng(1).random((8, 8, 4)).astype(np.float32)
+    for ext in (".tif", ".exr", ".png"):
+        path = write_image(tmp_path / f"a{ext}", img)
+        inp = oiio.ImageInput.open(str(path))
+        stamp = inp.spec().getattribute("DateTime")
+        inp.close()
+        assert not stamp, (ext, stamp)

@@ -543,6 +543,7 @@ def test_whorls_and_two_ranked_leaflets():
         ("tree", "leaf_lift", -5.0, r"tree\.leaf_lift"),
         ("level", "whorl", 0, r"level\[1\]\.whorl: must be a whole number"),
         ("level", "whorl", 2.5, r"level\[1\]\.whorl"),
+        ("tree", "leaf_cut", "hull", r"tree\.leaf_cut: must be one of outline, quad"),
     ],
 )
 def test_new_recipe_keys_are_checked(table, key, value, field):
@@ -572,3 +573,152 @@ def test_build_prunes_stale_cache_folders_only_when_asked(tmp_path):
     assert stale.is_dir()  # another version's build is left alone
     assert run_cli([*args, "--prune"]) == 0
     assert not stale.exists() and open_library(root).is_fresh("grass")
+
+
+# ---------------------------------------------------------------------------
+# Cut cards
+# ---------------------------------------------------------------------------
+
+
+def _outline_texels(alpha: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Which texel centres lie inside the outline (matplotlib's point-in-polygon, not forest's)."""
+    from matplotlib.path import Path as MPath
+
+    n_r, n_c = alpha.shape
+    yy, xx = np.mgrid[0:n_r, 0:n_c]
+    pts = np.stack([(xx.ravel() + 0.5) / n_c, (yy.ravel() + 0.5) / n_r], axis=1)
+    return MPath(uv).contains_points(pts, radius=1e-9).reshape(n_r, n_c)
+
+
+@pytest.mark.parametrize("shape", ["broad", "needle", "frond", "blade", "fern"])
+def test_card_outlines_hold_the_leaf(shape):
+    """An outline is convex, inside the card, holds (almost) all of the texture's alpha, and the
+    least-area outline of each triangle count shrinks as triangles are allowed."""
+    from forest.library.outline import MAX_LOSS, card_outlines
+    from forest.library.textures import cluster_rgba, leaf_rgba
+
+    for rgba in (leaf_rgba(shape), cluster_rgba(shape)):
+        alpha = rgba[..., 3].astype(np.float64)
+        options = card_outlines(alpha, 4)
+        areas = [options[t].area for t in (2, 3, 4)]
+        assert areas[0] <= 1.0 and areas[0] >= areas[1] >= areas[2], areas
+        for t, o in options.items():
+            assert o.triangles <= t and o.fan().shape == (o.triangles, 3)
+            assert (o.uv >= -1e-9).all() and (o.uv <= 1 + 1e-9).all()
+            d = np.roll(o.uv, -1, axis=0) - o.uv
+            turn = d[:, 0] * np.roll(d, -1, axis=0)[:, 1] - d[:, 1] * np.roll(d, -1, axis=0)[:, 0]
+            assert (turn >= -1e-9).all()  # convex, counter-clockwise in (u, v)
+            inside = _outline_texels(alpha, o.uv)
+            lost = alpha[~inside].sum() / alpha.sum()
+            assert lost <= MAX_LOSS + 2e-3, (shape, t, lost)
+            # Area: the uv polygon's own area, against the texels it holds.
+            assert abs(inside.mean() - o.area) < 0.02
+            assert o.fill == pytest.approx(alpha.mean() / o.area)
+
+
+def test_outlines_pay_where_cards_are_mostly_transparent():
+    """A narrow leaflet, a leaf cluster and a needle cluster lose at least a third of their card at two triangles."""
+    from forest.library.outline import card_outline
+    from forest.library.textures import cluster_rgba, leaf_rgba
+
+    assert card_outline(leaf_rgba("frond")[..., 3], 2).area < 0.4
+    assert card_outline(cluster_rgba("broad")[..., 3], 2).area < 0.67
+    assert card_outline(cluster_rgba("needle")[..., 3], 2).area < 0.67
+    # An opaque texture has nothing to cut: the outline is the card.
+    assert card_outline(np.ones((16, 16)), 4).area == 1.0
+
+
+def _render_alpha(meshes: list, texture: np.ndarray, size: int = 96, spp: int = 64) -> np.ndarray:
+    """Coverage of ``meshes`` seen from +Y (orthographic), alpha-tested by ``texture`` in Mitsuba's scalar_rgb."""
+    from forest.runtime import mitsuba
+
+    mi = mitsuba("scalar_rgb")
+    scene: dict = {
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": 64, "rr_depth": 64},
+        "sensor": {
+            "type": "orthographic",
+            "to_world": mi.ScalarTransform4f().look_at(origin=[0, 10, 0], target=[0, 0, 0], up=[0, 0, 1]),
+            "film": {"type": "hdrfilm", "width": size, "height": size, "pixel_format": "rgba"},
+            "sampler": {"type": "independent", "sample_count": spp},
+        },
+    }
+    opacity = {"type": "bitmap", "bitmap": mi.Bitmap(texture[..., 3:4].astype(np.float32)), "raw": True}
+    for k, m in enumerate(meshes):
+        mesh = mi.Mesh(f"m{k}", len(m.vertices), len(m.faces), has_vertex_texcoords=True)
+        p = mi.traverse(mesh)
+        p["vertex_positions"] = m.vertices.astype(np.float32).ravel()
+        p["faces"] = m.faces.astype(np.uint32).ravel()
+        p["vertex_texcoords"] = m.uv.astype(np.float32).ravel()
+        p.update()
+        scene[f"m{k}"] = mesh
+        mesh.set_bsdf(mi.load_dict({"type": "mask", "opacity": opacity, "material": {"type": "diffuse"}}))
+    img = np.array(mi.render(mi.load_dict(scene), spp=spp, seed=1))
+    return img[..., 3]
+
+
+@pytest.mark.parametrize("shape", ["frond", "needle"])
+def test_cut_cards_render_what_quads_render(shape):
+    """Leaf cards cut to their outline cover the same pixels as whole quads through Mitsuba's alpha test
+    (flat and bent cards): the cut removes only transparent texels."""
+    from forest.library.lod import bent_cards, cards
+    from forest.library.outline import card_outline
+    from forest.library.textures import cluster_rgba
+
+    tex = cluster_rgba(shape)
+    outline = card_outline(tex[..., 3], 2)
+    assert outline.area < 0.8
+    rng = np.random.default_rng(3)
+    n = 6
+    base = np.column_stack([rng.uniform(-2, 2, n), rng.uniform(0, 1, n), rng.uniform(-2, 2, n)])
+    d = np.column_stack([rng.normal(size=n), 0.1 * rng.normal(size=n), rng.normal(size=n)])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    w = np.cross(d, [0.0, 1.0, 0.0])
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    size = np.column_stack([np.full(n, 2.0), np.full(n, 1.5)])
+    for make in (lambda o: cards(base, d, w, size, outline=o), lambda o: bent_cards(base, d, w, size, 3, 30.0, o)):
+        quad_mesh, cut_mesh = make(None), make(outline)
+        assert cut_mesh.triangles <= quad_mesh.triangles
+        a_quad, a_cut = _render_alpha([quad_mesh], tex), _render_alpha([cut_mesh], tex)
+        assert a_quad.mean() > 0.02
+        assert abs(a_cut.mean() - a_quad.mean()) < 0.01 * a_quad.mean() + 2e-3, (a_cut.mean(), a_quad.mean())
+        assert np.abs(a_cut - a_quad).mean() < 0.03
+
+
+def test_cut_cards_are_built_where_they_pay(lib):
+    """The shipped trees cut their cluster and far cards (and the palm's leaflets); the high level stays
+    within HIGH_MAX triangles, every leaf card stays one connected sheet with uv inside the card, and a
+    recipe with leaf_cut = "quad" keeps whole quads."""
+    from forest.library import lod as lodmod
+    from forest.library.mesh import components
+
+    for name in PRESETS:
+        sp = lib.get(name)
+        assert sp.lod("high").triangles <= lodmod.HIGH_MAX
+        for lod in sp.lods:
+            leaf = [p for p in lod.parts if p.kind == "leaf"][0].load()
+            assert (leaf.uv >= -1e-6).all() and (leaf.uv <= 1 + 1e-6).all()
+            if lod.name in ("medium", "low"):
+                _, comp = components(leaf.faces, len(leaf.vertices))
+                uv = leaf.uv.astype(np.float64)[leaf.faces.astype(np.int64)]
+                e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+                area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+                assert np.bincount(comp, weights=area).max() < 0.75, name  # cut: less than 3/4 of each card
+        far = sp.lod("far").parts[0].load()
+        assert far.triangles <= 4 * lodmod.FAR_VIEWS
+    palm = lib.get("palm").lod("high").parts
+    uv = [p for p in palm if p.kind == "leaf"][0].load().uv
+    assert uv[:, 0].min() > 0.1 and uv[:, 0].max() < 0.9  # leaflets cut to the leaflet, not the card
+
+
+def test_leaf_cut_quad_keeps_quads(tmp_path):
+    recipe = tomllib.loads((ROOT / "library/presets/fern.toml").read_text())
+    recipe["tree"]["trunks"] = 3
+    recipe["tree"]["leaf_cut"] = "quad"
+    meta = generate(recipe, 2, tmp_path / "q", name="fern")
+    for entry in meta["lods"]:
+        leaf = [p for p in entry["parts"] if p["kind"] == "leaf"][0]
+        m = read_ply(tmp_path / "q" / leaf["file"])
+        corners = np.isin(np.round(m.uv[:, 0], 6), [0.0, 1.0]) | (entry["name"] == "far")
+        assert corners.all(), entry["name"]
+    assert meta["lods"][-1]["triangles"] == 6

@@ -91,10 +91,16 @@ def test_a_repainted_colour_map_retints_a_saved_set(scene):
     from forest.images import srgb_to_linear
     from forest.scene import load_scene
 
-    write_png(scene.parent / "maps" / "colour.png", np.full((16, 16, 3), 0.3))
-    sc = load_scene(load_config(scene), scene.parent / "trees.npz")
-    want = srgb_to_linear(np.full(3, round(0.3 * 255) / 255))
-    np.testing.assert_allclose(sc.instances.tint, np.broadcast_to(want, sc.instances.tint.shape), atol=1e-5)
+    repainted = np.full((16, 16, 3), 0.3)
+    repainted[:, 8:] = 0.6  # darker west half, lighter east half
+    write_png(scene.parent / "maps" / "colour.png", repainted)
+    cfg = load_config(scene).with_overrides({"species[0].colour_jitter": {"hue": 0.0, "value": 0.0}})
+    sc = load_scene(cfg, scene.parent / "trees.npz")
+    west, east = srgb_to_linear(np.array([round(0.3 * 255) / 255, round(0.6 * 255) / 255]))
+    mean = 0.5 * (west + east)  # the tint has mean 1 over the terrain
+    x = sc.instances.position[:, 0]
+    np.testing.assert_allclose(sc.instances.tint[x < -5], west / mean, rtol=1e-5)
+    np.testing.assert_allclose(sc.instances.tint[x > 5], east / mean, rtol=1e-5)
 
 
 def test_a_moved_or_rewritten_map_with_the_same_content_is_accepted(scene):

@@ -60,7 +60,7 @@ def scene(tmp_path_factory):
 def test_render_still_writes_exr_png_and_summary(scene):
     r = run("render", scene / "scene.toml", "-o", scene / "out" / "still.exr", "--instances", scene / "trees.npz")
     assert r.returncode == 0, r.stderr
-    assert "variant: scalar_rgb" in r.stderr
+    assert "variant: llvm_ad_rgb" in r.stderr and "forest_path" in r.stderr
     summary = [line for line in r.stdout.splitlines() if line.startswith("rendered")]
     assert len(summary) == 1 and "trees" in summary[0] and "instanced triangles" in summary[0] and "peak" in summary[0]
     exr, png = scene / "out" / "still.exr", scene / "out" / "still.png"
@@ -74,6 +74,8 @@ def test_render_still_writes_exr_png_and_summary(scene):
     species = data[..., list(spec.channelnames).index("species.Z")]
     assert set(np.unique(species).tolist()) <= {-1.0, 0.0, 1.0} and (species >= 0).any()
     assert np.isfinite(data).all()
+    assert {"A", "CryptoObject00.R", "CryptoAsset00.R"} <= set(spec.channelnames)
+    assert attrs["forest:view"] == "agx" and attrs["forest:renderer"] == "forest_path"
 
 
 def test_render_frames_and_preview(scene):
@@ -109,6 +111,7 @@ def test_render_frames_and_preview(scene):
     [
         (("-o", "{d}/bad.jpg"), ".exr"),
         (("-o", "{d}/bad.exr", "--variant", "metal"), "--variant"),
+        (("-o", "{d}/bad.exr", "--variant", "cuda_ad_rgb"), "--variant: cuda_ad_rgb needs an NVIDIA GPU"),
         (("-o", "{d}/bad.exr", "--frames", "9-2"), "--frames"),
         (("-o", "{d}/bad.exr", "--instances", "{d}/missing.npz"), "missing.npz"),
     ],
@@ -127,10 +130,23 @@ def test_render_bad_input_exits_2_without_output(scene, args, message):
     assert not list(scene.glob("bad*"))
 
 
-def test_render_bad_config_value(scene):
-    (scene / "bad.toml").write_text(SCENE.format(render="max_depth = 0"))
+@pytest.mark.parametrize(
+    "render, field, words",
+    [
+        ("max_depth = 0", "render.max_depth", ""),
+        ('view = "aces"', "render.view", "unknown view 'aces'; use one of agx, filmic, standard"),
+        ("exposure = 12.0", "render.exposure", "out of range; use -10 to 10"),
+        ('terrain_texture = "notes.txt"', "render.terrain_texture", "notes.txt"),
+    ],
+)
+def test_render_bad_config_value(scene, render, field, words):
+    if "notes.txt" in render:
+        (scene / "notes.txt").write_text("not an image\n")
+    (scene / "bad.toml").write_text(SCENE.format(render=render))
     r = run("render", scene / "bad.toml", "-o", scene / "bad.exr", "--instances", scene / "trees.npz")
-    assert r.returncode == 2 and "render.max_depth" in r.stderr and "bad.toml" in r.stderr
+    assert r.returncode == 2, r.stderr
+    assert f"bad.toml: {field}: " in r.stderr and words in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
     assert not (scene / "bad.exr").exists()
 
 
@@ -148,7 +164,7 @@ def test_real_library_renders_the_same_forest_in_both_variants(scene):
         from forest.scene import load_scene
 
         res = render_scene(load_scene(cfg, inst), output=scene / f"lib_{variant}.exr", variant=variant)
-        assert res.leaf_model == ("forest_leaf" if variant == "llvm_ad_rgb" else "twosided-diffuse")
+        assert res.leaf_model.startswith("forest_path" if variant == "llvm_ad_rgb" else "principledthin")
         inp = oiio.ImageInput.open(str(scene / f"lib_{variant}.exr"))
         spec = inp.spec()
         out[variant] = (

@@ -262,11 +262,13 @@ def test_colour_map_tints_are_linear(tmp_path):
         flat = { size = 80.0 }
         [maps]
         colour = "colour.png"
+        colour_normalise = "none"   # the map as painted, no jitter: the decoded values themselves
         [scatter]
         count = 3000
         [[species]]
         model = "broadleaf"
         percent = 100
+        colour_jitter = { hue = 0.0, value = 0.0 }
     """,
     )
     inst, _ = scatter(load_config(cfg))

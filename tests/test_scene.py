@@ -85,7 +85,8 @@ def test_render_tints_agree_with_rib_colour(tmp_path, library):
 
     direct = {"render.max_depth": 2, "render.terrain_colour": [0.0, 0.0, 0.0], "render.width": 96, "render.height": 96}
     trees = four_trees()
-    trees.tint[:] = srgb_to_linear(np.round(QUADRANTS.reshape(4, 3) * 255) / 255)  # the map at each base
+    linear = srgb_to_linear(np.round(QUADRANTS.reshape(4, 3) * 255) / 255)
+    trees.tint[:] = linear / linear.mean(axis=0)  # the map at each base, as a tint of mean 1 (equal quadrants)
     tinted_cfg = make_config(tmp_path, maps='colour = "colour.png"').with_overrides(direct)
     tinted = load_scene(tinted_cfg, trees, library=library)
     plain = load_scene(make_config(tmp_path).with_overrides(direct), four_trees(), library=library)
@@ -103,20 +104,21 @@ def test_render_tints_agree_with_rib_colour(tmp_path, library):
         np.testing.assert_allclose(ratio, rib_colour, rtol=0.03)
 
 
-def test_instance_tints_are_kept_unless_the_map_changed(tmp_path, library):
-    """A set made elsewhere keeps its tints; a scatter's set takes new tints when its colour map was repainted."""
+def test_instance_tints_are_kept_unless_the_set_was_scattered(tmp_path, library):
+    """A set made elsewhere keeps its tints; a scatter's set takes its tints from the config's map (mean 1)."""
     inst = four_trees()
     inst.tint[:] = [[0.2, 0.5, 0.9]]
     scene = load_scene(make_config(tmp_path), inst, library=library)
     np.testing.assert_array_equal(scene.instances.tint, inst.tint)  # no record of a map: as given
     write_png(tmp_path / "colour.png", np.repeat(np.repeat(QUADRANTS, 8, 0), 8, 1))
     inst.meta["inputs"] = {"maps.colour": {"file": "old.png", "sha256": "0" * 64}}  # scattered from another map
-    scene = load_scene(make_config(tmp_path, maps='colour = "colour.png"'), inst, library=library)
+    no_jitter = {"species[0].colour_jitter": {"hue": 0.0, "value": 0.0}}
+    cfg = make_config(tmp_path, maps='colour = "colour.png"').with_overrides(no_jitter)
+    scene = load_scene(cfg, inst, library=library)
     from forest.images import srgb_to_linear
 
-    np.testing.assert_allclose(
-        scene.instances.tint, srgb_to_linear(np.round(QUADRANTS.reshape(4, 3) * 255) / 255), atol=1e-6
-    )
+    linear = srgb_to_linear(np.round(QUADRANTS.reshape(4, 3) * 255) / 255)
+    np.testing.assert_allclose(scene.instances.tint, linear / linear.mean(axis=0), rtol=1e-5)
 
 
 def test_lod_bands_and_levels_are_one_rule():

@@ -14,6 +14,8 @@ from typing import Any
 FLAGS = {
     "output": "-o",
     "library": "--library",
+    "display": "--display",
+    "export target": "forest export",
     "frames": "--frames",
     "variant": "--variant",
     "instances": "--instances",
@@ -22,6 +24,7 @@ FLAGS = {
     "up": "--up",
     "units": "--units",
     "height": "--height",
+    "name": "--name",
     "seed": "--seed",
     "scatter.count": "--count",
     "render.spp": "--spp",

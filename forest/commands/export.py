@@ -1,10 +1,26 @@
-"""``forest export rib|usd``: the scene for RenderMan (RIB) or any USD pipeline."""
+"""``forest export rib|usd|blender|points``: the scene for RenderMan, USD pipelines, Blender and any DCC."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
+from typer.core import TyperGroup
+
+TARGETS = ("rib", "usd", "blender", "points")
+
+
+class ExportGroup(TyperGroup):
+    """``forest export`` with an unknown target is a user mistake: one line naming it, exit 2."""
+
+    def resolve_command(self, ctx: Any, args: list[str]):
+        name = args[0] if args else None
+        if name is not None and not name.startswith("-") and self.get_command(ctx, name) is None:
+            from ..errors import ParameterError
+
+            raise ParameterError("export target", f"unknown target {name!r}; use one of {', '.join(TARGETS)}")
+        return super().resolve_command(ctx, args)
 
 
 def _scene(config: Path, instances: Path | None, library: Path | None, quiet: bool):
@@ -19,7 +35,7 @@ def _scene(config: Path, instances: Path | None, library: Path | None, quiet: bo
         return load_scene(cfg, instances, library=lib, progress=bar)
 
 
-def _size(n: int) -> str:
+def _size(n: float) -> str:
     for unit in ("B", "KiB", "MiB", "GiB"):
         if n < 1024 or unit == "GiB":
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
@@ -27,9 +43,16 @@ def _size(n: int) -> str:
     return str(n)
 
 
+CONFIG = typer.Argument(..., help="Scene config (TOML).")
+INSTANCES = typer.Option(None, "--instances", help="A saved InstanceSet (.npz) instead of scattering.")
+LIBRARY = typer.Option(None, "--library", help="Tree library folder.")
+QUIET = typer.Option(False, "-q", "--quiet", help="Print nothing on success.")
+
+
 def register(app: typer.Typer) -> None:
     export_app = typer.Typer(
-        help="Export the scene as RenderMan RIB or USD.",
+        cls=ExportGroup,
+        help="Export the scene as RenderMan RIB, USD, a Blender file or points for any DCC.",
         no_args_is_help=True,
         context_settings={"help_option_names": ["-h", "--help"]},
     )
@@ -37,7 +60,7 @@ def register(app: typer.Typer) -> None:
 
     @export_app.command("rib")
     def rib_cmd(
-        config: Path = typer.Argument(..., help="Scene config (TOML)."),
+        config: Path = CONFIG,
         output: Path = typer.Option(..., "-o", "--output", help="Folder to write the RIB files into."),
         frames: str | None = typer.Option(
             None,
@@ -49,39 +72,43 @@ def register(app: typer.Typer) -> None:
             "--renderman22",
             help="RenderMan 22+ style: Procedural2, PxrDistantLight/PxrDomeLight, PxrSurface reading Cs.",
         ),
-        instances: Path | None = typer.Option(
-            None, "--instances", help="A saved InstanceSet (.npz) instead of scattering."
+        display: str | None = typer.Option(
+            None,
+            "--display",
+            help="Display driver: file (default: TIFF, every renderer), tiff, openexr, exr, png, framebuffer, it.",
         ),
-        library: Path | None = typer.Option(None, "--library", help="Tree library folder."),
-        quiet: bool = typer.Option(False, "-q", "--quiet", help="Print nothing on success."),
+        instances: Path | None = INSTANCES,
+        library: Path | None = LIBRARY,
+        quiet: bool = QUIET,
     ):
-        """Archives per species and level, instance files per partition, a scene file per frame."""
+        """Objects, archives per species and level, textures, instance files, a scene file per frame."""
         from ..export.rib import export_rib
         from ..progress import progress_bar
 
         scene = _scene(config, instances, library, quiet)
         with progress_bar("export rib", quiet=quiet) as bar:
-            res = export_rib(scene, output, renderman22=renderman22, frames=frames, progress=bar)
+            res = export_rib(scene, output, renderman22=renderman22, frames=frames, display=display, progress=bar)
         if not quiet:
+            n_inst = len({p for ps in res.frame_instance_files.values() for p in ps})
             typer.echo(
-                f"{res.trees:,} trees in {len(res.instance_files)} instance file(s), "
-                f"{len(res.archives)} archive(s), {len(res.scenes)} scene file(s), "
+                f"{res.trees:,} trees in {n_inst} instance file(s), "
+                f"{len(res.archives)} archive(s), {len(res.textures)} texture(s), {len(res.scenes)} scene file(s), "
                 f"{_size(res.bytes)} in {res.seconds:.2f} s"
             )
-            typer.echo(f"wrote {output}/ (render from inside it, e.g. {res.scenes[0].name})")
+            first = res.scenes[0].name
+            step = "sh prepare.sh once, then render" if not renderman22 or res.textures else "render"
+            typer.echo(f"wrote {output}/ ({step} from inside it, e.g. {first})")
 
     @export_app.command("usd")
     def usd_cmd(
-        config: Path = typer.Argument(..., help="Scene config (TOML)."),
+        config: Path = CONFIG,
         output: Path = typer.Option(..., "-o", "--output", help="Stage to write: .usda, .usdc or .usd."),
         frames: str | None = typer.Option(
             None, "--frames", help="Frames the camera is sampled at (default: the camera's keyed range, or frame 1)."
         ),
-        instances: Path | None = typer.Option(
-            None, "--instances", help="A saved InstanceSet (.npz) instead of scattering."
-        ),
-        library: Path | None = typer.Option(None, "--library", help="Tree library folder."),
-        quiet: bool = typer.Option(False, "-q", "--quiet", help="Print nothing on success."),
+        instances: Path | None = INSTANCES,
+        library: Path | None = LIBRARY,
+        quiet: bool = QUIET,
     ):
         """Terrain, camera, sun and sky, and a PointInstancer per partition over per-species layers."""
         from ..errors import ForestError
@@ -98,4 +125,58 @@ def register(app: typer.Typer) -> None:
                 f"{res.trees:,} trees in {len(res.instancers)} point instancer(s), "
                 f"{len(res.species_layers)} species layer(s) in {res.seconds:.2f} s"
             )
+            typer.echo(f"wrote {output}")
+
+    @export_app.command("blender")
+    def blender_cmd(
+        config: Path = CONFIG,
+        output: Path = typer.Option(..., "-o", "--output", help="Blender file to write (.blend)."),
+        frames: str | None = typer.Option(
+            None, "--frames", help="Frames the camera is keyed at (default: the camera's keyed range, or frame 1)."
+        ),
+        render: Path | None = typer.Option(
+            None, "--render", help="Also render the scene in Cycles to this PNG (the scene's [render] settings)."
+        ),
+        blender: str | None = typer.Option(
+            None, "--blender", help="Blender executable (default: $FOREST_BLENDER, else blender on PATH)."
+        ),
+        instances: Path | None = INSTANCES,
+        library: Path | None = LIBRARY,
+        quiet: bool = QUIET,
+    ):
+        """Species meshes and materials once, the trees as Geometry Nodes instances, camera, sun and sky."""
+        from ..errors import ParameterError
+        from ..export.blender import export_blender
+        from ..progress import progress_bar
+
+        if output.suffix.lower() != ".blend":
+            raise ParameterError("output", f"{output}: a Blender file name must end in .blend")
+        scene = _scene(config, instances, library, quiet)
+        with progress_bar("export blender", quiet=quiet) as bar:
+            res = export_blender(scene, output, blender=blender, frames=frames, render=render, progress=bar)
+        if not quiet:
+            typer.echo(
+                f"{res.trees:,} trees as instances of {len(res.species)} species in {res.seconds:.2f} s "
+                f"(Blender {res.blender_seconds:.2f} s)"
+            )
+            typer.echo(f"wrote {output}" + (f" and {render}" if render else ""))
+
+    @export_app.command("points")
+    def points_cmd(
+        config: Path = CONFIG,
+        output: Path = typer.Option(..., "-o", "--output", help="Points file: .usda, .usd, .usdc, .ply or .csv."),
+        instances: Path | None = INSTANCES,
+        library: Path | None = LIBRARY,
+        quiet: bool = QUIET,
+    ):
+        """One point per tree with P, orient (x,y,z,w), pscale, id, species and Cd, for any DCC to instance."""
+        from ..errors import ParameterError
+        from ..export.points import SUFFIXES, export_points
+
+        if output.suffix.lower() not in SUFFIXES:
+            raise ParameterError("output", f"{output}: a points file must end in {', '.join(SUFFIXES)}")
+        scene = _scene(config, instances, library, quiet)
+        res = export_points(scene, output)
+        if not quiet:
+            typer.echo(f"{res.trees:,} points in {res.seconds:.2f} s")
             typer.echo(f"wrote {output}")

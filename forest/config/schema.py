@@ -21,6 +21,7 @@ checks that the file exists.
 
 from __future__ import annotations
 
+import itertools
 import math
 import typing
 from pathlib import Path
@@ -37,6 +38,8 @@ from pydantic import (
     model_validator,
 )
 from pydantic_core import PydanticCustomError
+
+from ..errors import ForestError
 
 MAX_TREES = 20_000_000
 MAX_IMAGE_SIDE = 16384
@@ -188,6 +191,14 @@ class MapsConfig(Section):
     colour: InputFile | None = Field(
         None, description="sRGB tint map (→ linear), a tint around each species' leaf colour."
     )
+    colour_normalise: Literal["rgb", "luminance", "none"] = Field(
+        "rgb",
+        description=(
+            "How the colour map becomes a tint: 'rgb' divides each linear channel by its mean over the terrain "
+            "(mean tint 1: the species' own colour on average), 'luminance' divides by the mean luminance "
+            "(keeps the map's overall hue), 'none' uses the values as painted (an absolute multiplier)."
+        ),
+    )
     partition: InputFile | None = Field(None, description="Label colours → regions (see [partitions]).")
     moisture: InputFile | None = Field(None, description="Grey = soil moisture, for method = 'ecosystem'.")
     presence_threshold: Unit = Field(0.5, description="Presence grey level at which trees are allowed.")
@@ -268,6 +279,20 @@ class ScatterConfig(Section):
 
 
 Range = tuple[Float, Float]
+#: Individuals drawn per generated library species when ``individuals`` is not given (a mesh has one).
+DEFAULT_INDIVIDUALS = 4
+MAX_INDIVIDUALS = 255  # the InstanceSet's ``individual`` column is uint8
+
+
+class ColourJitter(Section):
+    """Per-tree colour variation: a hue rotation and a lightness scale in OkLCh, uniform in ± the given amounts."""
+
+    hue: Annotated[float, Field(ge=0.0, le=180.0, allow_inf_nan=False)] = Field(
+        4.0, description="Largest hue rotation, degrees of OkLCh hue."
+    )
+    value: Annotated[float, Field(ge=0.0, le=0.9, allow_inf_nan=False)] = Field(
+        0.08, description="Largest relative change of Oklab lightness L (0.08 = ±8 %)."
+    )
 
 
 class SpeciesConfig(Section):
@@ -301,6 +326,13 @@ class SpeciesConfig(Section):
     shade_tolerance: Unit = Field(0.0, description="Ecosystem: >= 0.5 survives beneath a larger canopy.")
     vigour: Positive = Field(1.0, description="Ecosystem: competitive strength multiplier.")
     moisture: tuple[Unit, Unit] = Field((0.0, 1.0), description="Ecosystem: preferred soil moisture [lo, hi].")
+    # Look
+    individuals: Annotated[Int, Field(ge=1, le=MAX_INDIVIDUALS)] | None = Field(
+        None,
+        description=f"Different trees of this species drawn per tree (default {DEFAULT_INDIVIDUALS} for a generated "
+        "library species, 1 for a mesh).",
+    )
+    colour_jitter: ColourJitter = Field(default_factory=ColourJitter, description="Per-tree hue and value variation.")
 
     _pairs = field_validator("scale", "altitude", "moisture")(_ordered_pair)
 
@@ -315,10 +347,161 @@ class SpeciesConfig(Section):
         """True when ``model`` names a mesh file rather than a library species."""
         return Path(self.model).suffix.lower() in MESH_SUFFIXES
 
+    @property
+    def individual_count(self) -> int:
+        """How many individuals scatter draws from: ``individuals``, else 4 (a library species) or 1 (a mesh)."""
+        if self.individuals is not None:
+            return self.individuals
+        return 1 if self.is_mesh else DEFAULT_INDIVIDUALS
+
 
 class EcosystemConfig(Section):
     steps: Annotated[Int, Field(ge=1, le=200)] = Field(15, description="Years of growth and competition.")
     establish: Unit = Field(0.25, description="Site fitness below which a seed never establishes.")
+
+
+# ---------------------------------------------------------------------------
+# [ground], [[ground_cover]]
+# ---------------------------------------------------------------------------
+
+#: Built-in ground materials: linear sRGB albedo (D65) in the visible band.  Shapes of the spectra after
+#: the USGS Spectral Library Version 7 (Kokaly et al. 2017, USGS Data Series 1035) and the ECOSTRESS
+#: library (Meerdink et al. 2019, Remote Sens. Environ. 230: 111196), scaled to the broadband albedos
+#: tabulated by Oke (1987, "Boundary Layer Climates", table 1.1: grass 0.16–0.26, dry soil 0.2–0.35,
+#: wet soil 0.05–0.15, sand 0.3–0.4, fresh snow 0.8–0.95); a grass sward reflects little in the visible
+#: (its broadband albedo is carried by the near infrared), wetting about halves a soil's reflectance
+#: (Lobell & Asner 2002, Soil Sci. Soc. Am. J. 66: 722–727).
+GROUND_MATERIALS: dict[str, tuple[float, float, float]] = {
+    "grass": (0.050, 0.090, 0.030),  # green sward seen from above
+    "dry_grass": (0.200, 0.165, 0.090),  # senescent grass, straw
+    "soil": (0.190, 0.140, 0.090),  # dry loam
+    "litter": (0.110, 0.075, 0.045),  # leaf and needle litter under a canopy
+    "rock": (0.220, 0.210, 0.190),  # weathered granite, gneiss
+    "wet": (0.075, 0.062, 0.048),  # wet soil, mud, riverbed
+    "sand": (0.400, 0.330, 0.240),  # dry quartz sand
+    "snow": (0.850, 0.870, 0.900),  # fresh snow
+}
+MATERIAL_NAME = r"^[A-Za-z][A-Za-z0-9_-]{0,63}$"
+
+
+def _window(v: list[float]) -> tuple[float, ...]:
+    if len(v) == 3:
+        raise fail(f"give [lo, hi] or a ramp [lo0, lo1, hi1, hi0], got {len(v)} values")
+    if any(b < a for a, b in itertools.pairwise(v)):
+        raise fail(f"values must not decrease, got [{', '.join(f'{x:g}' for x in v)}]")
+    return tuple(v)
+
+
+Window = Annotated[list[Float], Field(min_length=2, max_length=4), AfterValidator(_window)]
+
+
+class GroundRule(Section):
+    """One layer of the ground: ``material`` painted over the layers before it where every window holds.
+
+    A window is ``[lo, hi]`` (a smooth step of a default width centred on each edge) or an explicit ramp
+    ``[lo0, lo1, hi1, hi0]`` (0 below lo0, rising to 1 at lo1, 1 until hi1, falling to 0 at hi0).
+    """
+
+    material: Annotated[Str, Field(min_length=1)] = Field(description="A name from [ground.materials].")
+    slope: Window | None = Field(None, description="Terrain slope window, degrees.")
+    altitude: Window | None = Field(None, description="Height window, metres.")
+    moisture: Window | None = Field(
+        None, description="Soil moisture window in [0, 1]: [maps] moisture, else low and flat ground is wet."
+    )
+    canopy: Window | None = Field(None, description="Tree crown cover window in [0, 1] (0 open ground, 1 closed).")
+    map: InputFile | None = Field(None, description="Grey weight image over the extent (map convention).")
+    invert: Bool = Field(False, description="Use 1 − the map's grey level.")
+    opacity: Unit = Field(1.0, description="Strength of the layer.")
+    noise: NonNegative = Field(0.5, description="Breaks up the edges: they wander by about this many ramp widths.")
+    noise_scale: Positive = Field(25.0, description="Size of the edge breakup, metres.")
+
+
+class GroundConfig(Section):
+    """The terrain's materials: ``base`` everywhere, then each of ``rules`` painted over it in order."""
+
+    materials: dict[Annotated[Str, Field(pattern=MATERIAL_NAME)], RGB] = Field(
+        default_factory=dict,
+        description=(
+            "Name → linear RGB albedo; adds to or overrides the built-in grass, dry_grass, soil, litter, rock, "
+            "wet, sand and snow."
+        ),
+    )
+    base: Annotated[Str, Field(min_length=1)] = Field("soil", description="The material under every rule.")
+    rules: list[GroundRule] | None = Field(
+        None, description="Layers in order (default: grass on gentle open ground, litter under trees, rock on steep)."
+    )
+    resolution: Annotated[Int, Field(ge=2, le=8192)] = Field(
+        1024, description="Albedo texels along the longer side of the terrain."
+    )
+    detail_tile: NonNegative = Field(4.0, description="Metres per repeat of the detail texture (0: no detail).")
+    detail_strength: Annotated[float, Field(ge=0.0, le=2.0, allow_inf_nan=False)] = Field(
+        1.0, description="Contrast of the detail texture (0 flat, 1 as drawn)."
+    )
+
+    @model_validator(mode="after")
+    def _names(self) -> GroundConfig:
+        known = {**GROUND_MATERIALS, **self.materials}
+        names = ", ".join(sorted(known))
+        if self.base not in known:
+            raise fail(f"unknown material {self.base!r} (materials: {names})", "base")
+        for i, rule in enumerate(self.rules or ()):
+            if rule.material not in known:
+                raise fail(f"unknown material {rule.material!r} (materials: {names})", f"rules[{i}].material")
+        return self
+
+    def palette(self) -> dict[str, tuple[float, float, float]]:
+        """Every material by name: the built-in ones, then ``materials`` (which may override them)."""
+        return {**GROUND_MATERIALS, **{k: (float(v[0]), float(v[1]), float(v[2])) for k, v in self.materials.items()}}
+
+
+class GroundCoverConfig(Section):
+    """One ``[[ground_cover]]``: small plants (grass, fern clumps) scattered near the camera path at a density."""
+
+    model: Annotated[Str, Field(min_length=1)] = Field(
+        description="A library name, NAME@SEED, or a mesh file (relative to the scene file)."
+    )
+    density: Annotated[float, Field(gt=0.0, le=1000.0, allow_inf_nan=False)] = Field(
+        description="Plants per square metre of terrain surface."
+    )
+    max_distance: Annotated[float, Field(gt=0.0, le=100000.0, allow_inf_nan=False)] = Field(
+        60.0,
+        description="Within this many metres of the camera (any point of its path), thinning out over the last 30 %.",
+    )
+    name: Str | None = Field(None, description="A label for reports (default: the model).")
+    scale: tuple[Positive, Positive] = Field((0.8, 1.2), description="Uniform scale range [min, max].")
+    slope_max: Annotated[float, Field(ge=0.0, le=90.0, allow_inf_nan=False)] = Field(
+        40.0, description="Steepest terrain, degrees."
+    )
+    slope_min: Annotated[float, Field(ge=0.0, le=90.0, allow_inf_nan=False)] = Field(
+        0.0, description="Flattest terrain, degrees."
+    )
+    altitude: Range | None = Field(None, description="Height window [min, max], metres.")
+    presence: Bool = Field(True, description="Grow only where [maps] presence allows trees.")
+    align: Unit = Field(0.7, description="0 upright … 1 along the terrain normal.")
+    individuals: Annotated[Int, Field(ge=1, le=MAX_INDIVIDUALS)] | None = Field(
+        None, description=f"Different plants drawn (default {DEFAULT_INDIVIDUALS} for a library species, 1 for a mesh)."
+    )
+    colour_jitter: ColourJitter = Field(default_factory=ColourJitter, description="Per-plant hue and value variation.")
+
+    _pairs = field_validator("scale", "altitude")(_ordered_pair)
+
+    @model_validator(mode="after")
+    def _slopes(self) -> GroundCoverConfig:
+        if self.slope_min > self.slope_max:
+            raise fail("must not exceed slope_max", "slope_min")
+        return self
+
+    @property
+    def is_mesh(self) -> bool:
+        """True when ``model`` names a mesh file rather than a library species."""
+        return Path(self.model).suffix.lower() in MESH_SUFFIXES
+
+    @property
+    def individual_count(self) -> int:
+        """``individuals``, else 4 (a library species) or 1 (a mesh)."""
+        if self.individuals is not None:
+            return self.individuals
+        return 1 if self.is_mesh else DEFAULT_INDIVIDUALS
 
 
 # ---------------------------------------------------------------------------
@@ -400,7 +583,11 @@ class SunConfig(Section):
 
 
 class SunskyConfig(Section):
-    """Mitsuba's Hosek–Wilkie sky and sun model, pointed at the [lights.sun] direction."""
+    """Mitsuba's Hosek–Wilkie sky and sun model (rotated to Y-up), pointed at the [lights.sun] direction.
+
+    Its sun is scaled to send [lights.sun] irradiance (facing it) and its sky by the same factor,
+    so the model's colours and sun-to-sky ratio are kept; ``scale`` multiplies both.
+    """
 
     turbidity: Annotated[float, Field(ge=1.0, le=10.0, allow_inf_nan=False)] = 3.0
     albedo: Unit = Field(0.15, description="Ground albedo the sky model assumes.")
@@ -440,7 +627,8 @@ class SkyConfig(Section):
 
 
 class LightsConfig(Section):
-    """``sun`` and ``sky``; an empty or missing [lights] gives both at their defaults."""
+    """``sun`` and ``sky``; an empty or missing [lights] gives an outdoor daylight: the default sun
+    (35° high, from the south-east) in Mitsuba's physical ``sunsky`` sky."""
 
     sun: SunConfig | None = None
     sky: SkyConfig | None = None
@@ -449,7 +637,7 @@ class LightsConfig(Section):
     @classmethod
     def _defaults(cls, data: Any) -> Any:
         if data is None or data == {}:
-            return {"sun": {}, "sky": {}}
+            return {"sun": {}, "sky": {"sunsky": {}}}
         return data
 
 
@@ -458,6 +646,24 @@ class LightsConfig(Section):
 # ---------------------------------------------------------------------------
 
 Side = Annotated[Int, Field(ge=1, le=MAX_IMAGE_SIDE)]
+
+
+def _view(value: Any) -> str:
+    from ..imaging.view import check_view
+
+    try:
+        return check_view(value)
+    except ForestError as e:
+        raise fail(e.message) from None
+
+
+def _exposure(value: Any) -> float:
+    from ..imaging.view import check_exposure
+
+    try:
+        return check_exposure(value)
+    except ForestError as e:
+        raise fail(e.message) from None
 
 
 class RenderConfig(Section):
@@ -469,14 +675,35 @@ class RenderConfig(Section):
     )
     max_depth: Annotated[Int, Field(ge=1, le=64)] = Field(6, description="Longest light path, in bounces + 1.")
     subframes: Annotated[Int, Field(ge=1, le=64)] = Field(5, description="Sub-frames averaged for motion blur.")
-    haze: NonNegative = Field(0.0, description="Aerial perspective: extinction per metre.")
-    haze_colour: RGB | None = Field(None, description="Haze radiance (default: the sky's).")
-    terrain_colour: RGB = Field((0.18, 0.16, 0.11), description="Ground albedo, linear RGB.")
+    haze: NonNegative = Field(0.0, description="Aerial perspective: extinction per metre at the ground.")
+    haze_height: Annotated[float, Field(gt=0.0, le=100_000.0, allow_inf_nan=False)] = Field(
+        600.0, description="Aerial perspective: height over which the haze thins by e (scale height), metres."
+    )
+    haze_colour: RGB | None = Field(
+        None, description="Radiance the haze tends to away from the sun (default: the sky's mean radiance)."
+    )
+    haze_anisotropy: Annotated[float, Field(ge=-0.95, le=0.95, allow_inf_nan=False)] = Field(
+        0.7, description="Henyey-Greenstein g of the haze: > 0 glows toward the sun, 0 scatters evenly."
+    )
+    terrain_colour: RGB = Field(
+        (0.18, 0.16, 0.11), description="Given: the ground is this one material (linear RGB) instead of [ground]."
+    )
     terrain_texture: InputFile | None = Field(
-        None, description="Image laid over the extent (map convention); overrides terrain_colour."
+        None, description="Image laid over the extent (map convention); overrides terrain_colour and [ground]."
+    )
+    horizon_ground: Bool = Field(
+        True, description="The ground runs on past the terrain's edge to the horizon (a skirt at its edge height)."
     )
     seed: Annotated[Int, Field(ge=0)] = Field(0, description="Sampler seed.")
-    alpha_shadows: Bool = Field(False, description="Shadow rays see through leaf-card alpha.")
+    alpha_shadows: Bool = Field(
+        True, description="scalar_rgb: shadow rays see through leaf-card alpha (forest_path always does)."
+    )
+    view: Annotated[str, AfterValidator(_view)] = Field(
+        "agx", description="View transform of the PNG: agx, filmic or standard (the EXR stays scene-linear)."
+    )
+    exposure: Annotated[Any, AfterValidator(_exposure)] = Field(
+        0.0, description="Exposure of the PNG, EV (stops), -10 to 10.", json_schema_extra={"type": "number"}
+    )
 
 
 class LodConfig(Section):
@@ -551,6 +778,11 @@ class LookdevConfig(Section):
         description="Multiplier of each species' leaf colour, by species name or model (written by forest match; "
         "the forest path tracer renders it).",
     )
+    ground_tint: RGB | None = Field(
+        None,
+        description="Multiplier of the ground's albedo, whatever makes it (written by forest match; "
+        "the forest path tracer renders it).",
+    )
 
 
 class ExportConfig(Section):
@@ -559,6 +791,19 @@ class ExportConfig(Section):
     )
     rib_lod: Literal["inline", "archive"] = Field("inline", description="Where RIB's Detail/DetailRange go.")
     usd_lod: Str | None = Field(None, description="The `lod` variant USD prototypes select.")
+    rib_display: Literal["file", "tiff", "openexr", "exr", "png", "framebuffer", "it"] = Field(
+        "file",
+        description="RIB Display driver: 'file' and 'framebuffer' every RenderMan-compliant renderer has "
+        "('file' writes a TIFF); 'tiff', 'openexr', 'it' PRMan / RenderMan 22+; 'exr' Aqsis, 3Delight; "
+        "'png' RenderMan 22+.",
+    )
+    rib_textures: Literal["tif", "tex"] | None = Field(
+        None,
+        description="Texture files the RIB names: 'tif' (read by RI 3.2 renderers as written) or 'tex' "
+        "(made from the TIFFs by prepare.sh with txmake, tdlmake, teqser or texmake). "
+        "Default 'tif', 'tex' with --renderman22.",
+    )
+    blender_lod: Str | None = Field(None, description="The level Blender instances (default each species' first).")
 
 
 # ---------------------------------------------------------------------------
@@ -579,6 +824,8 @@ class SceneConfig(Section):
     scatter: ScatterConfig = Field(default_factory=ScatterConfig)
     species: Annotated[list[SpeciesConfig], Field(min_length=1)]
     ecosystem: EcosystemConfig = Field(default_factory=EcosystemConfig)
+    ground: GroundConfig = Field(default_factory=GroundConfig)
+    ground_cover: list[GroundCoverConfig] = Field(default_factory=list)
     camera: CameraConfig = Field(default_factory=CameraConfig)
     lights: LightsConfig = Field(default_factory=lambda: LightsConfig.model_validate({}))
     render: RenderConfig = Field(default_factory=RenderConfig)
@@ -604,6 +851,12 @@ class SceneConfig(Section):
                     raise fail(
                         f"unknown region {region!r} (regions: {', '.join(known) or 'none'})", f"species[{i}].partitions"
                     )
+        ground_given = {"rules", "base", "materials"} & self.ground.model_fields_set
+        if "terrain_colour" in self.render.model_fields_set and ground_given:
+            raise fail(
+                f"is one ground colour, but [ground] gives {', '.join(sorted(ground_given))}; remove one of them",
+                "render.terrain_colour",
+            )
         if self.terrain.procedural is not None and self.terrain.procedural.seed is None:
             self.terrain.procedural.seed = self.seed
         self.camera.resolve(self.terrain.extent_size)

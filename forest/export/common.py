@@ -20,10 +20,12 @@ Conventions (both exporters, and the same as the Mitsuba renderer):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -85,7 +87,7 @@ def export_options(config: Config) -> dict:
 class Band:
     """One level of detail used for a band of camera distances [near, far) metres."""
 
-    lod: object
+    lod: Any  # a forest.library Lod
     near: float
     far: float  # math.inf for the last band
 
@@ -134,8 +136,35 @@ def species_plans(scene, *, used_only: bool = True) -> list[SpeciesPlan]:
     return plans
 
 
+def wound_with_normals(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """``faces`` with every triangle wound counter-clockwise about its stored normals.
+
+    A triangle (a, b, c) faces n_g = (b − a) × (c − a); where n_g points away
+    from the mean of its three stored vertex normals (n_g · n̄ < 0) the
+    triangle is rewound (a, c, b).  Renderers that take a polygon's front from
+    its winding (Cycles, USD consumers, RenderMan's ``Orientation``) then agree
+    with the shading normals, as Mitsuba does regardless.  Triangles that
+    already agree, or have no usable normal, are kept as they are, so meshes
+    wound correctly come back unchanged.
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0 or normals is None or len(normals) != len(vertices):
+        return f
+    v = np.asarray(vertices, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
+    ng = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    nbar = n[f[:, 0]] + n[f[:, 1]] + n[f[:, 2]]
+    flip = np.einsum("ij,ij->i", ng, nbar) < 0
+    if not flip.any():
+        return f
+    out = f.copy()
+    out[flip, 1], out[flip, 2] = f[flip, 2], f[flip, 1]
+    return out
+
+
 def lod_mesh(lod):
-    """All parts of one level as ``[(part, MeshData)]`` with float32/uint32 arrays checked."""
+    """All parts of one level as ``[(part, MeshData)]``, indices checked and triangles wound with
+    their normals (:func:`wound_with_normals`)."""
     out = []
     for part in lod.parts:
         m = part.load()
@@ -143,8 +172,37 @@ def lod_mesh(lod):
         f = np.asarray(m.faces, dtype=np.int64)
         if len(f) and (f.min() < 0 or f.max() >= len(v)):
             raise ForestError(f"{part.path}: face indices out of range")
+        wound = wound_with_normals(v, f, m.normals)
+        if wound is not f:
+            m = dataclasses.replace(m, faces=wound.astype(np.asarray(m.faces).dtype))
         out.append((part, m))
     return out
+
+
+def remove_stale(out_dir: Path, fresh: Path, owned: tuple[str, ...]) -> list[Path]:
+    """Delete the files of an earlier export in ``out_dir`` that this export (in ``fresh``) does not write.
+
+    Only paths matching ``owned`` (glob patterns of files, or folders the
+    exporter owns entirely) are touched, so a user's own files — renders,
+    notes — stay.  Returns the paths removed.
+    """
+    removed: list[Path] = []
+    if not out_dir.is_dir():
+        return removed
+    for pattern in owned:
+        for p in sorted(out_dir.glob(pattern)):
+            files = sorted(q for q in p.rglob("*") if q.is_file()) if p.is_dir() else [p]
+            for q in files:
+                if not (fresh / q.relative_to(out_dir)).exists():
+                    q.unlink()
+                    removed.append(q)
+            if p.is_dir():
+                for d in sorted((d for d in p.rglob("*") if d.is_dir()), reverse=True):
+                    if not any(d.iterdir()):
+                        d.rmdir()
+                if not any(p.iterdir()):
+                    p.rmdir()
+    return removed
 
 
 def measured_bounds(lod, meshes=None) -> np.ndarray:
@@ -195,3 +253,52 @@ def partition_rows(instances: InstanceSet) -> list[tuple[int, str, np.ndarray]]:
     if part.max() >= len(instances.partition_names) or part.min() < 0:
         raise ForestError("instances: partition index out of range of partition_names")
     return out
+
+
+def texture_mean_detail(path) -> np.ndarray:
+    """Mean linear RGB detail of a part texture over its opaque texels (alpha ≥ ½), as
+    :mod:`forest.render.materials` averages it for ``scalar_rgb``."""
+    from ..images import read_image, srgb_to_linear
+
+    img = read_image(path, what="texture", unassociated=True)
+    c = img.shape[2]
+    rgb = img[..., :3] if c >= 3 else np.repeat(img[..., :1], 3, axis=2)
+    rgb = srgb_to_linear(rgb) if Path(path).suffix.lower() not in (".exr", ".hdr") else rgb
+    alpha = img[..., 3] if c == 4 else (img[..., 1] if c == 2 else None)
+    mask = alpha >= 0.5 if alpha is not None else np.ones(rgb.shape[:2], bool)
+    return (rgb[mask] if mask.any() else rgb.reshape(-1, 3)).mean(axis=0).astype(np.float32)
+
+
+def canopy_colour(lod) -> np.ndarray | None:
+    """The colour of a level's first tinted part before the tint: base colour × mean texture detail.
+
+    The per-tree display colour of viewers and of materials that cannot multiply
+    a texture by a per-tree colour (UsdPreviewSurface) is tint × this.  None when
+    no part is tinted.
+    """
+    for part in lod.parts:
+        if getattr(part, "tinted", False):
+            c = np.asarray(part.colour, np.float32)
+            tex = getattr(part, "texture", None)
+            return c * texture_mean_detail(tex) if tex else c
+    return None
+
+
+def bound_radius(bound: np.ndarray) -> float:
+    """Largest distance of a (2, 3) bound's corners from the object origin (the tree's base)."""
+    b = np.asarray(bound, np.float64)
+    corners = np.array([[b[i, 0], b[j, 1], b[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    return float(np.linalg.norm(corners, axis=1).max())
+
+
+def terrain_texture(scene) -> np.ndarray | None:
+    """Linear RGB (H, W, 3) over the terrain (map convention): ``terrain_texture``, or ``terrain_colour`` ×
+    the colour map; None when the terrain is one constant colour."""
+    rc = scene.config.render
+    if rc.terrain_texture is not None:
+        from ..images import read_map_rgb
+
+        return read_map_rgb(rc.terrain_texture, what="terrain texture")
+    if scene.colour is None:
+        return None
+    return np.asarray(scene.colour.rgb, np.float32) * np.asarray(rc.terrain_colour, np.float32)

@@ -63,8 +63,11 @@ from ..config import Config, ConfigError
 from ..errors import ForestError
 from ..instances import InstanceSet
 from ..scene import Scene
+from . import radiometry
 from .common import (
     SpeciesPlan,
+    bound_radius,
+    canopy_colour,
     check_instances,
     export_frames,
     export_options,
@@ -73,6 +76,7 @@ from .common import (
     partition_rows,
     species_plans,
     sun_direction,
+    terrain_texture,
 )
 
 SUFFIXES = (".usda", ".usdc", ".usd")
@@ -137,42 +141,122 @@ def _set_mesh(UsdGeom, Vt, Sdf, mesh, vertices, faces, normals, uv):
         mesh.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([v.min(axis=0), v.max(axis=0)])))
 
 
-def part_material(stage, path: str, part, texture: str | None):
-    """A UsdPreviewSurface for one part: diffuse = colour × texture.rgb, opacity = texture alpha.
+def _input(shader, name: str, type_name, value=None, source=None):
+    """Create ``inputs:name`` on a shader and set it, or connect it to ``source`` (an output)."""
+    i = shader.CreateInput(name, type_name)
+    if source is not None:
+        i.ConnectToSource(source)
+    elif value is not None:
+        i.Set(value)
+    return i
 
-    The texture (sRGB-encoded RGB detail factor, alpha = card mask) is read
-    through ``st`` and scaled by the part's linear base colour (UsdUVTexture's
-    ``scale``); cards are cut out at alpha 0.5.  A tinted part's per-tree tint
-    is the instancer's ``displayColor``, which such a material leaves to the
-    renderer (see the module docstring, *Colour*).
+
+def part_material(stage, path: str, part, texture: str | None, canopy=None):
+    """The material of one part: a UsdPreviewSurface network, and for tinted parts a MaterialX one.
+
+    Untinted parts (bark): diffuse = base colour × texture.rgb (the texture is
+    sRGB-encoded, read through ``st``, scaled by the linear base colour with
+    UsdUVTexture's ``scale``), opacity = texture alpha.
+
+    Tinted parts (leaves) — albedo = base colour × detail × tint, the model of
+    :mod:`forest.render.materials`:
+
+    * ``outputs:surface`` (every USD renderer): diffuse =
+      ``UsdPrimvarReader_float3`` of ``displayColor``, the instancer's per-tree
+      canopy colour (tint × base × the texture's mean detail, fallback
+      ``canopy``), opacity = the texture's alpha.  UsdPreviewSurface cannot
+      multiply two varying values (UsdUVTexture's ``scale`` is interface-only),
+      so the texture's detail is averaged here, as Mitsuba's ``scalar_rgb`` does.
+    * ``outputs:mtlx:surface`` (Karma, RenderMan, Storm with MaterialX): exact —
+      ``ND_image_color4`` × base × ``ND_geompropvalue_color3`` of ``forest:tint``
+      (the tint itself) into ``ND_UsdPreviewSurface_surfaceshader``, opacity =
+      the image's alpha.
     """
     from pxr import Sdf, UsdShade
 
     Gf = _pxr()[0]
+    T = Sdf.ValueTypeNames
     mat = UsdShade.Material.Define(stage, path)
     surf = UsdShade.Shader.Define(stage, f"{path}/Surface")
     surf.CreateIdAttr("UsdPreviewSurface")
-    surf.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.8)
+    _input(surf, "roughness", T.Float, 0.8)
     colour = [float(c) for c in part.colour]
+    tinted = bool(getattr(part, "tinted", False))
+    alpha = None
     if texture:
         reader = UsdShade.Shader.Define(stage, f"{path}/ST")
         reader.CreateIdAttr("UsdPrimvarReader_float2")
-        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+        _input(reader, "varname", T.String, "st")
         tex = UsdShade.Shader.Define(stage, f"{path}/Texture")
         tex.CreateIdAttr("UsdUVTexture")
-        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(texture))
-        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
-        tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*colour, 1.0))
-        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-        rgb = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
-        alpha = tex.CreateOutput("a", Sdf.ValueTypeNames.Float)
-        surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(rgb)
-        surf.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(alpha)
-        surf.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
-    else:
-        surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*colour))
+        _input(tex, "file", T.Asset, Sdf.AssetPath(texture))
+        _input(tex, "sourceColorSpace", T.Token, "sRGB")
+        _input(tex, "scale", T.Float4, Gf.Vec4f(*colour, 1.0))
+        _input(tex, "st", T.Float2, source=reader.CreateOutput("result", T.Float2))
+        rgb = tex.CreateOutput("rgb", T.Float3)
+        alpha = tex.CreateOutput("a", T.Float)
+        _input(surf, "opacity", T.Float, source=alpha)
+        _input(surf, "opacityThreshold", T.Float, 0.5)
+        if not tinted:
+            _input(surf, "diffuseColor", T.Color3f, source=rgb)
+    if tinted:
+        tint = UsdShade.Shader.Define(stage, f"{path}/DisplayColor")
+        tint.CreateIdAttr("UsdPrimvarReader_float3")
+        _input(tint, "varname", T.String, "displayColor")
+        fallback = canopy if canopy is not None else colour
+        _input(tint, "fallback", T.Float3, Gf.Vec3f(*[float(c) for c in fallback]))
+        _input(surf, "diffuseColor", T.Color3f, source=tint.CreateOutput("result", T.Float3))
+    elif not texture:
+        _input(surf, "diffuseColor", T.Color3f, Gf.Vec3f(*colour))
     mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
+    if tinted:
+        _mtlx_network(stage, mat, path, colour, texture)
     return mat
+
+
+def _mtlx_network(stage, mat, path: str, colour: list[float], texture: str | None) -> None:
+    """The exact tinted-part network in MaterialX standard-library nodes (see :func:`part_material`)."""
+    from pxr import Sdf, UsdShade
+
+    Gf = _pxr()[0]
+    T = Sdf.ValueTypeNames
+
+    def node(name: str, node_id: str):
+        sh = UsdShade.Shader.Define(stage, f"{path}/mtlx_{name}")
+        sh.CreateIdAttr(node_id)
+        return sh
+
+    surf = node("surface", "ND_UsdPreviewSurface_surfaceshader")
+    _input(surf, "roughness", T.Float, 0.8)
+    tint = node("tint", "ND_geompropvalue_color3")
+    _input(tint, "geomprop", T.String, "forest:tint")
+    _input(tint, "default", T.Color3f, Gf.Vec3f(1.0, 1.0, 1.0))
+    base = Gf.Vec3f(*colour)
+    albedo = node("albedo", "ND_multiply_color3")
+    _input(albedo, "in1", T.Color3f, source=tint.CreateOutput("out", T.Color3f))
+    if texture:
+        st = node("st", "ND_geompropvalue_vector2")
+        _input(st, "geomprop", T.String, "st")
+        image = node("image", "ND_image_color4")
+        f = _input(image, "file", T.Asset, Sdf.AssetPath(texture))
+        f.GetAttr().SetColorSpace("srgb_texture")
+        _input(image, "texcoord", T.Float2, source=st.CreateOutput("out", T.Float2))
+        out = image.CreateOutput("out", T.Color4f)
+        rgb = node("rgb", "ND_convert_color4_color3")
+        _input(rgb, "in", T.Color4f, source=out)
+        detail = node("detail", "ND_multiply_color3")
+        _input(detail, "in1", T.Color3f, source=rgb.CreateOutput("out", T.Color3f))
+        _input(detail, "in2", T.Color3f, base)
+        _input(albedo, "in2", T.Color3f, source=detail.CreateOutput("out", T.Color3f))
+        a = node("alpha", "ND_extract_color4")
+        _input(a, "in", T.Color4f, source=out)
+        _input(a, "index", T.Int, 3)
+        _input(surf, "opacity", T.Float, source=a.CreateOutput("out", T.Float))
+        _input(surf, "opacityThreshold", T.Float, 0.5)
+    else:
+        _input(albedo, "in2", T.Color3f, base)
+    _input(surf, "diffuseColor", T.Color3f, source=albedo.CreateOutput("out", T.Color3f))
+    mat.CreateSurfaceOutput("mtlx").ConnectToSource(surf.CreateOutput("out", T.Token))
 
 
 def write_species_layer(path: Path, plan: SpeciesPlan) -> dict:
@@ -219,7 +303,9 @@ def write_species_layer(path: Path, plan: SpeciesPlan) -> dict:
                 if not getattr(part, "tinted", False):
                     mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([base]))
                 texture = _copy_texture(getattr(part, "texture", None), path.parent, plan.name)
-                mat = part_material(stage, f"{root_path}/Geom/Materials/{prim_name(kind)}{k}", part, texture)
+                mat = part_material(
+                    stage, f"{root_path}/Geom/Materials/{prim_name(kind)}{k}", part, texture, canopy_colour(lod)
+                )
                 UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
             geom.GetPrim().SetCustomDataByKey("forest:triangles", int(sum(len(m.faces) for _, m in meshes)))
             UsdGeom.ModelAPI(root.GetPrim()).SetExtentsHint(Vt.Vec3fArray.FromNumpy(bound.astype(np.float32)))
@@ -244,11 +330,18 @@ def _copy_texture(texture, layer_dir: Path, species: str) -> str | None:
     return "./" + rel
 
 
-def _terrain(stage, terrain, colour):
+def _terrain(stage, terrain, colour, texture: str | None = None):
+    """The terrain mesh, with ``texture`` (terrain colour × colour map, st = map coordinates) when given."""
+    from pxr import UsdShade
+
     Gf, Sdf, _Usd, UsdGeom, _UsdLux, Vt = _pxr()
     mesh = UsdGeom.Mesh.Define(stage, "/World/Terrain")
     _set_mesh(UsdGeom, Vt, Sdf, mesh, terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv)
     mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*colour)]))
+    if texture:
+        part = type("TerrainPart", (), {"colour": (1.0, 1.0, 1.0), "tinted": False})()
+        mat = part_material(stage, "/World/Looks/Terrain", part, texture)
+        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
     return mesh
 
 
@@ -290,9 +383,12 @@ def _lights(stage, config: Config, out_dir: Path):
     if lights.sun is not None and lights.sun.elevation > 0 and lights.sun.irradiance > 0:
         s = lights.sun  # (a sun at or below the horizon lights nothing, as in the render)
         sun = UsdLux.DistantLight.Define(stage, "/World/Lights/Sun")
-        sun.CreateIntensityAttr(float(s.irradiance))
+        # unnormalised: intensity is the disk's radiance, E / (π sin²(α/2)) (forest.export.radiometry)
+        sun.CreateIntensityAttr(radiometry.disk_radiance(s.irradiance, radiometry.SUN_ANGLE_DEG))
+        sun.CreateNormalizeAttr(False)
+        sun.CreateExposureAttr(0.0)
         sun.CreateColorAttr(Gf.Vec3f(*s.colour))
-        sun.CreateAngleAttr(0.53)
+        sun.CreateAngleAttr(radiometry.SUN_ANGLE_DEG)
         # A DistantLight emits along its local −Z: turning +Z onto d makes it shine along −d.
         sun.AddTransformOp().Set(gf_matrix(frame_from_z(sun_direction(s))))
     if lights.sky is not None:
@@ -321,8 +417,18 @@ def write_instancer(
     rows: np.ndarray,
     prototypes: list[tuple[int, str]],
     lod_selection: dict[int, str],
+    canopies: dict[int, np.ndarray] | None = None,
+    radii: np.ndarray | None = None,
 ):
-    """A PointInstancer for ``rows``; ``prototypes`` = [(species index, layer path relative to the stage)]."""
+    """A PointInstancer for ``rows``; ``prototypes`` = [(species index, layer path relative to the stage)].
+
+    Per instance: ``primvars:forest:tint`` (the InstanceSet's tint) and
+    ``primvars:displayColor`` = tint × the species' canopy colour
+    (``canopies[species]``, :func:`canopy_colour`; 1 where absent).  ``radii``
+    (per species index: the largest distance of the selected level's bound
+    corners from the origin) bound the instancer's ``extent``: every tree lies
+    within position ± radius × scale.
+    """
     _Gf, Sdf, _Usd, UsdGeom, _UsdLux, Vt = _pxr()
     inst = UsdGeom.PointInstancer.Define(stage, path)
     UsdGeom.Scope.Define(stage, f"{path}/Prototypes")
@@ -344,8 +450,20 @@ def write_instancer(
     inst.CreateOrientationsAttr(Vt.QuathArray.FromNumpy(q.astype(np.float16)))  # … by readers that know it
     s = instances.scale[rows]
     inst.CreateScalesAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(np.repeat(s[:, None], 3, axis=1))))
-    pv = UsdGeom.PrimvarsAPI(inst).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.vertex)
-    pv.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(instances.tint[rows])))
+    tint = instances.tint[rows]
+    api = UsdGeom.PrimvarsAPI(inst)
+    pv = api.CreatePrimvar("forest:tint", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.vertex)
+    pv.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(tint)))
+    canopy = np.ones((len(instances.species_names), 3), np.float32)
+    for sp, c in (canopies or {}).items():
+        canopy[sp] = c
+    display = tint * canopy[instances.species[rows].astype(np.int64)]
+    pv = api.CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.vertex)
+    pv.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(display, dtype=np.float32)))
+    if len(rows) and radii is not None:
+        r = (radii[instances.species[rows].astype(np.int64)] * instances.scale[rows].astype(np.float32))[:, None]
+        p = instances.position[rows]
+        inst.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([(p - r).min(axis=0), (p + r).max(axis=0)])))
     return inst
 
 
@@ -381,6 +499,13 @@ def export_usd(
                 config.path, "export.usd_lod", f"{want!r} is not a level of {plan.model!r} (levels: {', '.join(names)})"
             )
         lod_selection[plan.index] = want
+    canopies, radii = {}, np.zeros(len(instances.species_names), np.float32)
+    for plan in plans:
+        lod = next(l for l in plan.species.lods if l.name == lod_selection[plan.index])
+        c = canopy_colour(lod)
+        if c is not None:
+            canopies[plan.index] = c
+        radii[plan.index] = bound_radius(measured_bounds(lod, lod_mesh(lod)))
     report = progress or (lambda f, m="": None)
     _Gf, Sdf, Usd, UsdGeom, _UsdLux, _Vt = _pxr()
     from pxr import Tf
@@ -415,7 +540,15 @@ def export_usd(
                 stage.SetEndTimeCode(frame_list[-1])
             stage.SetTimeCodesPerSecond(config.camera.fps)
             stage.SetFramesPerSecond(config.camera.fps)
-            _terrain(stage, terrain, config.render.terrain_colour)
+            grid = terrain_texture(scene)
+            terrain_tex = None
+            if grid is not None:
+                from ..images import write_image
+
+                write_image(tmp / f"{path.stem}_terrain.png", grid)
+                terrain_tex = f"./{path.stem}_terrain.png"
+                result.textures.append(path.parent / f"{path.stem}_terrain.png")
+            _terrain(stage, terrain, config.render.terrain_colour, terrain_tex)
             _camera(stage, config, frame_list)
             _lights(stage, config, path.parent)
             UsdGeom.Xform.Define(stage, "/World/Forest")
@@ -425,7 +558,7 @@ def export_usd(
                 used = np.unique(instances.species[rows])
                 protos = [(int(i), layers[int(i)]) for i in used]
                 prim = f"/World/Forest/{prim_name(pname)}"
-                write_instancer(stage, prim, instances, rows, protos, lod_selection)
+                write_instancer(stage, prim, instances, rows, protos, lod_selection, canopies, radii)
                 result.instancers[pname] = prim
             layer.Save()
             result.instance_seconds = time.perf_counter() - t1

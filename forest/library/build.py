@@ -22,9 +22,10 @@ from ..images import write_image
 from . import lod as lodmod
 from .generator import grow, validate_recipe
 from .mesh import MeshData, mesh_bounds, orient_faces, write_ply
+from .outline import card_outlines
 from .textures import bark_rgb, cluster_rgba, leaf_rgba, write_texture
 
-_CODE_FILES = ("generator.py", "lod.py", "mesh.py", "textures.py", "build.py", "preview.py")
+_CODE_FILES = ("generator.py", "lod.py", "mesh.py", "outline.py", "textures.py", "build.py", "preview.py")
 
 
 def source_hash(files) -> str:
@@ -145,6 +146,13 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
     write_image(out / "bark.exr", bark_tex)
     cov_leaf = float(leaf_tex[..., 3].mean())
     cov_cluster = float(cluster_tex[..., 3].mean())
+    cut = tree["leaf_cut"] == "outline"
+    segments = tree["leaf_segments"]
+    # Outlines of the two card textures (computed once each; a level picks among them).
+    leaf_options = card_outlines(leaf_tex[..., 3], lodmod.MAX_CARD_TRIANGLES["high"]) if cut else {}
+    cluster_options = (
+        card_outlines(cluster_tex[..., 3], max(lodmod.MAX_CARD_TRIANGLES[k] for k in ("medium", "low"))) if cut else {}
+    )
     leaf_colour, bark_colour = tree["leaf_colour"], tree["bark_colour"]
     transl = tree["translucency"]
     lods = []
@@ -154,14 +162,26 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
     for lod in ("high", "medium", "low"):
         target = lodmod.TARGETS[lod]
         bark = orient_faces(ground(lodmod.bark_mesh(sk, lod, target * lodmod.BARK_SHARE[lod])))
-        cards_budget = max(target // 8, (target - bark.triangles) // 2)
+        budget = 2 * max(target // 8, (target - bark.triangles) // 2)
+        if lod == "high":
+            cap = {t: o for t, o in leaf_options.items() if t <= lodmod.MAX_CARD_TRIANGLES[lod]}
+            outline = lodmod.pick_outline(
+                cap,
+                segments,
+                len(sk.leaf_base),
+                max(lodmod.HIGH_MAX - bark.triangles, 2 * segments * len(sk.leaf_base)),
+            )
+        else:
+            outline = lodmod.pick_outline(
+                {t: o for t, o in cluster_options.items() if t <= lodmod.MAX_CARD_TRIANGLES[lod]}
+            )
         parts = []
         if bark.triangles:
             write_ply(out / f"{lod}_bark.ply", bark)
             parts.append(part_entry("bark", f"{lod}_bark.ply", bark, bark_colour, "bark.exr", False, 0.0))
         cover, seen = 1.0, []
         for step in range(COVER_STEPS + 1):
-            leaves, clustered = lodmod.leaf_meshes(sk, lod, cards_budget, seed, cov_leaf, cov_cluster, cover)
+            leaves, clustered = lodmod.leaf_meshes(sk, lod, budget, seed, cov_leaf, cov_cluster, cover, outline)
             leaves = orient_faces(ground(leaves))
             write_ply(out / f"{lod}_leaf.ply", leaves)
             tex = "cluster.png" if clustered else "leaf.png"
@@ -191,7 +211,9 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
             shading = np.where(a > 1e-4, views[..., :3] / np.maximum(a, 1e-4), 0.0).repeat(2, 1).repeat(2, 2)
             bark_rgba = np.concatenate([bark_tex, np.ones(bark_tex.shape[:2] + (1,), np.float32)], axis=2)
             high_meshes = [(bark, np.asarray(bark_colour), bark_rgba), (leaves, np.asarray(leaf_colour), leaf_tex)]
-    far, atlas, scale = lodmod.impostor(high_meshes, high_bounds, seed=seed, coverage=coverage, shading=shading)
+    far, atlas, scale = lodmod.impostor(
+        high_meshes, high_bounds, seed=seed, coverage=coverage, shading=shading, cut=cut
+    )
     write_texture(out / "far.png", atlas)
     write_ply(out / "far_cards.ply", far)
     lods.append(lod_entry("far", [part_entry("leaf", "far_cards.ply", far, scale, "far.png", True, transl)]))

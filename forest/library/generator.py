@@ -43,6 +43,10 @@ Per stem (all angles in degrees, as in the paper):
   (:func:`forest.library.individuals.individual`).
 * **Bark** — ``bark_texture`` picks the tileable detail of
   :func:`forest.library.textures.bark_rgb` (furrowed, scaly, ringed, smooth).
+* **Cut cards** — ``leaf_cut = "outline"`` (the default) cuts every leaf,
+  cluster and far card to a convex outline of its texture's alpha
+  (:mod:`forest.library.outline`), so fewer rays hit transparent texels;
+  ``"quad"`` keeps whole quads.
 
 The result is a :class:`Skeleton` (stem polylines, radii, leaf frames) from which
 :mod:`forest.library.lod` builds meshes at every level of detail.  Everything is
@@ -125,7 +129,9 @@ TREE_DEFAULTS: dict[str, Any] = {
     "leaf_face_up": 0.5,
     "leaf_segments": 1,
     "leaf_bend": 0.0,
+    "leaf_cut": "outline",
 }
+LEAF_CUTS = ("outline", "quad")
 
 
 @dataclass
@@ -223,6 +229,8 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
         raise ConfigError(
             where, "tree.bark_texture", f"must be one of {', '.join(BARK_STYLES)}, got {tree['bark_texture']!r}"
         )
+    if tree["leaf_cut"] not in LEAF_CUTS:
+        raise ConfigError(where, "tree.leaf_cut", f"must be one of {', '.join(LEAF_CUTS)}, got {tree['leaf_cut']!r}")
     for key in ("lean", "lean_var", "angle_var", "leaf_lift", "leaf_rotate_var"):
         v = tree[key]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not (0 <= v <= 180):

@@ -410,13 +410,14 @@ def add_species(
     """Import ``path`` as species ``name`` into ``lib`` (files under ``imported/NAME/``, a manifest entry)."""
     path = Path(path)
     if not NAME_RE.match(name or ""):
-        raise ForestError(
-            f"--name: {name!r} is not a valid species name (letters, digits, _ and -, starting with a letter)"
+        raise ParameterError(
+            "name", f"{name!r} is not a valid species name (letters, digits, _ and -, starting with a letter)"
         )
     if name in lib.names() and not force:
-        raise ForestError(
-            f"--name: species {name!r} already exists in the library; use --force to replace it "
-            f"(a preset of that name is shadowed, not changed)"
+        raise ParameterError(
+            "name",
+            f"species {name!r} already exists in the library; replace it with force "
+            f"(a preset of that name is shadowed, not changed)",
         )
     if height is not None and not (math.isfinite(height) and height > 0):
         raise ParameterError("height", f"must be a positive number of metres, got {height!r}")

@@ -25,17 +25,25 @@ UV convention (Mitsuba's): ``v = 0`` is the image's first (top) row.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from .generator import Level, Skeleton, _norm, _perpendicular
 from .mesh import MeshData
+from .outline import Outline, clip_polygon, quad
 
 LODS = ("high", "medium", "low", "far")
 BUDGETS = {"high": (50_000, 200_000), "medium": (5_000, 20_000), "low": (500, 2_000), "far": (2, 64)}
 TARGETS = {"high": 180_000, "medium": 12_000, "low": 1_500}
 BARK_SHARE = {"high": 1.0, "medium": 0.4, "low": 0.35}
 TAG_LOD = 0x10D
+#: The tree presets' high level stays within this many triangles; cut cards add triangles only below it.
+HIGH_MAX = 70_000
+#: Most triangles a cut card may take per strip, per level (the quad takes 2).
+MAX_CARD_TRIANGLES = {"high": 4, "medium": 4, "low": 4, "far": 4}
+#: Cost of a card's triangles relative to the quad's, as a power (see :func:`pick_outline`): log 1.1 / log 1.5.
+TRIANGLE_EXPONENT = math.log(1.1) / math.log(1.5)
 
 
 def stem_v(level: Level) -> np.ndarray:
@@ -94,45 +102,127 @@ def tubes(level: Level, sides: int, rows: np.ndarray) -> MeshData:
     )
 
 
-def cards(base: np.ndarray, direction: np.ndarray, width: np.ndarray, size: np.ndarray, scale: float = 1.0) -> MeshData:
-    """Quads of ``size = [length, width]`` from ``base`` along ``direction``, scaled about their centre.
+@dataclass(frozen=True)
+class CardTemplate:
+    """One card's triangles in uv, shared by every card of a part.
 
-    Vertices: ``c ± ½·s·len·d̂ ± ½·s·wid·ŵ`` with ``c = base + ½·len·d̂``; normals
-    ``ŵ × d̂`` flipped to face up (+Y), uv: u across, v from stalk (0) to tip (1).
-    The two triangles are wound counter-clockwise about the stored normal
-    (``(p₁ − p₀) × (p₂ − p₀)`` along it): a flipped card gets the reversed order.
+    ``uv (V, 2)`` the vertices, ``band (V,)`` the strip along the card each
+    belongs to (0 for a flat card; ``K`` strips split ``v`` at ``j/K``) and
+    ``faces (F, 3)`` counter-clockwise in (u, v), so on the card they wind about
+    ``ŵ × d̂`` (u runs along ŵ, v along d̂).
     """
-    n = len(base)
-    c = base + 0.5 * size[:, :1] * direction
-    hl = 0.5 * scale * size[:, :1] * direction
-    hw = 0.5 * scale * size[:, 1:] * width
-    quad = np.stack([c - hl - hw, c - hl + hw, c + hl + hw, c + hl - hw], axis=1)
-    nrm = _norm(np.cross(width, direction))  # the winding's normal of quad 0-1-2-3
-    flip = nrm[:, 1] < 0
-    nrm = np.where(flip[:, None], -nrm, nrm)
-    nrms = np.repeat(nrm[:, None, :], 4, axis=1)
-    uv = np.tile(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]), (n, 1, 1))
-    tmpl = np.where(flip[:, None, None], np.array([[0, 2, 1], [0, 3, 2]]), np.array([[0, 1, 2], [0, 2, 3]]))
-    faces = (tmpl + 4 * np.arange(n)[:, None, None]).reshape(-1, 3)
+
+    uv: np.ndarray
+    band: np.ndarray
+    faces: np.ndarray
+
+    @property
+    def triangles(self) -> int:
+        return len(self.faces)
+
+
+def card_template(outline: Outline | None = None, segments: int = 1) -> CardTemplate:
+    """The card's outline (default: the whole quad) cut into ``segments`` strips along ``v``.
+
+    Each strip ``v ∈ [j/K, (j+1)/K]`` holds the convex piece ``outline ∩ strip``
+    (Sutherland–Hodgman), triangulated as a fan; pieces share their vertices on
+    the strip boundaries, so a bent card stays one connected sheet.  The quad gives the two triangles
+    per strip of :func:`cards` / :func:`bent_cards`.
+    """
+    poly = (outline or quad()).uv
+    K = max(1, int(segments))
+    uvs, bands, faces = [], [], []
+    count = 0
+    for j in range(K):
+        piece = poly
+        if K > 1:
+            piece = clip_polygon(clip_polygon(poly, 1, j / K, True), 1, (j + 1) / K, False)
+        if len(piece) < 3:
+            continue
+        k = np.arange(1, len(piece) - 1)
+        faces.append(np.stack([np.zeros_like(k), k, k + 1], axis=1) + count)
+        uvs.append(piece)
+        bands.append(np.full(len(piece), j))
+        count += len(piece)
+    uv, band, f = np.concatenate(uvs), np.concatenate(bands), np.concatenate(faces).astype(np.int64)
+    # Pieces of neighbouring strips share their vertices on the boundary (one card, one connected mesh).
+    _, first, inverse = np.unique(np.round(uv, 9), axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    remap = np.empty(len(order), np.int64)
+    remap[order] = np.arange(len(order))
+    keep = first[order]
+    return CardTemplate(uv[keep], band[keep], remap[inverse.ravel()][f])
+
+
+def _place(template: CardTemplate, pos: np.ndarray, nrm: np.ndarray, flip: np.ndarray) -> MeshData:
+    """Per-card vertices ``pos (n, V, 3)`` and normals ``nrm (n, V, 3)`` with the template's faces.
+
+    Cards whose normal was flipped to face up (``flip``) take the faces in reverse order, so every
+    triangle winds counter-clockwise about its stored normal.
+    """
+    n, V = pos.shape[:2]
+    f = template.faces
+    tmpl = np.where(flip[:, None, None], f[None, :, [0, 2, 1]], f[None])
+    faces = (tmpl + V * np.arange(n)[:, None, None]).reshape(-1, 3)
+    uv = np.broadcast_to(template.uv[None], (n, V, 2))
     return MeshData(
-        quad.reshape(-1, 3).astype(np.float32),
+        pos.reshape(-1, 3).astype(np.float32),
         faces.astype(np.uint32),
-        nrms.reshape(-1, 3).astype(np.float32),
+        nrm.reshape(-1, 3).astype(np.float32),
         uv.reshape(-1, 2).astype(np.float32),
     )
 
 
-def bent_cards(
-    base: np.ndarray, direction: np.ndarray, width: np.ndarray, size: np.ndarray, segments: int, bend: float
+def cards(
+    base: np.ndarray,
+    direction: np.ndarray,
+    width: np.ndarray,
+    size: np.ndarray,
+    scale: float = 1.0,
+    outline: Outline | None = None,
 ) -> MeshData:
-    """Cards split into ``segments`` strips along their length, drooping by ``bend`` degrees.
+    """Cards of ``size = [length, width]`` from ``base`` along ``direction``, cut to ``outline``, scaled about their centre.
+
+    The card's point at ``(u, v)`` is ``c + s·((v − ½)·len·d̂ + (u − ½)·wid·ŵ)`` with
+    ``c = base + ½·len·d̂``: u across, v from stalk (0) to tip (1); without an
+    outline the card is the quad ``(0,0) (1,0) (1,1) (0,1)``.  Normals are
+    ``ŵ × d̂`` flipped to face up (+Y).  The outline's fan is wound
+    counter-clockwise about ``ŵ × d̂`` (``(p₁ − p₀) × (p₂ − p₀)`` along it): a
+    flipped card gets the reversed order.
+    """
+    t = card_template(outline)
+    c = base + 0.5 * size[:, :1] * direction
+    hl = scale * size[:, :1] * direction
+    hw = scale * size[:, 1:] * width
+    u, v = t.uv[:, 0], t.uv[:, 1]
+    pos = c[:, None, :] + (v - 0.5)[None, :, None] * hl[:, None, :] + (u - 0.5)[None, :, None] * hw[:, None, :]
+    nrm = _norm(np.cross(width, direction))  # the winding's normal of the outline's fan
+    flip = nrm[:, 1] < 0
+    nrm = np.where(flip[:, None], -nrm, nrm)
+    return _place(t, pos, np.repeat(nrm[:, None, :], len(u), axis=1), flip)
+
+
+def bent_cards(
+    base: np.ndarray,
+    direction: np.ndarray,
+    width: np.ndarray,
+    size: np.ndarray,
+    segments: int,
+    bend: float,
+    outline: Outline | None = None,
+) -> MeshData:
+    """Cards split into ``segments`` strips along their length, drooping by ``bend`` degrees, cut to ``outline``.
 
     The centreline heading at arc parameter ``s ∈ [0, 1]`` is ``d̂`` rotated
     towards −Y about ``ŵ`` by ``bend·s``; points are the running sum of headings
-    times ``len/segments``.  ``2·segments`` triangles a card.
+    times ``len/segments``.  Strip ``j`` is flat: its point at ``(u, v)`` is
+    ``m_j + (v·K − j)·(m_{j+1} − m_j) + (u − ½)·wid·ŵ`` (``m`` the centreline),
+    and the normal blends the strip's end normals.  The quad gives
+    ``2·segments`` triangles a card; an outline gives its pieces per strip
+    (:func:`card_template`).
     """
     if segments <= 1 and bend == 0:
-        return cards(base, direction, width, size)
+        return cards(base, direction, width, size, outline=outline)
     n = len(base)
     K = segments
     s = np.linspace(0.0, 1.0, K + 1)
@@ -145,27 +235,21 @@ def bent_cards(
     steps = heads * (size[:, :1, None] / K)
     centre = np.concatenate([base[:, None, :], base[:, None, :] + np.cumsum(steps, axis=1)], axis=1)
     tangent = np.concatenate([heads, heads[:, -1:]], axis=1)
-    hw = 0.5 * size[:, 1:, None] * width[:, None, :]
-    left, right = centre - hw, centre + hw
-    pos = np.stack([left, right], axis=2)  # (n, K+1, 2, 3)
-    # Strip (j): left_j, right_j, right_{j+1} wind about ŵ × t̂, the normal before flipping.
+    # Row normals: ŵ × t̂, the winding's normal of a strip before flipping.
     nrm = _norm(np.cross(np.broadcast_to(width[:, None, :], tangent.shape), tangent))
-    flip = nrm[:, K // 2 : K // 2 + 1, 1:2] < 0
-    nrm = np.where(flip, -nrm, nrm)
-    nrm = np.repeat(nrm[:, :, None, :], 2, axis=2)
-    uv = np.stack(np.broadcast_arrays(np.array([0.0, 1.0])[None, None, :], s[None, :, None]), axis=-1)
-    uv = np.broadcast_to(uv, (n, K + 1, 2, 2))
-    j = np.arange(K)
-    i0, i1, i2, i3 = 2 * j, 2 * j + 1, 2 * j + 3, 2 * j + 2
-    tmpl = np.concatenate([np.stack([i0, i1, i2], -1), np.stack([i0, i2, i3], -1)])
-    tmpl = np.where(flip[:, 0, :, None], tmpl[None, :, [0, 2, 1]], tmpl[None])  # flipped cards: reversed order
-    faces = (tmpl + (np.arange(n) * 2 * (K + 1))[:, None, None]).reshape(-1, 3)
-    return MeshData(
-        pos.reshape(-1, 3).astype(np.float32),
-        faces.astype(np.uint32),
-        nrm.reshape(-1, 3).astype(np.float32),
-        uv.reshape(-1, 2).astype(np.float32),
+    flip = nrm[:, K // 2, 1] < 0
+    nrm = np.where(flip[:, None, None], -nrm, nrm)
+    t = card_template(outline, K)
+    j = t.band
+    f = np.clip(t.uv[:, 1] * K - j, 0.0, 1.0)
+    hw = size[:, 1:] * width
+    pos = (
+        centre[:, j]
+        + f[None, :, None] * (centre[:, j + 1] - centre[:, j])
+        + (t.uv[:, 0] - 0.5)[None, :, None] * hw[:, None]
     )
+    vn = _norm((1.0 - f)[None, :, None] * nrm[:, j] + f[None, :, None] * nrm[:, j + 1])
+    return _place(t, pos, vn, flip)
 
 
 def _tube_plan(sk: Skeleton, lod: str, budget: float) -> list[tuple[int, int, np.ndarray]]:
@@ -202,23 +286,59 @@ def bark_mesh(sk: Skeleton, lod: str, budget: float) -> MeshData:
     return merge_meshes([tubes(sk.levels[i], sides, rows) for i, sides, rows in _tube_plan(sk, lod, budget)])
 
 
-def leaf_meshes(
-    sk: Skeleton, lod: str, budget_cards: int, seed: int, cov_leaf: float, cov_cluster: float, cover: float = 1.0
-) -> tuple[MeshData, bool]:
-    """Leaf cards for ``lod``: every leaf at the high level, an area-preserving subset below.
+def pick_outline(options: dict[int, Outline], segments: int = 1, cards: int = 0, budget: int | None = None) -> Outline:
+    """The outline a level cuts its cards to: least ``area · (tris / quad_tris)^TRIANGLE_EXPONENT``.
 
-    ``cover`` multiplies the cluster cards' scale beyond the area-preserving one
-    (the build matches the rendered coverage with it: clumped foliage overlaps
-    more within a clump than the fewer, larger cluster cards do).  Returns the
-    mesh and whether it uses the cluster texture.
+    ``options`` maps a triangle count to the best outline with at most that many
+    (:func:`forest.library.outline.card_outlines`); ``tris`` is the card's
+    triangles (:func:`card_template` with ``segments`` strips) and
+    ``quad_tris = 2·segments`` the quad's.  The area is the share of the quad a
+    ray can hit, so it is what the transparent hits scale with; the exponent
+    makes a third triangle on a flat card buy at least 10 % less area
+    (``1.5^0.235 = 1.1``).  With ``budget``, only outlines whose ``cards`` cards
+    fit in it are considered (the quad always is).
+    """
+    best, best_score = quad(), float("inf")
+    for o in [quad()] + [options[t] for t in sorted(options)]:
+        tris = card_template(o, segments).triangles
+        if budget is not None and o.triangles > 2 and cards * tris > budget:
+            continue
+        score = o.area * (tris / (2.0 * segments)) ** TRIANGLE_EXPONENT
+        if score < best_score - 1e-9:
+            best, best_score = o, score
+    return best
+
+
+def leaf_meshes(
+    sk: Skeleton,
+    lod: str,
+    budget: int,
+    seed: int,
+    cov_leaf: float,
+    cov_cluster: float,
+    cover: float = 1.0,
+    outline: Outline | None = None,
+) -> tuple[MeshData, bool]:
+    """Leaf cards for ``lod`` cut to ``outline``: every leaf at the high level, an area-preserving subset below.
+
+    ``budget`` is in triangles.  At the high level ``outline`` is the single
+    leaf's; below, the cluster texture's, and the level keeps as many cards as
+    fit the budget.  ``cover`` multiplies the cluster cards' scale beyond the
+    area-preserving one (the build matches the rendered coverage with it:
+    clumped foliage overlaps more within a clump than the fewer, larger cluster
+    cards do).  The coverages ``cov_*`` are the textures' mean alpha over the
+    whole card, so an outline (which holds all of the alpha) changes no area.
+    Returns the mesh and whether it uses the cluster texture.
     """
     N = len(sk.leaf_base)
     tree = sk.recipe["tree"]
-    if lod == "high" and N * tree["leaf_segments"] <= budget_cards:
+    segments = tree["leaf_segments"]
+    if lod == "high" and N * card_template(outline, segments).triangles <= budget:
         return bent_cards(
-            sk.leaf_base, sk.leaf_dir, sk.leaf_width, sk.leaf_size, tree["leaf_segments"], tree["leaf_bend"]
+            sk.leaf_base, sk.leaf_dir, sk.leaf_width, sk.leaf_size, segments, tree["leaf_bend"], outline
         ), False
-    m = max(1, min(N, budget_cards))
+    per_card = card_template(outline).triangles
+    m = max(1, min(N, budget // per_card))
     rng = np.random.Generator(
         np.random.PCG64(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, TAG_LOD, LODS.index(lod)]))
     )
@@ -226,12 +346,19 @@ def leaf_meshes(
     if lod == "high":
         # Too many leaves for the budget: fewer single-leaf cards, same total area.
         return cards(
-            sk.leaf_base[keep], sk.leaf_dir[keep], sk.leaf_width[keep], sk.leaf_size[keep], scale=math.sqrt(N / m)
+            sk.leaf_base[keep],
+            sk.leaf_dir[keep],
+            sk.leaf_width[keep],
+            sk.leaf_size[keep],
+            scale=math.sqrt(N / m),
+            outline=outline,
         ), False
     area_leaf = float(np.sum(sk.leaf_size[:, 0] * sk.leaf_size[:, 1])) * cov_leaf
     area_kept = float(np.sum(sk.leaf_size[keep, 0] * sk.leaf_size[keep, 1])) * cov_cluster
     s = cover * math.sqrt(area_leaf / max(area_kept, 1e-12))
-    return cards(sk.leaf_base[keep], sk.leaf_dir[keep], sk.leaf_width[keep], sk.leaf_size[keep], scale=s), True
+    return cards(
+        sk.leaf_base[keep], sk.leaf_dir[keep], sk.leaf_width[keep], sk.leaf_size[keep], scale=s, outline=outline
+    ), True
 
 
 # ---------------------------------------------------------------------------
@@ -329,8 +456,14 @@ def impostor(
     seed: int = 0,
     coverage: np.ndarray | None = None,
     shading: np.ndarray | None = None,
+    cut: bool = True,
 ) -> tuple[MeshData, np.ndarray, np.ndarray]:
     """Crossed-card far form of ``parts`` (mesh, linear colour, RGBA texture or None).
+
+    With ``cut`` each card is cut to the outline of its view's alpha
+    (:func:`pick_outline` among :func:`forest.library.outline.card_outlines` of
+    at most ``MAX_CARD_TRIANGLES["far"]`` triangles): a crown's silhouette fills
+    a third of its card or less, and far trees are many.
 
     ``shading (FAR_VIEWS, res, res, 3)``, when given, is each view rendered under a
     unit sky (:func:`forest.library.preview.card_view_shading`): albedo times the
@@ -444,11 +577,51 @@ def impostor(
     scale = np.percentile(atlas[..., :3][covered], 99.0, axis=0) if covered.any() else np.ones(3)
     scale = np.maximum(scale, 1e-4)
     atlas[..., :3] = np.where(covered[..., None], np.minimum(atlas[..., :3] / scale, 1.0), 1.0)
-    faces = (np.array([[0, 1, 2], [0, 2, 3]])[None] + 4 * np.arange(FAR_VIEWS)[:, None, None]).reshape(-1, 3)
-    mesh = MeshData(
+    if not cut:
+        faces = (np.array([[0, 1, 2], [0, 2, 3]])[None] + 4 * np.arange(FAR_VIEWS)[:, None, None]).reshape(-1, 3)
+        mesh = MeshData(
+            np.concatenate(verts).astype(np.float32),
+            faces.astype(np.uint32),
+            np.concatenate(nrms).astype(np.float32),
+            np.concatenate(uvs).astype(np.float32),
+        )
+    else:
+        mesh = _cut_far_cards(atlas[..., 3], radius, lo[1], hi[1], res)
+    return mesh, atlas.astype(np.float32), scale
+
+
+def _cut_far_cards(alpha: np.ndarray, radius: float, y0: float, y1: float, res: int) -> MeshData:
+    """The crossed far cards, card ``k`` cut to the outline of its tile of the atlas ``alpha`` (res, K·res).
+
+    Card ``k`` spans ``s ∈ [−R, R]`` along ``â_k = (cos φ_k, 0, sin φ_k)``,
+    ``φ_k = πk/K``, and ``y ∈ [y0, y1]``; its tile's uv ``(u, v)`` maps to
+    ``s = −R + 2R·(u·K − k)`` and ``y = y1 − v·(y1 − y0)`` (row 0 at the top).
+    uv's ``v`` runs down, so the outline's counter-clockwise fan is reversed to
+    wind about the card's normal ``(−sin φ_k, 0, cos φ_k) = â_k × Ŷ``.
+    """
+    from .outline import card_outlines
+
+    verts, uvs, nrms, faces = [], [], [], []
+    count = 0
+    for k in range(FAR_VIEWS):
+        ang = math.pi * k / FAR_VIEWS
+        axis = np.array([math.cos(ang), 0.0, math.sin(ang)])
+        normal = np.array([-math.sin(ang), 0.0, math.cos(ang)])
+        options = card_outlines(alpha, MAX_CARD_TRIANGLES["far"], rect_px=(k * res, 0, (k + 1) * res, res))
+        o = pick_outline(options)
+        if o.area >= 1.0:  # nothing to cut: the whole tile
+            o = quad((k / FAR_VIEWS, 0.0, (k + 1) / FAR_VIEWS, 1.0))
+        u, v = o.uv[:, 0], o.uv[:, 1]
+        s = -radius + 2.0 * radius * (u * FAR_VIEWS - k)
+        y = y1 - v * (y1 - y0)
+        verts.append(s[:, None] * axis + y[:, None] * np.array([0.0, 1.0, 0.0]))
+        uvs.append(o.uv)
+        nrms.append(np.repeat(normal[None], len(u), axis=0))
+        faces.append(o.fan()[:, [0, 2, 1]] + count)
+        count += len(u)
+    return MeshData(
         np.concatenate(verts).astype(np.float32),
-        faces.astype(np.uint32),
+        np.concatenate(faces).astype(np.uint32),
         np.concatenate(nrms).astype(np.float32),
         np.concatenate(uvs).astype(np.float32),
     )
-    return mesh, atlas.astype(np.float32), scale

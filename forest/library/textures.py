@@ -287,3 +287,42 @@ def bark_rgb(style: str, n: int = BARK_SIZE) -> np.ndarray:
     rgb = d[..., None] * tint
     rgb /= rgb.reshape(-1, 3).mean(axis=0)
     return rgb.astype(np.float32)
+
+
+# ---------------------------------------------------------------------------
+# Ground
+# ---------------------------------------------------------------------------
+
+GROUND_SIZE = 256
+GROUND_TAG = 0x6E0D
+
+
+def ground_detail_rgb(n: int = GROUND_SIZE) -> np.ndarray:
+    """A tileable ground *detail factor*, ``(n, n, 3)`` float32 with mean exactly 1 per channel.
+
+    The terrain's albedo is ``material colour × detail`` (:class:`forest.ground.TerrainAlbedo`),
+    so the materials keep their measured mean albedo and the detail adds what a
+    few metres of ground show: soft lighter and darker patches
+    (:func:`periodic_noise` at about 1/20 and 1/70 of the tile: nothing large
+    enough to show the repeat), pebbles and clods (4 in 10 of 400 small Worley
+    cells, S. Worley 1996, each lighter or darker towards its centre with a
+    dark rim), grain (1/250 of the tile), and a faint hue shift between warmer and cooler patches.  Contrast
+    is about ±20 % — enough to read as
+    ground at a few metres, averaging out to the material's colour farther
+    away.  The stream is fixed, so every scene shares the texture.
+    """
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([GROUND_TAG, n])))
+    # Soft, irregular patches of lighter and darker ground at three scales …
+    patches = 0.10 * periodic_noise(n, rng, 0.045, 0.045) + 0.08 * periodic_noise(n, rng, 0.015, 0.015)
+    # … scattered pebbles and clods (small Worley cells, most of them faint) …
+    f1, f2, idx = _cells(n, rng, 400, 1.0)
+    pebble = rng.uniform(-1.0, 1.0, 400)[idx] * (rng.random(400) < 0.4)[idx]
+    rim = np.exp(-(((f2 - f1) / 0.005) ** 2))
+    stones = 0.35 * pebble * np.clip(1.0 - f1 / 0.025, 0.0, 1.0) ** 0.5 - 0.08 * rim * (pebble != 0)
+    # … and grain.
+    grain = 0.08 * periodic_noise(n, rng, 0.004, 0.004)
+    d = np.clip(1.0 + patches + stones + grain, 0.3, None)
+    hue = periodic_noise(n, rng, 0.04, 0.04)
+    rgb = d[..., None] * np.stack([1.0 + 0.03 * hue, np.ones_like(hue), 1.0 - 0.04 * hue], axis=-1)
+    rgb /= rgb.reshape(-1, 3).mean(axis=0)
+    return rgb.astype(np.float32)

@@ -90,8 +90,11 @@ class Fitter:
         return self.base_map * np.exp(f).reshape(self.base_map.shape)
 
     def apply(self, look: Look) -> None:
+        st = self.p.start
         self.r.set_lights(self.p.light_scales(look))
-        self.r.set_albedo(leaf_tints(look, self.p.n_species), ground_tint(look), self.grid(look))
+        self.r.set_haze(look.get("haze", st.haze))
+        leaf0 = np.ones((self.p.n_species, 3)) if st.leaf_tint0 is None else st.leaf_tint0
+        self.r.set_albedo(leaf0 * leaf_tints(look, self.p.n_species), st.ground_tint0 * ground_tint(look), self.grid(look))
 
     def render(self, look: Look, seed: int, spp: int | None = None) -> np.ndarray:
         self.apply(look)

@@ -7,10 +7,12 @@ differences on a handful of scalars):
 * gradient sky: Y_z = 3(1 − share)·G / (π(ρ + 2)), Y_h = ρ·Y_z (ρ = e^horizon_ratio),
   L_zenith = Y_z · c(T_z, Duv_z), L_horizon = Y_h · c(T_h, Duv_h) — so that the sky's
   horizontal irradiance π(Y_h + 2Y_z)/3 is (1 − share)·G; an environment map or
-  ``sunsky`` sky keeps its shape and only its scale follows (1 − share)·G;
+  ``sunsky`` sky keeps its shape and colour and its start scale is multiplied by
+  (1 − share)·G / E_sky,0 (a sunsky's sun with it);
 * camera gains W = c(T_wb, Duv_wb) / c(6504 K) with unit luminance, times 2^EV;
 * leaf tint of species s = exp(leaves + leaf_s) per channel; ground tint = exp(ground);
-* haze colour = the start's ratio × L_horizon.
+* haze colour (the haze's ambient radiance) = the start's ratio × L_horizon (× the sky's scale
+  factor for an environment map or sunsky).
 
 G is the start's global horizontal irradiance (the gauge of :mod:`.params`),
 c(T, Duv) the unit-luminance colour of :func:`.daylight.locus_rgb`.
@@ -38,6 +40,8 @@ class Lights:
     zenith: np.ndarray | None
     horizon: np.ndarray | None
     sky_scale: np.ndarray | None  # envmap / sunsky sky: RGB scale
+    sun_scale: np.ndarray | None = None  # sunsky sun: RGB scale
+    factor: float = 1.0  # envmap / sunsky: the scales over their start values
 
 
 def _v(look: Look, name: str, default: float) -> float:
@@ -55,7 +59,8 @@ def lights(look: Look, start: Start) -> Lights:
         c = locus_rgb(k, _v(look, "sun_tint", start.sun_duv))
         y = share * g / max(math.sin(el), 1e-3) if g > 0 else start.sun_y
         sun = y * c
-    zenith = horizon = scale = None
+    zenith = horizon = scale = sun_scale = None
+    factor = 1.0
     if start.sky_kind == "constant":
         tied = start.sky_tied
         rho = 1.0 if tied else math.exp(_v(look, "horizon_ratio", 0.0))
@@ -67,9 +72,11 @@ def lights(look: Look, start: Start) -> Lights:
         zenith = yz * locus_rgb(sk, _v(look, zt, start.sky_duv))
         horizon = rho * yz * locus_rgb(hk, _v(look, "horizon_tint", start.sky_duv))
     elif start.sky_kind in ("envmap", "sunsky"):
-        s = (1.0 - share) * g / start.sky_power if start.sky_power > 0 else 1.0
-        scale = np.full(3, s)
-    return Lights(sun, zenith, horizon, scale)
+        factor = (1.0 - share) * g / start.sky_power if start.sky_power > 0 else 1.0
+        scale = factor * start.initial.get("sky_scale", np.ones(3))
+        if "sun_scale" in start.initial:
+            sun_scale = factor * start.initial["sun_scale"]
+    return Lights(sun, zenith, horizon, scale, sun_scale, factor)
 
 
 def camera_gain(look: Look) -> np.ndarray:
@@ -84,7 +91,7 @@ def haze_colour(look: Look, start: Start, lt: Lights) -> np.ndarray:
     """Airlight radiance: the horizon sky's times the start's ratio (the config's haze colour at the start)."""
     if lt.horizon is not None:
         return start.haze_ratio * lt.horizon
-    return start.haze_ratio * (1.0 if lt.sky_scale is None else float(lt.sky_scale[0]))
+    return start.haze_ratio * (1.0 if lt.sky_scale is None else lt.sky_scale)
 
 
 def leaf_tints(look: Look, n_species: int) -> np.ndarray:

@@ -179,7 +179,7 @@ def match(
     from ..runtime import mitsuba
     from .correction import base_map
     from .fit import Fitter
-    from .image_model import ImageModel, haze_depth
+    from .image_model import ImageModel
     from .losses import PixelLoss, RegionLoss
     from .reference import load_reference
     from .regions import photo_labels, read_mask, regions, render_labels
@@ -221,7 +221,9 @@ def match(
     if base is not None and not fit_map and painted_map is not None:
         base = np.asarray(painted_map, np.float64)
     say(0.01, "building the production scene")
-    renderer = FitRenderer(scene, width=width, height=height, spp=st.spp, variant=st.variant, base_map=base)
+    renderer = FitRenderer(
+        scene, width=width, height=height, spp=st.spp, variant=st.variant, base_map=base, haze="haze" in groups
+    )
     start = renderer.start
     lay = renderer.layers
     sky_px = ~lay["hit"]
@@ -236,7 +238,7 @@ def match(
         )
     specs = specs_for(start, groups)
     look0 = Look(start_values(start, specs), np.zeros((st.grid, st.grid, 3)) if fit_map else None)
-    image = ImageModel(haze_depth(lay["depth"], lay["hit"]), clip=ref.display_referred)
+    image = ImageModel(lay["optical"], clip=ref.display_referred)
     rseed = int(config.seed if seed is None else seed)
     problem = Problem(specs, start, image, None, renderer.n_species, cells=cells)
     fitter = Fitter(renderer, problem, base_map=base, seed=rseed ^ SEED_TAG)

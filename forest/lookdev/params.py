@@ -53,14 +53,15 @@ stands, more for broadleaf; Betts & Ball 1997; forests 0.05–0.20 broadband,
 Oke 1987, *Boundary Layer Climates*, Table 1.1).
 
 **Ground** (group ``ground``): ``ground_r/g/b`` ln-multipliers of the terrain
-albedo, prior N(0, 0.5²), albedo within 0.02–0.6 per channel (soils 0.05–0.40,
-grass 0.16–0.26: Oke 1987, Table 1.1).
+albedo (one colour, a terrain map or the ``[ground]`` rules: the multiplier is
+written as ``[lookdev] ground_tint``), prior N(0, 0.5²), the mean albedo within
+0.02–0.6 per channel (soils 0.05–0.40, grass 0.16–0.26: Oke 1987, Table 1.1).
 
-**Haze** (group ``haze``): extinction σ per metre, range 0–0.004 (a
-meteorological visibility V = 3.912/σ of 1 km and more, Koschmieder 1924),
-prior N(start, 0.0008²) (V ≈ 5 km at 1σ); its radiance is the horizon sky's
-(airlight tends to the horizon radiance at large distance, Koschmieder) times
-the start's ratio.
+**Haze** (group ``haze``): the production haze's ground extinction σ₀ per metre
+(:mod:`forest.render.path.haze`), range 0–0.004 (a meteorological visibility
+V = 3.912/σ of 1 km and more, Koschmieder 1924), prior N(start, 0.0008²)
+(V ≈ 5 km at 1σ); its ambient radiance follows the horizon sky's (airlight tends
+to the horizon radiance at large distance, Koschmieder) times the start's ratio.
 
 When the sky seen in the frame reaches less than :data:`GRADIENT_MIN_ELEVATION` above
 the horizon, the zenith's brightness is an extrapolation that trades against the
@@ -158,10 +159,13 @@ class Start:
     sky_duv: float
     haze: float
     haze_ratio: np.ndarray  # haze radiance / horizon radiance at the start (per channel)
-    terrain_colour: np.ndarray
-    terrain_texture: bool
+    terrain_colour: np.ndarray  # the ground's albedo (its mean over a terrain map), RGB
     leaf_colours: np.ndarray  # (S, 3) mean leaf colour per species (for albedo bounds)
     species: list[str]
+    has_haze: bool = False  # the fit renders a haze (its density and colour can change)
+    initial: dict[str, np.ndarray] = field(default_factory=dict)  # each light parameter's start value (RGB)
+    ground_tint0: np.ndarray = field(default_factory=lambda: np.ones(3))  # the config's ground tint
+    leaf_tint0: np.ndarray | None = None  # (S, 3) the config's leaf tints
     sky_tied: bool = False  # the sky's gradient is not visible enough to fit: one colour, zenith = horizon
 
     @property
@@ -254,7 +258,7 @@ def specs_for(start: Start, groups: set[str]) -> list[Spec]:
             Spec("horizon_tint", "sky", "sky horizon tint (Duv)", -0.03, 0.03, 0.0, 0.01),
             Spec("horizon_ratio", "sky", "sky horizon / zenith luminance", LN(0.25), LN(6.0), 0.0, 0.8, kind="log"),
         ]
-    if "haze" in groups:
+    if "haze" in groups and start.has_haze:
         out.append(Spec("haze", "haze", "haze extinction", 0.0, 0.004, start.haze, 0.0008, "1/m"))
     if "leaves" in groups and len(start.species):
         mean_c = start.leaf_colours.mean(axis=0)
@@ -279,7 +283,7 @@ def specs_for(start: Start, groups: set[str]) -> list[Spec]:
                             kind="log",
                         )
                     )
-    if "ground" in groups and not start.terrain_texture:
+    if "ground" in groups:
         for c, ch in enumerate("rgb"):
             tc = max(float(start.terrain_colour[c]), 1e-6)
             lo, hi = max(LN(0.25), LN(0.02 / tc)), min(LN(4.0), LN(0.6 / tc))

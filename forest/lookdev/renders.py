@@ -4,16 +4,19 @@
 Scene exactly as the production render does (:func:`forest.render.path.from_scene.path_inputs`):
 every tree of the InstanceSet at the camera's levels of detail — no frustum
 culling, so trees outside the frame still cast their shadows and bounce their
-light into it — with the terrain, the colour map and the lights.  Two changes,
-both exact at the start: a constant sky becomes the ``gradient`` sky with equal
-zenith and horizon (so the fit can tilt it), and the colour map is the base of
-:mod:`.correction` (the painted map, or its cells for a fresh grid).
+light into it — with the terrain, the ground skirt, the colour map, the lights
+and the haze.  Three changes, all exact at the start: a constant sky becomes the
+``gradient`` sky with equal zenith and horizon (so the fit can tilt it), a fit
+of the haze without one in the config starts from a haze of density 0 (which
+renders nothing), and the colour map is the base of :mod:`.correction` (the
+painted map, or its cells for a fresh grid).
 
 What a fit asks of it (all images (H, W, 3), linear, at the fit's size):
 
 * :meth:`light_images` — U_k, the image lit by light k alone at unit scale; the
-  render is linear in each light's RGB scale s_k and channel-separable, so
-  I = Σ_k s_k ⊙ U_k exactly (one primal render per light);
+  render is linear in each light's RGB scale s_k and in the haze's radiance C
+  (a "light" of its own here: the haze's ambient source, :mod:`forest.render.path.haze`)
+  and channel-separable, so I = Σ_k s_k ⊙ U_k exactly (one primal render per light);
 * :meth:`log_derivative` — ∂I/∂ln m for a multiplier m of leaf albedos (all
   species or one), the ground albedo, or a class of colour-map cells, by
   forward-mode path replay (:meth:`PathScene.render_forward`) with the tangent
@@ -21,7 +24,8 @@ What a fit asks of it (all images (H, W, 3), linear, at the fit's size):
   gives all three channels' derivatives;
 * :meth:`render` — the image at the current look (held-out evaluations);
 * :attr:`layers` — depth, tree id and species per pixel centre, the world
-  position of each pixel's hit and its ray direction (regions, haze, cells).
+  position of each pixel's hit, its ray direction and the optical length of its
+  camera segment through the haze (regions, the haze step, cells).
 """
 
 from __future__ import annotations
@@ -32,9 +36,10 @@ from dataclasses import replace
 import numpy as np
 
 from ..render.path import PathScene, SkyLight
-from ..render.path.from_scene import path_inputs
+from ..render.path.from_scene import haze_inputs, path_inputs
 from .colour import luminance
 from .daylight import rgb_to_cct
+from .image_model import optical_length
 from .params import Start
 
 
@@ -56,9 +61,23 @@ def species_labels(config) -> list[str]:
 class FitRenderer:
     """The Scene as the fit renders it (see the module docstring)."""
 
-    def __init__(self, scene, *, width: int, height: int, spp: int, variant: str, base_map: np.ndarray | None):
+    def __init__(
+        self,
+        scene,
+        *,
+        width: int,
+        height: int,
+        spp: int,
+        variant: str,
+        base_map: np.ndarray | None,
+        haze: bool = False,
+    ):
         config = scene.config
         inputs = path_inputs(scene, width=width, height=height, spp=spp)
+        if haze and inputs.haze is None:
+            # The config's haze settings at density 0: renders as no haze, ready to be fitted.
+            hz = haze_inputs(config.with_overrides({"render.haze": 1e-6}), scene.terrain)
+            inputs = replace(inputs, haze=None if hz is None else replace(hz, density=0.0))
         sky = inputs.sky
         self.gradient = sky is not None and sky.kind == "constant"
         if self.gradient:
@@ -73,6 +92,9 @@ class FitRenderer:
         self.width, self.height, self.spp = int(width), int(height), int(spp)
         self.n_species = len(inputs.species)
         self.light_params = [light.param for light in self.scene.lights]
+        self.haze = self.scene.haze  # HazeInputs with its colour resolved, or None
+        if self.haze is not None:
+            self.light_params.append("haze_colour")
         self.start = self._start(config, scene)
         self.layers = self._layers()
 
@@ -101,12 +123,14 @@ class FitRenderer:
             for light in self.scene.lights:
                 if light.param == "sky_scale":
                     sky_power = float(light.power(light.initial))
-        rc = config.render
-        hc = rc.haze_colour
+        initial = {light.param: np.asarray(light.initial, np.float64).reshape(3) for light in self.scene.lights}
         ratio = np.ones(3)
-        if hc is not None:
-            base = sky_rgb if kind == "constant" else np.ones(3)
-            ratio = np.asarray(hc, np.float64) / np.maximum(base, 1e-9)
+        if self.haze is not None:
+            hc = np.asarray(self.haze.colour, np.float64)
+            base = sky_rgb if kind == "constant" else initial.get("sky_scale", np.ones(3))
+            ratio = hc / np.maximum(base, 1e-9)
+        tc = np.asarray(self.inputs.terrain_colour, np.float64)
+        terrain = tc.reshape(-1, 3).mean(axis=0) if tc.ndim == 3 else tc.reshape(3)
         return Start(
             sun_elevation=float(sun.elevation) if sun is not None else 35.0,
             sun_azimuth=float(sun.azimuth) if sun is not None else 120.0,
@@ -119,10 +143,13 @@ class FitRenderer:
             sky_power=sky_power,
             sky_kelvin=sky_k,
             sky_duv=sky_d,
-            haze=float(rc.haze),
+            haze=0.0 if self.haze is None else float(self.haze.density),
             haze_ratio=ratio,
-            terrain_colour=np.asarray(rc.terrain_colour, np.float64),
-            terrain_texture=rc.terrain_texture is not None,
+            terrain_colour=terrain,
+            has_haze=self.haze is not None,
+            initial=initial,
+            ground_tint0=np.asarray(self.inputs.ground_tint, np.float64).reshape(3),
+            leaf_tint0=self.inputs.tints()[0],
             leaf_colours=_leaf_colours(scene),
             species=species_labels(config),
         )
@@ -149,7 +176,12 @@ class FitRenderer:
         xmin, zmin, xmax, zmax = self.scene.extent
         u = np.where(hit, (pos[..., 0] - xmin) / (xmax - xmin), np.nan)
         v = np.where(hit, (pos[..., 2] - zmin) / (zmax - zmin), np.nan)
+        optical = np.zeros_like(depth)
+        if self.haze is not None:
+            ell = np.where(hit, depth, min(float(self.haze.sky_distance), far))
+            optical = optical_length(m[1, 3], dirs, ell, ground=self.haze.ground, height=self.haze.height)
         return {
+            "optical": optical,
             "depth": depth,
             "hit": hit,
             "id": lay["id"].astype(np.int64),
@@ -166,6 +198,11 @@ class FitRenderer:
         for k, v in values.items():
             if k in self.scene.params:
                 self.scene.params[k] = mi.Color3f(*[float(x) for x in np.asarray(v, np.float64).ravel()[:3]])
+
+    def set_haze(self, density: float) -> None:
+        """The haze's ground extinction σ₀ (1/m); nothing without a haze."""
+        if self.haze is not None:
+            self.scene.params["haze_density"] = self.mi.Float(max(float(density), 0.0))
 
     def set_albedo(self, leaf_tint: np.ndarray, ground_tint: np.ndarray, grid: np.ndarray | None) -> None:
         mi = self.mi

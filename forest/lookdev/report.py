@@ -6,10 +6,11 @@
   channel on its own, so ``forest render scene.toml`` gives the photo the fit
   modelled.  A tilted sky is written as ``sky.exr`` (a latitude–longitude map
   of the gradient, +Y up, 512×256) and ``[lights.sky] envmap``; an untilted
-  one as a constant sky.  Ground colour goes to ``[render] terrain_colour``,
+  one as a constant sky.  The ground's multiplier goes to ``[lookdev] ground_tint``
+  (whatever makes the ground's albedo: one colour, a map or the ``[ground]`` rules),
   leaf colours to ``[lookdev] leaf_tint`` by species, haze to ``[render] haze``
-  and ``haze_colour``, the colour map to ``colour_map.exr`` at the painted
-  map's resolution.  Paths are rebased so the file renders from where it lies.
+  and ``haze_colour``, the colour map (the tint it is, ``colour_normalise = "none"``)
+  to ``colour_map.exr`` at the painted map's resolution.  Paths are rebased so the file renders from where it lies.
 * ``report.png`` — the reference, and **production renders** (of the start
   config and of the written ``scene.toml``) at ``[lookdev] report_width``; the
   colour map before and after; each region's mean colour (photo, start,
@@ -97,11 +98,12 @@ def fitted_data(config, problem, look, out_dir: Path, *, fit_map: bool) -> tuple
         sky.setdefault("sunsky", {})["scale"] = _r(float(config.lights.sky.sunsky.scale) * float(np.mean(g)))
     rd = data.setdefault("render", {})
     sigma = look.get("haze", start.haze)
-    if sigma > 0 or config.render.haze > 0:
+    if start.has_haze and (sigma > 0 or config.render.haze > 0):
         rd["haze"] = _r(sigma)
         rd["haze_colour"] = _rgb(g * haze_colour(look, start, lt))
-    if not start.terrain_texture:
-        rd["terrain_colour"] = _rgb(np.asarray(start.terrain_colour) * ground_tint(look))
+    gt = ground_tint(look)
+    if not np.allclose(gt, 1.0, atol=1e-6):
+        data.setdefault("lookdev", {})["ground_tint"] = _rgb(start.ground_tint0 * gt)
     tints = leaf_tints(look, problem.n_species)
     if not np.allclose(tints, 1.0, atol=1e-6):
         old = data.get("lookdev", {}).get("leaf_tint", {}) or {}
@@ -111,7 +113,9 @@ def fitted_data(config, problem, look, out_dir: Path, *, fit_map: bool) -> tuple
             table[label] = _rgb(prev * tints[s])
         data.setdefault("lookdev", {})["leaf_tint"] = table
     if fit_map:
-        data.setdefault("maps", {})["colour"] = MAP_NAME
+        maps = data.setdefault("maps", {})
+        maps["colour"] = MAP_NAME
+        maps["colour_normalise"] = "none"  # the fitted tint as it is: its mean is part of the fit
     return data, files
 
 
@@ -129,8 +133,8 @@ def write_toml(path: Path, data: dict) -> Path:
 
 
 class Production:
-    """The production renderer of one Scene (forest path tracer + the renderer's haze), built once, rendered at
-    any size."""
+    """The production renderer of one Scene (the forest path tracer with its haze, as ``forest render`` builds it
+    for the JIT variants), built once, rendered at any size."""
 
     def __init__(self, scene, variant: str):
         from ..render.path import PathScene
@@ -143,16 +147,9 @@ class Production:
     def image(self, *, width: int, height: int, spp: int, seed: int) -> np.ndarray:
         """Linear (H, W, 3) at ``width × height``."""
         from ..render.path.from_scene import with_size
-        from ..render.post import apply_haze, haze_colour
 
         cam = with_size(self.inputs, width, height).camera
-        rgb = self.scene.render(cam, spp=spp, seed=seed).rgb
-        rc = self.config.render
-        if rc.haze > 0:
-            lay = self.scene.layers(cam)
-            hit = lay["depth"] < cam.far * 0.999
-            rgb = apply_haze(rgb, lay["depth"], hit, rc.haze, haze_colour(self.config))
-        return np.asarray(rgb, np.float64)
+        return np.asarray(self.scene.render(cam, spp=spp, seed=seed).rgb, np.float64)
 
 
 def production_image(scene, *, width: int, height: int, spp: int, seed: int, variant: str) -> np.ndarray:

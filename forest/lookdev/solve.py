@@ -17,8 +17,8 @@ Around the look θ_k the render is modelled as
   (pixels·3) × (cells·3) with ≤ 9 non-zeros a row instead of a dense matrix
   and its eigendecomposition (at ``--grid 64``: 12 288 columns).
 
-Through the image model (:mod:`.image_model`: haze, exposure, white balance,
-clipping) and the data residuals (:mod:`.losses`), plus the priors — (θ − μ)/σ
+Through the image model (:mod:`.image_model`: exposure, white balance,
+clipping, and a change of haze) and the data residuals (:mod:`.losses`), plus the priors — (θ − μ)/σ
 for every global parameter, c/σ_c and the smoothness differences of the map
 cells, and the constraint that species' relative leaf multipliers sum to
 zero — the step minimises ½‖r‖² with ``scipy.optimize.least_squares``
@@ -99,7 +99,10 @@ class Problem:
             out["sky_horizon"] = lt.horizon
         if lt.sky_scale is not None:
             out["sky_scale"] = lt.sky_scale
-            out["sun_scale"] = lt.sky_scale  # a sunsky's sun follows its sky's scale
+        if lt.sun_scale is not None:
+            out["sun_scale"] = lt.sun_scale  # a sunsky's sun follows its sky's scale
+        if self.start.has_haze:
+            out["haze_colour"] = haze_colour(look, self.start, lt)
         return out
 
     def render_model(self, look: Look, lin: Linearisation) -> np.ndarray:
@@ -129,14 +132,20 @@ class Problem:
                 expo += lin.grid_e[k] * delta.reshape(h, w, 3)
         return base * np.exp(np.clip(expo, -20.0, 20.0))
 
-    def photo_model(self, look: Look, render: np.ndarray) -> np.ndarray:
+    def photo_model(self, look: Look, render: np.ndarray, rendered_at: Look | None = None) -> np.ndarray:
+        """The photo predicted from a render at ``look`` — or, in the surrogate, from a render at
+        ``rendered_at`` moved to ``look``'s haze (:mod:`.image_model`)."""
+        d_sigma = 0.0
+        if rendered_at is not None:
+            d_sigma = look.get("haze", self.start.haze) - rendered_at.get("haze", self.start.haze)
         lt = lights(look, self.start)
         return self.image.apply(
-            render,
-            sigma=look.get("haze", self.start.haze),
-            airlight=haze_colour(look, self.start, lt),
-            gain=camera_gain(look),
+            render, gain=camera_gain(look), d_sigma=d_sigma, airlight=haze_colour(look, self.start, lt)
         )
+
+    def predict(self, look: Look, lin: Linearisation) -> np.ndarray:
+        """The surrogate's photo at ``look``."""
+        return self.photo_model(look, self.render_model(look, lin), lin.look)
 
     # -- residuals --------------------------------------------------------------------------
     def prior_residuals(self, look: Look) -> np.ndarray:
@@ -206,7 +215,7 @@ def _global_jacobian(problem: Problem, look: Look, lin: Linearisation, r0: np.nd
         v = look.values[s.name]
         step = h if v + h <= s.hi else -h
         trial.values[s.name] = v + step
-        r = problem.data_residuals(problem.photo_model(trial, problem.render_model(trial, lin)))
+        r = problem.data_residuals(problem.predict(trial, lin))
         cols.append((r - r0) / step)
     return np.stack(cols, axis=1) if cols else np.zeros((len(r0), 0))
 
@@ -217,10 +226,11 @@ def _grid_jacobian(problem: Problem, look: Look, lin: Linearisation) -> sp.csr_m
 
     assert isinstance(problem.loss, PixelLoss) and lin.grid_e is not None and lin.grid_cells is not None
     render = problem.render_model(look, lin)
-    t = problem.image.transmittance(look.get("haze", problem.start.haze))
+    d_sigma = look.get("haze", problem.start.haze) - lin.look.get("haze", problem.start.haze)
+    t = problem.image.transmittance(d_sigma)
     dq = render * t * camera_gain(look)  # ∂Q/∂(ln R) before clipping
     if problem.image.clip:
-        dq = np.where(problem.photo_model(look, render) >= 1.0, 0.0, dq)
+        dq = np.where(problem.photo_model(look, render, lin.look) >= 1.0, 0.0, dq)
     scale = problem.loss.row_scale()
     h, w = render.shape[:2]
     rows, cols, vals = [], [], []
@@ -268,7 +278,7 @@ def prior_jacobian(problem: Problem, look: Look) -> sp.csr_matrix:
 
 def undetermined(problem: Problem, look: Look, lin: Linearisation) -> tuple[dict[str, float], np.ndarray | None]:
     """(posterior/prior variance share of each free global parameter, data information per map cell)."""
-    r0 = problem.data_residuals(problem.photo_model(look, problem.render_model(look, lin)))
+    r0 = problem.data_residuals(problem.predict(look, lin))
     jg = _global_jacobian(problem, look, lin, r0)
     sig = np.array([s.sigma for s in problem.free])
     jt = jg * sig
@@ -309,7 +319,7 @@ def step(problem: Problem, lin: Linearisation, *, trust: float = TRUST, max_nfev
         if key not in cache:
             cache.clear()
             look = problem.unpack(x, look0)
-            r = problem.data_residuals(problem.photo_model(look, problem.render_model(look, lin)))
+            r = problem.data_residuals(problem.predict(look, lin))
             cache[key] = (look, r)
         return cache[key]
 

@@ -1,4 +1,4 @@
-"""Rendering the frames of a Scene with Mitsuba's own integrators (``path``/``volpath``).
+"""Rendering the frames of a Scene in ``scalar_rgb`` with Mitsuba's own integrators (``path``/``volpath``).
 
 Per frame f (time t = f / fps seconds):
 
@@ -12,10 +12,26 @@ Per frame f (time t = f / fps seconds):
 4. each sub-frame renders ⌈spp / K⌉ samples per pixel in passes of equal size
    with consecutive seeds (pass images averaged), which also drives progress
    and the live image of each pass;
-5. a 1-sample, box-filtered pass at the frame's centre records per pixel the
-   distance to the first hit (``depth``), the tree's ``id`` and its
-   ``species`` index (−1 where no tree is hit);
-6. optional aerial perspective (:func:`forest.render.post.apply_haze`).
+5. coverage, ids and the denoiser's guides come from forest_path's traversal of
+   the same forest (:meth:`forest.render.path.PathScene.first_hits` and
+   :meth:`~forest.render.path.PathScene.layers`, in ``llvm_ad_rgb``): up to
+   :data:`COVERAGE_SPP` jittered camera samples per pixel give the alpha, the
+   per-sample ids of the Cryptomattes and the first-hit albedo and normal; one
+   ray through each pixel centre gives ``depth``, ``id`` and ``species``.  (It
+   replaces a per-pixel Python loop over ``Scene.ray_intersect`` that took
+   36–51 s a frame at 1280×720.)
+6. aerial perspective is a post-process here (:func:`forest.render.post.apply_haze`):
+   the height-falloff model of :mod:`forest.render.path.haze` applied along
+   each pixel's camera ray, split between the pixel's geometry and its sky by
+   the coverage — forest_path applies the same model along every path segment.
+
+The look: leaves with τ > 0 are ``principledthin`` (diffuse transmission),
+shadow rays see through leaf-card alpha (``volpath``, ``[render]
+alpha_shadows``, on by default), the sun is a disc (an area light far away),
+``sunsky`` is rotated to Y-up, the ground runs on to the horizon.  What
+differs from forest_path: the leaves' texture detail under the colour map and
+the ground's detail texture are averaged (no Python plugin per sample), haze
+acts on camera rays only, and the sunsky's own sun lights the scene.
 """
 
 from __future__ import annotations
@@ -29,22 +45,25 @@ import numpy as np
 
 from ..camera import camera_at, subframe_times
 from ..errors import ForestError
+from ..imaging import denoise
 from ..runtime import mitsuba
 from ..scene import Scene
+from .coverage import SampleCoverage, frame_mattes, sample_ids
+from .ground import skirt_radius
 from .instancing import ForestBuilder, tree_matrices
 from .materials import MaterialBuilder
-from .post import apply_haze, denoise, haze_colour
+from .output import FrameImage
+from .post import apply_haze
 from .scene import emitter_dicts, sensor_dict, terrain_dict
 
-#: Largest wavefront (pixels × samples) one JIT pass may trace, to bound memory.
-JIT_LANES = 1 << 22
 #: Samples per pass in scalar_rgb (more passes = finer progress, same image statistics).
 SCALAR_PASS_SPP = 8
+#: Largest wavefront (pixels × samples) one JIT pass may trace, to bound memory (used by the pre-flight model).
+JIT_LANES = 1 << 22
 #: Russian roulette from this path depth on (unbiased; dark foliage paths end early).
 RR_DEPTH = 2
-#: The id/depth pass looks through at most this many transparent leaf-card texels per pixel
-#: (then takes the surface it is on, so dense far foliage still gets a depth and haze).
-MAX_ALPHA_SKIPS = 32
+#: Camera samples per pixel (at most) of the coverage pass: alpha, Cryptomattes, denoiser guides.
+COVERAGE_SPP = 16
 
 #: ``on_pass(image so far, passes done, passes in the frame)``.
 PassCallback = Callable[[np.ndarray, int, int], None]
@@ -61,11 +80,11 @@ class FrameSize:
 
 
 class FrameRenderer:
-    """Renders the frames of one :class:`~forest.scene.Scene` with Mitsuba's own integrators.
+    """Renders the frames of one :class:`~forest.scene.Scene` in ``scalar_rgb`` (see the module docstring).
 
-    State kept across frames: the materials, the shapegroups and the last
-    Mitsuba scene (rebuilt only when the LOD assignment or the wind pose
-    changes).
+    State kept across frames: the materials, the shapegroups, the last Mitsuba
+    scene (rebuilt only when the LOD assignment or the wind pose changes) and
+    the forest_path scene of the coverage and layers passes.
     """
 
     def __init__(self, scene: Scene, variant: str, size: FrameSize, *, preview: bool = False):
@@ -77,12 +96,17 @@ class FrameRenderer:
         rc = config.render
         self.preview = preview
         self.width, self.height, self.spp, self.subframes = size.width, size.height, size.spp, size.subframes
+        self.species_names = [str(n) for n in self.instances.species_names]
         self.terrain = scene.terrain
         self.colour_grid = None if scene.colour is None else scene.colour.rgb
         self.materials = MaterialBuilder(variant, self.colour_grid, self.terrain.extent, self.terrain.height_range)
         self.forest = ForestBuilder(scene, self.materials)
-        self.terrain_obj = terrain_dict(config, self.terrain, variant, colour_grid=self.colour_grid)
-        self.emitters = emitter_dicts(config, variant)
+        skirt = skirt_radius(self.terrain.extent, float(config.camera.far)) if rc.horizon_ground else 0.0
+        albedo = getattr(scene, "terrain_albedo", None)
+        self.terrain_obj = terrain_dict(
+            config, self.terrain, variant, colour_grid=self.colour_grid, albedo=albedo, skirt=skirt
+        )
+        self.emitters = emitter_dicts(config, variant, disc_sun=True)
         # Mitsuba 3.9.1's ``path`` tests shadow rays against whole leaf cards (alpha ignored);
         # ``volpath`` attenuates them by each mask's opacity: exact, but 3–6× slower on foliage.
         self.integrator = {
@@ -92,6 +116,8 @@ class FrameRenderer:
         }
         self._scene_key = None
         self._scene = None
+        self._path = None  # forest_path's scene of the coverage and layers passes, built on first use
+        self._path_key = None
         self.graph = None
         self.load_seconds = 0.0
         self.render_seconds = 0.0
@@ -99,6 +125,10 @@ class FrameRenderer:
         self.max_instanced = 0
         self.max_unique = 0
         self.max_groups = 0
+
+    @property
+    def leaf_model(self) -> str:
+        return self.materials.leaf_model
 
     def restart(self) -> None:
         """Start the statistics of a new render that reuses this renderer (and its built scene)."""
@@ -109,9 +139,22 @@ class FrameRenderer:
             (g.instanced_triangles, g.unique_triangles, g.shapegroups) if g is not None else (0, 0, 0)
         )
 
+    def stats(self) -> dict[str, object]:
+        """The current Mitsuba scene's statistics for the EXR header."""
+        g = self.graph
+        return {
+            "trees": g.trees,
+            "instanced_triangles": g.instanced_triangles,
+            "unique_triangles": g.unique_triangles,
+            "shapegroups": g.shapegroups,
+            "instances": g.trees,
+            "lod": ", ".join(f"{k}={v}" for k, v in g.lod_counts.items()),
+        }
+
     # -- scene ---------------------------------------------------------------------
     def scene_at(self, levels: np.ndarray, time_s: float):
         """The scene for an LOD assignment and a wind time (rebuilt only when either changes)."""
+        mitsuba(self.variant)  # the coverage pass runs in llvm_ad_rgb: make scalar_rgb current again
         wind = self.config.wind
         key = (levels.tobytes(), round(time_s, 9) if wind.strength > 0 else None)
         if key == self._scene_key:
@@ -133,21 +176,17 @@ class FrameRenderer:
         self.max_instanced = max(self.max_instanced, graph.instanced_triangles)
         self.max_unique = max(self.max_unique, graph.unique_triangles)
         self.max_groups = max(self.max_groups, graph.shapegroups)
-        self._shape_rows = None
         self.load_seconds += time.perf_counter() - t0
         return self._scene
 
     def sensor(self, frame: float, spp: int, *, rfilter: str = "box"):
+        mitsuba(self.variant)
         return self.mi.load_dict(
             sensor_dict(self.config, frame, self.width, self.height, spp, self.variant, rfilter=rfilter)
         )
 
     def passes(self, spp: int) -> list[int]:
-        if self.variant.startswith("scalar"):
-            chunk = SCALAR_PASS_SPP
-        else:
-            chunk = max(1, JIT_LANES // max(1, self.width * self.height))
-        n = max(1, math.ceil(spp / chunk))
+        n = max(1, math.ceil(spp / SCALAR_PASS_SPP))
         base, extra = divmod(spp, n)
         return [base + (1 if i < extra else 0) for i in range(n)]
 
@@ -161,110 +200,63 @@ class FrameRenderer:
             tick(img, n)
         return (acc / spp).astype(np.float32)
 
-    def ids_and_depth(self, scene, frame: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(depth, id, species) per pixel from one primary ray through each pixel centre.
+    def path_scene(self, levels: np.ndarray, time_s: float):
+        """forest_path's scene of the same forest in the same pose (``llvm_ad_rgb``), for coverage and layers."""
+        from .path import PathScene
+        from .path.from_scene import path_inputs
 
-        Depth is the distance along the ray to the first surface (0 = nothing hit);
-        the tree is the instance hit, mapped back to its InstanceSet row.
-        """
-        mi = self.mi
-        h, w = self.height, self.width
-        sensor = self.sensor(frame, 1, rfilter="box")
-        if self.variant.startswith("scalar"):
-            # One primary ray per pixel centre.  (Mitsuba's ``aov`` integrator is
-            # ~1000× slower here on instanced scenes: measured 3.4 s against 0.05 s
-            # for 160×90 pixels over 2 000 instances.)
-            depth = np.zeros((h, w), dtype=np.float64)
-            rows = np.full((h, w), -1, dtype=np.int64)
-            Point2f = mi.Point2f
-            aperture = Point2f(0.5, 0.5)
-            null = mi.BSDFFlags.Null
-            for i in range(h):
-                v = (i + 0.5) / h
-                for j in range(w):
-                    ray, _ = sensor.sample_ray(0.0, 0.5, Point2f((j + 0.5) / w, v), aperture)
-                    travelled = 0.0
-                    for skip in range(MAX_ALPHA_SKIPS):
-                        si = scene.ray_intersect(ray)
-                        if not si.is_valid():
-                            break
-                        bsdf = si.bsdf()
-                        if (
-                            skip + 1 < MAX_ALPHA_SKIPS
-                            and mi.has_flag(bsdf.flags(), null)
-                            and float(np.mean(bsdf.eval_null_transmission(si))) > 0.5
-                        ):
-                            travelled += si.t  # a transparent texel of a leaf card: look past it
-                            ray = si.spawn_ray(ray.d)
-                            continue
-                        # an opaque surface, or the last allowed skip (dense far foliage): take this hit
-                        depth[i, j] = travelled + si.t
-                        if si.instance is not None:
-                            name = si.instance.id()
-                            if name.startswith("tree_"):
-                                rows[i, j] = int(name[5:])
-                        break
-        else:
-            import drjit as dr
-
-            jj, ii = np.meshgrid(np.arange(w), np.arange(h))
-            u = mi.Point2f(mi.Float(((jj + 0.5) / w).ravel()), mi.Float(((ii + 0.5) / h).ravel()))
-            ray, _ = sensor.sample_ray(0.0, 0.5, u, mi.Point2f(0.5, 0.5))
-            n = h * w
-            active = dr.full(mi.Bool, True, n)
-            travelled = dr.zeros(mi.Float, n)
-            dist = dr.zeros(mi.Float, n)
-            reg = dr.zeros(mi.UInt32, n)
-            for skip in range(MAX_ALPHA_SKIPS):
-                si = scene.ray_intersect(ray, active)
-                valid = active & si.is_valid()
-                bsdf = si.bsdf(ray)
-                tr = bsdf.eval_null_transmission(si, valid)  # Color3f: 1 − opacity for masks, 0 else
-                clear = valid & ((tr[0] + tr[1] + tr[2]) > 1.5)
-                if skip + 1 == MAX_ALPHA_SKIPS:
-                    clear = dr.zeros(mi.Bool, n)  # last skip: take the hit as it is
-                stop = valid & ~clear
-                dist = dr.select(stop, travelled + si.t, dist)
-                reg = dr.select(stop, dr.reinterpret_array(mi.UInt32, si.instance), reg)
-                travelled = dr.select(clear, travelled + si.t, travelled)
-                ray = dr.select(clear, si.spawn_ray(ray.d), ray)
-                active = clear
-                dr.eval(dist, reg, travelled, ray, active)
-                if not dr.any(active):
-                    break
-            depth = np.asarray(dist, dtype=np.float64).reshape(h, w)
-            shape = self._jit_registry_index(scene, np.asarray(reg).reshape(h, w).astype(np.int64))
-            rows = np.full(shape.shape, -1, dtype=np.int64)
-            rows[shape >= 0] = self._shape_table(scene)[shape[shape >= 0]]
-        tree = rows >= 0
-        ids = np.full(rows.shape, -1.0, dtype=np.float64)
-        species = np.full(rows.shape, -1.0, dtype=np.float64)
-        ids[tree] = self.instances.id[rows[tree]].astype(np.float64)
-        species[tree] = self.instances.species[rows[tree]].astype(np.float64)
-        return depth.astype(np.float32), ids.astype(np.float32), species.astype(np.float32)
-
-    def _shape_table(self, scene) -> np.ndarray:
-        """InstanceSet row of each shape in ``scene.shapes()`` order (−1 for non-trees)."""
-        if self._shape_rows is None:
-            ids = [s.id() for s in scene.shapes()]
-            self._shape_rows = np.array(
-                [int(i[5:]) if i.startswith("tree_") else -1 for i in ids] or [-1], dtype=np.int64
+        wind = self.config.wind
+        key = (levels.tobytes(), round(time_s, 9) if wind.strength > 0 else None)
+        t0 = time.perf_counter()
+        if self._path is None:
+            inputs = path_inputs(self.scene, width=self.width, height=self.height, spp=1)
+            inputs.haze = None  # applied here after the beauty
+            self._path = PathScene(inputs, "llvm_ad_rgb")
+            self._path_key = (
+                inputs.levels.tobytes(),
+                round(1.0 / self.config.camera.fps, 9) if wind.strength > 0 else None,
             )
-        return self._shape_rows
+        if key != self._path_key:
+            self._path.pose(levels, tree_matrices(self.instances, time_s, wind))
+            self._path_key = key
+        self.load_seconds += time.perf_counter() - t0
+        return self._path
 
-    def _jit_registry_index(self, scene, reg: np.ndarray) -> np.ndarray:
-        import drjit as dr
+    def coverage(self, frame: float, levels: np.ndarray) -> dict:
+        """Alpha, Cryptomattes, guides (coverage samples) and depth/id/species (pixel centres) of a frame."""
+        from .path.from_scene import path_camera
+        from .path.integrator import NO_HIT
 
-        table = np.asarray(dr.reinterpret_array(self.mi.UInt32, scene.shapes_dr())).astype(np.int64)
-        order = np.argsort(table)
-        pos = np.searchsorted(table[order], reg)
-        pos = np.minimum(pos, len(table) - 1)
-        found = (table[order][pos] == reg) & (reg != 0)
-        return np.where(found, order[pos], -1)
+        cam = self.config.camera
+        path = self.path_scene(levels, frame / cam.fps)
+        camera = path_camera(self.config, frame, self.width, self.height)
+        h, w = self.height, self.width
+        coverage = SampleCoverage(h, w)
+        alpha = np.zeros(h * w)
+        albedo = np.zeros((h * w, 3))
+        normal = np.zeros((h * w, 3))
+        samples = 0
+        n_trees = len(self.instances)
+        seed = int(self.config.render.seed) * 1_000_003 + int(round(frame * 1000)) * 997
+        for p in path.first_hits(camera, spp=min(self.spp, COVERAGE_SPP), seed=seed):
+            coverage.add(sample_ids(p.rows, self.instances.id, n_trees=n_trees, no_hit=NO_HIT))
+            alpha += p.alpha
+            albedo += p.albedo
+            normal += p.normal
+            samples += p.spp
+        layers = path.layers(camera)
+        return {
+            "alpha": (alpha / samples).reshape(h, w).astype(np.float32),
+            "albedo": (albedo / samples).reshape(h, w, 3).astype(np.float32),
+            "normal": (normal / samples).reshape(h, w, 3).astype(np.float32),
+            "mattes": frame_mattes(coverage, self.instances, self.species_names),
+            "camera": camera,
+            **layers,
+        }
 
     # -- one frame ---------------------------------------------------------------------
-    def frame(self, frame: float, on_pass: PassCallback | None = None) -> dict:
-        """Render one frame: beauty (motion-blur sub-frames averaged), depth, id and species, haze.
+    def frame(self, frame: float, on_pass: PassCallback | None = None) -> FrameImage:
+        """Render one frame: beauty (motion-blur sub-frames averaged), coverage, layers, haze.
 
         ``on_pass(image so far, passes done, passes in the frame)`` is called after
         every sample pass with the running mean of the frame's samples.
@@ -297,28 +289,29 @@ class FrameRenderer:
             self.render_seconds += time.perf_counter() - t0
         rgb = (acc / len(times)).astype(np.float32)
         scene = None
-        scene = self.scene_at(levels, frame / cam.fps)
         t0 = time.perf_counter()
-        depth, ids, species = self.ids_and_depth(scene, frame)
+        cov = self.coverage(frame, levels)
         self.render_seconds += time.perf_counter() - t0
         for name, c in self.graph.lod_counts.items():
             self.lod_counts[name] = self.lod_counts.get(name, 0) + c
-        rc = self.config.render
-        if rc.haze > 0:
-            rgb = apply_haze(rgb, depth, depth > 0, rc.haze, haze_colour(self.config))
+        path = self._path
+        if path is not None and self.config.render.haze > 0:
+            rgb = apply_haze(rgb, cov["alpha"], cov["depth"], cov["camera"], self.config, path)
         denoised = False
         if self.preview:
-            d = denoise(rgb)
+            d = denoise(rgb, cov["albedo"], cov["normal"])
             if d is not None:
                 rgb, denoised = d, True
-        far = depth <= 0
-        depth = np.where(far, np.float32(cam.far), depth)
-        return {
-            "rgb": rgb,
-            "depth": depth,
-            "id": ids,
-            "species": species,
-            "denoised": denoised,
-            "camera": state,
-            "levels": levels,
-        }
+        return FrameImage(
+            rgb=rgb,
+            alpha=cov["alpha"],
+            depth=cov["depth"],
+            id=cov["id"],
+            species=cov["species"],
+            camera=state,
+            levels=levels,
+            mattes=cov["mattes"],
+            albedo=cov["albedo"],
+            normal=cov["normal"],
+            denoised=denoised,
+        )

@@ -1,6 +1,6 @@
 """Instanced forests: level of detail, wind sway and the shapegroup/instance scene graph.
 
-One ``shapegroup`` per (species, level of detail) holds that LOD's parts; each
+One ``shapegroup`` per (species, individual, level of detail) holds that LOD's parts; each
 tree is one ``instance`` record (a 4×4 transform and a reference), so memory
 grows with the number of trees by the instance record only, never by their
 triangles — the role ``DelayedReadArchive`` played in the original pipeline.
@@ -75,6 +75,18 @@ class ForestBuilder:
         self.materials = materials
         self.variant = materials.variant
         self.species = list(scene.species)
+        # Several library individuals per species (Scene.individuals, InstanceSet.individual) where the
+        # Scene has them; element 0 is the species itself.
+        individuals = getattr(scene, "individuals", None)
+        self.individuals = (
+            [list(i) if i else [sp] for i, sp in zip(individuals, self.species)]
+            if individuals
+            else [[sp] for sp in self.species]
+        )
+        column = getattr(self.instances, "individual", None)
+        self.individual = (
+            np.zeros(len(self.instances), np.int64) if column is None else np.asarray(column, np.int64).ravel()
+        )
         self._bsdf_ids: dict = {}
         self._bsdfs: dict = {}
 
@@ -92,8 +104,10 @@ class ForestBuilder:
             self._bsdfs[bid] = self.materials.part_bsdf(part)
         return {"type": "ref", "id": self._bsdf_ids[key]}
 
-    def shapegroup(self, s: int, level: int) -> dict:
-        lod = self.species[s].lods[level]
+    def shapegroup(self, s: int, level: int, individual: int = 0) -> dict:
+        options = self.individuals[s]
+        sp = options[individual % len(options)]
+        lod = sp.lods[min(level, len(sp.lods) - 1)]
         group = {"type": "shapegroup"}
         for k, part in enumerate(lod.parts):
             group[f"part_{k}"] = {"type": "ply", "filename": str(part.path), "bsdf": self._bsdf_ref(part)}
@@ -102,26 +116,30 @@ class ForestBuilder:
         return group
 
     def graph(self, levels: np.ndarray, matrices: np.ndarray) -> ForestGraph:
-        """Scene entries for every tree: ``sg_<species>_<lod>`` shapegroups and ``tree_<row>`` instances."""
+        """Scene entries for every tree: ``sg_<species>_<individual>_<lod>`` shapegroups and ``tree_<row>`` instances."""
         mi = mitsuba(self.variant)
         inst = self.instances
         species = inst.species.astype(np.int64)
+        counts_per = np.array([len(o) for o in self.individuals], np.int64)
+        individual = self.individual % counts_per[species] if len(species) else self.individual
         entries: dict = {}
         tris = {}
-        lod_counts: dict = {}
-        keys = species * 8 + levels
+        keys = (species * 256 + individual) * 8 + levels
         used = np.unique(keys)
+        names = {}
         for key in used.tolist():
-            s, level = divmod(key, 8)
-            entries[f"sg_{s}_{level}"] = self.shapegroup(s, level)
-            tris[key] = int(self.species[s].lods[level].triangles)
+            rest, level = divmod(key, 8)
+            s, k = divmod(rest, 256)
+            names[key] = f"sg_{s}_{k}_{level}"
+            entries[names[key]] = self.shapegroup(s, level, k)
+            sp = self.individuals[s][k]
+            tris[key] = int(sp.lods[min(level, len(sp.lods) - 1)].triangles)
         counts = np.bincount(levels, minlength=4) if len(levels) else np.zeros(4, np.int64)
         lod_counts = {LOD_NAMES[i] if i < 4 else str(i): int(c) for i, c in enumerate(counts) if c}
-        tri_per_key = np.zeros(int(keys.max()) + 1 if len(keys) else 1, dtype=np.int64)
-        for key, t in tris.items():
-            tri_per_key[key] = t
-        instanced = int(tri_per_key[keys].sum()) if len(keys) else 0
-        refs = {key: {"type": "ref", "id": f"sg_{key // 8}_{key % 8}"} for key in used.tolist()}
+        instanced = (
+            int(sum(tris[key] * int(c) for key, c in zip(*np.unique(keys, return_counts=True)))) if len(keys) else 0
+        )
+        refs = {key: {"type": "ref", "id": names[key]} for key in used.tolist()}
         T, M4 = mi.ScalarTransform4f, mi.ScalarMatrix4f  # T(M4(array)): 3× faster than T(array)
         mats = np.ascontiguousarray(matrices, dtype=np.float64)
         for row, (key, m) in enumerate(zip(keys.tolist(), mats)):

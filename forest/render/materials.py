@@ -18,10 +18,14 @@ Per variant:
 * ``scalar_rgb`` — Python plugins run once per sample there: measured
   ~3 µs per sample, 30× a native two-sided ``diffuse`` on a card scene
   (``bench/bench_render_plugins.py``), which would turn a 3-minute frame into
-  an hour and a half.  So leaves are native two-sided
-  Lambertian with albedo a (transmission folded into reflection), and a
-  tinted textured part takes the map × c × mean(detail over the card) —
-  the texture's alpha still cuts the card; its detail modulation is averaged.
+  an hour and a half.  So leaves with τ > 0 are Mitsuba's native
+  ``principledthin`` with ``base_color`` a and ``diff_trans`` = 2τ, which
+  splits its diffuse lobe into reflection (1 − τ)·a and transmission τ·a —
+  the same split, measured at no cost over ``diffuse`` (its specular lobe,
+  index 1.5, adds a sheen at grazing angles only); leaves with τ = 0, bark
+  and surfaces are two-sided ``diffuse``.  A tinted textured part takes the
+  map × c × mean(detail over the card) — the texture's alpha still cuts the
+  card; its detail modulation is averaged.
 """
 
 from __future__ import annotations
@@ -83,7 +87,7 @@ class MaterialBuilder:
         self.grid = None if colour_grid is None else np.asarray(colour_grid, np.float32)
         self.extent = extent
         self.height_range = height_range
-        self.leaf_model = "forest_leaf" if self.exact else "twosided-diffuse"
+        self.leaf_model = "forest_leaf" if self.exact else "principledthin (diff_trans = 2t)"
 
     # -- albedo textures ---------------------------------------------------------
     def _albedo(self, colour, tinted: bool, texture: Path | None, share: float) -> dict:
@@ -124,6 +128,12 @@ class MaterialBuilder:
                 "type": "forest_leaf",
                 "reflectance": self._albedo(part.colour, tinted, texture, 1.0 - tau),
                 "transmittance": self._albedo(part.colour, tinted, texture, tau),
+            }
+        elif part.kind == "leaf" and tau > 0:
+            bsdf = {
+                "type": "principledthin",
+                "base_color": self._albedo(part.colour, tinted, texture, 1.0),
+                "diff_trans": float(min(2.0 * tau, 2.0)),
             }
         else:
             bsdf = {

@@ -1,11 +1,15 @@
 """``render_scene``: a Scene rendered with Mitsuba 3 — stills, fly-throughs, motion blur — to EXR + PNG.
 
-The frames themselves are made by :class:`forest.render.frame.FrameRenderer`
-(camera, levels of detail, sub-frames, sample passes, depth/id/species, haze);
-the variant by :func:`forest.render.variant.choose_variant`.  Each frame is
-written as a float EXR (beauty RGB plus ``depth``, ``id`` and ``species``
-layers; settings and deterministic scene statistics in the header) and an
-sRGB PNG beside it.
+The variant comes from :func:`forest.render.variant.choose_variant`; the
+frames from forest_path in the JIT variants
+(:class:`forest.render.jit_frame.PathFrameRenderer`) and from Mitsuba's own
+integrators in ``scalar_rgb`` (:class:`forest.render.frame.FrameRenderer`):
+camera, levels of detail, sub-frames, sample passes, coverage, Cryptomattes,
+depth/id/species, haze.  Each frame is written by
+:func:`forest.render.output.write_frame`: a comp-ready float EXR (RGBA,
+data layers, Cryptomattes, camera matrices, colour space; settings and
+deterministic scene statistics in the header) and a PNG through the view
+transform (``[render] view``, ``exposure``).
 """
 
 from __future__ import annotations
@@ -21,10 +25,13 @@ import numpy as np
 
 from ..camera import frame_path, parse_frames
 from ..errors import ParameterError
-from ..images import write_image, write_multilayer_exr
 from ..scene import Scene
 from .frame import FrameRenderer, FrameSize
+from .jit_frame import PathFrameRenderer
+from .output import write_frame
 from .variant import choose_variant
+
+Renderer = FrameRenderer | PathFrameRenderer
 
 PREVIEW_WIDTH = 480
 PREVIEW_SPP = 8
@@ -92,24 +99,24 @@ def frame_size(config, *, preview: bool) -> FrameSize:
     return FrameSize(rc.width, rc.height, rc.spp, rc.subframes if config.camera.shutter > 0 else 1)
 
 
-def _header_value(v):
-    if isinstance(v, (bool, np.bool_)):
-        return int(v)
-    if isinstance(v, (int, np.integer)):
-        return int(v) if -(2**31) <= int(v) < 2**31 else str(int(v))
-    if isinstance(v, (float, np.floating)):
-        return float(v)
-    return str(v)
+def make_renderer(scene: Scene, variant: str, size: FrameSize, *, preview: bool = False) -> Renderer:
+    """The frame renderer of ``variant``: forest_path in the JIT variants, Mitsuba's integrators in scalar_rgb."""
+    if variant.startswith("scalar"):
+        return FrameRenderer(scene, variant, size, preview=preview)
+    return PathFrameRenderer(scene, variant, size, preview=preview)
 
 
-def _kept(reuse: dict[str, Any] | None, key: tuple[Any, ...], build: Callable[[], FrameRenderer]) -> FrameRenderer:
+def _kept(reuse: dict[str, Any] | None, key: tuple[Any, ...], build: Callable[[], Renderer]) -> Renderer:
     """The renderer ``reuse`` keeps for ``key`` (the Scene compared by identity, the rest by value),
     restarted; else a new one from ``build()``, kept in ``reuse``."""
     old = (reuse or {}).get("key")
     if reuse is not None and old is not None and old[0] is key[0] and old[1:] == key[1:]:
-        r: FrameRenderer = reuse["renderer"]
+        r: Renderer = reuse["renderer"]
         r.restart()
         return r
+    if reuse is not None:
+        reuse.pop("renderer", None)  # let the old renderer's scene go before the new one is built
+        reuse.pop("key", None)
     r = build()
     if reuse is not None:
         reuse.update(key=key, renderer=r)
@@ -122,18 +129,20 @@ def render_image(
     width: int,
     height: int,
     spp: int,
-    variant: str = "scalar_rgb",
+    variant: str | None = None,
     reuse: dict[str, Any] | None = None,
 ) -> np.ndarray:
     """The beauty of frame 1 at ``width``×``height``×``spp`` as an (H, W, 3) linear array, no files, no blur.
 
-    The same scene, materials, LODs and haze as :func:`render_scene`; for
-    callers that need the production image itself (look-dev's calibration, the
-    job service's quick look).  ``reuse`` as in :func:`render_scene`.
+    The same renderer, scene, materials, LODs and haze as :func:`render_scene`
+    (``variant`` None: the same choice, :func:`choose_variant`); for callers
+    that need the production image itself (look-dev's calibration, the job
+    service's quick look).  ``reuse`` as in :func:`render_scene`.
     """
+    chosen, _ = choose_variant(len(scene.instances), variant, scene.config.render.variant)
     size = FrameSize(int(width), int(height), int(spp), 1)
-    r = _kept(reuse, (scene, variant, size, False), lambda: FrameRenderer(scene, variant, size))
-    return np.asarray(r.frame(1.0)["rgb"], np.float64)[..., :3]
+    r = _kept(reuse, (scene, chosen, size, False), lambda: make_renderer(scene, chosen, size))
+    return np.asarray(r.frame(1.0).rgb, np.float64)[..., :3]
 
 
 def render_scene(
@@ -181,7 +190,7 @@ def render_scene(
     progress = progress or (lambda f, m="": None)
     progress(0.0, "building scene")
     size = frame_size(config, preview=preview)
-    r = _kept(reuse, (scene, chosen, size, bool(preview)), lambda: FrameRenderer(scene, chosen, size, preview=preview))
+    r = _kept(reuse, (scene, chosen, size, bool(preview)), lambda: make_renderer(scene, chosen, size, preview=preview))
     n_sub = size.subframes
     per_frame = n_sub * len(r.passes(max(1, math.ceil(size.spp / n_sub))))
     total = len(frame_list) * per_frame
@@ -196,42 +205,51 @@ def render_scene(
                 on_pass(f, img, done, n)
 
         out = r.frame(float(f), passed)
-        denoised |= out["denoised"]
-        g = r.graph
-        cam = out["camera"]
+        denoised |= out.denoised
+        cam = out.camera
+        rc = config.render
+        stats = r.stats()
         attrs = {
             "forest:config": config.name,
             "forest:seed": int(config.seed),
             "forest:frame": int(f),
             "forest:variant": chosen,
+            "forest:renderer": "forest_path"
+            if not chosen.startswith("scalar")
+            else "mitsuba " + ("volpath" if rc.alpha_shadows else "path"),
             "forest:spp": size.spp,
             "forest:subframes": n_sub,
             "forest:shutter": float(config.camera.shutter),
-            "forest:max_depth": int(config.render.max_depth),
-            "forest:render_seed": int(config.render.seed),
+            "forest:max_depth": int(rc.max_depth),
+            "forest:render_seed": int(rc.seed),
             "forest:preview": bool(preview),
-            "forest:denoised": bool(out["denoised"]),
-            "forest:leaf_model": r.materials.leaf_model,
-            "forest:trees": g.trees,
-            "forest:instanced_triangles": g.instanced_triangles,
-            "forest:unique_triangles": g.unique_triangles,
-            "forest:shapegroups": g.shapegroups,
-            "forest:lod": ", ".join(f"{k}={v}" for k, v in g.lod_counts.items()),
+            "forest:denoised": bool(out.denoised),
+            "forest:leaf_model": r.leaf_model,
+            "forest:trees": stats["trees"],
+            "forest:instanced_triangles": stats["instanced_triangles"],
+            "forest:unique_triangles": stats["unique_triangles"],
+            "forest:shapegroups": stats["shapegroups"],
+            "forest:lod": stats["lod"],
             "forest:lod_distances": ", ".join(f"{d:g}" for d in config.lod.bands),
             "forest:camera_position": ", ".join(f"{x:.4f}" for x in cam.position),
             "forest:camera_target": ", ".join(f"{x:.4f}" for x in cam.target),
             "forest:fov": float(cam.fov),
             "forest:wind_strength": float(config.wind.strength),
-            "forest:haze": float(config.render.haze),
-            "forest:layers": "RGB beauty (linear); depth.Z distance to the first hit in metres (far clip where "
-            "nothing is hit); id.Z tree id (-1 none); species.Z species index (-1 none)",
+            "forest:haze": float(rc.haze),
+            "forest:haze_height": float(rc.haze_height),
+            "forest:sky": config.lights.sky.kind if config.lights.sky is not None else "none",
         }
-        attrs = {k: _header_value(v) for k, v in attrs.items()}
-        write_multilayer_exr(
-            exr, {"": out["rgb"], "depth": out["depth"], "id": out["id"], "species": out["species"]}, attributes=attrs
+        written += write_frame(
+            exr,
+            png,
+            out,
+            species_names=[str(n) for n in inst.species_names],
+            near=float(config.camera.near),
+            far=float(config.camera.far),
+            view=rc.view,
+            exposure=float(rc.exposure),
+            attributes=attrs,
         )
-        write_image(png, out["rgb"])
-        written += [exr, png]
     progress(1.0, "done")
     return RenderResult(
         paths=written,
@@ -251,5 +269,5 @@ def render_scene(
         peak_memory_gb=peak_memory_gb(),
         lod_counts=r.lod_counts,
         denoised=denoised,
-        leaf_model=r.materials.leaf_model,
+        leaf_model=r.leaf_model,
     )

@@ -206,43 +206,83 @@ def _envmap(config, variant: str) -> dict:
     return d
 
 
-def emitter_dicts(config, variant: str) -> dict[str, dict]:
-    """Emitters for ``[lights]``: ``{"sun": directional, "sky": constant | envmap | sunsky}``.
+def sun_disc_dict(variant: str, direction, irradiance, angular_diameter: float, distance: float) -> dict:
+    """A sun of finite size for Mitsuba's integrators: a ``disk`` area light far away toward the sun.
 
-    * sun — ``directional`` with irradiance = ``irradiance · colour`` (W/m² per
-      RGB channel) travelling along −s (see the module docstring); left out
-      when the sun is at or below the horizon.
+    Mitsuba 3.9.1's ``directional`` emitter is a point on the sky (razor-sharp
+    shadows).  A disk of radius R = D·tan α at distance D, facing the scene,
+    subtends the sun's angular radius α; its radiance L = E / (π sin²α),
+    sin α = R / √(D² + R²), gives irradiance E on a surface facing it — the
+    disc sun of forest_path (``forest.render.path.emitters.DiscSun``).  D lies
+    beyond the ground's skirt; the camera's far clip may hide the disc itself
+    from camera rays, never from shadow rays.
+    """
+    s = np.asarray(direction, np.float64)
+    s = s / np.linalg.norm(s)
+    alpha = math.radians(float(angular_diameter)) / 2.0
+    radius = float(distance) * math.tan(alpha)
+    sin2 = radius**2 / (float(distance) ** 2 + radius**2)
+    radiance = np.asarray(irradiance, np.float64) / (math.pi * sin2)
+    from ..camera import frame_from_z
+
+    m = np.eye(4)
+    m[:3, :3] = frame_from_z(-s)[:3, :3] * radius  # the disk's +Z normal faces the scene
+    m[:3, 3] = s * float(distance)
+    return {
+        "type": "disk",
+        "to_world": transform(variant, m),
+        "emitter": {"type": "area", "radiance": _rgb(radiance)},
+    }
+
+
+#: Distance of the scalar renderer's sun disk, metres (beyond any skirt: ``forest.render.ground``).
+SUN_DISTANCE = 1.0e6
+
+
+def emitter_dicts(config, variant: str, *, disc_sun: bool = False) -> dict[str, dict]:
+    """Emitters for ``[lights]``: ``{"sun": directional | disk, "sky": constant | envmap | sunsky}``.
+
+    * sun — irradiance ``irradiance · colour`` (W/m² per RGB channel on a
+      surface facing it) travelling along −s (see the module docstring); left
+      out when the sun is at or below the horizon.  ``disc_sun``: a disc of
+      ``forest.render.path.inputs.SUN_ANGULAR_DIAMETER`` (:func:`sun_disc_dict`,
+      soft shadows), else Mitsuba's ``directional`` (a point).
     * sky — ``constant`` radiance ``radiance · colour``; or an ``envmap``
       (latitude–longitude, +Y up) scaled by ``scale``; or Mitsuba's ``sunsky``
-      (Hosek–Wilkie sky + sun) pointed at the ``[lights.sun]`` direction, which
-      then replaces the directional sun.
+      (Hosek–Wilkie sky + sun, Z-up in Mitsuba, rotated here to Y-up) pointed
+      at the ``[lights.sun]`` direction, which then replaces the sun; its sun
+      and sky are scaled by one factor so its sun sends ``[lights.sun]
+      irradiance`` (:func:`forest.render.path.emitters.sunsky_scale`), times
+      ``sunsky.scale``.
 
     An environment map is checked first (:func:`check_envmap`, then a test
     load), so a bad one fails here naming ``lights.sky.envmap``, not inside
     the scene's loader.
     """
-    mitsuba(variant)
+    from .path.emitters import sunsky_dict, sunsky_scale
+    from .path.inputs import SUN_ANGULAR_DIAMETER
+
+    mi = mitsuba(variant)
     lights = config.lights
     out: dict[str, dict] = {}
     sun = lights.sun
     sky = lights.sky
     if sky is not None and sky.kind == "sunsky":
         el, az = (sun.elevation, sun.azimuth) if sun is not None else (35.0, 120.0)
-        out["sky"] = {
-            "type": "sunsky",
-            "sun_direction": [float(x) for x in sun_vector(el, az)],
-            "turbidity": float(sky.sunsky.turbidity),
-            "albedo": float(sky.sunsky.albedo),
-            "sky_scale": float(sky.sunsky.scale),
-            "sun_scale": float(sky.sunsky.scale),
-        }
+        d = sun_vector(el, az)
+        target = float(sun.irradiance) if sun is not None else 3.0
+        k = sunsky_scale(mi, d, sky.sunsky.turbidity, sky.sunsky.albedo, target) * float(sky.sunsky.scale)
+        out["sky"] = sunsky_dict(mi, d, sky.sunsky.turbidity, sky.sunsky.albedo, sun_scale=k, sky_scale=k)
         return out
     if sun is not None:
         irr = float(sun.irradiance)
         col = np.asarray(sun.colour, dtype=np.float64)
         if sun.elevation > 0 and irr > 0:
-            d = -sun_vector(sun.elevation, sun.azimuth)
-            out["sun"] = {"type": "directional", "direction": [float(x) for x in d], "irradiance": _rgb(irr * col)}
+            s = sun_vector(sun.elevation, sun.azimuth)
+            if disc_sun:
+                out["sun"] = sun_disc_dict(variant, s, irr * col, SUN_ANGULAR_DIAMETER, SUN_DISTANCE)
+            else:
+                out["sun"] = {"type": "directional", "direction": [float(x) for x in -s], "irradiance": _rgb(irr * col)}
     if sky is not None:
         if sky.kind == "envmap":
             out["sky"] = _envmap(config, variant)
@@ -317,11 +357,31 @@ def colour_grid_texture(grid, extent, height_range, variant: str, *, filter_type
 # ---------------------------------------------------------------------------
 
 
-def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "terrain"):
-    """The terrain as a Mitsuba ``Mesh`` object (positions, faces, smooth normals, uv) with ``bsdf``."""
+def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "terrain", *, skirt: float = 0.0):
+    """The terrain as a Mitsuba ``Mesh`` object (positions, faces, smooth normals, uv) with ``bsdf``.
+
+    ``skirt`` > 0 adds the ground that carries it to that radius (:func:`forest.render.ground.skirt_mesh`).
+    """
     mi = mitsuba(variant)
     v = np.asarray(terrain.vertices, dtype=np.float32)
     f = np.asarray(terrain.faces, dtype=np.uint32)
+    n = np.asarray(terrain.vertex_normals, dtype=np.float32)
+    uv = np.asarray(terrain.uv, dtype=np.float32)
+    if skirt > 0:
+        from .ground import skirt_mesh
+
+        sk = skirt_mesh(terrain, skirt)
+        if sk is not None:
+            xmin, zmin, xmax, zmax = terrain.extent
+            sk_uv = np.stack(
+                [
+                    (sk.vertices[:, 0] - xmin) / max(xmax - xmin, 1e-9),
+                    (sk.vertices[:, 2] - zmin) / max(zmax - zmin, 1e-9),
+                ],
+                axis=1,
+            ).astype(np.float32)
+            f = np.concatenate([f, sk.faces + np.uint32(len(v))])
+            v, n, uv = np.concatenate([v, sk.vertices]), np.concatenate([n, sk.normals]), np.concatenate([uv, sk_uv])
     props = mi.Properties()
     if bsdf is not None:
         props["bsdf"] = mi.load_dict(bsdf)
@@ -332,20 +392,23 @@ def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "t
     conv = (lambda a: a.ravel()) if _is_scalar(variant) else (lambda a: mi.Float(a.ravel()))
     params["vertex_positions"] = conv(v)
     params["faces"] = f.ravel() if _is_scalar(variant) else mi.UInt32(f.ravel())
-    params["vertex_normals"] = conv(np.asarray(terrain.vertex_normals, dtype=np.float32))
-    params["vertex_texcoords"] = conv(np.asarray(terrain.uv, dtype=np.float32))
+    params["vertex_normals"] = conv(n)
+    params["vertex_texcoords"] = conv(uv)
     params.update()
     return mesh
 
 
-def terrain_reflectance(config, terrain, variant: str, colour_grid: np.ndarray | None = None) -> dict:
-    """The terrain's reflectance: its own texture, else ``terrain_colour`` × the colour map.
+def terrain_reflectance(config, terrain, variant: str, colour_grid: np.ndarray | None = None, *, albedo=None) -> dict:
+    """The terrain's reflectance: its own texture, else the ground's albedo grid, else ``terrain_colour`` × the map.
 
     ``[render] terrain_texture`` (an image laid over the extent in the map
-    convention, evaluated by world position like the colour grid) wins;
-    otherwise ``terrain_colour`` multiplies the colour map (``colour_grid``,
-    linear RGB, white = untinted) when there is one, else a constant
-    ``terrain_colour``.
+    convention, evaluated by world position like the colour grid) wins; then
+    ``albedo`` (the Scene's ``terrain_albedo``: an (H, W, 3) linear grid over
+    its extent; its tileable detail texture, of mean 1, is left out here — the
+    scalar renderer runs no Python texture plugin per sample, see
+    :mod:`forest.render.materials`); otherwise ``terrain_colour`` multiplies
+    the colour map (``colour_grid``, linear RGB, white = untinted) when there
+    is one, else a constant ``terrain_colour``.
     """
     rc = config.render
     tex_path = getattr(rc, "terrain_texture", None)
@@ -353,6 +416,9 @@ def terrain_reflectance(config, terrain, variant: str, colour_grid: np.ndarray |
     if tex_path is not None:
         grid = _terrain_texture(config)
         return colour_grid_texture(grid, terrain.extent, terrain.height_range, variant)
+    if albedo is not None:
+        extent = getattr(albedo, "extent", terrain.extent)
+        return colour_grid_texture(np.asarray(albedo.rgb, np.float32), extent, terrain.height_range, variant)
     if colour_grid is not None:
         return colour_grid_texture(
             np.asarray(colour_grid, np.float32) * base, terrain.extent, terrain.height_range, variant
@@ -360,13 +426,16 @@ def terrain_reflectance(config, terrain, variant: str, colour_grid: np.ndarray |
     return _rgb(base)
 
 
-def terrain_dict(config, terrain, variant: str, colour_grid: np.ndarray | None = None):
+def terrain_dict(
+    config, terrain, variant: str, colour_grid: np.ndarray | None = None, *, albedo=None, skirt: float = 0.0
+):
     """The terrain as a scene child: a ``Mesh`` object with a diffuse BSDF.
 
     The returned object goes into a scene dict like any shape dict
     (``scene["terrain"] = terrain_dict(...)``).  Reflectance: see
     :func:`terrain_reflectance` (``colour_grid``: the Scene's colour map, linear
-    RGB in the map convention, or None).
+    RGB in the map convention, or None; ``albedo``: the Scene's
+    ``terrain_albedo`` or None); ``skirt``: see :func:`terrain_mesh`.
     """
-    bsdf = {"type": "diffuse", "reflectance": terrain_reflectance(config, terrain, variant, colour_grid)}
-    return terrain_mesh(terrain, variant, bsdf)
+    bsdf = {"type": "diffuse", "reflectance": terrain_reflectance(config, terrain, variant, colour_grid, albedo=albedo)}
+    return terrain_mesh(terrain, variant, bsdf, skirt=skirt)

@@ -10,8 +10,12 @@ Modules, one concept each:
   Poisson-disk thinning for ``min_distance``);
 * :mod:`~forest.scatter.ecosystem` — the ``ecosystem`` rule: site fitness,
   growth, competition, self-thinning, shade tolerance (Deussen et al. 1998);
-* :mod:`~forest.scatter.attributes` — yaw, scale, phase, tint, partition and
-  orientation of the survivors;
+* :mod:`~forest.scatter.attributes` — yaw, scale, phase, individual, tint,
+  partition and orientation of the survivors;
+* :mod:`~forest.scatter.ground_cover` — ``[[ground_cover]]``: small plants at
+  a density per m² near the camera path, rows of their own species;
+* :mod:`~forest.scatter.models` — the species of an InstanceSet (``[[species]]``
+  then ``[[ground_cover]]``), their settings, fields and individuals;
 * :mod:`~forest.scatter.provenance` — the input files' hashes an InstanceSet
   records, checked when a saved set is loaded for a config;
 * :mod:`~forest.scatter.report` — :class:`ScatterReport`, the summary;
@@ -20,8 +24,20 @@ Modules, one concept each:
 
 from __future__ import annotations
 
+from .models import model_field, model_settings, resolve_models, scatter_models
 from .pipeline import RULES, scatter, scene_instances
 from .provenance import check_provenance, input_hashes
 from .report import ScatterReport
 
-__all__ = ["RULES", "ScatterReport", "check_provenance", "input_hashes", "scatter", "scene_instances"]
+__all__ = [
+    "RULES",
+    "ScatterReport",
+    "check_provenance",
+    "input_hashes",
+    "model_field",
+    "model_settings",
+    "resolve_models",
+    "scatter",
+    "scatter_models",
+    "scene_instances",
+]

@@ -8,8 +8,13 @@ For a tree drawn as candidate i of species k:
   s = ξ_scale[i] uniform, or the survival rule's size in [0, 1] (the
   ecosystem's r / R);
 * wind phase 2π·ξ_phase[i];
-* tint: the colour map, bilinear in linear light; partition: the region
-  under the tree (nearest pixel of the partition map);
+* individual ⌊n_k·ξ_individual[i]⌋ with n_k the species' ``individuals``
+  (:attr:`forest.config.schema.SpeciesConfig.individual_count`);
+* tint: the colour map's tint (mean 1, :func:`forest.maps.colour_tint_grid`)
+  at the tree's stored (float32) position, bilinear in linear light, with the
+  tree's hue/value jitter (:func:`forest.tint.tree_tints`) — the same
+  function the Scene applies, so the column is what every backend uses;
+  partition: the region under the tree (nearest pixel of the partition map);
 * rotation: the quaternion q = q_tilt · q_yaw (yaw about +Y, then a tilt of +Y
   towards the terrain normal by the species' ``align`` or ``[scatter]
   align_to_normal``), :func:`forest.instances.yaw_tilt_quaternion`.
@@ -29,6 +34,7 @@ from ..config import Config
 from ..instances import InstanceSet, yaw_tilt_quaternion
 from ..maps import MapSet
 from ..terrain import Terrain
+from ..tint import TintParams
 from .candidates import Candidates
 
 
@@ -41,6 +47,11 @@ def snap_yaw(yaw: np.ndarray, step_deg: np.ndarray) -> np.ndarray:
     return np.where(step > 0, np.mod(snapped, 2 * np.pi), yaw)
 
 
+def draw_individuals(xi: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Individual ⌊count·ξ⌋ ∈ [0, count) of each tree from uniforms ξ ∈ [0, 1): uint8."""
+    return np.minimum(np.floor(xi * count), count - 1).astype(np.uint8)
+
+
 def tree_attributes(
     trees: Candidates,
     size: np.ndarray | None,
@@ -49,6 +60,7 @@ def tree_attributes(
     maps: MapSet,
     rng: dict[str, np.random.Generator],
     meta: dict[str, Any],
+    tints: TintParams,
 ) -> InstanceSet:
     """The InstanceSet of the surviving candidates ``trees`` (rows in candidate order = sorted ids)."""
     species = config.species
@@ -58,6 +70,10 @@ def tree_attributes(
     yaw = rng["yaw"].random(n)[sel] * (2 * np.pi)
     scale_xi = rng["scale"].random(n)[sel]
     phase = rng["phase"].random(n)[sel] * (2 * np.pi)
+    individual = draw_individuals(
+        rng["individual"].random(n)[sel], np.array([sp.individual_count for sp in species])[k]
+    )
+    position = trees.position.astype(np.float32)
     s = scale_xi if size is None else size
     yaw = snap_yaw(yaw, np.array([sp.yaw_step for sp in species])[k])
     lo = np.array([sp.scale[0] for sp in species])[k]
@@ -65,15 +81,16 @@ def tree_attributes(
     align = np.array([config.scatter.align_to_normal if sp.align is None else sp.align for sp in species])[k]
     return InstanceSet(
         id=sel.astype(np.uint64),
-        position=trees.position,
+        position=position,
         rotation=yaw_tilt_quaternion(yaw, trees.normal, align),
         yaw=yaw,
         scale=lo + (hi - lo) * s,
         species=k,
-        tint=maps.tint_at(trees.u, trees.v),
+        tint=tints.tints(maps.tint_at(position[:, 0], position[:, 2], terrain.extent), k, sel),
         partition=maps.partition_at(trees.u, trees.v),
         normal=trees.normal,
         phase=phase,
+        individual=individual,
         species_names=[sp.model for sp in species],
         partition_names=maps.partition_names,
         extent=terrain.extent,

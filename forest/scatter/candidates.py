@@ -39,7 +39,9 @@ from ..config import Config, SpeciesConfig
 from ..maps import MapSet
 from ..terrain import Terrain
 
-STREAMS = ("position", "density", "species", "yaw", "scale", "phase")
+#: One stream per quantity, in this order for good: a new quantity is appended at the end, so the
+#: streams before it (and every existing tree's position, yaw, scale, phase) stay as they were.
+STREAMS = ("position", "density", "species", "yaw", "scale", "phase", "individual")
 TAG = 0x5CA77E2
 SHARED_STAGES = ("presence", "density", "empty ground", "partition", "slope", "altitude")
 SPECIES_STAGES = ("partition", "slope", "altitude")  # stages reported per species
@@ -53,7 +55,11 @@ def no_progress(fraction: float, message: str = "") -> None:
 
 
 def random_streams(seed: int) -> dict[str, np.random.Generator]:
-    """One independent PCG64 generator per quantity in :data:`STREAMS`, spawned from (seed, TAG)."""
+    """One independent PCG64 generator per quantity in :data:`STREAMS`, spawned from (seed, TAG).
+
+    Child k of ``SeedSequence([seed, TAG]).spawn(n)`` depends on k alone, not on n:
+    appending a stream leaves the earlier ones unchanged.
+    """
     ss = np.random.SeedSequence([seed, TAG])
     return {name: np.random.Generator(np.random.PCG64(s)) for name, s in zip(STREAMS, ss.spawn(len(STREAMS)))}
 

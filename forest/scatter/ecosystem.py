@@ -48,7 +48,7 @@ from scipy.spatial import cKDTree
 from ..config import Config
 from ..errors import ConfigError, ForestError
 from ..images import read_map_grey
-from ..maps import sample_bilinear
+from ..maps import sample_bilinear, terrain_moisture
 from ..terrain import Terrain
 from .candidates import Candidates, Progress
 from .poisson import poisson_thin
@@ -108,9 +108,7 @@ def site_moisture(cand: Candidates, config: Config, terrain: Terrain) -> np.ndar
         except ForestError as e:
             raise ConfigError(config.path, "maps.moisture", str(e)) from None
         return np.clip(sample_bilinear(img, cand.u, cand.v), 0.0, 1.0)
-    hmin, hmax = terrain.height_range
-    hn = (cand.position[:, 1] - hmin) / max(hmax - hmin, 1e-9)
-    return np.clip((1.0 - hn) * (1.0 - cand.slope / 90.0), 0.0, 1.0)
+    return terrain_moisture(cand.position[:, 1], cand.slope, terrain.height_range)
 
 
 def grow_and_compete(

@@ -10,9 +10,15 @@
    ``ecosystem`` (growth, competition, self-thinning, then ``min_distance``
    thinning with the strongest plants first);
 3. :func:`~forest.scatter.attributes.tree_attributes` — yaw, scale, phase,
-   tint, partition and orientation of the survivors;
-4. the provenance (:mod:`forest.scatter.provenance`): the hashes of the input
+   individual, tint, partition and orientation of the survivors;
+4. :func:`~forest.scatter.ground_cover.scatter_ground_cover` — the
+   ``[[ground_cover]]`` plants near the camera path, appended as rows of
+   their own species (:mod:`forest.scatter.models`);
+5. the provenance (:mod:`forest.scatter.provenance`): the hashes of the input
    files go into the InstanceSet's metadata.
+
+The species are resolved through the tree library once, for the leaf colours
+the tints jitter about (:mod:`forest.tint`).
 
 Same config + seed ⇒ the same InstanceSet, byte for byte.
 """
@@ -25,28 +31,45 @@ from pathlib import Path
 import numpy as np
 
 from ..config import Config
-from ..instances import InstanceSet
+from ..instances import COLUMNS, InstanceSet
+from ..library import Library
 from ..maps import MapSet
 from ..terrain import Terrain, load_terrain
+from ..tint import tint_params
 from .attributes import tree_attributes
 from .candidates import SHARED_STAGES, SPECIES_STAGES, Progress, candidates, no_progress, random_streams
 from .ecosystem import ecosystem_rule
-from .provenance import check_provenance, input_hashes
-from .report import ScatterReport, tally
+from .ground_cover import CoverResult, scatter_ground_cover
+from .models import model_settings, resolve_models, scatter_models
+from .provenance import check_provenance, cover_digest, input_hashes
+from .report import ScatterReport, species_keys, tally
 from .survival import SurvivalRule, random_rule
 
 RULES: dict[str, SurvivalRule] = {"random": random_rule, "ecosystem": ecosystem_rule}
 
 
 def scatter(
-    config: Config, progress: Progress | None = None, terrain: Terrain | None = None
+    config: Config,
+    progress: Progress | None = None,
+    terrain: Terrain | None = None,
+    library: Library | None = None,
 ) -> tuple[InstanceSet, ScatterReport]:
-    """Scatter the trees a config describes.  Raises :class:`~forest.errors.ForestError` on bad input."""
+    """Scatter the trees a config describes.  Raises :class:`~forest.errors.ForestError` on bad input.
+
+    ``library`` (default :func:`forest.library.open_library`) gives each species'
+    leaf colour, about which the tints are jittered.
+    """
     t0 = time.perf_counter()
     step = progress or no_progress
     rule = RULES[config.scatter.method]
     step(0.0, "terrain")
     terrain = terrain or load_terrain(config.terrain, config.path)
+    step(0.1, "species")
+    if library is None:
+        from ..library import open_library
+
+        library = open_library()
+    tints = tint_params(model_settings(config), resolve_models(config, library), config.seed)
     step(0.15, "maps")
     maps = MapSet(config)
     inputs = input_hashes(config)
@@ -65,21 +88,32 @@ def scatter(
         **survival.meta,
         "inputs": inputs,
     }
+    digest = cover_digest(config)
+    if digest is not None:
+        meta["ground_cover"] = digest
     alive = survival.alive
     trees = cand if alive.all() else cand.subset(alive)
-    inst = tree_attributes(trees, survival.size, config, terrain, maps, rng, meta)
+    inst = tree_attributes(trees, survival.size, config, terrain, maps, rng, meta, tints)
     names = list(inst.species_names)
     rejected, by_species = tally(fate, species_draw, stages, SPECIES_STAGES + survival.stages, names)
     counts = inst.counts()
+    kept = len(inst)
+    cover: list[CoverResult] = []
+    if config.model.ground_cover:
+        step(0.95, "ground cover")
+        cover = scatter_ground_cover(config, terrain, maps, tints)
+        inst = with_rows(inst, cover, scatter_models(config))
     report = ScatterReport(
         candidates=config.scatter.count,
-        kept=len(inst),
+        kept=kept,
         area_m2=terrain.area,
         rejected=rejected,
         rejected_by_species=by_species,
         species=counts["species"],
         partitions=counts["partitions"],
         columns=survival.columns,
+        individuals={key: s.individual_count for key, s in zip(species_keys(names), config.species)},
+        cover={key: (r.kept, r.candidates) for key, r in zip(species_keys([r.name for r in cover]), cover)},
     )
     if maps.partition is not None and maps.partition.unlabelled_pixels:
         pm = maps.partition
@@ -95,16 +129,30 @@ def scatter(
     return inst, report
 
 
+def with_rows(inst: InstanceSet, cover: list[CoverResult], names: list[str]) -> InstanceSet:
+    """The trees followed by the ground cover's rows, with ``species_names`` = ``names`` (trees' then cover's)."""
+    cols = {c: np.concatenate([getattr(inst, c), *(r.columns[c] for r in cover)]) for c in COLUMNS}
+    return InstanceSet(
+        **cols,
+        species_names=names,
+        partition_names=list(inst.partition_names),
+        extent=inst.extent,
+        seed=inst.seed,
+        meta=inst.meta,
+    )
+
+
 def scene_instances(
     config: Config,
     instances_path: str | Path | None = None,
     progress: Progress | None = None,
     terrain: Terrain | None = None,
+    library: Library | None = None,
 ) -> InstanceSet:
     """The scene's InstanceSet: loaded from ``instances_path`` if given (and checked against the
     config's species and input files, :func:`~forest.scatter.provenance.check_provenance`), else scattered."""
     if instances_path is None:
-        return scatter(config, progress=progress, terrain=terrain)[0]
+        return scatter(config, progress=progress, terrain=terrain, library=library)[0]
     inst = InstanceSet.load(instances_path)
     check_provenance(inst, config, instances_path)
     return inst

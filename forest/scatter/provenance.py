@@ -18,11 +18,22 @@ trees' tints from the new map (:mod:`forest.scene`).
 Contents are compared, not paths or times: a map moved or touched is still
 the same map.  Sets written before inputs were recorded load with a
 :class:`~forest.errors.ForestWarning`.
+
+The species list compared is the InstanceSet's ``species_names``: the
+``[[species]]`` models then the ``[[ground_cover]]`` ones
+(:func:`~forest.scatter.models.scatter_models`).  Ground cover is placed
+around the camera path, so a set with ground cover also records the digest of
+``[camera]`` and ``[[ground_cover]]`` (``meta["ground_cover"]``,
+:func:`cover_digest`) and is refused for a config whose camera path or cover
+settings differ.  Look settings are not inputs: the ``individual`` column is
+folded into the individuals a config asks for and the tints are recomputed by
+the Scene (:mod:`forest.scene`).
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import warnings
 from pathlib import Path
@@ -30,6 +41,7 @@ from pathlib import Path
 from ..config import Config
 from ..errors import ConfigError, ForestError, ForestWarning
 from ..instances import InstanceSet
+from .models import scatter_models
 
 INPUT_FIELDS = (
     "terrain.heightmap",
@@ -92,12 +104,21 @@ def check_provenance(inst: InstanceSet, config: Config, source: str | Path) -> N
     content changed, was added or was dropped.  Warns, and accepts, when the set
     records no inputs (written before they were recorded).
     """
-    expected = [s.model for s in config.species]
+    expected = scatter_models(config)
     if list(inst.species_names) != expected:
         raise ConfigError(
             config.path,
-            "species",
+            "ground_cover"
+            if config.model.ground_cover and len(inst.species_names) > len(config.species)
+            else "species",
             f"models {expected} differ from {list(inst.species_names)} that {source} was scattered with; scatter again",
+        )
+    if cover_digest(config) != inst.meta.get("ground_cover"):
+        raise ConfigError(
+            config.path,
+            "ground_cover",
+            f"the camera path or [[ground_cover]] differ from those {source} was scattered with "
+            "(ground cover grows around the camera); scatter again",
         )
     recorded = inst.meta.get("inputs")
     if recorded is None:
@@ -126,3 +147,14 @@ def check_provenance(inst: InstanceSet, config: Config, source: str | Path) -> N
         else:
             continue
         raise ConfigError(config.path, field, msg + "; scatter again")
+
+
+def cover_digest(config: Config) -> str | None:
+    """SHA-256 of the ``[camera]`` and ``[[ground_cover]]`` settings that place ground cover; None without any."""
+    if not config.model.ground_cover:
+        return None
+    data = {
+        "camera": config.camera.model_dump(mode="json"),
+        "ground_cover": [c.model_dump(mode="json") for c in config.model.ground_cover],
+    }
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()

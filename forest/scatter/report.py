@@ -15,7 +15,9 @@ class ScatterReport:
     (the first that rejected it), so ``kept + sum(rejected.values()) == candidates``.
     ``rejected_by_species`` splits the stages that come after the species draw.
     ``columns`` holds method-specific per-tree arrays aligned with the InstanceSet's
-    rows (the ecosystem's canopy ``radius`` and ``shade_tolerant``).
+    tree rows (the ecosystem's canopy ``radius`` and ``shade_tolerant``).  Ground cover
+    is counted apart (``cover``: plants kept and sites drawn per ``[[ground_cover]]``);
+    its rows follow the trees' in the InstanceSet.
     """
 
     candidates: int
@@ -30,6 +32,8 @@ class ScatterReport:
     seconds: float = 0.0
     warnings: list[str] = field(default_factory=list)
     columns: dict[str, np.ndarray] = field(default_factory=dict)
+    individuals: dict[str, int] = field(default_factory=dict)  # tree species → individuals drawn from
+    cover: dict[str, tuple[int, int]] = field(default_factory=dict)  # ground cover → (plants, candidates)
 
     def lines(self) -> list[str]:
         out = [
@@ -37,6 +41,8 @@ class ScatterReport:
             f"in {self.seconds:.2f} s"
         ]
         out.append("  species:    " + ", ".join(f"{k} {v:,}" for k, v in self.species.items()))
+        if self.individuals:
+            out.append("  individuals: " + ", ".join(f"{k} {v}" for k, v in self.individuals.items()))
         out.append("  partitions: " + ", ".join(f"{k} {v:,}" for k, v in self.partitions.items()))
         rej = [f"{k} {v:,}" for k, v in self.rejected.items() if v]
         out.append("  rejected:   " + (", ".join(rej) if rej else "none"))
@@ -44,6 +50,11 @@ class ScatterReport:
             r = [f"{k} {v:,}" for k, v in d.items() if v]
             if r:
                 out.append(f"    {sp}: " + ", ".join(r))
+        if self.cover:
+            out.append(
+                "  ground cover: "
+                + ", ".join(f"{k} {kept:,} (of {cand:,} sites)" for k, (kept, cand) in self.cover.items())
+            )
         out.extend(f"  warning: {w}" for w in self.warnings)
         return out
 

@@ -18,6 +18,11 @@ without rebuilding anything) and ℓ a fixed shape:
   on one emitter object: no virtual dispatch over the scene).  ``sunsky`` is
   Z-up in Mitsuba 3.9.1; its ``to_world`` here maps local +Z to world +Y (and
   local +Y to world −Z), and its ``sun_direction`` is given in world space.
+  A ``sunsky`` may be *normalised* (:attr:`SkyLight.sun_irradiance`): sun and
+  sky are scaled by one factor k so that the model's sun sends
+  ``sun_irradiance`` (luminance, W/m² facing the sun) — the meaning
+  ``[lights.sun] irradiance`` has with the disc sun — keeping the model's
+  colours and its sun-to-sky ratio (:func:`sunsky_scale`).
 
 Next-event estimation picks light k with probability P_k (proportional to an
 estimate of the power it sends onto an upward surface at its initial scale,
@@ -39,6 +44,10 @@ from .inputs import SkyLight, SunLight
 MIN_PICK = 0.2
 #: Directions over the upper hemisphere used to estimate a sky's mean radiance.
 SKY_PROBES = 512
+#: Stratified samples used to measure a sunsky sun's irradiance.
+SUN_SAMPLES = 1024
+#: Elevation (degrees) below which a normalised sunsky takes its scale from a sun at this elevation.
+MIN_NORMALISE_ELEVATION = 2.0
 
 #: Local (Mitsuba sunsky, Z up) → world (Y up): x → x, y → −z, z → y.
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
@@ -80,6 +89,10 @@ class DiscSun:
 
     def power(self, scale) -> float:
         return luminance(scale) * max(self.direction[1], 0.05)
+
+    def irradiance(self, scale):
+        """RGB irradiance facing the sun: the scale itself."""
+        return self.mi.Color3f(scale)
 
     def _frame(self):
         mi = self.mi
@@ -127,6 +140,7 @@ class ConstantSky:
     def __init__(self, mi, sky: SkyLight):
         self.mi = mi
         self.initial = np.asarray(sky.radiance, dtype=np.float64)
+        self.mean_radiance = np.ones(3)  # times the scale: the radiance itself
 
     def power(self, scale) -> float:
         return math.pi * luminance(scale)
@@ -164,6 +178,7 @@ class SkyBasis(ConstantSky):
         self.param = param
         self.zenith = bool(zenith)
         self.initial = np.asarray(initial, dtype=np.float64)
+        self.mean_radiance = np.full(3, 0.5)  # mean of μ or 1 − μ over the upper hemisphere
 
     def power(self, scale) -> float:
         return luminance(scale) * (2.0 * math.pi / 3.0 if self.zenith else math.pi / 3.0)
@@ -184,10 +199,85 @@ class SkyBasis(ConstantSky):
         return dr.select(active, scale * self._shape(d), 0.0)
 
 
-class EmitterLight:
-    """A Mitsuba environment emitter (``envmap`` or ``sunsky``) at unit scale, times s."""
+def sun_irradiance_of(mi, emitter, direction, samples: int = SUN_SAMPLES) -> np.ndarray:
+    """RGB irradiance E⊥ = ∫ L(ω) (ω · s) dω that a sun-like emitter sends onto a plane facing ``direction`` s.
 
-    def __init__(self, mi, emitter, param: str, initial):
+    Estimated from ``samples`` of the emitter's own direction sampling (weights L/pdf), on a
+    fixed stratified grid so the value is deterministic.  Works in every variant.
+    """
+    import drjit as dr
+
+    s = np.asarray(direction, np.float64)
+    s = s / np.linalg.norm(s)
+    k = int(math.isqrt(samples))
+    g = (np.arange(k) + 0.5) / k
+    u1, u2 = (a.ravel() for a in np.meshgrid(g, g))
+    if mi.variant().startswith("scalar"):
+        total = np.zeros(3)
+        it = dr.zeros(mi.Interaction3f)
+        for a, b in zip(u1.tolist(), u2.tolist()):
+            ds, w = emitter.sample_direction(it, mi.Point2f(a, b))
+            if ds.pdf > 0:
+                total += np.asarray([w[0], w[1], w[2]], np.float64) * max(float(dr.dot(ds.d, mi.Vector3f(*s))), 0.0)
+        return total / len(u1)
+    with dr.suspend_grad():
+        it = dr.zeros(mi.Interaction3f, len(u1))
+        u = mi.Point2f(mi.Float(u1.astype(np.float32)), mi.Float(u2.astype(np.float32)))
+        ds, w = emitter.sample_direction(it, u, mi.Bool(True))
+        cos = dr.maximum(dr.dot(ds.d, mi.Vector3f(*[float(v) for v in s])), 0.0)
+        ok = ds.pdf > 0.0
+        e = [np.asarray(dr.select(ok, w[c] * cos, 0.0), np.float64).sum() for c in range(3)]
+    return np.asarray(e) / len(u1)
+
+
+def sunsky_dict(mi, direction, turbidity: float, albedo: float, *, sun_scale: float, sky_scale: float) -> dict:
+    """Mitsuba's ``sunsky`` rotated to Y-up (``to_world`` local +Z → world +Y), sun toward ``direction`` (world)."""
+    d = np.asarray(direction, np.float64)
+    d = d / np.linalg.norm(d)
+    return {
+        "type": "sunsky",
+        "sun_direction": [float(x) for x in d],
+        "turbidity": float(turbidity),
+        "albedo": float(albedo),
+        "to_world": mi.ScalarTransform4f(Z_UP_TO_Y_UP),
+        "sun_scale": float(sun_scale),
+        "sky_scale": float(sky_scale),
+    }
+
+
+def sunsky_scale(mi, direction, turbidity: float, albedo: float, sun_irradiance: float) -> float:
+    """The factor k that makes the ``sunsky`` sun toward ``direction`` send ``sun_irradiance`` (luminance, facing it).
+
+    Below :data:`MIN_NORMALISE_ELEVATION` degrees the model's sun fades to nothing; k is then taken at that
+    elevation (same azimuth), so a sun at the horizon gives a dim, finite sky rather than a division by zero.
+    """
+    d = np.asarray(direction, np.float64)
+    d = d / np.linalg.norm(d)
+    floor = math.sin(math.radians(MIN_NORMALISE_ELEVATION))
+    if d[1] < floor:
+        h = math.hypot(d[0], d[2]) or 1.0
+        c = math.sqrt(1.0 - floor * floor)
+        d = np.array([d[0] / h * c if h else c, floor, d[2] / h * c if h else 0.0])
+    key = (mi.variant(), tuple(np.round(d, 7)), round(float(turbidity), 7), round(float(albedo), 7))
+    if key not in _SUN_UNIT:
+        em = mi.load_dict(sunsky_dict(mi, d, turbidity, albedo, sun_scale=1.0, sky_scale=0.0))
+        _SUN_UNIT[key] = luminance(sun_irradiance_of(mi, em, d))
+    unit = _SUN_UNIT[key]
+    return float(sun_irradiance) / unit if unit > 0 else 0.0
+
+
+_SUN_UNIT: dict[tuple, float] = {}
+
+
+class EmitterLight:
+    """A Mitsuba environment emitter (``envmap`` or ``sunsky``) at unit scale, times s.
+
+    ``sun``: the emitter is a sun (``sunsky`` with its sky off) toward ``direction``: its power and
+    the haze's sun term use its irradiance :attr:`unit_irradiance`, estimated by sampling (the
+    hemisphere probes would miss a half-degree disc).
+    """
+
+    def __init__(self, mi, emitter, param: str, initial, *, direction=None):
         import drjit as dr
 
         self.mi = mi
@@ -196,16 +286,29 @@ class EmitterLight:
         self._holder = mi.load_dict({"type": "scene", "light": emitter})
         self.param = param
         self.initial = np.asarray(initial, dtype=np.float64)
+        self.direction = None if direction is None else np.asarray(direction, np.float64) / np.linalg.norm(direction)
         probes = fibonacci_hemisphere(SKY_PROBES)
         d = mi.Vector3f(*[mi.Float(probes[:, k].astype(np.float32)) for k in range(3)])
         with dr.suspend_grad():
             value = np.asarray(self._eval_unit(d, mi.Bool(True)), dtype=np.float64).reshape(-1, 3)
         # E on an upward plane ≈ 2π · mean(ℓ cos θ) over the hemisphere (uniform probes).
-        self.unit_power = luminance((2.0 * math.pi * value * probes[:, 1:2]).mean(axis=0))
+        self.unit_irradiance_up = (2.0 * math.pi * value * probes[:, 1:2]).mean(axis=0)
+        self.unit_power = luminance(self.unit_irradiance_up)
+        #: Mean radiance over the upper hemisphere (RGB, unit scale): the default haze colour of a sky.
+        self.mean_radiance = value.mean(axis=0)
         self.peak = float(value.max()) if value.size else 0.0
+        self.unit_irradiance = np.zeros(3)
+        if self.direction is not None:
+            self.unit_irradiance = sun_irradiance_of(mi, emitter, self.direction)
+            self.unit_power = luminance(self.unit_irradiance) * max(float(self.direction[1]), 0.05)
 
     def power(self, scale) -> float:
         return luminance(scale) * self.unit_power
+
+    def irradiance(self, scale):
+        """The sun's RGB irradiance facing it at scale ``scale`` (a Color3f that may carry gradients)."""
+        mi = self.mi
+        return scale * mi.Color3f(*[float(v) for v in self.unit_irradiance])
 
     def _eval_unit(self, d, active):
         import drjit as dr
@@ -246,18 +349,14 @@ def make_lights(mi, sun: SunLight | None, sky: SkyLight | None) -> list[Any]:
         assert sun is not None
         d = np.asarray(sun.direction, dtype=np.float64)
         d = d / np.linalg.norm(d)
-        base = {
-            "type": "sunsky",
-            "sun_direction": [float(x) for x in d],
-            "turbidity": float(sky.turbidity),
-            "albedo": float(sky.albedo),
-            "to_world": mi.ScalarTransform4f(Z_UP_TO_Y_UP),
-        }
+        k = 1.0
+        if sky.sun_irradiance is not None:
+            k = sunsky_scale(mi, d, sky.turbidity, sky.albedo, sky.sun_irradiance)
         if d[1] > 0.0:
-            sun_em = mi.load_dict({**base, "sky_scale": 0.0, "sun_scale": 1.0})
-            lights.append(EmitterLight(mi, sun_em, "sun_scale", [sky.sun_scale] * 3))
-        sky_em = mi.load_dict({**base, "sky_scale": 1.0, "sun_scale": 0.0})
-        lights.append(EmitterLight(mi, sky_em, "sky_scale", [sky.scale] * 3))
+            sun_em = mi.load_dict(sunsky_dict(mi, d, sky.turbidity, sky.albedo, sun_scale=1.0, sky_scale=0.0))
+            lights.append(EmitterLight(mi, sun_em, "sun_scale", [k * sky.sun_scale] * 3, direction=d))
+        sky_em = mi.load_dict(sunsky_dict(mi, d, sky.turbidity, sky.albedo, sun_scale=0.0, sky_scale=1.0))
+        lights.append(EmitterLight(mi, sky_em, "sky_scale", [k * sky.scale] * 3))
         return lights
     if sun is not None and float(np.asarray(sun.direction, dtype=np.float64)[1]) > -1.0:
         lights.append(DiscSun(mi, sun))
@@ -291,6 +390,14 @@ class LightSet:
                 pick = np.maximum(pick, MIN_PICK)
                 pick /= pick.sum()
         self.pick = [float(p) for p in pick]
+
+    def sun(self) -> tuple | None:
+        """(direction toward the sun, scale → RGB irradiance, current scale) of the sun, or None."""
+        for light, s in zip(self.lights, self.scales):
+            direction = getattr(light, "direction", None)
+            if direction is not None:
+                return (tuple(float(v) for v in direction), light.irradiance, s)
+        return None
 
     def eval(self, d, active):
         """Radiance arriving from direction ``d`` (a ray that left the scene), all lights summed."""
@@ -333,3 +440,12 @@ class LightSet:
             dk, _, _ = light.sample(s, u, sel)
             d = dr.select(sel, dk, d)
         return d, self.pdf(d, active)
+
+
+def sky_mean_radiance(lights: list[Any]) -> np.ndarray:
+    """The sky's mean radiance over the upper hemisphere at its initial scale (RGB; 0 without a sky)."""
+    total = np.zeros(3)
+    for light in lights:
+        if getattr(light, "direction", None) is None and hasattr(light, "mean_radiance"):
+            total += np.asarray(light.mean_radiance, np.float64) * np.asarray(light.initial, np.float64)
+    return total

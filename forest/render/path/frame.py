@@ -20,25 +20,28 @@ differentiate between renders): ``colour_grid`` (TensorXf (H, W, 3)),
 ``sun_irradiance`` (disc sun), ``sky_radiance`` (constant sky),
 ``sky_scale`` (envmap / sunsky sky), ``sun_scale`` (sunsky sun), ``sky_zenith`` and
 ``sky_horizon`` (gradient sky), each RGB; ``leaf_tint`` (Float, S·3: an RGB multiplier
-of each species' leaf albedo) and ``ground_tint`` (RGB, the terrain's albedo).
+of each species' leaf albedo) and ``ground_tint`` (RGB, the terrain's albedo);
+with a haze (:mod:`.haze`) also ``haze_density``, ``haze_height``,
+``haze_anisotropy`` (Float) and ``haze_colour`` (RGB).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from ...errors import ForestError
 from ...runtime import mitsuba
-from .emitters import LightSet, make_lights
+from .emitters import LightSet, make_lights, sky_mean_radiance
 from .geometry import ForestGeometry, PartArrays, TraversalScene, available_bytes, memory_plan
+from .haze import HazeModel
 from .inputs import PathCamera, PathInputs
-from .integrator import LAYER_ALPHA, PathKernel, integrator_class
+from .integrator import LAYER_ALPHA, NO_HIT, PathKernel, integrator_class
 from .materials import MaterialArrays, MaterialStore, world_map_texture
 
 #: Largest number of paths (pixels × samples) traced in one pass.
@@ -83,6 +86,28 @@ def sensor_dict(mi, camera: PathCamera) -> dict:
 
 
 @dataclass
+class PassResult:
+    """One sample pass, per pixel (row-major, H·W rows): sums over its ``spp`` samples, and per-sample first hits.
+
+    ``rows`` (H·W, spp) is the row of the surface each sample's camera ray met
+    first (a tree row < N, the identity row N for world-space parts) or
+    :data:`~forest.render.path.integrator.NO_HIT`.
+    """
+
+    spp: int
+    rgb: np.ndarray  # (H·W, 3) float64, summed
+    alpha: np.ndarray  # (H·W,) float64, samples whose camera ray hit a surface
+    rows: np.ndarray | None = None  # (H·W, spp) uint32
+    albedo: np.ndarray | None = None  # (H·W, 3) summed
+    normal: np.ndarray | None = None  # (H·W, 3) summed
+
+
+def _columns(v, n: int) -> np.ndarray:
+    """A drjit n-vector (Color3f, Vector3f) as an (lanes, n) float64 array."""
+    return np.stack([np.asarray(v[i], np.float64) for i in range(n)], axis=1)
+
+
+@dataclass
 class PathImage:
     """A rendered frame: linear RGB and coverage (fraction of a pixel's paths whose camera ray hit a surface)."""
 
@@ -114,8 +139,19 @@ class PathScene:
         self.params["ground_tint"] = mi.Color3f(*[float(x) for x in ground])
         if inputs.colour_grid is not None:
             self.params["colour_grid"] = mi.TensorXf(np.ascontiguousarray(inputs.colour_grid, dtype=np.float32))
+        if inputs.haze is not None:
+            haze = inputs.haze
+            if haze.colour is None:
+                haze = replace(haze, colour=tuple(float(c) for c in sky_mean_radiance(self.lights)))
+            self.haze = haze
+            self.params.update(HazeModel.initial_params(mi, haze))
+        else:
+            self.haze = None
         tc = np.asarray(inputs.terrain_colour, dtype=np.float32)
-        self.terrain_map = world_map_texture(mi, tc) if tc.ndim == 3 else None
+        terrain_extent = inputs.terrain_extent or self.extent
+        self.terrain_map = (
+            (world_map_texture(mi, tc), tuple(float(v) for v in terrain_extent)) if tc.ndim == 3 else None
+        )
         self.traversal: TraversalScene | None = None
         self._parts: PartArrays | None = None
         self._mats: MaterialArrays | None = None
@@ -172,17 +208,22 @@ class PathScene:
         self.activate()
         mi = self.mi
         assert self.traversal is not None and self._parts is not None and self._mats is not None
+        import drjit as dr
+
         grid = self.params.get("colour_grid")
         grid_tex = None
         if grid is not None:
-            import drjit as dr
-
             grid_tex = world_map_texture(mi, grid, differentiable=dr.grad_enabled(grid))
-        import drjit as dr
-
         g = self.params["ground_tint"]
         table = dr.concat([self.params["leaf_tint"], g.x, g.y, g.z])
         mats = self._mats.tinted_colours(mi, table)
+        lights = LightSet(mi, self.lights, self.params)
+        haze = None
+        if self.haze is not None:
+            # A haze of density 0 costs nothing unless its parameters are being differentiated.
+            attached = any(dr.grad_enabled(self.params[k]) for k in HazeModel.PARAMS)
+            if attached or float(np.asarray(self.params["haze_density"]).ravel()[0]) > 0.0:
+                haze = HazeModel(mi, self.haze, self.params, lights.sun())
         return PathKernel(
             mi,
             self.traversal,
@@ -191,9 +232,10 @@ class PathScene:
             grid=grid_tex,
             terrain_map=self.terrain_map,
             extent=self.extent,
-            lights=LightSet(mi, self.lights, self.params),
+            lights=lights,
             max_depth=int(self.inputs.max_depth if max_depth is None else max_depth),
             rr_depth=int(self.inputs.rr_depth),
+            haze=haze,
         )
 
     def integrator(self, *, max_depth: int | None = None):
@@ -243,6 +285,49 @@ class PathScene:
         ray, _ = self.sensor(camera).sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
         return sampler, ray, spp
 
+    def passes(
+        self,
+        camera: PathCamera | None = None,
+        *,
+        spp: int | None = None,
+        seed: int | None = None,
+        max_depth: int | None = None,
+        aux: bool = False,
+    ) -> Iterator[PassResult]:
+        """Render the beauty pass by pass (primal only): one :class:`PassResult` per sample pass.
+
+        Pass k traces ``split_passes(...)[k]`` samples per pixel seeded with
+        :func:`pass_seed` (seed, k), so the passes of a render are the same
+        whether they are consumed one by one or summed by :meth:`render`.
+        ``aux`` also returns each sample's first hit (row), albedo and normal.
+        """
+        import drjit as dr
+
+        camera = camera or self.inputs.camera
+        spp = int(self.inputs.spp if spp is None else spp)
+        seed = int(self.inputs.seed if seed is None else seed)
+        w, h = int(camera.width), int(camera.height)
+        kernel = self.kernel(max_depth=max_depth)
+        with dr.suspend_grad():
+            for k, n in enumerate(split_passes(w, h, spp)):
+                sampler, ray, used = self._camera_rays(camera, n, pass_seed(seed, k))
+                out = kernel.sample(dr.ADMode.Primal, sampler, ray, None, None, mi_bool(self.mi, True), aux=aux)
+                L, covered = out[0], mi_float(self.mi, out[1])
+                extra = out[3] if aux else {}
+                dr.eval(L, covered, *extra.values())  # one kernel for all outputs
+                rgb = _columns(L, 3).reshape(h * w, used, 3)
+                result = PassResult(
+                    spp=used,
+                    rgb=rgb.sum(axis=1),
+                    alpha=np.asarray(covered, np.float64).reshape(h * w, used).sum(axis=1),
+                )
+                if aux:
+                    result.rows = np.asarray(extra["row"], np.uint32).reshape(h * w, used)
+                    result.albedo = _columns(extra["albedo"], 3).reshape(h * w, used, 3).sum(axis=1)
+                    result.normal = _columns(extra["normal"], 3).reshape(h * w, used, 3).sum(axis=1)
+                del sampler, ray, out, L, covered, extra
+                yield result
+
     def render(
         self,
         camera: PathCamera | None = None,
@@ -256,32 +341,19 @@ class PathScene:
 
         ``progress(fraction)`` is called after each pass.
         """
-        import drjit as dr
-
         camera = camera or self.inputs.camera
-        spp = int(self.inputs.spp if spp is None else spp)
-        seed = int(self.inputs.seed if seed is None else seed)
+        spp_ = int(self.inputs.spp if spp is None else spp)
         w, h = int(camera.width), int(camera.height)
         acc = np.zeros((h * w, 4), np.float64)
         total = 0
         t0 = time.perf_counter()
-        kernel = self.kernel(max_depth=max_depth)
-        passes = split_passes(w, h, spp)
-        with dr.suspend_grad():
-            for k, n in enumerate(passes):
-                sampler, ray, used = self._camera_rays(camera, n, pass_seed(seed, k))
-                L, covered, _ = kernel.sample(dr.ADMode.Primal, sampler, ray, None, None, mi_bool(self.mi, True))
-                covered = mi_float(self.mi, covered)
-                dr.eval(L, covered)  # one kernel for all outputs
-                out = np.stack(
-                    [np.asarray(L.x), np.asarray(L.y), np.asarray(L.z), np.asarray(covered)],
-                    axis=1,
-                ).astype(np.float64)
-                acc += out.reshape(h * w, used, 4).sum(axis=1)
-                total += used
-                del sampler, ray, L, covered, out
-                if progress is not None:
-                    progress((k + 1) / len(passes))
+        n_passes = len(split_passes(w, h, spp_))
+        for k, p in enumerate(self.passes(camera, spp=spp_, seed=seed, max_depth=max_depth)):
+            acc[:, :3] += p.rgb
+            acc[:, 3] += p.alpha
+            total += p.spp
+            if progress is not None:
+                progress((k + 1) / n_passes)
         img = (acc / total).reshape(h, w, 4)
         return PathImage(
             rgb=img[..., :3].astype(np.float32),
@@ -289,6 +361,33 @@ class PathScene:
             spp=total,
             seconds=time.perf_counter() - t0,
         )
+
+    def first_hits(self, camera: PathCamera | None = None, *, spp: int = 1, seed: int = 0) -> Iterator[PassResult]:
+        """Per sample, what the camera ray meets first (cut-outs passed stochastically), pass by pass.
+
+        The coverage, per-sample ids and denoiser guides of a frame whose beauty
+        another renderer made (``scalar_rgb``): :class:`PassResult` with ``rows``,
+        ``alpha``, ``albedo`` and ``normal`` (``rgb`` is zero).
+        """
+        import drjit as dr
+
+        camera = camera or self.inputs.camera
+        w, h = int(camera.width), int(camera.height)
+        kernel = self.kernel()
+        with dr.suspend_grad():
+            for k, n in enumerate(split_passes(w, h, int(spp))):
+                sampler, ray, used = self._camera_rays(camera, n, pass_seed(int(seed), k))
+                row, albedo, normal = kernel.first_hit(sampler, ray, mi_bool(self.mi, True))
+                dr.eval(row, albedo, normal)
+                rows = np.asarray(row, np.uint32).reshape(h * w, used)
+                yield PassResult(
+                    spp=used,
+                    rgb=np.zeros((h * w, 3)),
+                    alpha=(rows != NO_HIT).sum(axis=1).astype(np.float64),
+                    rows=rows,
+                    albedo=_columns(albedo, 3).reshape(h * w, used, 3).sum(axis=1),
+                    normal=_columns(normal, 3).reshape(h * w, used, 3).sum(axis=1),
+                )
 
     # -- derivatives ------------------------------------------------------------------------
     def _passes(self, camera: PathCamera, spp: int, seed: int):

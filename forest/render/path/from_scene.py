@@ -1,11 +1,11 @@
 """Fill :class:`~forest.render.path.PathInputs` from a :class:`~forest.scene.Scene`.
 
 The forest path tracer itself takes plain data; this adapter reads the Scene
-— its terrain, colour map, resolved species, LOD plan, camera path and wind —
-so every renderer sees the same scene.  Differences from the ``scalar_rgb``
-path, by design: the sun is a disc of
-:data:`~forest.render.path.inputs.SUN_ANGULAR_DIAMETER` (the scalar path's
-sun is a point), and ``sunsky`` is rotated to Y-up.
+— its terrain and ground look (:mod:`forest.render.ground`), colour map,
+resolved species and their individuals, LOD plan, camera path, wind, lights
+and haze — so every renderer sees the same scene.  The sun is a disc of
+:data:`~forest.render.path.inputs.SUN_ANGULAR_DIAMETER`; ``sunsky`` is rotated
+to Y-up and normalised so its sun sends ``[lights.sun] irradiance``.
 """
 
 from __future__ import annotations
@@ -15,10 +15,14 @@ from dataclasses import replace
 import numpy as np
 
 from ...camera import camera_at, look_at_matrix
-from ...images import read_map_rgb
 from ...scene import Scene
+from ..ground import ground_look, skirt_radius
 from ..instancing import tree_matrices
+from .haze import HazeInputs
 from .inputs import PathCamera, PathInputs, SkyLight, SunLight, sun_direction
+
+#: ``[lights.sun] irradiance``'s default (W/m² facing the sun), for a sunsky without a [lights.sun].
+DEFAULT_SUN_IRRADIANCE = 3.0
 
 
 def path_camera(config, frame: float = 1.0, width: int | None = None, height: int | None = None) -> PathCamera:
@@ -37,7 +41,12 @@ def path_camera(config, frame: float = 1.0, width: int | None = None, height: in
 
 
 def path_lights(config) -> tuple[SunLight | None, SkyLight | None]:
-    """``[lights]`` as a disc sun and a sky (``sunsky`` keeps the sun only for its direction)."""
+    """``[lights]`` as a disc sun and a sky (``sunsky`` keeps the sun for its direction and irradiance).
+
+    A ``sunsky`` sky is normalised (:attr:`SkyLight.sun_irradiance`): its sun sends
+    ``[lights.sun] irradiance`` facing it (luminance), the sky keeps the model's ratio
+    to it, and ``[lights.sky.sunsky] scale`` multiplies both.
+    """
     lights = config.lights
     sun = sky = None
     s = lights.sun
@@ -50,6 +59,7 @@ def path_lights(config) -> tuple[SunLight | None, SkyLight | None]:
     k = lights.sky
     if k is not None:
         if k.kind == "sunsky":
+            target = float(s.irradiance) if s is not None else DEFAULT_SUN_IRRADIANCE
             if sun is None:
                 sun = SunLight(tuple(sun_direction(35.0, 120.0).tolist()), (0.0, 0.0, 0.0))
             sky = SkyLight(
@@ -58,6 +68,7 @@ def path_lights(config) -> tuple[SunLight | None, SkyLight | None]:
                 turbidity=float(k.sunsky.turbidity),
                 albedo=float(k.sunsky.albedo),
                 sun_scale=float(k.sunsky.scale),
+                sun_irradiance=target,
             )
         elif k.kind == "envmap":
             sky = SkyLight("envmap", envmap=k.envmap, scale=float(k.scale))
@@ -85,6 +96,43 @@ def leaf_tints(config) -> np.ndarray | None:
     return out
 
 
+def haze_inputs(config, terrain) -> HazeInputs | None:
+    """``[render] haze`` & co as :class:`HazeInputs` (None when ``haze`` is 0): the ground is the terrain's
+    lowest point; a camera ray that leaves the scene is hazed up to the end of the ground (the skirt's
+    radius, else the far clip)."""
+    rc = config.render
+    if rc.haze <= 0:
+        return None
+    far = float(config.camera.far)
+    distance = skirt_radius(terrain.extent, far) if rc.horizon_ground else far
+    return HazeInputs(
+        density=float(rc.haze),
+        height=float(rc.haze_height),
+        colour=None if rc.haze_colour is None else tuple(float(c) for c in rc.haze_colour),
+        anisotropy=float(rc.haze_anisotropy),
+        ground=float(terrain.height_range[0]),
+        sky_distance=min(distance, far),
+    )
+
+
+def scene_species(scene: Scene) -> tuple[list, np.ndarray | None]:
+    """Per species index the list of its individuals (element 0 = the species itself) and each tree's individual.
+
+    Reads ``Scene.individuals`` and ``InstanceSet.individual`` where the Scene has them; one individual
+    per species otherwise.
+    """
+    individuals = getattr(scene, "individuals", None)
+    species: list = (
+        [list(ind) if ind else [sp] for ind, sp in zip(individuals, scene.species)]
+        if individuals
+        else [[sp] for sp in scene.species]
+    )
+    column = getattr(scene.instances, "individual", None)
+    if column is None or max((len(s) for s in species), default=1) <= 1:
+        return species, None
+    return species, np.asarray(column, np.int64)
+
+
 def inputs_extent(extent) -> tuple[float, float, float, float]:
     xmin, zmin, xmax, zmax = (float(v) for v in extent)
     return (xmin, zmin, xmax, zmax)
@@ -107,15 +155,13 @@ def path_inputs(
     levels = scene.levels(frame) if len(instances) else np.zeros(0, np.int64)
     t = frame / config.camera.fps if time_s is None else time_s
     matrices = tree_matrices(instances, t, config.wind)
-    terrain_colour: object = tuple(float(c) for c in rc.terrain_colour)
-    tinted = True
-    if rc.terrain_texture is not None:
-        terrain_colour = read_map_rgb(rc.terrain_texture, what="terrain texture")
-        tinted = False
+    look = ground_look(scene)
     sun, sky = path_lights(config)
+    species, individuals = scene_species(scene)
     return PathInputs(
         instances=instances,
-        species=list(scene.species),
+        species=species,
+        individuals=individuals,
         levels=levels,
         matrices=matrices,
         camera=camera,
@@ -124,12 +170,18 @@ def path_inputs(
         sky=sky,
         colour_grid=None if scene.colour is None else scene.colour.rgb,
         extent=inputs_extent(scene.terrain.extent),
-        terrain_colour=terrain_colour,
-        terrain_tinted=tinted,
+        terrain_colour=look.colour,
+        terrain_tinted=look.tinted,
+        terrain_extent=look.extent,
+        terrain_detail=look.detail,
+        terrain_detail_tile=look.detail_tile,
+        skirt_radius=skirt_radius(scene.terrain.extent, float(config.camera.far)) if rc.horizon_ground else 0.0,
+        haze=haze_inputs(config, scene.terrain),
         max_depth=int(rc.max_depth),
         spp=int(spp or rc.spp),
         seed=int(rc.seed),
         leaf_tint=_per_index(leaf_tints(config), instances),
+        ground_tint=(1.0, 1.0, 1.0) if config.lookdev.ground_tint is None else tuple(config.lookdev.ground_tint),
     )
 
 
@@ -152,4 +204,4 @@ def with_size(inputs: PathInputs, width: int, height: int) -> PathInputs:
     return replace(inputs, camera=replace(inputs.camera, width=int(width), height=int(height)))
 
 
-__all__ = ["path_camera", "path_inputs", "path_lights", "preview_size", "with_size"]
+__all__ = ["haze_inputs", "path_camera", "path_inputs", "path_lights", "preview_size", "scene_species", "with_size"]

@@ -160,18 +160,36 @@ class ForestGeometry:
         self.world_parts: list[int] = []
         if inputs.terrain is not None:
             t = inputs.terrain
+            detail = inputs.terrain_detail
+            if detail is not None:
+                from ..ground import detail_rgb
+
+                detail = detail_rgb(detail)
             mat = materials.add(
                 Material(
                     "surface",
                     (1.0, 1.0, 1.0) if np.ndim(inputs.terrain_colour) == 3 else inputs.terrain_colour,
-                    None,
+                    detail,
                     bool(inputs.terrain_tinted and inputs.colour_grid is not None),
                 ),
                 terrain_map=np.ndim(inputs.terrain_colour) == 3,
                 tint_row=len(inputs.species),  # the ground tint follows the species' leaf tints
             )
-            mesh = _Mesh(t.vertices, t.faces, t.vertex_normals, None)
+            tile = float(inputs.terrain_detail_tile)
+
+            def world_uv(v: np.ndarray) -> np.ndarray | None:
+                # The detail repeats every ``tile`` metres of world X/Z (the terrain is world-space).
+                return None if detail is None else (np.asarray(v, np.float64)[:, [0, 2]] / tile).astype(np.float32)
+
+            mesh = _Mesh(t.vertices, t.faces, t.vertex_normals, world_uv(t.vertices))
             self.world_parts.append(self.parts.add(mesh, mat))
+            if float(inputs.skirt_radius) > 0.0:
+                from ..ground import skirt_mesh
+
+                sk = skirt_mesh(t, float(inputs.skirt_radius))
+                if sk is not None:
+                    mesh = _Mesh(sk.vertices, sk.faces, sk.normals, world_uv(sk.vertices))
+                    self.world_parts.append(self.parts.add(mesh, mat))
         for srf in inputs.surfaces:
             self.world_parts.append(self.parts.add(srf.mesh, materials.add(srf.material)))
 

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import ForestError
+from .haze import HazeInputs
 
 #: Angular diameter of the sun seen from the earth, degrees (0.5332° at 1 AU).
 SUN_ANGULAR_DIAMETER = 0.53
@@ -66,7 +67,10 @@ class SkyLight:
     * ``sunsky`` — Mitsuba's Hosek–Wilkie sky and its sun (``turbidity``, ``albedo``),
       the sky times ``scale`` and its sun times ``sun_scale``, pointed at
       :attr:`PathInputs.sun`'s direction.  Mitsuba's model is Z-up; the renderer
-      rotates it to Y-up.  It replaces the disc sun (whose irradiance is then unused);
+      rotates it to Y-up.  It replaces the disc sun (whose irradiance is then unused).
+      With ``sun_irradiance`` set, sun and sky are first scaled together so that
+      the model's sun sends that irradiance (luminance, facing the sun; see
+      :func:`~forest.render.path.emitters.sunsky_scale`).
     * ``gradient`` — L(ω) = ``zenith``·μ + ``horizon``·(1 − μ), μ = max(ω_y, 0): linear in
       the cosine of the zenith angle from the horizon's radiance to the zenith's (below the
       horizon, the horizon's).  With zenith = 3 × horizon it is the CIE standard overcast
@@ -82,6 +86,7 @@ class SkyLight:
     turbidity: float = 3.0
     albedo: float = 0.15
     sun_scale: float = 1.0
+    sun_irradiance: float | None = None
     zenith: Sequence[float] = (0.35, 0.35, 0.35)
     horizon: Sequence[float] = (0.35, 0.35, 0.35)
 
@@ -93,12 +98,13 @@ class Material:
     ``kind`` ``"leaf"`` (diffuse reflection R = (1 − τ)·a and transmission
     T = τ·a) or anything else (two-sided Lambertian, albedo a); a = ``colour`` ×
     texture RGB (a linear detail factor) × the colour grid where ``tinted``;
-    ``texture``'s alpha cuts the surface out.
+    ``texture``'s alpha cuts the surface out.  ``texture`` is an image path or
+    an (h, w, 3|4) array.
     """
 
     kind: str
     colour: Sequence[float]
-    texture: Path | None = None
+    texture: Path | np.ndarray | None = None
     tinted: bool = False
     translucency: float = 0.0
 
@@ -122,7 +128,12 @@ class PathInputs:
     rendered instant (wind applied).  ``colour_grid`` (H, W, 3, linear) is
     the tint looked up at each hit's world X/Z over ``extent`` (default the
     terrain's); ``terrain_colour`` is an RGB triple or an (H, W, 3) map over
-    the extent, multiplied by the grid where ``terrain_tinted``.  Russian
+    ``terrain_extent`` (default: the grid's extent), multiplied by the grid
+    where ``terrain_tinted`` and by ``terrain_detail`` (a tileable RGB texture
+    of mean 1, an array or an image path) repeated every
+    ``terrain_detail_tile`` metres of world X/Z.  ``skirt_radius`` > 0 carries
+    the terrain to the horizon (:func:`forest.render.ground.skirt_mesh`);
+    ``haze`` is the aerial perspective (:mod:`.haze`), None for none.  Russian
     roulette starts at path vertex ``rr_depth`` (0 = the first surface): on
     the demo forest 1 gave the noise of 2 in 64 % of the time, 0 another 44 %
     less time for 16 % more noise.  Prototypes
@@ -145,6 +156,11 @@ class PathInputs:
     extent: tuple[float, float, float, float] | None = None
     terrain_colour: Any = (0.18, 0.16, 0.11)
     terrain_tinted: bool = True
+    terrain_extent: tuple[float, float, float, float] | None = None
+    terrain_detail: Any = None
+    terrain_detail_tile: float = 1.0
+    skirt_radius: float = 0.0
+    haze: HazeInputs | None = None
     surfaces: Sequence[Surface] = ()
     individuals: np.ndarray | None = None
     max_depth: int = 4
@@ -227,6 +243,10 @@ class PathInputs:
                 )
         if self.sun is None and self.sky is None:
             raise ForestError("path inputs: no light (neither sun nor sky)")
+        if self.haze is not None:
+            self.haze.validate()
+        if self.terrain_detail is not None and not float(self.terrain_detail_tile) > 0.0:
+            raise ForestError(f"path inputs: terrain_detail_tile must be > 0 m, got {self.terrain_detail_tile}")
 
 
 def sun_direction(elevation: float, azimuth: float) -> np.ndarray:

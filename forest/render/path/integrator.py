@@ -16,6 +16,10 @@ direction ωi, throughput β and BSDF f:
   β ← β · f|cos θo| / p_b; from depth ``rr_depth`` on, Russian roulette keeps the
   path with probability q = min(max β, 0.95) and divides β by q.
 
+* **aerial perspective** — each camera or bounce segment of length ℓ that ends
+  on a surface (and a camera ray that leaves the scene) passes through the
+  haze of :mod:`.haze`: L += β·(1 − T)·J(d), β ← β·T.
+
 Camera and bounce rays pass through cut-out texels stochastically: a hit of
 opacity α stops the ray with probability α (else the ray continues from just
 past the surface, at most :data:`MAX_SKIPS` times), the estimator Mitsuba's
@@ -39,7 +43,10 @@ the radiance L_k arriving along the rest of the path, and differentiates
     Lo_k = Le_k + Lr,dir,k + L_k · f_k(ωo) / detach(f_k(ωo))
 
 at that vertex only: reverse mode calls ``dr.backward_from(δL · Lo_k)``,
-forward mode accumulates ``dr.forward_to(Lo_k)``.  Sampling is detached (the
+forward mode accumulates ``dr.forward_to(Lo_k)``.  A hazed segment is a
+vertex of its own: with the radiance L arriving through it,
+Lo = (1 − T)·J + L · T / detach(T) is differentiated there (haze density,
+height, colour and anisotropy, and the sun scale through J).  Sampling is detached (the
 paths do not depend on the parameters), which is exact here because geometry
 and visibility do not depend on albedos or light scales.  Memory stays
 constant in the path length.
@@ -51,8 +58,13 @@ which ``cuda_ad_rgb`` provides as well.
 
 from __future__ import annotations
 
+from typing import Any
+
 from .geometry import Hit, PartArrays, TraversalScene, hit_uv, resolve, surface
 from .materials import MaterialArrays, bsdf_eval, bsdf_sample, shading
+
+#: First-hit code of a path whose camera ray hit nothing (``PathKernel.sample(aux=True)``).
+NO_HIT = 0xFFFFFFFF
 
 #: Cut-out surfaces a camera, bounce or shadow ray may pass before it is taken as blocked.
 MAX_SKIPS = 24
@@ -87,8 +99,10 @@ class PathKernel:
         lights,
         max_depth: int,
         rr_depth: int,
+        haze: Any = None,
     ):
         self.mi = mi
+        self.haze = haze
         self.scene = scene
         self.parts = parts
         self.mats = mats
@@ -176,9 +190,34 @@ class PathKernel:
         sp = surface(mi, self.scene, self.parts, hit, hit.valid)
         return hit.valid, hit.t, hit.row, sp.p, sp.n_geo, sp.n_sh, sp.uv, sp.material, rng
 
+    def first_hit(self, sampler, ray, active):
+        """What each camera ray meets first, passing cut-out texels stochastically as the beauty's rays do.
+
+        Returns (row or :data:`NO_HIT`, albedo R + T, shading normal facing the camera): the
+        per-sample ids, coverage and denoiser guides of a frame whose beauty another renderer made.
+        """
+        import drjit as dr
+
+        mi = self.mi
+        n = dr.width(ray.d)
+        seed = dr.reinterpret_array(mi.UInt32, sampler.next_1d())
+        rng = mi.PCG32(size=n, initstate=mi.UInt64(seed), initseq=mi.UInt64(dr.arange(mi.UInt32, n)))
+        valid, _, row, p, _, n_sh, uv, material, _ = self.trace(ray.o, ray.d, ray.maxt, rng, active)
+        sh = shading(mi, self.mats, material, uv, p, self.grid, self.extent, self.terrain_map, valid)
+        normal = dr.select(dr.dot(n_sh, ray.d) > 0.0, -n_sh, n_sh)
+        albedo = dr.select(valid, sh.reflect + sh.transmit, 0.0)
+        return dr.select(valid, row, NO_HIT), albedo, dr.select(valid, normal, 0.0)
+
     # -- the estimator ------------------------------------------------------------------
-    def sample(self, mode, sampler, ray, δL, state_in, active):
+    def sample(self, mode, sampler, ray, δL, state_in, active, aux: bool = False):
         """One path per lane: (L, or δL in a derivative mode; the camera ray's hit flag; L as state).
+
+        ``aux`` (primal only) adds a fourth value, a dict of what the camera ray met first:
+        ``row`` (the row of the surface the path's first vertex lies on — a tree, or the
+        identity row for world-space parts — :data:`NO_HIT` where the camera ray left the
+        scene), ``albedo`` (R + T there; the sky's radiance clamped to 1 where nothing
+        was hit) and ``normal`` (the shading normal facing the camera) — the guides
+        of a denoiser and the per-sample ids of coverage mattes.
 
         The estimator (module docstring) runs as one loop of ray *segments*.
 
@@ -203,7 +242,9 @@ class PathKernel:
 
         mi = self.mi
         primal = mode == dr.ADMode.Primal
+        aux = bool(aux) and primal
         lights = self.lights
+        haze = self.haze
         n = dr.width(ray.d)
         seed = dr.reinterpret_array(mi.UInt32, sampler.next_1d())
         rng = mi.PCG32(size=n, initstate=mi.UInt64(seed), initseq=mi.UInt64(dr.arange(mi.UInt32, n)))
@@ -231,6 +272,8 @@ class PathKernel:
             C=mi.Color3f(0.0),
             cont=mi.Bool(False),
         )
+        if aux:
+            state.update(first=mi.UInt32(NO_HIT), albedo=mi.Color3f(0.0), normal=mi.Vector3f(0.0))
         if not primal:  # the vertex a pending shadow ray belongs to
             state.update(
                 vp=mi.Point3f(0.0), vuv=mi.Point2f(0.0), vmat=mi.UInt32(0), vns=mi.Vector3f(zeros3),
@@ -289,6 +332,8 @@ class PathKernel:
 
             # ---- an extension segment (camera or bounce ray): pass a cut-out texel, leave, or stop
             ext = active & ~shadow
+            if haze is not None:
+                self._haze_step(S, haze, o, d, hit, ext, primal, differentiate)
             u = S["rng"].next_float32()
             through = ext & hit.valid & (u >= alpha) & (S["eskips"] < MAX_SKIPS)
             step = self._past(o, d, hit.t)
@@ -303,6 +348,9 @@ class PathKernel:
             mis = dr.select(S["prev_delta"], 1.0, mis_weight(S["prev_pdf"], lights.pdf(d, escaped)))
             with dr.resume_grad(when=not primal):
                 Le = S["β"] * mis * lights.eval(d, escaped)
+            if aux:
+                seen = escaped & (S["depth"] == 0)
+                S["albedo"] = dr.select(seen, dr.clip(dr.detach(Le), 0.0, 1.0), S["albedo"])
             if primal:
                 S["L"] = S["L"] + Le
             else:
@@ -335,6 +383,11 @@ class PathKernel:
             with dr.resume_grad(when=not primal):
                 sh = shading(mi, self.mats, sp.material, sp.uv, sp.p, self.grid, self.extent, self.terrain_map, vertex)
             depth = S["depth"]
+            if aux:
+                first = depth == 0
+                S["first"] = dr.select(first, h_row, S["first"])
+                S["albedo"] = dr.select(first, dr.detach(sh.reflect + sh.transmit), S["albedo"])
+                S["normal"] = dr.select(first, ns, S["normal"])
             nee = depth + 1 < self.max_depth
             u_pick = S["sampler"].next_1d(nee)
             u_dir = S["sampler"].next_2d(nee)
@@ -385,7 +438,33 @@ class PathKernel:
 
         out = dict(zip(keys, dr.while_loop(tuple(state.values()), cond, body, label="forest_path: segments")))
         L = out["L"]
+        if aux:
+            return L, out["covered"], L, {"row": out["first"], "albedo": out["albedo"], "normal": out["normal"]}
         return (L if primal else out["δL"]), out["covered"], L
+
+    def _haze_step(self, S, haze, o, d, hit, ext, primal: bool, differentiate) -> None:
+        """The haze along this step of an extension segment (see :mod:`.haze`), in place on the state ``S``.
+
+        The step runs to the surface hit (a cut-out texel passed or the vertex), or — for a camera
+        ray that leaves the scene — to the haze's sky distance.  Bounce rays that reach the sky
+        are not hazed (the lights are the light arriving at the ground).
+        """
+        import drjit as dr
+
+        seg = ext & (hit.valid | (S["depth"] == 0))
+        length = dr.select(hit.valid, hit.t, dr.minimum(S["emaxt"], haze.sky_distance))
+        length = dr.select(seg, length, 0.0)
+        with dr.resume_grad(when=not primal):
+            T = haze.transmittance(o, d, length)
+            C = dr.select(seg, S["β"] * (1.0 - T) * haze.source(d), 0.0)
+        if primal:
+            S["L"] = S["L"] + C
+        else:
+            L = S["L"] - dr.detach(C)
+            with dr.resume_grad():
+                differentiate(S, C + L * dr.select(seg, dr.relative_grad(T), 0.0))
+            S["L"] = L
+        S["β"] = S["β"] * dr.detach(dr.select(seg, T, 1.0))
 
 
 _CLASSES: dict[str, type] = {}

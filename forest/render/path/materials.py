@@ -132,15 +132,20 @@ class MaterialStore:
         self._rows: list[tuple] = []
         self._index: dict[tuple, int] = {}
         self._textures: list[str] = []
+        self._arrays: dict[str, np.ndarray] = {}
 
     def add(self, m: Material | Any, *, terrain_map: bool = False, tint_row: int = -1) -> int:
         """Index of material ``m`` (a :class:`Material` or a library ``Part``), added on first use.
 
         ``tint_row``: the row of the tint table that multiplies its colour (−1: none); materials
         of different rows are kept apart even when equal, so each row tints only its own.
+
+        A texture is an image path, or an (h, w, 3|4) array (linear RGB detail, optional alpha).
         """
         kind = KIND_LEAF if getattr(m, "kind", "surface") == "leaf" else KIND_SURFACE
         tex = getattr(m, "texture", None)
+        if isinstance(tex, np.ndarray):
+            tex = self._array_key(tex)
         tau = float(getattr(m, "translucency", 0.0) or 0.0) if kind == KIND_LEAF else 0.0
         if not 0.0 <= tau <= 1.0:
             raise ForestError(f"material translucency must be in [0, 1], got {tau}")
@@ -166,11 +171,27 @@ class MaterialStore:
             self._rows.append((kind, colour, tau, t, key[3], terrain_map, int(tint_row)))
         return self._index[key]
 
+    def _array_key(self, a: np.ndarray) -> str:
+        import hashlib
+
+        arr = np.asarray(a, np.float32)
+        if arr.ndim == 2:
+            arr = arr[..., None]
+        if arr.ndim != 3 or arr.shape[2] not in (1, 3, 4) or not np.isfinite(arr).all():
+            raise ForestError(f"a texture array must be a finite (h, w, 1|3|4) image, got shape {arr.shape}")
+        if arr.shape[2] == 1:
+            arr = np.repeat(arr, 3, axis=2)
+        if arr.shape[2] == 3:
+            arr = np.concatenate([arr, np.ones(arr.shape[:2] + (1,), np.float32)], axis=2)
+        key = "array:" + hashlib.sha1(np.ascontiguousarray(arr).tobytes() + repr(arr.shape).encode()).hexdigest()
+        self._arrays[key] = np.ascontiguousarray(arr, np.float32)
+        return key
+
     def __len__(self) -> int:
         return len(self._rows)
 
     def table(self) -> MaterialTable:
-        atlas = pack_atlas([texture_rgba(p) for p in self._textures])
+        atlas = pack_atlas([self._arrays[p] if p in self._arrays else texture_rgba(p) for p in self._textures])
         rows = self._rows or [(KIND_SURFACE, (0.5, 0.5, 0.5), 0.0, -1, False, False, -1)]
         tex = np.array([r[3] for r in rows], np.int32)
         cut = np.array([t >= 0 and not atlas.opaque[t] for t in tex.tolist()], bool)
@@ -307,8 +328,9 @@ class Shading:
 def shading(mi, mats: MaterialArrays, material, uv, p, grid, extent, terrain_map, active) -> Shading:
     """R, T and the lobe probability at a hit (see the module docstring).
 
-    ``grid``/``terrain_map`` are ``Texture2f`` or None; ``extent`` is
-    (xmin, zmin, xmax, zmax).  Gradients flow from ``grid``'s tensor into R and T.
+    ``grid`` is a ``Texture2f`` over ``extent`` (xmin, zmin, xmax, zmax) or None;
+    ``terrain_map`` a (``Texture2f``, its own extent) pair or None.  Gradients flow
+    from ``grid``'s tensor into R and T.
     """
     import drjit as dr
 
@@ -326,8 +348,10 @@ def shading(mi, mats: MaterialArrays, material, uv, p, grid, extent, terrain_map
         g = grid.eval(pos, active=tinted)
         a = dr.select(tinted, a * mi.Color3f(g[0], g[1], g[2]), a)
     if terrain_map is not None:
+        tmap, (txmin, tzmin, txmax, tzmax) = terrain_map
+        tpos = mi.Point2f((p.x - txmin) * (1.0 / (txmax - txmin)), (p.z - tzmin) * (1.0 / (tzmax - tzmin)))
         mapped = dr.gather(mi.Bool, mats.terrain_map, material, active) & active
-        t = terrain_map.eval(pos, active=mapped)
+        t = tmap.eval(tpos, active=mapped)
         a = dr.select(mapped, a * mi.Color3f(t[0], t[1], t[2]), a)
     leaf = dr.gather(mi.UInt32, mats.kind, material, active) == KIND_LEAF
     tau = dr.gather(mi.Float, mats.tau, material, active)

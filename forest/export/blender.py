@@ -1,0 +1,350 @@
+"""Blender export: a ``.blend`` whose trees are Geometry Nodes instances, ready to render in Cycles.
+
+``forest export blender scene.toml -o scene.blend`` writes the scene's data
+(species meshes, one point per tree, terrain, camera, lights, render settings)
+to a temporary folder and runs Blender's own Python on it
+(``blender -b --factory-startup --python blender_build.py``,
+:mod:`forest.export.blender_build`), which builds the datablocks and saves the
+file.  Blender 3.4 or newer is needed (Debian 12's ``blender`` package works);
+it is found on ``PATH``, or named by ``$FOREST_BLENDER`` or ``blender=``.
+
+**Axes.**  forest's world is Y up, Blender's Z up, both right-handed and in
+metres: a point maps by the rotation
+
+    C = [[1, 0, 0], [0, 0, −1], [0, 1, 0]]      (x, y, z) ↦ (x, −z, y),
+
+a +90° turn about X (det C = 1: nothing is mirrored).  Species meshes are
+converted to Blender's axes once (v ↦ C·v, n ↦ C·n), so a tree's matrix
+becomes C·M·Cᵀ: position C·p, rotation C·R·Cᵀ, the same uniform scale.
+
+**Instances.**  Geometry Nodes' Instance on Points takes a rotation as Euler
+angles (XYZ order: R = R_z(γ)·R_y(β)·R_x(α)); :func:`euler_xyz` takes them
+from each tree's C·R·Cᵀ, vectorised.  The species index picks the child of
+the ``forest_species`` collection (children are ordered by name:
+``species_<index>_<name>``).  Each species instances one level of detail:
+``[export] blender_lod`` (default each species' first level).
+
+**Look and light** (units in :mod:`forest.export.radiometry`): albedo =
+base colour × texture × the tree's tint (an instance attribute), leaves
+(1 − τ)·diffuse + τ·translucent, the texture's alpha cutting leaf cards; the
+terrain textured by ``terrain_colour`` × the colour map; a Sun lamp of
+strength E (irradiance) turned so its −Z travels along −d; the World
+background of strength L (a constant sky's radiance) or an environment map
+turned +90° about Z so it lies as Mitsuba's ``envmap`` does (both map the
+image's centre column to forest's +Z and its first quarter to +X); Cycles
+with ``[render] spp``, ``max_depth`` − 1 bounces and the Standard view
+transform, so the image compares with forest's sRGB PNG; ``[render] haze``
+(aerial perspective) applied in the compositor from the depth pass.  UVs: Blender's v
+runs up the image, the library's down, so v ↦ 1 − v.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..atomic import atomic_path
+from ..camera import camera_at, frame_from_z, look_at_matrix
+from ..config import ConfigError
+from ..errors import ForestError, ParameterError
+from ..instances import quaternion_to_matrix
+from ..scene import Scene
+from . import radiometry
+from .common import check_instances, export_frames, lod_mesh, species_plans, sun_direction, terrain_texture
+
+#: forest (Y up) → Blender (Z up): (x, y, z) ↦ (x, −z, y).
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+#: The environment map's turn about Blender's Z that lays it as Mitsuba's ``envmap`` (module docstring).
+ENVMAP_ROTATION_Z = 90.0
+SCRIPT = Path(__file__).with_name("blender_build.py")
+
+
+def haze_colour(config) -> tuple[float, float, float]:
+    """The haze's colour for Cycles' constant-colour fog: ``[render] haze_colour``, else the constant sky's
+    radiance, else a daylight blue (forest_path's own default, the sky's mean radiance, needs the sky model)."""
+    hc = config.render.haze_colour
+    if hc is not None:
+        return (float(hc[0]), float(hc[1]), float(hc[2]))
+    sky = config.lights.sky
+    if sky is not None and sky.kind == "constant":
+        return (
+            float(sky.radiance * sky.colour[0]),
+            float(sky.radiance * sky.colour[1]),
+            float(sky.radiance * sky.colour[2]),
+        )
+    return (0.5, 0.6, 0.75)
+
+
+@dataclass
+class BlenderExport:
+    """What :func:`export_blender` wrote and how long it took."""
+
+    path: Path
+    trees: int
+    species: list[str] = field(default_factory=list)
+    render: Path | None = None
+    seconds: float = 0.0
+    prepare_seconds: float = 0.0  # writing the data Blender reads
+    blender_seconds: float = 0.0  # Blender building, saving (and rendering) the scene
+
+
+def blender_error(output: str) -> str:
+    """The line of Blender's output that says what went wrong (a Python exception, else its last error)."""
+    lines = [l.strip() for l in output.splitlines() if l.strip()]
+    for pattern in (r"^\w+(Error|Exception): ", r"^Error: (?!script failed)", r"[Ee]rror"):
+        hits = [l for l in lines if re.search(pattern, l)]
+        if hits:
+            return hits[-1]
+    return lines[-1] if lines else "no output"
+
+
+def find_blender(explicit: str | Path | None = None) -> str:
+    """The Blender executable: ``explicit``, ``$FOREST_BLENDER``, or ``blender`` on ``PATH``."""
+    name = str(explicit or os.environ.get("FOREST_BLENDER") or "blender")
+    found = shutil.which(name)
+    if not found:
+        raise ForestError(
+            f"Blender not found ({name}): install Blender 3.4 or newer (Debian: apt-get install blender) "
+            "or set FOREST_BLENDER to its executable"
+        )
+    return found
+
+
+def to_blender_matrix(m: np.ndarray) -> np.ndarray:
+    """A forest world-space 4×4 (object → world, column vectors) as Blender's: C4 · M, C4 = diag(C, 1)."""
+    c = np.eye(4)
+    c[:3, :3] = Y_UP_TO_Z_UP
+    return c @ np.asarray(m, dtype=np.float64)
+
+
+def euler_xyz(r: np.ndarray) -> np.ndarray:
+    """Euler angles (α, β, γ) of rotations ``r`` (N, 3, 3) with R = R_z(γ)·R_y(β)·R_x(α) (Blender's XYZ).
+
+    From R₂₀ = −sin β, R₂₁ = cos β sin α, R₂₂ = cos β cos α, R₁₀ = cos β sin γ,
+    R₀₀ = cos β cos γ: β = atan2(−R₂₀, √(R₀₀² + R₁₀²)), α = atan2(R₂₁, R₂₂),
+    γ = atan2(R₁₀, R₀₀); at gimbal lock (cos β ≈ 0) γ = 0 and
+    α = atan2(−R₁₂, R₁₁).
+    """
+    r = np.asarray(r, dtype=np.float64)
+    cy = np.hypot(r[:, 0, 0], r[:, 1, 0])
+    beta = np.arctan2(-r[:, 2, 0], cy)
+    locked = cy < 1e-9
+    alpha = np.where(locked, np.arctan2(-r[:, 1, 2], r[:, 1, 1]), np.arctan2(r[:, 2, 1], r[:, 2, 2]))
+    gamma = np.where(locked, 0.0, np.arctan2(r[:, 1, 0], r[:, 0, 0]))
+    return np.stack([alpha, beta, gamma], axis=1)
+
+
+def euler_to_matrix(e: np.ndarray) -> np.ndarray:
+    """R = R_z(γ)·R_y(β)·R_x(α) for Euler angles (N, 3): the inverse of :func:`euler_xyz`."""
+    a, b, g = (np.asarray(e, np.float64)[:, k] for k in range(3))
+    ca, sa, cb, sb, cg, sg = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(g), np.sin(g)
+    return np.stack(
+        [
+            np.stack([cg * cb, cg * sb * sa - sg * ca, cg * sb * ca + sg * sa], 1),
+            np.stack([sg * cb, sg * sb * sa + cg * ca, sg * sb * ca - cg * sa], 1),
+            np.stack([-sb, cb * sa, cb * ca], 1),
+        ],
+        1,
+    )
+
+
+def _save(folder: Path, name: str, a: np.ndarray, dtype: str) -> str:
+    (folder / name).write_bytes(np.ascontiguousarray(a, dtype=dtype).tobytes())
+    return name
+
+
+def _mesh_files(folder: Path, stem: str, vertices, faces, normals, uv) -> dict:
+    """A mesh in Blender's axes as raw arrays (positions, triangles, normals, per-vertex uv with v up)."""
+    C = Y_UP_TO_Z_UP
+    uv = np.asarray(uv, np.float64).reshape(-1, 2)
+    return {
+        "vertices": _save(folder, f"{stem}_v.bin", np.asarray(vertices, np.float64) @ C.T, "<f4"),
+        "faces": _save(folder, f"{stem}_f.bin", np.asarray(faces, np.int64).ravel(), "<i4"),
+        "normals": _save(folder, f"{stem}_n.bin", np.asarray(normals, np.float64) @ C.T, "<f4"),
+        "uv": _save(folder, f"{stem}_uv.bin", np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1), "<f4"),
+    }
+
+
+def _lod_choice(scene: Scene, plans) -> dict[int, object]:
+    config = scene.config
+    want = config.export.blender_lod
+    out = {}
+    for plan in plans:
+        names = [l.name for l in plan.species.lods]
+        name = want or names[0]
+        if name not in names:
+            raise ConfigError(
+                config.path,
+                "export.blender_lod",
+                f"{name!r} is not a level of {plan.model!r} (levels: {', '.join(names)})",
+            )
+        out[plan.index] = plan.species.lods[names.index(name)]
+    return out
+
+
+def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
+    """Write the scene's data for :mod:`forest.export.blender_build` into ``folder``; returns the manifest."""
+    config, instances, terrain = scene.config, scene.instances, scene.terrain
+    C = Y_UP_TO_Z_UP
+    plans = species_plans(scene, used_only=False)
+    lods = _lod_choice(scene, plans)
+    species = []
+    for plan in plans:
+        parts = []
+        for k, (part, m) in enumerate(lod_mesh(lods[plan.index])):
+            if len(m.faces) == 0:
+                continue
+            entry = _mesh_files(folder, f"s{plan.index}_p{k}", m.vertices, m.faces, m.normals, m.uv)
+            tex = getattr(part, "texture", None)
+            entry.update(
+                kind=str(getattr(part, "kind", "surface")),
+                colour=[float(c) for c in part.colour],
+                tinted=bool(getattr(part, "tinted", False)),
+                translucency=float(getattr(part, "translucency", 0.0) or 0.0),
+                texture=str(Path(tex).resolve()) if tex else None,
+                alpha=bool(tex),
+            )
+            parts.append(entry)
+        species.append(
+            {"name": plan.name, "object": f"species_{plan.index:03d}_{plan.name}", "model": plan.model, "parts": parts}
+        )
+    # trees: position C·p, rotation C·R·Cᵀ as Euler XYZ, uniform scale, species, tint
+    n = len(instances)
+    R = quaternion_to_matrix(instances.rotation.astype(np.float64)) if n else np.zeros((0, 3, 3))
+    rot = euler_xyz(C @ R @ C.T) if n else np.zeros((0, 3))
+    tint = np.concatenate([instances.tint.astype(np.float64), np.ones((n, 1))], axis=1)
+    points = {
+        "count": n,
+        "position": _save(folder, "points_p.bin", instances.position.astype(np.float64) @ C.T, "<f4"),
+        "rotation": _save(folder, "points_r.bin", rot, "<f4"),
+        "scale": _save(folder, "points_s.bin", instances.scale, "<f4"),
+        "species": _save(folder, "points_species.bin", instances.species, "<i4"),
+        "tint": _save(folder, "points_tint.bin", tint, "<f4"),
+    }
+    t = _mesh_files(folder, "terrain", terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv)
+    t["colour"] = [float(c) for c in config.render.terrain_colour]
+    grid = terrain_texture(scene)
+    if grid is not None:
+        from ..images import write_image
+
+        write_image(folder / "terrain.png", grid)
+        t.update(texture=str((folder / "terrain.png").resolve()), colour=[1.0, 1.0, 1.0])
+    keys = []
+    for f in frames:
+        s = camera_at(config.camera, f)
+        m = to_blender_matrix(look_at_matrix(s.position, s.target, s.up) @ np.diag([-1.0, 1.0, -1.0, 1.0]))
+        keys.append({"frame": int(f), "matrix": [float(x) for x in m.ravel()], "fov": float(s.fov)})
+    camera = {"near": float(config.camera.near), "far": float(config.camera.far), "keys": keys}
+    lights = config.lights
+    sun = None
+    if lights.sun is not None and lights.sun.elevation > 0 and lights.sun.irradiance > 0:
+        m = to_blender_matrix(frame_from_z(sun_direction(lights.sun)))  # local +Z towards the sun
+        sun = {
+            "strength": radiometry.blender_sun_strength(lights.sun.irradiance),
+            "colour": [float(c) for c in lights.sun.colour],
+            "angle": radiometry.SUN_ANGLE_DEG,
+            "matrix": [float(x) for x in m.ravel()],
+        }
+    sky: dict | None = None
+    sky_cfg = lights.sky
+    if sky_cfg is not None:
+        if sky_cfg.kind == "constant":
+            sky = {"strength": float(sky_cfg.radiance), "colour": [float(c) for c in sky_cfg.colour]}
+        elif sky_cfg.kind == "envmap" and sky_cfg.envmap is not None:
+            sky = {
+                "strength": float(sky_cfg.scale),
+                "envmap": str(Path(sky_cfg.envmap).resolve()),
+                "rotation_z": ENVMAP_ROTATION_Z,
+            }
+        else:  # physical sun-sky: the neutral blue dome the other exporters stand in with
+            scale = sky_cfg.sunsky.scale if sky_cfg.sunsky is not None else 1.0
+            sky = {"strength": 0.35 * float(scale), "colour": [0.6, 0.75, 1.0]}
+    r = config.render
+    manifest = {
+        "format": 1,
+        "species": species,
+        "points": points,
+        "terrain": t,
+        "camera": camera,
+        "sun": sun,
+        "sky": sky,
+        "render": {
+            "width": r.width,
+            "height": r.height,
+            "spp": r.spp,
+            "max_depth": r.max_depth,
+            "seed": r.seed,
+            "fps": float(config.camera.fps),
+            "haze": float(r.haze),
+            "haze_colour": [float(c) for c in haze_colour(config)],
+            "frame_start": int(frames[0]),
+            "frame_end": int(frames[-1]),
+        },
+    }
+    (folder / "manifest.json").write_text(json.dumps(manifest, indent=1, sort_keys=True))
+    return manifest
+
+
+def export_blender(
+    scene: Scene,
+    path: str | Path,
+    *,
+    blender: str | Path | None = None,
+    frames: str | list[int] | None = None,
+    render: str | Path | None = None,
+    coverage: bool = False,
+    timeout: float | None = None,
+    progress=None,
+) -> BlenderExport:
+    """Write ``path`` (a ``.blend``) with the scene built in Blender (see the module docstring).
+
+    ``render``: also render the scene to this PNG (Cycles, the scene's
+    settings); with ``coverage`` the terrain is held out and the sky
+    transparent, so the PNG's alpha marks the trees.  ``frames``: the camera's
+    keyed frames (default its keyed range, or frame 1).
+    """
+    t0 = time.perf_counter()
+    path = Path(path)
+    if path.suffix.lower() != ".blend":
+        raise ParameterError("output", f"{path}: a Blender file name must end in .blend")
+    if path.is_dir():
+        raise ParameterError("output", f"{path}: is a folder; give the .blend file's name")
+    exe = find_blender(blender)
+    check_instances(scene.config, scene.instances)
+    frame_list = export_frames(scene.config, frames)
+    report = progress or (lambda f, m="": None)
+    result = BlenderExport(path=path, trees=len(scene.instances))
+    with tempfile.TemporaryDirectory(prefix="forest-blender-") as tmp_name:
+        folder = Path(tmp_name)
+        manifest = write_manifest(scene, folder, frame_list)
+        result.species = [s["name"] for s in manifest["species"]]
+        result.prepare_seconds = time.perf_counter() - t0
+        report(0.3, "blender")
+        t1 = time.perf_counter()
+        with atomic_path(path) as out:
+            out.unlink()  # Blender writes the file afresh (no backup of the placeholder)
+            cmd = [exe, "-b", "--factory-startup", "--python-exit-code", "3", "--python", str(SCRIPT), "--"]
+            cmd += [str(folder / "manifest.json"), str(out)]
+            if render is not None:
+                cmd += ["--render", str(Path(render).resolve())] + (["--coverage"] if coverage else [])
+            try:
+                proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+            except subprocess.TimeoutExpired:
+                raise ForestError(f"{path}: Blender did not finish in {timeout:g} s") from None
+            if proc.returncode != 0 or not out.is_file():
+                raise ForestError(f"{path}: Blender failed: {blender_error(proc.stdout + proc.stderr)}")
+        result.blender_seconds = time.perf_counter() - t1
+    if render is not None:
+        result.render = Path(render)
+    report(1.0, "done")
+    result.seconds = time.perf_counter() - t0
+    return result

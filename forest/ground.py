@@ -1,0 +1,351 @@
+"""Terrain materials: the ground's linear albedo over the terrain, from rules by slope, altitude, moisture, canopy and maps.
+
+:func:`terrain_albedo` gives the Scene's :class:`TerrainAlbedo`: an ``(H, W, 3)``
+grid of linear sRGB albedo laid over the terrain's X/Z extent (the map
+convention: column → +X, row → +Z, row 0 at the smallest Z, texel (i, j)
+covering ``x ∈ xmin + [j, j+1]·Δx``, ``z ∈ zmin + [i, i+1]·Δz``), plus a
+tileable detail factor (mean 1 per channel) repeated every ``detail_tile_m``
+metres.  A renderer's ground albedo at a hit (x, z) is :meth:`TerrainAlbedo.at`:
+
+    ρ(x, z) = bilinear(rgb; x, z) ⊙ bilinear_wrapped(detail; x / tile, z / tile)
+
+Where the albedo comes from, first match wins:
+
+1. ``[render] terrain_texture`` — the image (sRGB decoded), as the map convention lays it;
+2. ``[render] terrain_colour`` given in the file — one material of that colour;
+3. ``[ground]`` — ``base`` everywhere, then every rule painted over it in order
+   (the default rules when none are given, :data:`DEFAULT_RULES`).
+
+**Rules.**  Rule r paints its material's albedo c_r over what lies beneath with
+coverage α_r ∈ [0, 1] (a layer stack, as terrain splat maps are blended):
+
+    ρ ← (1 − α_r)·ρ + α_r·c_r,    α_r = opacity · Π_v w_v(v(x)) · map(x)
+
+over the windows it gives, each a trapezoid membership (0 below lo0, a
+smoothstep s(t) = t²(3 − 2t) up to 1 at lo1, 1 until hi1, down to 0 at hi0);
+``[lo, hi]`` is the trapezoid with a default ramp width (:data:`RAMP`) centred
+on each edge, and an edge at the end of a variable's range (slope 0 or 90°,
+moisture or canopy 0 or 1) is no edge at all.  The variables, per texel
+centre:
+
+* ``slope`` θ = arctan |∇h| in degrees, from central differences of the
+  terrain's height h sampled at the texel centres (so the slope of the texel's
+  neighbourhood, not of one triangle);
+* ``altitude`` h in metres;
+* ``moisture`` — ``[maps] moisture`` (grey, bilinear), else
+  :func:`forest.maps.terrain_moisture` (low and flat ground is wet);
+* ``canopy`` — the tree crowns' cover c = 1 − exp(−D), D the crowns' area per
+  ground area around the texel: each tree (not ground cover) contributes its
+  crown disc π(s·R)² (R the half width of its species' highest level, s its
+  scale) to its texel, blurred by a Gaussian of the mean crown radius.  This is
+  the gap fraction of crowns placed at random (a Boolean model: Nilson 1971,
+  "A theoretical analysis of the frequency of gaps in plant stands",
+  Agricultural Meteorology 8: 25–38), so c = 0.63 where crowns cover the
+  ground once over.
+* ``map`` — a grey image (map convention, bilinear), or 1 − grey with ``invert``.
+
+Edges are broken up by noise: each variable is offset by ``noise · n(x) · w``
+before its window is applied, with w the window's ramp width and n a
+unit-variance Gaussian field of correlation length ``noise_scale`` metres (two
+octaves of spectrally filtered noise, :func:`forest.library.textures.periodic_noise`),
+seeded by the scene's seed and the rule's index.  Same config, same trees ⇒
+the same grid, bit for bit.
+
+Built-in materials and their sources: :data:`forest.config.schema.GROUND_MATERIALS`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .config import Config
+from .config.schema import GroundConfig, GroundRule
+from .errors import ConfigError, ForestError
+from .instances import InstanceSet
+from .library import Species
+from .maps import sample_bilinear, terrain_moisture
+from .terrain import Terrain
+
+TAG = 0x6A0D
+#: Default ramp width of a ``[lo, hi]`` window's edges, per variable (altitude: a share of the height range).
+RAMP = {"slope": 6.0, "altitude": 0.05, "moisture": 0.1, "canopy": 0.15}
+#: Where each variable's range ends: a window edge at or beyond these is no edge.
+RANGE = {"slope": (0.0, 90.0), "altitude": (-np.inf, np.inf), "moisture": (0.0, 1.0), "canopy": (0.0, 1.0)}
+MESH_RESOLUTION = 512  # mesh terrains: heights come from ray casts, so the grid is capped at this side
+
+#: The rules of a ``[ground]`` that gives none (landscape defaults): green grass on gentle open ground,
+#: straw-dry grass where that ground is dry (high, or sloping: :func:`forest.maps.terrain_moisture`),
+#: leaf litter under the crowns, rock on the steepest slopes; bare soil shows between.
+DEFAULT_RULES: tuple[dict, ...] = (
+    {"material": "grass", "slope": [0.0, 0.0, 24.0, 34.0], "canopy": [0.0, 0.0, 0.35, 0.75], "noise_scale": 40.0},
+    {
+        "material": "dry_grass",
+        "slope": [0.0, 0.0, 28.0, 38.0],
+        "moisture": [0.0, 0.0, 0.3, 0.5],
+        "canopy": [0.0, 0.0, 0.35, 0.75],
+        "noise_scale": 60.0,
+    },
+    {"material": "litter", "canopy": [0.3, 0.7, 1.0, 1.0], "noise": 0.4},
+    {"material": "rock", "slope": [30.0, 42.0, 90.0, 90.0], "noise": 1.0, "noise_scale": 15.0},
+)
+
+
+@dataclass(frozen=True)
+class TerrainAlbedo:
+    """The ground's albedo: ``rgb`` (H, W, 3) linear over ``extent`` (map convention) × a tileable ``detail``.
+
+    ``detail`` (h, w, 3) float32 has mean 1 per channel and repeats every
+    ``detail_tile_m`` metres along X and Z from the world origin (texel (i, j)
+    of a tile covers ``x/tile ∈ [j, j+1]/w``, ``z/tile ∈ [i, i+1]/h`` modulo 1);
+    None (and a tile of 0) without detail.
+    """
+
+    rgb: np.ndarray
+    extent: tuple[float, float, float, float]  # xmin, zmin, xmax, zmax
+    detail: np.ndarray | None = None
+    detail_tile_m: float = 0.0
+
+    def at(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Albedo at world (x, z): the grid bilinear (clamped at the edges) × the detail bilinear (wrapped)."""
+        xmin, zmin, xmax, zmax = self.extent
+        x = np.asarray(x, np.float64)
+        z = np.asarray(z, np.float64)
+        u = (x - xmin) / max(xmax - xmin, 1e-12)
+        v = (z - zmin) / max(zmax - zmin, 1e-12)
+        rgb = np.asarray(sample_bilinear(self.rgb, u, v), np.float64)
+        if self.detail is not None and self.detail_tile_m > 0:
+            rgb = rgb * wrapped_bilinear(self.detail, x / self.detail_tile_m, z / self.detail_tile_m)
+        return rgb.astype(np.float32)
+
+
+def wrapped_bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of a tile at (u, v) modulo 1 (texel centres at (k + ½)/n), wrapping across the seams."""
+    h, w = img.shape[:2]
+    r = np.mod(np.asarray(v, np.float64), 1.0) * h - 0.5
+    c = np.mod(np.asarray(u, np.float64), 1.0) * w - 0.5
+    i0 = np.floor(r).astype(np.int64)
+    j0 = np.floor(c).astype(np.int64)
+    tr = (r - i0)[:, None]
+    tc = (c - j0)[:, None]
+    i0, j0 = i0 % h, j0 % w
+    i1, j1 = (i0 + 1) % h, (j0 + 1) % w
+    top = img[i0, j0] * (1 - tc) + img[i0, j1] * tc
+    bot = img[i1, j0] * (1 - tc) + img[i1, j1] * tc
+    return np.asarray(top * (1 - tr) + bot * tr, np.float64)
+
+
+def grid_shape(extent: tuple[float, float, float, float], resolution: int) -> tuple[int, int]:
+    """(rows along Z, columns along X) with ``resolution`` texels along the longer side, square-ish texels."""
+    xmin, zmin, xmax, zmax = extent
+    sx, sz = max(xmax - xmin, 1e-9), max(zmax - zmin, 1e-9)
+    if sx >= sz:
+        return max(2, round(resolution * sz / sx)), resolution
+    return resolution, max(2, round(resolution * sx / sz))
+
+
+def texel_centres(extent: tuple[float, float, float, float], shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """World X and Z ``(H, W)`` of every texel centre (map convention)."""
+    xmin, zmin, xmax, zmax = extent
+    h, w = shape
+    x = xmin + (np.arange(w) + 0.5) * (xmax - xmin) / w
+    z = zmin + (np.arange(h) + 0.5) * (zmax - zmin) / h
+    return np.meshgrid(x, z)
+
+
+def smoothstep(t: np.ndarray) -> np.ndarray:
+    """s(t) = t²(3 − 2t) on t clipped to [0, 1]."""
+    t = np.clip(t, 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def ramp_points(window: Sequence[float], variable: str, unit: float) -> tuple[float, float, float, float]:
+    """A window as its trapezoid (lo0, lo1, hi1, hi0); ``unit`` scales the default ramp (altitude: the height range)."""
+    if len(window) == 4:
+        a, b, c, d = (float(x) for x in window)
+        return a, b, c, d
+    lo, hi = (float(x) for x in window)
+    half = 0.5 * RAMP[variable] * unit
+    return lo - half, lo + half, hi - half, hi + half
+
+
+def membership(x: np.ndarray, trapezoid: tuple[float, float, float, float], variable: str) -> np.ndarray:
+    """The trapezoid's membership of ``x`` in [0, 1]; edges at the end of the variable's range are dropped."""
+    a, b, c, d = trapezoid
+    lo_end, hi_end = RANGE[variable]
+    w = np.ones_like(x)
+    if 0.5 * (a + b) > lo_end:
+        w *= smoothstep((x - a) / (b - a)) if b > a else (x >= a).astype(x.dtype)
+    if 0.5 * (c + d) < hi_end:
+        w *= 1.0 - (smoothstep((x - c) / (d - c)) if d > c else (x > c).astype(x.dtype))
+    return w
+
+
+def edge_noise(
+    shape: tuple[int, int], extent: tuple[float, float, float, float], scale_m: float, seed: int, index: int
+) -> np.ndarray:
+    """A unit-variance Gaussian field ``(H, W)`` with correlation length ``scale_m`` metres (two octaves)."""
+    from .library.textures import periodic_noise
+
+    xmin, zmin, xmax, zmax = extent
+    side = max(xmax - xmin, zmax - zmin, 1e-9)
+    n = max(shape)
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, TAG, index])))
+    s = min(scale_m / side, 0.5)
+    f = periodic_noise(n, rng, s, s) + 0.5 * periodic_noise(n, rng, s / 3.0, s / 3.0)
+    f = f[: shape[0], : shape[1]]
+    return (f - f.mean()) / max(float(f.std()), 1e-12)
+
+
+def terrain_slope(height: np.ndarray, extent: tuple[float, float, float, float]) -> np.ndarray:
+    """Slope θ = arctan |∇h| in degrees of a height grid over ``extent`` (central differences)."""
+    xmin, zmin, xmax, zmax = extent
+    h, w = height.shape
+    dz = (zmax - zmin) / h
+    dx = (xmax - xmin) / w
+    gz, gx = np.gradient(height, dz, dx)
+    return np.degrees(np.arctan(np.hypot(gx, gz)))
+
+
+def canopy_cover(
+    instances: InstanceSet,
+    crown_radius: np.ndarray,
+    tree_species: int,
+    extent: tuple[float, float, float, float],
+    shape: tuple[int, int],
+) -> np.ndarray:
+    """Crown cover c = 1 − exp(−D) per texel (module docstring); ``crown_radius`` (S,) per species at scale 1."""
+    from scipy.ndimage import gaussian_filter
+
+    trees = np.flatnonzero(instances.species < tree_species)
+    h, w = shape
+    if len(trees) == 0:
+        return np.zeros(shape)
+    xmin, zmin, xmax, zmax = extent
+    dx, dz = (xmax - xmin) / w, (zmax - zmin) / h
+    r = crown_radius[instances.species[trees].astype(np.int64)] * instances.scale[trees]
+    j = np.clip(((instances.position[trees, 0] - xmin) / dx).astype(np.int64), 0, w - 1)
+    i = np.clip(((instances.position[trees, 2] - zmin) / dz).astype(np.int64), 0, h - 1)
+    area = np.bincount(i * w + j, weights=np.pi * r * r, minlength=h * w).reshape(h, w)
+    sigma = float(np.mean(r)) / np.array([dz, dx])
+    density = gaussian_filter(area / (dx * dz), sigma=np.maximum(sigma, 0.5), mode="nearest")
+    return 1.0 - np.exp(-density)
+
+
+def crown_radii(species: Sequence[Species]) -> np.ndarray:
+    """Half the larger horizontal extent of each species' highest level, metres: (S,)."""
+    out = []
+    for sp in species:
+        b = np.asarray(sp.lods[0].bounds, np.float64).reshape(2, 3)
+        out.append(0.5 * max(b[1, 0] - b[0, 0], b[1, 2] - b[0, 2]))
+    return np.array(out, dtype=np.float64)
+
+
+def read_grey(path: Path, config: Config, field: str) -> np.ndarray:
+    from .images import read_map_grey
+
+    try:
+        return read_map_grey(path, what="map")
+    except ForestError as e:
+        raise ConfigError(config.path, field, str(e)) from None
+
+
+def detail_texture(ground: GroundConfig) -> tuple[np.ndarray | None, float]:
+    """The detail tile at ``detail_strength`` (mean kept at 1) and its size, or (None, 0) without detail."""
+    if ground.detail_tile <= 0 or ground.detail_strength <= 0:
+        return None, 0.0
+    from .library.textures import ground_detail_rgb
+
+    d = 1.0 + ground.detail_strength * (ground_detail_rgb().astype(np.float64) - 1.0)
+    d = np.clip(d, 0.05, None)
+    d /= d.reshape(-1, 3).mean(axis=0)
+    return d.astype(np.float32), float(ground.detail_tile)
+
+
+def paint_rules(
+    config: Config,
+    terrain: Terrain,
+    instances: InstanceSet,
+    species: Sequence[Species],
+    ground: GroundConfig,
+) -> np.ndarray:
+    """The ``[ground]`` layer stack (module docstring) as an ``(H, W, 3)`` float32 albedo grid."""
+    extent = terrain.extent
+    resolution = ground.resolution if terrain.grid_shape is not None else min(ground.resolution, MESH_RESOLUTION)
+    shape = grid_shape(extent, resolution)
+    x, z = texel_centres(extent, shape)
+    palette = ground.palette()
+    rules = [GroundRule.model_validate(r) for r in DEFAULT_RULES] if ground.rules is None else list(ground.rules)
+    rgb = np.empty((*shape, 3), np.float64)
+    rgb[:] = palette[ground.base]
+    if not rules:
+        return rgb.astype(np.float32)
+    height = terrain.height_at(x.ravel(), z.ravel()).reshape(shape)
+    hmin, hmax = terrain.height_range
+    units = {"slope": 1.0, "altitude": max(hmax - hmin, 1.0), "moisture": 1.0, "canopy": 1.0}
+    cache: dict[str, np.ndarray] = {}
+
+    def variable(name: str) -> np.ndarray:
+        if name not in cache:
+            if name == "altitude":
+                cache[name] = height
+            elif name == "slope":
+                cache[name] = terrain_slope(height, extent)
+            elif name == "moisture":
+                if config.maps.moisture is not None:
+                    img = read_grey(config.maps.moisture, config, "maps.moisture")
+                    u, v = terrain.to_uv(x.ravel(), z.ravel())
+                    cache[name] = np.clip(sample_bilinear(img, u, v), 0.0, 1.0).reshape(shape)
+                else:
+                    cache[name] = terrain_moisture(height, variable("slope"), terrain.height_range)
+            else:  # canopy
+                n_trees = len(config.species)
+                cache[name] = canopy_cover(instances, crown_radii(species), n_trees, extent, shape)
+        return cache[name]
+
+    for r, rule in enumerate(rules):
+        where = "ground.rules" if ground.rules is None else f"ground.rules[{r}]"
+        alpha = np.full(shape, rule.opacity, np.float64)
+        noise = edge_noise(shape, extent, rule.noise_scale, config.seed, r) * rule.noise if rule.noise > 0 else None
+        for name in ("slope", "altitude", "moisture", "canopy"):
+            window = getattr(rule, name)
+            if window is None:
+                continue
+            trap = ramp_points(window, name, units[name])
+            value = variable(name)
+            if noise is not None:
+                width = 0.5 * ((trap[1] - trap[0]) + (trap[3] - trap[2])) or RAMP[name] * units[name]
+                value = value + noise * width
+            alpha *= membership(value, trap, name)
+        if rule.map is not None:
+            img = read_grey(rule.map, config, f"{where}.map")
+            u, v = terrain.to_uv(x.ravel(), z.ravel())
+            weight = np.clip(sample_bilinear(img, u, v), 0.0, 1.0).reshape(shape)
+            alpha *= 1.0 - weight if rule.invert else weight
+        c = np.asarray(palette[rule.material], np.float64)
+        rgb += alpha[..., None] * (c - rgb)
+    return rgb.astype(np.float32)
+
+
+def terrain_albedo(
+    config: Config, terrain: Terrain, instances: InstanceSet, species: Sequence[Species]
+) -> TerrainAlbedo:
+    """The Scene's :class:`TerrainAlbedo` (module docstring: texture, single colour or ``[ground]`` rules)."""
+    ground = config.model.ground
+    detail, tile = detail_texture(ground)
+    rc = config.render
+    if rc.terrain_texture is not None:
+        from .images import read_map_rgb
+
+        try:
+            rgb = read_map_rgb(rc.terrain_texture, what="terrain texture")
+        except ForestError as e:
+            raise ConfigError(config.path, "render.terrain_texture", str(e)) from None
+    elif "terrain_colour" in rc.model_fields_set:
+        rgb = np.asarray(rc.terrain_colour, np.float32).reshape(1, 1, 3)
+    else:
+        rgb = paint_rules(config, terrain, instances, species, ground)
+    return TerrainAlbedo(np.ascontiguousarray(rgb, dtype=np.float32), terrain.extent, detail, tile)

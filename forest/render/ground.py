@@ -1,0 +1,173 @@
+"""The ground both renderers draw: the terrain, a skirt that carries it to the horizon, and its albedo.
+
+**Skirt.**  A terrain ends at its extent; past it a camera saw the sky below
+the horizon (a hard horizon line, a dark band, a city floating on a square).
+:func:`skirt_mesh` extrudes every boundary edge of the terrain mesh (an edge
+used by one face) outward, radially from the centre of the extent, to a ring
+of radius R, and lowers or raises that ring to the mean height of the
+boundary:
+
+    v' = c + (v − c)_xz · R / |v − c|_xz,   y' = mean(y of the boundary vertices)
+
+so the ground runs on from its own edge height and becomes one level plane
+far away (a slope of (ȳ − y)/(R − r), a fraction of a degree).  A first,
+narrow band level with the edge turns the shading normal from the terrain's
+own to +Y (interpolating a tilted edge normal over the whole long band drew
+stripes to the horizon); its faces wind upward.  R (:func:`skirt_radius`) reaches the camera's far clip
+or at least :data:`MIN_SKIRT_RADIUS` metres (and 20 terrain widths): from
+hundreds of metres up the ring lies a fraction of a pixel below the horizon.
+
+**Albedo** (:class:`GroundLook`).  The terrain's reflectance, in this order:
+``[render] terrain_texture`` (an image over the extent, map convention); else
+the Scene's ``terrain_albedo`` (an (H, W, 3) linear albedo grid over its
+extent from the ground rules, times an optional tileable detail texture of
+mean 1 repeated every ``detail_tile_m`` metres in world X/Z); else
+``terrain_colour`` times the colour map.  Lookups outside the extent clamp to
+its edge, so the skirt continues the edge's colour.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: Smallest radius of the skirt, metres.
+MIN_SKIRT_RADIUS = 30_000.0
+#: The skirt reaches at least this many terrain widths from the centre.
+SKIRT_WIDTHS = 20.0
+#: Width of the skirt's first band, as a fraction of the terrain's width: its normal turns up over it.
+SKIRT_RAMP = 0.03
+
+
+def skirt_radius(extent, far: float) -> float:
+    """R: the camera's far clip, at least :data:`MIN_SKIRT_RADIUS` and :data:`SKIRT_WIDTHS` terrain widths."""
+    xmin, zmin, xmax, zmax = (float(v) for v in extent)
+    size = max(xmax - xmin, zmax - zmin, 1.0)
+    return float(max(far, MIN_SKIRT_RADIUS, SKIRT_WIDTHS * size))
+
+
+def boundary_edges(faces: np.ndarray) -> np.ndarray:
+    """(E, 2) vertex pairs of the edges used by exactly one face, in the direction their face runs them."""
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    key = np.sort(e, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return e[counts[inverse.ravel()] == 1]
+
+
+@dataclass(frozen=True)
+class Skirt:
+    """The skirt as a mesh: ``vertices`` (V, 3), ``faces`` (F, 3), ``normals`` (V, 3); ``uv`` as set by the caller."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+    uv: np.ndarray | None = None
+
+
+def skirt_mesh(terrain, radius: float) -> Skirt | None:
+    """The skirt around ``terrain`` (see the module docstring); None for a terrain without a boundary.
+
+    Two bands per boundary edge: a short one (:data:`SKIRT_RAMP` of the terrain's width, level with the edge)
+    over which the shading normal turns from the terrain's to +Y, then the long one out to ``radius``.
+    """
+    v = np.asarray(terrain.vertices, np.float64)
+    edges = boundary_edges(terrain.faces)
+    if len(edges) == 0:
+        return None
+    used = np.unique(edges)
+    xmin, zmin, xmax, zmax = terrain.extent
+    c = np.array([(xmin + xmax) / 2.0, (zmin + zmax) / 2.0])
+    inner = v[used]
+    rel = inner[:, [0, 2]] - c
+    dist = np.maximum(np.linalg.norm(rel, axis=1), 1e-9)
+    unit = rel / dist[:, None]
+    ramp = max(SKIRT_RAMP * max(xmax - xmin, zmax - zmin), 1.0)
+    mid = inner.copy()
+    mid[:, [0, 2]] = inner[:, [0, 2]] + unit * ramp
+    outer = np.empty_like(inner)
+    outer[:, [0, 2]] = c + unit * max(float(radius), float(dist.max()) + 2.0 * ramp)
+    outer[:, 1] = inner[:, 1].mean()
+    k = len(used)
+    local = np.searchsorted(used, edges)  # boundary vertex → 0..k-1
+    a, b = local[:, 0], local[:, 1]
+    faces = np.concatenate(
+        [
+            np.stack([a, b, b + k], 1),
+            np.stack([a, b + k, a + k], 1),
+            np.stack([a + k, b + k, b + 2 * k], 1),
+            np.stack([a + k, b + 2 * k, a + 2 * k], 1),
+        ]
+    )
+    verts = np.concatenate([inner, mid, outer])
+    # Wind every face upward (+Y) whatever the terrain's own winding.
+    p0, p1, p2 = (verts[faces[:, i]] for i in range(3))
+    down = np.cross(p1 - p0, p2 - p0)[:, 1] < 0
+    faces[down] = faces[down][:, [0, 2, 1]]
+    up = np.tile([0.0, 1.0, 0.0], (2 * k, 1))
+    normals = np.concatenate([np.asarray(terrain.vertex_normals, np.float64)[used], up])
+    return Skirt(verts.astype(np.float32), faces.astype(np.uint32), normals.astype(np.float32))
+
+
+@dataclass(frozen=True)
+class GroundLook:
+    """The terrain's reflectance for a render (see the module docstring).
+
+    ``colour``: an RGB triple or an (H, W, 3) linear map over ``extent``;
+    ``tinted``: multiplied by the colour map (only the plain ``terrain_colour``
+    is); ``detail``: a tileable RGB detail texture (an (h, w, 3|4) array or an
+    image path) of mean 1 repeated every ``detail_tile`` metres, or None.
+    """
+
+    colour: Any
+    extent: tuple[float, float, float, float]
+    tinted: bool
+    detail: np.ndarray | Path | None = None
+    detail_tile: float = 1.0
+    source: str = "terrain_colour"
+
+
+def ground_look(scene, config=None) -> GroundLook:
+    """The :class:`GroundLook` of a Scene (``config`` defaults to the Scene's)."""
+    from ..images import read_map_rgb
+
+    config = config or scene.config
+    rc = config.render
+    extent = tuple(float(v) for v in scene.terrain.extent)
+    if rc.terrain_texture is not None:
+        from ..errors import ConfigError, ForestError
+
+        try:
+            rgb = read_map_rgb(rc.terrain_texture, what="terrain texture")
+        except ForestError as e:
+            raise ConfigError(config.path, "render.terrain_texture", str(e)) from None
+        return GroundLook(rgb, extent, False, source="terrain_texture")  # type: ignore[arg-type]
+    albedo = getattr(scene, "terrain_albedo", None)
+    if albedo is not None:
+        detail = getattr(albedo, "detail", None)
+        tile = float(getattr(albedo, "detail_tile_m", 0.0) or 0.0)
+        ext = tuple(float(v) for v in getattr(albedo, "extent", extent))
+        return GroundLook(
+            np.asarray(albedo.rgb, np.float32),
+            ext,  # type: ignore[arg-type]
+            False,
+            detail if (detail is not None and tile > 0) else None,
+            tile if tile > 0 else 1.0,
+            source="terrain_albedo",
+        )
+    return GroundLook(tuple(float(c) for c in rc.terrain_colour), extent, True)  # type: ignore[arg-type]
+
+
+def detail_rgb(detail: np.ndarray | Path | str) -> np.ndarray:
+    """A detail texture as (h, w, 3) float32 linear RGB (an image path is read like a library texture)."""
+    if isinstance(detail, (str, Path)):
+        from .path.materials import texture_rgba
+
+        return np.ascontiguousarray(texture_rgba(str(detail))[..., :3])
+    a = np.asarray(detail, np.float32)
+    if a.ndim == 2:
+        a = np.repeat(a[..., None], 3, axis=2)
+    return np.ascontiguousarray(a[..., :3])

@@ -1,0 +1,194 @@
+"""Aerial perspective: an exponential height fog that scatters sun and sky light once.
+
+The medium.  Haze thins with height: its extinction coefficient at height y is
+
+    σ(y) = σ₀ · exp(−(y − y₀) / H)
+
+with σ₀ the extinction per metre at the ground (``[render] haze``), y₀ the
+lowest point of the terrain and H the scale height (``[render] haze_height``).
+
+Transmittance along a segment x(s) = o + s·d, s ∈ [0, ℓ] (|d| = 1), from the
+closed-form optical depth of an exponential atmosphere (Wenzel 2006, "Real-time
+atmospheric effects in games"; Quílez 2010, "Better fog"):
+
+    τ(ℓ) = ∫₀^ℓ σ(o_y + s·d_y) ds = σ(o_y) · ℓ · φ(ℓ·d_y / H),    φ(x) = (1 − e^(−x)) / x   (φ(0) = 1)
+    T(ℓ) = exp(−τ(ℓ))
+
+In-scattering.  With a single-scattering albedo of 1 and the light arriving at
+the haze taken as the light the sky and sun send to the ground (so it is the
+same at every point of the segment: sun shafts — the haze's own shadows — are
+not modelled), the radiance the haze adds along the segment toward the viewer is
+
+    L_in = ∫₀^ℓ T(s) σ(s) J(d) ds = (1 − T(ℓ)) · J(d)
+
+because dT/ds = −σ T.  This is the aerial-perspective model of Hoffman &
+Preetham (2002, "Rendering outdoor light scattering in real time",
+L = L₀·F_ex + L_in with L_in ∝ (1 − F_ex)), here with a height-varying density.
+The source J is an ambient term plus the sun scattered toward the viewer by a
+Henyey–Greenstein phase function (Henyey & Greenstein 1941):
+
+    J(d) = C + E_sun · p_HG(d · s; g),    p_HG(μ; g) = (1 − g²) / (4π (1 + g² − 2gμ)^(3/2))
+
+C is ``[render] haze_colour`` (the radiance the haze tends to away from the
+sun; by default the sky's mean radiance over the upper hemisphere), E_sun the
+sun's irradiance (RGB, facing the sun), s the unit vector toward the sun and g
+the anisotropy ``[render] haze_anisotropy`` (0.7: the forward peak of aerosol
+haze, Mie scattering; 0 isotropic).  Looking toward the sun (d ≈ s) the haze
+glows; away from it it tends to C.
+
+Where it applies (:mod:`.integrator`): every camera and bounce segment that
+ends on a surface, and a camera ray that leaves the scene up to
+:attr:`HazeModel.sky_distance` (the end of the ground: the sky right above a
+distant ridge is hazed at least as much as the ridge, so skylines stay clean).
+Shadow rays and bounce rays that reach the sky are not hazed — sun and sky are
+defined as the light arriving at the ground — which keeps next-event
+estimation and BSDF sampling estimating the same integral.
+
+The same formulas in numpy (:func:`transmittance_np`, :func:`source_np`) serve
+the ``scalar_rgb`` renderer's post-process, so both renderers share one model.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+#: |x| below which φ(x) = (1 − e^(−x))/x is evaluated by its Taylor series (float32 cancellation).
+SERIES_BELOW = 1e-3
+#: Largest −x passed to exp in φ (beyond it the segment is opaque anyway).
+MAX_NEG_EXPONENT = 60.0
+
+
+@dataclass(frozen=True)
+class HazeInputs:
+    """The haze of a frame (see the module docstring).
+
+    ``density`` σ₀ (1/m at ``ground``), ``height`` H (m), ``colour`` C (RGB
+    radiance; None: the sky's mean radiance over the upper hemisphere),
+    ``anisotropy`` g ∈ (−1, 1), ``ground`` y₀ (m), ``sky_distance`` (m): how
+    far a camera ray that leaves the scene is hazed.
+    """
+
+    density: float
+    height: float = 600.0
+    colour: tuple[float, float, float] | None = None
+    anisotropy: float = 0.7
+    ground: float = 0.0
+    sky_distance: float = 20_000.0
+
+    def validate(self) -> None:
+        from ...errors import ForestError
+
+        if not (math.isfinite(self.density) and self.density >= 0.0):
+            raise ForestError(f"path inputs: haze density must be ≥ 0, got {self.density}")
+        if not (math.isfinite(self.height) and self.height > 0.0):
+            raise ForestError(f"path inputs: haze height must be > 0, got {self.height}")
+        if not -1.0 < float(self.anisotropy) < 1.0:
+            raise ForestError(f"path inputs: haze anisotropy must be in (−1, 1), got {self.anisotropy}")
+        if self.colour is not None and (len(tuple(self.colour)) != 3 or min(self.colour) < 0.0):
+            raise ForestError(f"path inputs: haze colour must be a non-negative RGB triple, got {self.colour}")
+
+
+# ---------------------------------------------------------------------------------------------
+# numpy (the scalar renderer's post-process, tests)
+# ---------------------------------------------------------------------------------------------
+
+
+def phi_np(x: np.ndarray) -> np.ndarray:
+    """φ(x) = (1 − e^(−x))/x, with its series 1 − x/2 + x²/6 near 0."""
+    x = np.asarray(x, np.float64)
+    small = np.abs(x) < SERIES_BELOW
+    safe = np.where(small, 1.0, np.maximum(x, -MAX_NEG_EXPONENT))
+    return np.where(small, 1.0 - x / 2.0 + x * x / 6.0, -np.expm1(-safe) / safe)
+
+
+def transmittance_np(origin_y, direction_y, length, haze: HazeInputs) -> np.ndarray:
+    """T(ℓ) of segments starting at height ``origin_y`` with unit-direction y component ``direction_y``."""
+    oy = np.asarray(origin_y, np.float64)
+    sigma = haze.density * np.exp(-(oy - haze.ground) / haze.height)
+    ell = np.asarray(length, np.float64)
+    tau = sigma * ell * phi_np(ell * np.asarray(direction_y, np.float64) / haze.height)
+    return np.exp(-tau)
+
+
+def hg_np(mu, g: float) -> np.ndarray:
+    """Henyey–Greenstein phase function p(μ; g), per steradian."""
+    mu = np.asarray(mu, np.float64)
+    return (1.0 - g * g) / (4.0 * math.pi * np.power(1.0 + g * g - 2.0 * g * mu, 1.5))
+
+
+def source_np(directions: np.ndarray, haze: HazeInputs, sun_direction, sun_irradiance) -> np.ndarray:
+    """J(d) (…, 3) for unit view directions ``directions`` (…, 3) (propagation away from the viewer)."""
+    d = np.asarray(directions, np.float64)
+    c = np.asarray(haze.colour if haze.colour is not None else (0.0, 0.0, 0.0), np.float64)
+    if sun_direction is None or sun_irradiance is None:
+        return np.broadcast_to(c, d.shape[:-1] + (3,)).copy()
+    s = np.asarray(sun_direction, np.float64)
+    s = s / np.linalg.norm(s)
+    p = hg_np(d @ s, float(haze.anisotropy))
+    return c + p[..., None] * np.asarray(sun_irradiance, np.float64)
+
+
+# ---------------------------------------------------------------------------------------------
+# drjit (forest_path)
+# ---------------------------------------------------------------------------------------------
+
+
+class HazeModel:
+    """The haze as the path tracer evaluates it, its parameters read from ``PathScene.params``.
+
+    ``params["haze_density"]``, ``["haze_height"]``, ``["haze_anisotropy"]`` (Float) and
+    ``["haze_colour"]`` (Color3f) may carry gradients; the sun term takes the sun light's
+    current scale (``sun`` = (direction, a function scale → RGB irradiance, that scale)).
+    """
+
+    PARAMS = ("haze_density", "haze_height", "haze_colour", "haze_anisotropy")
+
+    def __init__(self, mi, haze: HazeInputs, params: dict[str, Any], sun: tuple | None):
+        self.mi = mi
+        self.ground = float(haze.ground)
+        self.sky_distance = float(haze.sky_distance)
+        self.density = params["haze_density"]
+        self.height = params["haze_height"]
+        self.colour = params["haze_colour"]
+        self.g = params["haze_anisotropy"]
+        self.sun = sun
+
+    @staticmethod
+    def initial_params(mi, haze: HazeInputs) -> dict[str, Any]:
+        return {
+            "haze_density": mi.Float(float(haze.density)),
+            "haze_height": mi.Float(float(haze.height)),
+            "haze_colour": mi.Color3f(*[float(c) for c in (haze.colour or (0.0, 0.0, 0.0))]),
+            "haze_anisotropy": mi.Float(float(haze.anisotropy)),
+        }
+
+    def transmittance(self, o, d, length):
+        """T(ℓ) of the segments o + s·d, s ∈ [0, ``length``] (Float)."""
+        import drjit as dr
+
+        inv_h = dr.rcp(self.height)
+        sigma = self.density * dr.exp(-(o.y - self.ground) * inv_h)
+        x = length * d.y * inv_h
+        small = dr.abs(x) < SERIES_BELOW
+        xs = dr.select(small, 1.0, dr.maximum(x, -MAX_NEG_EXPONENT))
+        phi = dr.select(small, 1.0 - x * 0.5 + x * x * (1.0 / 6.0), (1.0 - dr.exp(-xs)) / xs)
+        return dr.exp(-sigma * length * phi)
+
+    def source(self, d):
+        """J(d) (Color3f): the ambient colour plus the sun through the Henyey–Greenstein phase function."""
+        import drjit as dr
+
+        mi = self.mi
+        J = mi.Color3f(self.colour)
+        if self.sun is None:
+            return J
+        direction, irradiance_of, scale = self.sun
+        mu = dr.dot(d, mi.Vector3f(*[float(v) for v in direction]))
+        g = self.g
+        denom = 1.0 + g * g - 2.0 * g * mu
+        p = (1.0 - g * g) * dr.rcp(4.0 * dr.pi * denom * dr.sqrt(denom))
+        return J + irradiance_of(scale) * p

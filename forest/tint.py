@@ -1,0 +1,172 @@
+"""Per-tree tint: the colour map's tint around each species' leaf colour, with a per-tree colour jitter.
+
+A tree ``i`` of species ``s`` standing at ``x_i`` gets the tint
+
+    t_i = J_i(c_s ⊙ m(x_i)) ⊘ c_s
+
+where ``c_s`` is the species' leaf colour (linear sRGB albedo, :func:`leaf_colour`),
+``m`` the colour map as a tint of mean 1 (:func:`forest.maps.colour_tint_grid`,
+1 without a map) and ``J_i`` the tree's jitter: in Oklab (Ottosson 2020, "A
+perceptual color space for image processing", https://bottosson.github.io/posts/oklab/)
+the colour's OkLCh hue h is rotated by Δh_i and its lightness L scaled by
+(1 + Δv_i), chroma kept:
+
+    (L, a, b) → (L·(1 + Δv_i), a cos Δh_i − b sin Δh_i, a sin Δh_i + b cos Δh_i)
+
+with Δh_i = hue_s·ξ_i,1 (degrees) and Δv_i = value_s·ξ_i,2, ξ uniform in [−1, 1]
+(``[[species]] colour_jitter = { hue, value }``).  A renderer multiplies every
+*tinted* part's colour by t_i, so the tree's leaves show exactly J_i(c_s ⊙ m);
+a species whose tinted parts differ in colour gets the same factor on each
+(exact for the lightness scale, which is a per-channel factor in linear RGB
+— Oklab's L is the cube root of a linear mix, so scaling L by k scales linear
+RGB of a grey by k³ — and close for small hue angles).
+
+ξ is a hash of the tree's id and the scene's seed (SplitMix64, Steele, Lea &
+Flood 2014, "Fast splittable pseudorandom number generators", OOPSLA), not a
+draw from a stream: a tree keeps its jitter whatever else is scattered, saved
+or subset, and the Scene can recompute it from the InstanceSet alone.  Rows
+whose species has no jitter (hue = value = 0) get the map's tint unchanged.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from .config.schema import ColourJitter
+    from .library import Species
+
+JITTER_TAG = 0x7177E5
+GREY = (0.18, 0.18, 0.18)  # the base of a species with no tinted part (its tint multiplies nothing)
+_GAMMA = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+
+
+def splitmix64(x: np.ndarray) -> np.ndarray:
+    """SplitMix64's output function over uint64 ``x`` (the state after adding the golden gamma)."""
+    with np.errstate(over="ignore"):
+        z = np.asarray(x, dtype=np.uint64) + _GAMMA
+        z = (z ^ (z >> np.uint64(30))) * _M1
+        z = (z ^ (z >> np.uint64(27))) * _M2
+        return z ^ (z >> np.uint64(31))
+
+
+def tree_uniforms(ids: np.ndarray, seed: int, tag: int, count: int) -> np.ndarray:
+    """``(N, count)`` uniforms in [0, 1), a pure function of (tree id, seed, tag): 53-bit SplitMix64 hashes.
+
+    The key comes from ``SeedSequence([seed, tag])`` (the project's convention for
+    seeding); value j of tree id is ``splitmix64(key + id·count + j) / 2⁶⁴``.
+    """
+    key = np.random.SeedSequence([seed, tag]).generate_state(1, np.uint64)[0]
+    ids = np.asarray(ids, dtype=np.uint64)
+    with np.errstate(over="ignore"):
+        x = ids[:, None] * np.uint64(count) + np.arange(count, dtype=np.uint64)[None, :] + key
+    return (splitmix64(x) >> np.uint64(11)).astype(np.float64) * 2.0**-53
+
+
+def _oklab_matrices() -> tuple[np.ndarray, np.ndarray]:
+    """Linear sRGB → LMS and Oklab's LMS′ → Lab, from colour-science's definitions (sRGB primaries, D65)."""
+    import colour
+    from colour.models import oklab
+
+    rgb_to_xyz = np.asarray(colour.models.RGB_COLOURSPACE_sRGB.matrix_RGB_to_XYZ, dtype=np.float64)
+    return np.asarray(oklab.MATRIX_1_XYZ_TO_LMS) @ rgb_to_xyz, np.asarray(oklab.MATRIX_2_LMS_TO_LAB)
+
+
+def jitter_colours(rgb: np.ndarray, hue_deg: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """Rotate OkLCh hue by ``hue_deg`` and scale Oklab lightness by ``1 + value``, row-wise: linear sRGB in and out.
+
+    Oklab is Lab = M₂ · ∛(M₁ · XYZ) with colour-science's M₁, M₂ and XYZ = M_sRGB · RGB
+    (D65, the white of both); the two linear steps are folded into one matrix so a
+    million colours take a few matrix products rather than colour-science's
+    general per-call machinery.  Results outside the gamut are clipped at 0.
+    """
+    to_lms, to_lab = _oklab_matrices()
+    lab = _rows(to_lab, np.cbrt(_rows(to_lms, np.asarray(rgb, np.float64))))
+    h = np.radians(np.asarray(hue_deg, np.float64))
+    c, s = np.cos(h), np.sin(h)
+    a, b = lab[:, 1].copy(), lab[:, 2].copy()
+    lab[:, 0] *= 1.0 + np.asarray(value, np.float64)
+    lab[:, 1] = a * c - b * s
+    lab[:, 2] = a * s + b * c
+    lms = _rows(np.linalg.inv(to_lab), lab) ** 3
+    return np.maximum(_rows(np.linalg.inv(to_lms), lms), 0.0)
+
+
+def _rows(m: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``m · x_n`` for every row of ``x`` (N, 3) (einsum: several times faster than BLAS for 3×3)."""
+    return np.einsum("ij,nj->ni", m, x)
+
+
+def leaf_colour(species: Species) -> tuple[float, float, float]:
+    """The colour the tint multiplies: the first tinted part of the species' highest level (grey if none)."""
+    for lod in species.lods[:1]:
+        for part in lod.parts:
+            if part.tinted:
+                r, g, b = (float(x) for x in part.colour)
+                return (r, g, b)
+    return GREY
+
+
+def tree_tints(
+    map_tint: np.ndarray,
+    species: np.ndarray,
+    ids: np.ndarray,
+    seed: int,
+    base: np.ndarray,
+    hue: Sequence[float] | np.ndarray,
+    value: Sequence[float] | np.ndarray,
+) -> np.ndarray:
+    """Every tree's tint t_i = J_i(c_s ⊙ m_i) ⊘ c_s (module docstring): ``(N, 3)`` float32.
+
+    ``map_tint`` (N, 3) the colour map's tint at each tree, ``species`` (N,)
+    species indices, ``ids`` (N,) tree ids, ``base`` (S, 3) each species' leaf
+    colour c_s, ``hue`` / ``value`` (S,) each species' jitter amplitudes.
+    """
+    tint = np.array(map_tint, dtype=np.float32, copy=True).reshape(-1, 3)
+    k = np.asarray(species, dtype=np.int64)
+    hue = np.asarray(hue, dtype=np.float64)
+    value = np.asarray(value, dtype=np.float64)
+    jittered = ((hue > 0) | (value > 0))[k] if len(k) else np.zeros(0, bool)
+    rows = np.flatnonzero(jittered)
+    if len(rows) == 0:
+        return tint
+    xi = 2.0 * tree_uniforms(np.asarray(ids)[rows], seed, JITTER_TAG, 2) - 1.0
+    c = np.maximum(np.asarray(base, dtype=np.float64)[k[rows]], 1e-6)
+    out = jitter_colours(c * tint[rows], hue[k[rows]] * xi[:, 0], value[k[rows]] * xi[:, 1])
+    tint[rows] = (out / c).astype(np.float32)
+    return tint
+
+
+@dataclass(frozen=True)
+class TintParams:
+    """What :func:`tree_tints` needs besides the trees: per species index its leaf colour and jitter, and the seed."""
+
+    base: np.ndarray  # (S, 3) leaf colour c_s, linear sRGB
+    hue: np.ndarray  # (S,) degrees
+    value: np.ndarray  # (S,) fraction of L
+    seed: int
+
+    def tints(self, map_tint: np.ndarray, species: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """:func:`tree_tints` of these trees: ``(N, 3)`` float32."""
+        return tree_tints(map_tint, species, ids, self.seed, self.base, self.hue, self.value)
+
+
+class _Jittered(Protocol):
+    @property
+    def colour_jitter(self) -> ColourJitter: ...
+
+
+def tint_params(settings: Sequence[_Jittered], species: Sequence[Species], seed: int) -> TintParams:
+    """The :class:`TintParams` of a scene: ``settings[s].colour_jitter`` and :func:`leaf_colour` of ``species[s]``."""
+    return TintParams(
+        base=np.array([leaf_colour(sp) for sp in species], dtype=np.float64).reshape(-1, 3),
+        hue=np.array([s.colour_jitter.hue for s in settings], dtype=np.float64),
+        value=np.array([s.colour_jitter.value for s in settings], dtype=np.float64),
+        seed=int(seed),
+    )
