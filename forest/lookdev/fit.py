@@ -8,9 +8,11 @@ Each iteration k:
    (frozen in between: they only set the step, not where the fit goes, since
    the next iteration re-renders the image itself);
 2. solves the surrogate exactly (:func:`.solve.step`) → θ_{k+1};
-3. renders θ_{k+1} with the **held-out seed** — the same for every iterate
-   (common random numbers, so iterates are compared on equal noise) and never
-   used to fit — and evaluates the MAP objective (data + priors) on it.
+3. renders θ_{k+1} twice with the **held-out seeds** — the same for every
+   iterate (common random numbers, so iterates are compared on equal noise) and
+   never used to fit — and evaluates the MAP objective (data + priors) on them
+   (the data term as the product of the two renders' residuals, unbiased by
+   their noise: :meth:`.solve.Problem.objective`).
 
 Guard rails: the best iterate by that held-out objective is the result, not
 the last; an iterate worse than the best shrinks the trust box and the next
@@ -36,16 +38,30 @@ from .renders import FitRenderer
 from .solve import TRUST, UNDETERMINED, Linearisation, Problem, step, undetermined
 
 REFRESH = (3,)
+#: Largest elasticity of a pixel to an albedo multiplier (its light bounced that often on the albedo).
+MAX_ELASTICITY = 4.0
+#: A colour-map cell whose data information (in prior units) is below this is unseen and held as painted; the
+#: others are fitted, the weakly seen ones mostly through the smoothness prior that ties them to their neighbours.
+UNSEEN_CELL = 0.01
+#: Light images pooled into the surrogate (the latest renders, see :meth:`Fitter._pooled`).
+POOL = 8
 IMPLAUSIBLE = 3.0
 HOLDOUT_SEED = 0x0D0E_5EED
 
 
+def elasticity(derivative: np.ndarray, inverse_image: np.ndarray) -> np.ndarray:
+    """e = (∂I/∂ln m) / I per pixel and channel, from a derivative rendered with the same seed as I (path replay:
+    the same paths, so the ratio is each pixel's share of light that met m, times how often), clipped to
+    [0, :data:`MAX_ELASTICITY`]: an albedo multiplier scales each path by m^(bounces on it)."""
+    return np.clip(derivative * inverse_image, 0.0, MAX_ELASTICITY)
+
+
 def holdout_spp(spp: int) -> int:
-    """Samples of a held-out render: twice the fit's, rounded up as the multijitter sampler rounds (a·⌈n/a⌉,
-    a = ⌊√n⌋), so it does not warn."""
+    """Samples of each of the two held-out renders: the fit's, rounded up as the multijitter sampler rounds
+    (a·⌈n/a⌉, a = ⌊√n⌋), so it does not warn."""
     import math
 
-    n = 2 * int(spp)
+    n = int(spp)
     a = max(1, math.isqrt(n))
     return a * -(-n // a)
 
@@ -66,6 +82,7 @@ class FitResult:
     warnings: list[str] = field(default_factory=list)
     best_iteration: int = 0
     seconds: float = 0.0
+    cell_information: np.ndarray | None = None  # (n, m) the data's information on each map cell, in prior units
 
 
 class Fitter:
@@ -77,6 +94,7 @@ class Fitter:
         self.base_map = base_map
         self.seed = int(seed)
         self._up = None
+        self._pool: list[tuple[Look, dict[str, np.ndarray]]] = []
         if problem.cells is not None and base_map is not None:
             self._up = upsample_operator(base_map.shape[:2], problem.cells)
 
@@ -94,29 +112,40 @@ class Fitter:
         self.r.set_lights(self.p.light_scales(look))
         self.r.set_haze(look.get("haze", st.haze))
         leaf0 = np.ones((self.p.n_species, 3)) if st.leaf_tint0 is None else st.leaf_tint0
-        self.r.set_albedo(leaf0 * leaf_tints(look, self.p.n_species), st.ground_tint0 * ground_tint(look), self.grid(look))
+        self.r.set_albedo(
+            leaf0 * leaf_tints(look, self.p.n_species), st.ground_tint0 * ground_tint(look), self.grid(look)
+        )
 
     def render(self, look: Look, seed: int, spp: int | None = None) -> np.ndarray:
         self.apply(look)
         return self.r.render(seed, spp)
+
+    def holdout(self, look: Look) -> tuple[np.ndarray, np.ndarray]:
+        """Two independent held-out renders of ``look`` (seeds never used to fit, the same for every look)."""
+        spp = holdout_spp(self.r.spp)
+        return self.render(look, HOLDOUT_SEED, spp), self.render(look, HOLDOUT_SEED + 1, spp)
 
     # -- linearisation --------------------------------------------------------------------
     def linearise(self, look: Look, k: int, previous: Linearisation | None) -> Linearisation:
         self.apply(look)
         seed = self.seed * 1_000_003 + 7919 * k
         u = self.r.light_images(seed)
+        if k == 0:
+            self._pool = []
+        self._pool = (self._pool + [(look.copy(), u)])[-POOL:]
         total = sum(u[n] * s for n, s in self.p.light_scales(look).items() if n in u)
         if previous is not None and k not in REFRESH:
-            return Linearisation(look, u, previous.leaf_e, previous.ground_e, previous.grid_e, previous.grid_cells)
+            lin = Linearisation(look, u, previous.leaf_e, previous.ground_e, previous.grid_e, previous.grid_cells)
+            return self._pooled(lin)
         inv = np.where(total > 1e-7, 1.0 / np.maximum(total, 1e-7), 0.0)
         leaf_e = ground_e = grid_e = cells = None
         groups = {s.group for s in self.p.free}
         if "leaves" in groups:
             leaf_e = np.stack(
-                [self.r.log_derivative("leaves", seed + 1, species=s) * inv for s in range(self.p.n_species)]
+                [elasticity(self.r.log_derivative("leaves", seed, species=s), inv) for s in range(self.p.n_species)]
             )
         if "ground" in groups:
-            ground_e = self.r.log_derivative("ground", seed + 2) * inv
+            ground_e = elasticity(self.r.log_derivative("ground", seed), inv)
         if look.correction is not None and self.p.cells is not None and self._up is not None:
             cur = self.grid(look)
             assert cur is not None
@@ -127,17 +156,33 @@ class Fitter:
                 tangent = cur * (self._up @ ind).reshape(cur.shape[:2])[..., None]
                 if not tangent.any():
                     continue
-                grid_e[c] = self.r.log_derivative("grid", seed + 3 + c, tangent=tangent) * inv
+                grid_e[c] = elasticity(self.r.log_derivative("grid", seed, tangent=tangent), inv)
             lay = self.r.layers
             cells = pixel_cells(lay["u"].ravel(), lay["v"].ravel(), self.p.cells)
-        return Linearisation(look, u, leaf_e, ground_e, grid_e, cells)
+        return self._pooled(Linearisation(look, u, leaf_e, ground_e, grid_e, cells))
+
+    def _pooled(self, lin: Linearisation) -> Linearisation:
+        """``lin`` with each light image the mean of this fit's light images so far, each carried to ``lin``'s
+        albedos by the elasticities (U_j ⊙ exp(Σ e (ln m_k − ln m_j))): their noise averages down, so the
+        surrogate's errors-in-variables bias (:mod:`.losses`) shrinks with every iteration.  Images rendered
+        at another haze density are not pooled (their difference is not a product)."""
+        haze = lin.look.get("haze", self.p.start.haze)
+        same = [(lk, u) for lk, u in self._pool if abs(lk.get("haze", self.p.start.haze) - haze) < 1e-12]
+        if len(same) <= 1:
+            return lin
+        out: dict[str, np.ndarray] = {}
+        for lk, u in same:
+            f = np.exp(self.p.albedo_exponent(lin.look, lk, lin, next(iter(u.values())).shape))
+            for name, img in u.items():
+                out[name] = out.get(name, 0.0) + img * f / len(same)
+        return Linearisation(lin.look, out, lin.leaf_e, lin.ground_e, lin.grid_e, lin.grid_cells)
 
     # -- the loop -------------------------------------------------------------------------
     def run(self, start: Look, *, iterations: int, progress: Callable[[float, str], None] | None = None) -> FitResult:
         t0 = time.perf_counter()
         say = progress or (lambda f, m="": None)
         res = FitResult(start=start.copy(), best=start.copy())
-        img0 = self.render(start, HOLDOUT_SEED, holdout_spp(self.r.spp))
+        img0 = self.holdout(start)
         current = start.copy()
         lin: Linearisation | None = None
         trust = TRUST
@@ -151,7 +196,7 @@ class Fitter:
                 lin = Linearisation(current, lin.light_images, lin.leaf_e, lin.ground_e, lin.grid_e, lin.grid_cells)
                 res.start = current.copy()
                 res.best = current.copy()
-                res.start_objective = res.best_objective = self.p.objective(current, img0)
+                res.start_objective = res.best_objective = self.p.objective(current, *img0)
                 start_data, best_total = res.start_objective[0], sum(res.start_objective)
                 res.history.append(
                     {
@@ -164,13 +209,12 @@ class Fitter:
                 )
                 say(0.0, f"start: objective {best_total:.4g}")
             candidate = step(self.p, lin, trust=trust)
-            img = self.render(candidate, HOLDOUT_SEED, holdout_spp(self.r.spp))
-            data, prior = self.p.objective(candidate, img)
+            data, prior = self.p.objective(candidate, *self.holdout(candidate))
             total = data + prior
             accepted = total < best_total and data <= start_data
             res.history.append({"iteration": k + 1, "data": data, "prior": prior, "total": total, "accepted": accepted})
             if accepted:
-                gain = (best_total - total) / max(best_total, 1e-30)
+                gain = (best_total - total) / max(abs(best_total), 1e-30)
                 stalls = stalls + 1 if gain < STALL else 0
                 best_total = total
                 res.best, res.best_objective, res.best_iteration = candidate.copy(), (data, prior), k + 1
@@ -198,10 +242,11 @@ class Fitter:
             if name in look.values:
                 look.held[name] = look.values.pop(name)
         if info is not None and self.p.cells is not None:
-            held = info < 1.0
+            res.cell_information = info.reshape(self.p.cells)
+            held = info < UNSEEN_CELL
             self.p.held_cells = held
             if held.any():
-                res.held["colour map"] = f"{int(held.sum())} of {held.size} cells unseen or nearly: kept as painted"
+                res.held["colour map"] = f"{int(held.sum())} of {held.size} cells unseen: kept as painted"
 
     def _flags(self, res: FitResult) -> list[str]:
         out = []

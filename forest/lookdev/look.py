@@ -9,7 +9,8 @@ differences on a handful of scalars):
   horizontal irradiance π(Y_h + 2Y_z)/3 is (1 − share)·G; an environment map or
   ``sunsky`` sky keeps its shape and colour and its start scale is multiplied by
   (1 − share)·G / E_sky,0 (a sunsky's sun with it);
-* camera gains W = c(T_wb, Duv_wb) / c(6504 K) with unit luminance, times 2^EV;
+* camera gains W = c(T_wb, Duv_D(T_wb) + tint_wb) / c_D(6504 K) with unit luminance, times 2^EV (the
+  balance moves along the daylight locus, Duv_D; the start, D65 with tint 0, is neutral);
 * leaf tint of species s = exp(leaves + leaf_s) per channel; ground tint = exp(ground);
 * haze colour (the haze's ambient radiance) = the start's ratio × L_horizon (× the sky's scale
   factor for an environment map or sunsky).
@@ -26,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .colour import luminance
-from .daylight import D65_CCT, daylight_rgb, locus_rgb
+from .daylight import D65_CCT, daylight_duv, daylight_rgb, locus_rgb
 from .params import Look, Start
 
 CHANNELS = "rgb"
@@ -82,7 +83,8 @@ def lights(look: Look, start: Start) -> Lights:
 def camera_gain(look: Look) -> np.ndarray:
     """2^EV · W: the per-channel gain from render to photo."""
     k = 1e6 / _v(look, "wb_mired", 1e6 / D65_CCT)
-    w = locus_rgb(k, _v(look, "wb_tint", 0.0)) / daylight_rgb(D65_CCT)
+    # The balance moves along the daylight locus (tint: Duv off it), so the start (D65, 0) is exactly neutral.
+    w = locus_rgb(k, float(daylight_duv(k)) + _v(look, "wb_tint", 0.0)) / daylight_rgb(D65_CCT)
     w = w / float(luminance(w))
     return (2.0 ** _v(look, "exposure", 0.0)) * w
 

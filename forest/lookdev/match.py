@@ -66,6 +66,8 @@ class MatchResult:
     seconds: float
     warnings: list[str] = field(default_factory=list)
     losses: list[float] = field(default_factory=list)
+    held_cells: np.ndarray | None = None  # (grid, grid) bool: colour-map cells unseen, kept as painted
+    cell_information: np.ndarray | None = None  # (grid, grid): the reference's information on each cell (prior units)
 
     @property
     def paths(self) -> list[Path]:
@@ -182,7 +184,7 @@ def match(
     from .image_model import ImageModel
     from .losses import PixelLoss, RegionLoss
     from .reference import load_reference
-    from .regions import photo_labels, read_mask, regions, render_labels
+    from .regions import AUTO, photo_labels, read_mask, regions, render_labels
     from .renders import FitRenderer
     from .report import write_outputs
     from .solve import Problem
@@ -232,10 +234,13 @@ def match(
     top = float(lay["dir"][..., 1][sky_px].max()) if sky_px.any() else -1.0
     start.sky_tied = top < np.sin(np.radians(GRADIENT_MIN_ELEVATION))
     if start.sky_tied and "sky" in groups and start.sky_kind == "constant":
-        notes.append(
+        seen = (
             f"the sky in frame reaches {np.degrees(np.arcsin(max(min(top, 1.0), -1.0))):.0f}° above the horizon "
-            f"(under {GRADIENT_MIN_ELEVATION:g}°): its gradient is held, the sky is fitted as one colour"
+            f"(under {GRADIENT_MIN_ELEVATION:g}°)"
+            if sky_px.any()
+            else "no sky in frame"
         )
+        notes.append(f"{seen}: its gradient is held, the sky is fitted as one colour")
     specs = specs_for(start, groups)
     look0 = Look(start_values(start, specs), np.zeros((st.grid, st.grid, 3)) if fit_map else None)
     image = ImageModel(lay["optical"], clip=ref.display_referred)
@@ -243,7 +248,10 @@ def match(
     problem = Problem(specs, start, image, None, renderer.n_species, cells=cells)
     fitter = Fitter(renderer, problem, base_map=base, seed=rseed ^ SEED_TAG)
     rl = render_labels(lay)
-    pl = photo_labels(ref.rgb, rl, painted)
+    if st.mode == "aligned":  # the same camera: the render's regions are the photo's, unless painted
+        pl = rl if painted is None else np.where(painted == AUTO, rl, painted)
+    else:
+        pl = photo_labels(ref.rgb, rl, painted)
     # The start's image and where its sun reaches: regions, and the noise of the aligned loss.
     fitter.apply(look0)
     u0 = renderer.light_images(rseed + 1)
@@ -261,7 +269,7 @@ def match(
 
         var = uniform_filter((start_photo - other) ** 2 / 2.0, size=(3, 3, 1), mode="nearest")
         loss.set_noise(var)
-        loss.weight = loss.weight * (pl >= 0)[..., None]
+        loss.mask(pl >= 0)
     else:
         sky_up = lay["dir"][..., 1]
         regs = regions(rl, pl, sky_up=sky_up, sun_lit=sun_lit, render_img=start_photo, photo_img=ref.rgb)
@@ -300,4 +308,6 @@ def match(
         seconds=time.perf_counter() - t0,
         warnings=notes,
         losses=[h["total"] for h in res.history],
+        held_cells=None if problem.held_cells is None or cells is None else problem.held_cells.reshape(cells),
+        cell_information=res.cell_information,
     )

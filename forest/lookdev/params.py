@@ -18,7 +18,7 @@ after aerial perspective:
   balance leans to: W = c(T)/c(6504 K) normalised to unit luminance (von Kries
   gains on the daylight locus; c from :mod:`.daylight`), range 2500–12 000 K,
   prior N(6504 K, (25 mired)²) — auto white balance errs by a few hundred kelvin
-  under daylight; ``wb_tint``: Duv offset (green–magenta), prior N(0, 0.006²).
+  under daylight; ``wb_tint``: Duv offset from the daylight locus (green–magenta), prior N(0, 0.006²).
 
 **Sun** (group ``sun``): direction from the config (not fitted from gradients);
 ``sun_mired``: the direct beam's colour temperature on the daylight locus

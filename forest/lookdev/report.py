@@ -182,6 +182,8 @@ def parameter_table(problem, result) -> list[dict]:
                 "start_shown": s.show(v0),
                 "fitted_shown": s.show(v1),
                 "range": s.show_range(),
+                "lo": _r(s.lo),
+                "hi": _r(s.hi),
                 "prior": f"{s.show(s.mean)} ± {s.sigma:g}{' mired' if s.kind == 'mired' else ''}",
                 "determined": _r(determination(result.shares.get(s.name, 1.0)), 3),
                 "held": held,

@@ -50,9 +50,20 @@ from .look import camera_gain, ground_tint, haze_colour, leaf_tints, lights
 from .params import Look, Spec, Start
 
 UNDETERMINED = 0.9
-#: Prior σ of a colour-map ln-correction cell, and the σ of a difference between neighbours.
+#: Prior σ of a colour-map ln-correction cell.
 CELL_SIGMA = 0.5
-CELL_SMOOTH = 0.15
+#: Prior σ of the ln-correction's change across the whole map: a difference between neighbouring cells of an
+#: n-cell side has σ = CELL_SPAN / (n − 1) (a smooth field whose slope is the same at any grid), at least
+#: :data:`CELL_SMOOTH_MIN`.
+CELL_SPAN = 1.0
+CELL_SMOOTH_MIN = 0.02
+
+
+def cell_smooth(cells: tuple[int, int]) -> float:
+    """σ of a difference between neighbouring correction cells (see :data:`CELL_SPAN`)."""
+    return max(CELL_SPAN / max(max(cells) - 1, 1), CELL_SMOOTH_MIN)
+
+
 #: σ of the sum of species' relative leaf ln-multipliers (a soft equality constraint).
 SUM_SIGMA = 0.01
 #: Largest change of a linearised ln-albedo in one step (the trust box), at the start.
@@ -113,24 +124,29 @@ class Problem:
             s = np.asarray(scales.get(k, np.zeros(3)), np.float64)
             base = u * s if base is None else base + u * s
         assert base is not None
-        expo = np.zeros_like(base)
+        return base * np.exp(self.albedo_exponent(look, lin.look, lin, base.shape))
+
+    def albedo_exponent(self, look: Look, at: Look, lin: Linearisation, shape: tuple) -> np.ndarray:
+        """Σ_a e_a ⊙ (ln m_a(look) − ln m_a(at)) (+ the map cells'): the first-order ln-change of the image from
+        the albedos of ``at`` to those of ``look``, with ``lin``'s elasticities; (H, W, 3), clipped to ±20."""
+        expo = np.zeros(shape)
         if lin.leaf_e is not None:
-            d = np.log(leaf_tints(look, self.n_species)) - np.log(leaf_tints(lin.look, self.n_species))
+            d = np.log(leaf_tints(look, self.n_species)) - np.log(leaf_tints(at, self.n_species))
             expo += np.einsum("shwc,sc->hwc", lin.leaf_e, d)
         if lin.ground_e is not None:
-            expo += lin.ground_e * (np.log(ground_tint(look)) - np.log(ground_tint(lin.look)))
-        if lin.grid_e is not None and look.correction is not None and lin.look.correction is not None:
-            dc = (look.correction - lin.look.correction).reshape(-1, 3)
+            expo += lin.ground_e * (np.log(ground_tint(look)) - np.log(ground_tint(at)))
+        if lin.grid_e is not None and look.correction is not None and at.correction is not None:
+            dc = (look.correction - at.correction).reshape(-1, 3)
             cells = lin.grid_cells
             assert cells is not None
-            h, w = base.shape[:2]
+            h, w = shape[:2]
             for k in range(9):
                 idx = cells[:, k]
                 ok = idx >= 0
                 delta = np.zeros((h * w, 3))
                 delta[ok] = dc[idx[ok]]
                 expo += lin.grid_e[k] * delta.reshape(h, w, 3)
-        return base * np.exp(np.clip(expo, -20.0, 20.0))
+        return np.clip(expo, -20.0, 20.0)
 
     def photo_model(self, look: Look, render: np.ndarray, rendered_at: Look | None = None) -> np.ndarray:
         """The photo predicted from a render at ``look`` — or, in the surrogate, from a render at
@@ -157,17 +173,22 @@ class Problem:
         if look.correction is not None and self.cells is not None:
             c = look.correction.reshape(-1, 3)
             parts.append((c / CELL_SIGMA).ravel())
-            parts.append((smoothness(self.cells) @ c / CELL_SMOOTH).ravel())
+            parts.append((smoothness(self.cells) @ c / cell_smooth(self.cells)).ravel())
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def data_residuals(self, photo: np.ndarray) -> np.ndarray:
         return self.loss.residuals(photo)  # type: ignore[attr-defined]
 
-    def objective(self, look: Look, image: np.ndarray) -> tuple[float, float]:
-        """(data, prior) halves of ½‖r‖² for a rendered (or modelled) linear image at ``look``."""
+    def objective(self, look: Look, image: np.ndarray, image2: np.ndarray | None = None) -> tuple[float, float]:
+        """(data, prior) halves of ½‖r‖² for a rendered (or modelled) linear image at ``look``.
+
+        With a second, independent render ``image2`` of the same look the data half is ½ r₁·r₂: its
+        expectation is the squared bias ½‖E r‖² alone, without the render's variance that would favour
+        less noisy looks (:mod:`.losses`)."""
         d = self.data_residuals(self.photo_model(look, image))
+        d2 = d if image2 is None else self.data_residuals(self.photo_model(look, image2))
         p = self.prior_residuals(look)
-        return 0.5 * float(d @ d), 0.5 * float(p @ p)
+        return 0.5 * float(d @ d2), 0.5 * float(p @ p)
 
     # -- packing --------------------------------------------------------------------------
     def pack(self, look: Look) -> np.ndarray:
@@ -221,7 +242,7 @@ def _global_jacobian(problem: Problem, look: Look, lin: Linearisation, r0: np.nd
 
 
 def _grid_jacobian(problem: Problem, look: Look, lin: Linearisation) -> sp.csr_matrix:
-    """∂r/∂c of the pixel residuals (aligned): sparse, one non-zero per pixel, channel and class."""
+    """∂r/∂c of the block residuals (aligned): sparse, from one non-zero per pixel, channel and class."""
     from .losses import PixelLoss
 
     assert isinstance(problem.loss, PixelLoss) and lin.grid_e is not None and lin.grid_cells is not None
@@ -231,7 +252,6 @@ def _grid_jacobian(problem: Problem, look: Look, lin: Linearisation) -> sp.csr_m
     dq = render * t * camera_gain(look)  # ∂Q/∂(ln R) before clipping
     if problem.image.clip:
         dq = np.where(problem.photo_model(look, render, lin.look) >= 1.0, 0.0, dq)
-    scale = problem.loss.row_scale()
     h, w = render.shape[:2]
     rows, cols, vals = [], [], []
     pix = np.arange(h * w)
@@ -243,12 +263,12 @@ def _grid_jacobian(problem: Problem, look: Look, lin: Linearisation) -> sp.csr_m
             r = pix[ok] * 3 + c
             rows.append(r)
             cols.append(idx[ok] * 3 + c)
-            vals.append(e[ok, c] * scale[r])
+            vals.append(e[ok, c])
     n_cells = problem.cells[0] * problem.cells[1]  # type: ignore[index]
     m = sp.csr_matrix(
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(h * w * 3, n_cells * 3)
     )
-    return m[:, problem._cell_free()]
+    return problem.loss.project(m[:, problem._cell_free()]).tocsr()
 
 
 def prior_jacobian(problem: Problem, look: Look) -> sp.csr_matrix:
@@ -270,7 +290,7 @@ def prior_jacobian(problem: Problem, look: Look) -> sp.csr_matrix:
         n = problem.cells[0] * problem.cells[1]
         keep = problem._cell_free()
         eye = sp.identity(n * 3, format="csr") / CELL_SIGMA
-        d3 = sp.kron(smoothness(problem.cells), sp.identity(3), format="csr") / CELL_SMOOTH
+        d3 = sp.kron(smoothness(problem.cells), sp.identity(3), format="csr") / cell_smooth(problem.cells)
         blocks_rows.append(sp.hstack([sp.csr_matrix((n * 3, ng)), eye[:, keep]]))
         blocks_rows.append(sp.hstack([sp.csr_matrix((d3.shape[0], ng)), d3[:, keep]]))
     return sp.vstack(blocks_rows, format="csr")
