@@ -1,4 +1,4 @@
-"""``forest match``: fit the colour map and lights to a reference photo (look-dev)."""
+"""``forest match``: fit a scene's look to a reference photo with the production renderer (look-dev)."""
 
 from __future__ import annotations
 
@@ -53,7 +53,7 @@ def register(app: typer.Typer) -> None:
         from ..render.scene import check_render_inputs
         from ..scene import load_scene
 
-        # Everything a fit needs, checked before the scene is loaded and the proxy built.
+        # Everything a fit needs, checked before the scene is loaded and the production scene built.
         preflight.output_folder(output)
         preflight.input_file(reference, field="reference", what="reference")
         if mask is not None:

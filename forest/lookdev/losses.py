@@ -31,8 +31,11 @@ with m_k the region's mean linear colour,
     r_k = ( ln(Y(m_k)/Y(p_k)),  ln(r/g)_m − ln(r/g)_p,  ln(b/g)_m − ln(b/g)_p ) / τ_ln,
 
 its luminance and two chromaticity ratios in logarithms, τ_ln =
-:data:`LOG_TOLERANCE` (2 % in luminance is about one CIELAB lightness step at
-mid-grey, ΔL* ≈ 0.9).  Logarithms rather than CIELAB differences because a
+:data:`LOG_TOLERANCE`: 5 % in luminance is about two CIELAB lightness steps at
+mid-grey (ΔL* ≈ 2.2) — as close as the mean colours of another place's sky,
+foliage and ground can be asked to come, so the priors keep their say where
+the photo's statistics could be met by trading parameters (a warm sun against
+a cool white balance).  Logarithms rather than CIELAB differences because a
 render can start far from the photo — a forest interior 9 EV too dark — where
 CIELAB's slope vanishes (L* = 903.3·Y near black) and the data would look
 uninformative; in logarithms exposure moves every residual at the same rate
@@ -55,7 +58,7 @@ from .regions import Region, region_means
 PIXEL_TOLERANCE = 0.02
 #: Side of the square pixel blocks the aligned loss compares.
 BLOCK = 2
-LOG_TOLERANCE = 0.02
+LOG_TOLERANCE = 0.05
 NOISE_BALANCE = 0.1
 
 

@@ -340,8 +340,14 @@ def write_report(
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(15, 14), dpi=90)
-    gs = fig.add_gridspec(4, 3, height_ratios=[1.0, 0.95, 0.9, 1.35], hspace=0.35, wspace=0.18)
+    rows = len(table) + 1
+    table_height = 0.22 * rows
+    if maps is not None:
+        heights = [3.2, 2.6, 3.0, table_height]
+    else:
+        heights = [3.2, 2.6, table_height]
+    fig = Figure(figsize=(15, sum(heights) + 1.2), dpi=90)
+    gs = fig.add_gridspec(len(heights), 3, height_ratios=heights, hspace=0.3, wspace=0.18)
     panels = (("reference", reference), ("start (production render)", start), ("fitted (production render)", fitted))
     for i, (name, img) in enumerate(panels):
         ax = fig.add_subplot(gs[0, i])
@@ -377,7 +383,10 @@ def write_report(
     ax.plot(it, dat, "s--", lw=0.8, ms=3, color="0.5", label="data term")
     best = figures["best_iteration"]
     ax.plot([best], [figures["objective_fitted"]], "r*", ms=10, label=f"kept: iteration {best}")
-    ax.set_yscale("log")
+    if min(tot + dat) > 0:
+        ax.set_yscale("log")
+    else:  # the held-out data term is an unbiased estimate and may dip below 0 near the optimum
+        ax.set_yscale("symlog", linthresh=max(1e-3, min(abs(v) for v in tot + dat if v != 0)))
     ax.set_xlabel("iteration")
     ax.set_title(f"objective {figures['objective_start']:.4g} → {figures['objective_fitted']:.4g}", fontsize=9)
     ax.legend(fontsize=7)
@@ -385,11 +394,20 @@ def write_report(
     if maps is not None:
         for j, (name, m) in enumerate((("painted colour map", maps[0]), ("fitted colour map", maps[1]))):
             ax = fig.add_subplot(gs[2, j])
-            ax.imshow(_show(m), origin="lower", interpolation="nearest")
-            ax.set_title(f"{name} ({m.shape[1]}×{m.shape[0]}, row 0 at the smallest Z)", fontsize=9)
+            # A tint of mean about 1 would show as near white: shown with the painted map's mean as mid-grey.
+            ref_mean = np.maximum(np.asarray(maps[0], np.float64).reshape(-1, 3).mean(axis=0), 1e-6)
+            ax.imshow(
+                np.clip(linear_to_srgb(np.asarray(m) / ref_mean * 0.214), 0.0, 1.0),
+                origin="lower",
+                interpolation="nearest",
+            )
+            ax.set_title(
+                f"{name} ({m.shape[1]}×{m.shape[0]}, row 0 at the smallest Z; the painted mean is mid-grey)",
+                fontsize=9,
+            )
             ax.axis("off")
     # Parameter table.
-    ax = fig.add_subplot(gs[3, :])
+    ax = fig.add_subplot(gs[len(heights) - 1, :])
     ax.axis("off")
     cols = ["parameter", "start", "fitted", "range", "prior", "determined", "flag"]
     cells = [
@@ -400,15 +418,21 @@ def write_report(
             r["range"],
             r["prior"],
             f"{100 * r['determined']:.0f} %",
-            r["flag"][:60],
+            r["flag"].replace("held: undetermined: the reference narrows its prior by", "held: narrowed by")[:48],
         ]
         for r in table
     ]
     if cells:
-        tab = ax.table(cellText=cells, colLabels=cols, loc="upper center", cellLoc="left")
+        tab = ax.table(
+            cellText=cells,
+            colLabels=cols,
+            loc="upper center",
+            cellLoc="left",
+            colWidths=[0.2, 0.1, 0.1, 0.14, 0.15, 0.08, 0.23],
+        )
         tab.auto_set_font_size(False)
-        tab.set_fontsize(7)
-        tab.scale(1.0, 1.05)
+        tab.set_fontsize(8)
+        tab.scale(1.0, 1.25)
     w, h = size
     fig.suptitle(
         f"forest match — {settings.mode}, {len(history) - 1} iterations × {settings.spp} spp at {w}×{h}; "
