@@ -153,8 +153,8 @@ PHOTO_SCENES = {
         percent = 100
         scale = [1.5, 2.5]
         [camera]
-        position = [0.0, 40.0, -260.0]
-        target = [0.0, 42.0, 0.0]
+        position = [0.0, 25.0, -700.0]
+        target = [0.0, 22.0, 0.0]
         fov = 60
         [lights.sun]
         elevation = 4

@@ -49,6 +49,10 @@ IMPLAUSIBLE = 3.0
 HOLDOUT_SEED = 0x0D0E_5EED
 
 
+def _quiet(fraction: float, message: str = "") -> None:
+    """A progress callback that says nothing."""
+
+
 def elasticity(derivative: np.ndarray, inverse_image: np.ndarray) -> np.ndarray:
     """e = (∂I/∂ln m) / I per pixel and channel, from a derivative rendered with the same seed as I (path replay:
     the same paths, so the ratio is each pixel's share of light that met m, times how often), clipped to
@@ -180,7 +184,7 @@ class Fitter:
     # -- the loop -------------------------------------------------------------------------
     def run(self, start: Look, *, iterations: int, progress: Callable[[float, str], None] | None = None) -> FitResult:
         t0 = time.perf_counter()
-        say = progress or (lambda f, m="": None)
+        say = progress if progress is not None else _quiet
         res = FitResult(start=start.copy(), best=start.copy())
         img0 = self.holdout(start)
         current = start.copy()
@@ -234,6 +238,7 @@ class Fitter:
     def _decide_held(self, look: Look, lin: Linearisation, res: FitResult) -> None:
         shares, info = undetermined(self.p, look, lin)
         res.shares = shares
+        res.held.update(self.p.held_reasons)
         for name, share in shares.items():
             if share > UNDETERMINED:
                 self.p.held.add(name)

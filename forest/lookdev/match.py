@@ -246,6 +246,12 @@ def match(
     image = ImageModel(lay["optical"], clip=ref.display_referred)
     rseed = int(config.seed if seed is None else seed)
     problem = Problem(specs, start, image, None, renderer.n_species, cells=cells)
+    if st.mode == "statistics":
+        # One photo of another place shows the product of the camera's balance and the light's colour only.
+        for name in ("wb_mired", "wb_tint"):
+            if any(s.name == name for s in specs):
+                problem.held.add(name)
+                problem.held_reasons[name] = "confounded with the light colours in an unrelated photo"
     fitter = Fitter(renderer, problem, base_map=base, seed=rseed ^ SEED_TAG)
     rl = render_labels(lay)
     if st.mode == "aligned":  # the same camera: the render's regions are the photo's, unless painted
@@ -262,6 +268,7 @@ def match(
         sun_part = u0["sun_irradiance"] * scales["sun_irradiance"]
         sun_lit = (sun_part.sum(-1) >= 0.5 * np.maximum(total0.sum(-1), 1e-9)) & lay["hit"]
     start_photo = problem.photo_model(look0, total0)
+    loss: PixelLoss | RegionLoss
     if st.mode == "aligned":
         loss = PixelLoss(ref)
         other = problem.photo_model(look0, fitter.render(look0, rseed + 2))

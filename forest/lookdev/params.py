@@ -105,6 +105,11 @@ SUN_CCT_BY_ELEVATION = (
 )
 
 
+def _mired(kelvin: float) -> float:
+    """10⁶ / T as a float."""
+    return float(mired(kelvin))
+
+
 def sun_prior_kelvin(elevation: float) -> float:
     """Prior mean of the sun's colour temperature at ``elevation`` degrees."""
     e, t = zip(*SUN_CCT_BY_ELEVATION)
@@ -193,9 +198,9 @@ def specs_for(start: Start, groups: set[str]) -> list[Spec]:
                 "wb_mired",
                 "camera",
                 "camera white balance",
-                mired(12000.0),
-                mired(2500.0),
-                mired(D65_CCT),
+                _mired(12000.0),
+                _mired(2500.0),
+                _mired(D65_CCT),
                 25.0,
                 kind="mired",
             ),
@@ -203,15 +208,15 @@ def specs_for(start: Start, groups: set[str]) -> list[Spec]:
         ]
     if "sun" in groups and start.sun_on:
         prior_k = sun_prior_kelvin(start.sun_elevation)
-        m0 = float(np.clip(mired(start.sun_kelvin), mired(10000.0), mired(2000.0)))
+        m0 = float(np.clip(_mired(start.sun_kelvin), _mired(10000.0), _mired(2000.0)))
         out += [
             Spec(
                 "sun_mired",
                 "sun",
                 "sun colour temperature",
-                mired(10000.0),
-                mired(2000.0),
-                mired(prior_k),
+                _mired(10000.0),
+                _mired(2000.0),
+                _mired(prior_k),
                 60.0,
                 kind="mired",
             ),
@@ -224,9 +229,9 @@ def specs_for(start: Start, groups: set[str]) -> list[Spec]:
                 "horizon_mired",
                 "sky",
                 "sky colour temperature",
-                mired(40000.0),
-                mired(1800.0),
-                mired(9000.0),
+                _mired(40000.0),
+                _mired(1800.0),
+                _mired(9000.0),
                 70.0,
                 kind="mired",
             ),
@@ -238,9 +243,9 @@ def specs_for(start: Start, groups: set[str]) -> list[Spec]:
                 "zenith_mired",
                 "sky",
                 "sky zenith colour temperature",
-                mired(40000.0),
-                mired(2500.0),
-                mired(12000.0),
+                _mired(40000.0),
+                _mired(2500.0),
+                _mired(12000.0),
                 50.0,
                 kind="mired",
             ),
@@ -249,9 +254,9 @@ def specs_for(start: Start, groups: set[str]) -> list[Spec]:
                 "horizon_mired",
                 "sky",
                 "sky horizon colour temperature",
-                mired(40000.0),
-                mired(1800.0),
-                mired(7000.0),
+                _mired(40000.0),
+                _mired(1800.0),
+                _mired(7000.0),
                 70.0,
                 kind="mired",
             ),
@@ -298,17 +303,17 @@ def start_values(start: Start, specs: list[Spec]) -> dict[str, float]:
     v: dict[str, float] = {}
     for s in specs:
         if s.name == "sun_mired":
-            v[s.name] = float(np.clip(mired(start.sun_kelvin), s.lo, s.hi))
+            v[s.name] = float(np.clip(_mired(start.sun_kelvin), s.lo, s.hi))
         elif s.name == "sun_tint":
             v[s.name] = float(np.clip(start.sun_duv, s.lo, s.hi))
         elif s.name == "sun_share":
             v[s.name] = float(np.clip(start.share0, s.lo, s.hi))
         elif s.name in ("zenith_mired", "horizon_mired"):
-            v[s.name] = float(np.clip(mired(start.sky_kelvin), s.lo, s.hi))
+            v[s.name] = float(np.clip(_mired(start.sky_kelvin), s.lo, s.hi))
         elif s.name in ("zenith_tint", "horizon_tint"):
             v[s.name] = float(np.clip(start.sky_duv, s.lo, s.hi))
         elif s.name == "wb_mired":
-            v[s.name] = float(mired(D65_CCT))
+            v[s.name] = float(_mired(D65_CCT))
         elif s.name == "haze":
             v[s.name] = float(np.clip(start.haze, s.lo, s.hi))
         else:

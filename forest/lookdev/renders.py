@@ -80,7 +80,7 @@ class FitRenderer:
             inputs = replace(inputs, haze=None if hz is None else replace(hz, density=0.0))
         sky = inputs.sky
         self.gradient = sky is not None and sky.kind == "constant"
-        if self.gradient:
+        if sky is not None and self.gradient:
             rad = tuple(float(x) for x in sky.radiance)
             inputs = replace(inputs, sky=SkyLight("gradient", zenith=rad, horizon=rad))
         if base_map is not None:
@@ -241,15 +241,13 @@ class FitRenderer:
         p = self.scene.params
         if what == "leaves":
             key = "leaf_tint"
-            cur = np.asarray(p[key], np.float64).reshape(-1, 3)
-            t = cur.copy()
+            t = np.asarray(p[key], np.float64).reshape(-1, 3).copy()
             if species is not None:
                 t[np.arange(len(t)) != species] = 0.0
             tan = mi.Float(t.astype(np.float32).ravel())
         elif what == "ground":
             key = "ground_tint"
-            cur = np.asarray(p[key], np.float64).ravel()
-            tan = mi.Color3f(*[float(x) for x in cur])
+            tan = mi.Color3f(*[float(x) for x in np.asarray(p[key], np.float64).ravel()])
         elif what == "grid":
             key = "colour_grid"
             tan = mi.TensorXf(np.ascontiguousarray(tangent, dtype=np.float32))

@@ -418,7 +418,7 @@ def write_report(
             r["range"],
             r["prior"],
             f"{100 * r['determined']:.0f} %",
-            r["flag"].replace("held: undetermined: the reference narrows its prior by", "held: narrowed by")[:48],
+            r["flag"].replace("held: undetermined: the reference narrows its prior by", "held: narrowed by")[:64],
         ]
         for r in table
     ]

@@ -47,6 +47,7 @@ import scipy.sparse as sp
 
 from .image_model import ImageModel
 from .look import camera_gain, ground_tint, haze_colour, leaf_tints, lights
+from .losses import PixelLoss, RegionLoss
 from .params import Look, Spec, Start
 
 UNDETERMINED = 0.9
@@ -89,10 +90,11 @@ class Problem:
     specs: list[Spec]
     start: Start
     image: ImageModel
-    loss: object  # PixelLoss | RegionLoss
+    loss: PixelLoss | RegionLoss | None  # set before a fit
     n_species: int
     cells: tuple[int, int] | None = None  # correction grid (aligned colour-map fit)
     held: set[str] = field(default_factory=set)
+    held_reasons: dict[str, str] = field(default_factory=dict)  # parameter → why it is held (set before a fit)
     held_cells: np.ndarray | None = None  # (n·m,) bool
 
     @property
@@ -102,10 +104,10 @@ class Problem:
     # -- the surrogate --------------------------------------------------------------------
     def light_scales(self, look: Look) -> dict[str, np.ndarray]:
         lt = lights(look, self.start)
-        out = {}
+        out: dict[str, np.ndarray] = {}
         if lt.sun is not None:
             out["sun_irradiance"] = lt.sun
-        if lt.zenith is not None:
+        if lt.zenith is not None and lt.horizon is not None:
             out["sky_zenith"] = lt.zenith
             out["sky_horizon"] = lt.horizon
         if lt.sky_scale is not None:
@@ -177,7 +179,8 @@ class Problem:
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def data_residuals(self, photo: np.ndarray) -> np.ndarray:
-        return self.loss.residuals(photo)  # type: ignore[attr-defined]
+        assert self.loss is not None
+        return self.loss.residuals(photo)
 
     def objective(self, look: Look, image: np.ndarray, image2: np.ndarray | None = None) -> tuple[float, float]:
         """(data, prior) halves of ½‖r‖² for a rendered (or modelled) linear image at ``look``.
@@ -243,8 +246,6 @@ def _global_jacobian(problem: Problem, look: Look, lin: Linearisation, r0: np.nd
 
 def _grid_jacobian(problem: Problem, look: Look, lin: Linearisation) -> sp.csr_matrix:
     """∂r/∂c of the block residuals (aligned): sparse, from one non-zero per pixel, channel and class."""
-    from .losses import PixelLoss
-
     assert isinstance(problem.loss, PixelLoss) and lin.grid_e is not None and lin.grid_cells is not None
     render = problem.render_model(look, lin)
     d_sigma = look.get("haze", problem.start.haze) - lin.look.get("haze", problem.start.haze)
