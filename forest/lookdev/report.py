@@ -402,7 +402,7 @@ def write_report(
                 interpolation="nearest",
             )
             ax.set_title(
-                f"{name} ({m.shape[1]}×{m.shape[0]}, row 0 at the smallest Z; the painted mean is mid-grey)",
+                f"{name} ({m.shape[1]}×{m.shape[0]})\nrow 0 at the smallest Z; the painted mean is mid-grey",
                 fontsize=9,
             )
             ax.axis("off")
