@@ -132,7 +132,8 @@ def test_lookdev_arguments_name_their_parameter():
 
     cfg = parse_config(MINIMAL + "[lookdev]\niterations = 30\nmode = 'statistics'\n")
     st = resolve_settings(cfg, spp=4)
-    assert (st.iterations, st.spp, st.mode, st.calibrate) == (30, 4, "statistics", True)
+    assert (st.iterations, st.spp, st.mode) == (30, 4, "statistics")
+    assert "colour_map" not in st.params  # an unrelated photo cannot place the map's colours
     with pytest.raises(ParameterError) as e:
         resolve_settings(cfg, iterations=0)
     assert e.value.field == "lookdev.iterations" and "must be >= 1" in e.value.message

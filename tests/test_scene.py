@@ -47,8 +47,7 @@ def test_every_backend_takes_the_colour_map_from_the_one_reader(tmp_path, librar
     """A counting fake of the image reader: the colour map is read once, by load_scene, whatever runs after."""
     import forest.images
     from forest.export.usd import export_usd
-    from forest.lookdev.forest_proxy import build_proxy
-    from forest.lookdev.state import state_from_config
+    from forest.lookdev.renders import FitRenderer
 
     write_png(tmp_path / "colour.png", np.repeat(np.repeat(QUADRANTS, 8, 0), 8, 1))
     cfg = make_config(tmp_path, maps='colour = "colour.png"')
@@ -67,14 +66,7 @@ def test_every_backend_takes_the_colour_map_from_the_one_reader(tmp_path, librar
     render_scene(scene, output=tmp_path / "l.exr", variant="llvm_ad_rgb")
     export_rib(scene, tmp_path / "rib")
     export_usd(scene, tmp_path / "usd" / "f.usda")
-    build_proxy(
-        scene,
-        width=16,
-        height=16,
-        grid_shape=(4, 4),
-        variant="llvm_ad_rgb",
-        state=state_from_config(cfg, np.ones((4, 4, 3))),
-    )
+    FitRenderer(scene, width=16, height=16, spp=1, variant="llvm_ad_rgb", base_map=None)  # look-dev's renders
     assert [p for p in reads if p.endswith("colour.png")] == colour_reads  # no backend read it again
 
 

@@ -1,4 +1,4 @@
-"""``forest match``: fit the colour map and lights to a reference photo (look-dev)."""
+"""``forest match``: fit a scene's look to a reference photo with the production renderer (look-dev)."""
 
 from __future__ import annotations
 
@@ -15,17 +15,27 @@ def register(app: typer.Typer) -> None:
         config: Path = typer.Argument(..., help="Scene config (TOML)."),
         reference: Path = typer.Option(..., "--reference", "-r", help="Reference photo, plate or approved frame."),
         output: Path = typer.Option(..., "-o", "--output", help="Folder for scene.toml, colour_map.exr, report.png."),
-        iterations: int = typer.Option(None, "--iterations", help="Optimiser iterations (lookdev.iterations, 200)."),
+        iterations: int = typer.Option(None, "--iterations", help="Gauss–Newton iterations (lookdev.iterations, 8)."),
         resolution: int = typer.Option(
             None, "--resolution", help="Long side of the optimiser's image in pixels (lookdev.resolution, 96)."
         ),
-        spp: int = typer.Option(None, "--spp", help="Samples per pixel per iteration (lookdev.spp, 8)."),
+        spp: int = typer.Option(None, "--spp", help="Samples per pixel of the fit's renders (lookdev.spp, 16)."),
         params: str = typer.Option(
-            None, "--params", help="What to fit: colour_map,sun,sky[,sun_direction] (default colour_map,sun,sky)."
+            None,
+            "--params",
+            help="What to fit, some of camera,sun,sky,leaves,ground,haze,colour_map (default: all; colour_map in "
+            "aligned mode only).",
         ),
         mode: str = typer.Option(None, "--mode", help="aligned (same camera) or statistics (unrelated photo)."),
-        mask: Path = typer.Option(None, "--mask", help="Grey image over the reference: black pixels are ignored."),
-        grid: int = typer.Option(None, "--grid", help="Colour-map cells per side, 1 to 64 (lookdev.grid, 16)."),
+        mask: Path = typer.Option(
+            None,
+            "--mask",
+            help="Regions painted over the reference: sky #0000ff, canopy #00ff00, ground #ff0000, ignored #000000, "
+            "automatic #ffffff.",
+        ),
+        grid: int = typer.Option(
+            None, "--grid", help="Colour-map correction cells per side, 1 to 64 (lookdev.grid, 16)."
+        ),
         instances: Path = typer.Option(None, "--instances", help="A saved InstanceSet (.npz) instead of scattering."),
         variant: str = typer.Option(None, "--variant", help="llvm_ad_rgb or cuda_ad_rgb (default: cuda if present)."),
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No progress bar, no summary."),
@@ -37,12 +47,13 @@ def register(app: typer.Typer) -> None:
         from ..config import load_config
         from ..errors import ParameterError
         from ..lookdev import match, optimiser_size, resolve_settings
-        from ..lookdev.reference import load_reference
+        from ..lookdev.reference import fit_labels, load_reference
+        from ..lookdev.regions import read_mask
         from ..progress import progress_bar
         from ..render.scene import check_render_inputs
         from ..scene import load_scene
 
-        # Everything a fit needs, checked before the scene is loaded and the proxy built.
+        # Everything a fit needs, checked before the scene is loaded and the production scene built.
         preflight.output_folder(output)
         preflight.input_file(reference, field="reference", what="reference")
         if mask is not None:
@@ -64,15 +75,18 @@ def register(app: typer.Typer) -> None:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # the fit repeats the reference's notes in its summary
-                load_reference(reference, width, height, mask=settings.mask, fit=settings.fit)
+                ref = load_reference(reference, width, height, fit=settings.fit)
         except ParameterError:
             raise
         except ForestError as e:
-            if settings.mask is not None and str(settings.mask) in str(e):
+            raise ParameterError("reference", str(e)) from None
+        if settings.mask is not None:
+            try:
+                fit_labels(read_mask(settings.mask), ref.source_size, width, height, settings.fit, str(settings.mask))
+            except ForestError as e:
                 if mask is None:
                     raise cfg.fail("lookdev.mask", str(e)) from None
                 raise ParameterError("mask", str(e)) from None
-            raise ParameterError("reference", str(e)) from None
         with progress_bar("scene", quiet=quiet or instances is not None) as bar:
             scene = load_scene(cfg, instances, progress=bar)
         if not quiet:
@@ -114,12 +128,18 @@ def register(app: typer.Typer) -> None:
                 typer.echo(f"warning: {w}", err=True)
             f = result.figures
             typer.echo(
-                f"colour error (CIEDE2000): start mean {f['start_delta_e_mean']:.2f} / p95 "
-                f"{f['start_delta_e_p95']:.2f} → result mean {f['result_delta_e_mean']:.2f} / p95 "
-                f"{f['result_delta_e_p95']:.2f}"
+                f"objective on a held-out render: start {f['objective_start']:.4g} → fitted {f['objective_fitted']:.4g} "
+                f"(iteration {f['best_iteration']}); mean colour difference per pixel (CIEDE2000) "
+                f"{f['start_pixel_de_mean']:.2f} → {f['fitted_pixel_de_mean']:.2f}"
             )
-            for k, v in result.result.light_values().items():
-                typer.echo(f"  {k}: {result.start.light_values().get(k, float('nan')):.4g} → {v:.4g}")
+            for name, de in f["fitted_regions"].items():
+                typer.echo(f"  {name}: CIEDE2000 {f['start_regions'].get(name, float('nan')):.1f} → {de:.1f}")
+            for row in result.table:
+                note = f"  [{row['flag']}]" if row["flag"] else ""
+                typer.echo(
+                    f"  {row['label']}: {row['start_shown']} → {row['fitted_shown']}  (range {row['range']}, "
+                    f"determined {100 * row['determined']:.0f} %){note}"
+                )
             typer.echo(f"fitted {', '.join(result.fitted)} in {result.seconds:.1f} s ({result.variant})")
             for p in result.paths:
                 typer.echo(f"wrote {p}")

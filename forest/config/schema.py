@@ -740,28 +740,49 @@ class WindConfig(Section):
 # [lookdev], [export]
 # ---------------------------------------------------------------------------
 
-LOOKDEV_PARAMS = ("colour_map", "sun", "sky", "sun_direction")
+LOOKDEV_PARAMS = ("camera", "sun", "sky", "leaves", "ground", "haze", "colour_map")
 
 
 class LookdevConfig(Section):
-    """Defaults of ``forest match``'s options."""
+    """Defaults of ``forest match``'s options, and the per-species leaf tints a fit writes."""
 
-    iterations: Annotated[Int, Field(ge=1, le=100_000)] = 200
-    resolution: Annotated[Int, Field(ge=8, le=4096)] = Field(96, description="Long side of the fit, pixels.")
-    spp: Annotated[Int, Field(ge=1, le=4096)] = 8
-    params: Annotated[list[Literal["colour_map", "sun", "sky", "sun_direction"]], Field(min_length=1)] | None = Field(
-        None, description="Parameter groups to fit."
+    iterations: Annotated[Int, Field(ge=1, le=100)] = Field(
+        8, description="Gauss–Newton iterations (each: a few renders, then an exact step on the surrogate)."
     )
-    mode: Literal["aligned", "statistics"] = "aligned"
-    grid: Annotated[Int, Field(ge=1, le=64)] = Field(16, description="Colour grid cells per side.")
-    bands: Annotated[Int, Field(ge=1, le=16)] = 2
-    mask: InputFile | None = Field(None, description="Weights image over the reference (white = counts).")
-    fit: Literal["crop", "stretch"] = "crop"
-    max_triangles: Annotated[Int, Field(ge=1000, le=100_000_000)] = 2_000_000
-    max_depth: Annotated[Int, Field(ge=1, le=64)] | None = None
+    resolution: Annotated[Int, Field(ge=16, le=1024)] = Field(
+        96, description="Long side of the fit's renders, pixels (the reference is resampled to it)."
+    )
+    spp: Annotated[Int, Field(ge=1, le=1024)] = Field(16, description="Samples per pixel of the fit's renders.")
+    params: (
+        Annotated[list[Literal["camera", "sun", "sky", "leaves", "ground", "haze", "colour_map"]], Field(min_length=1)]
+        | None
+    ) = Field(
+        None,
+        description="Parameter groups to fit (default: all; colour_map only in aligned mode).",
+    )
+    mode: Literal["aligned", "statistics"] = Field(
+        "aligned", description="aligned: a plate from the same camera; statistics: an unrelated photo."
+    )
+    grid: Annotated[Int, Field(ge=1, le=64)] = Field(16, description="Colour-map correction cells per side.")
+    fresh_map: Bool = Field(False, description="Fit a new grid×grid colour map instead of correcting the painted one.")
+    mask: InputFile | None = Field(
+        None,
+        description="Regions painted over the reference: sky #0000ff, canopy #00ff00, ground #ff0000, "
+        "ignored #000000, automatic #ffffff.",
+    )
+    fit: Literal["crop", "stretch"] = Field("crop", description="How a reference of another aspect ratio is fitted.")
     variant: Literal["llvm_ad_rgb", "cuda_ad_rgb"] | None = None
-    lod: Literal["high", "medium", "low", "far"] = "high"
-    calibrate: Bool | None = Field(None, description="Default: on in statistics mode.")
+    report_width: Annotated[Int, Field(ge=64, le=2048)] = Field(384, description="Width of the report's renders.")
+    leaf_tint: dict[Str, RGB] | None = Field(
+        None,
+        description="Multiplier of each species' leaf colour, by species name or model (written by forest match; "
+        "the forest path tracer renders it).",
+    )
+    ground_tint: RGB | None = Field(
+        None,
+        description="Multiplier of the ground's albedo, whatever makes it (written by forest match; "
+        "the forest path tracer renders it).",
+    )
 
 
 class ExportConfig(Section):

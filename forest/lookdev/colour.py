@@ -45,6 +45,13 @@ def rgb_to_xyz(rgb) -> np.ndarray:
     return c.RGB_to_XYZ(np.asarray(rgb, dtype=np.float64), cs, apply_cctf_decoding=False)
 
 
+def xyz_to_rgb(xyz) -> np.ndarray:
+    """CIE XYZ (D65) → linear sRGB (colour-science)."""
+    c = _colour()
+    cs = c.models.RGB_COLOURSPACE_sRGB
+    return np.asarray(c.XYZ_to_RGB(np.asarray(xyz, dtype=np.float64), cs, apply_cctf_encoding=False))
+
+
 def rgb_to_lab(rgb) -> np.ndarray:
     """Linear sRGB → CIELAB (D65 white, colour-science)."""
     c = _colour()

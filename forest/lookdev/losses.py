@@ -1,70 +1,88 @@
-"""Image losses for look-dev, written in drjit so that gradients flow into the render.
+"""The data terms of a fit, as residual vectors r whose loss is ½‖r‖² (the priors add theirs in :mod:`.solve`).
 
-Both losses compare a rendered linear-RGB image ``I`` (a drjit ``TensorXf``,
-(H, W, 3)) with a :class:`~forest.lookdev.reference.Reference` ``R`` of the same
-size and its per-pixel weights ``w``.
+**aligned** — the reference is a plate or render from the same camera: one
+residual per block b of :data:`BLOCK` × :data:`BLOCK` pixels and channel c,
 
-**aligned** — the reference is a render or plate from the same camera:
+    r_bc = √w_bc · (⟨Q⟩_bc − ⟨R⟩_bc) / τ,        w_bc = ρ_b / (1 + ρ_b σ²_bc / (β · median ρσ²)),
 
-    L = Σ_p w_p ρ_p Σ_c (I_pc − R_pc)²  /  Σ_p w_p,      ρ_p = 1 / (Ȳ_p + κ)²
+with Q the predicted photo (:mod:`.image_model`), ρ_p = 1/(Ȳ_p + κ)² a
+*relative* weight (Ȳ the reference luminance box-blurred over 3×3 pixels, κ a
+tenth of its median), normalised to mean 1, and τ = :data:`PIXEL_TOLERANCE`
+the relative error one residual unit stands for.  σ²_pc is the Monte-Carlo
+variance of the render (:meth:`PixelLoss.set_noise`, measured from two
+independent renders of the same look): weighted least squares with weights
+∝ 1/σ² is the minimum-variance estimator (Aitken 1935), so silhouettes and
+shadow edges, noisy at low spp, are weighed down where their noise dominates
+(β = :data:`NOISE_BALANCE`).
 
-with Ȳ the reference luminance box-blurred over 3×3 pixels and κ a tenth of
-its median: a *relative* squared error, so that dark foliage weighs as much as
-a bright sky in proportion to how visible an error is (a cheap stand-in for
-a perceptual metric that keeps the loss quadratic in I).  Because ρ depends
-on the reference alone and Mitsuba renders the adjoint pass with a seed
-decorrelated from the primal one, the gradient estimate at any spp is
-unbiased: E[2 (I_a − R) ∂I_b] = 2 (E I − R) ∂E I.
+Why blocks: a least-squares fit to a Monte-Carlo render is biased towards looks
+whose render is less noisy, E‖Q − R‖² = ‖E Q − R‖² + Σ Var Q — the
+errors-in-variables attenuation (Fuller 1987, *Measurement Error Models*, §1.1):
+on a 48×36 test at 8 spp it put the sun at 60 % of the truth, its variance
+term outweighing the bias of the right answer.  Means over b pixels divide the
+variance term by b at the price of detail finer than a block; the held-out
+judgement removes it altogether (:meth:`.solve.Problem.objective`: the product
+of two independent renders' residuals, whose expectation is the squared bias alone).
 
-**Noise weights.**  A low-spp render is far noisier at tree silhouettes and
-shadow edges (a pixel's samples land on both sides) than on flat foliage or
-open sky, and those few pixels dominate the noise of the gradient.  Weighted
-least squares with weights ∝ 1/σ² is the minimum-variance linear estimator
-(Aitken 1935, the Gauss–Markov theorem generalised), so once the optimiser
-has measured the per-value variance σ²_pc of its own renders
-(:meth:`AlignedLoss.set_noise`) the weights become
+**statistics** — an unrelated photo: per region k (:mod:`.regions`: sky high
+and low, canopy and ground, each lit and shadowed) and for the whole frame,
+with m_k the region's mean linear colour,
 
-    w_pc = ρ_p / (1 + ρ_p σ²_pc / (β · median ρσ²)),     β = NOISE_BALANCE,
+    r_k = ( ln(Y(m_k)/Y(p_k)),  ln(r/g)_m − ln(r/g)_p,  ln(b/g)_m − ln(b/g)_p ) / τ_ln,
 
-inverse-variance where the relative noise is high and the perceptual ρ where
-it is low.  With a render that can match the reference exactly, any positive
-weights share the same minimum, so this changes how fast the noise averages
-out, not where the fit goes (measured on the benchmark's round trip: colour
-map error 0.99 → 0.63 CIEDE2000 at the same cost).  σ² comes from renders
-seeded apart from the iterations', so the weights are independent of the
-noise they weigh and the gradient stays unbiased.
-
-**statistics** — an unrelated photo: the sliced Wasserstein distance between
-the colour distributions in Oklab (Ottosson 2020; Rabin, Peyré, Delon &
-Bernot 2011, "Wasserstein barycenter and its application to texture
-mixing").  For K fixed random unit directions θ_k in Oklab and each region
-(horizontal band) b:
-
-    SW²_b = 1/K Σ_k 1/N_b Σ_i ( ⟨θ_k, x_(i)⟩ − F⁻¹_{R,k,b}((i + ½)/N_b) )²
-
-where x_(i) are the render's pixels sorted by their projection and F⁻¹ the
-reference's (masked, weighted) quantile function along θ_k.  The sort order
-is taken from the primal values (piecewise-constant, so it carries no
-gradient); the gather of the sorted values is differentiable.  L = mean_b SW²_b.
-Regions keep the sky at the top and the ground at the bottom compared with
-each other even when the framing differs.  Both images are first averaged
-over ``pool`` × ``pool`` blocks: Oklab's cube root is concave, so Monte-Carlo
-noise in a low-spp render would otherwise lower its mean in Oklab (Jensen's
-inequality) and the fit would brighten the scene to compensate; pooling
-divides the noise variance by pool².
+its luminance and two chromaticity ratios in logarithms, τ_ln =
+:data:`LOG_TOLERANCE`: 5 % in luminance is about two CIELAB lightness steps at
+mid-grey (ΔL* ≈ 2.2) — as close as the mean colours of another place's sky,
+foliage and ground can be asked to come, so the priors keep their say where
+the photo's statistics could be met by trading parameters (a warm sun against
+a cool white balance).  Logarithms rather than CIELAB differences because a
+render can start far from the photo — a forest interior 9 EV too dark — where
+CIELAB's slope vanishes (L* = 903.3·Y near black) and the data would look
+uninformative; in logarithms exposure moves every residual at the same rate
+wherever it starts.  At the match the two agree: equal means, equal CIELAB.
+Mean colours, not pixels: where an unrelated photo puts its trees says nothing
+about the scene's, but what colour its sky, its sunlit and shadowed foliage
+and its ground are, does.  The report gives CIEDE2000 between the means.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from .colour import luminance, oklab_dr, rgb_to_oklab
+from .colour import luminance
 from .reference import Reference
+from .regions import Region, region_means
 
-SW_TAG = 0x5117E5
+PIXEL_TOLERANCE = 0.02
+#: Side of the square pixel blocks the aligned loss compares.
+BLOCK = 2
+LOG_TOLERANCE = 0.05
 NOISE_BALANCE = 0.1
+
+
+def log_colour(rgb: np.ndarray) -> np.ndarray:
+    """(ln Y, ln r/g, ln b/g) of linear colours (..., 3), floored at 10⁻⁶."""
+    c = np.maximum(np.asarray(rgb, np.float64), 1e-6)
+    y = np.maximum(luminance(c), 1e-6)
+    return np.stack([np.log(y), np.log(c[..., 0] / c[..., 1]), np.log(c[..., 2] / c[..., 1])], axis=-1)
+
+
+def block_operator(height: int, width: int, block: int):
+    """The sparse (blocks·3) × (H·W·3) matrix of block means over ``block`` × ``block`` pixels, per channel (a
+    last row or column of partial blocks is dropped)."""
+    import scipy.sparse as sp
+
+    bh, bw = max(height // block, 1), max(width // block, 1)
+    b = min(block, height, width)
+    ys, xs = np.mgrid[0 : bh * b, 0 : bw * b]
+    pix = (ys * width + xs).ravel()
+    blk = ((ys // b) * bw + xs // b).ravel()
+    rows = (blk[:, None] * 3 + np.arange(3)).ravel()
+    cols = (pix[:, None] * 3 + np.arange(3)).ravel()
+    vals = np.full(len(rows), 1.0 / (b * b))
+    return sp.csr_matrix((vals, (rows, cols)), shape=(bh * bw * 3, height * width * 3))
 
 
 def _box3(a: np.ndarray) -> np.ndarray:
@@ -74,168 +92,94 @@ def _box3(a: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class AlignedLoss:
-    """Relative squared error against a same-camera reference (see module docstring)."""
+class PixelLoss:
+    """Relative, noise-weighted pixel residuals against a same-camera reference."""
 
     reference: Reference
+    weight: np.ndarray = field(init=False)  # (H, W, 3) w_pc
 
-    def __post_init__(self):
-        mi = _mi()
+    block: int = BLOCK
+
+    def __post_init__(self) -> None:
+        h, w_ = self.reference.rgb.shape[:2]
+        self.blocks = block_operator(h, w_, self.block)  # (blocks·3) × (pixels·3): block means
         y = _box3(luminance(self.reference.rgb)).astype(np.float64)
         w = self.reference.weight.astype(np.float64)
         kappa = 0.1 * float(np.median(y[w > 0])) + 1e-4
         rho = w / (y + kappa) ** 2
-        rho /= max(float(w.sum()), 1e-12)
-        self.pixel_weight = rho.astype(np.float32)  # (H, W): ρ_p
-        self.value_weight = np.repeat(rho[..., None], 3, axis=2)  # (H, W, 3): w_pc
-        self._w = mi.Float(self.value_weight.astype(np.float32).ravel())
-        self._ref = mi.Float(self.reference.rgb.astype(np.float32).ravel())
+        rho_b = self.blocks @ np.repeat(rho[..., None], 3, axis=2).ravel()
+        rho_b /= max(float(rho_b[rho_b > 0].mean()), 1e-30)
+        self.rho = rho_b
+        self.weight = rho_b.copy()
+        self.target = self.blocks @ self.reference.rgb.astype(np.float64).ravel()
 
     def set_noise(self, variance: np.ndarray) -> None:
-        """Weigh each value by its render noise: ``variance`` is σ²_pc, (H, W, 3) (module docstring)."""
-        rho = np.repeat(self.pixel_weight[..., None].astype(np.float64), 3, axis=2)
-        v = rho * np.asarray(variance, np.float64).reshape(rho.shape)
+        """Weigh each value by its render noise (module docstring; ``variance`` per pixel and channel, a block
+        mean's is their mean over the block's b pixels / b); the mean weight stays 1."""
+        rho = self.rho
+        var_b = (self.blocks @ np.asarray(variance, np.float64).ravel()) / self.block**2
+        v = rho * var_b
         pos = v[(v > 0) & (rho > 0)]
         if not pos.size:
             return
         w = rho / (1.0 + v / (NOISE_BALANCE * float(np.median(pos))))
-        w *= rho.sum() / max(float(w.sum()), 1e-30)  # the loss keeps its scale
-        self.value_weight = w
-        self._w = _mi().Float(w.astype(np.float32).ravel())
+        self.weight = w * (rho.sum() / max(float(w.sum()), 1e-30))
 
-    def __call__(self, image):
-        import drjit as dr
+    def mask(self, keep: np.ndarray) -> None:
+        """Drop the blocks with any pixel where ``keep`` (H, W) is false."""
+        k = np.repeat(np.asarray(keep, np.float64)[..., None], 3, axis=2).ravel()
+        whole = (self.blocks @ k) >= 1.0 - 1e-9
+        self.weight = np.where(whole, self.weight, 0.0)
+        self.rho = np.where(whole, self.rho, 0.0)
 
-        d = image.array - self._ref
-        return dr.sum(self._w * d * d)
+    def residuals(self, image: np.ndarray) -> np.ndarray:
+        q = self.blocks @ np.asarray(image, np.float64).ravel()
+        return np.sqrt(self.weight) * (q - self.target) / PIXEL_TOLERANCE
 
-    def curvature_weights(self):
-        """The per-value weights w of L = Σ w (I − R)² (drjit Float, channel fastest)."""
-        return self._w
+    def project(self, jac):
+        """∂r/∂x from ∂Q/∂x per pixel value (a sparse (pixels·3) × n matrix): √w/τ · B · J."""
+        import scipy.sparse as sp
 
-    def numpy(self, image: np.ndarray) -> float:
-        d = np.asarray(image, np.float64) - self.reference.rgb
-        return float((self.value_weight * d * d).sum())
+        return sp.diags(np.sqrt(self.weight) / PIXEL_TOLERANCE) @ (self.blocks @ jac)
+
+    def value(self, image: np.ndarray) -> float:
+        r = self.residuals(image)
+        return 0.5 * float(r @ r)
 
 
 @dataclass
-class StatisticsLoss:
-    """Per-band sliced Wasserstein distance in Oklab (see module docstring)."""
+class RegionLoss:
+    """CIELAB differences of region mean colours against an unrelated photo."""
 
-    reference: Reference
-    directions: int = 32
-    bands: int = 2
-    seed: int = 0
-    pool: int = 4
+    photo: np.ndarray  # (H, W, 3) linear
+    regions: list[Region]
 
-    def __post_init__(self):
-        H, W = self.reference.shape
-        self.pool = int(max(1, min(self.pool, H, W)))
-        k = self.pool
-        h, w = H // k, W // k
-        self.full_shape, self.shape = (H, W), (h, w)
-        self.bands = int(max(1, min(self.bands, h)))
-        rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([self.seed, SW_TAG])))
-        th = rng.normal(size=(self.directions, 3))
-        th[0] = (1.0, 0.0, 0.0)  # lightness on its own, always
-        self.theta = th / np.linalg.norm(th, axis=1, keepdims=True)
-        lab = rgb_to_oklab(self._pool_np(self.reference.rgb).reshape(-1, 3))
-        wt = self._pool_np(self.reference.weight[..., None])[..., 0].ravel()
-        # Flat indices of each block's k×k pixels in the full image, for the drjit pooling.
-        yy, xx = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
-        self._block_px = [
-            ((yy * k + dy) * W + (xx * k + dx)).ravel().astype(np.uint32) for dy in range(k) for dx in range(k)
-        ]
-        rows = np.repeat(np.arange(h), w)
-        self.band_of_row = (np.arange(h) * self.bands) // h
-        self._targets = []
-        for b in range(self.bands):
-            sel = (self.band_of_row[rows] == b) & (wt > 0)
-            if not sel.any():  # whole band masked: use the whole frame's pixels
-                sel = wt > 0
-            proj = lab[sel] @ self.theta.T  # (n, K)
-            order = np.argsort(proj, axis=0, kind="stable")
-            sorted_p = np.take_along_axis(proj, order, axis=0)
-            cw = np.cumsum(np.take_along_axis(np.repeat(wt[sel][:, None], self.directions, 1), order, axis=0), axis=0)
-            cw = (cw - 0.5 * np.take_along_axis(np.repeat(wt[sel][:, None], self.directions, 1), order, axis=0)) / cw[
-                -1
-            ]
-            self._targets.append((sorted_p, cw))
-        self._pixels = [np.flatnonzero(self.band_of_row[rows] == b) for b in range(self.bands)]
+    def __post_init__(self) -> None:
+        self.names = [r.name for r in self.regions] + ["whole image"]
+        self._render_masks = [r.render for r in self.regions]
+        self._photo_masks = [r.photo for r in self.regions]
+        valid_photo = np.ones(self.photo.shape[:2], bool).ravel()
+        photo_means = region_means(self.photo, self._photo_masks)
+        whole = self.photo.reshape(-1, 3)[valid_photo].mean(axis=0)[None]
+        self.target_rgb = np.concatenate([photo_means, whole]) if len(photo_means) else whole
+        self.target = log_colour(self.target_rgb)
 
-    def _quantiles(self, b: int, n: int) -> np.ndarray:
-        """Reference quantiles of band b at levels (i + ½)/n along every direction: (K, n)."""
-        sorted_p, cw = self._targets[b]
-        levels = (np.arange(n) + 0.5) / n
-        return np.stack([np.interp(levels, cw[:, k], sorted_p[:, k]) for k in range(self.directions)])
+    def means(self, image: np.ndarray) -> np.ndarray:
+        """(K + 1, 3) mean linear colours of the image's regions, the whole frame last."""
+        m = region_means(image, self._render_masks)
+        whole = np.asarray(image, np.float64).reshape(-1, 3).mean(axis=0)[None]
+        return np.concatenate([m, whole]) if len(m) else whole
 
-    def _pool_np(self, a: np.ndarray) -> np.ndarray:
-        """k×k box average (the image is cropped to whole blocks)."""
-        k = self.pool
-        h, w = a.shape[0] // k, a.shape[1] // k
-        return a[: h * k, : w * k].reshape(h, k, w, k, -1).mean(axis=(1, 3))
+    def residuals(self, image: np.ndarray) -> np.ndarray:
+        return ((log_colour(self.means(image)) - self.target) / LOG_TOLERANCE).ravel()
 
-    def _pool_dr(self, arr):
-        """The same k×k box average of a flat (H·W·3) drjit image, per channel."""
-        import drjit as dr
+    def delta_e(self, image: np.ndarray) -> dict[str, float]:
+        """CIEDE2000 between the image's and the photo's mean colour of each region (and the whole frame)."""
+        from .colour import delta_e2000
 
-        mi = _mi()
-        out = []
-        for c in range(3):
-            acc = None
-            for px in self._block_px:
-                v = dr.gather(mi.Float, arr, mi.UInt32(px * 3 + c))
-                acc = v if acc is None else acc + v
-            out.append(acc * (1.0 / len(self._block_px)))
-        return out
+        de = delta_e2000(np.maximum(self.means(image), 0.0), self.target_rgb)
+        return {n: float(d) for n, d in zip(self.names, np.atleast_1d(de))}
 
-    def __call__(self, image):
-        import drjit as dr
-
-        mi = _mi()
-        r, g, bb = self._pool_dr(image.array)
-        L, A, B = oklab_dr(r, g, bb)
-        dr.eval(L, A, B)
-        lab = np.stack([np.asarray(dr.detach(L)), np.asarray(dr.detach(A)), np.asarray(dr.detach(B))], axis=1)
-        gidx, tgt, th_all, wts = [], [], [], []
-        for b, pix in enumerate(self._pixels):
-            n = len(pix)
-            proj = lab[pix] @ self.theta.T  # (n, K)
-            order = np.argsort(proj, axis=0, kind="stable")  # (n, K)
-            q = self._quantiles(b, n)  # (K, n)
-            gidx.append(pix[order.T].ravel())  # direction-major
-            tgt.append(q.ravel())
-            th_all.append(np.repeat(self.theta, n, axis=0))
-            wts.append(np.full(self.directions * n, 1.0 / (self.directions * n * len(self._pixels))))
-        gi = mi.UInt32(np.concatenate(gidx).astype(np.uint32))
-        th = np.concatenate(th_all).astype(np.float32)
-        p = (
-            dr.gather(mi.Float, L, gi) * mi.Float(th[:, 0])
-            + dr.gather(mi.Float, A, gi) * mi.Float(th[:, 1])
-            + dr.gather(mi.Float, B, gi) * mi.Float(th[:, 2])
-        )
-        d = p - mi.Float(np.concatenate(tgt).astype(np.float32))
-        return dr.sum(mi.Float(np.concatenate(wts).astype(np.float32)) * d * d)
-
-    def numpy(self, image: np.ndarray) -> float:
-        lab = rgb_to_oklab(self._pool_np(np.asarray(image, np.float64)).reshape(-1, 3))
-        total = 0.0
-        for b, pix in enumerate(self._pixels):
-            proj = np.sort(lab[pix] @ self.theta.T, axis=0)
-            q = self._quantiles(b, len(pix)).T
-            total += float(((proj - q) ** 2).mean())
-        return total / len(self._pixels)
-
-
-def make_loss(mode: str, reference: Reference, *, seed: int = 0, bands: int = 2, directions: int = 32):
-    if mode == "aligned":
-        return AlignedLoss(reference)
-    if mode == "statistics":
-        return StatisticsLoss(reference, directions=directions, bands=bands, seed=seed)
-    raise ValueError(f"unknown loss mode {mode!r}")
-
-
-def _mi():
-    import mitsuba as mi
-
-    return mi
+    def value(self, image: np.ndarray) -> float:
+        r = self.residuals(image)
+        return 0.5 * float(r @ r)

@@ -59,6 +59,7 @@ class Reference:
     weight: np.ndarray  # (H, W) float32 in [0, 1]
     source_size: tuple[int, int]  # (width, height) of the file
     warnings: list[str] = field(default_factory=list)
+    display_referred: bool = False  # an 8/16-bit file: sRGB-encoded, clipped at white
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -170,4 +171,26 @@ def load_reference(
         raise ForestError(f"{label}: {what} is black wherever the mask lets it through")
     for n in notes:
         warnings.warn(n, stacklevel=2)
-    return Reference(file, rgb, weight.astype(np.float32), (sw, sh), notes)
+    referred = file is not None and not is_linear_file(file)
+    return Reference(file, rgb, weight.astype(np.float32), (sw, sh), notes, referred)
+
+
+def fit_labels(
+    labels: np.ndarray, source_size: tuple[int, int], width: int, height: int, fit: str, label: str = "mask"
+) -> np.ndarray:
+    """A painted region mask (H, W) of labels → the fit's ``width × height``, cropped like the reference
+    (nearest label).  A :class:`ForestError` naming the mask when its aspect ratio is not the reference's."""
+    mh, mw = labels.shape
+    sw, sh = source_size
+    if abs((mw / mh) / (sw / sh) - 1.0) > ASPECT_TOLERANCE:
+        raise ForestError(
+            f"{label}: mask is {mw}x{mh}, the reference is {sw}x{sh}; paint the mask over the reference "
+            "(same size or aspect ratio)"
+        )
+    if fit == "crop" and abs((mw / mh) / (width / height) - 1.0) > ASPECT_TOLERANCE:
+        x0, y0, x1, y1 = _crop_box(mw, mh, width / height)
+        labels = labels[y0:y1, x0:x1]
+    mh, mw = labels.shape
+    ys = np.minimum(((np.arange(height) + 0.5) * mh / height).astype(np.int64), mh - 1)
+    xs = np.minimum(((np.arange(width) + 0.5) * mw / width).astype(np.int64), mw - 1)
+    return labels[np.ix_(ys, xs)]

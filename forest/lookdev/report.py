@@ -1,17 +1,26 @@
-"""What a look-dev run writes: the fitted scene config, the colour map, the figures and report.png.
+"""What a fit writes, and the report an artist reads.
 
-* ``scene.toml`` — the input config with ``[maps] colour`` pointing at the
-  fitted map (``colour_map.exr``, float linear RGB in the map convention,
-  beside it) and the fitted light values written into ``[lights]``.  Paths the
-  input config named relative to its own folder are rewritten relative to the
-  output folder, so the new file renders the same scene from where it lies.
-* ``report.png`` — reference, start and result side by side (sRGB), the loss
-  curve, the per-parameter trajectories and the colour error (mean and 95th
-  percentile CIEDE2000).
-* ``match.json`` — the same figures as numbers.
+* ``scene.toml`` — the input scene with every fitted value in it.  The camera's
+  exposure and white balance are folded into the lights (sun, sky, haze
+  radiance × 2^EV·W): the path tracer is linear in its lights and renders each
+  channel on its own, so ``forest render scene.toml`` gives the photo the fit
+  modelled.  A tilted sky is written as ``sky.exr`` (a latitude–longitude map
+  of the gradient, +Y up, 512×256) and ``[lights.sky] envmap``; an untilted
+  one as a constant sky.  The ground's multiplier goes to ``[lookdev] ground_tint``
+  (whatever makes the ground's albedo: one colour, a map or the ``[ground]`` rules),
+  leaf colours to ``[lookdev] leaf_tint`` by species, haze to ``[render] haze``
+  and ``haze_colour``, the colour map (the tint it is, ``colour_normalise = "none"``)
+  to ``colour_map.exr`` at the painted map's resolution.  Paths are rebased so the file renders from where it lies.
+* ``report.png`` — the reference, and **production renders** (of the start
+  config and of the written ``scene.toml``) at ``[lookdev] report_width``; the
+  colour map before and after; each region's mean colour (photo, start,
+  fitted) with its CIEDE2000; the held-out objective per iteration, with the
+  start and the kept iterate marked; the table of every parameter with its
+  range, prior, how much the reference determined it, and its flags.
+* ``match.json`` — all of it as numbers.
 
-Values are rounded (lights to 6 significant digits, the map to 1/65536)
-so that the files do not depend on the last bits of a floating-point sum.
+Values are rounded (6 significant digits, the map to 1/65536) so files do not
+depend on the last bits of a sum.
 """
 
 from __future__ import annotations
@@ -21,61 +30,301 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_path
-from ..config import rebase_paths
+from ..atomic import atomic_dir, atomic_path
+from ..config import load_config, rebase_paths
 from ..images import linear_to_srgb, write_image
-from .state import LookState
+from .colour import luminance
+from .fit import determination
+from .look import camera_gain, ground_tint, haze_colour, leaf_tints, lights
 
 MAP_NAME = "colour_map.exr"
+SKY_NAME = "sky.exr"
+SKY_SIZE = (256, 512)
+#: A gradient whose zenith and horizon differ by less than this (relative, per channel) is written as constant.
+FLAT_SKY = 0.01
 
 
-def _round(x: float, digits: int = 6) -> float:
+def _r(x: float, digits: int = 6) -> float:
     return float(f"{float(x):.{digits}g}")
 
 
-def rounded_grid(grid: np.ndarray) -> np.ndarray:
-    return (np.round(np.clip(grid, 0.0, 1.0) * 65536.0) / 65536.0).astype(np.float32)
+def _rgb(v) -> list[float]:
+    return [_r(c) for c in np.asarray(v, np.float64).ravel()[:3]]
 
 
-def scene_data(config, state: LookState, fitted: tuple[str, ...], out_dir: Path, map_name: str = MAP_NAME) -> dict:
-    """The fitted config as a TOML-ready dict."""
+def gradient_envmap(zenith, horizon, size: tuple[int, int] = SKY_SIZE) -> np.ndarray:
+    """The gradient sky L = zenith·μ + horizon·(1 − μ), μ = max(ω_y, 0), as a latitude–longitude map (+Y up,
+    Mitsuba's ``envmap`` convention: row i at polar angle π(i + ½)/H)."""
+    h, w = size
+    mu = np.maximum(np.cos(np.pi * (np.arange(h) + 0.5) / h), 0.0)[:, None, None]
+    img = np.asarray(zenith, np.float64) * mu + np.asarray(horizon, np.float64) * (1.0 - mu)
+    return np.broadcast_to(img, (h, w, 3)).astype(np.float32)
+
+
+def fitted_data(config, problem, look, out_dir: Path, *, fit_map: bool) -> tuple[dict, dict[str, np.ndarray]]:
+    """(TOML-ready config dict, files to write beside it) for a fitted look (see the module docstring)."""
+    start = problem.start
     data = rebase_paths(config.data, Path(config.base_dir), Path(out_dir))
-    if "colour_map" in fitted:
-        data.setdefault("maps", {})["colour"] = map_name
-    lights = data.setdefault("lights", {})
-    if state.sun_irradiance is not None and ("sun" in fitted or "sun_direction" in fitted):
-        sun = lights.setdefault("sun", {})
-        if "sun" in fitted:
-            sun["irradiance"] = _round(state.sun_irradiance)
-            sun["colour"] = [_round(c) for c in state.sun_colour]
-        if "sun_direction" in fitted:
-            sun["elevation"] = _round(state.sun_elevation)
-            sun["azimuth"] = _round(state.sun_azimuth)
-    if "sky" in fitted and state.sky_kind is not None:
-        sky = lights.setdefault("sky", {})
-        if state.sky_kind == "constant":
-            sky["radiance"] = _round(state.sky_radiance)
-            sky["colour"] = [_round(c) for c in state.sky_colour]
-        elif state.sky_kind == "envmap":
-            sky["scale"] = _round(state.envmap_scale)
-        elif state.sky_kind == "sunsky":
-            sky.setdefault("sunsky", {})["scale"] = _round(state.envmap_scale)
-    return data
+    files: dict[str, np.ndarray] = {}
+    g = camera_gain(look)
+    lt = lights(look, start)
+    lights_d = data.setdefault("lights", {})
+    if lt.sun is not None:
+        e = g * lt.sun
+        y = float(luminance(e))
+        sun = lights_d.setdefault("sun", {})
+        sun["irradiance"] = _r(y)
+        sun["colour"] = _rgb(e / y if y > 0 else np.ones(3))
+    sky = lights_d.setdefault("sky", {})
+    if lt.zenith is not None:
+        z, hz = g * lt.zenith, g * lt.horizon
+        if np.all(np.abs(z - hz) <= FLAT_SKY * np.maximum(np.abs(z), 1e-9)):
+            y = float(luminance(z))
+            sky.clear()
+            sky["radiance"] = _r(y)
+            sky["colour"] = _rgb(z / y if y > 0 else np.ones(3))
+        else:
+            sky.clear()
+            sky["envmap"] = SKY_NAME
+            files[SKY_NAME] = gradient_envmap(z, hz)
+    elif start.sky_kind == "envmap" and lt.sky_scale is not None:
+        from ..images import read_image
+
+        src = read_image(config.lights.sky.envmap, what="environment map")[..., :3]
+        sky["envmap"] = SKY_NAME
+        sky.pop("scale", None)
+        files[SKY_NAME] = (src * (float(lt.sky_scale[0]) * float(config.lights.sky.scale)) * g).astype(np.float32)
+    elif start.sky_kind == "sunsky" and lt.sky_scale is not None:
+        sky.setdefault("sunsky", {})["scale"] = _r(float(config.lights.sky.sunsky.scale) * float(np.mean(g)))
+    rd = data.setdefault("render", {})
+    sigma = look.get("haze", start.haze)
+    if start.has_haze and (sigma > 0 or config.render.haze > 0):
+        rd["haze"] = _r(sigma)
+        rd["haze_colour"] = _rgb(g * haze_colour(look, start, lt))
+    gt = ground_tint(look)
+    if not np.allclose(gt, 1.0, atol=1e-6):
+        data.setdefault("lookdev", {})["ground_tint"] = _rgb(start.ground_tint0 * gt)
+    tints = leaf_tints(look, problem.n_species)
+    if not np.allclose(tints, 1.0, atol=1e-6):
+        old = data.get("lookdev", {}).get("leaf_tint", {}) or {}
+        table = dict(old)
+        for s, label in enumerate(start.species):
+            prev = np.asarray(old.get(label, (1.0, 1.0, 1.0)), np.float64)
+            table[label] = _rgb(prev * tints[s])
+        data.setdefault("lookdev", {})["leaf_tint"] = table
+    if fit_map:
+        maps = data.setdefault("maps", {})
+        maps["colour"] = MAP_NAME
+        maps["colour_normalise"] = "none"  # the fitted tint as it is: its mean is part of the fit
+    return data, files
 
 
-def write_scene(path: Path, data: dict) -> Path:
+def rounded_grid(grid: np.ndarray) -> np.ndarray:
+    return (np.round(np.maximum(grid, 0.0) * 65536.0) / 65536.0).astype(np.float32)
+
+
+def write_toml(path: Path, data: dict) -> Path:
     import tomli_w
 
-    text = "# look-dev result: colour map and light values fitted to a reference (forest match)\n" + tomli_w.dumps(data)
+    text = "# look-dev result: the scene's look fitted to a reference (forest match)\n" + tomli_w.dumps(data)
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return path
 
 
-def write_json(path: Path, data: dict) -> Path:
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-    return path
+class Production:
+    """The production renderer of one Scene (the forest path tracer with its haze, as ``forest render`` builds it
+    for the JIT variants), built once, rendered at any size."""
+
+    def __init__(self, scene, variant: str):
+        from ..render.path import PathScene
+        from ..render.path.from_scene import path_inputs
+
+        self.config = scene.config
+        self.inputs = path_inputs(scene)
+        self.scene = PathScene(self.inputs, variant)
+
+    def image(self, *, width: int, height: int, spp: int, seed: int) -> np.ndarray:
+        """Linear (H, W, 3) at ``width × height``."""
+        from ..render.path.from_scene import with_size
+
+        cam = with_size(self.inputs, width, height).camera
+        return np.asarray(self.scene.render(cam, spp=spp, seed=seed).rgb, np.float64)
+
+
+def production_image(scene, *, width: int, height: int, spp: int, seed: int, variant: str) -> np.ndarray:
+    """The production render of a Scene at one size (see :class:`Production`)."""
+    return Production(scene, variant).image(width=width, height=height, spp=spp, seed=seed)
+
+
+def parameter_table(problem, result) -> list[dict]:
+    rows = []
+    for s in problem.specs:
+        v0 = result.start.get(s.name, s.mean)
+        v1 = result.best.get(s.name, v0)
+        held = s.name in problem.held
+        flag = ""
+        if held:
+            flag = "held: " + result.held.get(s.name, "")
+        else:
+            span = s.hi - s.lo
+            if abs(v1 - v0) > 1e-9 and min(v1 - s.lo, s.hi - v1) <= 0.01 * span:
+                flag = "on a bound"
+            elif abs(v1 - s.mean) / s.sigma > 3.0:
+                flag = f"{abs(v1 - s.mean) / s.sigma:.1f} σ from prior"
+        rows.append(
+            {
+                "name": s.name,
+                "label": s.label,
+                "group": s.group,
+                "start": _r(v0),
+                "fitted": _r(v1),
+                "start_shown": s.show(v0),
+                "fitted_shown": s.show(v1),
+                "range": s.show_range(),
+                "lo": _r(s.lo),
+                "hi": _r(s.hi),
+                "prior": f"{s.show(s.mean)} ± {s.sigma:g}{' mired' if s.kind == 'mired' else ''}",
+                "determined": _r(determination(result.shares.get(s.name, 1.0)), 3),
+                "held": held,
+                "flag": flag,
+            }
+        )
+    return rows
+
+
+def _region_figures(settings, reference, photo_labels, render_labels, renderer, image) -> dict[str, float]:
+    from .losses import RegionLoss
+    from .regions import regions
+
+    lay = renderer.layers
+    regs = regions(
+        render_labels, photo_labels, sky_up=lay["dir"][..., 1], sun_lit=None, render_img=image, photo_img=reference.rgb
+    )
+    return RegionLoss(reference.rgb, regs).delta_e(image)
+
+
+def write_outputs(
+    out_dir: Path,
+    *,
+    scene,
+    settings,
+    renderer,
+    problem,
+    fitter,
+    result,
+    reference,
+    photo_labels,
+    render_labels,
+    notes,
+    seconds,
+    seed,
+) -> dict:
+    """Write everything into ``out_dir`` atomically; returns paths, the table and the figures."""
+    from .colour import delta_e2000
+
+    config = scene.config
+    fit_map = problem.cells is not None
+    best = result.best
+    out: dict = {}
+    w, h = renderer.width, renderer.height
+    spp_eval = 4 * settings.spp
+    with atomic_dir(out_dir) as tmp:
+        data, files = fitted_data(config, problem, best, out_dir, fit_map=fit_map)
+        for name, img in files.items():
+            write_image(tmp / name, img, half=False)
+        if fit_map:
+            grid = fitter.grid(best)
+            write_image(tmp / MAP_NAME, rounded_grid(grid), half=False)
+            out["colour_map"] = out_dir / MAP_NAME
+        # The temporary folder is the output folder's sibling: relative paths resolve the same from both.
+        write_toml(tmp / "scene.toml", data)
+        fitted_scene = scene.with_config(load_config(tmp / "scene.toml"))
+        # Production renders of the start and of the written scene: figures at the fit's size, pictures larger.
+        prod = {name: Production(sc, renderer.variant) for name, sc in (("start", scene), ("fitted", fitted_scene))}
+        ev = {name: p.image(width=w, height=h, spp=spp_eval, seed=seed + 101) for name, p in prod.items()}
+        clip = (lambda x: np.minimum(x, 1.0)) if reference.display_referred else (lambda x: x)
+        figures: dict = {
+            "objective_start": _r(sum(result.start_objective)),
+            "objective_fitted": _r(sum(result.best_objective)),
+            "data_start": _r(result.start_objective[0]),
+            "data_fitted": _r(result.best_objective[0]),
+            "best_iteration": result.best_iteration,
+        }
+        valid = (photo_labels >= 0).ravel()
+        for name in ("start", "fitted"):
+            img = clip(ev[name])
+            de = delta_e2000(img.reshape(-1, 3)[valid], reference.rgb.reshape(-1, 3)[valid])
+            figures[f"{name}_pixel_de_mean"] = _r(float(np.mean(de)), 4)
+            figures[f"{name}_regions"] = {
+                k: _r(v, 4)
+                for k, v in _region_figures(settings, reference, photo_labels, render_labels, renderer, img).items()
+            }
+        rw = int(settings.report_width)
+        rh = max(1, round(rw * h / w))
+        pics = {
+            name: clip(p.image(width=rw, height=rh, spp=max(16, settings.spp), seed=seed + 202))
+            for name, p in prod.items()
+        }
+        table = parameter_table(problem, result)
+        write_report(
+            tmp / "report.png",
+            reference=reference.rgb,
+            start=pics["start"],
+            fitted=pics["fitted"],
+            table=table,
+            figures=figures,
+            history=result.history,
+            maps=(None if not fit_map else (fitter.base_map, fitter.grid(best))),
+            settings=settings,
+            size=(w, h),
+            region_means=_region_means(
+                reference, photo_labels, render_labels, renderer, clip(ev["start"]), clip(ev["fitted"])
+            ),
+        )
+        doc = {
+            "mode": settings.mode,
+            "groups": list(settings.params),
+            "iterations": settings.iterations,
+            "spp": settings.spp,
+            "resolution": [w, h],
+            "grid": settings.grid if fit_map else None,
+            "variant": renderer.variant,
+            "figures": figures,
+            "parameters": table,
+            "held": result.held,
+            "history": [{k: (_r(v) if isinstance(v, float) else v) for k, v in e.items()} for e in result.history],
+            "warnings": list(notes),
+            "seconds": _r(seconds, 4),
+        }
+        with atomic_path(tmp / "match.json") as j:
+            j.write_text(json.dumps(doc, indent=2, sort_keys=True, ensure_ascii=False) + "\n", encoding="utf-8")
+    out.update(
+        scene=out_dir / "scene.toml",
+        report=out_dir / "report.png",
+        json=out_dir / "match.json",
+        table=table,
+        figures=figures,
+    )
+    return out
+
+
+def _region_means(reference, photo_labels, render_labels, renderer, start, fitted) -> list[tuple]:
+    """(name, photo, start, fitted mean colours, ΔE start, ΔE fitted) per region."""
+    from .colour import delta_e2000
+    from .regions import regions
+
+    lay = renderer.layers
+    regs = regions(
+        render_labels, photo_labels, sky_up=lay["dir"][..., 1], sun_lit=None, render_img=fitted, photo_img=reference.rgb
+    )
+    out = []
+    for r in regs:
+        p = reference.rgb.reshape(-1, 3)[r.photo].mean(0)
+        s = start.reshape(-1, 3)[r.render].mean(0)
+        f = fitted.reshape(-1, 3)[r.render].mean(0)
+        out.append((r.name, p, s, f, float(delta_e2000(s, p)), float(delta_e2000(f, p))))
+    return out
 
 
 def _show(img: np.ndarray) -> np.ndarray:
@@ -83,55 +332,113 @@ def _show(img: np.ndarray) -> np.ndarray:
 
 
 def write_report(
-    path: Path,
-    *,
-    reference: np.ndarray,
-    start: np.ndarray,
-    result: np.ndarray,
-    losses: list[float],
-    trajectories: dict[str, list[float]],
-    figures: dict,
-    title: str,
+    path: Path, *, reference, start, fitted, table, figures, history, maps, settings, size, region_means
 ) -> Path:
-    """report.png: three images on top, loss curve and trajectories below, figures in the title."""
+    """report.png (see the module docstring)."""
     import matplotlib
 
     matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(13, 8.5), dpi=100)
-    gs = fig.add_gridspec(2, 3, height_ratios=[1.0, 1.0], hspace=0.35, wspace=0.25)
-    for i, (name, img) in enumerate((("reference", reference), ("start", start), ("result", result))):
+    rows = len(table) + 1
+    table_height = 0.22 * rows
+    if maps is not None:
+        heights = [3.2, 2.6, 3.0, table_height]
+    else:
+        heights = [3.2, 2.6, table_height]
+    fig = Figure(figsize=(15, sum(heights) + 1.2), dpi=90)
+    gs = fig.add_gridspec(len(heights), 3, height_ratios=heights, hspace=0.3, wspace=0.18)
+    panels = (("reference", reference), ("start (production render)", start), ("fitted (production render)", fitted))
+    for i, (name, img) in enumerate(panels):
         ax = fig.add_subplot(gs[0, i])
-        ax.imshow(_show(img), interpolation="nearest")
-        label = name
-        if name in ("start", "result"):
-            label += f"  ΔE00 mean {figures[name + '_delta_e_mean']:.2f}, p95 {figures[name + '_delta_e_p95']:.2f}"
-        ax.set_title(label, fontsize=9)
+        ax.imshow(_show(img), interpolation="lanczos" if img.shape[1] < 400 else "nearest")
+        if name.startswith("start"):
+            name += f"\nΔE00 mean per pixel {figures['start_pixel_de_mean']:.2f}"
+        elif name.startswith("fitted"):
+            name += f"\nΔE00 mean per pixel {figures['fitted_pixel_de_mean']:.2f}"
+        ax.set_title(name, fontsize=9)
         ax.axis("off")
-    ax = fig.add_subplot(gs[1, 0])
-    ax.plot(np.arange(1, len(losses) + 1), losses, lw=0.8, color="k")
-    ax.set_yscale("log")
+    # Regions: photo / start / fitted swatches with ΔE.
+    ax = fig.add_subplot(gs[1, 0:2])
+    ax.set_title("mean colour per region: photo | start | fitted  (CIEDE2000 to the photo)", fontsize=9)
+    n = max(len(region_means), 1)
+    for i, (name, p, s, f, de_s, de_f) in enumerate(region_means):
+        y = n - 1 - i
+        for j, c in enumerate((p, s, f)):
+            ax.add_patch(
+                matplotlib.patches.Rectangle(
+                    (j * 1.05, y + 0.1), 1.0, 0.8, color=np.clip(_show(np.asarray(c)[None])[0], 0, 1)
+                )
+            )
+        ax.text(3.3, y + 0.5, f"{name}: ΔE {de_s:.1f} → {de_f:.1f}", va="center", fontsize=8)
+    ax.set_xlim(0, 6.5)
+    ax.set_ylim(0, n)
+    ax.axis("off")
+    # Objective per iteration.
+    ax = fig.add_subplot(gs[1, 2])
+    it = [e["iteration"] for e in history]
+    tot = [e["total"] for e in history]
+    dat = [e["data"] for e in history]
+    ax.plot(it, tot, "o-", lw=1, ms=3, color="k", label="objective (held-out render)")
+    ax.plot(it, dat, "s--", lw=0.8, ms=3, color="0.5", label="data term")
+    best = figures["best_iteration"]
+    ax.plot([best], [figures["objective_fitted"]], "r*", ms=10, label=f"kept: iteration {best}")
+    if min(tot + dat) > 0:
+        ax.set_yscale("log")
+    else:  # the held-out data term is an unbiased estimate and may dip below 0 near the optimum
+        ax.set_yscale("symlog", linthresh=max(1e-3, min(abs(v) for v in tot + dat if v != 0)))
     ax.set_xlabel("iteration")
-    ax.set_title("loss", fontsize=9)
-    ax1 = fig.add_subplot(gs[1, 1])
-    ax2 = fig.add_subplot(gs[1, 2])
-    for name, values in sorted(trajectories.items()):
-        v = np.asarray(values, dtype=np.float64)
-        target = ax2 if "colour" in name else ax1
-        ref = v[0] if abs(v[0]) > 1e-12 else 1.0
-        target.plot(np.arange(1, len(v) + 1), v / ref if target is ax1 else v, lw=0.8, label=name)
-    ax1.set_title("light values (relative to start)", fontsize=9)
-    ax2.set_title("colours (map mean, light chromaticities)", fontsize=9)
-    for a in (ax1, ax2):
-        a.set_xlabel("iteration")
-        if a.lines:
-            a.legend(fontsize=6, loc="best")
-    fig.suptitle(title, fontsize=10)
+    ax.set_title(f"objective {figures['objective_start']:.4g} → {figures['objective_fitted']:.4g}", fontsize=9)
+    ax.legend(fontsize=7)
+    # Colour map before / after.
+    if maps is not None:
+        for j, (name, m) in enumerate((("painted colour map", maps[0]), ("fitted colour map", maps[1]))):
+            ax = fig.add_subplot(gs[2, j])
+            # A tint of mean about 1 would show as near white: shown with the painted map's mean as mid-grey.
+            ref_mean = np.maximum(np.asarray(maps[0], np.float64).reshape(-1, 3).mean(axis=0), 1e-6)
+            ax.imshow(
+                np.clip(linear_to_srgb(np.asarray(m) / ref_mean * 0.214), 0.0, 1.0),
+                origin="lower",
+                interpolation="nearest",
+            )
+            ax.set_title(
+                f"{name} ({m.shape[1]}×{m.shape[0]})\nrow 0 at the smallest Z; the painted mean is mid-grey",
+                fontsize=9,
+            )
+            ax.axis("off")
+    # Parameter table.
+    ax = fig.add_subplot(gs[len(heights) - 1, :])
+    ax.axis("off")
+    cols = ["parameter", "start", "fitted", "range", "prior", "determined", "flag"]
+    cells = [
+        [
+            r["label"],
+            r["start_shown"],
+            r["fitted_shown"],
+            r["range"],
+            r["prior"],
+            f"{100 * r['determined']:.0f} %",
+            r["flag"].replace("held: undetermined: the reference narrows its prior by", "held: narrowed by")[:64],
+        ]
+        for r in table
+    ]
+    if cells:
+        tab = ax.table(
+            cellText=cells,
+            colLabels=cols,
+            loc="upper center",
+            cellLoc="left",
+            colWidths=[0.2, 0.1, 0.1, 0.14, 0.15, 0.08, 0.23],
+        )
+        tab.auto_set_font_size(False)
+        tab.set_fontsize(8)
+        tab.scale(1.0, 1.25)
+    w, h = size
+    fig.suptitle(
+        f"forest match — {settings.mode}, {len(history) - 1} iterations × {settings.spp} spp at {w}×{h}; "
+        f"fitted: {', '.join(settings.params)}",
+        fontsize=11,
+    )
     with atomic_path(path) as tmp:
         fig.savefig(str(tmp), format="png", metadata={"Software": None})
     return path
-
-
-def write_map(path: Path, grid: np.ndarray) -> Path:
-    return write_image(path, rounded_grid(grid), half=False)

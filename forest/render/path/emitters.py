@@ -10,6 +10,9 @@ without rebuilding anything) and ℓ a fixed shape:
   the sun and s is the irradiance E; sampled uniformly in the cone,
   pdf = 1/(2π(1 − cos α)) (``mi.warp.square_to_uniform_cone``).
 * :class:`ConstantSky` — ℓ = 1, s the radiance; sampled cosine-weighted over the upper hemisphere.
+* :class:`SkyBasis` — one half of the ``gradient`` sky, L = s_z·μ + s_h·(1 − μ) with
+  μ = max(ω_y, 0): ℓ = μ (the zenith's share, parameter ``sky_zenith``) or ℓ = 1 − μ
+  (the horizon's, ``sky_horizon``); sampled like the constant sky.
 * :class:`EmitterLight` — a Mitsuba ``envmap`` or ``sunsky`` (sky only, or its
   sun only) with ``scale`` 1, importance-sampled by Mitsuba itself (native calls
   on one emitter object: no virtual dispatch over the scene).  ``sunsky`` is
@@ -159,6 +162,41 @@ class ConstantSky:
         import drjit as dr
 
         return dr.select(active, dr.maximum(d.y, 0.0) * dr.inv_pi, 0.0)
+
+
+class SkyBasis(ConstantSky):
+    """One basis function of the ``gradient`` sky: ℓ(ω) = μ (zenith) or 1 − μ (horizon), μ = max(ω_y, 0).
+
+    On an upward plane it delivers ∫ ℓ cos θ dω = 2π∫μ² dμ = 2π/3 (zenith) or
+    2π∫(1 − μ)μ dμ = π/3 (horizon) per unit scale.  Sampled cosine-weighted over
+    the upper hemisphere like :class:`ConstantSky` (below the horizon only the
+    horizon term is non-zero, reached by BSDF sampling).
+    """
+
+    def __init__(self, mi, param: str, initial, zenith: bool):
+        self.mi = mi
+        self.param = param
+        self.zenith = bool(zenith)
+        self.initial = np.asarray(initial, dtype=np.float64)
+        self.mean_radiance = np.full(3, 0.5)  # mean of μ or 1 − μ over the upper hemisphere
+
+    def power(self, scale) -> float:
+        return luminance(scale) * (2.0 * math.pi / 3.0 if self.zenith else math.pi / 3.0)
+
+    def _shape(self, d):
+        import drjit as dr
+
+        mu = dr.maximum(d.y, 0.0)
+        return mu if self.zenith else 1.0 - mu
+
+    def sample(self, scale, u, active):
+        d, pdf, _ = super().sample(scale, u, active)
+        return d, pdf, scale * self._shape(d)
+
+    def eval(self, scale, d, active):
+        import drjit as dr
+
+        return dr.select(active, scale * self._shape(d), 0.0)
 
 
 def sun_irradiance_of(mi, emitter, direction, samples: int = SUN_SAMPLES) -> np.ndarray:
@@ -323,7 +361,10 @@ def make_lights(mi, sun: SunLight | None, sky: SkyLight | None) -> list[Any]:
     if sun is not None and float(np.asarray(sun.direction, dtype=np.float64)[1]) > -1.0:
         lights.append(DiscSun(mi, sun))
     if sky is not None:
-        if sky.kind == "envmap":
+        if sky.kind == "gradient":
+            lights.append(SkyBasis(mi, "sky_zenith", sky.zenith, True))
+            lights.append(SkyBasis(mi, "sky_horizon", sky.horizon, False))
+        elif sky.kind == "envmap":
             em = mi.load_dict({"type": "envmap", "filename": str(sky.envmap), "scale": 1.0})
             lights.append(EmitterLight(mi, em, "sky_scale", [sky.scale] * 3))
         else:

@@ -18,7 +18,9 @@ with atomics, so the same inputs and seed give the same image bit for bit.
 Parameters (``PathScene.params``, drjit values the caller may change or
 differentiate between renders): ``colour_grid`` (TensorXf (H, W, 3)),
 ``sun_irradiance`` (disc sun), ``sky_radiance`` (constant sky),
-``sky_scale`` (envmap / sunsky sky), ``sun_scale`` (sunsky sun), each RGB;
+``sky_scale`` (envmap / sunsky sky), ``sun_scale`` (sunsky sun), ``sky_zenith`` and
+``sky_horizon`` (gradient sky), each RGB; ``leaf_tint`` (Float, S·3: an RGB multiplier
+of each species' leaf albedo) and ``ground_tint`` (RGB, the terrain's albedo);
 with a haze (:mod:`.haze`) also ``haze_density``, ``haze_height``,
 ``haze_anisotropy`` (Float) and ``haze_colour`` (RGB).
 """
@@ -132,6 +134,9 @@ class PathScene:
         self.params: dict[str, Any] = {}
         for light in self.lights:
             self.params[light.param] = mi.Color3f(*[float(x) for x in light.initial])
+        leaf, ground = inputs.tints()
+        self.params["leaf_tint"] = mi.Float(leaf.astype(np.float32).ravel())
+        self.params["ground_tint"] = mi.Color3f(*[float(x) for x in ground])
         if inputs.colour_grid is not None:
             self.params["colour_grid"] = mi.TensorXf(np.ascontiguousarray(inputs.colour_grid, dtype=np.float32))
         self.haze: HazeInputs | None = None
@@ -202,17 +207,18 @@ class PathScene:
         self.activate()
         mi = self.mi
         assert self.traversal is not None and self._parts is not None and self._mats is not None
+        import drjit as dr
+
         grid = self.params.get("colour_grid")
         grid_tex = None
         if grid is not None:
-            import drjit as dr
-
             grid_tex = world_map_texture(mi, grid, differentiable=dr.grad_enabled(grid))
+        g = self.params["ground_tint"]
+        table = dr.concat([self.params["leaf_tint"], g.x, g.y, g.z])
+        mats = self._mats.tinted_colours(mi, table)
         lights = LightSet(mi, self.lights, self.params)
         haze = None
         if self.haze is not None:
-            import drjit as dr
-
             # A haze of density 0 costs nothing unless its parameters are being differentiated.
             attached = any(dr.grad_enabled(self.params[k]) for k in HazeModel.PARAMS)
             if attached or float(np.asarray(self.params["haze_density"]).ravel()[0]) > 0.0:
@@ -221,7 +227,7 @@ class PathScene:
             mi,
             self.traversal,
             self._parts,
-            self._mats,
+            mats,
             grid=grid_tex,
             terrain_map=self.terrain_map,
             extent=self.extent,

@@ -173,6 +173,7 @@ class ForestGeometry:
                     bool(inputs.terrain_tinted and inputs.colour_grid is not None),
                 ),
                 terrain_map=np.ndim(inputs.terrain_colour) == 3,
+                tint_row=len(inputs.species),  # the ground tint follows the species' leaf tints
             )
             tile = float(inputs.terrain_detail_tile)
 
@@ -208,7 +209,8 @@ class ForestGeometry:
             mesh = part.load() if hasattr(part, "load") else read_ply(part.path)
             if len(mesh.faces) == 0:
                 continue
-            ids.append(self.parts.add(mesh, self.materials.add(part)))
+            row = s if getattr(part, "kind", "") == "leaf" else -1  # a species' leaves share its leaf tint
+            ids.append(self.parts.add(mesh, self.materials.add(part, tint_row=row)))
         if not ids:
             raise ForestError(f"species {getattr(sp, 'name', s)!r} level {lod.name} has no triangles")
         tris = int(sum(self.parts.triangles[i] for i in ids))

@@ -24,7 +24,7 @@ from .haze import HazeInputs
 #: Angular diameter of the sun seen from the earth, degrees (0.5332° at 1 AU).
 SUN_ANGULAR_DIAMETER = 0.53
 SAMPLERS = ("multijitter", "independent", "stratified", "orthogonal", "ldsampler")
-SKY_KINDS = ("constant", "envmap", "sunsky")
+SKY_KINDS = ("constant", "envmap", "sunsky", "gradient")
 #: Prototypes with at most this many triangles are merged per species into world-space
 #: meshes instead of instanced (≤ 64 triangles ≈ 2.3 KB of vertices per tree, against
 #: 13–17 KB per Mitsuba instance record in llvm).
@@ -71,6 +71,12 @@ class SkyLight:
       With ``sun_irradiance`` set, sun and sky are first scaled together so that
       the model's sun sends that irradiance (luminance, facing the sun; see
       :func:`~forest.render.path.emitters.sunsky_scale`).
+    * ``gradient`` — L(ω) = ``zenith``·μ + ``horizon``·(1 − μ), μ = max(ω_y, 0): linear in
+      the cosine of the zenith angle from the horizon's radiance to the zenith's (below the
+      horizon, the horizon's).  With zenith = 3 × horizon it is the CIE standard overcast
+      sky, L(θ) ∝ (1 + 2 cos θ)/3 (Moon & Spencer 1942; CIE S 011/E:2003, sky type 1);
+      a horizon brighter than the zenith gives the clear-sky brightening towards the
+      horizon.  Both colours are parameters (``sky_zenith``, ``sky_horizon``).
     """
 
     kind: str = "constant"
@@ -81,6 +87,8 @@ class SkyLight:
     albedo: float = 0.15
     sun_scale: float = 1.0
     sun_irradiance: float | None = None
+    zenith: Sequence[float] = (0.35, 0.35, 0.35)
+    horizon: Sequence[float] = (0.35, 0.35, 0.35)
 
 
 @dataclass(frozen=True)
@@ -130,7 +138,10 @@ class PathInputs:
     the demo forest 1 gave the noise of 2 in 64 % of the time, 0 another 44 %
     less time for 16 % more noise.  Prototypes
     of at most ``flatten_triangles`` triangles are merged into world-space
-    meshes instead of instanced (see :mod:`.geometry`).
+    meshes instead of instanced (see :mod:`.geometry`).  ``leaf_tint`` (S, 3)
+    multiplies the albedo of the leaf parts of each species index (default ones)
+    and ``ground_tint`` (RGB) the terrain's; both start the ``leaf_tint`` and
+    ``ground_tint`` parameters of :class:`~forest.render.path.PathScene`.
     """
 
     instances: Any
@@ -158,6 +169,13 @@ class PathInputs:
     seed: int = 0
     sampler: str = "multijitter"
     flatten_triangles: int = FLATTEN_MAX_TRIANGLES
+    leaf_tint: np.ndarray | None = None
+    ground_tint: Sequence[float] = (1.0, 1.0, 1.0)
+
+    def tints(self) -> tuple[np.ndarray, np.ndarray]:
+        """(leaf tint (S, 3), ground tint (3,)) as float64 arrays, ones where not given."""
+        leaf = np.ones((len(self.species), 3)) if self.leaf_tint is None else np.asarray(self.leaf_tint, np.float64)
+        return leaf.reshape(len(self.species), 3), np.asarray(self.ground_tint, np.float64).reshape(3)
 
     def grid_extent(self) -> tuple[float, float, float, float]:
         """(xmin, zmin, xmax, zmax) that the colour grid and a terrain colour map span."""
@@ -196,6 +214,14 @@ class PathInputs:
             g = np.asarray(self.colour_grid)
             if g.ndim != 3 or g.shape[2] != 3 or min(g.shape[:2]) < 1 or not np.isfinite(g).all():
                 raise ForestError(f"path inputs: colour_grid must be a finite (H, W, 3) array, got shape {g.shape}")
+        if self.leaf_tint is not None and np.shape(self.leaf_tint) != (len(self.species), 3):
+            raise ForestError(
+                f"path inputs: leaf_tint must be ({len(self.species)}, 3), one RGB per species, "
+                f"got {np.shape(self.leaf_tint)}"
+            )
+        leaf, ground = self.tints()
+        if not (np.isfinite(leaf).all() and np.isfinite(ground).all()) or leaf.min() < 0 or ground.min() < 0:
+            raise ForestError("path inputs: leaf_tint and ground_tint must be finite and non-negative")
         tc = np.asarray(self.terrain_colour, dtype=np.float64)
         if tc.shape != (3,) and (tc.ndim != 3 or tc.shape[2] != 3):
             raise ForestError(f"path inputs: terrain_colour must be RGB or an (H, W, 3) map, got shape {tc.shape}")

@@ -5,7 +5,8 @@ Albedo of a hit x with texture coordinates (u, v) on a part with material m
 
     a(x) = c_m · detail_m(u, v) · G(x)^[m tinted] · A(x)^[m terrain map]
 
-with c_m the part's linear colour, detail_m the RGB of its texture (a linear
+with c_m the part's linear colour (times the tint of its row in the ``leaf_tint`` /
+``ground_tint`` parameters: a species' leaves, the terrain; see :meth:`MaterialArrays.tinted_colours`), detail_m the RGB of its texture (a linear
 detail factor, 1 without a texture), G the colour grid and A a terrain colour
 map, both looked up at x's world X/Z with bilinear interpolation between texel
 centres placed at pixel centres and clamped at the edges — the same lookup as
@@ -121,6 +122,7 @@ class MaterialTable:
     tinted: np.ndarray  # (M,) bool: multiplied by the colour grid
     terrain_map: np.ndarray  # (M,) bool: multiplied by the terrain colour map
     atlas: Atlas
+    tint_row: np.ndarray  # (M,) int32: row of the tint table (a species' leaves, the terrain) or −1
 
 
 class MaterialStore:
@@ -132,8 +134,11 @@ class MaterialStore:
         self._textures: list[str] = []
         self._arrays: dict[str, np.ndarray] = {}
 
-    def add(self, m: Material | Any, *, terrain_map: bool = False) -> int:
+    def add(self, m: Material | Any, *, terrain_map: bool = False, tint_row: int = -1) -> int:
         """Index of material ``m`` (a :class:`Material` or a library ``Part``), added on first use.
+
+        ``tint_row``: the row of the tint table that multiplies its colour (−1: none); materials
+        of different rows are kept apart even when equal, so each row tints only its own.
 
         A texture is an image path, or an (h, w, 3|4) array (linear RGB detail, optional alpha).
         """
@@ -147,7 +152,15 @@ class MaterialStore:
         colour = tuple(round(float(c), 7) for c in m.colour)
         if len(colour) != 3:
             raise ForestError(f"material colour must be RGB, got {m.colour!r}")
-        key = (kind, colour, None if tex is None else str(tex), bool(getattr(m, "tinted", False)), tau, terrain_map)
+        key = (
+            kind,
+            colour,
+            None if tex is None else str(tex),
+            bool(getattr(m, "tinted", False)),
+            tau,
+            terrain_map,
+            int(tint_row),
+        )
         if key not in self._index:
             t = -1
             if tex is not None:
@@ -155,7 +168,7 @@ class MaterialStore:
                     self._textures.append(str(tex))
                 t = self._textures.index(str(tex))
             self._index[key] = len(self._rows)
-            self._rows.append((kind, colour, tau, t, key[3], terrain_map))
+            self._rows.append((kind, colour, tau, t, key[3], terrain_map, int(tint_row)))
         return self._index[key]
 
     def _array_key(self, a: np.ndarray) -> str:
@@ -179,7 +192,7 @@ class MaterialStore:
 
     def table(self) -> MaterialTable:
         atlas = pack_atlas([self._arrays[p] if p in self._arrays else texture_rgba(p) for p in self._textures])
-        rows = self._rows or [(KIND_SURFACE, (0.5, 0.5, 0.5), 0.0, -1, False, False)]
+        rows = self._rows or [(KIND_SURFACE, (0.5, 0.5, 0.5), 0.0, -1, False, False, -1)]
         tex = np.array([r[3] for r in rows], np.int32)
         cut = np.array([t >= 0 and not atlas.opaque[t] for t in tex.tolist()], bool)
         return MaterialTable(
@@ -191,6 +204,7 @@ class MaterialStore:
             tinted=np.array([r[4] for r in rows], bool),
             terrain_map=np.array([r[5] for r in rows], bool),
             atlas=atlas,
+            tint_row=np.array([r[6] for r in rows], np.int32),
         )
 
 
@@ -228,6 +242,7 @@ class MaterialArrays:
     atlas: Any  # Texture2f (RGBA)
     has_cutouts: bool
     has_textures: bool
+    tint_row: np.ndarray | None = None  # (M,) int32, numpy: the tint table row of each material, −1 none
 
     @classmethod
     def build(cls, mi, table: MaterialTable) -> MaterialArrays:
@@ -253,7 +268,27 @@ class MaterialArrays:
             atlas=atlas,
             has_cutouts=bool(table.cutout.any()),
             has_textures=bool((table.texture >= 0).any()),
+            tint_row=table.tint_row.copy(),
         )
+
+    def tinted_colours(self, mi, table):
+        """The materials with their colours multiplied by a tint table: a copy whose ``colour`` is
+        c_m ⊙ t[row_m] (rows −1 keep c_m).  ``table`` is a flat Float of R·3 values (R rows, RGB);
+        gradients flow from it into every image rendered with the copy."""
+        import dataclasses
+
+        import drjit as dr
+
+        rows = np.asarray(self.tint_row if self.tint_row is not None else [], np.int64)
+        n_rows = dr.width(table) // 3
+        if not len(rows) or not (rows >= 0).any():
+            return self
+        # Rows −1 gather a trailing 1: the table is extended by one white entry.
+        ext = dr.concat([table, mi.Float(1.0, 1.0, 1.0)])
+        idx = np.where(rows >= 0, rows, n_rows).astype(np.uint32)
+        flat = np.repeat(idx * 3, 3) + np.tile(np.arange(3, dtype=np.uint32), len(idx))
+        tint = dr.gather(mi.Float, ext, mi.UInt32(flat))
+        return dataclasses.replace(self, colour=self.colour * tint)
 
     def tile_uv(self, mi, tex, uv, active):
         """Atlas coordinates of ``uv`` on tile ``tex`` (repeat wrap)."""

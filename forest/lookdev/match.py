@@ -1,0 +1,320 @@
+"""``match``: fit a Scene's look to a reference photo with the production renderer.
+
+The steps, each in its own module:
+
+1. settings from the call over ``[lookdev]`` (:func:`resolve_settings`);
+2. the reference read, checked, cropped and resampled to the fit's size, with
+   its painted regions if any (:mod:`.reference`, :mod:`.regions`);
+3. the production scene built once for the fit (:mod:`.renders`): all trees,
+   reduced resolution and samples;
+4. the parameters, their ranges and priors (:mod:`.params`), the data term —
+   noise-weighted pixels (aligned) or region colour statistics (statistics) —
+   (:mod:`.losses`), and the image model (:mod:`.image_model`);
+5. the Gauss–Newton loop with its guard rails (:mod:`.fit`, :mod:`.solve`);
+6. the outputs (:mod:`.report`): ``scene.toml`` with every fitted value folded
+   in (camera exposure and white balance go into the lights, exactly), the
+   colour map at the painted map's resolution, ``sky.exr`` for a tilted sky,
+   ``report.png`` with production renders of the start and the result, and
+   ``match.json``.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings as _warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..config import Config, ConfigError
+from ..errors import ParameterError
+from .params import DEFAULT_GROUPS, GROUPS, Look, specs_for, start_values
+
+MODES = ("aligned", "statistics")
+SEED_TAG = 0x100CDE7
+
+
+@dataclass
+class Settings:
+    iterations: int
+    resolution: int
+    spp: int
+    params: tuple[str, ...]
+    mode: str
+    grid: int
+    fresh_map: bool
+    mask: Path | None
+    fit: str
+    variant: str
+    report_width: int
+
+
+@dataclass
+class MatchResult:
+    """What ``match`` wrote and what it found."""
+
+    out_dir: Path
+    scene_path: Path
+    colour_map_path: Path | None
+    report_path: Path
+    json_path: Path
+    table: list[dict]  # every parameter: name, label, start, fitted, range, prior, determination, flag
+    figures: dict
+    fitted: tuple[str, ...]
+    variant: str
+    seconds: float
+    warnings: list[str] = field(default_factory=list)
+    losses: list[float] = field(default_factory=list)
+    held_cells: np.ndarray | None = None  # (grid, grid) bool: colour-map cells unseen, kept as painted
+    cell_information: np.ndarray | None = None  # (grid, grid): the reference's information on each cell (prior units)
+
+    @property
+    def paths(self) -> list[Path]:
+        return [p for p in (self.scene_path, self.colour_map_path, self.report_path, self.json_path) if p]
+
+
+def parse_params(value, where: str = "lookdev.params") -> tuple[str, ...]:
+    """``"camera,sun"`` or a list → validated tuple of parameter groups."""
+    items = value.split(",") if isinstance(value, str) else list(value)
+    out: list[str] = []
+    for it in items:
+        it = str(it).strip()
+        if not it:
+            continue
+        if it not in GROUPS:
+            raise ParameterError(where, f"unknown parameter {it!r} (expected some of {', '.join(GROUPS)})")
+        if it not in out:
+            out.append(it)
+    if not out:
+        raise ParameterError(where, f"give at least one of {', '.join(GROUPS)}")
+    return tuple(out)
+
+
+def resolve_settings(
+    config: Config,
+    *,
+    iterations=None,
+    resolution=None,
+    spp=None,
+    params=None,
+    mode=None,
+    mask=None,
+    variant=None,
+    grid=None,
+) -> Settings:
+    """Call arguments over ``[lookdev]`` over its defaults, validated by the scene schema (errors name
+    ``lookdev.<option>``)."""
+    given = {
+        "iterations": iterations,
+        "resolution": resolution,
+        "spp": spp,
+        "mode": mode,
+        "grid": grid,
+        "variant": variant,
+    }
+    if params is not None:
+        parse_params(params)
+        given["params"] = (
+            [p.strip() for p in params.split(",") if p.strip()] if isinstance(params, str) else list(params)
+        )
+    overrides = {f"lookdev.{k}": v for k, v in given.items() if v is not None}
+    if mask is not None:
+        overrides["lookdev.mask"] = str(Path(mask).resolve())
+    if overrides:
+        try:
+            config = config.with_overrides(overrides)
+        except ConfigError as e:
+            if e.field in overrides:
+                raise e.for_parameter(e.field) from None
+            raise
+    lk = config.lookdev
+    groups = parse_params(lk.params) if lk.params is not None else DEFAULT_GROUPS[lk.mode]
+    if lk.mode == "statistics" and "colour_map" in groups:
+        groups = tuple(g for g in groups if g != "colour_map")  # an unrelated photo cannot place colours
+    v = lk.variant
+    if v is None:
+        from ..runtime import cuda_available
+
+        v = "cuda_ad_rgb" if cuda_available() else "llvm_ad_rgb"
+    return Settings(
+        iterations=lk.iterations,
+        resolution=lk.resolution,
+        spp=lk.spp,
+        params=groups,
+        mode=lk.mode,
+        grid=lk.grid,
+        fresh_map=lk.fresh_map,
+        mask=lk.mask,
+        fit=lk.fit,
+        variant=v,
+        report_width=lk.report_width,
+    )
+
+
+def optimiser_size(config: Config, resolution: int) -> tuple[int, int]:
+    """(width, height) with the long side ``resolution`` and the render's aspect ratio."""
+    w, h = config.render.width, config.render.height
+    if w >= h:
+        return resolution, max(1, round(resolution * h / w))
+    return max(1, round(resolution * w / h)), resolution
+
+
+def match(
+    scene,
+    reference,
+    out_dir,
+    *,
+    iterations: int | None = None,
+    resolution: int | None = None,
+    spp: int | None = None,
+    params=None,
+    mode: str | None = None,
+    mask=None,
+    variant: str | None = None,
+    progress=None,
+    grid: int | None = None,
+    seed: int | None = None,
+) -> MatchResult:
+    """Fit the look of a :class:`~forest.scene.Scene` to ``reference`` (an image path or an (H, W, 3) linear
+    array) and write the results to ``out_dir``; ``progress(fraction, message)`` follows the fit."""
+    from ..runtime import mitsuba
+    from .correction import base_map
+    from .fit import Fitter
+    from .image_model import ImageModel
+    from .losses import PixelLoss, RegionLoss
+    from .reference import load_reference
+    from .regions import AUTO, photo_labels, read_mask, regions, render_labels
+    from .renders import FitRenderer
+    from .report import write_outputs
+    from .solve import Problem
+
+    t0 = time.perf_counter()
+    say = progress or (lambda f, m="": None)
+    config = scene.config
+    st = resolve_settings(
+        config,
+        iterations=iterations,
+        resolution=resolution,
+        spp=spp,
+        params=params,
+        mode=mode,
+        mask=mask,
+        variant=variant,
+        grid=grid,
+    )
+    mitsuba(st.variant)
+    width, height = optimiser_size(config, st.resolution)
+    notes: list[str] = []
+    painted = read_mask(st.mask) if st.mask is not None else None
+    with _warnings.catch_warnings(record=True) as caught:
+        _warnings.simplefilter("always")
+        ref = load_reference(reference, width, height, mask=None, fit=st.fit)
+    notes += [str(w.message) for w in caught]
+    if painted is not None:
+        from .reference import fit_labels
+
+        painted = fit_labels(painted, ref.source_size, width, height, st.fit, str(st.mask))
+    groups = set(st.params)
+    fit_map = "colour_map" in groups and st.mode == "aligned"
+    cells = (st.grid, st.grid) if fit_map else None
+    painted_map = None if scene.colour is None else scene.colour.rgb
+    base = base_map(painted_map, (st.grid, st.grid), st.fresh_map) if (fit_map or painted_map is not None) else None
+    if base is not None and not fit_map and painted_map is not None:
+        base = np.asarray(painted_map, np.float64)
+    say(0.01, "building the production scene")
+    renderer = FitRenderer(
+        scene, width=width, height=height, spp=st.spp, variant=st.variant, base_map=base, haze="haze" in groups
+    )
+    start = renderer.start
+    lay = renderer.layers
+    sky_px = ~lay["hit"]
+    from .params import GRADIENT_MIN_ELEVATION
+
+    top = float(lay["dir"][..., 1][sky_px].max()) if sky_px.any() else -1.0
+    start.sky_tied = top < np.sin(np.radians(GRADIENT_MIN_ELEVATION))
+    if start.sky_tied and "sky" in groups and start.sky_kind == "constant":
+        seen = (
+            f"the sky in frame reaches {np.degrees(np.arcsin(max(min(top, 1.0), -1.0))):.0f}° above the horizon "
+            f"(under {GRADIENT_MIN_ELEVATION:g}°)"
+            if sky_px.any()
+            else "no sky in frame"
+        )
+        notes.append(f"{seen}: its gradient is held, the sky is fitted as one colour")
+    specs = specs_for(start, groups)
+    look0 = Look(start_values(start, specs), np.zeros((st.grid, st.grid, 3)) if fit_map else None)
+    image = ImageModel(lay["optical"], clip=ref.display_referred)
+    rseed = int(config.seed if seed is None else seed)
+    problem = Problem(specs, start, image, None, renderer.n_species, cells=cells)
+    if st.mode == "statistics":
+        # One photo of another place shows the product of the camera's balance and the light's colour only.
+        for name in ("wb_mired", "wb_tint"):
+            if any(s.name == name for s in specs):
+                problem.held.add(name)
+                problem.held_reasons[name] = "confounded with the light colours in an unrelated photo"
+    fitter = Fitter(renderer, problem, base_map=base, seed=rseed ^ SEED_TAG)
+    rl = render_labels(lay)
+    if st.mode == "aligned":  # the same camera: the render's regions are the photo's, unless painted
+        pl = rl if painted is None else np.where(painted == AUTO, rl, painted)
+    else:
+        pl = photo_labels(ref.rgb, rl, painted)
+    # The start's image and where its sun reaches: regions, and the noise of the aligned loss.
+    fitter.apply(look0)
+    u0 = renderer.light_images(rseed + 1)
+    scales = problem.light_scales(look0)
+    total0 = sum(u0[k] * s for k, s in scales.items() if k in u0)
+    sun_lit = None
+    if "sun_irradiance" in u0 and "sun_irradiance" in scales:
+        sun_part = u0["sun_irradiance"] * scales["sun_irradiance"]
+        sun_lit = (sun_part.sum(-1) >= 0.5 * np.maximum(total0.sum(-1), 1e-9)) & lay["hit"]
+    start_photo = problem.photo_model(look0, total0)
+    loss: PixelLoss | RegionLoss
+    if st.mode == "aligned":
+        loss = PixelLoss(ref)
+        other = problem.photo_model(look0, fitter.render(look0, rseed + 2))
+        from scipy.ndimage import uniform_filter
+
+        var = uniform_filter((start_photo - other) ** 2 / 2.0, size=(3, 3, 1), mode="nearest")
+        loss.set_noise(var)
+        loss.mask(pl >= 0)
+    else:
+        sky_up = lay["dir"][..., 1]
+        regs = regions(rl, pl, sky_up=sky_up, sun_lit=sun_lit, render_img=start_photo, photo_img=ref.rgb)
+        loss = RegionLoss(ref.rgb, regs)
+    problem.loss = loss
+    say(0.05, "fitting")
+    res = fitter.run(look0, iterations=st.iterations, progress=lambda f, m: say(0.05 + 0.75 * f, m))
+    notes += res.warnings
+    say(0.82, "writing and rendering the report")
+    out = write_outputs(
+        Path(out_dir),
+        scene=scene,
+        settings=st,
+        renderer=renderer,
+        problem=problem,
+        fitter=fitter,
+        result=res,
+        reference=ref,
+        photo_labels=pl,
+        render_labels=rl,
+        notes=notes,
+        seconds=time.perf_counter() - t0,
+        seed=rseed,
+    )
+    say(1.0, "done")
+    return MatchResult(
+        out_dir=Path(out_dir),
+        scene_path=out["scene"],
+        colour_map_path=out.get("colour_map"),
+        report_path=out["report"],
+        json_path=out["json"],
+        table=out["table"],
+        figures=out["figures"],
+        fitted=tuple(sorted(groups)),
+        variant=st.variant,
+        seconds=time.perf_counter() - t0,
+        warnings=notes,
+        losses=[h["total"] for h in res.history],
+        held_cells=None if problem.held_cells is None or cells is None else problem.held_cells.reshape(cells),
+        cell_information=res.cell_information,
+    )

@@ -1,0 +1,235 @@
+"""What is where: sky, canopy and ground in the render and in the photo, and painted masks.
+
+**In the render** the regions come from forest's own layers (one ray per pixel
+centre, :attr:`.renders.FitRenderer.layers`): *sky* where nothing is hit,
+*canopy* where a tree is hit (any species, leaves and bark), *ground* where
+the terrain is hit.
+
+**In the photo** (statistics mode, unless ``--mask`` paints them) an automatic
+segmentation assigns the same three regions:
+
+1. *sky*: pixels that are bright (above the Otsu threshold of ln Y over the
+   frame; Otsu 1979), smooth (local standard deviation of ln Y over 5×5 below
+   0.25) and not green (excess green 2g − r − b below 0.1 of the brightness;
+   Woebbecke et al. 1995), in the connected parts that touch the top edge;
+2. *ground* and *canopy* among the rest, row by row: the cameras roughly
+   match, so a row of the photo gets the share of ground its row in the render
+   has (among non-sky pixels, smoothed over ±5 % of the height), and the
+   pixels given to the ground are the least green of the row.
+
+Its limits: it needs the camera to frame the scene roughly as the photo does
+(the ground share per row comes from the render); it cannot tell a green
+meadow from a canopy or an orange autumn canopy from bare soil by colour, only
+by position; a bright, smooth, not-green object touching the top edge (a
+white wall, a cloudless snowfield) passes for sky; fog or an overcast sky whose
+brightness is that of the ground may be missed.  A painted mask overrides it.
+
+**Masks** (``--mask``): an image of the reference's aspect ratio painted in
+:data:`PALETTE` colours — sky blue ``#0000ff``, canopy green ``#00ff00``,
+ground red ``#ff0000``, black ``#000000`` ignored, white ``#ffffff`` left to the
+automatic segmentation.  A pixel takes the palette colour it is within
+:data:`MASK_TOLERANCE` (8-bit, per channel) of; up to :data:`MASK_STRAY`
+of the pixels may be off the palette (antialiased edges) and are ignored.
+
+**Lit and shadowed.** Within canopy and ground, the render's sunlit fraction f
+(pixels whose direct sun is at least half their radiance) splits each region
+of both images by lightness: its brightest f is *lit*, the rest *shadowed* —
+the same rule on both sides, since a photo's shadows cannot be told from its
+dark albedos by colour alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ForestError
+
+SKY, CANOPY, GROUND = 0, 1, 2
+IGNORE, AUTO = -1, -2
+NAMES = {SKY: "sky", CANOPY: "canopy", GROUND: "ground"}
+PALETTE = {
+    SKY: (0, 0, 255),
+    CANOPY: (0, 255, 0),
+    GROUND: (255, 0, 0),
+    IGNORE: (0, 0, 0),
+    AUTO: (255, 255, 255),
+}
+MASK_TOLERANCE = 48
+MASK_STRAY = 0.02
+#: Smallest share of the pixels a region needs in both images to be compared.
+MIN_REGION = 0.02
+
+
+def render_labels(layers: dict[str, np.ndarray]) -> np.ndarray:
+    """(H, W) SKY / CANOPY / GROUND from the render's layers."""
+    lab = np.full(layers["depth"].shape, SKY, np.int64)
+    lab[layers["hit"] & (layers["id"] >= 0)] = CANOPY
+    lab[layers["hit"] & (layers["id"] < 0)] = GROUND
+    return lab
+
+
+def read_mask(path, what: str = "mask") -> np.ndarray:
+    """A painted mask file → (H, W) labels (SKY, CANOPY, GROUND, IGNORE, AUTO); a :class:`ForestError`
+    naming the file when its colours do not fit the palette."""
+    from ..images import read_image
+
+    img = read_image(path, what=what)
+    rgb = img[..., :3] if img.shape[2] >= 3 else np.repeat(img[..., :1], 3, axis=2)
+    return mask_labels(np.round(np.clip(rgb, 0, 1) * 255.0), str(path))
+
+
+def mask_labels(rgb8: np.ndarray, label: str = "mask") -> np.ndarray:
+    """8-bit RGB (H, W, 3) → labels by the nearest palette colour within the tolerance."""
+    keys = list(PALETTE)
+    pal = np.array([PALETTE[k] for k in keys], np.float64)
+    dist = np.abs(rgb8[..., None, :].astype(np.float64) - pal).max(axis=-1)  # (H, W, K)
+    best = dist.argmin(axis=-1)
+    ok = dist.min(axis=-1) <= MASK_TOLERANCE
+    labels = np.asarray(keys)[best]
+    stray = 1.0 - float(ok.mean())
+    if stray > MASK_STRAY:
+        ys, xs = np.nonzero(~ok)
+        c = rgb8[ys[0], xs[0]].astype(int)
+        raise ForestError(
+            f"{label}: {100 * stray:.1f} % of the mask's pixels are none of its colours (e.g. #{c[0]:02x}{c[1]:02x}"
+            f"{c[2]:02x} at x={xs[0]}, y={ys[0]}); paint sky #0000ff, canopy #00ff00, ground #ff0000, "
+            "ignored #000000, automatic #ffffff"
+        )
+    return np.where(ok, labels, IGNORE).astype(np.int64)
+
+
+def _otsu(x: np.ndarray) -> float:
+    """Otsu's (1979) threshold of a 1-D sample (256 bins)."""
+    hist, edges = np.histogram(x, bins=256)
+    p = hist.astype(np.float64) / max(hist.sum(), 1)
+    mids = 0.5 * (edges[1:] + edges[:-1])
+    w0 = np.cumsum(p)
+    m0 = np.cumsum(p * mids)
+    mt = m0[-1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        between = (mt * w0 - m0) ** 2 / (w0 * (1.0 - w0))
+    between[~np.isfinite(between)] = 0.0
+    return float(mids[int(np.argmax(between))])
+
+
+def segment_photo(rgb: np.ndarray, render: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
+    """Automatic SKY / CANOPY / GROUND labels of a linear photo (H, W, 3), guided by the render's labels
+    ``render`` (H, W) of the same view (see the module docstring)."""
+    from scipy.ndimage import label as components
+    from scipy.ndimage import uniform_filter
+
+    h, w = rgb.shape[:2]
+    y = np.maximum(rgb @ np.array([0.2126, 0.7152, 0.0722]), 1e-5)
+    ly = np.log(y)
+    mean = uniform_filter(ly, 5, mode="nearest")
+    std = np.sqrt(np.maximum(uniform_filter(ly * ly, 5, mode="nearest") - mean * mean, 0.0))
+    s = rgb.sum(axis=2) + 1e-6
+    exg = (2 * rgb[..., 1] - rgb[..., 0] - rgb[..., 2]) / s
+    bright = ly > _otsu(ly.ravel())
+    cand = bright & (std < 0.25) & (exg < 0.1)
+    comp, _ = components(cand)
+    top = set(np.unique(comp[0][comp[0] > 0]).tolist())
+    sky = np.isin(comp, list(top)) if top else np.zeros((h, w), bool)
+    labels = np.full((h, w), CANOPY, np.int64)
+    labels[sky] = SKY
+    # Ground share per row, from the render (non-sky pixels), smoothed over ±5 % of the height.
+    rsolid = render != SKY
+    share = np.where(rsolid.sum(1) > 0, (render == GROUND).sum(1) / np.maximum(rsolid.sum(1), 1), np.nan)
+    rows = np.arange(h)
+    known = np.isfinite(share)
+    share = np.interp(rows, rows[known], share[known]) if known.any() else np.zeros(h)
+    k = max(1, int(round(0.05 * h)))
+    share = uniform_filter(share, 2 * k + 1, mode="nearest")
+    for r in range(h):
+        free = np.flatnonzero(~sky[r])
+        n_ground = int(round(share[r] * len(free)))
+        if n_ground <= 0 or not len(free):
+            continue
+        order = free[np.argsort(exg[r, free], kind="stable")]
+        labels[r, order[:n_ground]] = GROUND
+    if weight is not None:
+        labels[weight <= 0] = IGNORE
+    return labels
+
+
+def photo_labels(rgb: np.ndarray, render: np.ndarray, painted: np.ndarray | None) -> np.ndarray:
+    """The photo's labels: the painted mask where it names a region, the automatic segmentation elsewhere."""
+    auto = segment_photo(rgb, render)
+    if painted is None:
+        return auto
+    return np.where(painted == AUTO, auto, painted)
+
+
+@dataclass(frozen=True)
+class Region:
+    """A compared region: its name and its pixels in the render and in the photo (flat boolean masks)."""
+
+    name: str
+    render: np.ndarray
+    photo: np.ndarray
+
+
+def lightness(rgb: np.ndarray) -> np.ndarray:
+    return np.asarray(rgb, np.float64).reshape(-1, 3) @ np.array([0.2126, 0.7152, 0.0722])
+
+
+def split_lit(mask: np.ndarray, image: np.ndarray, fraction: float) -> tuple[np.ndarray, np.ndarray]:
+    """(lit, shadowed): the brightest ``fraction`` of ``mask``'s pixels of ``image`` and the rest."""
+    idx = np.flatnonzero(mask)
+    lit = np.zeros_like(mask)
+    if not len(idx):
+        return lit, mask.copy()
+    y = lightness(image)[idx]
+    n = int(round(np.clip(fraction, 0.0, 1.0) * len(idx)))
+    order = idx[np.argsort(-y, kind="stable")]
+    lit[order[:n]] = True
+    return lit, mask & ~lit
+
+
+def regions(
+    render_lab: np.ndarray,
+    photo_lab: np.ndarray,
+    *,
+    sky_up: np.ndarray,
+    sun_lit: np.ndarray | None,
+    render_img: np.ndarray,
+    photo_img: np.ndarray,
+) -> list[Region]:
+    """The regions both images show: sky (high / low halves by the ray's elevation), canopy and ground
+    (each whole, and lit / shadowed when there is a sun).  ``sky_up`` is each pixel's ray elevation
+    (sin), ``sun_lit`` the render's sunlit pixels."""
+    n = render_lab.size
+    r, p = render_lab.ravel(), photo_lab.ravel()
+    out: list[Region] = []
+
+    def add(name: str, rm: np.ndarray, pm: np.ndarray) -> None:
+        if rm.sum() >= MIN_REGION * n and pm.sum() >= MIN_REGION * n:
+            out.append(Region(name, rm, pm))
+
+    up = sky_up.ravel()
+    rs, ps = r == SKY, p == SKY
+    add("sky", rs, ps)
+    if rs.sum() and ps.sum():
+        cut = float(np.median(up[ps]))
+        add("sky high", rs & (up >= cut), ps & (up >= cut))
+        add("sky low", rs & (up < cut), ps & (up < cut))
+    for lab in (CANOPY, GROUND):
+        rm, pm = r == lab, p == lab
+        name = NAMES[lab]
+        add(name, rm, pm)
+        if sun_lit is not None and rm.sum() and pm.sum():
+            f = float(sun_lit.ravel()[rm].mean())
+            if 0.05 < f < 0.95:
+                rl, rd = split_lit(rm, render_img, f)
+                pl, pd = split_lit(pm, photo_img, f)
+                add(f"{name} lit", rl, pl)
+                add(f"{name} shadowed", rd, pd)
+    return out
+
+
+def region_means(image: np.ndarray, masks: list[np.ndarray]) -> np.ndarray:
+    """(K, 3) mean linear colour of each flat mask."""
+    flat = np.asarray(image, np.float64).reshape(-1, 3)
+    return np.stack([flat[m].mean(axis=0) for m in masks]) if masks else np.zeros((0, 3))
