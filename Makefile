@@ -10,10 +10,11 @@ demo: setup
 	.venv/bin/forest scatter configs/demo.toml -o out/demo_trees.npz
 	.venv/bin/forest render configs/demo.toml --instances out/demo_trees.npz -o out/demo.exr
 
-# Conventions CI enforces before the tests: ruff (lint + format).
+# Conventions CI enforces before the tests: ruff (lint + format) and mypy (forest/, strict on the hub).
 lint: setup
 	.venv/bin/ruff check .
 	.venv/bin/ruff format --check .
+	.venv/bin/mypy
 
 test: setup
 	.venv/bin/python -m pytest -q -p no:cacheprovider tests
