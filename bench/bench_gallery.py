@@ -24,7 +24,8 @@ once too.
 
 ``--images DIR`` copies each full-quality PNG into ``DIR/<scene>.png``, downscaled with
 OpenImageIO (Lanczos) to the widest of 1280, 1120, 960, 800, 640 px that stays under
-``--max-kb`` (default 300 KB), so the repository stays small.
+``--max-kb`` (default 300 KB), as RGB or else as a 256-colour palette, so the repository
+stays small; ``--keep DIR`` keeps the full-size EXR and PNG of every scene.
 """
 
 from __future__ import annotations
@@ -93,27 +94,38 @@ def fit_size(width: int, height: int, scale: float) -> tuple[int, int]:
     return max(2, int(width * f) // 2 * 2), max(2, int(height * f) // 2 * 2)
 
 
-def shrink_png(src: Path, dst: Path, max_bytes: int) -> tuple[int, int]:
-    """Write ``src`` to ``dst`` at the widest of :data:`WIDTHS` under ``max_bytes``; its size and bytes."""
+def shrink_png(src: Path, dst: Path, max_bytes: int) -> tuple[int, int, str]:
+    """Write ``src`` to ``dst`` at the widest of :data:`WIDTHS` under ``max_bytes``: its width, bytes and kind.
+
+    At each width, from the widest: an RGB PNG (OpenImageIO, Lanczos), else the same pixels as a
+    256-colour palette PNG (Pillow's median cut with Floyd–Steinberg dithering: foliage noise
+    compresses poorly, and a palette halves it with no visible change at this size).
+    """
     import OpenImageIO as oiio
+    from PIL import Image
 
     buf = oiio.ImageBuf(str(src))
     spec = buf.spec()
     dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dst.with_suffix(".tmp.png")
     for w in WIDTHS:
         if w > spec.width:
             continue
         h = round(spec.height * w / spec.width)
         small = oiio.ImageBufAlgo.resize(buf, "lanczos3", roi=oiio.ROI(0, w, 0, h, 0, 1, 0, spec.nchannels))
         small.specmod().attribute("png:compressionLevel", 9)
-        tmp = dst.with_suffix(".tmp.png")
         if not small.write(str(tmp), "uint8"):
             raise SystemExit(f"cannot write {tmp}: {small.geterror()}")
-        n = tmp.stat().st_size
-        if n <= max_bytes or w == WIDTHS[-1]:
+        if tmp.stat().st_size <= max_bytes:
             tmp.replace(dst)
-            return w, n
-        tmp.unlink()
+            return w, dst.stat().st_size, "RGB"
+        with Image.open(tmp) as im:
+            rgb = im.convert("RGB")
+        rgb.quantize(256, Image.Quantize.MEDIANCUT, dither=Image.Dither.FLOYDSTEINBERG).save(tmp, optimize=True)
+        if tmp.stat().st_size <= max_bytes or w == WIDTHS[-1]:
+            tmp.replace(dst)
+            return w, dst.stat().st_size, "256 colours"
+    tmp.unlink(missing_ok=True)
     raise SystemExit(f"{src}: narrower than {WIDTHS[-1]} px")
 
 
@@ -126,11 +138,14 @@ def main() -> None:
     ap.add_argument("--budget", type=float, default=480.0, help="seconds a full frame may take (estimate)")
     ap.add_argument("--images", type=Path, help="copy each full-quality PNG here, downscaled")
     ap.add_argument("--max-kb", type=int, default=300)
+    ap.add_argument("--keep", type=Path, help="keep each full-quality EXR and PNG here (default: a temporary folder)")
     args = ap.parse_args()
     sizes = {k: tuple(int(v) for v in s.split("x")) for k, s in (a.split("=") for a in args.size)}
 
     print(f"gallery: {cpu_model()}, {os.cpu_count()} cores; load average {load_average()} at start", flush=True)
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = str(args.keep or scratch)
+        Path(tmp).mkdir(parents=True, exist_ok=True)
         for name in args.scenes.split(","):
             cfg = ROOT / "configs" / f"{name}.toml"
             r = tomllib.loads(cfg.read_text()).get("render", {})
@@ -159,8 +174,8 @@ def main() -> None:
                 f" | load average {load_average()}"
             )
             if args.images:
-                iw, n = shrink_png(Path(tmp) / f"{name}.png", args.images / f"{name}.png", args.max_kb * 1024)
-                line += f" | image {iw} px wide, {n / 1024:.0f} KB"
+                iw, n, kind = shrink_png(Path(tmp) / f"{name}.png", args.images / f"{name}.png", args.max_kb * 1024)
+                line += f" | image {iw} px wide, {kind}, {n / 1024:.0f} KB"
             print(line, flush=True)
     print(f"gallery: load average {load_average()} at end", flush=True)
 
