@@ -267,3 +267,24 @@ def test_each_tree_is_drawn_as_its_own_individual(tmp_path, library, variant):
         assert len(px) > 4
         r, g = px[:, 0].mean(), px[:, 1].mean()
         assert (r > 4 * g) if inst.individual[row] == 1 else (abs(r - g) < 0.05 * r)
+
+
+def test_the_ground_past_the_terrain_fades_to_its_mean_colour():
+    """The skirt's albedo: the grid inside untouched, each side padded with texels of the grid's size that blend
+    from the border texel to the grid's mean, so clamped lookups far out give one colour, not stripes."""
+    from forest.render.ground import fade_beyond_edge
+
+    rng = np.random.default_rng(5)
+    grid = rng.uniform(0.05, 0.6, (40, 60, 3)).astype(np.float32)
+    out, ext = fade_beyond_edge(grid, (-30.0, -20.0, 30.0, 20.0))
+    p = (out.shape[0] - 40) // 2
+    assert p >= 2 and out.shape == (40 + 2 * p, 60 + 2 * p, 3)
+    np.testing.assert_array_equal(out[p:-p, p:-p], grid)
+    assert ext == pytest.approx((-30.0 - p, -20.0 - p, 30.0 + p, 20.0 + p))  # 1 m texels kept
+    mean = grid.reshape(-1, 3).mean(axis=0)
+    ring = np.concatenate([out[0], out[-1], out[:, 0], out[:, -1]])
+    np.testing.assert_allclose(ring, np.broadcast_to(mean, ring.shape), atol=1e-6)
+    # half way out, a texel is between its border texel and the mean
+    half = out[p // 2, p + 10]
+    lo, hi = np.minimum(grid[0, 10], mean), np.maximum(grid[0, 10], mean)
+    assert np.all(half >= lo - 1e-6) and np.all(half <= hi + 1e-6)

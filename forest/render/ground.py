@@ -22,8 +22,10 @@ hundreds of metres up the ring lies a fraction of a pixel below the horizon.
 the Scene's ``terrain_albedo`` (an (H, W, 3) linear albedo grid over its
 extent from the ground rules, times an optional tileable detail texture of
 mean 1 repeated every ``detail_tile_m`` metres in world X/Z); else
-``terrain_colour`` times the colour map.  Lookups outside the extent clamp to
-its edge, so the skirt continues the edge's colour.
+``terrain_colour`` times the colour map.  With the skirt, a grid is padded so
+that past the terrain's edge it fades to its mean colour
+(:func:`fade_beyond_edge`): clamped lookups would otherwise repeat every
+border texel outward as a stripe running to the horizon.
 """
 
 from __future__ import annotations
@@ -112,6 +114,47 @@ def skirt_mesh(terrain, radius: float) -> Skirt | None:
     return Skirt(verts.astype(np.float32), faces.astype(np.uint32), normals.astype(np.float32))
 
 
+#: Texels added around an albedo grid by :func:`fade_beyond_edge`, as a share of its longer side (at most
+#: :data:`FADE_MAX_TEXELS`).
+FADE_SHARE = 0.125
+FADE_MAX_TEXELS = 128
+
+
+def fade_beyond_edge(rgb: np.ndarray, extent) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+    """An (H, W, 3) albedo grid padded so that the ground past the terrain's edge fades to its mean colour.
+
+    A grid looked up with edge clamping repeats its border texels outward, so
+    on the skirt every border texel becomes a stripe running to the horizon
+    (toward the vanishing point).  This adds P = ⌈FADE_SHARE · max(H, W)⌉
+    texels (≤ FADE_MAX_TEXELS) on every side, of the same size as the grid's,
+    whose colour blends from the clamped border texel to the grid's mean ρ̄:
+
+        ρ(d) = (1 − s(d/P))·ρ_edge + s(d/P)·ρ̄,    s(t) = t²(3 − 2t)
+
+    with d the distance in texels past the edge; the outermost ring is ρ̄, so
+    everything beyond it is one colour.  The grid inside is untouched, and
+    the extent grows by P texels on every side.  Returns the grid and its
+    extent (xmin, zmin, xmax, zmax).
+    """
+    rgb = np.asarray(rgb, np.float32)
+    h, w = rgb.shape[:2]
+    xmin, zmin, xmax, zmax = (float(v) for v in extent)
+    if h * w <= 1:
+        return rgb, (xmin, zmin, xmax, zmax)
+    p = int(min(FADE_MAX_TEXELS, max(2, np.ceil(FADE_SHARE * max(h, w)))))
+    padded = np.pad(rgb, ((p, p), (p, p), (0, 0)), mode="edge")
+    rows = np.arange(h + 2 * p)
+    cols = np.arange(w + 2 * p)
+    dr = np.maximum(np.maximum(p - rows, rows - (h + p - 1)), 0)
+    dc = np.maximum(np.maximum(p - cols, cols - (w + p - 1)), 0)
+    t = np.clip(np.maximum(dr[:, None], dc[None, :]) / p, 0.0, 1.0)
+    s = (t * t * (3.0 - 2.0 * t))[..., None]
+    mean = rgb.reshape(-1, rgb.shape[2]).mean(axis=0)
+    out = ((1.0 - s) * padded + s * mean).astype(np.float32)
+    dx, dz = (xmax - xmin) / w, (zmax - zmin) / h
+    return out, (xmin - p * dx, zmin - p * dz, xmax + p * dx, zmax + p * dz)
+
+
 @dataclass(frozen=True)
 class GroundLook:
     """The terrain's reflectance for a render (see the module docstring).
@@ -144,14 +187,19 @@ def ground_look(scene, config=None) -> GroundLook:
             rgb = read_map_rgb(rc.terrain_texture, what="terrain texture")
         except ForestError as e:
             raise ConfigError(config.path, "render.terrain_texture", str(e)) from None
+        if rc.horizon_ground:
+            rgb, extent = fade_beyond_edge(rgb, extent)
         return GroundLook(rgb, extent, False, source="terrain_texture")  # type: ignore[arg-type]
     albedo = getattr(scene, "terrain_albedo", None)
     if albedo is not None:
         detail = getattr(albedo, "detail", None)
         tile = float(getattr(albedo, "detail_tile_m", 0.0) or 0.0)
+        grid = np.asarray(albedo.rgb, np.float32)
         ext = tuple(float(v) for v in getattr(albedo, "extent", extent))
+        if rc.horizon_ground:
+            grid, ext = fade_beyond_edge(grid, ext)
         return GroundLook(
-            np.asarray(albedo.rgb, np.float32),
+            grid,
             ext,  # type: ignore[arg-type]
             False,
             detail if (detail is not None and tile > 0) else None,

@@ -398,7 +398,9 @@ def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "t
     return mesh
 
 
-def terrain_reflectance(config, terrain, variant: str, colour_grid: np.ndarray | None = None, *, albedo=None) -> dict:
+def terrain_reflectance(
+    config, terrain, variant: str, colour_grid: np.ndarray | None = None, *, albedo=None, fade: bool = False
+) -> dict:
     """The terrain's reflectance: its own texture, else the ground's albedo grid, else ``terrain_colour`` × the map.
 
     ``[render] terrain_texture`` (an image laid over the extent in the map
@@ -408,21 +410,26 @@ def terrain_reflectance(config, terrain, variant: str, colour_grid: np.ndarray |
     scalar renderer runs no Python texture plugin per sample, see
     :mod:`forest.render.materials`); otherwise ``terrain_colour`` multiplies
     the colour map (``colour_grid``, linear RGB, white = untinted) when there
-    is one, else a constant ``terrain_colour``.
+    is one, else a constant ``terrain_colour``.  ``fade``: a grid fades to its
+    mean colour past the terrain's edge (:func:`forest.render.ground.fade_beyond_edge`;
+    for the skirt that carries the ground to the horizon).
     """
+    from .ground import fade_beyond_edge
+
+    def grid_texture(grid: np.ndarray, extent) -> dict:
+        if fade:
+            grid, extent = fade_beyond_edge(grid, extent)
+        return colour_grid_texture(grid, extent, terrain.height_range, variant)
+
     rc = config.render
     tex_path = getattr(rc, "terrain_texture", None)
     base = np.asarray(rc.terrain_colour, dtype=np.float32)
     if tex_path is not None:
-        grid = _terrain_texture(config)
-        return colour_grid_texture(grid, terrain.extent, terrain.height_range, variant)
+        return grid_texture(_terrain_texture(config), terrain.extent)
     if albedo is not None:
-        extent = getattr(albedo, "extent", terrain.extent)
-        return colour_grid_texture(np.asarray(albedo.rgb, np.float32), extent, terrain.height_range, variant)
+        return grid_texture(np.asarray(albedo.rgb, np.float32), getattr(albedo, "extent", terrain.extent))
     if colour_grid is not None:
-        return colour_grid_texture(
-            np.asarray(colour_grid, np.float32) * base, terrain.extent, terrain.height_range, variant
-        )
+        return grid_texture(np.asarray(colour_grid, np.float32) * base, terrain.extent)
     return _rgb(base)
 
 
@@ -437,5 +444,6 @@ def terrain_dict(
     RGB in the map convention, or None; ``albedo``: the Scene's
     ``terrain_albedo`` or None); ``skirt``: see :func:`terrain_mesh`.
     """
-    bsdf = {"type": "diffuse", "reflectance": terrain_reflectance(config, terrain, variant, colour_grid, albedo=albedo)}
+    reflectance = terrain_reflectance(config, terrain, variant, colour_grid, albedo=albedo, fade=skirt > 0)
+    bsdf = {"type": "diffuse", "reflectance": reflectance}
     return terrain_mesh(terrain, variant, bsdf, skirt=skirt)
