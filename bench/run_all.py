@@ -1,11 +1,12 @@
-"""Run every benchmark under bench/ and rebuild the benchmark table in README.md.
+"""Run every benchmark under bench/ and rebuild the table in bench/RESULTS.md.
 
     .venv/bin/python bench/run_all.py [--only scatter,export] [--skip render]
 
 Each ``bench_*.py`` prints one figure per line; this script runs them one after
 another (never in parallel: the figures are timings), collects their lines and
-writes them between the ``<!-- bench:begin -->`` / ``<!-- bench:end -->``
-markers of the README, with the machine they ran on.
+writes them as one row per benchmark into ``bench/RESULTS.md``, with the
+machine they ran on; rows of benchmarks not run this time are kept.  The
+README's benchmark section quotes the headline figures by hand.
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-BEGIN, END = "<!-- bench:begin -->", "<!-- bench:end -->"
 ORDER = ["scatter", "library", "export", "render", "scenes", "lookdev", "service"]
 
 
@@ -61,7 +61,6 @@ def main() -> None:
     ap.add_argument("--only", default="")
     ap.add_argument("--skip", default="")
     ap.add_argument("--timeout", type=float, default=1800)
-    ap.add_argument("--no-readme", action="store_true")
     args = ap.parse_args()
     names = [n for n in ORDER if (ROOT / "bench" / f"bench_{n}.py").exists()]
     names += sorted(p.stem[6:] for p in (ROOT / "bench").glob("bench_*.py") if p.stem[6:] not in names)
@@ -79,24 +78,16 @@ def main() -> None:
     for n, lines in rows:
         cells = "<br>".join(l.replace("|", "\\|") for l in lines if not l.startswith("machine:"))
         table.append(f"| `bench/bench_{n}.py` | {cells} |")
+    results = ROOT / "bench" / "RESULTS.md"
+    if results.exists():
+        # Keep rows for benchmarks not re-run this time.
+        kept = [
+            l
+            for l in results.read_text().splitlines()
+            if l.startswith("| `bench/") and not any(f"bench_{n}.py" in l for n, _ in rows)
+        ]
+        table[4:4] = kept
     text = "\n".join(table)
-    readme = ROOT / "README.md"
-    if not args.no_readme and readme.exists():
-        r = readme.read_text()
-        if BEGIN in r and END in r:
-            # Keep rows for benchmarks not re-run this time.
-            old = r[r.index(BEGIN) + len(BEGIN) : r.index(END)]
-            kept = [
-                l
-                for l in old.splitlines()
-                if l.startswith("| `bench/") and not any(f"bench_{n}.py" in l for n, _ in rows)
-            ]
-            if kept:
-                table[4:4] = kept
-                text = "\n".join(table)
-            r = r[: r.index(BEGIN) + len(BEGIN)] + "\n" + text + "\n" + r[r.index(END) :]
-            readme.write_text(r)
-            print("README.md benchmark table updated")
     (ROOT / "bench" / "RESULTS.md").write_text("# Benchmark results\n\n" + text + "\n")
 
 
