@@ -22,6 +22,7 @@ import argparse
 import asyncio
 import json
 import os
+import re
 import signal
 import socket
 import sqlite3
@@ -231,6 +232,13 @@ def demo_text(**replace: str) -> str:
     return text
 
 
+def sun_moved(text: str, degrees: float = 8.0) -> str:
+    """The demo's text with its sun ``degrees`` lower (whatever elevation the demo gives it)."""
+    m = re.search(r"sun = \{ elevation = ([0-9.]+)", text)
+    assert m, "configs/demo.toml: no sun elevation to move"
+    return text[: m.start(1)] + f"{float(m.group(1)) - degrees:.1f}" + text[m.end(1) :]
+
+
 def first_pixels(c: httpx.Client, text: str, settings: dict) -> dict:
     """Seconds from POST to the first image event, the first finished pass, and the end."""
     t0 = time.perf_counter()
@@ -260,7 +268,7 @@ def bench_first_pixels(tmp: Path) -> list[tuple[str, dict]]:
                 time.sleep(0.1)
             runs.append(("a new scene", first_pixels(c, demo_text(), preview)))
             runs.append(("same scene again", first_pixels(c, demo_text(), preview)))
-            moved = demo_text(**{"sun = { elevation = 38.0": "sun = { elevation = 30.0"})
+            moved = sun_moved(demo_text())
             runs.append(("sun moved", first_pixels(c, moved, preview)))
     finally:
         svc.stop()
