@@ -75,7 +75,8 @@ TAG = 0x6A0D
 RAMP = {"slope": 6.0, "altitude": 0.05, "moisture": 0.1, "canopy": 0.15}
 #: Where each variable's range ends: a window edge at or beyond these is no edge.
 RANGE = {"slope": (0.0, 90.0), "altitude": (-np.inf, np.inf), "moisture": (0.0, 1.0), "canopy": (0.0, 1.0)}
-MESH_RESOLUTION = 512  # mesh terrains: heights come from ray casts, so the grid is capped at this side
+MESH_RESOLUTION = 512
+NOISE_TEXELS = 6  # texels per correlation length of the edge noise's finer octave (see edge_noise)  # mesh terrains: heights come from ray casts, so the grid is capped at this side
 
 #: The rules of a ``[ground]`` that gives none (landscape defaults): green grass on gentle open ground,
 #: straw-dry grass where that ground is dry (high, or sloping: :func:`forest.maps.terrain_moisture`),
@@ -187,15 +188,26 @@ def membership(x: np.ndarray, trapezoid: tuple[float, float, float, float], vari
 def edge_noise(
     shape: tuple[int, int], extent: tuple[float, float, float, float], scale_m: float, seed: int, index: int
 ) -> np.ndarray:
-    """A unit-variance Gaussian field ``(H, W)`` with correlation length ``scale_m`` metres (two octaves)."""
+    """A unit-variance Gaussian field ``(H, W)`` with correlation length ``scale_m`` metres (two octaves).
+
+    The field is synthesised on a square grid of n ≤ max(H, W) texels with at least
+    :data:`NOISE_TEXELS` texels per correlation length of its finer octave (ℓ/3), then
+    interpolated bilinearly (periodically) onto the albedo grid: a smooth field needs no
+    more texels than that, and a 1024² grid's edges cost a tenth of the transforms.
+    """
+    from scipy.ndimage import zoom
+
     from .library.textures import periodic_noise
 
     xmin, zmin, xmax, zmax = extent
     side = max(xmax - xmin, zmax - zmin, 1e-9)
-    n = max(shape)
+    full = max(shape)
+    n = int(min(full, max(32, np.ceil(NOISE_TEXELS * side / max(scale_m / 3.0, 1e-9)))))
     rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, TAG, index])))
     s = min(scale_m / side, 0.5)
     f = periodic_noise(n, rng, s, s) + 0.5 * periodic_noise(n, rng, s / 3.0, s / 3.0)
+    if n < full:
+        f = zoom(f, full / n, order=1, mode="grid-wrap", grid_mode=True)
     f = f[: shape[0], : shape[1]]
     return (f - f.mean()) / max(float(f.std()), 1e-12)
 
