@@ -229,7 +229,7 @@ def rebase_paths(data: dict[str, Any], base_dir: Path, out_dir: Path) -> dict[st
     """
     import os
 
-    from .schema import MESH_SUFFIXES
+    from .schema import is_mesh_model
 
     out = copy.deepcopy(data)
 
@@ -241,7 +241,7 @@ def rebase_paths(data: dict[str, Any], base_dir: Path, out_dir: Path) -> dict[st
     for dotted in file_fields():
         _rewrite(out, dotted.split("."), rebase)
     for sp in out.get("species", []) if isinstance(out.get("species"), list) else []:
-        if isinstance(sp, dict) and Path(str(sp.get("model", ""))).suffix.lower() in MESH_SUFFIXES:
+        if isinstance(sp, dict) and is_mesh_model(str(sp.get("model", ""))):
             sp["model"] = rebase(sp["model"])
     return out
 
@@ -253,7 +253,7 @@ def file_values(data: dict[str, Any]) -> list[tuple[str, str]]:
     ``species[i].model`` that names a mesh.  Values are as written (relative to
     the config's folder); nothing is validated here.
     """
-    from .schema import MESH_SUFFIXES
+    from .schema import is_mesh_model
 
     out: list[tuple[str, str]] = []
 
@@ -276,7 +276,7 @@ def file_values(data: dict[str, Any]) -> list[tuple[str, str]]:
     species = data.get("species")
     for i, sp in enumerate(species if isinstance(species, list) else []):
         model = sp.get("model") if isinstance(sp, dict) else None
-        if isinstance(model, str) and Path(model).suffix.lower() in MESH_SUFFIXES:
+        if isinstance(model, str) and is_mesh_model(model):
             out.append((f"species[{i}].model", model))
     return out
 

@@ -295,6 +295,24 @@ class ColourJitter(Section):
     )
 
 
+def is_mesh_model(model: str) -> bool:
+    """True when a ``model`` string names a mesh file rather than a library species."""
+    return Path(model).suffix.lower() in MESH_SUFFIXES
+
+
+def individual_count(model: str, individuals: int | None) -> int:
+    """Individuals a species or ground cover draws from: ``individuals``, else 4 (a library species) or 1 (a mesh)."""
+    if individuals is not None:
+        return individuals
+    return 1 if is_mesh_model(model) else DEFAULT_INDIVIDUALS
+
+
+def check_slopes(slope_min: float, slope_max: float) -> None:
+    """``slope_min`` must not exceed ``slope_max`` (an error naming ``slope_min``)."""
+    if slope_min > slope_max:
+        raise fail("must not exceed slope_max", "slope_min")
+
+
 class SpeciesConfig(Section):
     """One ``[[species]]``: a library tree, its share and where it grows."""
 
@@ -338,21 +356,18 @@ class SpeciesConfig(Section):
 
     @model_validator(mode="after")
     def _slopes(self) -> SpeciesConfig:
-        if self.slope_min > self.slope_max:
-            raise fail("must not exceed slope_max", "slope_min")
+        check_slopes(self.slope_min, self.slope_max)
         return self
 
     @property
     def is_mesh(self) -> bool:
         """True when ``model`` names a mesh file rather than a library species."""
-        return Path(self.model).suffix.lower() in MESH_SUFFIXES
+        return is_mesh_model(self.model)
 
     @property
     def individual_count(self) -> int:
-        """How many individuals scatter draws from: ``individuals``, else 4 (a library species) or 1 (a mesh)."""
-        if self.individuals is not None:
-            return self.individuals
-        return 1 if self.is_mesh else DEFAULT_INDIVIDUALS
+        """How many individuals scatter draws from (:func:`individual_count`)."""
+        return individual_count(self.model, self.individuals)
 
 
 class EcosystemConfig(Section):
@@ -487,21 +502,18 @@ class GroundCoverConfig(Section):
 
     @model_validator(mode="after")
     def _slopes(self) -> GroundCoverConfig:
-        if self.slope_min > self.slope_max:
-            raise fail("must not exceed slope_max", "slope_min")
+        check_slopes(self.slope_min, self.slope_max)
         return self
 
     @property
     def is_mesh(self) -> bool:
         """True when ``model`` names a mesh file rather than a library species."""
-        return Path(self.model).suffix.lower() in MESH_SUFFIXES
+        return is_mesh_model(self.model)
 
     @property
     def individual_count(self) -> int:
-        """``individuals``, else 4 (a library species) or 1 (a mesh)."""
-        if self.individuals is not None:
-            return self.individuals
-        return 1 if self.is_mesh else DEFAULT_INDIVIDUALS
+        """How many individuals scatter draws from (:func:`individual_count`)."""
+        return individual_count(self.model, self.individuals)
 
 
 # ---------------------------------------------------------------------------

@@ -331,7 +331,7 @@ def export_blender(
         report(0.3, "blender")
         t1 = time.perf_counter()
         with atomic_path(path) as out:
-            out.unlink()  # Blender writes the file afresh (no backup of the placeholder)
+            out.unlink()  # Blender writes the file itself; an existing one would get a .blend1 backup beside it
             cmd = [exe, "-b", "--factory-startup", "--python-exit-code", "3", "--python", str(SCRIPT), "--"]
             cmd += [str(folder / "manifest.json"), str(out)]
             if render is not None:

@@ -29,12 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config.schema import MESH_SUFFIXES
 from ..errors import ConfigError, ForestError
 from .mesh import MeshData, read_ply
 
 MANIFEST = "manifest.toml"
 NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]{0,63}$")
-MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb", ".stl", ".off")
 
 
 @dataclass(frozen=True)
