@@ -86,6 +86,12 @@ class JobSettings(BaseModel):
     reference: str | None = Field(
         default=None, max_length=512, description="Match jobs: reference photo (an asset name)."
     )
+    mask: str | None = Field(
+        default=None,
+        max_length=512,
+        description="Match jobs: regions painted over the reference (an asset name; lookdev.mask): sky #0000ff, "
+        "canopy #00ff00, ground #ff0000, ignored #000000, automatic #ffffff.",
+    )
     iterations: int | None = Field(default=None, ge=1, le=100000, description="Match jobs: optimisation steps.")
     resolution: int | None = Field(default=None, ge=8, le=4096, description="Match jobs: proxy render width in pixels.")
     match_spp: int | None = Field(default=None, ge=1, le=1024, description="Match jobs: samples per pixel per step.")
@@ -181,6 +187,7 @@ OVERRIDES = (
     ("seed", "seed"),
     ("count", "scatter.count"),
     ("variant", "render.variant"),
+    ("mask", "lookdev.mask"),
 )
 
 
@@ -257,8 +264,15 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
             if ref.suffix.lower() not in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr"):
                 raise RequestError("settings.reference: must be an image")
             assets[s.reference] = ref
-        elif s.reference is not None:
-            raise RequestError("settings.reference: applies to match jobs only")
+            if s.mask is not None:
+                painted = datadir.asset_path(s.mask, field="settings.mask")
+                if painted.suffix.lower() not in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr"):
+                    raise RequestError("settings.mask: must be an image")
+                assets[s.mask] = painted
+        else:
+            for key in ("reference", "mask"):
+                if getattr(s, key) is not None:
+                    raise RequestError(f"settings.{key}: applies to match jobs only")
     except AssetError as e:
         raise RequestError(str(e), e.status) from None
 
@@ -338,7 +352,7 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
                 params=tuple(s.params) if s.params is not None else None,
                 mode=s.mode,
             )
-            _check_match(config, match, s.variant, limits, job_dir)
+            _check_match(config, match, s.variant, limits, job_dir, overrides)
             specs.append(TaskSpec(**base, index=0, output="out", match=match))
         elif req.kind == "rib":
             specs.append(
@@ -480,13 +494,16 @@ def _library() -> _Names:
     return _NAMES
 
 
-def _check_match(config: Any, match: MatchSpec, variant: str | None, limits: Limits, job_dir: Path) -> None:
+def _check_match(
+    config: Any, match: MatchSpec, variant: str | None, limits: Limits, job_dir: Path, overrides: dict[str, Any]
+) -> None:
     """Validate look-dev settings and the reference now (as ``forest match`` does), so mistakes answer 422."""
     import warnings
 
     from forest.errors import ForestError, ParameterError
     from forest.lookdev import optimiser_size, resolve_settings
-    from forest.lookdev.reference import load_reference
+    from forest.lookdev.reference import fit_labels, load_reference
+    from forest.lookdev.regions import read_mask
 
     try:
         st = resolve_settings(
@@ -506,8 +523,13 @@ def _check_match(config: Any, match: MatchSpec, variant: str | None, limits: Lim
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            load_reference(job_dir / match.reference, width, height, mask=st.mask, fit=st.fit)
+            ref = load_reference(job_dir / match.reference, width, height, fit=st.fit)
     except ParameterError as e:
         raise _library_error(e, "match", job_dir=job_dir) from None
     except ForestError as e:
         raise _library_error(ParameterError("reference", str(e)), "match", job_dir=job_dir) from None
+    if st.mask is not None:  # the painted regions, read and fitted to the reference as forest match does
+        try:
+            fit_labels(read_mask(st.mask), ref.source_size, width, height, st.fit, str(st.mask))
+        except ForestError as e:
+            raise _library_error(config.fail("lookdev.mask", e.message), "match", overrides, job_dir) from None

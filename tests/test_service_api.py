@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import io
+import json
 import os
 import signal
 import struct
@@ -62,7 +63,7 @@ def idle(tmp_path):
             yield srv
 
 
-def png_bytes(w: int = 8, h: int = 6) -> bytes:
+def png_bytes(w: int = 8, h: int = 6, rgb: tuple[int, int, int] = (200, 200, 200)) -> bytes:
     import tempfile
 
     import OpenImageIO as oiio
@@ -71,7 +72,7 @@ def png_bytes(w: int = 8, h: int = 6) -> bytes:
         p = Path(d) / "m.png"
         out = oiio.ImageOutput.create(str(p))
         out.open(str(p), oiio.ImageSpec(w, h, 3, oiio.UINT8))
-        out.write_image(np.full((h, w, 3), 200, np.uint8))
+        out.write_image(np.broadcast_to(np.asarray(rgb, np.uint8), (h, w, 3)).copy())
         out.close()
         return p.read_bytes()
 
@@ -557,7 +558,20 @@ def test_match_job_fits_the_look_and_offers_the_fitted_scene(server):
         "/jobs", json={"kind": "match", "config": tiny_config(), "settings": {"reference": "ref.png", "mode": "bogus"}}
     )
     assert bad.status_code == 422 and bad.json()["detail"].startswith("settings.mode: must be one of")
-    jid = submit(c, kind="match", settings={"reference": "ref.png", "iterations": 2, "resolution": 16, "match_spp": 1})
+    # the regions painted over the reference travel with the job (forest match --mask)
+    assert c.put("/assets/masks/canopy.png", content=png_bytes(32, 24, (0, 255, 0))).status_code == 201
+    assert c.put("/assets/masks/tall.png", content=png_bytes(12, 30, (0, 255, 0))).status_code == 201
+    tall = c.post(
+        "/jobs",
+        json={"kind": "match", "config": tiny_config(), "settings": {"reference": "ref.png", "mask": "masks/tall.png"}},
+    )
+    assert tall.status_code == 422 and tall.json()["detail"].startswith("settings.mask: masks/tall.png: mask is 12x30")
+    render_mask = c.post("/jobs", json={"kind": "render", "config": tiny_config(), "settings": {"mask": "ref.png"}})
+    assert (
+        render_mask.status_code == 422 and render_mask.json()["detail"] == "settings.mask: applies to match jobs only"
+    )
+    fit = {"reference": "ref.png", "mask": "masks/canopy.png", "iterations": 2, "resolution": 16, "match_spp": 1}
+    jid = submit(c, kind="match", settings=fit)
     job = wait_job(c, jid, timeout=180)
     assert job["state"] == "succeeded", job
     res = c.get(f"/jobs/{jid}/result").json()
@@ -569,6 +583,9 @@ def test_match_job_fits_the_look_and_offers_the_fitted_scene(server):
         scene.status_code == 200 and scene.content == (server.data / "jobs" / jid / "out" / "scene.toml").read_bytes()
     )
     assert read_png(c.get(labels["look-dev report (report.png)"]).content)[0] > 0
+    # painted all canopy: the fit's statistics know no sky or ground (automatic regions find both here)
+    figures = json.loads((server.data / "jobs" / jid / "out" / "match.json").read_text())["figures"]
+    assert set(figures["start_regions"]) == set(figures["fitted_regions"]) == {"canopy", "whole image"}
     assert res["stats"][0]["losses"] and c.get(job["preview"]).status_code == 200
 
 

@@ -152,6 +152,7 @@ form.addEventListener("submit", async (ev) => {
   if (kind === "rib" && $("#renderman22").checked) settings.renderman22 = true;
   if (kind === "match") {
     if ($("#reference").value) settings.reference = $("#reference").value;
+    if ($("#mask").value) settings.mask = $("#mask").value;
     const it = intField("#iterations"); if (it !== undefined) settings.iterations = it;
     const res = intField("#resolution"); if (res !== undefined) settings.resolution = res;
   }
@@ -175,9 +176,13 @@ form.addEventListener("submit", async (ev) => {
 async function loadAssets() {
   try {
     const assets = await api("GET", "/assets");
-    const sel = $("#reference"), cur = sel.value;
-    sel.replaceChildren(...assets.filter(a => a.kind === "image").map(a => el("option", { value: a.name }, a.name)));
-    if (cur) sel.value = cur;
+    const images = assets.filter(a => a.kind === "image").map(a => a.name);
+    for (const [id, none] of [["#reference", null], ["#mask", "none (automatic regions)"]]) {
+      const sel = $(id), cur = sel.value;
+      const options = images.map(name => el("option", { value: name }, name));
+      sel.replaceChildren(...(none ? [el("option", { value: "" }, none)] : []), ...options);
+      if (cur) sel.value = cur;
+    }
   } catch (e) { /* shown elsewhere */ }
 }
 
