@@ -561,6 +561,17 @@ def test_same_inputs_and_seed_give_identical_images(ad_scene, library):
     assert c.rgb.mean() == pytest.approx(a.rgb.mean(), rel=0.05)
 
 
+def test_a_rounded_sample_count_is_taken_and_reported(ad_scene):
+    """multijitter rounds 34 samples to its 5 × 7 grid: the render takes 35 and says so."""
+    import mitsuba as mi
+
+    from forest.render.path.frame import sampler_count
+
+    assert sampler_count(mi, "multijitter", 34) == 35 and sampler_count(mi, "multijitter", 16) == 16
+    assert sampler_count(mi, "independent", 34) == 34
+    assert ad_scene.render(spp=34, seed=3).spp == 35
+
+
 def test_a_forest_too_large_for_memory_fails_before_loading(library, monkeypatch):
     """The instance records' memory is checked against what is available: one line naming [lod] distances."""
     import forest.render.path.frame as frame

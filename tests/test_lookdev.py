@@ -135,6 +135,21 @@ def test_painted_mask_colours_become_regions(tmp_path):
         read_mask(write_png(tmp_path / "mask2.png", img))
 
 
+def test_the_shipped_painted_mask_fits_its_photo():
+    """The evening-glow plate's mask (tests/fixtures/photos/README.md) reads as regions and fits the photo's frame:
+    sky above, the hills as canopy, the lake and boats ignored, the shingle as ground below."""
+    from forest.lookdev.reference import fit_labels, load_reference
+    from forest.lookdev.regions import CANOPY, GROUND, IGNORE, SKY, read_mask
+
+    ref = load_reference(PHOTOS / "evening_glow_hills.jpg", 64, 36)
+    labels = fit_labels(read_mask(PHOTOS / "evening_glow_hills_mask.png"), ref.source_size, 64, 36, "crop")
+    assert labels.shape == (36, 64)
+    column = labels[:, 32].tolist()  # top to bottom through the middle of the frame
+    firsts = [column.index(k) for k in (SKY, CANOPY, IGNORE, GROUND)]
+    assert firsts == sorted(firsts) and firsts[0] == 0 and column[-1] == GROUND
+    assert {SKY, CANOPY, GROUND, IGNORE} == set(np.unique(labels).tolist())
+
+
 # -- the fit's renderer is the production renderer -------------------------------------------
 
 

@@ -57,6 +57,28 @@ def pass_seed(seed: int, k: int) -> int:
     return int(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, SEED_TAG, int(k)]).generate_state(1)[0])
 
 
+def sampler_count(mi, kind: str, spp: int) -> int:
+    """The samples per pixel Mitsuba's sampler ``kind`` takes when asked for ``spp``.
+
+    A stratified sampler rounds its count to its grid (``multijitter``: 34 → 35 = 5 × 7)
+    and logs a warning when it does; the count is asked for once, quietly, and the
+    sampler a pass uses is then made with the count it keeps (no warning per pass).
+    """
+    key = (mi.variant(), kind, int(spp))
+    if key not in _SAMPLER_COUNTS:
+        logger = mi.logger()
+        level = logger.log_level()
+        logger.set_log_level(mi.LogLevel.Error)
+        try:
+            _SAMPLER_COUNTS[key] = int(mi.load_dict({"type": kind, "sample_count": int(spp)}).sample_count())
+        finally:
+            logger.set_log_level(level)
+    return _SAMPLER_COUNTS[key]
+
+
+_SAMPLER_COUNTS: dict[tuple[str, str, int], int] = {}
+
+
 def split_passes(width: int, height: int, spp: int, max_lanes: int | None = None) -> list[int]:
     """Samples per pixel of each pass: as equal as possible, each pass ≤ ``max_lanes`` (:data:`MAX_LANES`) paths."""
     per = max(1, (MAX_LANES if max_lanes is None else max_lanes) // max(1, width * height))
@@ -269,8 +291,8 @@ class PathScene:
         import drjit as dr
 
         mi = self.mi
-        sampler = mi.load_dict({"type": self.inputs.sampler, "sample_count": int(spp)})
-        spp = int(sampler.sample_count())
+        spp = sampler_count(mi, self.inputs.sampler, spp)
+        sampler = mi.load_dict({"type": self.inputs.sampler, "sample_count": spp})
         w, h = int(camera.width), int(camera.height)
         n = w * h * spp
         # An opaque seed: one compiled kernel serves every pass and render (a literal would recompile).
@@ -401,7 +423,7 @@ class PathScene:
         mi = self.mi
         total = 0
         for n in split_passes(int(camera.width), int(camera.height), spp):
-            total += int(mi.load_dict({"type": self.inputs.sampler, "sample_count": int(n)}).sample_count())
+            total += sampler_count(mi, self.inputs.sampler, n)
         return total
 
     def render_forward(
