@@ -74,10 +74,11 @@ def main() -> None:
         for l in lines:
             print("  " + l, flush=True)
         rows.append((n, lines))
-    table = [f"Measured on: {machine()}.", "", "| benchmark | figures |", "|---|---|"]
+    # Rows kept from earlier runs may come from another machine: each row names its own.
+    table = ["Each row names the machine it was measured on.", "", "| benchmark | figures |", "|---|---|"]
     for n, lines in rows:
         cells = "<br>".join(l.replace("|", "\\|") for l in lines if not l.startswith("machine:"))
-        table.append(f"| `bench/bench_{n}.py` | {cells} |")
+        table.append(f"| `bench/bench_{n}.py` | machine: {machine()}<br>{cells} |")
     results = ROOT / "bench" / "RESULTS.md"
     if results.exists():
         # Keep rows for benchmarks not re-run this time.
