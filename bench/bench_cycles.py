@@ -28,13 +28,13 @@ Without Blender (``blender`` on PATH or ``$FOREST_BLENDER``) it prints one line
 and exits 0.
 
 Measured (Blender 3.4.1, 2 000 trees × ~60 k triangles = ~120 M instanced,
-320×180, 16 spp, max_depth 3; 2-core machine shared with other work, load
-average 4.4–6.4; two runs): forest 13.2 / 12.6 CPU-s per frame (render 21.2
-/ 16.1 s wall), σ 0.0098; Cycles 15.3 / 15.4 CPU-s (render 24.3 / 21.3 s),
-σ 0.0073; means 0.0704 and 0.0706.  forest/Cycles time 0.86 / 0.82 at equal
-samples (CPU of the whole command; render phase 0.87 / 0.75), 1.55 / 1.47 at
-equal noise (σ² ratio 1.81) — the goal (≤ 0.5 at equal noise) is not met:
-Cycles' samples carry less noise.
+320×180, 16 spp, max_depth 3; AMD EPYC, 2 cores, load average 1.2–1.5): forest
+9.3 CPU-s per frame (render 4.2 s wall), σ 0.00742; Cycles 10.5 CPU-s (render
+4.9 s), σ 0.00728; means 0.0703 and 0.0706.  forest/Cycles time 0.89 at equal
+samples (CPU of the whole command; render phase 0.87), 0.92 at equal noise (σ²
+ratio 1.04) — the goal (≤ 0.5 at equal noise) is not met.  Before forest_path's
+sampler was told that a pixel's samples form one sequence (it was sampling
+independently), σ² ratio 1.81 and 1.47–1.55 at equal noise (Intel Xeon, load 4–6).
 """
 
 from __future__ import annotations
