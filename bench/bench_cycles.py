@@ -20,21 +20,25 @@ image's linear RGB (the per-pixel standard deviation of one render).  With σ²
 so the time ratio at equal noise is (σ_f²·t_f)/(σ_c²·t_c).  Times: the whole
 command (start-up, scene load, render, writing) in wall and CPU seconds, and
 the render alone (forest: its summary's load + render; Cycles: the time of
-``bpy.ops.render.render``, which builds its BVH).  Pixel filters differ
-(Cycles' Blackman–Harris 1.5 px, Mitsuba's Gaussian): they change σ a little,
-which is part of what each renderer delivers per sample.
+``bpy.ops.render.render``, which builds its BVH).  Pixel filters: forest_path
+places each sample uniformly in its pixel (a 1-pixel box); Cycles renders with
+the same box by default here (``--cycles-filter box``), or with its own default,
+Blackman–Harris 1.5 px (``--cycles-filter blackman-harris``), whose samples
+spread less around the pixel centre and so see less of the pixel's detail.
 
 Without Blender (``blender`` on PATH or ``$FOREST_BLENDER``) it prints one line
 and exits 0.
 
 Measured (Blender 3.4.1, 2 000 trees × ~60 k triangles = ~120 M instanced,
-320×180, 16 spp, max_depth 3; AMD EPYC, 2 cores, load average 1.2–1.5): forest
-9.3 CPU-s per frame (render 4.2 s wall), σ 0.00742; Cycles 10.5 CPU-s (render
-4.9 s), σ 0.00728; means 0.0703 and 0.0706.  forest/Cycles time 0.89 at equal
-samples (CPU of the whole command; render phase 0.87), 0.92 at equal noise (σ²
-ratio 1.04) — the goal (≤ 0.5 at equal noise) is not met.  Before forest_path's
-sampler was told that a pixel's samples form one sequence (it was sampling
-independently), σ² ratio 1.81 and 1.47–1.55 at equal noise (Intel Xeon, load 4–6).
+320×180, 16 spp, max_depth 3; AMD EPYC, 2 cores, load average 0.7–1.5): with
+the same box filter on both sides, forest 8.9 CPU-s per frame (render 4.0 s
+wall), σ 0.00742; Cycles 10.3 CPU-s (render 4.8 s), σ 0.00672; means 0.0703
+and 0.0706: forest/Cycles time 0.87 at equal samples (CPU of the whole
+command), 1.06 at equal noise (σ² ratio 1.22).  With Cycles' Blackman–Harris
+1.5 px, Cycles' σ is 0.00728 and the ratios 0.89 and 0.92.  The goal (≤ 0.5
+at equal noise) is not met.  Before forest_path's sampler was told that a
+pixel's samples form one sequence (it was sampling independently), σ² ratio
+1.81 against Blackman–Harris and 1.47–1.55 at equal noise (Intel Xeon, load 4–6).
 """
 
 from __future__ import annotations
@@ -96,6 +100,8 @@ s.cycles.seed = {seed}
 s.cycles.use_animated_seed = False
 s.cycles.use_adaptive_sampling = False
 s.cycles.use_denoising = False
+s.cycles.pixel_filter_type = {filter_type!r}
+s.cycles.filter_width = {filter_width}
 s.render.threads_mode = "FIXED"
 s.render.threads = {threads}
 s.render.use_compositing = False
@@ -106,6 +112,13 @@ t = time.perf_counter()
 bpy.ops.render.render(write_still=True)
 print("CYCLES_RENDER_S", time.perf_counter() - t)
 """
+
+
+#: Cycles' pixel filter: forest_path's is a 1-pixel box (a sample's position uniform in its pixel).
+CYCLES_FILTERS = {
+    "box": {"filter_type": "BOX", "filter_width": 1.0},
+    "blackman-harris": {"filter_type": "BLACKMAN_HARRIS", "filter_width": 1.5},
+}
 
 
 def blender_exe() -> str | None:
@@ -150,6 +163,12 @@ def main() -> None:
     ap.add_argument("--max-depth", type=int, default=3)
     ap.add_argument("--threads", type=int, default=2, help="Cycles render threads (forest uses every core)")
     ap.add_argument("--keep", default=None, help="folder to keep the images in")
+    ap.add_argument(
+        "--cycles-filter",
+        choices=sorted(CYCLES_FILTERS),
+        default="box",
+        help="Cycles' pixel filter: box (1 px, forest's) or blackman-harris (1.5 px, Cycles' default)",
+    )
     args = ap.parse_args()
     blender = blender_exe()
     if blender is None:
@@ -159,7 +178,8 @@ def main() -> None:
     size = float(np.sqrt(args.count / 130_000.0) * 4000.0)
     print(
         f"cycles: {version}; {args.count:,} trees, {args.width}x{args.height} {args.spp} spp, max_depth "
-        f"{args.max_depth}, every tree at its highest level; load average {load_average()} at start"
+        f"{args.max_depth}, every tree at its highest level, Cycles' pixel filter {args.cycles_filter}; "
+        f"load average {load_average()} at start"
     )
     with tempfile.TemporaryDirectory(prefix="forest-bench-cycles-") as d:
         tmp = Path(args.keep) if args.keep else Path(d)
@@ -195,7 +215,9 @@ def main() -> None:
             f["rgb"] = read_rgb(exr)
             runs["forest"].append(f)
             out = tmp / f"cycles_{seed}.exr"
-            script = CYCLES_SCRIPT.format(spp=args.spp, seed=seed, threads=args.threads, out=str(out))
+            script = CYCLES_SCRIPT.format(
+                spp=args.spp, seed=seed, threads=args.threads, out=str(out), **CYCLES_FILTERS[args.cycles_filter]
+            )
             c = timed([blender, "-b", str(blend), "--python-expr", script])
             m = re.search(r"CYCLES_RENDER_S ([\d.]+)", c["out"])
             c["render_s"] = float(m.group(1)) if m else float("nan")
