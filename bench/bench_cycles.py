@@ -24,7 +24,7 @@ the render alone (forest: its summary's load + render; Cycles: the time of
 places each sample uniformly in its pixel (a 1-pixel box); Cycles renders with
 the same box by default here (``--cycles-filter box``), or with its own default,
 Blackman–Harris 1.5 px (``--cycles-filter blackman-harris``), whose samples
-spread less around the pixel centre and so see less of the pixel's detail.
+reach into the neighbouring pixels and, measured here, leave Cycles more noise.
 
 Without Blender (``blender`` on PATH or ``$FOREST_BLENDER``) it prints one line
 and exits 0.

@@ -234,9 +234,10 @@ def round_trip(out: Path, iterations: int, spp: int, resolution: int = 192) -> d
     )
     seen = r.cell_information >= 1.0
     leaf = np.array([0.06, 0.12, 0.04])
-    de = delta_e2000((read_map_rgb(fitted.maps.colour) * leaf)[seen], (hidden_map() * leaf)[seen])
-    de0 = delta_e2000(np.broadcast_to(leaf, (int(seen.sum()), 3)), (hidden_map() * leaf)[seen])
-    every = delta_e2000((read_map_rgb(fitted.maps.colour) * leaf).reshape(-1, 3), (hidden_map() * leaf).reshape(-1, 3))
+    fitted_leaf, truth_leaf = read_map_rgb(fitted.maps.colour) * leaf, hidden_map() * leaf
+    de = delta_e2000(fitted_leaf[seen], truth_leaf[seen])
+    de0 = delta_e2000(np.broadcast_to(leaf, (int(seen.sum()), 3)), truth_leaf[seen])
+    every = delta_e2000(fitted_leaf.reshape(-1, 3), truth_leaf.reshape(-1, 3))
     return {
         "map_de_all": float(np.mean(every)),
         "sun": sun,

@@ -36,7 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from forest.config import MAX_CONFIG_BYTES
 
-from .assets import AssetError, DataDir, collect_assets, link_into
+from .assets import AssetError, DataDir, asset_kind, collect_assets, link_into
 from .models import Kind, MatchSpec, Resources, TaskSpec, Variant
 from .transfer import file_sha256
 from .views import field_name
@@ -260,15 +260,12 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
         if req.kind == "match":
             if not s.reference:
                 raise RequestError("settings.reference: match jobs need a reference photo (an uploaded image)")
-            ref = datadir.asset_path(s.reference, field="settings.reference")
-            if ref.suffix.lower() not in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr"):
-                raise RequestError("settings.reference: must be an image")
-            assets[s.reference] = ref
-            if s.mask is not None:
-                painted = datadir.asset_path(s.mask, field="settings.mask")
-                if painted.suffix.lower() not in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr"):
-                    raise RequestError("settings.mask: must be an image")
-                assets[s.mask] = painted
+            for key in ("reference", "mask"):
+                name = getattr(s, key)
+                if name is not None:
+                    assets[name] = datadir.asset_path(name, field=f"settings.{key}")
+                    if asset_kind(name) != "image":
+                        raise RequestError(f"settings.{key}: must be an image")
         else:
             for key in ("reference", "mask"):
                 if getattr(s, key) is not None:
@@ -502,8 +499,7 @@ def _check_match(
 
     from forest.errors import ForestError, ParameterError
     from forest.lookdev import optimiser_size, resolve_settings
-    from forest.lookdev.reference import fit_labels, load_reference
-    from forest.lookdev.regions import read_mask
+    from forest.lookdev.reference import load_reference, painted_labels
 
     try:
         st = resolve_settings(
@@ -530,6 +526,6 @@ def _check_match(
         raise _library_error(ParameterError("reference", str(e)), "match", job_dir=job_dir) from None
     if st.mask is not None:  # the painted regions, read and fitted to the reference as forest match does
         try:
-            fit_labels(read_mask(st.mask), ref.source_size, width, height, st.fit, str(st.mask))
+            painted_labels(st.mask, ref, width, height, st.fit)
         except ForestError as e:
             raise _library_error(config.fail("lookdev.mask", e.message), "match", overrides, job_dir) from None

@@ -47,8 +47,7 @@ def register(app: typer.Typer) -> None:
         from ..config import load_config
         from ..errors import ParameterError
         from ..lookdev import match, optimiser_size, resolve_settings
-        from ..lookdev.reference import fit_labels, load_reference
-        from ..lookdev.regions import read_mask
+        from ..lookdev.reference import load_reference, painted_labels
         from ..progress import progress_bar
         from ..render.scene import check_render_inputs
         from ..scene import load_scene
@@ -82,7 +81,7 @@ def register(app: typer.Typer) -> None:
             raise ParameterError("reference", str(e)) from None
         if settings.mask is not None:
             try:
-                fit_labels(read_mask(settings.mask), ref.source_size, width, height, settings.fit, str(settings.mask))
+                painted_labels(settings.mask, ref, width, height, settings.fit)
             except ForestError as e:
                 if mask is None:
                     raise cfg.fail("lookdev.mask", str(e)) from None

@@ -183,8 +183,8 @@ def match(
     from .fit import Fitter
     from .image_model import ImageModel
     from .losses import PixelLoss, RegionLoss
-    from .reference import load_reference
-    from .regions import AUTO, photo_labels, read_mask, regions, render_labels
+    from .reference import load_reference, painted_labels
+    from .regions import AUTO, photo_labels, regions, render_labels
     from .renders import FitRenderer
     from .report import write_outputs
     from .solve import Problem
@@ -206,15 +206,11 @@ def match(
     mitsuba(st.variant)
     width, height = optimiser_size(config, st.resolution)
     notes: list[str] = []
-    painted = read_mask(st.mask) if st.mask is not None else None
     with _warnings.catch_warnings(record=True) as caught:
         _warnings.simplefilter("always")
         ref = load_reference(reference, width, height, mask=None, fit=st.fit)
     notes += [str(w.message) for w in caught]
-    if painted is not None:
-        from .reference import fit_labels
-
-        painted = fit_labels(painted, ref.source_size, width, height, st.fit, str(st.mask))
+    painted = None if st.mask is None else painted_labels(st.mask, ref, width, height, st.fit)
     groups = set(st.params)
     fit_map = "colour_map" in groups and st.mode == "aligned"
     cells = (st.grid, st.grid) if fit_map else None

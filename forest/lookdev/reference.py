@@ -175,6 +175,15 @@ def load_reference(
     return Reference(file, rgb, weight.astype(np.float32), (sw, sh), notes, referred)
 
 
+def painted_labels(path: str | Path, reference: Reference, width: int, height: int, fit: str) -> np.ndarray:
+    """A painted region mask file → its labels at the fit's ``width × height``, cropped as ``reference`` was
+    (:func:`forest.lookdev.regions.read_mask`, then :func:`fit_labels`); a :class:`ForestError` naming the file
+    when its colours or aspect ratio do not fit."""
+    from .regions import read_mask
+
+    return fit_labels(read_mask(path), reference.source_size, width, height, fit, str(path))
+
+
 def fit_labels(
     labels: np.ndarray, source_size: tuple[int, int], width: int, height: int, fit: str, label: str = "mask"
 ) -> np.ndarray:
