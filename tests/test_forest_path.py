@@ -778,3 +778,34 @@ def test_haze_gradients_match_finite_differences(haze_scene):
     tangent = scene.render_forward(seed=3)
     dr.disable_grad(d)
     assert float((tangent * weights).sum()) == pytest.approx(grads["haze_density"][0], rel=0.01)
+
+
+@pytest.mark.parametrize("exponent", [1.0, 6.5])
+def test_the_gradient_sky_band_sends_its_stated_irradiance(exponent):
+    """SkyBasis: each basis of the gradient sky, L = zenith·(1 − b) + horizon·b with b = (1 − μ)^k, delivers onto an
+    upward plane what power() and horizon_irradiance() state (2π/((k + 1)(k + 2)) for the horizon, π minus it for the
+    zenith): E = 2π∫ℓ(μ)μ dμ integrated over its evaluated radiance; it evaluates to gradient_radiance(), and its
+    light samples carry the radiance of their direction."""
+    import drjit as dr
+
+    from forest.render.path.emitters import SkyBasis, gradient_radiance, horizon_irradiance
+    from forest.runtime import mitsuba
+
+    mi = mitsuba(VARIANT)
+    n = 20000
+    mu = (np.arange(n) + 0.5) / n
+    d = mi.Vector3f(mi.Float(np.sqrt(1.0 - mu * mu)), mi.Float(mu), mi.Float(np.zeros(n)))
+    g = (np.arange(32) + 0.5) / 32
+    u = mi.Point2f(*(mi.Float(a.ravel()) for a in np.meshgrid(g, g)))
+    a_k = horizon_irradiance(exponent)
+    for zenith, expected in ((False, a_k), (True, np.pi - a_k)):
+        light = SkyBasis(mi, "sky_zenith" if zenith else "sky_horizon", [1.0, 1.0, 1.0], zenith, exponent)
+        ell = np.asarray(light.eval(mi.Color3f(1.0), d, mi.Bool(True)).x, np.float64)
+        assert 2.0 * np.pi * float(np.sum(ell * mu)) / n == pytest.approx(expected, rel=1e-4)
+        assert light.power(np.ones(3)) == pytest.approx(expected)
+        z, h = (np.ones(3), np.zeros(3)) if zenith else (np.zeros(3), np.ones(3))
+        assert np.allclose(ell, gradient_radiance(z, h, mu[:, None], exponent)[:, 0], atol=1e-5)
+        ds, _, value = light.sample(mi.Color3f(1.0), u, mi.Bool(True))
+        back = light.eval(mi.Color3f(1.0), ds, mi.Bool(True))
+        assert np.allclose(np.asarray(value.x), np.asarray(back.x), atol=1e-6)
+        assert float(dr.min(ds.y)[0]) >= 0.0

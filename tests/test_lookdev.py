@@ -360,6 +360,72 @@ def test_statistics_on_a_real_photo_stays_in_range_and_lowers_the_loss(tmp_path)
     assert (tmp_path / "out" / "report.png").stat().st_size > 0
 
 
+GLOW = """
+seed = 7
+[terrain.procedural]
+size = 400.0
+height = 30.0
+resolution = 24
+[scatter]
+count = 600
+[[species]]
+model = "conifer"
+percent = 100
+scale = [1.5, 2.5]
+[camera]
+position = [0.0, 25.0, -700.0]
+target = [0.0, 22.0, 0.0]
+fov = 60
+[lights.sun]
+elevation = 4
+azimuth = 180
+irradiance = 3.0
+colour = [1.0, 0.9, 0.75]
+[lights.sky]
+radiance = 0.35
+colour = [0.6, 0.75, 1.0]
+[render]
+width = 64
+height = 36
+spp = 8
+max_depth = 3
+[lookdev]
+report_width = 96
+"""
+
+
+def test_a_low_sky_is_fitted_as_a_horizon_band(tmp_path):
+    """The evening-glow plate with its painted mask, from a view whose sky reaches ~18° (the scene of
+    bench/bench_lookdev.py): the sky's gradient is fitted as an orange band along the horizon under a cooler sky,
+    and every region ends within the look-dev goal (CIEDE2000 of the mean colour ≤ 8, the whole image ≤ 5)."""
+    from forest.config import load_config
+    from forest.images import read_image
+    from forest.lookdev import match
+    from forest.scene import load_scene
+
+    scene = load_scene(load_config(write_scene(tmp_path, GLOW)))
+    r = match(
+        scene,
+        PHOTOS / "evening_glow_hills.jpg",
+        tmp_path / "out",
+        mode="statistics",
+        iterations=6,
+        spp=8,
+        resolution=64,
+        mask=PHOTOS / "evening_glow_hills_mask.png",
+    )
+    assert any("fitted as a band" in w for w in r.warnings), r.warnings
+    fitted = r.figures["fitted_regions"]
+    for region in ("sky", "sky high", "sky low", "canopy", "ground"):
+        assert fitted[region] <= 8.0, (region, fitted)
+    assert fitted["whole image"] <= 5.0, fitted
+    # The written sky (an environment map the production renderer reads): warm along the horizon, cooler above.
+    sky = read_image(tmp_path / "out" / "sky.exr")[..., :3].mean(axis=1)
+    h = len(sky)
+    horizon, above = sky[h // 2 - 2], sky[h // 2 - int(h * 25 / 180)]  # rows just above the horizon and at 25°
+    assert horizon[0] / horizon[2] > 1.3 * (above[0] / above[2]), (horizon, above)
+
+
 # -- bad input through the CLI ------------------------------------------------------------------
 
 

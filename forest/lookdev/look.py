@@ -4,9 +4,10 @@ The maps (all closed-form, so the optimiser differentiates them by finite
 differences on a handful of scalars):
 
 * sun irradiance E_sun = share · G / sin(elevation) · c(T_sun, Duv_sun);
-* gradient sky: Y_z = 3(1 − share)·G / (π(ρ + 2)), Y_h = ρ·Y_z (ρ = e^horizon_ratio),
+* gradient sky: Y_z = (1 − share)·G / (π − a_k + ρ·a_k), Y_h = ρ·Y_z (ρ = e^horizon_ratio,
+  a_k = 2π/((k + 1)(k + 2)) for the horizon band exponent k, π/3 when linear),
   L_zenith = Y_z · c(T_z, Duv_z), L_horizon = Y_h · c(T_h, Duv_h) — so that the sky's
-  horizontal irradiance π(Y_h + 2Y_z)/3 is (1 − share)·G; an environment map or
+  horizontal irradiance (π − a_k)·Y_z + a_k·Y_h is (1 − share)·G; an environment map or
   ``sunsky`` sky keeps its shape and colour and its start scale is multiplied by
   (1 − share)·G / E_sky,0 (a sunsky's sun with it);
 * camera gains W = c(T_wb, Duv_D(T_wb) + tint_wb) / c_D(6504 K) with unit luminance, times 2^EV (the
@@ -26,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..render.path.emitters import horizon_irradiance
 from .colour import luminance
 from .daylight import D65_CCT, daylight_duv, daylight_rgb, locus_rgb
 from .params import Look, Start
@@ -66,7 +68,8 @@ def lights(look: Look, start: Start) -> Lights:
         tied = start.sky_tied
         rho = 1.0 if tied else math.exp(_v(look, "horizon_ratio", 0.0))
         e_sky = (1.0 - share) * g
-        yz = 3.0 * e_sky / (math.pi * (rho + 2.0))
+        a = horizon_irradiance(start.sky_exponent)
+        yz = e_sky / (math.pi - a + rho * a)
         hk = 1e6 / _v(look, "horizon_mired", 1e6 / start.sky_kelvin)
         sk = hk if tied else 1e6 / _v(look, "zenith_mired", 1e6 / start.sky_kelvin)
         zt = "horizon_tint" if tied else "zenith_tint"

@@ -225,18 +225,22 @@ def match(
     start = renderer.start
     lay = renderer.layers
     sky_px = ~lay["hit"]
-    from .params import GRADIENT_MIN_ELEVATION
+    from .params import GRADIENT_MIN_ELEVATION, HORIZON_BAND_AT_TOP, horizon_band_exponent
 
     top = float(lay["dir"][..., 1][sky_px].max()) if sky_px.any() else -1.0
-    start.sky_tied = top < np.sin(np.radians(GRADIENT_MIN_ELEVATION))
-    if start.sky_tied and "sky" in groups and start.sky_kind == "constant":
-        seen = (
-            f"the sky in frame reaches {np.degrees(np.arcsin(max(min(top, 1.0), -1.0))):.0f}° above the horizon "
-            f"(under {GRADIENT_MIN_ELEVATION:g}°)"
-            if sky_px.any()
-            else "no sky in frame"
-        )
-        notes.append(f"{seen}: its gradient is held, the sky is fitted as one colour")
+    start.sky_tied = top <= 0.0
+    if "sky" in groups and start.sky_kind == "constant":
+        if start.sky_tied:
+            notes.append("no sky in frame: its gradient is held, the sky is fitted as one colour")
+        elif top < np.sin(np.radians(GRADIENT_MIN_ELEVATION)):
+            start.sky_exponent = horizon_band_exponent(top)
+            renderer.set_sky_exponent(start.sky_exponent)
+            notes.append(
+                f"the sky in frame reaches {np.degrees(np.arcsin(min(top, 1.0))):.0f}° above the horizon "
+                f"(under {GRADIENT_MIN_ELEVATION:g}°): the horizon colour is fitted as a band (1 − μ)^"
+                f"{start.sky_exponent:.3g} that fades to {HORIZON_BAND_AT_TOP:g} at the top of the frame, the zenith "
+                "colour as the sky above it"
+            )
     specs = specs_for(start, groups)
     look0 = Look(start_values(start, specs), np.zeros((st.grid, st.grid, 3)) if fit_map else None)
     image = ImageModel(lay["optical"], clip=ref.display_referred)

@@ -64,9 +64,15 @@ V = 3.912/σ of 1 km and more, Koschmieder 1924), prior N(start, 0.0008²)
 to the horizon radiance at large distance, Koschmieder) times the start's ratio.
 
 When the sky seen in the frame reaches less than :data:`GRADIENT_MIN_ELEVATION` above
-the horizon, the zenith's brightness is an extrapolation that trades against the
-albedos, so the sky is fitted as one colour (zenith = horizon, ``sky_tied``)
-and the gradient reported as held.
+the horizon, a gradient linear in μ would be fitted from a sliver of it and
+extrapolated to the zenith, where its brightness trades against the albedos.  The
+gradient's horizon colour is then a band, weight b = (1 − μ)^k, whose exponent k puts
+b = :data:`HORIZON_BAND_AT_TOP` at the top of the visible sky
+(:func:`horizon_band_exponent`): the horizon colour is what the frame shows along
+the horizon (the glow of a low sun, haze), the "zenith" colour what it shows above
+the band, taken to hold up to the zenith — no extrapolation beyond the frame's sky.
+With no sky in frame the sky is fitted as one colour (zenith = horizon,
+``sky_tied``) and the gradient reported as held.
 
 **Colour map** (group ``colour_map``, aligned mode): a smooth ln-correction
 field of :mod:`.correction`, σ = 0.5 per cell.
@@ -81,8 +87,10 @@ import numpy as np
 
 from .daylight import D65_CCT, daylight_duv, mired
 
-#: Highest elevation (degrees) the visible sky must reach for its gradient to be fitted.
+#: Highest elevation (degrees) the visible sky must reach for its gradient to be fitted linear in μ.
 GRADIENT_MIN_ELEVATION = 30.0
+#: Weight of the horizon colour at the top of the frame's sky when the sky is fitted as a horizon band.
+HORIZON_BAND_AT_TOP = 0.1
 GROUPS = ("camera", "sun", "sky", "leaves", "ground", "haze", "colour_map")
 #: What a fit varies when ``--params`` is not given, by mode.
 DEFAULT_GROUPS = {
@@ -108,6 +116,15 @@ SUN_CCT_BY_ELEVATION = (
 def _mired(kelvin: float) -> float:
     """10⁶ / T as a float."""
     return float(mired(kelvin))
+
+
+def horizon_band_exponent(top: float) -> float:
+    """k with (1 − top)^k = :data:`HORIZON_BAND_AT_TOP` for a frame whose sky reaches μ = ``top`` (sine of its
+    elevation): 1 (linear) from :data:`GRADIENT_MIN_ELEVATION` up, at most 1000 (a sky a few arc-minutes high)."""
+    if top >= math.sin(math.radians(GRADIENT_MIN_ELEVATION)):
+        return 1.0
+    t = min(max(float(top), 1e-4), 1.0)
+    return float(min(max(math.log(HORIZON_BAND_AT_TOP) / math.log1p(-t), 1.0), 1000.0))
 
 
 def sun_prior_kelvin(elevation: float) -> float:
@@ -171,7 +188,8 @@ class Start:
     initial: dict[str, np.ndarray] = field(default_factory=dict)  # each light parameter's start value (RGB)
     ground_tint0: np.ndarray = field(default_factory=lambda: np.ones(3))  # the config's ground tint
     leaf_tint0: np.ndarray | None = None  # (S, 3) the config's leaf tints
-    sky_tied: bool = False  # the sky's gradient is not visible enough to fit: one colour, zenith = horizon
+    sky_tied: bool = False  # no sky in frame: one colour, zenith = horizon
+    sky_exponent: float = 1.0  # the gradient's horizon band exponent k (1: linear in μ)
 
     @property
     def g0(self) -> float:

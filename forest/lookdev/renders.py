@@ -43,6 +43,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..render.path import PathScene, SkyLight
+from ..render.path.emitters import SkyBasis
 from ..render.path.from_scene import haze_inputs, path_inputs
 from .colour import luminance
 from .daylight import rgb_to_cct
@@ -208,6 +209,17 @@ class FitRenderer:
         for k, v in values.items():
             if k in self.scene.params:
                 self.scene.params[k] = mi.Color3f(*[float(x) for x in np.asarray(v, np.float64).ravel()[:3]])
+
+    def set_sky_exponent(self, exponent: float) -> None:
+        """The gradient sky's horizon band exponent k (:class:`~forest.render.path.inputs.SkyLight`); 1 is linear."""
+        sky = self.inputs.sky
+        if not self.gradient or sky is None:
+            return
+        k = float(exponent)
+        self.inputs = replace(self.inputs, sky=replace(sky, horizon_exponent=k))
+        for light in self.scene.lights:
+            if isinstance(light, SkyBasis):
+                light.exponent = k
 
     def set_haze(self, density: float) -> None:
         """The haze's ground extinction σ₀ (1/m); nothing without a haze."""

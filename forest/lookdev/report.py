@@ -33,6 +33,7 @@ import numpy as np
 from ..atomic import atomic_dir, atomic_path
 from ..config import load_config, rebase_paths
 from ..images import linear_to_srgb, write_image
+from ..render.path.emitters import gradient_radiance
 from .colour import luminance
 from .fit import determination
 from .look import camera_gain, ground_tint, haze_colour, leaf_tints, lights
@@ -52,12 +53,13 @@ def _rgb(v) -> list[float]:
     return [_r(c) for c in np.asarray(v, np.float64).ravel()[:3]]
 
 
-def gradient_envmap(zenith, horizon, size: tuple[int, int] = SKY_SIZE) -> np.ndarray:
-    """The gradient sky L = zenith·μ + horizon·(1 − μ), μ = max(ω_y, 0), as a latitude–longitude map (+Y up,
+def gradient_envmap(zenith, horizon, size: tuple[int, int] = SKY_SIZE, exponent: float = 1.0) -> np.ndarray:
+    """The gradient sky L = zenith·(1 − b) + horizon·b, b = (1 − μ)^k, μ = max(ω_y, 0)
+    (:func:`forest.render.path.emitters.gradient_radiance`), as a latitude–longitude map (+Y up,
     Mitsuba's ``envmap`` convention: row i at polar angle π(i + ½)/H)."""
     h, w = size
     mu = np.maximum(np.cos(np.pi * (np.arange(h) + 0.5) / h), 0.0)[:, None, None]
-    img = np.asarray(zenith, np.float64) * mu + np.asarray(horizon, np.float64) * (1.0 - mu)
+    img = gradient_radiance(zenith, horizon, mu, exponent)
     return np.broadcast_to(img, (h, w, 3)).astype(np.float32)
 
 
@@ -86,7 +88,7 @@ def fitted_data(config, problem, look, out_dir: Path, *, fit_map: bool) -> tuple
         else:
             sky.clear()
             sky["envmap"] = SKY_NAME
-            files[SKY_NAME] = gradient_envmap(z, hz)
+            files[SKY_NAME] = gradient_envmap(z, hz, exponent=start.sky_exponent)
     elif start.sky_kind == "envmap" and lt.sky_scale is not None:
         from ..images import read_image
 

@@ -10,9 +10,10 @@ without rebuilding anything) and ℓ a fixed shape:
   the sun and s is the irradiance E; sampled uniformly in the cone,
   pdf = 1/(2π(1 − cos α)) (``mi.warp.square_to_uniform_cone``).
 * :class:`ConstantSky` — ℓ = 1, s the radiance; sampled cosine-weighted over the upper hemisphere.
-* :class:`SkyBasis` — one half of the ``gradient`` sky, L = s_z·μ + s_h·(1 − μ) with
-  μ = max(ω_y, 0): ℓ = μ (the zenith's share, parameter ``sky_zenith``) or ℓ = 1 − μ
-  (the horizon's, ``sky_horizon``); sampled like the constant sky.
+* :class:`SkyBasis` — one half of the ``gradient`` sky, L = s_z·(1 − b) + s_h·b with
+  b = (1 − μ)^k, μ = max(ω_y, 0): ℓ = 1 − b (the zenith's share, parameter
+  ``sky_zenith``) or ℓ = b (the horizon's, ``sky_horizon``); k = 1 is linear in μ,
+  a larger k a glow band along the horizon; sampled like the constant sky.
 * :class:`EmitterLight` — a Mitsuba ``envmap`` or ``sunsky`` (sky only, or its
   sun only) with ``scale`` 1, importance-sampled by Mitsuba itself (native calls
   on one emitter object: no virtual dispatch over the scene).  ``sunsky`` is
@@ -165,29 +166,37 @@ class ConstantSky:
 
 
 class SkyBasis(ConstantSky):
-    """One basis function of the ``gradient`` sky: ℓ(ω) = μ (zenith) or 1 − μ (horizon), μ = max(ω_y, 0).
+    """One basis function of the ``gradient`` sky: ℓ(ω) = 1 − b (zenith) or b (horizon), b = (1 − μ)^k.
 
-    On an upward plane it delivers ∫ ℓ cos θ dω = 2π∫μ² dμ = 2π/3 (zenith) or
-    2π∫(1 − μ)μ dμ = π/3 (horizon) per unit scale.  Sampled cosine-weighted over
-    the upper hemisphere like :class:`ConstantSky` (below the horizon only the
-    horizon term is non-zero, reached by BSDF sampling).
+    μ = max(ω_y, 0) and k ≥ 1 the horizon band's exponent (1: L linear in μ; a
+    larger k narrows the horizon's colour to a band of height about 1/k in μ).
+    On an upward plane the horizon's share delivers ∫ b cos θ dω = 2π∫(1 − μ)^k μ dμ =
+    a_k = 2π/((k + 1)(k + 2)) and the zenith's π − a_k per unit scale (k = 1: π/3
+    and 2π/3).  Sampled cosine-weighted over the upper hemisphere like
+    :class:`ConstantSky` (below the horizon only the horizon term is non-zero,
+    reached by BSDF sampling).
     """
 
-    def __init__(self, mi, param: str, initial, zenith: bool):
+    def __init__(self, mi, param: str, initial, zenith: bool, exponent: float = 1.0):
         self.mi = mi
         self.param = param
         self.zenith = bool(zenith)
+        self.exponent = float(exponent)
         self.initial = np.asarray(initial, dtype=np.float64)
-        self.mean_radiance = np.full(3, 0.5)  # mean of μ or 1 − μ over the upper hemisphere
+        # Mean of ℓ over the upper hemisphere (solid angle): ∫₀¹ (1 − μ)^k dμ = 1/(k + 1).
+        h = 1.0 / (self.exponent + 1.0)
+        self.mean_radiance = np.full(3, 1.0 - h if self.zenith else h)
 
     def power(self, scale) -> float:
-        return luminance(scale) * (2.0 * math.pi / 3.0 if self.zenith else math.pi / 3.0)
+        a = horizon_irradiance(self.exponent)
+        return luminance(scale) * (math.pi - a if self.zenith else a)
 
     def _shape(self, d):
         import drjit as dr
 
         mu = dr.maximum(d.y, 0.0)
-        return mu if self.zenith else 1.0 - mu
+        band = 1.0 - mu if self.exponent == 1.0 else dr.power(1.0 - mu, self.exponent)
+        return 1.0 - band if self.zenith else band
 
     def sample(self, scale, u, active):
         d, pdf, _ = super().sample(scale, u, active)
@@ -197,6 +206,18 @@ class SkyBasis(ConstantSky):
         import drjit as dr
 
         return dr.select(active, scale * self._shape(d), 0.0)
+
+
+def horizon_irradiance(exponent: float) -> float:
+    """a_k = 2π/((k + 1)(k + 2)): the irradiance on an upward plane from a unit-scale horizon band (1 − μ)^k."""
+    k = float(exponent)
+    return 2.0 * math.pi / ((k + 1.0) * (k + 2.0))
+
+
+def gradient_radiance(zenith, horizon, mu, exponent: float = 1.0) -> np.ndarray:
+    """The ``gradient`` sky's radiance at μ = max(ω_y, 0) (numpy; ``mu`` broadcasts against the colours)."""
+    b = (1.0 - np.clip(np.asarray(mu, np.float64), 0.0, 1.0)) ** float(exponent)
+    return np.asarray(zenith, np.float64) * (1.0 - b) + np.asarray(horizon, np.float64) * b
 
 
 def sun_irradiance_of(mi, emitter, direction, samples: int = SUN_SAMPLES) -> np.ndarray:
@@ -362,8 +383,8 @@ def make_lights(mi, sun: SunLight | None, sky: SkyLight | None) -> list[Any]:
         lights.append(DiscSun(mi, sun))
     if sky is not None:
         if sky.kind == "gradient":
-            lights.append(SkyBasis(mi, "sky_zenith", sky.zenith, True))
-            lights.append(SkyBasis(mi, "sky_horizon", sky.horizon, False))
+            lights.append(SkyBasis(mi, "sky_zenith", sky.zenith, True, sky.horizon_exponent))
+            lights.append(SkyBasis(mi, "sky_horizon", sky.horizon, False, sky.horizon_exponent))
         elif sky.kind == "envmap":
             em = mi.load_dict({"type": "envmap", "filename": str(sky.envmap), "scale": 1.0})
             lights.append(EmitterLight(mi, em, "sky_scale", [sky.scale] * 3))

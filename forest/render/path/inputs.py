@@ -71,12 +71,15 @@ class SkyLight:
       With ``sun_irradiance`` set, sun and sky are first scaled together so that
       the model's sun sends that irradiance (luminance, facing the sun; see
       :func:`~forest.render.path.emitters.sunsky_scale`).
-    * ``gradient`` — L(ω) = ``zenith``·μ + ``horizon``·(1 − μ), μ = max(ω_y, 0): linear in
-      the cosine of the zenith angle from the horizon's radiance to the zenith's (below the
-      horizon, the horizon's).  With zenith = 3 × horizon it is the CIE standard overcast
-      sky, L(θ) ∝ (1 + 2 cos θ)/3 (Moon & Spencer 1942; CIE S 011/E:2003, sky type 1);
-      a horizon brighter than the zenith gives the clear-sky brightening towards the
-      horizon.  Both colours are parameters (``sky_zenith``, ``sky_horizon``).
+    * ``gradient`` — L(ω) = ``zenith``·(1 − b) + ``horizon``·b with b = (1 − μ)^k,
+      μ = max(ω_y, 0) and k = ``horizon_exponent`` ≥ 1 (below the horizon, the horizon's
+      radiance).  With k = 1 it is linear in the cosine of the zenith angle, and with
+      zenith = 3 × horizon the CIE standard overcast sky, L(θ) ∝ (1 + 2 cos θ)/3 (Moon &
+      Spencer 1942; CIE S 011/E:2003, sky type 1); a horizon brighter than the zenith
+      gives the clear-sky brightening towards the horizon.  A larger k narrows the
+      horizon's colour to a band about 1/k high in μ: the glow of a low sun along the
+      horizon under a differently coloured sky.  Both colours are parameters
+      (``sky_zenith``, ``sky_horizon``).
     """
 
     kind: str = "constant"
@@ -89,6 +92,7 @@ class SkyLight:
     sun_irradiance: float | None = None
     zenith: Sequence[float] = (0.35, 0.35, 0.35)
     horizon: Sequence[float] = (0.35, 0.35, 0.35)
+    horizon_exponent: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -233,6 +237,8 @@ class PathInputs:
                 raise ForestError(f"path inputs: sky envmap {sky.envmap}: no such file")
             if sky.kind == "sunsky" and self.sun is None:
                 raise ForestError("path inputs: a sunsky sky needs a sun (its direction)")
+            if not (1.0 <= float(sky.horizon_exponent) <= 1000.0):
+                raise ForestError(f"path inputs: sky horizon_exponent must be in [1, 1000], got {sky.horizon_exponent}")
         if self.sun is not None:
             d = np.asarray(self.sun.direction, dtype=np.float64)
             if d.shape != (3,) or not np.isfinite(d).all() or np.linalg.norm(d) == 0:
