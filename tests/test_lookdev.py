@@ -152,6 +152,34 @@ def test_the_shipped_painted_mask_fits_its_photo():
     assert {SKY, CANOPY, GROUND, IGNORE} == set(np.unique(labels).tolist())
 
 
+def test_a_textured_sky_above_the_land_is_found_near_the_renders_skyline():
+    """A sunset sky of high-contrast clouds fails the smooth-sky test, but it is brighter than the land under it: the
+    skyline step of the automatic segmentation finds it where the render's sky ends (within 15 % of the height),
+    follows the photo's own skyline (a slope the render does not have) and leaves the land and a bright lake alone."""
+    from forest.lookdev.regions import CANOPY, GROUND, SKY, segment_photo
+
+    h, w = 40, 64
+    rng = np.random.default_rng(3)
+    rows = np.arange(h)[:, None]
+    skyline = (14 + np.arange(w) * 4 // w)[None, :]  # the photo's land rises from row 14 to 17 across the frame
+    clouds = np.exp(rng.normal(0.0, 0.6, (h, w)))  # ln-contrast 0.6: far from smooth
+    photo = np.empty((h, w, 3))
+    photo[...] = np.array([0.9, 0.5, 0.3]) * clouds[..., None]
+    land = rows >= skyline
+    photo[land] = [0.04, 0.05, 0.03]
+    lake = np.broadcast_to(rows >= 24, (h, w))
+    photo[lake] = [0.5, 0.45, 0.4]  # bright water below the land
+    render = np.full((h, w), GROUND)
+    render[:16] = SKY
+    render[16:22] = CANOPY
+    labels = segment_photo(photo, render)
+    sky = labels == SKY
+    assert sky[~land].mean() > 0.95
+    assert not sky[land].any()
+    # Without the skyline step (a render with no sky) the textured sky is not taken as sky.
+    assert (segment_photo(photo, np.full((h, w), GROUND)) == SKY)[~land].mean() < 0.5
+
+
 # -- the fit's renderer is the production renderer -------------------------------------------
 
 

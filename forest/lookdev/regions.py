@@ -12,6 +12,11 @@ segmentation assigns the same three regions:
    frame; Otsu 1979), smooth (local standard deviation of ln Y over 5×5 below
    0.25) and not green (excess green 2g − r − b below 0.1 of the brightness;
    Woebbecke et al. 1995), in the connected parts that touch the top edge;
+   1b. and, where the render shows sky, the not-green pixels above the photo's
+   *skyline*: in each such column, the row near the render's skyline (within
+   15 % of the height) where the frame darkens markedly from the rows above to the
+   rows below — a textured sky (a sunset's clouds) fails the smoothness test of
+   step 1 but is still brighter than the land under it;
 2. *ground* and *canopy* among the rest, row by row: the cameras roughly
    match, so a row of the photo gets the share of ground its row in the render
    has (among non-sky pixels, smoothed over ±5 % of the height), and the
@@ -60,6 +65,12 @@ MASK_TOLERANCE = 48
 MASK_STRAY = 0.02
 #: Smallest share of the pixels a region needs in both images to be compared.
 MIN_REGION = 0.02
+#: The photo's skyline is searched within this share of the height of the render's.
+SKYLINE_WINDOW = 0.15
+#: Rows (share of the height) averaged above and below a candidate skyline.
+SKYLINE_BAND = 0.08
+#: Least drop of mean ln Y across the skyline (ln units: the land at most ~2/3 as bright as the sky).
+SKYLINE_DROP = 0.4
 
 
 def render_labels(layers: dict[str, np.ndarray]) -> np.ndarray:
@@ -132,6 +143,7 @@ def segment_photo(rgb: np.ndarray, render: np.ndarray, weight: np.ndarray | None
     comp, _ = components(cand)
     top = set(np.unique(comp[0][comp[0] > 0]).tolist())
     sky = np.isin(comp, list(top)) if top else np.zeros((h, w), bool)
+    sky |= skyline_sky(ly, exg, render)
     labels = np.full((h, w), CANOPY, np.int64)
     labels[sky] = SKY
     # Ground share per row, from the render (non-sky pixels), smoothed over ±5 % of the height.
@@ -152,6 +164,56 @@ def segment_photo(rgb: np.ndarray, render: np.ndarray, weight: np.ndarray | None
     if weight is not None:
         labels[weight <= 0] = IGNORE
     return labels
+
+
+def skyline_sky(ly: np.ndarray, exg: np.ndarray, render: np.ndarray) -> np.ndarray:
+    """Sky above the photo's skyline, found near the render's (see the module docstring, step 1b).
+
+    ``ly`` (H, W) ln luminance, ``exg`` excess green, ``render`` the render's labels.  In each column where
+    the render shows sky down to row r, the skyline is the first row b from the top within ±:data:`SKYLINE_WINDOW`
+    of r where mean ln Y drops by at least :data:`SKYLINE_DROP` from the :data:`SKYLINE_BAND` rows above it to
+    those below it, moved down to where that drop peaks (ln Y averaged over ±5 % of the width first, so a cloud's edge does not pass for the land's);
+    a column without such a row keeps no sky from this step.  The rows found are smoothed by a median over ±5 %
+    of the width.  Sky: the not-green pixels above the skyline.
+    """
+    from scipy.ndimage import median_filter, uniform_filter
+
+    h, w = ly.shape
+    out = np.zeros((h, w), bool)
+    size = max(1, int(round(0.05 * w))) * 2 + 1
+    ly = uniform_filter(ly, size=(1, size), mode="nearest")  # a skyline is smooth across columns; clouds are not
+    sky_rows = np.cumprod(render == SKY, axis=0).sum(axis=0)  # render sky rows from the top, per column
+    cols = np.flatnonzero(sky_rows > 0)
+    if not len(cols) or h < 6:
+        return out
+    band = max(2, int(round(SKYLINE_BAND * h)))
+    win = max(2, int(round(SKYLINE_WINDOW * h)))
+    csum = np.vstack([np.zeros((1, w)), np.cumsum(ly, axis=0)])
+    rows = np.arange(1, h)
+    lo_a = np.maximum(rows - band, 0)
+    hi_b = np.minimum(rows + band, h)
+    above = (csum[rows] - csum[lo_a]) / (rows - lo_a)[:, None]
+    below = (csum[hi_b] - csum[rows]) / (hi_b - rows)[:, None]
+    drop = above - below  # (H − 1, W): split before row rows[i]
+    b = np.full(w, -1)
+    for c in cols:
+        r = int(sky_rows[c])
+        lo, hi = max(1, r - win), min(h - 1, r + win)
+        d = drop[lo - 1 : hi, c]
+        ok = np.flatnonzero(d >= SKYLINE_DROP)
+        if len(ok):
+            k = int(ok[0])
+            while k + 1 < len(d) and d[k + 1] > d[k]:  # up to the edge itself: the drop's first peak
+                k += 1
+            b[c] = lo + k
+    found = b > 0
+    if not found.any():
+        return out
+    filled = np.where(found, b, np.interp(np.arange(w), np.flatnonzero(found), b[found]))
+    smooth = median_filter(filled.astype(np.float64), size=size, mode="nearest")
+    rr = np.arange(h)[:, None]
+    out = (rr < np.where(found, smooth, 0)[None, :]) & (exg < 0.1)
+    return out
 
 
 def photo_labels(rgb: np.ndarray, render: np.ndarray, painted: np.ndarray | None) -> np.ndarray:
