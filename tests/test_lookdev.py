@@ -443,6 +443,10 @@ def test_a_low_sky_is_fitted_as_a_horizon_band(tmp_path):
         mask=PHOTOS / "evening_glow_hills_mask.png",
     )
     assert any("fitted as a band" in w for w in r.warnings), r.warnings
+    import json
+
+    k = json.loads(r.json_path.read_text())["sky_band_exponent"]
+    assert 3.0 < k < 12.0  # the band fades to 0.1 at the top of a sky about 18° high: k ≈ 6.5
     fitted = r.figures["fitted_regions"]
     for region in ("sky", "sky high", "sky low", "canopy", "ground"):
         assert fitted[region] <= 8.0, (region, fitted)

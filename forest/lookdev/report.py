@@ -295,6 +295,8 @@ def write_outputs(
             "figures": figures,
             "parameters": table,
             "held": result.held,
+            # The gradient sky's shape: its horizon band exponent k (1: linear; see forest.lookdev.params).
+            "sky_band_exponent": _r(problem.start.sky_exponent) if problem.start.sky_kind == "constant" else None,
             "history": [{k: (_r(v) if isinstance(v, float) else v) for k, v in e.items()} for e in result.history],
             "warnings": list(notes),
             "seconds": _r(seconds, 4),
