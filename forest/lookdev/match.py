@@ -232,9 +232,9 @@ def match(
     if "sky" in groups and start.sky_kind == "constant":
         if start.sky_tied:
             notes.append("no sky in frame: its gradient is held, the sky is fitted as one colour")
-        elif top < np.sin(np.radians(GRADIENT_MIN_ELEVATION)):
-            start.sky_exponent = horizon_band_exponent(top)
-            renderer.set_sky_exponent(start.sky_exponent)
+        elif (k := horizon_band_exponent(top)) > 1.0:
+            start.sky_exponent = k
+            renderer.set_sky_exponent(k)
             notes.append(
                 f"the sky in frame reaches {np.degrees(np.arcsin(min(top, 1.0))):.0f}° above the horizon "
                 f"(under {GRADIENT_MIN_ELEVATION:g}°): the horizon colour is fitted as a band (1 − μ)^"

@@ -169,23 +169,24 @@ def segment_photo(rgb: np.ndarray, render: np.ndarray, weight: np.ndarray | None
 def skyline_sky(ly: np.ndarray, exg: np.ndarray, render: np.ndarray) -> np.ndarray:
     """Sky above the photo's skyline, found near the render's (see the module docstring, step 1b).
 
-    ``ly`` (H, W) ln luminance, ``exg`` excess green, ``render`` the render's labels.  In each column where
-    the render shows sky down to row r, the skyline is the first row b from the top within ±:data:`SKYLINE_WINDOW`
-    of r where mean ln Y drops by at least :data:`SKYLINE_DROP` from the :data:`SKYLINE_BAND` rows above it to
-    those below it, moved down to where that drop peaks (ln Y averaged over ±5 % of the width first, so a cloud's edge does not pass for the land's);
-    a column without such a row keeps no sky from this step.  The rows found are smoothed by a median over ±5 %
-    of the width.  Sky: the not-green pixels above the skyline.
+    ``ly`` (H, W) ln luminance, ``exg`` excess green, ``render`` the render's labels.  ln Y is first averaged
+    over ±5 % of the width (a skyline is smooth across columns; a cloud's edge is not).  In each column where
+    the render shows sky down to row r, the skyline is the first row b within ±:data:`SKYLINE_WINDOW` of r
+    where mean ln Y drops by at least :data:`SKYLINE_DROP` from the :data:`SKYLINE_BAND` rows above it to
+    those below it, moved down to where that drop peaks; a column without such a row keeps no sky from this
+    step.  The rows found are smoothed by a median over ±5 % of the width.  Sky: the not-green pixels above
+    the skyline.
     """
     from scipy.ndimage import median_filter, uniform_filter
 
     h, w = ly.shape
-    out = np.zeros((h, w), bool)
-    size = max(1, int(round(0.05 * w))) * 2 + 1
-    ly = uniform_filter(ly, size=(1, size), mode="nearest")  # a skyline is smooth across columns; clouds are not
+    none = np.zeros((h, w), bool)
     sky_rows = np.cumprod(render == SKY, axis=0).sum(axis=0)  # render sky rows from the top, per column
     cols = np.flatnonzero(sky_rows > 0)
     if not len(cols) or h < 6:
-        return out
+        return none
+    size = max(1, int(round(0.05 * w))) * 2 + 1
+    ly = uniform_filter(ly, size=(1, size), mode="nearest")
     band = max(2, int(round(SKYLINE_BAND * h)))
     win = max(2, int(round(SKYLINE_WINDOW * h)))
     csum = np.vstack([np.zeros((1, w)), np.cumsum(ly, axis=0)])
@@ -208,12 +209,10 @@ def skyline_sky(ly: np.ndarray, exg: np.ndarray, render: np.ndarray) -> np.ndarr
             b[c] = lo + k
     found = b > 0
     if not found.any():
-        return out
+        return none
     filled = np.where(found, b, np.interp(np.arange(w), np.flatnonzero(found), b[found]))
     smooth = median_filter(filled.astype(np.float64), size=size, mode="nearest")
-    rr = np.arange(h)[:, None]
-    out = (rr < np.where(found, smooth, 0)[None, :]) & (exg < 0.1)
-    return out
+    return (np.arange(h)[:, None] < np.where(found, smooth, 0)[None, :]) & (exg < 0.1)
 
 
 def photo_labels(rgb: np.ndarray, render: np.ndarray, painted: np.ndarray | None) -> np.ndarray:

@@ -216,10 +216,10 @@ class FitRenderer:
         if not self.gradient or sky is None:
             return
         k = float(exponent)
-        self.inputs = replace(self.inputs, sky=replace(sky, horizon_exponent=k))
+        self.inputs = self.scene.inputs = replace(self.inputs, sky=replace(sky, horizon_exponent=k))
         for light in self.scene.lights:
             if isinstance(light, SkyBasis):
-                light.exponent = k
+                light.set_exponent(k)
 
     def set_haze(self, density: float) -> None:
         """The haze's ground extinction σ₀ (1/m); nothing without a haze."""

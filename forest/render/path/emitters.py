@@ -181,9 +181,13 @@ class SkyBasis(ConstantSky):
         self.mi = mi
         self.param = param
         self.zenith = bool(zenith)
-        self.exponent = float(exponent)
         self.initial = np.asarray(initial, dtype=np.float64)
-        # Mean of ℓ over the upper hemisphere (solid angle): ∫₀¹ (1 − μ)^k dμ = 1/(k + 1).
+        self.set_exponent(exponent)
+
+    def set_exponent(self, exponent: float) -> None:
+        """The band's exponent k, and with it the mean of ℓ over the upper hemisphere (solid angle):
+        ∫₀¹ (1 − μ)^k dμ = 1/(k + 1) for the horizon's.  A kernel traced afterwards uses the new shape."""
+        self.exponent = float(exponent)
         h = 1.0 / (self.exponent + 1.0)
         self.mean_radiance = np.full(3, 1.0 - h if self.zenith else h)
 
