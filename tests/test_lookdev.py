@@ -275,7 +275,7 @@ def test_aligned_round_trip_recovers_the_lights_and_the_map(aligned):
 
 
 def test_the_best_iterate_is_kept_not_the_last(aligned, monkeypatch):
-    """After a good first step every later step is absurd (+4 EV): the result is iterate 1, its held-out
+    """After a good first step every later step is absurd (lights +4 EV): the result is iterate 1, its held-out
     objective the lowest of the history."""
     import forest.lookdev.fit as fit_module
     from forest.lookdev import match
@@ -288,7 +288,7 @@ def test_the_best_iterate_is_kept_not_the_last(aligned, monkeypatch):
         calls.append(1)
         look = real(problem, lin, **kw)
         if len(calls) > 1:
-            look.values["exposure"] = min(look.values["exposure"] + 4.0, 10.0)
+            look.values["light_level"] = min(look.values["light_level"] + 4.0, 10.0)
         return look
 
     monkeypatch.setattr(fit_module, "step", step)
@@ -310,7 +310,7 @@ def test_a_fit_never_writes_a_look_worse_than_the_start(aligned, monkeypatch):
 
     def step(problem, lin, **kw):
         look = lin.look.copy()
-        look.values["exposure"] = 6.0
+        look.values["light_level"] = 6.0
         return look
 
     monkeypatch.setattr(fit_module, "step", step)

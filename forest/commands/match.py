@@ -33,8 +33,24 @@ def register(app: typer.Typer) -> None:
             help="Regions painted over the reference: sky #0000ff, canopy #00ff00, ground #ff0000, ignored #000000, "
             "automatic #ffffff.",
         ),
-        grid: int = typer.Option(
-            None, "--grid", help="Colour-map correction cells per side, 1 to 64 (lookdev.grid, 16)."
+        grid: str = typer.Option(
+            None,
+            "--grid",
+            help="Colour-map cells per side the fit varies, 1 to 64, or auto: the finest grid the reference "
+            "resolves (lookdev.grid, auto).",
+        ),
+        anchor: str = typer.Option(
+            None,
+            "--anchor",
+            help="What holds the scale of albedos against light: ground, leaves, lights, none or auto "
+            "(lookdev.anchor, auto: ground in aligned mode when the frame shows it, else leaves; none in "
+            "statistics mode).",
+        ),
+        map_prior: str = typer.Option(
+            None,
+            "--map-prior",
+            help="The colour map's prior: edges (recovers painted patches) or smooth (a smooth correction of the "
+            "painted map) (lookdev.map_prior, edges).",
         ),
         instances: Path = typer.Option(None, "--instances", help="A saved InstanceSet (.npz) instead of scattering."),
         variant: str = typer.Option(None, "--variant", help="llvm_ad_rgb or cuda_ad_rgb (default: cuda if present)."),
@@ -68,6 +84,8 @@ def register(app: typer.Typer) -> None:
             mask=mask,
             variant=variant,
             grid=grid,
+            anchor=anchor,
+            map_prior=map_prior,
         )  # bad options fail before any work
         check_render_inputs(cfg)
         width, height = optimiser_size(cfg, settings.resolution)
@@ -95,7 +113,8 @@ def register(app: typer.Typer) -> None:
             typer.echo(
                 f"match: {len(scene.instances):,} trees, {settings.mode} fit of {', '.join(settings.params)}: "
                 f"{settings.iterations} iterations x {settings.spp} spp at {width}x{height}, "
-                f"{settings.grid}x{settings.grid} colour grid ({settings.variant}): about "
+                f"{settings.grid if settings.grid == 'auto' else f'{settings.grid}x{settings.grid}'} colour grid "
+                f"({settings.variant}): about "
                 f"{preflight.format_bytes(memory)}, about {preflight.format_seconds(seconds)}",
                 err=True,
             )
@@ -114,6 +133,8 @@ def register(app: typer.Typer) -> None:
                     mask=mask,
                     variant=variant,
                     grid=grid,
+                    anchor=anchor,
+                    map_prior=map_prior,
                     progress=bar,
                 )
         preflight.record_match(
@@ -139,6 +160,8 @@ def register(app: typer.Typer) -> None:
                     f"  {row['label']}: {row['start_shown']} → {row['fitted_shown']}  (range {row['range']}, "
                     f"determined {100 * row['determined']:.0f} %){note}"
                 )
+            for text in result.weak:
+                typer.echo(f"  weak direction (the data determine it less than the priors): {text}")
             typer.echo(f"fitted {', '.join(result.fitted)} in {result.seconds:.1f} s ({result.variant})")
             for p in result.paths:
                 typer.echo(f"wrote {p}")

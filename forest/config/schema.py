@@ -775,7 +775,22 @@ class LookdevConfig(Section):
     mode: Literal["aligned", "statistics"] = Field(
         "aligned", description="aligned: a plate from the same camera; statistics: an unrelated photo."
     )
-    grid: Annotated[Int, Field(ge=1, le=64)] = Field(16, description="Colour-map correction cells per side.")
+    grid: Annotated[Int, Field(ge=1, le=64)] | Literal["auto"] = Field(
+        "auto",
+        description="Colour-map cells per side the fit varies (1 to 64), or 'auto': the finest grid whose cells that "
+        "hold trees have at least 24 canopy pixels each (median) in the fit's render.",
+    )
+    map_prior: Literal["edges", "smooth"] = Field(
+        "edges",
+        description="The colour map's prior: 'edges' (cells a painted pattern can be recovered into, an edge costs its "
+        "height) or 'smooth' (a smooth correction of the painted map).",
+    )
+    anchor: Literal["auto", "ground", "leaves", "lights", "none"] = Field(
+        "auto",
+        description="What holds the scale of albedos against light: the ground's albedo, the leaves', the lights' "
+        "level, or none (the priors); auto: ground in aligned mode when the frame shows ground (else leaves), none "
+        "in statistics mode.",
+    )
     fresh_map: Bool = Field(False, description="Fit a new grid×grid colour map instead of correcting the painted one.")
     mask: InputFile | None = Field(
         None,

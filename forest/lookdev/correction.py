@@ -89,14 +89,25 @@ def pixel_cells(u: np.ndarray, v: np.ndarray, cells: tuple[int, int]) -> np.ndar
 
 
 def base_map(painted: np.ndarray | None, cells: tuple[int, int], fresh: bool) -> np.ndarray:
-    """M: the painted map (linear RGB) at its own resolution, or area-averaged to the cells (fresh / none)."""
+    """M: the painted map (linear RGB) at its own resolution, or area-averaged to the cells (fresh / none).
+
+    A painted map coarser than the cells (a uniform 1×1 grey, say) is first sampled onto the cells' resolution
+    as the renderer samples it (bilinear between texel centres, clamped), so it renders the same and the fitted
+    map keeps the cells' detail."""
     if painted is None:
         return np.ones((*cells, 3))
+    m = np.asarray(painted, np.float64)
     if fresh:
         from ..images import resample
 
-        return np.asarray(resample(np.asarray(painted, np.float32), cells[0], cells[1]), np.float64)
-    return np.asarray(painted, np.float64)
+        return np.asarray(resample(m.astype(np.float32), cells[0], cells[1]), np.float64)
+    if m.shape[0] < cells[0] or m.shape[1] < cells[1]:
+        from ..maps import sample_bilinear
+
+        h, w = max(m.shape[0], cells[0]), max(m.shape[1], cells[1])
+        u, v = np.meshgrid((np.arange(w) + 0.5) / w, (np.arange(h) + 0.5) / h)
+        m = np.asarray(sample_bilinear(m, u.ravel(), v.ravel()), np.float64).reshape(h, w, 3)
+    return m
 
 
 def corrected(base: np.ndarray, correction: np.ndarray | None, op: sp.csr_matrix | None = None) -> np.ndarray:

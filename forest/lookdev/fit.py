@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -35,7 +35,7 @@ from .correction import cell_classes, pixel_cells, upsample_operator
 from .look import ground_tint, leaf_tints
 from .params import Look
 from .renders import FitRenderer
-from .solve import TRUST, UNDETERMINED, Linearisation, Problem, step, undetermined
+from .solve import TRUST, UNDETERMINED, Linearisation, Problem, WeakDirection, step, undetermined, weak_directions
 
 REFRESH = (3,)
 #: Largest elasticity of a pixel to an albedo multiplier (its light bounced that often on the albedo).
@@ -47,6 +47,8 @@ UNSEEN_CELL = 0.01
 POOL = 8
 IMPLAUSIBLE = 3.0
 HOLDOUT_SEED = 0x0D0E_5EED
+#: Offset of the seed of each iteration's second, independent light images.
+SECOND_SEED = 0x5EC0_2D
 
 
 def _quiet(fraction: float, message: str = "") -> None:
@@ -87,6 +89,7 @@ class FitResult:
     best_iteration: int = 0
     seconds: float = 0.0
     cell_information: np.ndarray | None = None  # (n, m) the data's information on each map cell, in prior units
+    weak: list[WeakDirection] = field(default_factory=list)  # directions the data determine less than the priors
 
 
 class Fitter:
@@ -98,7 +101,7 @@ class Fitter:
         self.base_map = base_map
         self.seed = int(seed)
         self._up = None
-        self._pool: list[tuple[Look, dict[str, np.ndarray]]] = []
+        self._pool: list[tuple[Look, dict[str, np.ndarray], dict[str, np.ndarray]]] = []
         if problem.cells is not None and base_map is not None:
             self._up = upsample_operator(base_map.shape[:2], problem.cells)
 
@@ -134,12 +137,15 @@ class Fitter:
         self.apply(look)
         seed = self.seed * 1_000_003 + 7919 * k
         u = self.r.light_images(seed)
+        ub = self.r.light_images(seed + SECOND_SEED)  # independent: the step's data term is unbiased by noise
         if k == 0:
             self._pool = []
-        self._pool = (self._pool + [(look.copy(), u)])[-POOL:]
+        self._pool = (self._pool + [(look.copy(), u, ub)])[-POOL:]
         total = sum(u[n] * s for n, s in self.p.light_scales(look).items() if n in u)
         if previous is not None and k not in REFRESH:
-            lin = Linearisation(look, u, previous.leaf_e, previous.ground_e, previous.grid_e, previous.grid_cells)
+            lin = Linearisation(
+                look, u, previous.leaf_e, previous.ground_e, previous.grid_e, previous.grid_cells, light_images_b=ub
+            )
             return self._pooled(lin)
         inv = np.where(total > 1e-7, 1.0 / np.maximum(total, 1e-7), 0.0)
         leaf_e = ground_e = grid_e = cells = None
@@ -163,7 +169,7 @@ class Fitter:
                 grid_e[c] = elasticity(self.r.log_derivative("grid", seed, tangent=tangent), inv)
             lay = self.r.layers
             cells = pixel_cells(lay["u"].ravel(), lay["v"].ravel(), self.p.cells)
-        return self._pooled(Linearisation(look, u, leaf_e, ground_e, grid_e, cells))
+        return self._pooled(Linearisation(look, u, leaf_e, ground_e, grid_e, cells, light_images_b=ub))
 
     def _pooled(self, lin: Linearisation) -> Linearisation:
         """``lin`` with each light image the mean of this fit's light images so far, each carried to ``lin``'s
@@ -171,15 +177,18 @@ class Fitter:
         surrogate's errors-in-variables bias (:mod:`.losses`) shrinks with every iteration.  Images rendered
         at another haze density are not pooled (their difference is not a product)."""
         haze = lin.look.get("haze", self.p.start.haze)
-        same = [(lk, u) for lk, u in self._pool if abs(lk.get("haze", self.p.start.haze) - haze) < 1e-12]
+        same = [entry for entry in self._pool if abs(entry[0].get("haze", self.p.start.haze) - haze) < 1e-12]
         if len(same) <= 1:
             return lin
         out: dict[str, np.ndarray] = {}
-        for lk, u in same:
+        out_b: dict[str, np.ndarray] = {}
+        for lk, u, ub in same:
             f = np.exp(self.p.albedo_exponent(lin.look, lk, lin, next(iter(u.values())).shape))
             for name, img in u.items():
                 out[name] = out.get(name, 0.0) + img * f / len(same)
-        return Linearisation(lin.look, out, lin.leaf_e, lin.ground_e, lin.grid_e, lin.grid_cells)
+            for name, img in ub.items():
+                out_b[name] = out_b.get(name, 0.0) + img * f / len(same)
+        return replace(lin, light_images=out, light_images_b=out_b)
 
     # -- the loop -------------------------------------------------------------------------
     def run(self, start: Look, *, iterations: int, progress: Callable[[float, str], None] | None = None) -> FitResult:
@@ -197,7 +206,7 @@ class Fitter:
             if k == 0:
                 # Which parameters the reference determines; the start is judged on the same terms as the iterates.
                 self._decide_held(current, lin, res)
-                lin = Linearisation(current, lin.light_images, lin.leaf_e, lin.ground_e, lin.grid_e, lin.grid_cells)
+                lin = replace(lin, look=current)
                 res.start = current.copy()
                 res.best = current.copy()
                 res.start_objective = res.best_objective = self.p.objective(current, *img0)
@@ -236,7 +245,7 @@ class Fitter:
         return res
 
     def _decide_held(self, look: Look, lin: Linearisation, res: FitResult) -> None:
-        shares, info = undetermined(self.p, look, lin)
+        shares, info, (fisher, names) = undetermined(self.p, look, lin)
         res.shares = shares
         res.held.update(self.p.held_reasons)
         for name, share in shares.items():
@@ -246,6 +255,8 @@ class Fitter:
         for name in list(self.p.held):
             if name in look.values:
                 look.held[name] = look.values.pop(name)
+        keep = [i for i, n in enumerate(names) if n not in self.p.held]
+        res.weak = weak_directions(fisher[np.ix_(keep, keep)], [names[i] for i in keep])
         if info is not None and self.p.cells is not None:
             res.cell_information = info.reshape(self.p.cells)
             held = info < UNSEEN_CELL

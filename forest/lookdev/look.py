@@ -3,6 +3,8 @@
 The maps (all closed-form, so the optimiser differentiates them by finite
 differences on a handful of scalars):
 
+* the global horizontal irradiance G = G₀ · 2^light_level (G₀ the start's; ``light_level`` is
+  fitted when the lights are, the camera's exposure then held — they are one degree of freedom);
 * sun irradiance E_sun = share · G / sin(elevation) · c(T_sun, Duv_sun);
 * gradient sky: Y_z = (1 − share)·G / (π − a_k + ρ·a_k), Y_h = ρ·Y_z (ρ = e^horizon_ratio,
   a_k = 2π/((k + 1)(k + 2)) for the horizon band exponent k, π/3 when linear),
@@ -16,7 +18,7 @@ differences on a handful of scalars):
 * haze colour (the haze's ambient radiance) = the start's ratio × L_horizon (× the sky's scale
   factor for an environment map or sunsky).
 
-G is the start's global horizontal irradiance (the gauge of :mod:`.params`),
+G₀ is the start's global horizontal irradiance (the gauge of :mod:`.params`),
 c(T, Duv) the unit-luminance colour of :func:`.daylight.locus_rgb`.
 """
 
@@ -53,7 +55,7 @@ def _v(look: Look, name: str, default: float) -> float:
 
 def lights(look: Look, start: Start) -> Lights:
     """The light scales of ``look`` (see the module docstring)."""
-    g = start.g0
+    g = start.g0 * 2.0 ** _v(look, "light_level", 0.0)
     share = _v(look, "sun_share", start.share0) if start.sun_on else 0.0
     sun = None
     if start.sun_on:

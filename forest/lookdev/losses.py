@@ -3,26 +3,33 @@
 **aligned** — the reference is a plate or render from the same camera: one
 residual per block b of :data:`BLOCK` × :data:`BLOCK` pixels and channel c,
 
-    r_bc = √w_bc · (⟨Q⟩_bc − ⟨R⟩_bc) / τ,        w_bc = ρ_b / (1 + ρ_b σ²_bc / (β · median ρσ²)),
+    r_bc = √w_bc · ln((⟨Q⟩_bc + κ_c) / (⟨P⟩_bc + κ_c)) / τ,
 
-with Q the predicted photo (:mod:`.image_model`), ρ_p = 1/(Ȳ_p + κ)² a
-*relative* weight (Ȳ the reference luminance box-blurred over 3×3 pixels, κ a
-tenth of its median), normalised to mean 1, and τ = :data:`PIXEL_TOLERANCE`
-the relative error one residual unit stands for.  σ²_pc is the Monte-Carlo
-variance of the render (:meth:`PixelLoss.set_noise`, measured from two
-independent renders of the same look): weighted least squares with weights
-∝ 1/σ² is the minimum-variance estimator (Aitken 1935), so silhouettes and
-shadow edges, noisy at low spp, are weighed down where their noise dominates
-(β = :data:`NOISE_BALANCE`).
+with Q the predicted photo (:mod:`.image_model`), P the reference, κ_c a tenth of
+the median of P's channel c over the frame (so the darkest blocks do not dominate),
+and τ = :data:`PIXEL_TOLERANCE` the *relative* error one residual unit stands for —
+whatever the image's units, so a dim forest and a bright one weigh their data
+against the priors alike.  w_bc = 1/(1 + v_bc/(β · median v)) down-weights the
+blocks whose render is noisy, v_bc the relative Monte-Carlo variance of the block
+(:meth:`PixelLoss.set_noise`, measured from two independent renders of the same
+look): weighted least squares with weights ∝ 1/σ² is the minimum-variance estimator
+(Aitken 1935), so silhouettes and shadow edges, noisy at low spp, are weighed down
+where their noise dominates (β = :data:`NOISE_BALANCE`); the weights keep a sum of
+one per block.
 
-Why blocks: a least-squares fit to a Monte-Carlo render is biased towards looks
-whose render is less noisy, E‖Q − R‖² = ‖E Q − R‖² + Σ Var Q — the
-errors-in-variables attenuation (Fuller 1987, *Measurement Error Models*, §1.1):
-on a 48×36 test at 8 spp it put the sun at 60 % of the truth, its variance
-term outweighing the bias of the right answer.  Means over b pixels divide the
-variance term by b at the price of detail finer than a block; the held-out
-judgement removes it altogether (:meth:`.solve.Problem.objective`: the product
-of two independent renders' residuals, whose expectation is the squared bias alone).
+Why logarithms and blocks: a least-squares fit to a Monte-Carlo render is biased
+towards looks whose render is less noisy, E‖Q − P‖² = ‖E Q − P‖² + Σ Var Q — the
+errors-in-variables attenuation (Fuller 1987, *Measurement Error Models*, §1.1).
+In linear units Var Q grows with the square of what the look makes of a pixel, so
+the variance term pulls every albedo and light towards black (on a top-down forest
+at 8 spp it pulled the blue channel down by a third and the sky towards orange).
+A path tracer's *relative* noise does not depend on an albedo multiplier or a
+light's scale (every path's contribution scales alike), so in logarithms the
+variance term is, to first order, the same constant for every look and no longer
+moves the minimum.  Means over b pixels shrink the remaining (second-order) term by
+b; the held-out judgement removes it altogether (:meth:`.solve.Problem.objective`:
+the product of two independent renders' residuals, whose expectation is the squared
+bias alone).
 
 **statistics** — an unrelated photo: per region k (:mod:`.regions`: sky high
 and low, canopy and ground, each lit and shadowed) and for the whole frame,
@@ -56,6 +63,8 @@ from .reference import Reference
 from .regions import Region, region_means
 
 PIXEL_TOLERANCE = 0.02
+#: κ_c of the aligned residuals, as a share of the reference channel's median block.
+KAPPA = 0.1
 #: Side of the square pixel blocks the aligned loss compares.
 BLOCK = 2
 LOG_TOLERANCE = 0.05
@@ -85,62 +94,58 @@ def block_operator(height: int, width: int, block: int):
     return sp.csr_matrix((vals, (rows, cols)), shape=(bh * bw * 3, height * width * 3))
 
 
-def _box3(a: np.ndarray) -> np.ndarray:
-    from scipy.ndimage import uniform_filter
-
-    return uniform_filter(a, size=3, mode="nearest")
-
-
 @dataclass
 class PixelLoss:
-    """Relative, noise-weighted pixel residuals against a same-camera reference."""
+    """Relative (logarithmic), noise-weighted block residuals against a same-camera reference."""
 
     reference: Reference
-    weight: np.ndarray = field(init=False)  # (H, W, 3) w_pc
+    weight: np.ndarray = field(init=False)  # (blocks·3,) w_bc
 
     block: int = BLOCK
 
     def __post_init__(self) -> None:
         h, w_ = self.reference.rgb.shape[:2]
         self.blocks = block_operator(h, w_, self.block)  # (blocks·3) × (pixels·3): block means
-        y = _box3(luminance(self.reference.rgb)).astype(np.float64)
-        w = self.reference.weight.astype(np.float64)
-        kappa = 0.1 * float(np.median(y[w > 0])) + 1e-4
-        rho = w / (y + kappa) ** 2
-        rho_b = self.blocks @ np.repeat(rho[..., None], 3, axis=2).ravel()
-        rho_b /= max(float(rho_b[rho_b > 0].mean()), 1e-30)
-        self.rho = rho_b
-        self.weight = rho_b.copy()
         self.target = self.blocks @ self.reference.rgb.astype(np.float64).ravel()
+        pw = np.repeat(self.reference.weight.astype(np.float64)[..., None], 3, axis=2).ravel()
+        base = self.blocks @ pw  # the reference's own weights (a grey mask), block means
+        t = self.target.reshape(-1, 3)
+        valid = base.reshape(-1, 3)[:, 0] > 0
+        med = np.median(t[valid], axis=0) if valid.any() else np.ones(3)
+        self.kappa = np.tile(KAPPA * np.maximum(med, 0.0) + 1e-9, len(t))
+        self.log_target = np.log(np.maximum(self.target, 0.0) + self.kappa)
+        self.base = base
+        self.weight = base.copy()
 
     def set_noise(self, variance: np.ndarray) -> None:
-        """Weigh each value by its render noise (module docstring; ``variance`` per pixel and channel, a block
-        mean's is their mean over the block's b pixels / b); the mean weight stays 1."""
-        rho = self.rho
+        """Weigh each value down by its render's relative noise (module docstring; ``variance`` per pixel and
+        channel, a block mean's is their mean over the block's b pixels / b); the weights' sum stays the base's."""
         var_b = (self.blocks @ np.asarray(variance, np.float64).ravel()) / self.block**2
-        v = rho * var_b
-        pos = v[(v > 0) & (rho > 0)]
+        v = var_b / (np.maximum(self.target, 0.0) + self.kappa) ** 2
+        pos = v[(v > 0) & (self.base > 0)]
         if not pos.size:
             return
-        w = rho / (1.0 + v / (NOISE_BALANCE * float(np.median(pos))))
-        self.weight = w * (rho.sum() / max(float(w.sum()), 1e-30))
+        self.weight = self.base / (1.0 + v / PIXEL_TOLERANCE**2)
 
     def mask(self, keep: np.ndarray) -> None:
         """Drop the blocks with any pixel where ``keep`` (H, W) is false."""
         k = np.repeat(np.asarray(keep, np.float64)[..., None], 3, axis=2).ravel()
         whole = (self.blocks @ k) >= 1.0 - 1e-9
         self.weight = np.where(whole, self.weight, 0.0)
-        self.rho = np.where(whole, self.rho, 0.0)
+        self.base = np.where(whole, self.base, 0.0)
 
     def residuals(self, image: np.ndarray) -> np.ndarray:
         q = self.blocks @ np.asarray(image, np.float64).ravel()
-        return np.sqrt(self.weight) * (q - self.target) / PIXEL_TOLERANCE
+        return np.sqrt(self.weight) * (np.log(np.maximum(q, 0.0) + self.kappa) - self.log_target) / PIXEL_TOLERANCE
 
-    def project(self, jac):
-        """∂r/∂x from ∂Q/∂x per pixel value (a sparse (pixels·3) × n matrix): √w/τ · B · J."""
+    def project(self, jac, image: np.ndarray):
+        """∂r/∂x from ∂Q/∂x per pixel value (a sparse (pixels·3) × n matrix) at the photo ``image``:
+        √w/(τ (⟨Q⟩ + κ)) · B · J."""
         import scipy.sparse as sp
 
-        return sp.diags(np.sqrt(self.weight) / PIXEL_TOLERANCE) @ (self.blocks @ jac)
+        q = self.blocks @ np.asarray(image, np.float64).ravel()
+        scale = np.sqrt(self.weight) / (PIXEL_TOLERANCE * (np.maximum(q, 0.0) + self.kappa))
+        return sp.diags(scale) @ (self.blocks @ jac)
 
     def value(self, image: np.ndarray) -> float:
         r = self.residuals(image)

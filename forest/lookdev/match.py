@@ -42,12 +42,14 @@ class Settings:
     spp: int
     params: tuple[str, ...]
     mode: str
-    grid: int
+    grid: int | str  # cells per side, or "auto" (chosen from the fit's render: :func:`auto_grid`)
     fresh_map: bool
     mask: Path | None
     fit: str
     variant: str
     report_width: int
+    anchor: str = "auto"
+    map_prior: str = "edges"
 
 
 @dataclass
@@ -68,6 +70,9 @@ class MatchResult:
     losses: list[float] = field(default_factory=list)
     held_cells: np.ndarray | None = None  # (grid, grid) bool: colour-map cells unseen, kept as painted
     cell_information: np.ndarray | None = None  # (grid, grid): the reference's information on each cell (prior units)
+    grid: int | None = None  # the colour map's cells per side (fitted maps)
+    anchor: str = "none"  # what held the scale of albedos against light
+    weak: list[str] = field(default_factory=list)  # the weak directions, described
 
     @property
     def paths(self) -> list[Path]:
@@ -102,9 +107,13 @@ def resolve_settings(
     mask=None,
     variant=None,
     grid=None,
+    anchor=None,
+    map_prior=None,
 ) -> Settings:
     """Call arguments over ``[lookdev]`` over its defaults, validated by the scene schema (errors name
     ``lookdev.<option>``)."""
+    if isinstance(grid, str) and grid.strip().isdigit():
+        grid = int(grid)
     given = {
         "iterations": iterations,
         "resolution": resolution,
@@ -112,6 +121,8 @@ def resolve_settings(
         "mode": mode,
         "grid": grid,
         "variant": variant,
+        "anchor": anchor,
+        "map_prior": map_prior,
     }
     if params is not None:
         parse_params(params)
@@ -149,7 +160,87 @@ def resolve_settings(
         fit=lk.fit,
         variant=v,
         report_width=lk.report_width,
+        anchor=lk.anchor,
+        map_prior=lk.map_prior,
     )
+
+
+#: ``grid = "auto"``: the finest grid whose cells that hold trees have at least this many canopy pixels (median).
+MIN_CELL_PIXELS = 24
+#: Grids ``auto`` chooses among (cells per side).
+AUTO_GRIDS = (64, 48, 32, 24, 16, 12, 8, 6, 4, 3, 2, 1)
+#: ``anchor = "auto"`` in aligned mode anchors on the ground when at least this share of the frame shows it.
+ANCHOR_MIN_GROUND = 0.02
+
+
+def auto_grid(layers: dict[str, np.ndarray], labels: np.ndarray) -> tuple[int, str]:
+    """(cells per side, a note saying why) for ``grid = "auto"``: the finest of :data:`AUTO_GRIDS` whose cells
+    that hold canopy pixels of the fit's render hold at least :data:`MIN_CELL_PIXELS` of them, median over those
+    cells (a cell with fewer is decided more by its prior and neighbours than by the reference)."""
+    from .regions import CANOPY
+
+    canopy = labels == CANOPY
+    u, v = layers["u"][canopy], layers["v"][canopy]
+    ok = np.isfinite(u) & np.isfinite(v)
+    u, v = np.clip(u[ok], 0.0, 1.0 - 1e-9), np.clip(v[ok], 0.0, 1.0 - 1e-9)
+    for n in AUTO_GRIDS:
+        counts = np.bincount((v * n).astype(np.int64) * n + (u * n).astype(np.int64), minlength=n * n)
+        held = counts[counts > 0]
+        if n == 1 or (held.size and float(np.median(held)) >= MIN_CELL_PIXELS):
+            med = float(np.median(held)) if held.size else 0.0
+            return n, (
+                f"colour map fitted on {n}×{n} cells: the finest grid whose cells that hold trees have at least "
+                f"{MIN_CELL_PIXELS} canopy pixels of the fit's {labels.shape[1]}×{labels.shape[0]} render (median "
+                f"{med:.0f}, {held.size} cells hold trees); --grid sets it"
+            )
+    raise AssertionError("unreachable: n = 1 always qualifies")
+
+
+def resolve_anchor(anchor: str, mode: str, labels: np.ndarray) -> str:
+    """``auto`` → ``ground`` (aligned, the frame shows ground in ≥ :data:`ANCHOR_MIN_GROUND` of it), ``leaves``
+    (aligned otherwise) or ``none`` (statistics); other values as given."""
+    from .regions import GROUND
+
+    if anchor != "auto":
+        return anchor
+    if mode != "aligned":
+        return "none"
+    return "ground" if float(np.mean(labels == GROUND)) >= ANCHOR_MIN_GROUND else "leaves"
+
+
+ANCHOR_TEXT = {
+    "ground": "the ground keeps the scene's albedo",
+    "leaves": "the leaves keep the species' measured colours (and the colour map its mean)",
+    "lights": "the lights keep the scene's level",
+    "none": "nothing is held: the priors decide",
+}
+
+
+def hold_degenerate(problem, anchor: str) -> list[str]:
+    """Hold what the image cannot tell apart, by construction (:mod:`.params`): the camera when the lights are
+    fitted (exactly one thing), and the anchor's side of albedos against light.  Returns notes for the user."""
+    names = {s.name for s in problem.specs}
+    notes: list[str] = []
+
+    def hold(name: str, why: str) -> None:
+        if name in names and name not in problem.held:
+            problem.held.add(name)
+            problem.held_reasons[name] = why
+
+    if "light_level" in names:
+        for name in ("exposure", "wb_mired", "wb_tint"):
+            hold(name, "the camera's gain multiplies every light and the lights are fitted: they are one")
+    if anchor == "ground":
+        for ch in "rgb":
+            hold(f"ground_{ch}", "the anchor (lookdev.anchor = ground)")
+    elif anchor == "leaves":
+        for ch in "rgb":
+            hold(f"leaves_{ch}", "the anchor (lookdev.anchor = leaves)")
+    elif anchor == "lights":
+        hold("light_level", "the anchor (lookdev.anchor = lights)")
+    problem.anchor = anchor
+    notes.append(f"anchor: {ANCHOR_TEXT[anchor]}, holding the scale of albedos against light (--anchor changes it)")
+    return notes
 
 
 def optimiser_size(config: Config, resolution: int) -> tuple[int, int]:
@@ -173,8 +264,10 @@ def match(
     mask=None,
     variant: str | None = None,
     progress=None,
-    grid: int | None = None,
+    grid: int | str | None = None,
     seed: int | None = None,
+    anchor: str | None = None,
+    map_prior: str | None = None,
 ) -> MatchResult:
     """Fit the look of a :class:`~forest.scene.Scene` to ``reference`` (an image path or an (H, W, 3) linear
     array) and write the results to ``out_dir``; ``progress(fraction, message)`` follows the fit."""
@@ -202,6 +295,8 @@ def match(
         mask=mask,
         variant=variant,
         grid=grid,
+        anchor=anchor,
+        map_prior=map_prior,
     )
     mitsuba(st.variant)
     width, height = optimiser_size(config, st.resolution)
@@ -213,17 +308,30 @@ def match(
     painted = None if st.mask is None else painted_labels(st.mask, ref, width, height, st.fit)
     groups = set(st.params)
     fit_map = "colour_map" in groups and st.mode == "aligned"
-    cells = (st.grid, st.grid) if fit_map else None
     painted_map = None if scene.colour is None else scene.colour.rgb
-    base = base_map(painted_map, (st.grid, st.grid), st.fresh_map) if (fit_map or painted_map is not None) else None
-    if base is not None and not fit_map and painted_map is not None:
-        base = np.asarray(painted_map, np.float64)
     say(0.01, "building the production scene")
     renderer = FitRenderer(
-        scene, width=width, height=height, spp=st.spp, variant=st.variant, base_map=base, haze="haze" in groups
+        scene,
+        width=width,
+        height=height,
+        spp=st.spp,
+        variant=st.variant,
+        base_map=painted_map if painted_map is not None or not fit_map else np.ones((1, 1, 3)),
+        haze="haze" in groups,
     )
     start = renderer.start
     lay = renderer.layers
+    rl = render_labels(lay)
+    cells: tuple[int, int] | None = None
+    base = None if painted_map is None else np.asarray(painted_map, np.float64)
+    if fit_map:
+        if st.grid == "auto":
+            n, grid_note = auto_grid(lay, rl)
+            notes.append(grid_note)
+        else:
+            n = int(st.grid)
+        cells = (n, n)
+        base = base_map(painted_map, cells, st.fresh_map)
     sky_px = ~lay["hit"]
     from .params import GRADIENT_MIN_ELEVATION, HORIZON_BAND_AT_TOP, horizon_band_exponent
 
@@ -242,18 +350,20 @@ def match(
                 "colour as the sky above it"
             )
     specs = specs_for(start, groups)
-    look0 = Look(start_values(start, specs), np.zeros((st.grid, st.grid, 3)) if fit_map else None)
+    look0 = Look(start_values(start, specs), np.zeros((*cells, 3)) if cells is not None else None)
     image = ImageModel(lay["optical"], clip=ref.display_referred)
     rseed = int(config.seed if seed is None else seed)
-    problem = Problem(specs, start, image, None, renderer.n_species, cells=cells)
+    problem = Problem(specs, start, image, None, renderer.n_species, cells=cells, map_prior=st.map_prior)
+    anchor = resolve_anchor(st.anchor, st.mode, rl)
+    notes += hold_degenerate(problem, anchor)
     if st.mode == "statistics":
-        # One photo of another place shows the product of the camera's balance and the light's colour only.
+        # One photo of another place shows the product of the camera's balance and the colours it lit.
         for name in ("wb_mired", "wb_tint"):
-            if any(s.name == name for s in specs):
+            if any(s.name == name for s in specs) and name not in problem.held:
                 problem.held.add(name)
                 problem.held_reasons[name] = "confounded with the light colours in an unrelated photo"
+    problem.map_mean_fixed = fit_map and (anchor == "leaves" or any(s.name.startswith("leaves_") for s in problem.free))
     fitter = Fitter(renderer, problem, base_map=base, seed=rseed ^ SEED_TAG)
-    rl = render_labels(lay)
     if st.mode == "aligned":  # the same camera: the render's regions are the photo's, unless painted
         pl = rl if painted is None else np.where(painted == AUTO, rl, painted)
     else:
@@ -317,4 +427,7 @@ def match(
         losses=[h["total"] for h in res.history],
         held_cells=None if problem.held_cells is None or cells is None else problem.held_cells.reshape(cells),
         cell_information=res.cell_information,
+        grid=None if cells is None else cells[0],
+        anchor=problem.anchor,
+        weak=out["weak"],
     )

@@ -11,9 +11,15 @@ after aerial perspective:
 
 * ``exposure`` EV, range ±10 EV, prior N(0, 4²): a photo's exposure relative to
   the scene's light units is unknown; the prior only keeps the fit finite.
-  Exposure and the overall light level are one degree of freedom, so the total
-  horizontal irradiance G is held at the start's (the gauge) and EV carries the
-  photo's brightness; the written scene folds 2^EV into the lights.
+  The render is linear in its lights, so the camera's gain 2^EV · W and a common
+  factor of every light are *one* thing, exactly (three degrees of freedom, one
+  per channel).  A fit removes that degeneracy by construction: when any light is
+  fitted (groups ``sun`` or ``sky``) the camera is held at neutral (0 EV, D65)
+  and the lights carry the photo's brightness and colour cast — ``light_level``
+  (EV of the global horizontal irradiance G over the start's) its brightness, the
+  sun and sky colour temperatures its colour; only a fit without lights fits the
+  camera, with G held at the start's.  The written scene folds 2^EV · W into the
+  lights either way, so the two are the same look.
 * ``white_balance`` mired (10⁶/T), the colour temperature the camera's
   balance leans to: W = c(T)/c(6504 K) normalised to unit luminance (von Kries
   gains on the daylight locus; c from :mod:`.daylight`), range 2500–12 000 K,
@@ -74,8 +80,22 @@ the band, taken to hold up to the zenith — no extrapolation beyond the frame's
 With no sky in frame the sky is fitted as one colour (zenith = horizon,
 ``sky_tied``) and the gradient reported as held.
 
-**Colour map** (group ``colour_map``, aligned mode): a smooth ln-correction
-field of :mod:`.correction`, σ = 0.5 per cell.
+**Colour map** (group ``colour_map``, aligned mode): an ln-correction per cell of
+:mod:`.correction`, with an edge-preserving prior (``map_prior = "edges"``, the
+default) or the smooth field of earlier versions (``"smooth"``); see
+:mod:`.solve`.
+
+**Anchor.**  Albedos and lights trade too: an image is (to first order, exactly for
+singly scattered light) the product of an albedo and an irradiance, so every albedo
+×a and every light ÷a per channel renders nearly the same picture — only the sky seen
+directly and multiply scattered light tell them apart.  The *anchor* fixes that
+scale by holding one side at what the scene says (:data:`ANCHORS`): ``ground`` (the
+ground's albedo, from the scene's ground rules — the default in aligned mode when the
+frame shows ground), ``leaves`` (the species' measured leaf colours; the colour map's
+mean with them), ``lights`` (the light level of the config) or ``none`` (the priors
+decide — the default in statistics mode, where another place's ground says nothing
+about the scene's).  Where a degeneracy remains, :func:`.solve.weak_directions`
+names it.
 """
 
 from __future__ import annotations
@@ -92,6 +112,12 @@ GRADIENT_MIN_ELEVATION = 30.0
 #: Weight of the horizon colour at the top of the frame's sky when the sky is fitted as a horizon band.
 HORIZON_BAND_AT_TOP = 0.1
 GROUPS = ("camera", "sun", "sky", "leaves", "ground", "haze", "colour_map")
+#: What holds the scale of albedos against light (see the module docstring); ``auto`` picks per mode.
+ANCHORS = ("auto", "ground", "leaves", "lights", "none")
+#: The colour map's prior: edge-preserving cells, or the smooth correction field of earlier versions.
+MAP_PRIORS = ("edges", "smooth")
+#: Light groups: fitting any of them holds the camera (its gain is a common factor of the lights).
+LIGHT_GROUPS = ("sun", "sky")
 #: What a fit varies when ``--params`` is not given, by mode.
 DEFAULT_GROUPS = {
     "aligned": ("camera", "sun", "sky", "leaves", "ground", "haze", "colour_map"),
@@ -209,6 +235,9 @@ class Start:
 def specs_for(start: Start, groups: set[str]) -> list[Spec]:
     """The global parameters of a fit (grid cells are separate), with ranges and priors for this start."""
     out: list[Spec] = []
+    if groups & set(LIGHT_GROUPS) and (start.sun_on or start.sky_kind is not None):
+        # The lights' common level (the camera's exposure is held: they are one degree of freedom).
+        out.append(Spec("light_level", "lights", "light level (sun and sky)", -10.0, 10.0, 0.0, 4.0, "EV"))
     if "camera" in groups:
         out += [
             Spec("exposure", "camera", "camera exposure", -10.0, 10.0, 0.0, 4.0, "EV"),

@@ -269,6 +269,8 @@ def write_outputs(
             for name, p in prod.items()
         }
         table = parameter_table(problem, result)
+        labels = {r["name"]: r["label"] for r in table} | {f"map_mean_{c}": f"colour map mean {c}" for c in "rgb"}
+        weak_text = [w.describe(labels) for w in result.weak]
         write_report(
             tmp / "report.png",
             reference=reference.rgb,
@@ -280,6 +282,7 @@ def write_outputs(
             maps=(None if not fit_map else (fitter.base_map, fitter.grid(best))),
             settings=settings,
             size=(w, h),
+            notes=[f"anchor: {problem.anchor}"] + [f"weak direction: {t}" for t in weak_text],
             region_means=_region_means(
                 reference, photo_labels, render_labels, renderer, clip(ev["start"]), clip(ev["fitted"])
             ),
@@ -290,7 +293,14 @@ def write_outputs(
             "iterations": settings.iterations,
             "spp": settings.spp,
             "resolution": [w, h],
-            "grid": settings.grid if fit_map else None,
+            "grid": problem.cells[0] if fit_map else None,
+            "map_prior": settings.map_prior if fit_map else None,
+            # What held the scale of albedos against light, and the directions the data left weak.
+            "anchor": problem.anchor,
+            "weak_directions": [
+                {"information": _r(w.information, 4), "components": {k: _r(v, 3) for k, v in w.components.items()}}
+                for w in result.weak
+            ],
             "variant": renderer.variant,
             "figures": figures,
             "parameters": table,
@@ -304,6 +314,7 @@ def write_outputs(
         with atomic_path(tmp / "match.json") as j:
             j.write_text(json.dumps(doc, indent=2, sort_keys=True, ensure_ascii=False) + "\n", encoding="utf-8")
     out.update(
+        weak=weak_text,
         scene=out_dir / "scene.toml",
         report=out_dir / "report.png",
         json=out_dir / "match.json",
@@ -336,7 +347,7 @@ def _show(img: np.ndarray) -> np.ndarray:
 
 
 def write_report(
-    path: Path, *, reference, start, fitted, table, figures, history, maps, settings, size, region_means
+    path: Path, *, reference, start, fitted, table, figures, history, maps, settings, size, region_means, notes=()
 ) -> Path:
     """report.png (see the module docstring)."""
     import matplotlib
@@ -437,6 +448,8 @@ def write_report(
         tab.auto_set_font_size(False)
         tab.set_fontsize(8)
         tab.scale(1.0, 1.25)
+    if notes:
+        ax.text(0.0, 0.0, "\n".join(notes), transform=ax.transAxes, fontsize=8, va="top", ha="left", wrap=True)
     w, h = size
     fig.suptitle(
         f"forest match — {settings.mode}, {len(history) - 1} iterations × {settings.spp} spp at {w}×{h}; "

@@ -19,14 +19,31 @@ Around the look θ_k the render is modelled as
 
 Through the image model (:mod:`.image_model`: exposure, white balance,
 clipping, and a change of haze) and the data residuals (:mod:`.losses`), plus the priors — (θ − μ)/σ
-for every global parameter, c/σ_c and the smoothness differences of the map
-cells, and the constraint that species' relative leaf multipliers sum to
-zero — the step minimises ½‖r‖² with ``scipy.optimize.least_squares``
+for every global parameter, the map cells' prior (below), and the constraint that species'
+relative leaf multipliers sum to zero — the step minimises ½‖r‖² with ``scipy.optimize.least_squares``
 (trust-region reflective, Branch, Coleman & Li 1999) inside the parameters'
 ranges intersected with a trust box around θ_k for the linearised albedo
 parameters.  The Jacobian of the global parameters is taken by finite
 differences of the surrogate (a few dozen cheap evaluations), the map cells'
 analytically and sparse.
+
+**The colour map's prior.**  ``map_prior = "edges"`` (the default) lets a painted
+map's patches be recovered: each cell's ln-correction c has a weak prior N(0,
+:data:`EDGE_CELL_SIGMA`²) around the painted map, and the ln-difference d of every two
+4-neighbour cells the Huber penalty λ·s·h(d/s), h(x) = x²/2 for |x| ≤ 1 and |x| − ½
+beyond (Huber 1964), s = :data:`EDGE_SCALE`, λ = :data:`EDGE_WEIGHT` — quadratic for
+differences within the noise, growing only linearly (total variation, Rudin, Osher &
+Fatemi 1992) across an edge, so an edge costs in proportion to its height and not its
+square: a patch boundary the data show is kept sharp, while a cell the data see
+poorly takes its neighbours' value.  As a residual, r = √(2λ s h(d/s)) with d's sign;
+the Gauss–Newton weight of an edge then falls as 1/|d| (iteratively reweighted least
+squares).  ``"smooth"`` is the earlier field: N(0, :data:`CELL_SIGMA`²) per cell and
+Gaussian neighbour differences of σ = 1/(n − 1) (:func:`cell_smooth`), which forbids
+edges and suits a small correction of a map the artist trusts.
+
+When the leaf colours are fitted too (or held as the anchor) the map's mean is the
+same thing as the leaf tint: the mean of the free cells' correction is then held at 0
+(σ :data:`MEAN_SIGMA`) and the leaf tint carries it.
 
 **What the reference determines.**  At the first step the data's Fisher
 information F = J̃ᵀJ̃ of the global parameters (J̃ in prior units, columns
@@ -35,12 +52,17 @@ a parameter's prior variance left after the data.  A parameter whose share
 stays above :data:`UNDETERMINED` (the reference narrows it by less than 10 %) is
 held at its start value and reported as undetermined, rather than traded
 against the parameters it is confounded with; the others are fitted with
-their priors.
+their priors.  A statement about each parameter alone misses the directions the
+data leave free *together* (a brighter light and darker albedos): the
+eigenvectors of F with the smallest eigenvalues are those directions, and
+:func:`weak_directions` names every one the data determine less than the priors
+do (eigenvalue below :data:`WEAK`), in the parameters' own terms.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -51,8 +73,18 @@ from .losses import PixelLoss, RegionLoss
 from .params import Look, Spec, Start
 
 UNDETERMINED = 0.9
-#: Prior σ of a colour-map ln-correction cell.
+#: A direction of the global parameters along which the data's information is below this (in prior units) is weak.
+WEAK = 1.0
+#: Prior σ of a colour-map ln-correction cell (``map_prior = "smooth"``).
 CELL_SIGMA = 0.5
+#: Prior σ of a cell's ln-correction under the edge-preserving prior: weak, so the data decide wherever they see it.
+EDGE_CELL_SIGMA = 1.0
+#: Huber scale s of the neighbour ln-differences (quadratic below it, linear above).
+EDGE_SCALE = 0.05
+#: Weight λ of the neighbour penalty: an edge of height d costs about λ·|d|.
+EDGE_WEIGHT = 1.0
+#: σ of the mean of the free cells' correction when the leaf tint carries the mean.
+MEAN_SIGMA = 0.01
 #: Prior σ of the ln-correction's change across the whole map: a difference between neighbouring cells of an
 #: n-cell side has σ = CELL_SPAN / (n − 1) (a smooth field whose slope is the same at any grid), at least
 #: :data:`CELL_SMOOTH_MIN`.
@@ -63,6 +95,20 @@ CELL_SMOOTH_MIN = 0.02
 def cell_smooth(cells: tuple[int, int]) -> float:
     """σ of a difference between neighbouring correction cells (see :data:`CELL_SPAN`)."""
     return max(CELL_SPAN / max(max(cells) - 1, 1), CELL_SMOOTH_MIN)
+
+
+def huber_residuals(
+    d: np.ndarray, scale: float = EDGE_SCALE, weight: float = EDGE_WEIGHT
+) -> tuple[np.ndarray, np.ndarray]:
+    """(r, dr/dd) with ½r² = λ·s·h(d/s) (the edge-preserving prior of the module docstring)."""
+    d = np.asarray(d, np.float64)
+    a = np.abs(d)
+    inner = a <= scale
+    k = math.sqrt(weight / scale)
+    excess = np.maximum(a - 0.5 * scale, 0.5 * scale)
+    r = np.where(inner, k * d, np.sign(d) * np.sqrt(2.0 * weight * excess))
+    dr = np.where(inner, k, np.sqrt(weight / (2.0 * excess)))
+    return r, dr
 
 
 #: σ of the sum of species' relative leaf ln-multipliers (a soft equality constraint).
@@ -81,6 +127,13 @@ class Linearisation:
     ground_e: np.ndarray | None  # (H, W, 3)
     grid_e: np.ndarray | None  # (9, H, W, 3) elasticities to the class-k cell of each pixel
     grid_cells: np.ndarray | None  # (H·W, 9) cell index of each class per pixel (−1 none)
+    light_images_b: dict[str, np.ndarray] | None = None  # a second, independent render of the U_l (unbiased steps)
+
+    def other(self) -> Linearisation:
+        """The same surrogate over the second, independent light images (itself when there are none)."""
+        if self.light_images_b is None:
+            return self
+        return replace(self, light_images=self.light_images_b, light_images_b=self.light_images)
 
 
 @dataclass
@@ -96,10 +149,24 @@ class Problem:
     held: set[str] = field(default_factory=set)
     held_reasons: dict[str, str] = field(default_factory=dict)  # parameter → why it is held (set before a fit)
     held_cells: np.ndarray | None = None  # (n·m,) bool
+    map_prior: str = "edges"  # "edges" | "smooth" (module docstring)
+    map_mean_fixed: bool = False  # the leaf tint carries the map's mean
+    anchor: str = "none"  # what holds the scale of albedos against light (forest.lookdev.params)
 
     @property
     def free(self) -> list[Spec]:
         return [s for s in self.specs if s.name not in self.held]
+
+    @property
+    def cell_sigma(self) -> float:
+        """Prior σ of one cell's ln-correction."""
+        return EDGE_CELL_SIGMA if self.map_prior == "edges" else CELL_SIGMA
+
+    def cell_free_mask(self) -> np.ndarray:
+        """(n·m,) bool: the cells the fit varies."""
+        assert self.cells is not None
+        n = self.cells[0] * self.cells[1]
+        return np.ones(n, bool) if self.held_cells is None else ~self.held_cells
 
     # -- the surrogate --------------------------------------------------------------------
     def light_scales(self, look: Look) -> dict[str, np.ndarray]:
@@ -174,8 +241,12 @@ class Problem:
                 parts.append(np.array([sum(look.get(f"leaf{s}_{ch}") for s in range(self.n_species)) / SUM_SIGMA]))
         if look.correction is not None and self.cells is not None:
             c = look.correction.reshape(-1, 3)
-            parts.append((c / CELL_SIGMA).ravel())
-            parts.append((smoothness(self.cells) @ c / cell_smooth(self.cells)).ravel())
+            parts.append((c / self.cell_sigma).ravel())
+            d = (smoothness(self.cells) @ c).ravel()
+            parts.append(d / cell_smooth(self.cells) if self.map_prior == "smooth" else huber_residuals(d)[0])
+            if self.map_mean_fixed:
+                free = self.cell_free_mask()
+                parts.append(c[free].mean(axis=0) / MEAN_SIGMA if free.any() else np.zeros(3))
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def data_residuals(self, photo: np.ndarray) -> np.ndarray:
@@ -269,7 +340,7 @@ def _grid_jacobian(problem: Problem, look: Look, lin: Linearisation) -> sp.csr_m
     m = sp.csr_matrix(
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(h * w * 3, n_cells * 3)
     )
-    return problem.loss.project(m[:, problem._cell_free()]).tocsr()
+    return problem.loss.project(m[:, problem._cell_free()], problem.photo_model(look, render, lin.look)).tocsr()
 
 
 def prior_jacobian(problem: Problem, look: Look) -> sp.csr_matrix:
@@ -290,15 +361,60 @@ def prior_jacobian(problem: Problem, look: Look) -> sp.csr_matrix:
     if look.correction is not None and problem.cells is not None:
         n = problem.cells[0] * problem.cells[1]
         keep = problem._cell_free()
-        eye = sp.identity(n * 3, format="csr") / CELL_SIGMA
-        d3 = sp.kron(smoothness(problem.cells), sp.identity(3), format="csr") / cell_smooth(problem.cells)
+        eye = sp.identity(n * 3, format="csr") / problem.cell_sigma
+        d3 = sp.kron(smoothness(problem.cells), sp.identity(3), format="csr")
+        if problem.map_prior == "smooth":
+            d3 = d3 / cell_smooth(problem.cells)
+        else:
+            d = d3 @ look.correction.reshape(-1)
+            d3 = sp.diags(huber_residuals(d)[1]) @ d3
         blocks_rows.append(sp.hstack([sp.csr_matrix((n * 3, ng)), eye[:, keep]]))
-        blocks_rows.append(sp.hstack([sp.csr_matrix((d3.shape[0], ng)), d3[:, keep]]))
+        blocks_rows.append(sp.hstack([sp.csr_matrix((d3.shape[0], ng)), d3.tocsr()[:, keep]]))
+        if problem.map_mean_fixed:
+            cf = problem.cell_free_mask()
+            row = sp.kron(sp.csr_matrix(cf[None].astype(np.float64) / max(int(cf.sum()), 1)), sp.identity(3))
+            blocks_rows.append(sp.hstack([sp.csr_matrix((3, ng)), (row.tocsr() / MEAN_SIGMA)[:, keep]]))
     return sp.vstack(blocks_rows, format="csr")
 
 
-def undetermined(problem: Problem, look: Look, lin: Linearisation) -> tuple[dict[str, float], np.ndarray | None]:
-    """(posterior/prior variance share of each free global parameter, data information per map cell)."""
+@dataclass
+class WeakDirection:
+    """A direction of the global parameters (prior units) the data determine less than the priors do."""
+
+    information: float  # eigenvalue of the data's Fisher information, in prior units (1 = as much as the prior)
+    components: dict[str, float]  # parameter → its weight in the unit eigenvector (largest first)
+
+    def describe(self, labels: dict[str, str] | None = None, top: int = 4) -> str:
+        """``+0.71 light level − 0.62 ground colour g …``: the largest components, with the information."""
+        labels = labels or {}
+        items = sorted(self.components.items(), key=lambda kv: -abs(kv[1]))[:top]
+        terms = " ".join(f"{'−' if w < 0 else '+'}{abs(w):.2f} {labels.get(n, n)}" for n, w in items)
+        return f"{terms.lstrip('+')} (information {self.information:.3g} × the prior's)"
+
+
+def weak_directions(f: np.ndarray, names: list[str], threshold: float = WEAK) -> list[WeakDirection]:
+    """The eigenvectors of the Fisher information ``f`` (prior units) with eigenvalues below ``threshold``,
+    weakest first; each vector's sign makes its largest component positive, components under 0.1 are left out."""
+    if not len(names):
+        return []
+    vals, vecs = np.linalg.eigh(0.5 * (f + f.T))
+    out = []
+    for k in np.argsort(vals):
+        if vals[k] >= threshold:
+            break
+        v = vecs[:, k]
+        v = v * np.sign(v[np.argmax(np.abs(v))])
+        comp = {n: float(w) for n, w in zip(names, v) if abs(w) >= 0.1}
+        out.append(WeakDirection(float(max(vals[k], 0.0)), dict(sorted(comp.items(), key=lambda kv: -abs(kv[1])))))
+    return out
+
+
+def undetermined(
+    problem: Problem, look: Look, lin: Linearisation
+) -> tuple[dict[str, float], np.ndarray | None, tuple[np.ndarray, list[str]]]:
+    """(posterior/prior variance share of each free global parameter, data information per map cell, and the
+    data's Fisher information in prior units over the free global parameters — with the colour map's mean per
+    channel, ``map_mean_r/g/b``, when it is free — with their names, for :func:`weak_directions`)."""
     r0 = problem.data_residuals(problem.predict(look, lin))
     jg = _global_jacobian(problem, look, lin, r0)
     sig = np.array([s.sigma for s in problem.free])
@@ -307,18 +423,50 @@ def undetermined(problem: Problem, look: Look, lin: Linearisation) -> tuple[dict
     cov = np.linalg.inv(f + np.eye(len(sig)))
     shares = {s.name: float(cov[i, i]) for i, s in enumerate(problem.free)}
     info = None
+    names = [s.name for s in problem.free]
+    cols = [jt]
     if look.correction is not None and lin.grid_e is not None:
         jc = _grid_jacobian(problem, look, lin)
-        per_col = np.asarray(jc.multiply(jc).sum(axis=0)).ravel() * CELL_SIGMA**2
+        per_col = np.asarray(jc.multiply(jc).sum(axis=0)).ravel() * problem.cell_sigma**2
         info = per_col.reshape(-1, 3).sum(axis=1)
-    return shares, info
+        if not problem.map_mean_fixed:
+            # The map's mean ln-correction per channel (every free cell at once), with the prior σ of one cell.
+            free = problem._cell_free()
+            chan = np.tile(np.arange(3), len(free) // 3)[free]
+            mean_cols = np.stack([np.asarray(jc[:, chan == c].sum(axis=1)).ravel() for c in range(3)], axis=1)
+            cols.append(mean_cols * problem.cell_sigma)
+            names += [f"map_mean_{ch}" for ch in "rgb"]
+    ja = np.concatenate(cols, axis=1)
+    return shares, info, (ja.T @ ja, names)
 
 
-def step(problem: Problem, lin: Linearisation, *, trust: float = TRUST, max_nfev: int = 40) -> Look:
-    """The minimiser of the surrogate's ½‖r‖² within the ranges and the trust box around θ_k."""
-    from scipy.optimize import least_squares
+#: Most Levenberg–Marquardt iterations of one step on the surrogate.
+STEP_ITERATIONS = 25
+
+
+def _jacobian(problem: Problem, look: Look, lin: Linearisation, r: np.ndarray, cells: bool) -> sp.csr_matrix:
+    """∂r/∂x of the data residuals: the global parameters by finite differences, the map cells sparse."""
+    blocks = [sp.csr_matrix(_global_jacobian(problem, look, lin, r))]
+    if cells:
+        blocks.append(_grid_jacobian(problem, look, lin))
+    return sp.hstack(blocks, format="csr")
+
+
+def step(problem: Problem, lin: Linearisation, *, trust: float = TRUST, max_iter: int = STEP_ITERATIONS) -> Look:
+    """The minimiser of the surrogate's objective within the ranges and the trust box around θ_k.
+
+    With two independent renders of the light images (``lin.light_images_b``) the data term is ½ r_Aᵀ r_B, the
+    surrogate's residuals over each: its expectation is the squared bias alone, so the step is not drawn towards
+    looks whose render is less noisy (the errors-in-variables bias of :mod:`.losses`); with one, ½‖r‖².  It is
+    minimised by Levenberg–Marquardt (Marquardt 1963) with the Gauss–Newton matrix J̄ᵀJ̄ + J_pᵀJ_p
+    (J̄ = (J_A + J_B)/2, J_p the priors'), the exact gradient ½(J_Aᵀ r_B + J_Bᵀ r_A) + J_pᵀ p, and the box handled
+    by an active set (a variable on a bound whose gradient pushes outwards is held there); a trial is taken only
+    when it lowers the objective."""
+    from scipy.sparse.linalg import spsolve
 
     look0 = lin.look
+    pair = (lin, lin.other())
+    two = lin.light_images_b is not None
     x0 = problem.pack(look0)
     free = problem.free
     lo = np.array([s.lo for s in free], np.float64)
@@ -332,43 +480,47 @@ def step(problem: Problem, lin: Linearisation, *, trust: float = TRUST, max_nfev
         xc = x0[len(free) :]
         lo = np.r_[lo, np.maximum(xc - trust, -3.0)]
         hi = np.r_[hi, np.minimum(xc + trust, 3.0)]
-    x0 = np.clip(x0, lo, hi)
-    cache: dict[bytes, tuple[Look, np.ndarray]] = {}
+    x = np.clip(x0, lo, hi)
+    if not len(x):
+        return problem.unpack(x, look0)
 
-    def state(x):
-        key = x.tobytes()
-        if key not in cache:
-            cache.clear()
-            look = problem.unpack(x, look0)
-            r = problem.data_residuals(problem.predict(look, lin))
-            cache[key] = (look, r)
-        return cache[key]
+    def objective(x: np.ndarray) -> tuple[float, Look, np.ndarray, np.ndarray, np.ndarray]:
+        look = problem.unpack(x, look0)
+        ra = problem.data_residuals(problem.predict(look, pair[0]))
+        rb = problem.data_residuals(problem.predict(look, pair[1])) if two else ra
+        p = problem.prior_residuals(look)
+        return 0.5 * float(ra @ rb) + 0.5 * float(p @ p), look, ra, rb, p
 
-    def fun(x):
-        look, r = state(x)
-        return np.concatenate([r, problem.prior_residuals(look)])
-
-    def jac(x):
-        look, r = state(x)
-        jg = sp.csr_matrix(_global_jacobian(problem, look, lin, r))
-        blocks = [jg]
-        if nc:
-            blocks.append(_grid_jacobian(problem, look, lin))
-        data = sp.hstack(blocks, format="csr")
-        full = sp.vstack([data, prior_jacobian(problem, look)], format="csr")
-        return full if nc else full.toarray()
-
-    scale = np.r_[np.array([s.sigma for s in free]), np.full(nc, CELL_SIGMA)]
-    res = least_squares(
-        fun,
-        x0,
-        jac=jac,
-        bounds=(lo, hi),
-        method="trf",
-        tr_solver="lsmr" if nc else "exact",
-        x_scale=scale,
-        max_nfev=max_nfev,
-        xtol=1e-6,
-        ftol=1e-6,
-    )
-    return problem.unpack(res.x, look0)
+    f, look, ra, rb, p = objective(x)
+    damping = 1e-3
+    span = np.maximum(hi - lo, 1e-12)
+    for _ in range(max_iter):
+        ja = _jacobian(problem, look, pair[0], ra, bool(nc))
+        jb = _jacobian(problem, look, pair[1], rb, bool(nc)) if two else ja
+        jp = prior_jacobian(problem, look)
+        g = 0.5 * (ja.T @ rb + jb.T @ ra) + jp.T @ p
+        jm = 0.5 * (ja + jb)
+        h = (jm.T @ jm + jp.T @ jp).tocsc()
+        diag = np.maximum(h.diagonal(), 1e-12)
+        held = ((x <= lo + 1e-12 * span) & (g > 0)) | ((x >= hi - 1e-12 * span) & (g < 0))
+        act = np.flatnonzero(~held)
+        if not len(act):
+            break
+        h_act = h[act][:, act]
+        improved = False
+        for _try in range(12):
+            a = h_act + sp.diags(damping * diag[act])
+            delta = np.zeros_like(x)
+            delta[act] = -np.atleast_1d(spsolve(a.tocsc(), g[act]))
+            trial = np.clip(x + delta, lo, hi)
+            f_new, look_new, ra_new, rb_new, p_new = objective(trial)
+            if f_new < f:
+                improved = True
+                done = f - f_new <= 1e-7 * max(abs(f), 1e-12) or np.max(np.abs(trial - x) / span) < 1e-7
+                x, f, look, ra, rb, p = trial, f_new, look_new, ra_new, rb_new, p_new
+                damping = max(damping / 3.0, 1e-9)
+                break
+            damping *= 4.0
+        if not improved or done:
+            break
+    return look
