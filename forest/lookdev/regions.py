@@ -20,7 +20,16 @@ segmentation assigns the same three regions:
 2. *ground* and *canopy* among the rest, row by row: the cameras roughly
    match, so a row of the photo gets the share of ground its row in the render
    has (among non-sky pixels, smoothed over ±5 % of the height), and the
-   pixels given to the ground are the least green of the row.
+   pixels given to the ground are the row's most ground-like.  What is
+   ground-like is learnt from the render of the same view: five features per
+   pixel — ln Y, excess green, ln(r/g), ln(b/g) and the 3×3 spread of ln Y —
+   each standardised over its own image's non-sky pixels, and Fisher's linear
+   discriminant (Fisher 1936) between the render's ground and canopy pixels
+   gives the direction along which the photo's pixels are ranked.  Standardised
+   features carry the render's *relative* cues to the photo whatever the start
+   look's colours: ground brighter than canopy on a meadow, yellower on an
+   autumn hillside, smoother under a canopy.  Without a render image (or with
+   too few pixels of either) the least green are the ground.
 
 Its limits: it needs the camera to frame the scene roughly as the photo does
 (the ground share per row comes from the render); it cannot tell a green
@@ -125,9 +134,51 @@ def _otsu(x: np.ndarray) -> float:
     return float(mids[int(np.argmax(between))])
 
 
-def segment_photo(rgb: np.ndarray, render: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
+#: Features of :func:`ground_score`: ln Y, excess green, ln(r/g), ln(b/g), the 3×3 spread of ln Y.
+N_FEATURES = 5
+
+
+def pixel_features(rgb: np.ndarray) -> np.ndarray:
+    """(H, W, :data:`N_FEATURES`) features of a linear image for telling ground from canopy."""
+    from scipy.ndimage import uniform_filter
+
+    c = np.maximum(np.asarray(rgb, np.float64), 1e-5)
+    ly = np.log(np.maximum(c @ np.array([0.2126, 0.7152, 0.0722]), 1e-5))
+    exg = (2 * c[..., 1] - c[..., 0] - c[..., 2]) / c.sum(axis=2)
+    mean = uniform_filter(ly, 3, mode="nearest")
+    spread = np.sqrt(np.maximum(uniform_filter(ly * ly, 3, mode="nearest") - mean * mean, 0.0))
+    return np.stack([ly, exg, np.log(c[..., 0] / c[..., 1]), np.log(c[..., 2] / c[..., 1]), spread], axis=-1)
+
+
+def _standardised(f: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    mu = f[mask].mean(axis=0)
+    sd = f[mask].std(axis=0) + 1e-6
+    return (f - mu) / sd
+
+
+def ground_score(rgb: np.ndarray, sky: np.ndarray, render: np.ndarray, render_rgb: np.ndarray | None) -> np.ndarray:
+    """(H, W): how ground-like each photo pixel is (higher: more), by Fisher's discriminant between the render's
+    ground and canopy pixels on standardised features (module docstring, step 2); minus excess green without a
+    render image."""
+    fp = pixel_features(rgb)
+    fallback = -fp[..., 1]
+    if render_rgb is None or not (~sky).any():
+        return fallback
+    zp = _standardised(fp, ~sky)
+    zr = _standardised(pixel_features(render_rgb), render != SKY)
+    a, b = zr[render == GROUND], zr[render == CANOPY]
+    if len(a) < 5 or len(b) < 5:
+        return fallback
+    pooled = np.concatenate([a - a.mean(axis=0), b - b.mean(axis=0)])
+    cov = pooled.T @ pooled / max(len(pooled) - 1, 1) + 1e-3 * np.eye(N_FEATURES)
+    return zp @ np.linalg.solve(cov, a.mean(axis=0) - b.mean(axis=0))
+
+
+def segment_photo(
+    rgb: np.ndarray, render: np.ndarray, weight: np.ndarray | None = None, render_rgb: np.ndarray | None = None
+) -> np.ndarray:
     """Automatic SKY / CANOPY / GROUND labels of a linear photo (H, W, 3), guided by the render's labels
-    ``render`` (H, W) of the same view (see the module docstring)."""
+    ``render`` (H, W) of the same view and, when given, its image ``render_rgb`` (see the module docstring)."""
     from scipy.ndimage import label as components
     from scipy.ndimage import uniform_filter
 
@@ -154,12 +205,13 @@ def segment_photo(rgb: np.ndarray, render: np.ndarray, weight: np.ndarray | None
     share = np.interp(rows, rows[known], share[known]) if known.any() else np.zeros(h)
     k = max(1, int(round(0.05 * h)))
     share = uniform_filter(share, 2 * k + 1, mode="nearest")
+    score = ground_score(rgb, sky, render, render_rgb)
     for r in range(h):
         free = np.flatnonzero(~sky[r])
         n_ground = int(round(share[r] * len(free)))
         if n_ground <= 0 or not len(free):
             continue
-        order = free[np.argsort(exg[r, free], kind="stable")]
+        order = free[np.argsort(-score[r, free], kind="stable")]
         labels[r, order[:n_ground]] = GROUND
     if weight is not None:
         labels[weight <= 0] = IGNORE
@@ -215,9 +267,11 @@ def skyline_sky(ly: np.ndarray, exg: np.ndarray, render: np.ndarray) -> np.ndarr
     return (np.arange(h)[:, None] < np.where(found, smooth, 0)[None, :]) & (exg < 0.1)
 
 
-def photo_labels(rgb: np.ndarray, render: np.ndarray, painted: np.ndarray | None) -> np.ndarray:
+def photo_labels(
+    rgb: np.ndarray, render: np.ndarray, painted: np.ndarray | None, render_rgb: np.ndarray | None = None
+) -> np.ndarray:
     """The photo's labels: the painted mask where it names a region, the automatic segmentation elsewhere."""
-    auto = segment_photo(rgb, render)
+    auto = segment_photo(rgb, render, render_rgb=render_rgb)
     if painted is None:
         return auto
     return np.where(painted == AUTO, auto, painted)
@@ -294,3 +348,44 @@ def region_means(image: np.ndarray, masks: list[np.ndarray]) -> np.ndarray:
     """(K, 3) mean linear colour of each flat mask."""
     flat = np.asarray(image, np.float64).reshape(-1, 3)
     return np.stack([flat[m].mean(axis=0) for m in masks]) if masks else np.zeros((0, 3))
+
+
+#: Percentiles of L*, a*, b* a region's statistics give (beyond its mean colour).
+PERCENTILES = (10, 50, 90)
+
+
+def region_statistics(image: np.ndarray, mask: np.ndarray) -> dict[str, list[float]]:
+    """The spread of a region's colours: the :data:`PERCENTILES` of CIELAB L*, a*, b* of ``image``'s (linear,
+    (H, W, 3)) pixels in the flat ``mask`` — what a mean hides (a canopy of one flat colour and one of dark
+    gaps and bright crowns can share a mean)."""
+    from .colour import rgb_to_lab
+
+    px = np.asarray(image, np.float64).reshape(-1, 3)[np.asarray(mask, bool).ravel()]
+    if not len(px):
+        return {}
+    lab = rgb_to_lab(np.maximum(px, 0.0))
+    return {k: [float(v) for v in np.percentile(lab[:, i], PERCENTILES)] for i, k in enumerate(("L*", "a*", "b*"))}
+
+
+def lit_contrast(image: np.ndarray, mask: np.ndarray, fraction: float) -> float | None:
+    """Mean luminance of a region's lit part over its shadowed part (:func:`split_lit` with the render's sunlit
+    ``fraction``), or None when either part is empty."""
+    lit, dark = split_lit(np.asarray(mask, bool).ravel(), image, fraction)
+    if not lit.any() or not dark.any():
+        return None
+    y = lightness(image)
+    return float(y[lit].mean() / max(y[dark].mean(), 1e-12))
+
+
+def label_iou(labels: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    """Intersection over union of each region (sky, canopy, ground) between ``labels`` and painted ``truth``
+    labels of the same shape, over the pixels ``truth`` names (ignored and automatic pixels left out); a region
+    neither names is left out."""
+    keep = truth >= 0
+    out = {}
+    for lab, name in NAMES.items():
+        a, b = (labels == lab) & keep, (truth == lab) & keep
+        union = int((a | b).sum())
+        if union:
+            out[name] = float((a & b).sum() / union)
+    return out
