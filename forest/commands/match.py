@@ -161,7 +161,7 @@ def register(app: typer.Typer) -> None:
                     f"determined {100 * row['determined']:.0f} %){note}"
                 )
             for text in result.weak:
-                typer.echo(f"  weak direction (the data determine it less than the priors): {text}")
+                typer.echo(f"  weak direction: {text}")
             typer.echo(f"fitted {', '.join(result.fitted)} in {result.seconds:.1f} s ({result.variant})")
             for p in result.paths:
                 typer.echo(f"wrote {p}")

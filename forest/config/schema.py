@@ -778,7 +778,7 @@ class LookdevConfig(Section):
     grid: Annotated[Int, Field(ge=1, le=64)] | Literal["auto"] = Field(
         "auto",
         description="Colour-map cells per side the fit varies (1 to 64), or 'auto': the finest grid whose cells that "
-        "hold trees have at least 24 canopy pixels each (median) in the fit's render.",
+        "hold trees have on average at least 24 canopy pixels in the fit's render.",
     )
     map_prior: Literal["edges", "smooth"] = Field(
         "edges",

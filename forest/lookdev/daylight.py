@@ -64,9 +64,18 @@ def daylight_duv(kelvin) -> np.ndarray:
     return np.interp(mired(kelvin), m, duv)
 
 
+@lru_cache(maxsize=1)
+def _xyz_to_rgb() -> np.ndarray:
+    """XYZ → linear sRGB (D65): the inverse of colour-science's sRGB matrix, taken once (a fit asks for
+    thousands of light colours, and a matrix product is what ``colour.XYZ_to_RGB`` computes)."""
+    from .colour import srgb_matrix
+
+    return np.linalg.inv(srgb_matrix())
+
+
 def locus_rgb(kelvin, duv=0.0) -> np.ndarray:
     """Linear sRGB with unit luminance of the colour (T, Duv); broadcasts, shape (..., 3)."""
-    from .colour import luminance, xyz_to_rgb
+    from .colour import luminance
 
     m, on, normal, _ = _tables()
     mk = np.clip(mired(kelvin), m[0], m[-1])
@@ -78,7 +87,7 @@ def locus_rgb(kelvin, duv=0.0) -> np.ndarray:
     x, y = 3.0 * u / den, 2.0 * v / den
     xyz = np.stack([x / y, np.ones_like(x), (1.0 - x - y) / y], axis=-1)
     # Below about 2500 K the locus leaves the sRGB gamut (blue < 0): clipped, as a renderer's RGB light must be.
-    rgb = np.maximum(xyz_to_rgb(xyz), 1e-3)
+    rgb = np.maximum(xyz @ _xyz_to_rgb().T, 1e-3)
     return rgb / luminance(rgb)[..., None]
 
 

@@ -31,13 +31,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .correction import cell_classes, pixel_cells, upsample_operator
+from .correction import cell_classes, pixel_cells, pixel_weights, upsample_operator
 from .look import ground_tint, leaf_tints
 from .params import Look
 from .renders import FitRenderer
 from .solve import TRUST, UNDETERMINED, Linearisation, Problem, WeakDirection, step, undetermined, weak_directions
 
-REFRESH = (3,)
+REFRESH: tuple[int, ...] = ()
 #: Largest elasticity of a pixel to an albedo multiplier (its light bounced that often on the albedo).
 MAX_ELASTICITY = 4.0
 #: A colour-map cell whose data information (in prior units) is below this is unseen and held as painted; the
@@ -45,6 +45,11 @@ MAX_ELASTICITY = 4.0
 UNSEEN_CELL = 0.01
 #: Light images pooled into the surrogate (the latest renders, see :meth:`Fitter._pooled`).
 POOL = 8
+#: How the map cells' elasticities are measured: "weights" (the tinted albedos' elasticity shared out by each
+#: pixel's bilinear weights, no extra render) or "renders" (nine forward renders, one per class of cells).
+MAP_ELASTICITY = "renders"
+#: Largest ln-change of any albedo between a pooled image's look and the current one (see :meth:`Fitter._pooled`).
+POOL_RADIUS = 0.5
 IMPLAUSIBLE = 3.0
 HOLDOUT_SEED = 0x0D0E_5EED
 #: Offset of the seed of each iteration's second, independent light images.
@@ -102,6 +107,7 @@ class Fitter:
         self.seed = int(seed)
         self._up = None
         self._pool: list[tuple[Look, dict[str, np.ndarray], dict[str, np.ndarray]]] = []
+        self._last: Linearisation | None = None
         if problem.cells is not None and base_map is not None:
             self._up = upsample_operator(base_map.shape[:2], problem.cells)
 
@@ -144,7 +150,14 @@ class Fitter:
         total = sum(u[n] * s for n, s in self.p.light_scales(look).items() if n in u)
         if previous is not None and k not in REFRESH:
             lin = Linearisation(
-                look, u, previous.leaf_e, previous.ground_e, previous.grid_e, previous.grid_cells, light_images_b=ub
+                look,
+                u,
+                previous.leaf_e,
+                previous.ground_e,
+                previous.grid_e,
+                previous.grid_cells,
+                light_images_b=ub,
+                grid_at=previous.grid_at,
             )
             return self._pooled(lin)
         inv = np.where(total > 1e-7, 1.0 / np.maximum(total, 1e-7), 0.0)
@@ -157,27 +170,47 @@ class Fitter:
         if "ground" in groups:
             ground_e = elasticity(self.r.log_derivative("ground", seed), inv)
         if look.correction is not None and self.p.cells is not None and self._up is not None:
-            cur = self.grid(look)
-            assert cur is not None
-            classes = cell_classes(self.p.cells).ravel()
-            grid_e = np.zeros((9, *total.shape))
-            for c in range(9):
-                ind = (classes == c).astype(np.float64)
-                tangent = cur * (self._up @ ind).reshape(cur.shape[:2])[..., None]
-                if not tangent.any():
-                    continue
-                grid_e[c] = elasticity(self.r.log_derivative("grid", seed, tangent=tangent), inv)
             lay = self.r.layers
             cells = pixel_cells(lay["u"].ravel(), lay["v"].ravel(), self.p.cells)
-        return self._pooled(Linearisation(look, u, leaf_e, ground_e, grid_e, cells, light_images_b=ub))
+            if MAP_ELASTICITY == "renders":
+                cur = self.grid(look)
+                assert cur is not None
+                classes = cell_classes(self.p.cells).ravel()
+                grid_e = np.zeros((9, *total.shape))
+                for c in range(9):
+                    ind = (classes == c).astype(np.float64)
+                    tangent = cur * (self._up @ ind).reshape(cur.shape[:2])[..., None]
+                    if not tangent.any():
+                        continue
+                    grid_e[c] = elasticity(self.r.log_derivative("grid", seed, tangent=tangent), inv)
+            else:
+                # What the map tints met the light: every species' leaves (and the ground where the map tints it).
+                tinted = (
+                    leaf_e.sum(axis=0) if leaf_e is not None else elasticity(self.r.log_derivative("leaves", seed), inv)
+                )
+                if self.r.terrain_tinted:
+                    tinted = tinted + (
+                        ground_e if ground_e is not None else elasticity(self.r.log_derivative("ground", seed), inv)
+                    )
+                w = pixel_weights(lay["u"].ravel(), lay["v"].ravel(), self.p.cells)
+                grid_e = w.T.reshape(9, *total.shape[:2], 1) * tinted[None]
+        grid_at = None if look.correction is None else look.correction.copy()
+        return self._pooled(Linearisation(look, u, leaf_e, ground_e, grid_e, cells, light_images_b=ub, grid_at=grid_at))
 
     def _pooled(self, lin: Linearisation) -> Linearisation:
         """``lin`` with each light image the mean of this fit's light images so far, each carried to ``lin``'s
-        albedos by the elasticities (U_j ⊙ exp(Σ e (ln m_k − ln m_j))): their noise averages down, so the
-        surrogate's errors-in-variables bias (:mod:`.losses`) shrinks with every iteration.  Images rendered
+        albedos by the elasticities (U_j ⊙ exp(Σ e (ln m_k − ln m_j))): their noise averages down with every
+        iteration.  The carry is first order in ln m — exact for singly scattered light, not for the rest — so
+        only images rendered within :data:`POOL_RADIUS` of ``lin``'s albedos (largest ln-change of any albedo or
+        map cell) are pooled: a fit's first, long steps do not drag their start's images along.  Images rendered
         at another haze density are not pooled (their difference is not a product)."""
         haze = lin.look.get("haze", self.p.start.haze)
-        same = [entry for entry in self._pool if abs(entry[0].get("haze", self.p.start.haze) - haze) < 1e-12]
+        same = [
+            entry
+            for entry in self._pool
+            if abs(entry[0].get("haze", self.p.start.haze) - haze) < 1e-12
+            and self._albedo_distance(entry[0], lin.look) <= POOL_RADIUS
+        ]
         if len(same) <= 1:
             return lin
         out: dict[str, np.ndarray] = {}
@@ -189,6 +222,16 @@ class Fitter:
             for name, img in ub.items():
                 out_b[name] = out_b.get(name, 0.0) + img * f / len(same)
         return replace(lin, light_images=out, light_images_b=out_b)
+
+    def _albedo_distance(self, a: Look, b: Look) -> float:
+        """Largest ln-change of any albedo multiplier or map cell between two looks."""
+        d = [
+            np.abs(np.log(leaf_tints(a, self.p.n_species)) - np.log(leaf_tints(b, self.p.n_species))).max(),
+            np.abs(np.log(ground_tint(a)) - np.log(ground_tint(b))).max(),
+        ]
+        if a.correction is not None and b.correction is not None:
+            d.append(np.abs(a.correction - b.correction).max())
+        return float(max(d))
 
     # -- the loop -------------------------------------------------------------------------
     def run(self, start: Look, *, iterations: int, progress: Callable[[float, str], None] | None = None) -> FitResult:
@@ -203,6 +246,7 @@ class Fitter:
         best_total = start_data = 0.0
         for k in range(iterations):
             lin = self.linearise(current, k, lin)
+            self._last = lin
             if k == 0:
                 # Which parameters the reference determines; the start is judged on the same terms as the iterates.
                 self._decide_held(current, lin, res)
@@ -274,7 +318,15 @@ class Fitter:
             if abs(v - res.start.get(s.name, v)) < 1e-9:
                 continue
             if min(v - s.lo, s.hi - v) <= 0.01 * span:
-                out.append(f"{s.label} ({s.name}) ended on a bound of its range {s.show_range()}: {s.show(v)}")
+                high = v - s.lo > s.hi - v
+                why = self.driver(res.best, s.name, towards_hi=high)
+                if not high and s.natural_lo:
+                    out.append(f"{s.label} ({s.name}) ended at {s.natural_lo}" + (f", {why}" if why else ""))
+                else:
+                    out.append(
+                        f"{s.label} ({s.name}) ended on a bound of its range {s.show_range()}: {s.show(v)}"
+                        + (f"; {why}" if why else "")
+                    )
             z = abs(v - s.mean) / s.sigma
             if z > IMPLAUSIBLE:
                 out.append(
@@ -284,6 +336,34 @@ class Fitter:
         if res.best_iteration == 0:
             out.append("no iterate beat the start on the held-out render: the start's look is kept")
         return out
+
+    def driver(self, look: Look, name: str, *, towards_hi: bool) -> str:
+        """Which observation pushes parameter ``name`` towards its bound at ``look``: the group of residuals
+        (a region and its colour component in statistics mode, the region a block shows in aligned mode) whose
+        share of the data's gradient −Σ J r along the bound's direction is largest, as a phrase."""
+        lin = self._last
+        loss = self.p.loss
+        if lin is None or loss is None or not hasattr(loss, "group_of"):
+            return ""
+        from .solve import _global_jacobian
+
+        r = self.p.data_residuals(self.p.predict(look, lin))
+        only = [s for s in self.p.free if s.name == name]
+        if not only:
+            return ""
+        keep = self.p.held
+        self.p.held = keep | {s.name for s in self.p.free if s.name != name}
+        try:
+            j = _global_jacobian(self.p, look, lin, r)[:, 0]
+        finally:
+            self.p.held = keep
+        push = -(j * r) * (1.0 if towards_hi else -1.0)  # > 0: this residual wants the parameter past the bound
+        groups = np.bincount(loss.group_of, weights=push, minlength=len(loss.group_names))
+        total = float(groups[groups > 0].sum())
+        if total <= 0:
+            return "the priors, not the data, hold it there"
+        k = int(np.argmax(groups))
+        return f"driven there by the {loss.group_names[k]} ({100 * groups[k] / total:.0f} % of the data's push)"
 
 
 def determination(share: float) -> float:

@@ -9,13 +9,13 @@ with Q the predicted photo (:mod:`.image_model`), P the reference, κ_c a tenth 
 the median of P's channel c over the frame (so the darkest blocks do not dominate),
 and τ = :data:`PIXEL_TOLERANCE` the *relative* error one residual unit stands for —
 whatever the image's units, so a dim forest and a bright one weigh their data
-against the priors alike.  w_bc = 1/(1 + v_bc/(β · median v)) down-weights the
-blocks whose render is noisy, v_bc the relative Monte-Carlo variance of the block
-(:meth:`PixelLoss.set_noise`, measured from two independent renders of the same
-look): weighted least squares with weights ∝ 1/σ² is the minimum-variance estimator
-(Aitken 1935), so silhouettes and shadow edges, noisy at low spp, are weighed down
-where their noise dominates (β = :data:`NOISE_BALANCE`); the weights keep a sum of
-one per block.
+against the priors alike.  w_bc = 1/(1 + v_bc/τ²) makes each residual's unit the
+block's whole error, v_bc the relative Monte-Carlo variance of the fit's render of
+the block (:meth:`PixelLoss.set_noise`, measured from two independent renders of
+the same look) added to τ²: weighted least squares with weights ∝ 1/σ² is the
+minimum-variance estimator (Aitken 1935), so silhouettes and shadow edges, noisy at
+low spp, count for what they can tell, and the priors are weighed against data of
+their true precision.
 
 Why logarithms and blocks: a least-squares fit to a Monte-Carlo render is biased
 towards looks whose render is less noisy, E‖Q − P‖² = ‖E Q − P‖² + Σ Var Q — the
@@ -68,7 +68,6 @@ KAPPA = 0.1
 #: Side of the square pixel blocks the aligned loss compares.
 BLOCK = 2
 LOG_TOLERANCE = 0.05
-NOISE_BALANCE = 0.1
 
 
 def log_colour(rgb: np.ndarray) -> np.ndarray:
@@ -116,6 +115,21 @@ class PixelLoss:
         self.log_target = np.log(np.maximum(self.target, 0.0) + self.kappa)
         self.base = base
         self.weight = base.copy()
+        self.group_names: list[str] = ["whole frame"]
+        self.group_of = np.zeros(len(self.target), np.int64)
+
+    def set_groups(self, labels: np.ndarray, names: dict[int, str]) -> None:
+        """Name each residual by the region (``labels`` (H, W), ``names`` label → name) most of its block shows:
+        which observation pulls a parameter where it ends (:meth:`.fit.Fitter.drivers`)."""
+        keys = sorted(names)
+        votes = np.stack(
+            [
+                self.blocks @ np.repeat((np.asarray(labels) == k).astype(np.float64)[..., None], 3, axis=2).ravel()
+                for k in keys
+            ]
+        )
+        self.group_names = [names[k] for k in keys]
+        self.group_of = np.argmax(votes, axis=0)
 
     def set_noise(self, variance: np.ndarray) -> None:
         """Weigh each value down by its render's relative noise (module docstring; ``variance`` per pixel and
@@ -168,6 +182,9 @@ class RegionLoss:
         whole = self.photo.reshape(-1, 3)[valid_photo].mean(axis=0)[None]
         self.target_rgb = np.concatenate([photo_means, whole]) if len(photo_means) else whole
         self.target = log_colour(self.target_rgb)
+        comps = ("luminance", "red/green", "blue/green")
+        self.group_names = [f"{n} {c}" for n in self.names for c in comps]
+        self.group_of = np.arange(3 * len(self.names))
 
     def means(self, image: np.ndarray) -> np.ndarray:
         """(K + 1, 3) mean linear colours of the image's regions, the whole frame last."""

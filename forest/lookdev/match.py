@@ -165,7 +165,7 @@ def resolve_settings(
     )
 
 
-#: ``grid = "auto"``: the finest grid whose cells that hold trees have at least this many canopy pixels (median).
+#: ``grid = "auto"``: the finest grid whose cells that hold trees have on average at least this many canopy pixels.
 MIN_CELL_PIXELS = 24
 #: Grids ``auto`` chooses among (cells per side).
 AUTO_GRIDS = (64, 48, 32, 24, 16, 12, 8, 6, 4, 3, 2, 1)
@@ -175,8 +175,8 @@ ANCHOR_MIN_GROUND = 0.02
 
 def auto_grid(layers: dict[str, np.ndarray], labels: np.ndarray) -> tuple[int, str]:
     """(cells per side, a note saying why) for ``grid = "auto"``: the finest of :data:`AUTO_GRIDS` whose cells
-    that hold canopy pixels of the fit's render hold at least :data:`MIN_CELL_PIXELS` of them, median over those
-    cells (a cell with fewer is decided more by its prior and neighbours than by the reference)."""
+    that hold canopy pixels of the fit's render hold on average at least :data:`MIN_CELL_PIXELS` of them (a cell
+    seen by fewer is decided more by the render's noise than by the reference)."""
     from .regions import CANOPY
 
     canopy = labels == CANOPY
@@ -186,12 +186,12 @@ def auto_grid(layers: dict[str, np.ndarray], labels: np.ndarray) -> tuple[int, s
     for n in AUTO_GRIDS:
         counts = np.bincount((v * n).astype(np.int64) * n + (u * n).astype(np.int64), minlength=n * n)
         held = counts[counts > 0]
-        if n == 1 or (held.size and float(np.median(held)) >= MIN_CELL_PIXELS):
-            med = float(np.median(held)) if held.size else 0.0
+        mean = float(held.mean()) if held.size else 0.0
+        if n == 1 or mean >= MIN_CELL_PIXELS:
             return n, (
-                f"colour map fitted on {n}×{n} cells: the finest grid whose cells that hold trees have at least "
-                f"{MIN_CELL_PIXELS} canopy pixels of the fit's {labels.shape[1]}×{labels.shape[0]} render (median "
-                f"{med:.0f}, {held.size} cells hold trees); --grid sets it"
+                f"colour map fitted on {n}×{n} cells: the finest grid whose cells that hold trees have on average "
+                f"at least {MIN_CELL_PIXELS} canopy pixels of the fit's {labels.shape[1]}×{labels.shape[0]} render "
+                f"({mean:.0f}, {held.size} cells hold trees); --grid sets it"
             )
     raise AssertionError("unreachable: n = 1 always qualifies")
 
@@ -212,7 +212,7 @@ ANCHOR_TEXT = {
     "ground": "the ground keeps the scene's albedo",
     "leaves": "the leaves keep the species' measured colours (and the colour map its mean)",
     "lights": "the lights keep the scene's level",
-    "none": "nothing is held: the priors decide",
+    "none": "nothing holds it; the priors decide",
 }
 
 
@@ -239,7 +239,7 @@ def hold_degenerate(problem, anchor: str) -> list[str]:
     elif anchor == "lights":
         hold("light_level", "the anchor (lookdev.anchor = lights)")
     problem.anchor = anchor
-    notes.append(f"anchor: {ANCHOR_TEXT[anchor]}, holding the scale of albedos against light (--anchor changes it)")
+    notes.append(f"anchor of the scale of albedos against light: {ANCHOR_TEXT[anchor]} (--anchor changes it)")
     return notes
 
 
@@ -277,7 +277,7 @@ def match(
     from .image_model import ImageModel
     from .losses import PixelLoss, RegionLoss
     from .reference import load_reference, painted_labels
-    from .regions import AUTO, photo_labels, regions, render_labels
+    from .regions import AUTO, CANOPY, GROUND, SKY, photo_labels, regions, render_labels
     from .renders import FitRenderer
     from .report import write_outputs
     from .solve import Problem
@@ -364,10 +364,6 @@ def match(
                 problem.held_reasons[name] = "confounded with the light colours in an unrelated photo"
     problem.map_mean_fixed = fit_map and (anchor == "leaves" or any(s.name.startswith("leaves_") for s in problem.free))
     fitter = Fitter(renderer, problem, base_map=base, seed=rseed ^ SEED_TAG)
-    if st.mode == "aligned":  # the same camera: the render's regions are the photo's, unless painted
-        pl = rl if painted is None else np.where(painted == AUTO, rl, painted)
-    else:
-        pl = photo_labels(ref.rgb, rl, painted)
     # The start's image and where its sun reaches: regions, and the noise of the aligned loss.
     fitter.apply(look0)
     u0 = renderer.light_images(rseed + 1)
@@ -378,6 +374,10 @@ def match(
         sun_part = u0["sun_irradiance"] * scales["sun_irradiance"]
         sun_lit = (sun_part.sum(-1) >= 0.5 * np.maximum(total0.sum(-1), 1e-9)) & lay["hit"]
     start_photo = problem.photo_model(look0, total0)
+    if st.mode == "aligned":  # the same camera: the render's regions are the photo's, unless painted
+        pl = rl if painted is None else np.where(painted == AUTO, rl, painted)
+    else:  # the render of the same view teaches the segmentation what tells its ground from its canopy
+        pl = photo_labels(ref.rgb, rl, painted, render_rgb=start_photo)
     loss: PixelLoss | RegionLoss
     if st.mode == "aligned":
         loss = PixelLoss(ref)
@@ -387,6 +387,7 @@ def match(
         var = uniform_filter((start_photo - other) ** 2 / 2.0, size=(3, 3, 1), mode="nearest")
         loss.set_noise(var)
         loss.mask(pl >= 0)
+        loss.set_groups(pl, {SKY: "sky", CANOPY: "canopy", GROUND: "ground"})
     else:
         sky_up = lay["dir"][..., 1]
         regs = regions(rl, pl, sky_up=sky_up, sun_lit=sun_lit, render_img=start_photo, photo_img=ref.rgb)
@@ -410,6 +411,7 @@ def match(
         notes=notes,
         seconds=time.perf_counter() - t0,
         seed=rseed,
+        sun_lit=sun_lit,
     )
     say(1.0, "done")
     return MatchResult(

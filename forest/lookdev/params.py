@@ -172,6 +172,9 @@ class Spec:
     sigma: float
     unit: str = ""
     kind: str = "plain"  # "plain" | "mired" (shown in K) | "log" (shown as a multiplier)
+    #: What the lower bound means when it is a physical limit rather than a plausible range's end (a parameter
+    #: there is a look, not a failure: "clear air"), or "" when it is a range's end.
+    natural_lo: str = ""
 
     def show(self, value: float) -> str:
         if self.kind == "mired":
@@ -268,7 +271,16 @@ def specs_for(start: Start, groups: set[str]) -> list[Spec]:
                 kind="mired",
             ),
             Spec("sun_tint", "sun", "sun tint (Duv)", -0.02, 0.02, float(daylight_duv(1e6 / m0)), 0.003),
-            Spec("sun_share", "sun", "sun share of the irradiance", 0.0, 0.95, min(start.share0, 0.95), 0.3),
+            Spec(
+                "sun_share",
+                "sun",
+                "sun share of the irradiance",
+                0.0,
+                0.95,
+                min(start.share0, 0.95),
+                0.3,
+                natural_lo="no direct sun (an overcast sky)",
+            ),
         ]
     if "sky" in groups and start.sky_kind == "constant" and start.sky_tied:
         out += [
@@ -311,7 +323,19 @@ def specs_for(start: Start, groups: set[str]) -> list[Spec]:
             Spec("horizon_ratio", "sky", "sky horizon / zenith luminance", LN(0.25), LN(6.0), 0.0, 0.8, kind="log"),
         ]
     if "haze" in groups and start.has_haze:
-        out.append(Spec("haze", "haze", "haze extinction", 0.0, 0.004, start.haze, 0.0008, "1/m"))
+        out.append(
+            Spec(
+                "haze",
+                "haze",
+                "haze extinction",
+                0.0,
+                0.004,
+                start.haze,
+                0.0008,
+                "1/m",
+                natural_lo="no haze (clear air)",
+            )
+        )
     if "leaves" in groups and len(start.species):
         mean_c = start.leaf_colours.mean(axis=0)
         for c, ch in enumerate("rgb"):

@@ -9,14 +9,10 @@ and the haze.  Three changes, all exact at the start: a constant sky becomes the
 ``gradient`` sky with equal zenith and horizon (so the fit can tilt it), a fit
 of the haze without one in the config starts from a haze of density 0 (which
 renders nothing), and the colour map is the base of :mod:`.correction` (the
-painted map, or its cells for a fresh grid).  And the fit's renders sample
-independently (:data:`FIT_SAMPLER`), where production stratifies: the aligned
-loss weighs a block down when its render noise is well above the frame's
-median (:class:`.losses.PixelLoss`), and stratified noise is concentrated on
-the canopy's edges while the open ground and sky become almost noiseless — on
-the aligned round trip the reference's information on the colour map fell
-about threefold.  Independent noise is spread as the weighting was made for;
-the expected image is the same.
+painted map, or its cells for a fresh grid).  The fit's renders stratify their
+samples as production does (:data:`FIT_SAMPLER`): the aligned loss weighs each
+block by its own relative noise (:class:`.losses.PixelLoss`), whatever its spread
+over the frame, so the lower noise is a gain everywhere.
 
 What a fit asks of it (all images (H, W, 3), linear, at the fit's size):
 
@@ -51,7 +47,7 @@ from .image_model import optical_length
 from .params import Start
 
 #: The sampler of the fit's renders (see the module docstring).
-FIT_SAMPLER = "independent"
+FIT_SAMPLER = "multijitter"
 
 
 def _leaf_colours(scene) -> np.ndarray:
@@ -106,6 +102,8 @@ class FitRenderer:
         self.haze = self.scene.haze  # HazeInputs with its colour resolved, or None
         if self.haze is not None:
             self.light_params.append("haze_colour")
+        #: Whether the colour map tints the terrain too (a plain terrain colour; see forest.render.ground).
+        self.terrain_tinted = bool(inputs.terrain_tinted and inputs.colour_grid is not None)
         self.start = self._start(config, scene)
         self.layers = self._layers()
 
@@ -246,6 +244,10 @@ class FitRenderer:
         out = {}
         try:
             for k in self.light_params:
+                if k == "haze_colour" and float(np.asarray(p["haze_density"]).ravel()[0]) <= 0.0:
+                    # No haze, no airlight: its image is black (and costs a render to learn it).
+                    out[k] = np.zeros((self.height, self.width, 3))
+                    continue
                 for j in self.light_params:
                     p[j] = mi.Color3f(1.0) if j == k else mi.Color3f(0.0)
                 out[k] = self.render(seed, spp)

@@ -171,7 +171,7 @@ def parameter_table(problem, result) -> list[dict]:
         else:
             span = s.hi - s.lo
             if abs(v1 - v0) > 1e-9 and min(v1 - s.lo, s.hi - v1) <= 0.01 * span:
-                flag = "on a bound"
+                flag = s.natural_lo if (s.natural_lo and v1 - s.lo <= s.hi - v1) else "on a bound"
             elif abs(v1 - s.mean) / s.sigma > 3.0:
                 flag = f"{abs(v1 - s.mean) / s.sigma:.1f} σ from prior"
         rows.append(
@@ -221,8 +221,10 @@ def write_outputs(
     notes,
     seconds,
     seed,
+    sun_lit=None,
 ) -> dict:
-    """Write everything into ``out_dir`` atomically; returns paths, the table and the figures."""
+    """Write everything into ``out_dir`` atomically; returns paths, the table and the figures (``sun_lit``:
+    the render's sunlit pixels, for the lit-over-shadowed contrasts)."""
     from .colour import delta_e2000
 
     config = scene.config
@@ -262,6 +264,9 @@ def write_outputs(
                 k: _r(v, 4)
                 for k, v in _region_figures(settings, reference, photo_labels, render_labels, renderer, img).items()
             }
+        figures["region_statistics"] = _statistics(
+            reference, photo_labels, render_labels, renderer, {k: clip(v) for k, v in ev.items()}, sun_lit
+        )
         rw = int(settings.report_width)
         rh = max(1, round(rw * h / w))
         pics = {
@@ -279,10 +284,14 @@ def write_outputs(
             table=table,
             figures=figures,
             history=result.history,
-            maps=(None if not fit_map else (fitter.base_map, fitter.grid(best))),
+            maps=None if not fit_map else _leaf_maps(problem, fitter, result),
             settings=settings,
             size=(w, h),
-            notes=[f"anchor: {problem.anchor}"] + [f"weak direction: {t}" for t in weak_text],
+            notes=[
+                f"anchor ({ANCHOR_NOTE[problem.anchor]}): lookdev.anchor = {problem.anchor}",
+                *(f"weak direction: {t}" for t in weak_text),
+                *([] if weak_text else ["no weak direction: the reference determines every fitted parameter"]),
+            ],
             region_means=_region_means(
                 reference, photo_labels, render_labels, renderer, clip(ev["start"]), clip(ev["fitted"])
             ),
@@ -298,7 +307,11 @@ def write_outputs(
             # What held the scale of albedos against light, and the directions the data left weak.
             "anchor": problem.anchor,
             "weak_directions": [
-                {"information": _r(w.information, 4), "components": {k: _r(v, 3) for k, v in w.components.items()}}
+                {
+                    "kind": w.kind,
+                    "information": _r(w.information, 4),
+                    "components": {k: _r(v, 3) for k, v in w.components.items()},
+                }
                 for w in result.weak
             ],
             "variant": renderer.variant,
@@ -322,6 +335,57 @@ def write_outputs(
         figures=figures,
     )
     return out
+
+
+def _statistics(reference, photo_labels, render_labels, renderer, images: dict, sun_lit) -> dict:
+    """Per region, beyond its mean: L*, a*, b* percentiles of the photo and of each image, and for canopy and
+    ground the lit-over-shadowed luminance contrast (the render's sunlit share splits both alike)."""
+    from .regions import CANOPY, GROUND, NAMES, lit_contrast, region_statistics, regions
+
+    lay = renderer.layers
+    regs = regions(
+        render_labels,
+        photo_labels,
+        sky_up=lay["dir"][..., 1],
+        sun_lit=None,
+        render_img=images["fitted"],
+        photo_img=reference.rgb,
+    )
+    out: dict = {}
+    for r in regs:
+        row = {"photo": region_statistics(reference.rgb, r.photo)}
+        row.update({k: region_statistics(img, r.render) for k, img in images.items()})
+        out[r.name] = {k: {c: [_r(x, 4) for x in v] for c, v in d.items()} for k, d in row.items()}
+    if sun_lit is not None:
+        for lab in (CANOPY, GROUND):
+            rm, pm = (render_labels == lab).ravel(), (photo_labels == lab).ravel()
+            if not rm.any() or not pm.any() or NAMES[lab] not in out:
+                continue
+            f = float(np.asarray(sun_lit).ravel()[rm].mean())
+            if not 0.05 < f < 0.95:
+                continue
+            c = {"photo": lit_contrast(reference.rgb, pm, f)}
+            c.update({k: lit_contrast(img, rm, f) for k, img in images.items()})
+            out[NAMES[lab]]["lit_over_shadowed"] = {k: None if v is None else _r(v, 4) for k, v in c.items()}
+    return out
+
+
+#: What each anchor holds, for the report.
+ANCHOR_NOTE = {
+    "ground": "the ground keeps the scene's albedo, fixing albedos against light",
+    "leaves": "the leaves keep the species' colours, fixing albedos against light",
+    "lights": "the lights keep the scene's level, fixing albedos against light",
+    "none": "nothing holds albedos against light but the priors",
+}
+
+
+def _leaf_maps(problem, fitter, result) -> tuple[np.ndarray, np.ndarray]:
+    """The painted and the fitted colour map as the leaf colour they give (the species' mean leaf colour × the
+    leaf tint × the map), so both show the canopy's albedo."""
+    leaf = np.asarray(problem.start.leaf_colours, np.float64).mean(axis=0)
+    t0 = leaf_tints(result.start, problem.n_species).mean(axis=0)
+    t1 = leaf_tints(result.best, problem.n_species).mean(axis=0)
+    return fitter.base_map * leaf * t0, fitter.grid(result.best) * leaf * t1
 
 
 def _region_means(reference, photo_labels, render_labels, renderer, start, fitted) -> list[tuple]:
@@ -356,12 +420,15 @@ def write_report(
     from matplotlib.figure import Figure
 
     rows = len(table) + 1
-    table_height = 0.22 * rows
+    table_height = 0.27 * rows
+    notes_height = 0.3 + 0.18 * len(notes)  # inches below the table, in figure coordinates
     if maps is not None:
         heights = [3.2, 2.6, 3.0, table_height]
     else:
         heights = [3.2, 2.6, table_height]
-    fig = Figure(figsize=(15, sum(heights) + 1.2), dpi=90)
+    total = sum(heights) + 1.2 + notes_height
+    fig = Figure(figsize=(15, total), dpi=90)
+    fig.subplots_adjust(bottom=(notes_height + 0.3) / total)
     gs = fig.add_gridspec(len(heights), 3, height_ratios=heights, hspace=0.3, wspace=0.18)
     panels = (("reference", reference), ("start (production render)", start), ("fitted (production render)", fitted))
     for i, (name, img) in enumerate(panels):
@@ -385,8 +452,17 @@ def write_report(
                     (j * 1.05, y + 0.1), 1.0, 0.8, color=np.clip(_show(np.asarray(c)[None])[0], 0, 1)
                 )
             )
-        ax.text(3.3, y + 0.5, f"{name}: ΔE {de_s:.1f} → {de_f:.1f}", va="center", fontsize=8)
-    ax.set_xlim(0, 6.5)
+        line = f"{name}: ΔE {de_s:.1f} → {de_f:.1f}"
+        st = figures.get("region_statistics", {}).get(name, {})
+        if st.get("photo") and st.get("fitted"):
+            p10, _, p90 = st["photo"]["L*"]
+            f10, _, f90 = st["fitted"]["L*"]
+            line += f"; L* 10–90 %: photo {p10:.0f}–{p90:.0f}, fitted {f10:.0f}–{f90:.0f}"
+        c = st.get("lit_over_shadowed")
+        if c and c.get("photo") and c.get("fitted"):
+            line += f"; lit/shadowed {c['photo']:.2f} vs {c['fitted']:.2f}"
+        ax.text(3.3, y + 0.5, line, va="center", fontsize=8)
+    ax.set_xlim(0, 9.5)
     ax.set_ylim(0, n)
     ax.axis("off")
     # Objective per iteration.
@@ -405,19 +481,15 @@ def write_report(
     ax.set_xlabel("iteration")
     ax.set_title(f"objective {figures['objective_start']:.4g} → {figures['objective_fitted']:.4g}", fontsize=9)
     ax.legend(fontsize=7)
-    # Colour map before / after.
+    # Colour map before / after, as the leaf albedo each gives, both exposed alike (the painted mean at mid-grey).
     if maps is not None:
+        k = 0.18 / max(float(np.mean(luminance(np.asarray(maps[0], np.float64)))), 1e-9)
         for j, (name, m) in enumerate((("painted colour map", maps[0]), ("fitted colour map", maps[1]))):
             ax = fig.add_subplot(gs[2, j])
-            # A tint of mean about 1 would show as near white: shown with the painted map's mean as mid-grey.
-            ref_mean = np.maximum(np.asarray(maps[0], np.float64).reshape(-1, 3).mean(axis=0), 1e-6)
-            ax.imshow(
-                np.clip(linear_to_srgb(np.asarray(m) / ref_mean * 0.214), 0.0, 1.0),
-                origin="lower",
-                interpolation="nearest",
-            )
+            ax.imshow(np.clip(linear_to_srgb(np.asarray(m) * k), 0.0, 1.0), origin="lower", interpolation="nearest")
             ax.set_title(
-                f"{name} ({m.shape[1]}×{m.shape[0]})\nrow 0 at the smallest Z; the painted mean is mid-grey",
+                f"{name} ({m.shape[1]}×{m.shape[0]}) as leaf colour\nrow 0 at the smallest Z; the painted mean "
+                "is mid-grey",
                 fontsize=9,
             )
             ax.axis("off")
@@ -433,7 +505,12 @@ def write_report(
             r["range"],
             r["prior"],
             f"{100 * r['determined']:.0f} %",
-            r["flag"].replace("held: undetermined: the reference narrows its prior by", "held: narrowed by")[:64],
+            r["flag"]
+            .replace("held: undetermined: the reference narrows its prior by", "held: narrowed by")
+            .replace(
+                "the camera's gain multiplies every light and the lights are fitted: they are one",
+                "one with the light level",
+            )[:60],
         ]
         for r in table
     ]
@@ -448,8 +525,7 @@ def write_report(
         tab.auto_set_font_size(False)
         tab.set_fontsize(8)
         tab.scale(1.0, 1.25)
-    if notes:
-        ax.text(0.0, 0.0, "\n".join(notes), transform=ax.transAxes, fontsize=8, va="top", ha="left", wrap=True)
+    fig.text(0.12, (notes_height + 0.05) / total, "\n".join(notes), fontsize=8, va="top", ha="left")
     w, h = size
     fig.suptitle(
         f"forest match — {settings.mode}, {len(history) - 1} iterations × {settings.spp} spp at {w}×{h}; "

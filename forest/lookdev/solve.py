@@ -2,30 +2,37 @@
 
 Around the look θ_k the render is modelled as
 
-    R(θ) = [Σ_l s_l(θ) ⊙ U_l] ⊙ exp( Σ_a e_a ⊙ (ln m_a(θ) − ln m_a(θ_k)) + Σ_j e_j ⊙ (c_j − c_j,k) )
+    R(θ) = [Σ_l s_l(θ) ⊙ U_l] ⊙ exp( Σ_a e_a ⊙ (ln m_a(θ) − ln m_a(θ_k)) ) ⊙ F(c) / F(c_k)
 
 * U_l — the image of light l at unit scale, rendered at θ_k: the path tracer
   is linear in each light's RGB scale s_l, so the light part is exact;
 * e_a = (∂I/∂ln m_a) / I — the elasticity of each pixel and channel to an
   albedo multiplier m_a (a species' leaves, the ground), measured by forward-mode
-  path replay; first order in ln m, which is exact for singly scattered light
-  and close for the rest;
-* e_j — the same for the colour map's ln-correction cells c_j (aligned mode),
-  one value per pixel and class of cells (:mod:`.correction`): a sparse,
-  per-channel Jacobian — channel c of the image depends on channel c of the
-  cells only, and each pixel on at most four cells — so the system stays
-  (pixels·3) × (cells·3) with ≤ 9 non-zeros a row instead of a dense matrix
-  and its eigendecomposition (at ``--grid 64``: 12 288 columns).
+  path replay; first order in ln m, which is exact for a uniform multiplier
+  (light that met it n times scales by mⁿ, and e counts the n);
+* F(c) — the colour map's cells c_j (aligned mode) as the bilinear mix the
+  renderer makes of them: a pixel's light met the map at points each a bilinear
+  blend of its (at most four) cells, so with e_k its elasticity to the class-k
+  cell (measured at the cells c⁰, one value per pixel and class, :mod:`.correction`),
+  f = Σ_k e_k and a_k = e_k / f the mixing weights there,
+  F(c) = (Σ_k a_k e^(c_k − c⁰_k))^f — exact for light that met the map once (an
+  arithmetic mean of the cells' colours, not the geometric mean e^(Σ e_k Δc_k) of
+  a first-order ln model, which for a sharp map drew the cells into a checkerboard
+  of ±20 % errors), raised to f for light that met it more often, and equal to the
+  first-order model for small changes.  Its Jacobian is sparse and per channel —
+  channel c of the image depends on channel c of the cells only, and each pixel on
+  at most four cells — so the system stays (pixels·3) × (cells·3) with ≤ 9
+  non-zeros a row instead of a dense matrix (at ``--grid 64``: 12 288 columns).
 
 Through the image model (:mod:`.image_model`: exposure, white balance,
-clipping, and a change of haze) and the data residuals (:mod:`.losses`), plus the priors — (θ − μ)/σ
-for every global parameter, the map cells' prior (below), and the constraint that species'
-relative leaf multipliers sum to zero — the step minimises ½‖r‖² with ``scipy.optimize.least_squares``
-(trust-region reflective, Branch, Coleman & Li 1999) inside the parameters'
-ranges intersected with a trust box around θ_k for the linearised albedo
-parameters.  The Jacobian of the global parameters is taken by finite
-differences of the surrogate (a few dozen cheap evaluations), the map cells'
-analytically and sparse.
+clipping, and a change of haze) and the data residuals (:mod:`.losses`), plus the
+priors — (θ − μ)/σ for every global parameter, the map cells' prior (below), and
+the constraint that species' relative leaf multipliers sum to zero — :func:`step`
+minimises the surrogate's objective inside the parameters' ranges intersected with
+a trust box around θ_k for the linearised albedo parameters (its docstring: two
+independent renders make the data term unbiased).  The Jacobian of the global
+parameters is taken by finite differences of the surrogate (a few dozen cheap
+evaluations), the map cells' analytically and sparse.
 
 **The colour map's prior.**  ``map_prior = "edges"`` (the default) lets a painted
 map's patches be recovered: each cell's ln-correction c has a weak prior N(0,
@@ -56,7 +63,14 @@ their priors.  A statement about each parameter alone misses the directions the
 data leave free *together* (a brighter light and darker albedos): the
 eigenvectors of F with the smallest eigenvalues are those directions, and
 :func:`weak_directions` names every one the data determine less than the priors
-do (eigenvalue below :data:`WEAK`), in the parameters' own terms.
+do (eigenvalue below :data:`WEAK`), in the parameters' own terms.  A direction can
+also be weak *relative to its parts* while the data determine each part well (a
+canopy's multiple scattering tells a darker leaf from a dimmer light, faintly):
+with D = diag(F + I), the eigenvectors of D^-½ (F + I) D^-½ whose eigenvalue λ is
+below :data:`TRADE_OFF` are the trade-offs — along them the parameters are
+determined 1/√λ times less well together than each is alone (the variance
+inflation of regression diagnostics; Belsley, Kuh & Welsch, *Regression
+Diagnostics*, 1980, ch. 3).
 """
 
 from __future__ import annotations
@@ -75,14 +89,16 @@ from .params import Look, Spec, Start
 UNDETERMINED = 0.9
 #: A direction of the global parameters along which the data's information is below this (in prior units) is weak.
 WEAK = 1.0
+#: A direction along which the parameters are determined 1/√λ times less well together than alone is a trade-off.
+TRADE_OFF = 0.05
 #: Prior σ of a colour-map ln-correction cell (``map_prior = "smooth"``).
 CELL_SIGMA = 0.5
 #: Prior σ of a cell's ln-correction under the edge-preserving prior: weak, so the data decide wherever they see it.
-EDGE_CELL_SIGMA = 1.0
+EDGE_CELL_SIGMA = 2.0
 #: Huber scale s of the neighbour ln-differences (quadratic below it, linear above).
 EDGE_SCALE = 0.05
 #: Weight λ of the neighbour penalty: an edge of height d costs about λ·|d|.
-EDGE_WEIGHT = 1.0
+EDGE_WEIGHT = 0.05
 #: σ of the mean of the free cells' correction when the leaf tint carries the mean.
 MEAN_SIGMA = 0.01
 #: Prior σ of the ln-correction's change across the whole map: a difference between neighbouring cells of an
@@ -98,9 +114,11 @@ def cell_smooth(cells: tuple[int, int]) -> float:
 
 
 def huber_residuals(
-    d: np.ndarray, scale: float = EDGE_SCALE, weight: float = EDGE_WEIGHT
+    d: np.ndarray, scale: float | None = None, weight: float | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """(r, dr/dd) with ½r² = λ·s·h(d/s) (the edge-preserving prior of the module docstring)."""
+    scale = EDGE_SCALE if scale is None else scale
+    weight = EDGE_WEIGHT if weight is None else weight
     d = np.asarray(d, np.float64)
     a = np.abs(d)
     inner = a <= scale
@@ -128,6 +146,32 @@ class Linearisation:
     grid_e: np.ndarray | None  # (9, H, W, 3) elasticities to the class-k cell of each pixel
     grid_cells: np.ndarray | None  # (H·W, 9) cell index of each class per pixel (−1 none)
     light_images_b: dict[str, np.ndarray] | None = None  # a second, independent render of the U_l (unbiased steps)
+    grid_at: np.ndarray | None = None  # the map correction at which grid_e was measured
+
+    def class_deltas(self, correction: np.ndarray) -> np.ndarray:
+        """(9, H·W, 3): each pixel's class-k cell's ln-change from :attr:`grid_at` to ``correction`` (0 where no
+        class-k cell touches the pixel)."""
+        assert self.grid_cells is not None and self.grid_at is not None
+        dc = (np.asarray(correction) - self.grid_at).reshape(-1, 3)
+        padded = np.vstack([dc, np.zeros((1, 3))])  # index −1: no cell, no change
+        return padded[self.grid_cells.T]
+
+    def map_factor(self, correction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(ln F, S) of the map's bilinear mixing at ``correction`` (:mod:`.solve`'s docstring), (H, W, 3) each."""
+        assert self.grid_e is not None
+        key = np.asarray(correction).tobytes()
+        cache = self.__dict__.setdefault("_map_cache", {})
+        if key in cache:
+            return cache[key]
+        if len(cache) > 8:
+            cache.clear()
+        d = self.class_deltas(correction).reshape(self.grid_e.shape)
+        s = np.einsum("khwc,khwc->hwc", self.grid_e, np.exp(d))
+        f = self.grid_e.sum(axis=0)
+        ok = f > 1e-12
+        lnf = np.where(ok, f * np.log(np.where(ok, s, 1.0) / np.where(ok, f, 1.0)), 0.0)
+        cache[key] = (lnf, s)
+        return lnf, s
 
     def other(self) -> Linearisation:
         """The same surrogate over the second, independent light images (itself when there are none)."""
@@ -205,16 +249,7 @@ class Problem:
         if lin.ground_e is not None:
             expo += lin.ground_e * (np.log(ground_tint(look)) - np.log(ground_tint(at)))
         if lin.grid_e is not None and look.correction is not None and at.correction is not None:
-            dc = (look.correction - at.correction).reshape(-1, 3)
-            cells = lin.grid_cells
-            assert cells is not None
-            h, w = shape[:2]
-            for k in range(9):
-                idx = cells[:, k]
-                ok = idx >= 0
-                delta = np.zeros((h * w, 3))
-                delta[ok] = dc[idx[ok]]
-                expo += lin.grid_e[k] * delta.reshape(h, w, 3)
+            expo += lin.map_factor(look.correction)[0] - lin.map_factor(at.correction)[0]
         return np.clip(expo, -20.0, 20.0)
 
     def photo_model(self, look: Look, render: np.ndarray, rendered_at: Look | None = None) -> np.ndarray:
@@ -327,10 +362,16 @@ def _grid_jacobian(problem: Problem, look: Look, lin: Linearisation) -> sp.csr_m
     h, w = render.shape[:2]
     rows, cols, vals = [], [], []
     pix = np.arange(h * w)
+    assert look.correction is not None
+    # ∂ ln F/∂c_k = f·e_k·exp(Δ_k)/S: the elasticity of the bilinear mixing at this look.
+    _, s_mix = lin.map_factor(look.correction)
+    f = lin.grid_e.sum(axis=0)
+    scale = np.where(s_mix > 1e-12, f / np.maximum(s_mix, 1e-12), 0.0)
+    deltas = lin.class_deltas(look.correction).reshape(lin.grid_e.shape)
     for k in range(9):
         idx = lin.grid_cells[:, k]
         ok = idx >= 0
-        e = (lin.grid_e[k] * dq).reshape(-1, 3)
+        e = (lin.grid_e[k] * np.exp(deltas[k]) * scale * dq).reshape(-1, 3)
         for c in range(3):
             r = pix[ok] * 3 + c
             rows.append(r)
@@ -379,33 +420,59 @@ def prior_jacobian(problem: Problem, look: Look) -> sp.csr_matrix:
 
 @dataclass
 class WeakDirection:
-    """A direction of the global parameters (prior units) the data determine less than the priors do."""
+    """A direction of the global parameters the data leave weak: less determined than the priors (``kind =
+    "prior"``, ``information`` the eigenvalue of F in prior units), or a trade-off whose parts are each well
+    determined (``kind = "trade-off"``, ``information`` the eigenvalue λ of the normalised information)."""
 
-    information: float  # eigenvalue of the data's Fisher information, in prior units (1 = as much as the prior)
+    information: float
     components: dict[str, float]  # parameter → its weight in the unit eigenvector (largest first)
+    kind: str = "prior"
 
     def describe(self, labels: dict[str, str] | None = None, top: int = 4) -> str:
-        """``+0.71 light level − 0.62 ground colour g …``: the largest components, with the information."""
+        """``+0.71 light level − 0.62 ground colour g …``: the largest components, and why the direction is weak."""
         labels = labels or {}
         items = sorted(self.components.items(), key=lambda kv: -abs(kv[1]))[:top]
         terms = " ".join(f"{'−' if w < 0 else '+'}{abs(w):.2f} {labels.get(n, n)}" for n, w in items)
+        if self.kind == "trade-off":
+            why = f"a trade-off: determined {1 / math.sqrt(max(self.information, 1e-12)):.0f}× less well together"
+            return f"{terms.lstrip('+')} ({why} than each alone)"
         return f"{terms.lstrip('+')} (information {self.information:.3g} × the prior's)"
 
 
-def weak_directions(f: np.ndarray, names: list[str], threshold: float = WEAK) -> list[WeakDirection]:
-    """The eigenvectors of the Fisher information ``f`` (prior units) with eigenvalues below ``threshold``,
-    weakest first; each vector's sign makes its largest component positive, components under 0.1 are left out."""
+def _direction(v: np.ndarray, names: list[str]) -> dict[str, float]:
+    """A unit vector's components ≥ 0.1, signed so the largest is positive, largest first."""
+    v = v * np.sign(v[np.argmax(np.abs(v))])
+    comp = {n: float(w) for n, w in zip(names, v) if abs(w) >= 0.1}
+    return dict(sorted(comp.items(), key=lambda kv: -abs(kv[1])))
+
+
+def weak_directions(
+    f: np.ndarray, names: list[str], threshold: float = WEAK, trade_off: float = TRADE_OFF
+) -> list[WeakDirection]:
+    """The weak directions of the data's Fisher information ``f`` (prior units): its eigenvectors with
+    eigenvalues below ``threshold``, weakest first, then the trade-offs — eigenvectors of the normalised posterior
+    information D^-½ (f + I) D^-½ with eigenvalues below ``trade_off`` — that are not one of those already."""
     if not len(names):
         return []
-    vals, vecs = np.linalg.eigh(0.5 * (f + f.T))
-    out = []
+    f = 0.5 * (f + f.T)
+    vals, vecs = np.linalg.eigh(f)
+    out, seen = [], []
     for k in np.argsort(vals):
         if vals[k] >= threshold:
             break
-        v = vecs[:, k]
-        v = v * np.sign(v[np.argmax(np.abs(v))])
-        comp = {n: float(w) for n, w in zip(names, v) if abs(w) >= 0.1}
-        out.append(WeakDirection(float(max(vals[k], 0.0)), dict(sorted(comp.items(), key=lambda kv: -abs(kv[1])))))
+        seen.append(vecs[:, k])
+        out.append(WeakDirection(float(max(vals[k], 0.0)), _direction(vecs[:, k], names)))
+    post = f + np.eye(len(names))
+    d = np.sqrt(np.diag(post))
+    lam, vecs = np.linalg.eigh(post / np.outer(d, d))
+    for k in np.argsort(lam):
+        if lam[k] >= trade_off:
+            break
+        v = vecs[:, k] / d  # back to prior units, to compare with the prior-weak ones
+        v /= np.linalg.norm(v)
+        if any(abs(v @ u) > 0.8 for u in seen):
+            continue
+        out.append(WeakDirection(float(lam[k]), _direction(vecs[:, k], names), "trade-off"))
     return out
 
 
