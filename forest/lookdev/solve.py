@@ -131,7 +131,8 @@ def huber_residuals(
 
 #: σ of the sum of species' relative leaf ln-multipliers (a soft equality constraint).
 SUM_SIGMA = 0.01
-#: Largest change of a linearised ln-albedo in one step (the trust box), at the start.
+#: Largest change of a linearised ln-albedo in one step (the trust box), at the start; the haze's is its prior σ
+#: times trust / TRUST.
 TRUST = 0.5
 
 
@@ -538,10 +539,17 @@ def step(problem: Problem, lin: Linearisation, *, trust: float = TRUST, max_iter
     free = problem.free
     lo = np.array([s.lo for s in free], np.float64)
     hi = np.array([s.hi for s in free], np.float64)
-    linear = np.array([s.group in ("leaves", "ground") for s in free])
+    # The box binds what the surrogate models to first order only: the albedos (ln units) and the haze (its σ
+    # per TRUST); the lights it renders exactly are free within their ranges.
     xg = x0[: len(free)]
-    lo = np.where(linear, np.maximum(lo, xg - trust), lo)
-    hi = np.where(linear, np.minimum(hi, xg + trust), hi)
+    width = np.array(
+        [
+            trust if s.group in ("leaves", "ground") else trust / TRUST * s.sigma if s.group == "haze" else np.inf
+            for s in free
+        ]
+    )
+    lo = np.maximum(lo, xg - width)
+    hi = np.minimum(hi, xg + width)
     nc = len(x0) - len(free)
     if nc:
         xc = x0[len(free) :]
