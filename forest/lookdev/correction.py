@@ -1,22 +1,25 @@
-"""The colour map a fit writes: the artist's painted map times a smooth correction field.
+"""The colour map a fit writes: the artist's painted map times a fitted correction field.
 
 An aligned fit does not replace the painted map (256×256, say) by a coarse
-grid: it fits an n×n field c of ln-corrections (``--grid``, default 16) and
-writes
+grid: it fits an n×n field c of ln-corrections (``--grid``; ``auto`` picks n from
+the pixels the reference gives each cell, :func:`.match.auto_grid`) and writes
 
     M'(x) = M(x) · exp((B c)(x))
 
 at the painted map's own resolution, with B the bilinear interpolation of the
 cell values (cell centres at the centres of an n×n grid laid over the same
 extent, map convention, clamped at the edges).  Detail the artist painted stays
-where it was; the fit moves its colour smoothly.  With no painted map (or when
-the user asks for a fresh grid) M is the painted map area-averaged to n×n, or
-white, and B the identity.
+where it was; the fit moves its colour, patch by patch.  With no painted map
+(or when the user asks for a fresh grid) M is the painted map area-averaged to
+n×n, or white, and B the identity.
 
-Smoothness is a prior: the residuals λ·(c_i − c_j) over 4-neighbour cells
-(a first-difference, i.e. Laplacian, penalty; Tikhonov 1963) keep cells whose
-pixels are few from jumping with the noise and let the fitted field bend
-across cells the camera sees only partly.
+The neighbour differences c_i − c_j over 4-neighbour cells carry the prior
+(:mod:`.solve`): by default (``map_prior = "edges"``) a Huber penalty — quadratic
+below a small step, linear above, so an edge costs its height once (total
+variation; Rudin, Osher & Fatemi 1992) — with a weak prior per cell, so a sharp
+painted pattern can be recovered wherever the reference sees it; or
+(``"smooth"``, earlier versions) a first-difference Tikhonov penalty (Tikhonov
+1963) that keeps the field smooth and forbids patches.
 
 A pixel's colour depends on the (at most 2×2) cells around its hit's world
 position, so the image's derivative with respect to all cells is measured in
