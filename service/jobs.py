@@ -93,7 +93,9 @@ class JobSettings(BaseModel):
         "canopy #00ff00, ground #ff0000, ignored #000000, automatic #ffffff.",
     )
     iterations: int | None = Field(default=None, ge=1, le=100000, description="Match jobs: optimisation steps.")
-    resolution: int | None = Field(default=None, ge=8, le=4096, description="Match jobs: proxy render width in pixels.")
+    resolution: int | None = Field(
+        default=None, ge=8, le=4096, description="Match jobs: fit render long side in pixels."
+    )
     match_spp: int | None = Field(default=None, ge=1, le=1024, description="Match jobs: samples per pixel per step.")
     params: list[str] | None = Field(default=None, max_length=32, description="Match jobs: which parameters to fit.")
     mode: str | None = Field(
