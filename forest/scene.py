@@ -48,6 +48,18 @@ tint the ground.
 
 **Ground cover** rows follow the trees' in the InstanceSet with their own
 species indices (``species_names`` = :func:`forest.scatter.scatter_models`).
+
+**The fitted look.**  ``forest match`` writes ``[lookdev] leaf_tint`` (an RGB
+per species, keyed by its ``name`` or ``model``) and ``ground_tint``.  The Scene
+resolves them once: ``scene.leaf_tint`` (S, 3) per species index (1 for a species
+the table does not name and for one without leaf parts — a building — since
+the tint multiplies the leaves' colour), ``scene.ground_tint`` (3,), and
+``scene.tree_tints()``, each tree's colour factor t_i ⊙ leaf_tint[s_i], the
+per-tree colour every exporter writes (a species' leaves are its tinted parts).
+forest_path applies the same tints as parameters (look-dev differentiates
+them), the scalar renderer multiplies the leaf colours and the ground albedo,
+and the exporters write ``tree_tints()`` and a ground albedo times
+``ground_tint`` — so a fitted look renders and exports the same everywhere.
 """
 
 from __future__ import annotations
@@ -128,6 +140,26 @@ class Scene:
         inst = self.instances
         return self.lod.levels(inst.position, inst.species, self.camera_at(frame).position)
 
+    @property
+    def leaf_tint(self) -> np.ndarray:
+        """(S, 3) float64: the fitted tint of each species index's leaf colour (module docstring)."""
+        return leaf_tint(self.config, self.species)
+
+    @property
+    def ground_tint(self) -> np.ndarray:
+        """(3,) float64: the fitted tint of the ground's albedo (``[lookdev] ground_tint``, 1 without one)."""
+        gt = self.config.lookdev.ground_tint
+        return np.ones(3) if gt is None else np.asarray(gt, np.float64).reshape(3)
+
+    def tree_tints(self) -> np.ndarray:
+        """(N, 3) float32: each tree's colour factor with its species' fitted leaf tint, t_i ⊙ leaf_tint[s_i]; the
+        InstanceSet's own column, unchanged, when no leaf tint is set."""
+        tint = self.instances.tint
+        if not self.config.lookdev.leaf_tint or not len(self.instances):
+            return tint
+        table = self.leaf_tint.astype(np.float32)
+        return (tint * table[np.asarray(self.instances.species, np.int64)]).astype(np.float32)
+
     def with_config(self, config: Config) -> Scene:
         """The same trees and terrain with another config's look (lights, camera, render, colour map, jitter, ground).
 
@@ -166,6 +198,29 @@ def _colour_grid(config: Config, terrain: Terrain) -> ColourGrid | None:
     rgb, divisor = colour_tint_grid(raw, mode)
     d = (float(divisor[0]), float(divisor[1]), float(divisor[2]))
     return ColourGrid(rgb, terrain.extent, path, d, mode)
+
+
+def leaf_tint(config: Config, species: tuple[Species, ...] | None = None) -> np.ndarray:
+    """``[lookdev] leaf_tint`` as (S, 3) per species index of :func:`forest.scatter.scatter_models` (``[[species]]``
+    by ``name`` or ``model``, then ``[[ground_cover]]`` by ``model``); 1 for a species it does not name and, when
+    ``species`` is given, for one whose levels have no leaf part."""
+    settings = model_settings(config)
+    out = np.ones((len(settings), 3))
+    table = config.lookdev.leaf_tint or {}
+    if not table:
+        return out
+    keys: list[tuple[str | None, ...]] = [(sp.name, sp.model) for sp in config.species]
+    keys += [(gc.model,) for gc in config.model.ground_cover]
+    for i, names in enumerate(keys[: len(out)]):
+        for key in names:
+            if key is not None and key in table:
+                out[i] = np.asarray(table[key], np.float64)
+                break
+    if species is not None:
+        for i, sp in enumerate(species[: len(out)]):
+            if not any(getattr(part, "kind", "") == "leaf" for lod in sp.lods for part in lod.parts):
+                out[i] = 1.0
+    return out
 
 
 def retint(instances: InstanceSet, colour: ColourGrid | None, params: TintParams) -> InstanceSet:

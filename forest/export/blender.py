@@ -59,7 +59,16 @@ from ..errors import ForestError, ParameterError
 from ..instances import quaternion_to_matrix
 from ..scene import Scene
 from . import radiometry
-from .common import check_instances, export_frames, lod_mesh, species_plans, sun_direction, terrain_texture
+from .common import (
+    check_instances,
+    export_frames,
+    ground_colour,
+    lod_mesh,
+    look_instances,
+    species_plans,
+    sun_direction,
+    terrain_texture,
+)
 
 #: forest (Y up) → Blender (Z up): (x, y, z) ↦ (x, −z, y).
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -193,7 +202,7 @@ def _lod_choice(scene: Scene, plans) -> dict[int, object]:
 
 def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
     """Write the scene's data for :mod:`forest.export.blender_build` into ``folder``; returns the manifest."""
-    config, instances, terrain = scene.config, scene.instances, scene.terrain
+    config, instances, terrain = scene.config, look_instances(scene), scene.terrain
     C = Y_UP_TO_Z_UP
     plans = species_plans(scene, used_only=False)
     lods = _lod_choice(scene, plans)
@@ -231,7 +240,7 @@ def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
         "tint": _save(folder, "points_tint.bin", tint, "<f4"),
     }
     t = _mesh_files(folder, "terrain", terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv)
-    t["colour"] = [float(c) for c in config.render.terrain_colour]
+    t["colour"] = list(ground_colour(scene))
     grid = terrain_texture(scene)
     if grid is not None:
         from ..images import write_image

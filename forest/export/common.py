@@ -294,15 +294,46 @@ def bound_radius(bound: np.ndarray) -> float:
 
 def terrain_texture(scene) -> np.ndarray | None:
     """Linear RGB (H, W, 3) over the terrain (map convention): the ground's albedo grid the renderers use
-    (``scene.terrain_albedo``: ``terrain_texture``, else ``[ground]``'s rules); None when the ground is one
-    material (``[render] terrain_colour`` given).  The grid's tileable detail texture is not exported."""
+    (``scene.terrain_albedo``: ``terrain_texture``, else ``[ground]``'s rules) times the fitted ``ground_tint``;
+    None when the ground is one material (:func:`ground_colour`).  The grid's tileable detail texture is not
+    exported."""
+    rgb = None
     albedo = getattr(scene, "terrain_albedo", None)
     if albedo is not None:
         rgb = np.asarray(albedo.rgb, np.float32)
-        return None if rgb.shape[0] * rgb.shape[1] == 1 else rgb
-    rc = scene.config.render
-    if rc.terrain_texture is not None:
+        if rgb.shape[0] * rgb.shape[1] == 1:
+            return None
+    elif scene.config.render.terrain_texture is not None:
         from ..images import read_map_rgb
 
-        return read_map_rgb(rc.terrain_texture, what="terrain texture")
-    return None
+        rgb = read_map_rgb(scene.config.render.terrain_texture, what="terrain texture")
+    if rgb is None:
+        return None
+    gt = _ground_tint(scene)
+    return rgb if gt is None else (rgb * gt).astype(np.float32)
+
+
+def _ground_tint(scene) -> np.ndarray | None:
+    """The Scene's fitted ground tint as float32 RGB, or None when it is 1 (nothing to multiply)."""
+    gt = np.asarray(getattr(scene, "ground_tint", np.ones(3)), np.float32).reshape(3)
+    return None if np.all(gt == 1.0) else gt
+
+
+def ground_colour(scene) -> tuple[float, float, float]:
+    """The ground's colour when it is one material: ``[render] terrain_colour`` times the fitted ``ground_tint``."""
+    c = np.asarray(scene.config.render.terrain_colour, np.float64).reshape(3)
+    gt = _ground_tint(scene)
+    if gt is not None:
+        c = c * gt.astype(np.float64)
+    return (float(c[0]), float(c[1]), float(c[2]))
+
+
+def look_instances(scene):
+    """The Scene's trees with the fitted leaf tint folded into their colour column (:meth:`Scene.tree_tints`):
+    what every exporter writes as a tree's colour.  The InstanceSet itself when no leaf tint is set."""
+    tints = scene.tree_tints() if hasattr(scene, "tree_tints") else scene.instances.tint
+    if tints is scene.instances.tint:
+        return scene.instances
+    import dataclasses
+
+    return dataclasses.replace(scene.instances, tint=tints)

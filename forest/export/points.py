@@ -13,7 +13,7 @@ attribute   type                    meaning
 ``id``      int                     the InstanceSet's stable tree id
 ``species`` int                     index into the species names (the config's
                                     ``[[species]]`` ``model`` strings)
-``Cd``      float × 3               the colour-map tint (linear RGB)
+``Cd``      float × 3               the tree's tint (linear RGB): colour map × leaf tint
 =========== ======================= =============================================
 
 so a copy or instancer node needs no attribute wrangling: the object→world
@@ -51,7 +51,7 @@ from ..atomic import atomic_path
 from ..errors import ForestError, ParameterError
 from ..instances import InstanceSet
 from ..scene import Scene
-from .common import check_instances
+from .common import check_instances, look_instances
 
 SUFFIXES = (".usda", ".usd", ".usdc", ".ply", ".csv")
 
@@ -175,7 +175,7 @@ def export_points(scene: Scene, path: str | Path, *, progress=None) -> PointsExp
     if path.is_dir():
         raise ParameterError("output", f"{path}: is a folder; give the points file's name")
     check_instances(scene.config, scene.instances)
-    attrs = point_attributes(scene.instances)
+    attrs = point_attributes(look_instances(scene))
     names = [str(n) for n in scene.instances.species_names]
     report = progress or (lambda f, m="": None)
     report(0.1, "points")

@@ -135,7 +135,9 @@ from .common import (
     check_instances,
     export_frames,
     export_options,
+    ground_colour,
     lod_mesh,
+    look_instances,
     measured_bounds,
     partition_rows,
     remove_stale,
@@ -999,7 +1001,7 @@ def export_rib(
     whole export succeeded; files of an earlier export into the same folder that
     this one did not write again (other partitions, frames, species) are removed.
     """
-    config, instances, terrain = scene.config, scene.instances, scene.terrain
+    config, instances, terrain = scene.config, look_instances(scene), scene.terrain
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
@@ -1065,7 +1067,7 @@ def export_rib(
                 result.objects = out_dir / "objects.rib"
                 result.bytes += objects.bytes
             report(0.05, "archives")
-            data = terrain_bytes(terrain, config.render.terrain_colour, r22, terrain_tex)
+            data = terrain_bytes(terrain, ground_colour(scene), r22, terrain_tex)
             (tmp / "terrain.rib").write_bytes(data)
             result.terrain = out_dir / "terrain.rib"
             result.bytes += len(data)

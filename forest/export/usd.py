@@ -71,7 +71,9 @@ from .common import (
     check_instances,
     export_frames,
     export_options,
+    ground_colour,
     lod_mesh,
+    look_instances,
     measured_bounds,
     partition_rows,
     species_plans,
@@ -482,7 +484,7 @@ def export_usd(
     written into a temporary folder and moved into place only when complete.
     """
     t0 = time.perf_counter()
-    config, instances, terrain = scene.config, scene.instances, scene.terrain
+    config, instances, terrain = scene.config, look_instances(scene), scene.terrain
     path = Path(path)
     if path.suffix.lower() not in SUFFIXES:
         raise ForestError(f"{path}: a USD file name must end in .usda, .usdc or .usd")
@@ -550,7 +552,7 @@ def export_usd(
                 write_image(tmp / f"{path.stem}_terrain.png", grid)
                 terrain_tex = f"./{path.stem}_terrain.png"
                 result.textures.append(path.parent / f"{path.stem}_terrain.png")
-            _terrain(stage, terrain, config.render.terrain_colour, terrain_tex)
+            _terrain(stage, terrain, ground_colour(scene), terrain_tex)
             _camera(stage, config, frame_list)
             _lights(stage, config, path.parent)
             UsdGeom.Xform.Define(stage, "/World/Forest")

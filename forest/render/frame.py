@@ -108,7 +108,13 @@ class FrameRenderer:
         skirt = skirt_radius(self.terrain.extent, float(config.camera.far)) if rc.horizon_ground else 0.0
         albedo = getattr(scene, "terrain_albedo", None)
         self.terrain_obj = terrain_dict(
-            config, self.terrain, variant, colour_grid=self.colour_grid, albedo=albedo, skirt=skirt
+            config,
+            self.terrain,
+            variant,
+            colour_grid=self.colour_grid,
+            albedo=albedo,
+            skirt=skirt,
+            tint=getattr(scene, "ground_tint", None),
         )
         self.emitters = emitter_dicts(config, variant, disc_sun=True)
         # Mitsuba 3.9.1's ``path`` tests shadow rays against whole leaf cards (alpha ignored);

@@ -8,6 +8,7 @@ triangles — the role ``DelayedReadArchive`` played in the original pipeline.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -90,8 +91,14 @@ class ForestBuilder:
         )
         self._bsdf_ids: dict = {}
         self._bsdfs: dict = {}
+        # The fitted leaf tint of each species index (Scene.leaf_tint; 1 without [lookdev] leaf_tint).
+        tint = getattr(scene, "leaf_tint", None)
+        self.leaf_tint = np.ones((len(self.species), 3)) if tint is None else np.asarray(tint, np.float64)
 
-    def _bsdf_ref(self, part) -> dict:
+    def _bsdf_ref(self, part, s: int | None = None) -> dict:
+        if s is not None and part.kind == "leaf" and s < len(self.leaf_tint) and not np.all(self.leaf_tint[s] == 1.0):
+            colour = tuple(float(c) for c in np.asarray(part.colour, np.float64) * self.leaf_tint[s])
+            part = dataclasses.replace(part, colour=colour)
         key = (
             part.kind,
             tuple(np.round(np.asarray(part.colour, float), 6)),
@@ -111,7 +118,7 @@ class ForestBuilder:
         lod = sp.lods[min(level, len(sp.lods) - 1)]
         group: dict[str, Any] = {"type": "shapegroup"}
         for k, part in enumerate(lod.parts):
-            group[f"part_{k}"] = {"type": "ply", "filename": str(part.path), "bsdf": self._bsdf_ref(part)}
+            group[f"part_{k}"] = {"type": "ply", "filename": str(part.path), "bsdf": self._bsdf_ref(part, s)}
         if len(group) == 1:
             raise ForestError(f"species {self.instances.species_names[s]!r} LOD {lod.name} has no parts")
         return group

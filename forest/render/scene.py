@@ -399,7 +399,14 @@ def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "t
 
 
 def terrain_reflectance(
-    config, terrain, variant: str, colour_grid: np.ndarray | None = None, *, albedo=None, fade: bool = False
+    config,
+    terrain,
+    variant: str,
+    colour_grid: np.ndarray | None = None,
+    *,
+    albedo=None,
+    fade: bool = False,
+    tint=None,
 ) -> dict:
     """The terrain's reflectance: its own texture, else the ground's albedo grid, else ``terrain_colour`` × the map.
 
@@ -412,11 +419,16 @@ def terrain_reflectance(
     the colour map (``colour_grid``, linear RGB, white = untinted) when there
     is one, else a constant ``terrain_colour``.  ``fade``: a grid fades to its
     mean colour past the terrain's edge (:func:`forest.render.ground.fade_beyond_edge`;
-    for the skirt that carries the ground to the horizon).
+    for the skirt that carries the ground to the horizon).  ``tint``: the Scene's fitted ``ground_tint``
+    (RGB) multiplying whichever of these it is, or None.
     """
     from .ground import fade_beyond_edge
 
+    gt = None if tint is None or np.all(np.asarray(tint) == 1.0) else np.asarray(tint, np.float32).reshape(3)
+
     def grid_texture(grid: np.ndarray, extent) -> dict:
+        if gt is not None:
+            grid = (np.asarray(grid, np.float32) * gt).astype(np.float32)
         if fade:
             grid, extent = fade_beyond_edge(grid, extent)
         return colour_grid_texture(grid, extent, terrain.height_range, variant)
@@ -430,11 +442,18 @@ def terrain_reflectance(
         return grid_texture(np.asarray(albedo.rgb, np.float32), getattr(albedo, "extent", terrain.extent))
     if colour_grid is not None:
         return grid_texture(np.asarray(colour_grid, np.float32) * base, terrain.extent)
-    return _rgb(base)
+    return _rgb(base if gt is None else base * gt)
 
 
 def terrain_dict(
-    config, terrain, variant: str, colour_grid: np.ndarray | None = None, *, albedo=None, skirt: float = 0.0
+    config,
+    terrain,
+    variant: str,
+    colour_grid: np.ndarray | None = None,
+    *,
+    albedo=None,
+    skirt: float = 0.0,
+    tint=None,
 ):
     """The terrain as a scene child: a ``Mesh`` object with a diffuse BSDF.
 
@@ -442,8 +461,8 @@ def terrain_dict(
     (``scene["terrain"] = terrain_dict(...)``).  Reflectance: see
     :func:`terrain_reflectance` (``colour_grid``: the Scene's colour map, linear
     RGB in the map convention, or None; ``albedo``: the Scene's
-    ``terrain_albedo`` or None); ``skirt``: see :func:`terrain_mesh`.
+    ``terrain_albedo`` or None; ``tint``: the Scene's ``ground_tint``); ``skirt``: see :func:`terrain_mesh`.
     """
-    reflectance = terrain_reflectance(config, terrain, variant, colour_grid, albedo=albedo, fade=skirt > 0)
+    reflectance = terrain_reflectance(config, terrain, variant, colour_grid, albedo=albedo, fade=skirt > 0, tint=tint)
     bsdf = {"type": "diffuse", "reflectance": reflectance}
     return terrain_mesh(terrain, variant, bsdf, skirt=skirt)

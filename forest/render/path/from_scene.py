@@ -79,23 +79,6 @@ def path_lights(config) -> tuple[SunLight | None, SkyLight | None]:
     return sun, sky
 
 
-def leaf_tints(config) -> np.ndarray | None:
-    """``[lookdev] leaf_tint`` (written by ``forest match``) as (S, 3) per species index, or None.
-
-    Keys are a species' ``name`` or ``model``; species it does not name keep 1.
-    """
-    table = config.lookdev.leaf_tint
-    if not table:
-        return None
-    out = np.ones((len(config.species), 3))
-    for i, sp in enumerate(config.species):
-        for key in (sp.name, sp.model):
-            if key is not None and key in table:
-                out[i] = np.asarray(table[key], np.float64)
-                break
-    return out
-
-
 def haze_inputs(config, terrain) -> HazeInputs | None:
     """``[render] haze`` & co as :class:`HazeInputs` (None when ``haze`` is 0): the ground is the terrain's
     lowest point; a camera ray that leaves the scene is hazed up to the end of the ground (the skirt's
@@ -180,8 +163,8 @@ def path_inputs(
         max_depth=int(rc.max_depth),
         spp=int(spp or rc.spp),
         seed=int(rc.seed),
-        leaf_tint=_per_index(leaf_tints(config), instances),
-        ground_tint=(1.0, 1.0, 1.0) if config.lookdev.ground_tint is None else tuple(config.lookdev.ground_tint),
+        leaf_tint=scene.leaf_tint if config.lookdev.leaf_tint else None,
+        ground_tint=tuple(float(x) for x in scene.ground_tint),
     )
 
 
@@ -220,13 +203,6 @@ def far_plan(scene: Scene, frames: list[float] | None = None, flatten_triangles:
             best = plan
     assert best is not None
     return best
-
-
-def _per_index(tints: np.ndarray | None, instances) -> np.ndarray | None:
-    """Tints by config species → by the InstanceSet's species index (its ``species_names`` are the models)."""
-    if tints is None:
-        return None
-    return tints[: len(instances.species_names)] if len(instances.species_names) <= len(tints) else None
 
 
 def preview_size(config, preview_width: int = 480) -> tuple[int, int]:
