@@ -91,27 +91,6 @@ def pixel_cells(u: np.ndarray, v: np.ndarray, cells: tuple[int, int]) -> np.ndar
     return out
 
 
-def pixel_weights(u: np.ndarray, v: np.ndarray, cells: tuple[int, int]) -> np.ndarray:
-    """(P, 9): the bilinear weight, at map coordinates (u, v), of each class's cell of :func:`pixel_cells`
-    (texel centres at the cells' centres, clamped at the edges as the renderer's texture is; 0 where none)."""
-    n, m = cells
-    fi = v * n - 0.5
-    fj = u * m - 0.5
-    ok = np.isfinite(fi) & np.isfinite(fj)
-    fi, fj = np.nan_to_num(fi), np.nan_to_num(fj)
-    i0, j0 = np.floor(fi).astype(np.int64), np.floor(fj).astype(np.int64)
-    ti, tj = fi - i0, fj - j0
-    out = np.zeros((len(u), 9))
-    rows = np.arange(len(u))
-    for di in (0, 1):
-        for dj in (0, 1):
-            i = np.clip(i0 + di, 0, n - 1)
-            j = np.clip(j0 + dj, 0, m - 1)
-            w = (ti if di else 1.0 - ti) * (tj if dj else 1.0 - tj)
-            np.add.at(out, (rows[ok], (3 * (i % 3) + (j % 3))[ok]), w[ok])
-    return out
-
-
 def base_map(painted: np.ndarray | None, cells: tuple[int, int], fresh: bool) -> np.ndarray:
     """M: the painted map (linear RGB) at its own resolution, or area-averaged to the cells (fresh / none).
 

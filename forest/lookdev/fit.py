@@ -31,7 +31,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .correction import cell_classes, pixel_cells, pixel_weights, upsample_operator
+from .correction import cell_classes, pixel_cells, upsample_operator
 from .look import ground_tint, leaf_tints
 from .params import Look
 from .renders import FitRenderer
@@ -45,9 +45,6 @@ MAX_ELASTICITY = 4.0
 UNSEEN_CELL = 0.01
 #: Light images pooled into the surrogate (the latest renders, see :meth:`Fitter._pooled`).
 POOL = 8
-#: How the map cells' elasticities are measured: "weights" (the tinted albedos' elasticity shared out by each
-#: pixel's bilinear weights, no extra render) or "renders" (nine forward renders, one per class of cells).
-MAP_ELASTICITY = "renders"
 #: Largest ln-change of any albedo between a pooled image's look and the current one (see :meth:`Fitter._pooled`).
 POOL_RADIUS = 0.5
 IMPLAUSIBLE = 3.0
@@ -172,28 +169,16 @@ class Fitter:
         if look.correction is not None and self.p.cells is not None and self._up is not None:
             lay = self.r.layers
             cells = pixel_cells(lay["u"].ravel(), lay["v"].ravel(), self.p.cells)
-            if MAP_ELASTICITY == "renders":
-                cur = self.grid(look)
-                assert cur is not None
-                classes = cell_classes(self.p.cells).ravel()
-                grid_e = np.zeros((9, *total.shape))
-                for c in range(9):
-                    ind = (classes == c).astype(np.float64)
-                    tangent = cur * (self._up @ ind).reshape(cur.shape[:2])[..., None]
-                    if not tangent.any():
-                        continue
-                    grid_e[c] = elasticity(self.r.log_derivative("grid", seed, tangent=tangent), inv)
-            else:
-                # What the map tints met the light: every species' leaves (and the ground where the map tints it).
-                tinted = (
-                    leaf_e.sum(axis=0) if leaf_e is not None else elasticity(self.r.log_derivative("leaves", seed), inv)
-                )
-                if self.r.terrain_tinted:
-                    tinted = tinted + (
-                        ground_e if ground_e is not None else elasticity(self.r.log_derivative("ground", seed), inv)
-                    )
-                w = pixel_weights(lay["u"].ravel(), lay["v"].ravel(), self.p.cells)
-                grid_e = w.T.reshape(9, *total.shape[:2], 1) * tinted[None]
+            cur = self.grid(look)
+            assert cur is not None
+            classes = cell_classes(self.p.cells).ravel()
+            grid_e = np.zeros((9, *total.shape))
+            for c in range(9):
+                ind = (classes == c).astype(np.float64)
+                tangent = cur * (self._up @ ind).reshape(cur.shape[:2])[..., None]
+                if not tangent.any():
+                    continue
+                grid_e[c] = elasticity(self.r.log_derivative("grid", seed, tangent=tangent), inv)
         grid_at = None if look.correction is None else look.correction.copy()
         return self._pooled(Linearisation(look, u, leaf_e, ground_e, grid_e, cells, light_images_b=ub, grid_at=grid_at))
 

@@ -120,7 +120,7 @@ class PixelLoss:
 
     def set_groups(self, labels: np.ndarray, names: dict[int, str]) -> None:
         """Name each residual by the region (``labels`` (H, W), ``names`` label → name) most of its block shows:
-        which observation pulls a parameter where it ends (:meth:`.fit.Fitter.drivers`)."""
+        which observation pulls a parameter where it ends (:meth:`.fit.Fitter.driver`)."""
         keys = sorted(names)
         votes = np.stack(
             [

@@ -140,14 +140,20 @@ N_FEATURES = 5
 
 def pixel_features(rgb: np.ndarray) -> np.ndarray:
     """(H, W, :data:`N_FEATURES`) features of a linear image for telling ground from canopy."""
-    from scipy.ndimage import uniform_filter
 
     c = np.maximum(np.asarray(rgb, np.float64), 1e-5)
     ly = np.log(np.maximum(c @ np.array([0.2126, 0.7152, 0.0722]), 1e-5))
     exg = (2 * c[..., 1] - c[..., 0] - c[..., 2]) / c.sum(axis=2)
-    mean = uniform_filter(ly, 3, mode="nearest")
-    spread = np.sqrt(np.maximum(uniform_filter(ly * ly, 3, mode="nearest") - mean * mean, 0.0))
+    spread = local_spread(ly, 3)
     return np.stack([ly, exg, np.log(c[..., 0] / c[..., 1]), np.log(c[..., 2] / c[..., 1]), spread], axis=-1)
+
+
+def local_spread(x: np.ndarray, size: int) -> np.ndarray:
+    """The standard deviation of ``x`` over each size×size window (edges clamped)."""
+    from scipy.ndimage import uniform_filter
+
+    mean = uniform_filter(x, size, mode="nearest")
+    return np.sqrt(np.maximum(uniform_filter(x * x, size, mode="nearest") - mean * mean, 0.0))
 
 
 def _standardised(f: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -185,8 +191,7 @@ def segment_photo(
     h, w = rgb.shape[:2]
     y = np.maximum(rgb @ np.array([0.2126, 0.7152, 0.0722]), 1e-5)
     ly = np.log(y)
-    mean = uniform_filter(ly, 5, mode="nearest")
-    std = np.sqrt(np.maximum(uniform_filter(ly * ly, 5, mode="nearest") - mean * mean, 0.0))
+    std = local_spread(ly, 5)
     s = rgb.sum(axis=2) + 1e-6
     exg = (2 * rgb[..., 1] - rgb[..., 0] - rgb[..., 2]) / s
     bright = ly > _otsu(ly.ravel())

@@ -102,8 +102,6 @@ class FitRenderer:
         self.haze = self.scene.haze  # HazeInputs with its colour resolved, or None
         if self.haze is not None:
             self.light_params.append("haze_colour")
-        #: Whether the colour map tints the terrain too (a plain terrain colour; see forest.render.ground).
-        self.terrain_tinted = bool(inputs.terrain_tinted and inputs.colour_grid is not None)
         self.start = self._start(config, scene)
         self.layers = self._layers()
 
