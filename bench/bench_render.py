@@ -493,8 +493,8 @@ def _point_sun() -> None:
 
     lights = from_scene.path_lights
 
-    def point_lights(config):
-        sun, sky = lights(config)
+    def point_lights(resolved):
+        sun, sky = lights(resolved)
         return (None if sun is None else dataclasses.replace(sun, angular_diameter=POINT_SUN_DEG)), sky
 
     from_scene.path_lights = point_lights

@@ -77,6 +77,7 @@ from .errors import ConfigError, ForestError
 from .ground import TerrainAlbedo, terrain_albedo
 from .instances import InstanceSet
 from .library import Library, Species
+from .lights import Lights, resolve_lights
 from .lod import LodPlan
 from .maps import colour_at, colour_tint_grid, read_colour_map
 from .preflight import check_species
@@ -139,6 +140,11 @@ class Scene:
         """Level of detail per tree seen from the camera at ``frame`` (:mod:`forest.lod`)."""
         inst = self.instances
         return self.lod.levels(inst.position, inst.species, self.camera_at(frame).position)
+
+    @property
+    def lights(self) -> Lights:
+        """The sun and sky, resolved once by one rule for every backend (:mod:`forest.lights`)."""
+        return resolve_lights(self.config)
 
     @property
     def leaf_tint(self) -> np.ndarray:

@@ -8,8 +8,8 @@ import pytest
 
 from forest.camera import camera_at
 from forest.errors import ConfigError, ForestError
-from forest.export.common import sun_direction
 from forest.export.rib import export_rib
+from forest.lights import resolve_lights
 from forest.scene import load_scene
 
 import ribcheck
@@ -173,16 +173,16 @@ def test_camera_is_left_handed_and_blurred(exported):
 
 def test_sun_direction_convention(tmp_path, lib):
     cfg = make_config(tmp_path, "").with_overrides({"lights.sun.azimuth": 90.0, "lights.sun.elevation": 30.0})
-    d = sun_direction(cfg.lights.sun)
+    d = resolve_lights(cfg).sun.direction
     np.testing.assert_allclose(d, [math.cos(math.radians(30)), 0.5, 0.0], atol=1e-12)  # east = +X
     cfg = cfg.with_overrides({"lights.sun.azimuth": 0.0})
-    np.testing.assert_allclose(sun_direction(cfg.lights.sun), [0.0, 0.5, math.cos(math.radians(30))], atol=1e-12)
+    np.testing.assert_allclose(resolve_lights(cfg).sun.direction, [0.0, 0.5, math.cos(math.radians(30))], atol=1e-12)
     res = export_rib(load_scene(cfg, make_instances(20), library=lib), tmp_path / "a")
     calls = ribcheck.parse(res.scenes[0].read_bytes())
     sun = next(c for c in calls if c.name == "LightSource" and c.args[0] == "distantlight")
     params = dict(zip(sun.args[2::2], sun.args[3::2]))
     light_travel = np.array(params["to"]) - np.array(params["from"])
-    np.testing.assert_allclose(-light_travel, sun_direction(cfg.lights.sun), atol=1e-8)
+    np.testing.assert_allclose(-light_travel, resolve_lights(cfg).sun.direction, atol=1e-8)
 
 
 def test_renderman22_output(tmp_path, lib):
@@ -197,7 +197,7 @@ def test_renderman22_output(tmp_path, lib):
     # the distant light's +Z (its direction of emission) is turned onto the sunlight's direction −d
     i = scene.index(lights["PxrDistantLight"])
     R = np.array(next(c for c in reversed(scene[:i]) if c.name == "ConcatTransform").args[0]).reshape(4, 4).T
-    np.testing.assert_allclose(R[:3, 2], -sun_direction(cfg.lights.sun), atol=1e-8)
+    np.testing.assert_allclose(R[:3, 2], -resolve_lights(cfg).sun.direction, atol=1e-8)
     trees = ribcheck.read_trees(calls["instances_north.rib"])
     assert trees and all(len(t["archives"]) >= 2 for t in trees)
     assert not any(c.name == "Procedural" for c in calls["instances_north.rib"])

@@ -12,9 +12,9 @@ from forest.camera import camera_at
 from forest.config import ConfigError
 from forest.errors import ParameterError
 from forest.export import radiometry
-from forest.export.common import sun_direction
 from forest.export.rib import DOME_ORIENTATION, export_rib
 from forest.images import read_image
+from forest.lights import resolve_lights
 from forest.render.instancing import tree_matrices
 from forest.scene import load_scene
 
@@ -133,7 +133,7 @@ def test_lights_in_each_flavour(tmp_path, textured):
     np.testing.assert_allclose(R[:3, :3] @ [0, 0, 1], [0, 1, 0], atol=1e-12)  # the dome's pole is world +Y
     i = calls.index(lights["PxrDistantLight"])
     R = np.array(next(c for c in reversed(calls[:i]) if c.name == "ConcatTransform").args[0]).reshape(4, 4).T
-    np.testing.assert_allclose(R[:3, 2], -sun_direction(cfg.lights.sun), atol=1e-8)
+    np.testing.assert_allclose(R[:3, 2], -resolve_lights(cfg).sun.direction, atol=1e-8)
 
 
 def test_terrain_takes_the_grounds_albedo(tmp_path, textured):

@@ -8,8 +8,8 @@ from pxr import Usd, UsdGeom, UsdLux
 
 from forest.camera import camera_at
 from forest.errors import ConfigError, ForestError
-from forest.export.common import sun_direction
 from forest.export.usd import export_usd
+from forest.lights import resolve_lights
 from forest.scene import load_scene
 from forest.terrain import load_terrain
 
@@ -135,7 +135,7 @@ def test_lights_and_terrain(exported):
     sun = UsdLux.DistantLight(stage.GetPrimAtPath("/World/Lights/Sun"))
     xf = np.array(UsdGeom.Xformable(sun).ComputeLocalToWorldTransform(Usd.TimeCode.Default())).T
     emission = xf[:3, :3] @ np.array([0.0, 0.0, -1.0])  # a DistantLight shines along −Z
-    np.testing.assert_allclose(emission, -sun_direction(cfg.lights.sun), atol=1e-12)
+    np.testing.assert_allclose(emission, -resolve_lights(cfg).sun.direction, atol=1e-12)
     # unnormalised disk radiance: E = L·π·sin²(α/2)
     half = math.radians(sun.GetAngleAttr().Get()) / 2
     assert not sun.GetNormalizeAttr().Get()

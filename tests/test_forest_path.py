@@ -16,8 +16,9 @@ from test_render import make_config, read_exr
 from forest.config import parse_config
 from forest.images import write_image
 from forest.instances import InstanceSet, yaw_tilt_quaternion
+from forest.lights import sun_vector
 from forest.render import render_scene
-from forest.render.path import Material, PathCamera, PathInputs, PathScene, SkyLight, SunLight, Surface, sun_direction
+from forest.render.path import Material, PathCamera, PathInputs, PathScene, SkyLight, SunLight, Surface
 from forest.render.path.from_scene import path_inputs
 from forest.scene import load_scene
 
@@ -339,7 +340,7 @@ def test_sunsky_lights_the_scene_from_above(tmp_path):
     ground = Surface(quad(0.0, 50.0), Material("surface", (0.5, 0.5, 0.5)))
     down = PathCamera(look([0.0, 10.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 20.0, 8, 8)
     up = PathCamera(look([0.0, 1.0, 0.0], [0.0, 2.0, 0.0], (0.0, 0.0, 1.0)), 20.0, 8, 8)
-    sun = SunLight(sun_direction(40.0, 120.0), (0.0, 0.0, 0.0))
+    sun = SunLight(sun_vector(40.0, 120.0), (0.0, 0.0, 0.0))
     scene = PathScene(surfaces_only([ground], down, sun=sun, sky=SkyLight("sunsky"), spp=16), VARIANT)
     lit = scene.render().rgb.reshape(-1, 3).mean(axis=0)
     zenith = scene.render(up).rgb.reshape(-1, 3).mean(axis=0)
@@ -355,7 +356,7 @@ def test_sun_and_sky_light_an_open_ground_exactly(tmp_path):
     L_out = a·(E sin θ / π + L).  Light sampling and BSDF sampling combined by MIS converge to it."""
     camera = PathCamera(look([0.0, 10.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 10.0, 6, 6)
     ground = Surface(quad(0.0, 1000.0), Material("surface", (0.5, 0.4, 0.3)))
-    sun = SunLight(sun_direction(30.0, 45.0), (2.0, 2.0, 2.0))
+    sun = SunLight(sun_vector(30.0, 45.0), (2.0, 2.0, 2.0))
     sky = SkyLight("constant", radiance=(0.2, 0.3, 0.5))
     img = PathScene(surfaces_only([ground], camera, sun=sun, sky=sky, spp=256, max_depth=2), VARIANT).render()
     expected = np.array([0.5, 0.4, 0.3]) * (2.0 * 0.5 / np.pi + np.array([0.2, 0.3, 0.5]))
@@ -409,7 +410,7 @@ def ad_scene(library):
         matrices=inst.matrices(),
         camera=PathCamera(look([0.0, 40.0, -50.0], [0.0, 0.0, 0.0]), 45.0, 24, 18),
         terrain=grid_terrain(np.zeros((5, 5)), (60.0, 60.0)),
-        sun=SunLight(sun_direction(50.0, 20.0), (2.0, 1.8, 1.6)),
+        sun=SunLight(sun_vector(50.0, 20.0), (2.0, 1.8, 1.6)),
         sky=SkyLight("constant", radiance=(0.3, 0.35, 0.5)),
         colour_grid=grid,
         terrain_colour=(0.3, 0.25, 0.2),
@@ -693,7 +694,7 @@ def test_haze_glows_toward_the_sun_and_fades_distant_ground(library):
     scattering, g = 0.7); a dark ground far away tends to the haze's radiance J, near it stays dark."""
     from forest.render.path.haze import HazeInputs, hg_np
 
-    sun = SunLight(sun_direction(10.0, 0.0), (3.0, 3.0, 3.0))  # low in the north (+Z)
+    sun = SunLight(sun_vector(10.0, 0.0), (3.0, 3.0, 3.0))  # low in the north (+Z)
     ground = Surface(quad(0.0, 5000.0), Material("surface", (0.0, 0.0, 0.0)))
     haze = HazeInputs(density=0.002, height=1e5, colour=(0.1, 0.1, 0.1), anisotropy=0.7, sky_distance=4000.0)
     images = {}
@@ -726,7 +727,7 @@ def haze_scene(library):
         matrices=inst.matrices(),
         camera=PathCamera(look([0.0, 40.0, -50.0], [0.0, 0.0, 0.0]), 45.0, 24, 18),
         terrain=grid_terrain(np.zeros((5, 5)), (60.0, 60.0)),
-        sun=SunLight(sun_direction(50.0, 20.0), (2.0, 1.8, 1.6)),
+        sun=SunLight(sun_vector(50.0, 20.0), (2.0, 1.8, 1.6)),
         sky=SkyLight("constant", radiance=(0.3, 0.35, 0.5)),
         terrain_colour=(0.3, 0.25, 0.2),
         haze=HazeInputs(density=0.01, height=30.0, colour=(0.4, 0.45, 0.6), anisotropy=0.5, sky_distance=500.0),

@@ -346,6 +346,29 @@ max_distance = 8.0
     assert off.max() <= 8.0 and cover[:, 0].min() < -35 and cover[:, 0].max() > 35
 
 
+def test_a_scene_with_ground_cover_exports_everywhere(tmp_path):
+    """Every exporter takes a scene with ground cover (before, RIB, USD, Blender and points all refused it: "do not match"), and writes
+    the cover's clumps with the trees."""
+    import ribcheck
+
+    cfg = flat(tmp_path, COVER.replace("density = 4.0", "density = 0.5"), count=200)
+    inst, _ = scatter(cfg)
+    outputs = {
+        "rib": ("rib", "-o", tmp_path / "rib", "--frames", "1"),
+        "usd": ("usd", "-o", tmp_path / "scene.usda", "--frames", "1"),
+        "points": ("points", "-o", tmp_path / "points.csv"),
+    }
+    for name, args in outputs.items():
+        r = run_forest("export", args[0], cfg.path, *args[1:], "-q")
+        assert r.returncode == 0, (name, r.stderr)
+    ids = set()
+    for path in sorted((tmp_path / "rib").glob("*.rib")):
+        ids |= {int(t["name"][5:]) for t in ribcheck.read_trees(ribcheck.parse(path.read_bytes()))}
+    assert ids == {int(i) for i in inst.id}  # trees and clumps, every one
+    rows = (tmp_path / "points.csv").read_text().strip().splitlines()
+    assert len(rows) == 1 + len(inst)
+
+
 def test_saved_set_with_ground_cover_is_refused_for_another_camera(tmp_path):
     from forest.errors import ConfigError
     from forest.scatter import scene_instances

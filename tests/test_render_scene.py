@@ -8,9 +8,10 @@ import pytest
 from forest.camera import look_at_matrix
 from forest.config import parse_config
 from forest.errors import ForestError
+from forest.lights import sun_vector
 from forest.lod import lod_levels
 from forest.render.instancing import sway_angles, sway_rotation
-from forest.render.scene import colour_grid_texture, emitter_dicts, sensor_dict, sun_vector, terrain_dict
+from forest.render.scene import colour_grid_texture, emitter_dicts, sensor_dict, terrain_dict
 from forest.runtime import mitsuba
 from forest.terrain import load_terrain
 

@@ -57,6 +57,7 @@ from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import ConfigError
 from ..errors import ForestError, ParameterError
 from ..instances import quaternion_to_matrix
+from ..lights import resolve_lights
 from ..scene import Scene
 from . import radiometry
 from .common import (
@@ -66,7 +67,6 @@ from .common import (
     lod_mesh,
     look_instances,
     species_plans,
-    sun_direction,
     terrain_texture,
 )
 
@@ -83,13 +83,10 @@ def haze_colour(config) -> tuple[float, float, float]:
     hc = config.render.haze_colour
     if hc is not None:
         return (float(hc[0]), float(hc[1]), float(hc[2]))
-    sky = config.lights.sky
+    sky = resolve_lights(config).sky
     if sky is not None and sky.kind == "constant":
-        return (
-            float(sky.radiance * sky.colour[0]),
-            float(sky.radiance * sky.colour[1]),
-            float(sky.radiance * sky.colour[2]),
-        )
+        r, g, b = (float(c) for c in sky.radiance)
+        return (r, g, b)
     return (0.5, 0.6, 0.75)
 
 
@@ -253,10 +250,10 @@ def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
         m = to_blender_matrix(look_at_matrix(s.position, s.target, s.up) @ np.diag([-1.0, 1.0, -1.0, 1.0]))
         keys.append({"frame": int(f), "matrix": [float(x) for x in m.ravel()], "fov": float(s.fov)})
     camera = {"near": float(config.camera.near), "far": float(config.camera.far), "keys": keys}
-    lights = config.lights
+    lights = scene.lights
     sun = None
-    if lights.sun is not None and lights.sun.elevation > 0 and lights.sun.irradiance > 0:
-        m = to_blender_matrix(frame_from_z(sun_direction(lights.sun)))  # local +Z towards the sun
+    if lights.sun is not None:
+        m = to_blender_matrix(frame_from_z(lights.sun.direction))  # local +Z towards the sun
         sun = {
             "strength": radiometry.blender_sun_strength(lights.sun.irradiance),
             "colour": [float(c) for c in lights.sun.colour],
@@ -264,19 +261,18 @@ def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
             "matrix": [float(x) for x in m.ravel()],
         }
     sky: dict | None = None
-    sky_cfg = lights.sky
-    if sky_cfg is not None:
-        if sky_cfg.kind == "constant":
-            sky = {"strength": float(sky_cfg.radiance), "colour": [float(c) for c in sky_cfg.colour]}
-        elif sky_cfg.kind == "envmap" and sky_cfg.envmap is not None:
+    sky_light = lights.sky
+    if sky_light is not None:
+        strength, colour = sky_light.dome()
+        if sky_light.kind == "envmap":
+            assert sky_light.envmap is not None  # the schema requires it for this kind
             sky = {
-                "strength": float(sky_cfg.scale),
-                "envmap": str(Path(sky_cfg.envmap).resolve()),
+                "strength": strength,
+                "envmap": str(Path(sky_light.envmap).resolve()),
                 "rotation_z": ENVMAP_ROTATION_Z,
             }
-        else:  # physical sun-sky: the neutral blue dome the other exporters stand in with
-            scale = sky_cfg.sunsky.scale if sky_cfg.sunsky is not None else 1.0
-            sky = {"strength": 0.35 * float(scale), "colour": [0.6, 0.75, 1.0]}
+        else:  # a constant sky, or the neutral blue dome a physical sun-sky is written as
+            sky = {"strength": strength, "colour": [float(c) for c in colour]}
     r = config.render
     manifest = {
         "format": 1,

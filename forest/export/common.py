@@ -1,16 +1,15 @@
-"""What the RIB and USD exporters share: frames, the sun, species and their levels of detail.
+"""What the RIB and USD exporters share: frames, species and their levels of detail.
 
 Conventions (both exporters, and the same as the Mitsuba renderer):
 
 * World space is the scene's: metres, **Y up, right-handed**; trees stand on
   the terrain with their base at the object origin.
-* **Sun direction.**  ``[lights.sun]`` gives an elevation θ above the horizon
-  and an azimuth φ measured clockwise, seen from above, from +Z (north) towards
-  +X (east).  The unit vector from the ground *towards* the sun is
-
-      d = (cos θ · sin φ,  sin θ,  cos θ · cos φ)
-
-  so φ = 0 puts the sun over +Z, φ = 90° over +X; sunlight travels along −d.
+* **Sun and sky** are :mod:`forest.lights`' (one rule for every backend): the
+  unit vector from the ground *towards* the sun is d = (cos θ · sin φ, sin θ,
+  cos θ · cos φ) for an elevation θ and an azimuth φ clockwise from +Z (north)
+  towards +X (east), so φ = 0 puts the sun over +Z, φ = 90° over +X; sunlight
+  travels along −d.  A physical sun-sky is written as its sun (a distant light)
+  and a dome (:meth:`forest.lights.Sky.dome`).
 * **Levels of detail.**  ``[lod] distances = [d₁, …, dₙ]`` split the distance
   from the camera into n + 1 bands; band i (0 = nearest) uses the species'
   i-th level (high, medium, low, far).  A species with fewer levels keeps its
@@ -30,17 +29,11 @@ from typing import Any
 import numpy as np
 
 from ..camera import parse_frames
-from ..config import Config, SunConfig
+from ..config import Config
 from ..errors import ForestError, ParameterError
 from ..instances import InstanceSet
 from ..library import Species
-
-
-def sun_direction(sun: SunConfig) -> np.ndarray:
-    """Unit vector from the ground towards the sun (see the module docstring)."""
-    from ..render.scene import sun_vector  # one convention for render, RIB and USD
-
-    return sun_vector(sun.elevation, sun.azimuth)
+from ..scatter.models import scatter_models
 
 
 def export_frames(config: Config, frames: str | list[int] | None = None) -> list[int]:
@@ -224,10 +217,11 @@ def measured_bounds(lod, meshes=None) -> np.ndarray:
 
 def check_instances(config: Config, instances: InstanceSet) -> None:
     """The InstanceSet belongs to this config and holds finite numbers (one line otherwise)."""
-    if list(instances.species_names) != [s.model for s in config.species]:
+    models = scatter_models(config)
+    if list(instances.species_names) != models:
         raise ForestError(
             f"instances: species {instances.species_names} do not match the config's "
-            f"[[species]] models {[s.model for s in config.species]}; scatter again"
+            f"[[species]] and [[ground_cover]] models {models}; scatter again"
         )
     for col in ("position", "rotation", "scale", "tint"):
         a = getattr(instances, col)

@@ -128,6 +128,7 @@ from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import Config, ConfigError
 from ..errors import ForestError, ParameterError
 from ..instances import InstanceSet, quaternion_to_matrix
+from ..lights import resolve_lights
 from ..scene import Scene
 from . import radiometry
 from .common import (
@@ -143,7 +144,6 @@ from .common import (
     remove_stale,
     slug,
     species_plans,
-    sun_direction,
     terrain_texture,
 )
 from .text import Field, LeftInt, RowWriter, format_numbers
@@ -330,37 +330,23 @@ def ri_fov(fov_x: float, width: int, height: int) -> float:
 DOME_ORIENTATION = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
 
-def sky_terms(config: Config) -> tuple[float, tuple[float, float, float]] | None:
-    """(radiance scale, colour) of the sky as a constant or an environment map; None without a sky."""
-    k = config.lights.sky
-    if k is None:
-        return None
-    if k.kind == "constant":
-        r, g, b = (float(c) for c in k.colour)
-        return float(k.radiance), (r, g, b)
-    if k.kind == "envmap":
-        return float(k.scale), (1.0, 1.0, 1.0)
-    scale = k.sunsky.scale if k.sunsky is not None else 1.0
-    return 0.35 * float(scale), (0.6, 0.75, 1.0)  # physical sun-sky: a neutral blue dome stands in
-
-
 def lights_text(config: Config, renderman22: bool, envmap: str | None = None) -> str:
     """Sun and sky as RI 3.2 ``LightSource`` calls or RenderMan 22+ ``Light`` calls.
 
     Units (:mod:`forest.export.radiometry`): RI 3.2 ``distantlight`` intensity
     E/π and ``ambientlight`` intensity L; ``PxrDistantLight`` the radiance
     E / (π sin²(α/2)) of the 0.53° sun disk, ``PxrDomeLight`` L.  The sun shines
-    along −d (d from :func:`forest.export.common.sun_direction`): a
+    along −d (d towards the sun, :mod:`forest.lights`): a
     ``distantlight`` from d to the origin, or a ``PxrDistantLight`` whose local
     +Z axis — its direction of emission — is turned onto −d.  The dome is turned
     by :data:`DOME_ORIENTATION`; ``envmap`` is the path of its image as the RIB
     names it.
     """
-    lights = config.lights
+    lights = resolve_lights(config)
     out = []
-    if lights.sun is not None and lights.sun.elevation > 0 and lights.sun.irradiance > 0:
-        s = lights.sun  # (a sun at or below the horizon lights nothing, as in the render)
-        d = sun_direction(s)
+    if lights.sun is not None:
+        s = lights.sun
+        d = s.direction
         if renderman22:
             out += [
                 "  AttributeBegin",
@@ -379,9 +365,8 @@ def lights_text(config: Config, renderman22: bool, envmap: str | None = None) ->
                 f'  LightSource "distantlight" 1 "intensity" [{num(radiometry.distantlight_intensity(s.irradiance))}] '
                 f'"lightcolor" [{nums(s.colour)}] "from" [{nums(d)}] "to" [0 0 0]'
             )
-    sky = sky_terms(config)
-    if sky is not None:
-        intensity, colour = sky
+    if lights.sky is not None:
+        intensity, colour = lights.sky.dome()
         if renderman22:
             extra = f' "string lightColorMap" [{rib_string(envmap)}]' if envmap else ""
             out += [

@@ -38,8 +38,8 @@ render uses).
 transform has columns (right, up, −forward, position).  Its apertures keep the
 config's horizontal field of view: focalLength = (horizontalAperture / 2) /
 tan(fov / 2).  A DistantLight emits along its local −Z; its transform turns
-local +Z onto d, the direction towards the sun (see
-:func:`forest.export.common.sun_direction`), so the light travels along −d.
+local +Z onto d, the direction towards the sun (:mod:`forest.lights`), so the
+light travels along −d.
 
 **Texture coordinates.**  USD's st has t = 0 at the bottom of an image; the
 library's uv and the terrain's map coordinates have v = 0 at the top row, so
@@ -62,6 +62,7 @@ from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import Config, ConfigError
 from ..errors import ForestError
 from ..instances import InstanceSet
+from ..lights import resolve_lights
 from ..scene import Scene
 from . import radiometry
 from .common import (
@@ -77,7 +78,6 @@ from .common import (
     measured_bounds,
     partition_rows,
     species_plans,
-    sun_direction,
     terrain_texture,
 )
 
@@ -381,9 +381,9 @@ def _camera(stage, config: Config, frames: list[int]):
 def _lights(stage, config: Config, out_dir: Path):
     Gf, Sdf, _Usd, UsdGeom, UsdLux, _Vt = _pxr()
     UsdGeom.Scope.Define(stage, "/World/Lights")
-    lights = config.lights
-    if lights.sun is not None and lights.sun.elevation > 0 and lights.sun.irradiance > 0:
-        s = lights.sun  # (a sun at or below the horizon lights nothing, as in the render)
+    lights = resolve_lights(config)
+    if lights.sun is not None:
+        s = lights.sun
         sun = UsdLux.DistantLight.Define(stage, "/World/Lights/Sun")
         # unnormalised: intensity is the disk's radiance, E / (π sin²(α/2)) (forest.export.radiometry)
         sun.CreateIntensityAttr(radiometry.disk_radiance(s.irradiance, radiometry.SUN_ANGLE_DEG))
@@ -392,15 +392,13 @@ def _lights(stage, config: Config, out_dir: Path):
         sun.CreateColorAttr(Gf.Vec3f(*s.colour))
         sun.CreateAngleAttr(radiometry.SUN_ANGLE_DEG)
         # A DistantLight emits along its local −Z: turning +Z onto d makes it shine along −d.
-        sun.AddTransformOp().Set(gf_matrix(frame_from_z(sun_direction(s))))
-    if lights.sky is not None:
-        k = lights.sky
+        sun.AddTransformOp().Set(gf_matrix(frame_from_z(s.direction)))
+    k = lights.sky
+    if k is not None:
         sky = UsdLux.DomeLight.Define(stage, "/World/Lights/Sky")
-        if k.kind == "constant":
-            sky.CreateIntensityAttr(float(k.radiance))
-            sky.CreateColorAttr(Gf.Vec3f(*k.colour))
-        elif k.kind == "envmap":
-            sky.CreateIntensityAttr(float(k.scale))
+        intensity, colour = k.dome()
+        sky.CreateIntensityAttr(intensity)
+        if k.kind == "envmap":
             assert k.envmap is not None  # the schema requires it for this kind
             try:
                 ref = os.path.relpath(str(k.envmap), str(out_dir))
@@ -408,10 +406,8 @@ def _lights(stage, config: Config, out_dir: Path):
                 ref = str(k.envmap)
             sky.CreateTextureFileAttr(Sdf.AssetPath(Path(ref).as_posix()))
             sky.CreateTextureFormatAttr(UsdLux.Tokens.latlong)
-        else:  # physical sun-sky: a neutral blue dome stands in
-            scale = float(k.sunsky.scale) if k.sunsky is not None else 1.0
-            sky.CreateIntensityAttr(0.35 * scale)
-            sky.CreateColorAttr(Gf.Vec3f(0.6, 0.75, 1.0))
+        else:  # a constant sky, or the dome a physical sun-sky is written as
+            sky.CreateColorAttr(Gf.Vec3f(*colour))
 
 
 def write_instancer(

@@ -38,6 +38,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..lights import DEFAULT_SUN
 from ..render.path import PathScene, SkyLight
 from ..render.path.emitters import SkyBasis
 from ..render.path.from_scene import haze_inputs, path_inputs
@@ -107,23 +108,19 @@ class FitRenderer:
 
     # -- the start ------------------------------------------------------------------------
     def _start(self, config, scene) -> Start:
-        lights = config.lights
+        lights = scene.lights
         sun = lights.sun
         sky = lights.sky
-        sun_on = (
-            sun is not None
-            and sun.elevation > 0
-            and self.inputs.sun is not None
-            and (sky is None or sky.kind != "sunsky")
-        )
-        e_sun = np.asarray(sun.colour, np.float64) * float(sun.irradiance) if sun is not None else np.zeros(3)
+        sun_on = sun is not None and not lights.sunsky and self.inputs.sun is not None  # a disc sun, on
+        pose = sun if sun is not None else (sky.sun if sky is not None and sky.sun is not None else DEFAULT_SUN)
+        e_sun = sun.rgb if sun is not None else np.zeros(3)
         sk, sd = rgb_to_cct(e_sun) if sun_on else (5500.0, 0.0)
         kind = None if sky is None else sky.kind
         sky_rgb = np.zeros(3)
         sky_power = 0.0
         sky_k, sky_d = 12000.0, 0.0
         if kind == "constant":
-            sky_rgb = np.asarray(sky.colour, np.float64) * float(sky.radiance)
+            sky_rgb = sky.radiance
             sky_power = math.pi * float(luminance(sky_rgb))
             sky_k, sky_d = rgb_to_cct(sky_rgb)
         elif kind is not None:
@@ -139,8 +136,8 @@ class FitRenderer:
         tc = np.asarray(self.inputs.terrain_colour, np.float64)
         terrain = tc.reshape(-1, 3).mean(axis=0) if tc.ndim == 3 else tc.reshape(3)
         return Start(
-            sun_elevation=float(sun.elevation) if sun is not None else 35.0,
-            sun_azimuth=float(sun.azimuth) if sun is not None else 120.0,
+            sun_elevation=float(pose.elevation),
+            sun_azimuth=float(pose.azimuth),
             sun_on=bool(sun_on),
             sun_y=float(luminance(e_sun)) if sun_on else 0.0,
             sun_kelvin=sk,

@@ -3,15 +3,12 @@
 Every function returns a plain Mitsuba scene-description dict (``mi.load_dict``
 input), so callers can nest them, swap pieces or traverse their parameters.
 
-Conventions (see DESIGN.md): metres, Y up; the camera looks along +Z of its
+Conventions: metres, Y up; the camera looks along +Z of its
 frame with +X to the left (:func:`forest.camera.look_at_matrix`); the field of
-view is horizontal (``fov_axis = "x"``).  Sun azimuth is measured clockwise
-from +Z (north) towards +X (east), elevation above the horizon, so the unit
-vector towards the sun is
-
-    s = (sin A · cos E,  sin E,  cos A · cos E)
-
-and the ``directional`` emitter's propagation direction is −s.
+view is horizontal (``fov_axis = "x"``).  The sun and sky come from
+:mod:`forest.lights`, one rule for every backend; its equation (1) gives the
+unit vector s towards the sun, and the ``directional`` emitter's propagation
+direction is −s.
 """
 
 from __future__ import annotations
@@ -22,6 +19,7 @@ import numpy as np
 
 from ..camera import camera_at, look_at_matrix
 from ..errors import ConfigError, ForestError
+from ..lights import resolve_lights
 from ..runtime import captured_stderr, mitsuba
 
 #: Height margin (metres) added above and below the terrain's height range for the
@@ -110,12 +108,6 @@ def sensor_dict(
 # ---------------------------------------------------------------------------
 
 
-def sun_vector(elevation: float, azimuth: float) -> np.ndarray:
-    """Unit vector towards the sun: (sin A cos E, sin E, cos A cos E), degrees in."""
-    e, a = math.radians(elevation), math.radians(azimuth)
-    return np.array([math.sin(a) * math.cos(e), math.sin(e), math.cos(a) * math.cos(e)])
-
-
 def check_envmap(config) -> None:
     """Check ``[lights.sky] envmap`` before anything is built; a :class:`ConfigError` on ``lights.sky.envmap``.
 
@@ -165,7 +157,7 @@ def check_render_inputs(config) -> None:
     An environment map is also test-loaded by Mitsuba (:func:`_envmap`), which
     refuses some files OpenImageIO reads (an EXR with 2 or 5 channels).
     """
-    if config.lights.sky is not None and config.lights.sky.kind == "envmap":
+    if resolve_lights(config).require(config.path).sky is not None and config.lights.sky.kind == "envmap":
         _envmap(config, "scalar_rgb")
     _terrain_texture(config)
 
@@ -240,58 +232,47 @@ SUN_DISTANCE = 1.0e6
 
 
 def emitter_dicts(config, variant: str, *, disc_sun: bool = False) -> dict[str, dict]:
-    """Emitters for ``[lights]``: ``{"sun": directional | disk, "sky": constant | envmap | sunsky}``.
+    """Emitters for the config's lights (:func:`forest.lights.resolve_lights`): ``{"sun": directional | disk,
+    "sky": constant | envmap | sunsky}``.
 
     * sun — irradiance ``irradiance · colour`` (W/m² per RGB channel on a
-      surface facing it) travelling along −s (see the module docstring); left
-      out when the sun is at or below the horizon.  ``disc_sun``: a disc of
-      ``forest.render.path.inputs.SUN_ANGULAR_DIAMETER`` (:func:`sun_disc_dict`,
-      soft shadows), else Mitsuba's ``directional`` (a point).
+      surface facing it), shining along −s; present when the sun is on.
+      ``disc_sun``: a disc of ``forest.render.path.inputs.SUN_ANGULAR_DIAMETER``
+      (:func:`sun_disc_dict`, soft shadows) instead of Mitsuba's point-like ``directional``.
     * sky — ``constant`` radiance ``radiance · colour``; or an ``envmap``
       (latitude–longitude, +Y up) scaled by ``scale``; or Mitsuba's ``sunsky``
       (Hosek–Wilkie sky + sun, Z-up in Mitsuba, rotated here to Y-up) pointed
-      at the ``[lights.sun]`` direction, which then replaces the sun; its sun
-      and sky are scaled by one factor so its sun sends ``[lights.sun]
-      irradiance`` (:func:`forest.render.path.emitters.sunsky_scale`), times
-      ``sunsky.scale``.
+      at its sun, which it then replaces; its sun and sky are scaled by one
+      factor so its sun sends that sun's irradiance
+      (:func:`forest.render.path.emitters.sunsky_scale`), times ``sunsky.scale``.
 
-    An environment map is checked first (:func:`check_envmap`, then a test
+    An environment map is checked and test-loaded here (Mitsuba has a strict
     load), so a bad one fails here naming ``lights.sky.envmap``, not inside
-    the scene's loader.
+    ``mi.load_dict`` with a traceback.
     """
     from .path.emitters import sunsky_dict, sunsky_scale
     from .path.inputs import SUN_ANGULAR_DIAMETER
 
     mi = mitsuba(variant)
-    lights = config.lights
-    out: dict[str, dict] = {}
-    sun = lights.sun
+    lights = resolve_lights(config).require(config.path)
     sky = lights.sky
     if sky is not None and sky.kind == "sunsky":
-        el, az = (sun.elevation, sun.azimuth) if sun is not None else (35.0, 120.0)
-        d = sun_vector(el, az)
-        target = float(sun.irradiance) if sun is not None else 3.0
-        k = sunsky_scale(mi, d, sky.sunsky.turbidity, sky.sunsky.albedo, target) * float(sky.sunsky.scale)
-        out["sky"] = sunsky_dict(mi, d, sky.sunsky.turbidity, sky.sunsky.albedo, sun_scale=k, sky_scale=k)
-        return out
+        assert sky.sun is not None  # resolve_lights always points a sun-sky at a sun
+        d = sky.sun.direction
+        k = sunsky_scale(mi, d, sky.turbidity, sky.albedo, float(sky.sun.irradiance)) * float(sky.intensity)
+        return {"sky": sunsky_dict(mi, d, sky.turbidity, sky.albedo, sun_scale=k, sky_scale=k)}
+    out: dict[str, dict] = {}
+    sun = lights.sun
     if sun is not None:
-        irr = float(sun.irradiance)
-        col = np.asarray(sun.colour, dtype=np.float64)
-        if sun.elevation > 0 and irr > 0:
-            s = sun_vector(sun.elevation, sun.azimuth)
-            if disc_sun:
-                out["sun"] = sun_disc_dict(variant, s, irr * col, SUN_ANGULAR_DIAMETER, SUN_DISTANCE)
-            else:
-                out["sun"] = {"type": "directional", "direction": [float(x) for x in -s], "irradiance": _rgb(irr * col)}
-    if sky is not None:
-        if sky.kind == "envmap":
-            out["sky"] = _envmap(config, variant)
+        s = sun.direction
+        if disc_sun:
+            out["sun"] = sun_disc_dict(variant, s, sun.rgb, SUN_ANGULAR_DIAMETER, SUN_DISTANCE)
         else:
-            rad = float(sky.radiance)
-            col = np.asarray(sky.colour, dtype=np.float64)
-            out["sky"] = {"type": "constant", "radiance": _rgb(rad * col)}
-    if not out:
-        raise ForestError(f"{config.path}: lights: no light left (sun below the horizon and no sky)")
+            out["sun"] = {"type": "directional", "direction": [float(x) for x in -s], "irradiance": _rgb(sun.rgb)}
+    if sky is not None:
+        out["sky"] = (
+            _envmap(config, variant) if sky.kind == "envmap" else {"type": "constant", "radiance": _rgb(sky.radiance)}
+        )
     return out
 
 

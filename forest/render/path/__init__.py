@@ -18,7 +18,7 @@ light scales (path replay, reverse and forward mode).
 from __future__ import annotations
 
 from .frame import PathImage, PathScene, render_frame
-from .inputs import Material, PathCamera, PathInputs, SkyLight, SunLight, Surface, sun_direction
+from .inputs import Material, PathCamera, PathInputs, SkyLight, SunLight, Surface
 
 __all__ = [
     "Material",
@@ -30,5 +30,4 @@ __all__ = [
     "SunLight",
     "Surface",
     "render_frame",
-    "sun_direction",
 ]

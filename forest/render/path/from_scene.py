@@ -15,14 +15,12 @@ from dataclasses import replace
 import numpy as np
 
 from ...camera import camera_at, look_at_matrix
+from ...lights import Lights
 from ...scene import Scene
 from ..ground import ground_look, skirt_radius
 from ..instancing import tree_matrices
 from .haze import HazeInputs
-from .inputs import PathCamera, PathInputs, SkyLight, SunLight, sun_direction
-
-#: ``[lights.sun] irradiance``'s default (W/m² facing the sun), for a sunsky without a [lights.sun].
-DEFAULT_SUN_IRRADIANCE = 3.0
+from .inputs import PathCamera, PathInputs, SkyLight, SunLight
 
 
 def path_camera(config, frame: float = 1.0, width: int | None = None, height: int | None = None) -> PathCamera:
@@ -40,43 +38,38 @@ def path_camera(config, frame: float = 1.0, width: int | None = None, height: in
     )
 
 
-def path_lights(config) -> tuple[SunLight | None, SkyLight | None]:
-    """``[lights]`` as a disc sun and a sky (``sunsky`` keeps the sun for its direction and irradiance).
+def path_lights(lights: Lights) -> tuple[SunLight | None, SkyLight | None]:
+    """:class:`~forest.lights.Lights` as a disc sun and a sky.
 
-    A ``sunsky`` sky is normalised (:attr:`SkyLight.sun_irradiance`): its sun sends
-    ``[lights.sun] irradiance`` facing it (luminance), the sky keeps the model's ratio
-    to it, and ``[lights.sky.sunsky] scale`` multiplies both.
+    A ``sunsky`` sky keeps a :class:`SunLight` for the direction it is pointed at
+    (:attr:`forest.lights.Sky.sun`; its irradiance zero when that sun is off) and
+    is normalised (:attr:`SkyLight.sun_irradiance`): its sun sends that sun's
+    irradiance facing it (luminance), the sky keeps the model's ratio to it, and
+    ``[lights.sky.sunsky] scale`` multiplies both.
     """
-    lights = config.lights
-    sun = sky = None
-    s = lights.sun
-    if s is not None:
-        direction = sun_direction(s.elevation, s.azimuth)
-        irradiance = np.asarray(s.colour, np.float64) * float(s.irradiance)
-        if s.elevation <= 0:
-            irradiance = irradiance * 0.0
-        sun = SunLight(tuple(direction.tolist()), tuple(irradiance.tolist()))
     k = lights.sky
-    if k is not None:
-        if k.kind == "sunsky":
-            target = float(s.irradiance) if s is not None else DEFAULT_SUN_IRRADIANCE
-            if sun is None:
-                sun = SunLight(tuple(sun_direction(35.0, 120.0).tolist()), (0.0, 0.0, 0.0))
-            sky = SkyLight(
-                "sunsky",
-                scale=float(k.sunsky.scale),
-                turbidity=float(k.sunsky.turbidity),
-                albedo=float(k.sunsky.albedo),
-                sun_scale=float(k.sunsky.scale),
-                sun_irradiance=target,
-            )
-        elif k.kind == "envmap":
-            sky = SkyLight("envmap", envmap=k.envmap, scale=float(k.scale))
-        else:
-            sky = SkyLight("constant", radiance=tuple((np.asarray(k.colour) * float(k.radiance)).tolist()))
-    if sun is not None and sky is not None and sky.kind != "sunsky" and max(sun.irradiance) <= 0:
-        sun = None
-    return sun, sky
+    if k is not None and k.kind == "sunsky":
+        assert k.sun is not None  # resolve_lights always points a sun-sky at a sun
+        on = lights.sun is not None
+        irradiance = k.sun.rgb if on else np.zeros(3)
+        sun = SunLight(tuple(k.sun.direction.tolist()), tuple(irradiance.tolist()))
+        sky = SkyLight(
+            "sunsky",
+            scale=float(k.intensity),
+            turbidity=float(k.turbidity),
+            albedo=float(k.albedo),
+            sun_scale=float(k.intensity),
+            sun_irradiance=float(k.sun.irradiance),
+        )
+        return sun, sky
+    disc = (
+        None if lights.sun is None else SunLight(tuple(lights.sun.direction.tolist()), tuple(lights.sun.rgb.tolist()))
+    )
+    if k is None:
+        return disc, None
+    if k.kind == "envmap":
+        return disc, SkyLight("envmap", envmap=k.envmap, scale=float(k.intensity))
+    return disc, SkyLight("constant", radiance=tuple(k.radiance.tolist()))
 
 
 def haze_inputs(config, terrain) -> HazeInputs | None:
@@ -139,7 +132,7 @@ def path_inputs(
     t = frame / config.camera.fps if time_s is None else time_s
     matrices = tree_matrices(instances, t, config.wind)
     look = ground_look(scene)
-    sun, sky = path_lights(config)
+    sun, sky = path_lights(scene.lights.require(config.path))
     species, individuals = scene_species(scene)
     return PathInputs(
         instances=instances,

@@ -10,7 +10,6 @@ RGB, the camera looking along +Z of its frame with +X to the left and a
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -253,9 +252,3 @@ class PathInputs:
             self.haze.validate()
         if self.terrain_detail is not None and not float(self.terrain_detail_tile) > 0.0:
             raise ForestError(f"path inputs: terrain_detail_tile must be > 0 m, got {self.terrain_detail_tile}")
-
-
-def sun_direction(elevation: float, azimuth: float) -> np.ndarray:
-    """Unit vector towards the sun, (sin A cos E, sin E, cos A cos E); degrees in (as ``forest.render.scene``)."""
-    e, a = math.radians(elevation), math.radians(azimuth)
-    return np.array([math.sin(a) * math.cos(e), math.sin(e), math.cos(a) * math.cos(e)])

@@ -1,0 +1,163 @@
+"""The lights, resolved once from ``[lights]``: the sun and sky every renderer and exporter reads.
+
+**Directions.**  Y is up; an azimuth A is measured clockwise from +Z (north)
+towards +X (east) and an elevation E above the horizon, in degrees.  The unit
+vector from the ground towards the sun is
+
+    s = (sin A cos E,  sin E,  cos A cos E)                                    (1)
+
+(:func:`sun_vector`); a directional light shines along −s.
+
+**One rule for "is the sun on".**  Before this module each backend decided for
+itself (the scalar renderer, forest_path, RIB, USD, Blender and look-dev each
+had their own test).  Here:
+
+* :attr:`Lights.sun` is the sun that lights the scene: ``[lights.sun]`` when its
+  elevation and irradiance are both above zero, else None (a sun at or below the
+  horizon lights nothing).
+* A ``sunsky`` sky is Mitsuba's Hosek–Wilkie sky *and sun* pointed at
+  ``[lights.sun]`` — or, without one, at the default sun (35° high, azimuth 120°,
+  3 W/m², :data:`DEFAULT_SUN`) — and scaled so its sun sends that sun's
+  irradiance (:attr:`Sky.sun` is the sun it is pointed at, below the horizon
+  too).  Renderers with the sky model (Mitsuba's ``sunsky``, forest_path) draw
+  the model's own sun and so skip :attr:`Lights.sun`; exporters, whose targets
+  have no Hosek–Wilkie model, write :attr:`Lights.sun` as a distant light and the
+  sky as a dome (:meth:`Sky.dome`).
+* A ``constant`` sky has radiance ``radiance × colour``; an ``envmap`` sky is
+  the latitude–longitude image (+Y up) times ``scale``.
+
+The Scene carries the result (``scene.lights``); functions that have only a
+config call :func:`resolve_lights`, the same rule.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from .errors import ConfigError
+
+RGB = tuple[float, float, float]
+
+#: The dome exporters stand in for a physical sun-sky with: intensity 0.35 × ``sunsky.scale``, a neutral blue.
+SUNSKY_DOME: tuple[float, RGB] = (0.35, (0.6, 0.75, 1.0))
+
+
+def sun_vector(elevation: float, azimuth: float) -> np.ndarray:
+    """Unit vector towards the sun, equation (1): (sin A cos E, sin E, cos A cos E); degrees in."""
+    e, a = math.radians(elevation), math.radians(azimuth)
+    return np.array([math.sin(a) * math.cos(e), math.sin(e), math.cos(a) * math.cos(e)])
+
+
+@dataclass(frozen=True)
+class Sun:
+    """A sun: its position in the sky (degrees), irradiance facing it (W/m² per unit colour) and linear RGB colour."""
+
+    elevation: float
+    azimuth: float
+    irradiance: float
+    colour: RGB
+
+    @property
+    def direction(self) -> np.ndarray:
+        """Unit vector from the ground towards the sun, equation (1)."""
+        return sun_vector(self.elevation, self.azimuth)
+
+    @property
+    def rgb(self) -> np.ndarray:
+        """Irradiance per RGB channel facing the sun: ``irradiance × colour`` (float64)."""
+        return float(self.irradiance) * np.asarray(self.colour, dtype=np.float64)
+
+    @property
+    def lit(self) -> bool:
+        """True when the sun is above the horizon and sends light."""
+        return self.elevation > 0 and self.irradiance > 0
+
+
+#: The sun a ``sunsky`` sky points at when the config has no ``[lights.sun]`` (the schema's defaults).
+DEFAULT_SUN = Sun(elevation=35.0, azimuth=120.0, irradiance=3.0, colour=(1.0, 0.95, 0.88))
+
+
+@dataclass(frozen=True)
+class Sky:
+    """A sky: ``constant`` (``intensity × colour`` radiance), ``envmap`` (``envmap`` × ``intensity``) or
+    ``sunsky`` (Hosek–Wilkie, pointed at and normalised to ``sun``, times ``intensity``).
+
+    ``intensity`` is the constant sky's ``radiance``, the environment map's ``scale`` or the sun-sky's
+    ``scale``; ``colour`` is the constant sky's (white otherwise).
+    """
+
+    kind: Literal["constant", "envmap", "sunsky"]
+    intensity: float = 1.0
+    colour: RGB = (1.0, 1.0, 1.0)
+    envmap: Path | None = None
+    turbidity: float = 3.0
+    albedo: float = 0.15
+    sun: Sun | None = None
+
+    @property
+    def radiance(self) -> np.ndarray:
+        """A constant sky's radiance per RGB channel, ``intensity × colour`` (float64)."""
+        return float(self.intensity) * np.asarray(self.colour, dtype=np.float64)
+
+    def dome(self) -> tuple[float, RGB]:
+        """(intensity, colour) of a dome light for renderers without the sky model.
+
+        A constant sky is itself; an environment map is its ``scale`` over white (the image gives the
+        colour); a sun-sky is the neutral blue stand-in :data:`SUNSKY_DOME` times its ``scale``.
+        """
+        if self.kind == "sunsky":
+            return SUNSKY_DOME[0] * float(self.intensity), SUNSKY_DOME[1]
+        return float(self.intensity), self.colour
+
+
+@dataclass(frozen=True)
+class Lights:
+    """The sun that lights the scene (None when off) and the sky (None without one); see the module docstring."""
+
+    sun: Sun | None
+    sky: Sky | None
+
+    @property
+    def sunsky(self) -> bool:
+        """True when the sky is the physical sun-sky, whose model draws the sun itself."""
+        return self.sky is not None and self.sky.kind == "sunsky"
+
+    def require(self, path) -> Lights:
+        """These lights, or a :class:`~forest.errors.ConfigError` on ``lights`` of config file ``path`` when
+        nothing lights the scene (no sky and the sun off)."""
+        if self.sun is None and self.sky is None:
+            raise ConfigError(
+                path,
+                "lights",
+                "no light left (the sun is at or below the horizon, or sends nothing, and there is no sky)",
+            )
+        return self
+
+
+def _sun(cfg) -> Sun:
+    r, g, b = (float(c) for c in cfg.colour)
+    return Sun(float(cfg.elevation), float(cfg.azimuth), float(cfg.irradiance), (r, g, b))
+
+
+def resolve_lights(config) -> Lights:
+    """``config.lights`` as :class:`Lights`, by the rules of the module docstring."""
+    cfg = config.lights
+    sun = _sun(cfg.sun) if cfg.sun is not None else None
+    sky = None
+    k = cfg.sky
+    if k is not None:
+        if k.kind == "sunsky":
+            sun = sun if sun is not None else DEFAULT_SUN
+            ss = k.sunsky
+            sky = Sky("sunsky", float(ss.scale), turbidity=float(ss.turbidity), albedo=float(ss.albedo), sun=sun)
+        elif k.kind == "envmap":
+            sky = Sky("envmap", float(k.scale), envmap=Path(k.envmap))
+        else:
+            r, g, b = (float(c) for c in k.colour)
+            sky = Sky("constant", float(k.radiance), (r, g, b))
+    return Lights(sun=sun if sun is not None and sun.lit else None, sky=sky)
