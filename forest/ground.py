@@ -11,7 +11,8 @@ metres.  A renderer's ground albedo at a hit (x, z) is :meth:`TerrainAlbedo.at`:
 
 Where the albedo comes from, first match wins:
 
-1. ``[render] terrain_texture`` — the image (sRGB decoded), as the map convention lays it;
+1. ``[render] terrain_texture`` — the image (sRGB decoded), as the map convention lays it, without
+   the detail texture (:func:`read_terrain_texture`, the one reader of that setting);
 2. ``[render] terrain_colour`` given in the file — one material of that colour;
 3. ``[ground]`` — ``base`` everywhere, then every rule painted over it in order
    (the default rules when none are given, :data:`DEFAULT_RULES`).
@@ -342,6 +343,20 @@ def paint_rules(
     return rgb.astype(np.float32)
 
 
+def read_terrain_texture(config: Config) -> np.ndarray | None:
+    """``[render] terrain_texture`` as linear RGB (H, W, 3), or None without one; a file that cannot be read is a
+    :class:`~forest.errors.ConfigError` on ``render.terrain_texture``.  The only reader of that setting."""
+    path = config.render.terrain_texture
+    if path is None:
+        return None
+    from .images import read_map_rgb
+
+    try:
+        return read_map_rgb(path, what="terrain texture")
+    except ForestError as e:
+        raise ConfigError(config.path, "render.terrain_texture", str(e)) from None
+
+
 def terrain_albedo(
     config: Config, terrain: Terrain, instances: InstanceSet, species: Sequence[Species]
 ) -> TerrainAlbedo:
@@ -349,13 +364,9 @@ def terrain_albedo(
     ground = config.model.ground
     detail, tile = detail_texture(ground)
     rc = config.render
-    if rc.terrain_texture is not None:
-        from .images import read_map_rgb
-
-        try:
-            rgb = read_map_rgb(rc.terrain_texture, what="terrain texture")
-        except ForestError as e:
-            raise ConfigError(config.path, "render.terrain_texture", str(e)) from None
+    texture = read_terrain_texture(config)
+    if texture is not None:
+        rgb, detail, tile = texture, None, 0.0  # a painted ground texture is used as it is
     elif "terrain_colour" in rc.model_fields_set:
         rgb = np.asarray(rc.terrain_colour, np.float32).reshape(1, 1, 3)
     else:

@@ -44,7 +44,14 @@ the count) when the config asks for fewer than the set was scattered with.
 **Ground.**  ``scene.terrain_albedo`` (:class:`forest.ground.TerrainAlbedo`) is
 the terrain's own albedo by slope, altitude, moisture, canopy and maps, or
 ``[render] terrain_texture`` / ``terrain_colour``; the colour map does not
-tint the ground.
+tint the ground.  It is the only place the ground is resolved: the scalar
+renderer (:func:`forest.render.scene.terrain_reflectance`), forest_path
+(:mod:`forest.render.path.ground`) and the exporters
+(:func:`forest.export.common.terrain_texture`) read it, with the fitted
+``ground_tint``; none reads ``[render] terrain_texture`` again.
+
+**Lights.**  ``scene.lights`` (:class:`forest.lights.Lights`) is the sun and
+sky by one rule for every backend.
 
 **Ground cover** rows follow the trees' in the InstanceSet with their own
 species indices (``species_names`` = :func:`forest.scatter.scatter_models`).
@@ -125,8 +132,8 @@ class Scene:
     library: Library
     species: tuple[Species, ...]  # per species index of the InstanceSet
     lod: LodPlan
+    terrain_albedo: TerrainAlbedo  # the ground, resolved once (forest.ground)
     individuals: tuple[tuple[Species, ...], ...] = ()  # per species index; [s][0] is species[s]
-    terrain_albedo: TerrainAlbedo | None = None
 
     @property
     def path(self) -> Path | None:
@@ -329,4 +336,4 @@ def load_scene(
     ground = terrain_albedo(config, terrain, inst, species)
     lod = LodPlan(config.lod.bands, tuple(len(sp.lods) for sp in species))
     step(1.0, "scene")
-    return Scene(config, terrain, inst, colour, library, species, lod, individuals, ground)
+    return Scene(config, terrain, inst, colour, library, species, lod, ground, individuals)

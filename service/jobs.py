@@ -442,19 +442,13 @@ def _check_inputs(config: Any) -> None:
     finite and non-negative radiance) and the terrain texture.  Mitsuba's own test
     load of an environment map is left to the worker, which has the renderer loaded.
     """
-    from forest.errors import ConfigError, ForestError
-    from forest.images import read_map_rgb
+    from forest.ground import read_terrain_texture
     from forest.preflight import check_species
     from forest.render.scene import check_envmap
 
     check_species(config, _library())
     check_envmap(config)
-    texture = getattr(config.render, "terrain_texture", None)
-    if texture is not None:
-        try:
-            read_map_rgb(texture, what="terrain texture")
-        except ForestError as e:
-            raise ConfigError(config.path, "render.terrain_texture", str(e)) from None
+    read_terrain_texture(config)
 
 
 class _Names:

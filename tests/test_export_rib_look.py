@@ -15,8 +15,8 @@ from forest.export import radiometry
 from forest.export.rib import DOME_ORIENTATION, export_rib
 from forest.images import read_image
 from forest.lights import resolve_lights
-from forest.render.instancing import tree_matrices
 from forest.scene import load_scene
+from forest.wind import tree_matrices
 
 import ribcheck
 from export_support import FakeLibrary, fly_keys, make_config, make_instances

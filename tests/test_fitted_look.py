@@ -94,8 +94,8 @@ def test_the_scalar_renderer_tints_the_leaves_and_the_ground(scenes):
         seen[label] = builder._bsdfs[ref["id"]]
     colour = {k: np.array(_rgb_of(v)) for k, v in seen.items()}
     np.testing.assert_allclose(colour["fitted"] / colour["plain"], OAK, rtol=1e-5)
-    base = terrain_reflectance(plain.config, plain.terrain, "scalar_rgb")
-    tinted = terrain_reflectance(fitted.config, fitted.terrain, "scalar_rgb", tint=fitted.ground_tint)
+    base = terrain_reflectance(plain.terrain_albedo, plain.terrain, "scalar_rgb")
+    tinted = terrain_reflectance(fitted.terrain_albedo, fitted.terrain, "scalar_rgb", tint=fitted.ground_tint)
     np.testing.assert_allclose(np.array(tinted["value"]) / np.array(base["value"]), GROUND, rtol=1e-5)
 
 

@@ -272,7 +272,7 @@ def test_each_tree_is_drawn_as_its_own_individual(tmp_path, library, variant):
 def test_the_ground_past_the_terrain_fades_to_its_mean_colour():
     """The skirt's albedo: the grid inside untouched, each side padded with texels of the grid's size that blend
     from the border texel to the grid's mean, so clamped lookups far out give one colour, not stripes."""
-    from forest.render.ground import fade_beyond_edge
+    from forest.skirt import fade_beyond_edge
 
     rng = np.random.default_rng(5)
     grid = rng.uniform(0.05, 0.6, (40, 60, 3)).astype(np.float32)

@@ -8,14 +8,22 @@ import pytest
 from forest.camera import look_at_matrix
 from forest.config import parse_config
 from forest.errors import ForestError
+from forest.ground import TerrainAlbedo, terrain_albedo
+from forest.instances import InstanceSet
 from forest.lights import sun_vector
 from forest.lod import lod_levels
-from forest.render.instancing import sway_angles, sway_rotation
 from forest.render.scene import colour_grid_texture, emitter_dicts, sensor_dict, terrain_dict
 from forest.runtime import mitsuba
 from forest.terrain import load_terrain
+from forest.wind import sway_angles, sway_rotation
 
 VARIANTS = ("scalar_rgb", "llvm_ad_rgb")
+
+
+def ground_of(cfg, terrain) -> TerrainAlbedo:
+    """The ground a Scene of ``cfg`` resolves on a bare terrain (no trees)."""
+    return terrain_albedo(cfg, terrain, InstanceSet.empty(species_names=["box"]), ())
+
 
 TOP_DOWN = """
 [terrain]
@@ -56,7 +64,7 @@ def ground_points(config, width, height):
 
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_colour_grid_follows_the_map_convention(variant):
-    """A 2×2 colour map on the terrain: each quadrant renders in its map colour (row → +Z, column → +X)."""
+    """A 2×2 albedo grid on the terrain: each quadrant renders in its colour (row → +Z, column → +X)."""
     mi = mitsuba(variant)
     cfg = parse_config(TOP_DOWN)
     terrain = load_terrain(cfg.terrain)
@@ -74,7 +82,7 @@ def test_colour_grid_follows_the_map_convention(variant):
             "integrator": {"type": "path", "max_depth": 2},
             "sensor": sensor_dict(cfg, variant=variant),
             **emitter_dicts(cfg, variant),
-            "terrain": terrain_dict(cfg, terrain, variant, colour_grid=fine),
+            "terrain": terrain_dict(TerrainAlbedo(fine, terrain.extent), terrain, variant),
         }
     )
     img = np.asarray(mi.render(scene, seed=3))[..., :3]
@@ -271,7 +279,7 @@ def test_envmap_dome_light(tmp_path):
             "integrator": {"type": "path", "max_depth": 2},
             "sensor": sensor_dict(cfg, width=8, height=8, spp=64),
             **e,
-            "terrain": terrain_dict(cfg, terrain, "scalar_rgb"),
+            "terrain": terrain_dict(ground_of(cfg, terrain), terrain, "scalar_rgb"),
         }
     )
     img = np.asarray(mi.render(scene))[..., :3]
@@ -296,7 +304,7 @@ def test_terrain_texture_overrides_terrain_colour(tmp_path):
             "integrator": {"type": "path", "max_depth": 2},
             "sensor": sensor_dict(cfg),
             **emitter_dicts(cfg, "scalar_rgb"),
-            "terrain": terrain_dict(cfg, load_terrain(cfg.terrain), "scalar_rgb"),
+            "terrain": terrain_dict(ground_of(cfg, terrain := load_terrain(cfg.terrain)), terrain, "scalar_rgb"),
         }
     )
     img = np.asarray(mi.render(scene))[..., :3]

@@ -291,17 +291,8 @@ def terrain_texture(scene) -> np.ndarray | None:
     (``scene.terrain_albedo``: ``terrain_texture``, else ``[ground]``'s rules) times the fitted ``ground_tint``;
     None when the ground is one material (:func:`ground_colour`).  The grid's tileable detail texture is not
     exported."""
-    rgb = None
-    albedo = getattr(scene, "terrain_albedo", None)
-    if albedo is not None:
-        rgb = np.asarray(albedo.rgb, np.float32)
-        if rgb.shape[0] * rgb.shape[1] == 1:
-            return None
-    elif scene.config.render.terrain_texture is not None:
-        from ..images import read_map_rgb
-
-        rgb = read_map_rgb(scene.config.render.terrain_texture, what="terrain texture")
-    if rgb is None:
+    rgb = np.asarray(scene.terrain_albedo.rgb, np.float32)
+    if rgb.shape[0] * rgb.shape[1] == 1:
         return None
     gt = _ground_tint(scene)
     return rgb if gt is None else (rgb * gt).astype(np.float32)

@@ -56,7 +56,7 @@ byte matrix per block of :data:`CHUNK` trees and streamed to disk
 **Matrices.**  RenderMan transforms row vectors (p' = p·M), the InstanceSet
 column vectors (p' = M·p); ``ConcatTransform`` therefore receives Mᵀ, row by
 row.  M is the renderer's own tree matrix at the frame's time t = frame / fps,
-wind sway included (:func:`forest.render.instancing.tree_matrices`): with
+wind sway included (:func:`forest.wind.tree_matrices`): with
 ``[wind] strength`` > 0 every frame gets its own instance files
 (``instances_<partition>_<frame>.rib``), as it does when the frames' fields of
 view differ and levels of detail are on (the raster areas below depend on it).
@@ -719,11 +719,11 @@ def field_digits(instances: InstanceSet) -> dict:
 def block_matrices(instances: InstanceSet, rows: np.ndarray, time_s: float | None, wind) -> np.ndarray:
     """Object→world (N, 4, 4) of the trees ``rows``: T · R_sway(θ(t)) · R(q) · S(s).
 
-    The same matrices as :func:`forest.render.instancing.tree_matrices` (the
+    The same matrices as :func:`forest.wind.tree_matrices` (the
     renderer's sway, pivoting at the trunk base), for one block of trees; no sway
     when ``time_s`` is None.
     """
-    from ..render.instancing import sway_angles, sway_rotation
+    from ..wind import sway_angles, sway_rotation
 
     m = np.zeros((len(rows), 4, 4), dtype=np.float64)
     m[:, :3, :3] = quaternion_to_matrix(instances.rotation[rows].astype(np.float64))
@@ -1090,7 +1090,7 @@ def export_rib(
             result.instance_seconds = time.perf_counter() - t1
             result.instance_cpu_seconds = time.process_time() - c1
             envmap = None
-            sky = config.lights.sky
+            sky = scene.lights.sky
             if sky is not None and sky.kind == "envmap" and sky.envmap is not None:
                 envmap = relative_reference(sky.envmap, out_dir)
             for f in frame_list:

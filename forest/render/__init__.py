@@ -6,7 +6,7 @@
 * :mod:`forest.render.post` — aerial perspective and the optional denoiser.
 * :mod:`forest.render.scene` — camera, lights, colour grid and terrain as Mitsuba scene dicts.
 * :mod:`forest.render.materials` — library parts → BSDFs per variant.
-* :mod:`forest.render.instancing` — wind sway, shapegroups and instances.
+* :mod:`forest.render.instancing` — shapegroups and instances (the sway is :mod:`forest.wind`).
 """
 
 from .render import RenderResult, render_image, render_scene

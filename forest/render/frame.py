@@ -49,9 +49,10 @@ from ..errors import ForestError
 from ..imaging import denoise
 from ..runtime import mitsuba
 from ..scene import Scene
+from ..skirt import skirt_radius
+from ..wind import tree_matrices
 from .coverage import SampleCoverage, frame_mattes, sample_ids
-from .ground import skirt_radius
-from .instancing import ForestBuilder, ForestGraph, tree_matrices
+from .instancing import ForestBuilder, ForestGraph
 from .materials import MaterialBuilder
 from .output import FrameImage
 from .post import apply_haze
@@ -106,15 +107,8 @@ class FrameRenderer:
         self.materials = MaterialBuilder(variant, self.colour_grid, self.terrain.extent, self.terrain.height_range)
         self.forest = ForestBuilder(scene, self.materials)
         skirt = skirt_radius(self.terrain.extent, float(config.camera.far)) if rc.horizon_ground else 0.0
-        albedo = getattr(scene, "terrain_albedo", None)
         self.terrain_obj = terrain_dict(
-            config,
-            self.terrain,
-            variant,
-            colour_grid=self.colour_grid,
-            albedo=albedo,
-            skirt=skirt,
-            tint=getattr(scene, "ground_tint", None),
+            scene.terrain_albedo, self.terrain, variant, skirt=skirt, tint=scene.ground_tint
         )
         self.emitters = emitter_dicts(config, variant, disc_sun=True)
         # Mitsuba 3.9.1's ``path`` tests shadow rays against whole leaf cards (alpha ignored);

@@ -1,4 +1,4 @@
-"""Instanced forests: level of detail, wind sway and the shapegroup/instance scene graph.
+"""Instanced forests for the scalar renderer: level of detail and the shapegroup/instance scene graph.
 
 One ``shapegroup`` per (species, individual, level of detail) holds that LOD's parts; each
 tree is one ``instance`` record (a 4×4 transform and a reference), so memory
@@ -15,45 +15,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import ForestError
-from ..instances import InstanceSet
 from ..lod import LOD_NAMES
 from ..runtime import mitsuba
 from .materials import MaterialBuilder
-
-
-def sway_angles(phase: np.ndarray, time_s: float, wind) -> np.ndarray:
-    """Sway angle per tree, radians: θᵢ(t) = A · sin(2π f t + φᵢ).
-
-    A = ``[wind] strength`` (degrees), f = ``frequency`` (Hz), φᵢ the tree's
-    random phase (``InstanceSet.phase``), so neighbours do not move in lockstep.
-    """
-    if wind.strength <= 0:
-        return np.zeros(len(phase))
-    return np.radians(wind.strength) * np.sin(2.0 * np.pi * wind.frequency * time_s + phase.astype(np.float64))
-
-
-def sway_rotation(theta: np.ndarray, direction_deg: float) -> np.ndarray:
-    """(N, 3, 3) rotations tilting +Y towards the wind by θ (Rodrigues' formula).
-
-    The wind blows towards w = (sin D, 0, cos D) (D clockwise from +Z, like the
-    sun's azimuth); the axis is k = Y × w = (w_z, 0, −w_x) and
-    R = I cos θ + sin θ [k]ₓ + (1 − cos θ) k kᵀ, which takes +Y to
-    Y cos θ + w sin θ.
-    """
-    d = np.radians(direction_deg)
-    k = np.array([np.cos(d), 0.0, -np.sin(d)])
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    c, s = np.cos(theta)[:, None, None], np.sin(theta)[:, None, None]
-    return c * np.eye(3) + s * kx + (1.0 - c) * np.outer(k, k)
-
-
-def tree_matrices(instances: InstanceSet, time_s: float, wind) -> np.ndarray:
-    """Object→world (N, 4, 4): T(p) · R_sway(θ(t)) · R(q) · S(s); the sway pivots at the trunk base."""
-    m = instances.matrices()
-    if wind.strength > 0 and len(instances):
-        r = sway_rotation(sway_angles(instances.phase, time_s, wind), wind.direction)
-        m[:, :3, :3] = r @ m[:, :3, :3]
-    return m
 
 
 @dataclass
@@ -96,7 +60,8 @@ class ForestBuilder:
         self.leaf_tint = np.ones((len(self.species), 3)) if tint is None else np.asarray(tint, np.float64)
 
     def _bsdf_ref(self, part, s: int | None = None) -> dict:
-        if s is not None and part.kind == "leaf" and s < len(self.leaf_tint) and not np.all(self.leaf_tint[s] == 1.0):
+        tinted = bool(getattr(part, "tinted", False))  # the leaf tint multiplies the parts the colour map tints
+        if s is not None and tinted and s < len(self.leaf_tint) and not np.all(self.leaf_tint[s] == 1.0):
             colour = tuple(float(c) for c in np.asarray(part.colour, np.float64) * self.leaf_tint[s])
             part = dataclasses.replace(part, colour=colour)
         key = (

@@ -37,9 +37,9 @@ import numpy as np
 from ..camera import camera_at, subframe_times
 from ..imaging import denoise
 from ..scene import Scene
+from ..wind import tree_matrices
 from .coverage import SampleCoverage, frame_mattes, sample_ids
 from .frame import FrameSize
-from .instancing import tree_matrices
 from .output import FrameImage
 from .path import PathScene
 from .path.frame import split_passes

@@ -241,7 +241,7 @@ def render_scene(
             "forest:wind_strength": float(config.wind.strength),
             "forest:haze": float(rc.haze),
             "forest:haze_height": float(rc.haze_height),
-            "forest:sky": config.lights.sky.kind if config.lights.sky is not None else "none",
+            "forest:sky": sky.kind if (sky := scene.lights.sky) is not None else "none",
         }
         written += write_frame(
             exr,

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..camera import camera_at, look_at_matrix
 from ..errors import ConfigError, ForestError
+from ..ground import read_terrain_texture
 from ..lights import resolve_lights
 from ..runtime import captured_stderr, mitsuba
 
@@ -116,12 +117,13 @@ def check_envmap(config) -> None:
     truncated files) and hold finite, non-negative radiance: Mitsuba's
     ``envmap`` accepts NaN and negative texels and then renders NaN pixels.
     """
-    sky = config.lights.sky
+    sky = resolve_lights(config).sky
     if sky is None or sky.kind != "envmap":
         return
     from ..images import read_image
 
     path = sky.envmap
+    assert path is not None  # the schema requires it for this kind
     if path.suffix.lower() not in ENVMAP_SUFFIXES:
         raise ConfigError(
             config.path,
@@ -138,28 +140,16 @@ def check_envmap(config) -> None:
         raise ConfigError(config.path, ENVMAP_FIELD, f"{path}: {bad:,} negative values; radiance must be >= 0")
 
 
-def _terrain_texture(config):
-    """The ``[render] terrain_texture`` image as linear RGB, or None; a bad file fails naming the field."""
-    path = getattr(config.render, "terrain_texture", None)
-    if path is None:
-        return None
-    from ..images import read_map_rgb
-
-    try:
-        return read_map_rgb(path, what="terrain texture")
-    except ForestError as e:
-        raise ConfigError(config.path, "render.terrain_texture", str(e)) from None
-
-
 def check_render_inputs(config) -> None:
     """The files only a render reads (environment map, terrain texture), checked before any work.
 
     An environment map is also test-loaded by Mitsuba (:func:`_envmap`), which
     refuses some files OpenImageIO reads (an EXR with 2 or 5 channels).
     """
-    if resolve_lights(config).require(config.path).sky is not None and config.lights.sky.kind == "envmap":
+    sky = resolve_lights(config).require(config.path).sky
+    if sky is not None and sky.kind == "envmap":
         _envmap(config, "scalar_rgb")
-    _terrain_texture(config)
+    read_terrain_texture(config)
 
 
 #: Environment maps already checked in this process, by (path, size, modification time).
@@ -172,8 +162,9 @@ def _envmap(config, variant: str) -> dict:
     Whatever Mitsuba's loader still refuses is reported against ``lights.sky.envmap``
     in one line, with Mitsuba's own stderr captured.
     """
-    sky = config.lights.sky
-    d = {"type": "envmap", "filename": str(sky.envmap), "scale": float(sky.scale)}
+    sky = resolve_lights(config).sky
+    assert sky is not None and sky.envmap is not None  # called for an envmap sky only
+    d = {"type": "envmap", "filename": str(sky.envmap), "scale": float(sky.intensity)}
     try:
         st = sky.envmap.stat()
         key = (str(sky.envmap.resolve()), st.st_size, st.st_mtime_ns)
@@ -227,7 +218,7 @@ def sun_disc_dict(variant: str, direction, irradiance, angular_diameter: float, 
     }
 
 
-#: Distance of the scalar renderer's sun disk, metres (beyond any skirt: ``forest.render.ground``).
+#: Distance of the scalar renderer's sun disk, metres (beyond any skirt: :mod:`forest.skirt`).
 SUN_DISTANCE = 1.0e6
 
 
@@ -341,7 +332,7 @@ def colour_grid_texture(grid, extent, height_range, variant: str, *, filter_type
 def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "terrain", *, skirt: float = 0.0):
     """The terrain as a Mitsuba ``Mesh`` object (positions, faces, smooth normals, uv) with ``bsdf``.
 
-    ``skirt`` > 0 adds the ground that carries it to that radius (:func:`forest.render.ground.skirt_mesh`).
+    ``skirt`` > 0 adds the ground that carries it to that radius (:func:`forest.skirt.skirt_mesh`).
     """
     mi = mitsuba(variant)
     v = np.asarray(terrain.vertices, dtype=np.float32)
@@ -349,7 +340,7 @@ def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "t
     n = np.asarray(terrain.vertex_normals, dtype=np.float32)
     uv = np.asarray(terrain.uv, dtype=np.float32)
     if skirt > 0:
-        from .ground import skirt_mesh
+        from ..skirt import skirt_mesh
 
         sk = skirt_mesh(terrain, skirt)
         if sk is not None:
@@ -379,71 +370,41 @@ def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "t
     return mesh
 
 
-def terrain_reflectance(
-    config,
-    terrain,
-    variant: str,
-    colour_grid: np.ndarray | None = None,
-    *,
-    albedo=None,
-    fade: bool = False,
-    tint=None,
-) -> dict:
-    """The terrain's reflectance: its own texture, else the ground's albedo grid, else ``terrain_colour`` × the map.
+def terrain_reflectance(albedo, terrain, variant: str, *, fade: bool = False, tint=None) -> dict:
+    """The terrain's reflectance: the Scene's albedo grid × its fitted ground tint.
 
-    ``[render] terrain_texture`` (an image laid over the extent in the map
-    convention, evaluated by world position like the colour grid) wins; then
-    ``albedo`` (the Scene's ``terrain_albedo``: an (H, W, 3) linear grid over
-    its extent; its tileable detail texture, of mean 1, is left out here — the
-    scalar renderer runs no Python texture plugin per sample, see
-    :mod:`forest.render.materials`); otherwise ``terrain_colour`` multiplies
-    the colour map (``colour_grid``, linear RGB, white = untinted) when there
-    is one, else a constant ``terrain_colour``.  ``fade``: a grid fades to its
-    mean colour past the terrain's edge (:func:`forest.render.ground.fade_beyond_edge`;
-    for the skirt that carries the ground to the horizon).  ``tint``: the Scene's fitted ``ground_tint``
-    (RGB) multiplying whichever of these it is, or None.
+    ``albedo`` is the Scene's ``terrain_albedo`` (:class:`forest.ground.TerrainAlbedo`,
+    the one place the ground is resolved: ``[render] terrain_texture``, else
+    ``terrain_colour``, else the ``[ground]`` rules), an (H, W, 3) linear grid
+    over its extent, evaluated by world position like the colour grid; its
+    tileable detail texture, of mean 1, is left out here — the scalar renderer
+    runs no Python texture plugin per sample (:mod:`forest.render.materials`).
+    ``tint``: the Scene's fitted ``ground_tint`` (RGB), or None.  ``fade``: the
+    grid fades to its mean colour past the terrain's edge
+    (:func:`forest.skirt.fade_beyond_edge`; for the skirt that carries the
+    ground to the horizon).
     """
-    from .ground import fade_beyond_edge
+    from ..skirt import fade_beyond_edge
 
-    gt = None if tint is None or np.all(np.asarray(tint) == 1.0) else np.asarray(tint, np.float32).reshape(3)
-
-    def grid_texture(grid: np.ndarray, extent) -> dict:
-        if gt is not None:
-            grid = (np.asarray(grid, np.float32) * gt).astype(np.float32)
-        if fade:
-            grid, extent = fade_beyond_edge(grid, extent)
-        return colour_grid_texture(grid, extent, terrain.height_range, variant)
-
-    rc = config.render
-    tex_path = getattr(rc, "terrain_texture", None)
-    base = np.asarray(rc.terrain_colour, dtype=np.float32)
-    if tex_path is not None:
-        return grid_texture(_terrain_texture(config), terrain.extent)
-    if albedo is not None:
-        return grid_texture(np.asarray(albedo.rgb, np.float32), getattr(albedo, "extent", terrain.extent))
-    if colour_grid is not None:
-        return grid_texture(np.asarray(colour_grid, np.float32) * base, terrain.extent)
-    return _rgb(base if gt is None else base * gt)
+    grid = np.asarray(albedo.rgb, np.float32)
+    extent = tuple(float(v) for v in albedo.extent)
+    if tint is not None and not np.all(np.asarray(tint) == 1.0):
+        grid = (grid * np.asarray(tint, np.float32).reshape(3)).astype(np.float32)
+    if grid.shape[0] * grid.shape[1] == 1:
+        return _rgb(grid[0, 0])  # one material: a constant, no texture lookup per hit
+    if fade:
+        grid, extent = fade_beyond_edge(grid, extent)
+    return colour_grid_texture(grid, extent, terrain.height_range, variant)
 
 
-def terrain_dict(
-    config,
-    terrain,
-    variant: str,
-    colour_grid: np.ndarray | None = None,
-    *,
-    albedo=None,
-    skirt: float = 0.0,
-    tint=None,
-):
+def terrain_dict(albedo, terrain, variant: str, *, skirt: float = 0.0, tint=None):
     """The terrain as a scene child: a ``Mesh`` object with a diffuse BSDF.
 
     The returned object goes into a scene dict like any shape dict
     (``scene["terrain"] = terrain_dict(...)``).  Reflectance: see
-    :func:`terrain_reflectance` (``colour_grid``: the Scene's colour map, linear
-    RGB in the map convention, or None; ``albedo``: the Scene's
-    ``terrain_albedo`` or None; ``tint``: the Scene's ``ground_tint``); ``skirt``: see :func:`terrain_mesh`.
+    :func:`terrain_reflectance` (``albedo``: the Scene's ``terrain_albedo``;
+    ``tint``: the Scene's ``ground_tint``); ``skirt``: see :func:`terrain_mesh`.
     """
-    reflectance = terrain_reflectance(config, terrain, variant, colour_grid, albedo=albedo, fade=skirt > 0, tint=tint)
+    reflectance = terrain_reflectance(albedo, terrain, variant, fade=skirt > 0, tint=tint)
     bsdf = {"type": "diffuse", "reflectance": reflectance}
     return terrain_mesh(terrain, variant, bsdf, skirt=skirt)

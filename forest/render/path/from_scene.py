@@ -1,7 +1,7 @@
 """Fill :class:`~forest.render.path.PathInputs` from a :class:`~forest.scene.Scene`.
 
 The forest path tracer itself takes plain data; this adapter reads the Scene
-— its terrain and ground look (:mod:`forest.render.ground`), colour map,
+— its terrain and ground (:mod:`forest.render.path.ground`), colour map,
 resolved species and their individuals, LOD plan, camera path, wind, lights
 and haze — so every renderer sees the same scene.  The sun is a disc of
 :data:`~forest.render.path.inputs.SUN_ANGULAR_DIAMETER`; ``sunsky`` is rotated
@@ -17,8 +17,9 @@ import numpy as np
 from ...camera import camera_at, look_at_matrix
 from ...lights import Lights
 from ...scene import Scene
-from ..ground import ground_look, skirt_radius
-from ..instancing import tree_matrices
+from ...skirt import skirt_radius
+from ...wind import tree_matrices
+from .ground import ground_look
 from .haze import HazeInputs
 from .inputs import PathCamera, PathInputs, SkyLight, SunLight
 
@@ -147,7 +148,7 @@ def path_inputs(
         colour_grid=None if scene.colour is None else scene.colour.rgb,
         extent=inputs_extent(scene.terrain.extent),
         terrain_colour=look.colour,
-        terrain_tinted=look.tinted,
+        terrain_tinted=False,  # the ground is the Scene's albedo; the colour map does not tint it
         terrain_extent=look.extent,
         terrain_detail=look.detail,
         terrain_detail_tile=look.detail_tile,

@@ -162,7 +162,7 @@ class ForestGeometry:
             t = inputs.terrain
             detail = inputs.terrain_detail
             if detail is not None:
-                from ..ground import detail_rgb
+                from .ground import detail_rgb
 
                 detail = detail_rgb(detail)
             mat = materials.add(
@@ -184,7 +184,7 @@ class ForestGeometry:
             mesh = _Mesh(t.vertices, t.faces, t.vertex_normals, world_uv(t.vertices))
             self.world_parts.append(self.parts.add(mesh, mat))
             if float(inputs.skirt_radius) > 0.0:
-                from ..ground import skirt_mesh
+                from ...skirt import skirt_mesh
 
                 sk = skirt_mesh(t, float(inputs.skirt_radius))
                 if sk is not None:
@@ -209,7 +209,8 @@ class ForestGeometry:
             mesh = part.load() if hasattr(part, "load") else read_ply(part.path)
             if len(mesh.faces) == 0:
                 continue
-            row = s if getattr(part, "kind", "") == "leaf" else -1  # a species' leaves share its leaf tint
+            # The leaf tint multiplies the parts the colour map tints (a species' foliage), as every exporter does.
+            row = s if getattr(part, "tinted", False) else -1
             ids.append(self.parts.add(mesh, self.materials.add(part, tint_row=row)))
         if not ids:
             raise ForestError(f"species {getattr(sp, 'name', s)!r} level {lod.name} has no triangles")

@@ -135,7 +135,7 @@ class PathInputs:
     where ``terrain_tinted`` and by ``terrain_detail`` (a tileable RGB texture
     of mean 1, an array or an image path) repeated every
     ``terrain_detail_tile`` metres of world X/Z.  ``skirt_radius`` > 0 carries
-    the terrain to the horizon (:func:`forest.render.ground.skirt_mesh`);
+    the terrain to the horizon (:func:`forest.skirt.skirt_mesh`);
     ``haze`` is the aerial perspective (:mod:`.haze`), None for none.  Russian
     roulette starts at path vertex ``rr_depth`` (0 = the first surface): on
     the demo forest 1 gave the noise of 2 in 64 % of the time, 0 another 44 %

@@ -1,4 +1,4 @@
-"""The ground both renderers draw: the terrain, a skirt that carries it to the horizon, and its albedo.
+"""The ground to the horizon: a skirt around the terrain, and an albedo grid that fades on it.
 
 **Skirt.**  A terrain ends at its extent; past it a camera saw the sky below
 the horizon (a hard horizon line, a dark band, a city floating on a square).
@@ -17,22 +17,16 @@ stripes to the horizon); its faces wind upward.  R (:func:`skirt_radius`) reache
 or at least :data:`MIN_SKIRT_RADIUS` metres (and 20 terrain widths): from
 hundreds of metres up the ring lies a fraction of a pixel below the horizon.
 
-**Albedo** (:class:`GroundLook`).  The terrain's reflectance, in this order:
-``[render] terrain_texture`` (an image over the extent, map convention); else
-the Scene's ``terrain_albedo`` (an (H, W, 3) linear albedo grid over its
-extent from the ground rules, times an optional tileable detail texture of
-mean 1 repeated every ``detail_tile_m`` metres in world X/Z); else
-``terrain_colour`` times the colour map.  With the skirt, a grid is padded so
-that past the terrain's edge it fades to its mean colour
-(:func:`fade_beyond_edge`): clamped lookups would otherwise repeat every
-border texel outward as a stripe running to the horizon.
+**Fade.**  With the skirt, the ground's albedo grid (the Scene's
+``terrain_albedo``, :mod:`forest.ground`) is padded so that past the terrain's
+edge it fades to its mean colour (:func:`fade_beyond_edge`): clamped lookups
+would otherwise repeat every border texel outward as a stripe running to the
+horizon.  Both renderers use these; the exporters write the terrain alone.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -153,69 +147,3 @@ def fade_beyond_edge(rgb: np.ndarray, extent) -> tuple[np.ndarray, tuple[float, 
     out = ((1.0 - s) * padded + s * mean).astype(np.float32)
     dx, dz = (xmax - xmin) / w, (zmax - zmin) / h
     return out, (xmin - p * dx, zmin - p * dz, xmax + p * dx, zmax + p * dz)
-
-
-@dataclass(frozen=True)
-class GroundLook:
-    """The terrain's reflectance for a render (see the module docstring).
-
-    ``colour``: an RGB triple or an (H, W, 3) linear map over ``extent``;
-    ``tinted``: multiplied by the colour map (only the plain ``terrain_colour``
-    is); ``detail``: a tileable RGB detail texture (an (h, w, 3|4) array or an
-    image path) of mean 1 repeated every ``detail_tile`` metres, or None.
-    """
-
-    colour: Any
-    extent: tuple[float, float, float, float]
-    tinted: bool
-    detail: np.ndarray | Path | None = None
-    detail_tile: float = 1.0
-    source: str = "terrain_colour"
-
-
-def ground_look(scene, config=None) -> GroundLook:
-    """The :class:`GroundLook` of a Scene (``config`` defaults to the Scene's)."""
-    from ..images import read_map_rgb
-
-    config = config or scene.config
-    rc = config.render
-    extent = tuple(float(v) for v in scene.terrain.extent)
-    if rc.terrain_texture is not None:
-        from ..errors import ConfigError, ForestError
-
-        try:
-            rgb = read_map_rgb(rc.terrain_texture, what="terrain texture")
-        except ForestError as e:
-            raise ConfigError(config.path, "render.terrain_texture", str(e)) from None
-        if rc.horizon_ground:
-            rgb, extent = fade_beyond_edge(rgb, extent)
-        return GroundLook(rgb, extent, False, source="terrain_texture")  # type: ignore[arg-type]
-    albedo = getattr(scene, "terrain_albedo", None)
-    if albedo is not None:
-        detail = getattr(albedo, "detail", None)
-        tile = float(getattr(albedo, "detail_tile_m", 0.0) or 0.0)
-        grid = np.asarray(albedo.rgb, np.float32)
-        ext = tuple(float(v) for v in getattr(albedo, "extent", extent))
-        if rc.horizon_ground:
-            grid, ext = fade_beyond_edge(grid, ext)
-        return GroundLook(
-            grid,
-            ext,  # type: ignore[arg-type]
-            False,
-            detail if (detail is not None and tile > 0) else None,
-            tile if tile > 0 else 1.0,
-            source="terrain_albedo",
-        )
-    return GroundLook(tuple(float(c) for c in rc.terrain_colour), extent, True)  # type: ignore[arg-type]
-
-
-def detail_rgb(detail: np.ndarray | Path | str) -> np.ndarray:
-    """A detail texture as (h, w, 3) float32 linear RGB (an image path is read like a library texture)."""
-    if isinstance(detail, (str, Path)):
-        from .path.materials import texture_rgba
-
-        return np.ascontiguousarray(texture_rgba(str(detail))[..., :3])
-    a = np.asarray(detail, np.float32)
-    if a.ndim == 2:
-        a = np.repeat(a[..., None], 3, axis=2)
-    return np.ascontiguousarray(a[..., :3])
