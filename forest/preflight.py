@@ -27,7 +27,7 @@ temporary file that is removed at once.
   detail, W·H the image (the film, the running and accumulated beauty in
   float64, the depth/id/species layers and the copies made to write the EXR and
   PNG) and L the rays one sample pass traces at once in the JIT variants
-  (``forest.render.frame.JIT_LANES`` at most).  In the JIT variants
+  (:data:`JIT_LANES` at most).  In the JIT variants
   (forest_path) the trees at the far level are not instances: they are merged
   into one world-space mesh per species and part
   (:mod:`forest.render.path.geometry`), so there
@@ -94,8 +94,9 @@ BYTES_PER_FLAT_TRIANGLE = 128
 BYTES_PER_ROW = 1000
 BYTES_PER_PIXEL = {"scalar": 200, "jit": 800}
 BYTES_PER_LANE = 2
-#: Rays one JIT sample pass traces at most (forest.render.frame.JIT_LANES).
-JIT_LANES = 1 << 22
+#: Rays one JIT sample pass traces at most: forest_path's ``forest.render.path.frame.MAX_LANES`` (kept equal by
+#: tests/test_structure.py; not imported, so the pre-flight check loads no renderer).
+JIT_LANES = 1 << 21
 
 # -- time model (seconds), used until this machine has rendered once ---------------------------
 #: Seconds per camera sample and per tree loaded on a 2-core machine (samples scale with the cores).

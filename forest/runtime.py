@@ -3,7 +3,7 @@
 drjit 1.5's CPU backend needs LLVM 19 (LLVM 14–16 crash with
 ``Cannot select: fminimum``).  :func:`ensure_llvm` finds ``libLLVM-19.so`` and
 names it in ``DRJIT_LIBLLVM_PATH`` before mitsuba is imported;
-:func:`mitsuba` imports mitsuba with a variant set and our plugins registered.
+:func:`mitsuba` imports mitsuba with a variant set.
 
 C and C++ libraries (libpng, libjpeg, OpenImageIO, Mitsuba, drjit) print
 their own complaints straight to file descriptor 2, around and beside the one
@@ -73,7 +73,7 @@ _current: str | None = None
 
 
 def mitsuba(variant: str = "scalar_rgb"):
-    """Import mitsuba with ``variant`` set and forest's plugins registered; return the module."""
+    """Import mitsuba with ``variant`` set; return the module."""
     global _current
     if variant not in VARIANTS:
         raise ParameterError("variant", f"must be one of {', '.join(VARIANTS)}, got {variant!r}")
@@ -91,12 +91,6 @@ def mitsuba(variant: str = "scalar_rgb"):
         except Exception as e:
             raise ForestError(f"cannot use Mitsuba variant {variant}: {e}") from None
         _current = variant
-        try:
-            from forest.plugins import register_all
-        except ImportError:
-            register_all = None
-        if register_all is not None:
-            register_all(mi)
     return mi
 
 

@@ -151,7 +151,7 @@ def test_render_bad_config_value(scene, render, field, words):
 
 
 def test_real_library_renders_the_same_forest_in_both_variants(scene):
-    """Library leaves (textured, alpha-cut, tinted, translucent) in llvm_ad_rgb (exact plugins) and scalar_rgb."""
+    """Library leaves (textured, alpha-cut, tinted, translucent) in llvm_ad_rgb (forest_path) and scalar_rgb."""
     from forest.config import load_config
     from forest.instances import InstanceSet
     from forest.render import render_scene

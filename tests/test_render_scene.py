@@ -1,4 +1,4 @@
-"""Scene pieces of the renderer: camera, lights, colour grid, terrain, wind, LOD and the Python plugins."""
+"""Scene pieces of the scalar renderer: camera, lights, colour grid, terrain, wind and LOD."""
 
 from __future__ import annotations
 
@@ -209,52 +209,6 @@ def test_wind_sway_is_a_rotation_towards_the_wind():
     phase = np.array([0.0, np.pi / 2])
     np.testing.assert_allclose(sway_angles(phase, 0.0, Wind), np.radians(2.0) * np.array([0.0, 1.0]), atol=1e-12)
     assert not np.allclose(sway_angles(phase, 0.3, Wind), sway_angles(phase, 0.0, Wind))
-
-
-@pytest.mark.parametrize("variant", VARIANTS)
-def test_leaf_plugin_transmits_light(variant):
-    """A leaf lit from behind: radiance T·E/π + (R + T)·L_sky (diffuse transmission, two-sided)."""
-    mi = mitsuba(variant)
-    T4 = mi.ScalarTransform4f
-    R, T, E, L = np.array([0.2, 0.5, 0.1]), np.array([0.1, 0.3, 0.05]), 3.0, 0.2
-    scene = mi.load_dict(
-        {
-            "type": "scene",
-            "integrator": {"type": "path", "max_depth": 4},
-            "sensor": {
-                "type": "perspective",
-                "fov": 20,
-                "to_world": T4().look_at(origin=[0, 0, -4], target=[0, 0, 0], up=[0, 1, 0]),
-                "film": {"type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "box"}},
-                "sampler": {"type": "independent", "sample_count": 64},
-            },
-            "sun": {"type": "directional", "direction": [0, 0, -1], "irradiance": E},
-            "sky": {"type": "constant", "radiance": L},
-            "leaf": {
-                "type": "rectangle",
-                "bsdf": {
-                    "type": "forest_leaf",
-                    "reflectance": {"type": "rgb", "value": R.tolist()},
-                    "transmittance": {"type": "rgb", "value": T.tolist()},
-                },
-            },
-        }
-    )
-    img = np.asarray(mi.render(scene, seed=1))[..., :3].reshape(-1, 3).mean(axis=0)
-    np.testing.assert_allclose(img, T * E / np.pi + (R + T) * L, rtol=0.06)
-
-
-def test_product_texture():
-    for variant in VARIANTS:
-        mi = mitsuba(variant)
-        tex = mi.load_dict(
-            {
-                "type": "forest_product",
-                "a": {"type": "rgb", "value": [0.5, 1.0, 0.25]},
-                "b": {"type": "rgb", "value": [0.5, 0.5, 2.0]},
-            }
-        )
-        np.testing.assert_allclose(np.asarray(tex.eval(mi.SurfaceInteraction3f())).ravel(), [0.25, 0.5, 0.5], atol=1e-6)
 
 
 def test_envmap_dome_light(tmp_path):

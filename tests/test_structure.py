@@ -83,3 +83,11 @@ def test_the_terrain_texture_is_read_by_forest_ground_alone():
     resolve the ground again)."""
     bad = _reads("terrain_texture", None, {"forest.ground", "forest.scene"})
     assert not bad, "\n".join(bad)
+
+
+def test_the_preflight_lane_bound_is_forest_paths():
+    """The pre-flight memory model bounds a JIT pass by forest_path's own pass size."""
+    from forest.preflight import JIT_LANES
+    from forest.render.path.frame import MAX_LANES
+
+    assert JIT_LANES == MAX_LANES

@@ -63,8 +63,6 @@ if TYPE_CHECKING:
 
 #: Samples per pass in scalar_rgb (more passes = finer progress, same image statistics).
 SCALAR_PASS_SPP = 8
-#: Largest wavefront (pixels × samples) one JIT pass may trace, to bound memory (used by the pre-flight model).
-JIT_LANES = 1 << 22
 #: Russian roulette from this path depth on (unbiased; dark foliage paths end early).
 RR_DEPTH = 2
 #: Camera samples per pixel (at most) of the coverage pass: alpha, Cryptomattes, denoiser guides.

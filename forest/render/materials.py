@@ -1,4 +1,4 @@
-"""Materials of library parts, per Mitsuba variant.
+"""Materials of library parts for the ``scalar_rgb`` renderer (Mitsuba's own BSDFs).
 
 For a part with base colour c (linear RGB), optional texture (RGB = a linear
 *detail factor*, alpha = card mask; see ``forest.library.textures``), tint
@@ -8,24 +8,18 @@ flag and translucency τ, the surface albedo at a hit x with uv (u, v) is
                                            1 where the part is not tinted)
 
 Leaves split it into reflection R = (1 − τ)·a and diffuse transmission T = τ·a
-with the ``forest_leaf`` plugin (``plugins/leaf.py``); bark and imported
-surfaces are two-sided Lambertian.  Opacity is the texture's alpha (``mask``).
-
-Per variant:
-
-* JIT variants (``llvm_ad_rgb``, ``cuda_ad_rgb``) — exact: ``forest_leaf`` and
-  ``forest_product`` (detail × map) are Python plugins traced once per kernel.
-* ``scalar_rgb`` — Python plugins run once per sample there: measured
-  ~3 µs per sample, 30× a native two-sided ``diffuse`` on a card scene
-  (``bench/bench_render_plugins.py``), which would turn a 3-minute frame into
-  an hour and a half.  So leaves with τ > 0 are Mitsuba's native
-  ``principledthin`` with ``base_color`` a and ``diff_trans`` = 2τ, which
-  splits its diffuse lobe into reflection (1 − τ)·a and transmission τ·a —
-  the same split, measured at no cost over ``diffuse`` (its specular lobe,
-  index 1.5, adds a sheen at grazing angles only); leaves with τ = 0, bark
-  and surfaces are two-sided ``diffuse``.  A tinted textured part takes the
-  map × c × mean(detail over the card) — the texture's alpha still cuts the
-  card; its detail modulation is averaged.
+(forest_path's leaf, :mod:`forest.render.path.materials`, does exactly this).
+Here, without a Python plugin per sample (a Python BSDF runs once per sample
+in ``scalar_rgb``: about 30× a native two-sided ``diffuse`` on a card scene,
+which would turn a 3-minute frame into an hour and a half), leaves with τ > 0
+are Mitsuba's native ``principledthin`` with ``base_color`` a and
+``diff_trans`` = 2τ, which splits its diffuse lobe into reflection
+(1 − τ)·a and transmission τ·a — the same split, measured at no cost over
+``diffuse`` (its specular lobe, index 1.5, adds a sheen at grazing angles
+only); leaves with τ = 0, bark and surfaces are two-sided ``diffuse``.  A
+tinted textured part takes the map × c × mean(detail over the card) — the
+texture's alpha still cuts the card; its detail modulation is averaged.
+Opacity is the texture's alpha (``mask``).
 """
 
 from __future__ import annotations
@@ -39,11 +33,6 @@ import numpy as np
 from ..images import read_image, srgb_to_linear
 from ..runtime import mitsuba
 from .scene import colour_grid_texture
-
-
-def uses_python_plugins(variant: str) -> bool:
-    """True where forest's Python plugins are cheap (traced once): the JIT variants."""
-    return not variant.startswith("scalar")
 
 
 @lru_cache(maxsize=64)
@@ -84,11 +73,10 @@ class MaterialBuilder:
     def __init__(self, variant: str, colour_grid: np.ndarray | None, extent, height_range):
         self.variant = variant
         self.mi = mitsuba(variant)
-        self.exact = uses_python_plugins(variant)
         self.grid = None if colour_grid is None else np.asarray(colour_grid, np.float32)
         self.extent = extent
         self.height_range = height_range
-        self.leaf_model = "forest_leaf" if self.exact else "principledthin (diff_trans = 2t)"
+        self.leaf_model = "principledthin (diff_trans = 2t)"
 
     # -- albedo textures ---------------------------------------------------------
     def _albedo(self, colour, tinted: bool, texture: Path | None, share: float) -> dict:
@@ -98,12 +86,6 @@ class MaterialBuilder:
         if texture is not None:
             detail, _, mean = _texture_arrays(str(texture))
         if tinted and self.grid is not None:
-            if detail is not None and self.exact:
-                return {
-                    "type": "forest_product",
-                    "a": _bitmap(mi, detail),
-                    "b": colour_grid_texture(self.grid * c, self.extent, self.height_range, self.variant),
-                }
             scale = c * (mean if detail is not None else 1.0)
             return colour_grid_texture(self.grid * scale, self.extent, self.height_range, self.variant)
         if detail is not None:
@@ -125,13 +107,7 @@ class MaterialBuilder:
         tinted = bool(getattr(part, "tinted", False))
         tau = float(getattr(part, "translucency", 0.0) or 0.0)
         bsdf: dict[str, Any]
-        if part.kind == "leaf" and self.exact and tau > 0:
-            bsdf = {
-                "type": "forest_leaf",
-                "reflectance": self._albedo(part.colour, tinted, texture, 1.0 - tau),
-                "transmittance": self._albedo(part.colour, tinted, texture, tau),
-            }
-        elif part.kind == "leaf" and tau > 0:
+        if part.kind == "leaf" and tau > 0:
             bsdf = {
                 "type": "principledthin",
                 "base_color": self._albedo(part.colour, tinted, texture, 1.0),

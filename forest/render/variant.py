@@ -34,10 +34,11 @@ and scalar_rgb was never the faster at equal samples for it; it is chosen
 only when asked (with ``alpha_shadows = false`` — cards shadowing as
 rectangles — it costs about what forest_path does).
 It stays for what it alone does: Mitsuba's own integrators and BSDFs
-as an independent reference (``tests/test_forest_path.py`` compares the
-two), and scenes whose JIT scene would not fit in memory while the scalar
-one does (14–16 KB per JIT instance against 4.7 KB; the pre-flight check
-in ``forest.preflight`` says so before rendering).
+as an independent reference renderer (``tests/test_forest_path.py`` and
+``tests/test_render_pipeline.py`` compare the two).  It is no way round a
+scene too large for forest_path: its coverage, id and depth layers come from
+forest_path's traversal of the same forest (:mod:`forest.render.frame`), so it
+holds that scene too.
 """
 
 from __future__ import annotations

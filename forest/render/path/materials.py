@@ -16,7 +16,7 @@ tensor that may carry gradients, so images differentiate with respect to it.
 BSDFs, both two-sided, in a frame whose normal n faces the incoming direction ωi:
 
 * surface (bark, terrain, buildings): Lambertian, f = a/π for ωo on ωi's side;
-* leaf (a thin sheet, after the ``forest_leaf`` plugin): f = R/π on ωi's side
+* leaf (a thin sheet): f = R/π on ωi's side
   and T/π on the other, R = (1 − τ)·a, T = τ·a.  Sampling picks the side with
   probability p = R̄ / (R̄ + T̄) (channel means), then a cosine-weighted
   direction, so pdf = p·|cos θo|/π (or (1 − p)·|cos θo|/π).
