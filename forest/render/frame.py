@@ -1,29 +1,26 @@
 """Rendering the frames of a Scene in ``scalar_rgb`` with Mitsuba's own integrators (``path``/``volpath``).
 
-Per frame f (time t = f / fps seconds):
+:class:`FrameRenderer` is the frame loop's backend (:mod:`forest.render.loop`,
+the recipe of a frame, shared with forest_path).  What it does itself:
 
-1. the camera is interpolated along its keys (:func:`forest.camera.camera_at`);
-2. every tree gets a level of detail from its distance to the camera
-   (:mod:`forest.lod`, through the Scene's plan);
-3. with ``shutter`` s > 0 the frame averages K = ``[render] subframes``
-   sub-frames at f + s·((k + ½)/K − ½) (:func:`forest.camera.subframe_times`),
-   each with its own camera and wind pose — Mitsuba 3 has no animated
-   transforms, so motion blur is this box-filtered average over the shutter;
-4. each sub-frame renders ⌈spp / K⌉ samples per pixel in passes of equal size
-   with consecutive seeds (pass images averaged), which also drives progress
-   and the live image of each pass;
-5. coverage, ids and the denoiser's guides come from forest_path's traversal of
-   the same forest (:meth:`forest.render.path.PathScene.first_hits` and
-   :meth:`~forest.render.path.PathScene.layers`, in ``llvm_ad_rgb``): up to
-   :data:`COVERAGE_SPP` jittered camera samples per pixel give the alpha, the
-   per-sample ids of the Cryptomattes and the first-hit albedo and normal; one
-   ray through each pixel centre gives ``depth``, ``id`` and ``species``.  (It
-   replaces a per-pixel Python loop over ``Scene.ray_intersect`` that took
-   36–51 s a frame at 1280×720.)
-6. aerial perspective is a post-process here (:func:`forest.render.post.apply_haze`):
-   the height-falloff model of :mod:`forest.render.path.haze` applied along
-   each pixel's camera ray, split between the pixel's geometry and its sky by
-   the coverage — forest_path applies the same model along every path segment.
+* a pose is a Mitsuba scene of shapegroups and instances
+  (:mod:`forest.render.instancing`), rebuilt only when the levels of detail or
+  the wind pose change — Mitsuba 3 has no animated transforms, so motion blur
+  is the loop's box-filtered average of sub-frames;
+* each sub-frame renders in passes of equal size (:data:`SCALAR_PASS_SPP` at
+  most) with consecutive seeds, which also drives progress and the live image;
+* coverage, ids and the denoiser's guides come from forest_path's traversal of
+  the same forest (:meth:`forest.render.path.PathScene.first_hits` and
+  :meth:`~forest.render.path.PathScene.layers`, in ``llvm_ad_rgb``): up to
+  :data:`COVERAGE_SPP` jittered camera samples per pixel give the alpha, the
+  per-sample ids of the Cryptomattes and the first-hit albedo and normal; one
+  ray through each pixel centre gives ``depth``, ``id`` and ``species``.  (It
+  replaces a per-pixel Python loop over ``Scene.ray_intersect`` that took
+  36–51 s a frame at 1280×720.)
+* aerial perspective is a post-process here (:func:`forest.render.post.apply_haze`):
+  the height-falloff model of :mod:`forest.render.path.haze` applied along
+  each pixel's camera ray, split between the pixel's geometry and its sky by
+  the coverage — forest_path applies the same model along every path segment.
 
 The look: leaves with τ > 0 are ``principledthin`` (diffuse transmission),
 shadow rays see through leaf-card alpha (``volpath``, ``[render]
@@ -38,28 +35,26 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from ..camera import camera_at, subframe_times
 from ..errors import ForestError
-from ..imaging import denoise
 from ..runtime import mitsuba
 from ..scene import Scene
 from ..skirt import skirt_radius
 from ..wind import tree_matrices
-from .coverage import SampleCoverage, frame_mattes, sample_ids
 from .instancing import ForestBuilder, ForestGraph
+from .loop import PassCallback, frame_seed, render_frame
 from .materials import MaterialBuilder
 from .output import FrameImage
+from .path import PathScene
+from .path.frame import PassResult
+from .path.from_scene import path_camera, path_inputs
 from .post import apply_haze
 from .scene import emitter_dicts, sensor_dict, terrain_dict
-
-if TYPE_CHECKING:
-    from .path import PathScene
 
 #: Samples per pass in scalar_rgb (more passes = finer progress, same image statistics).
 SCALAR_PASS_SPP = 8
@@ -67,10 +62,6 @@ SCALAR_PASS_SPP = 8
 RR_DEPTH = 2
 #: Camera samples per pixel (at most) of the coverage pass: alpha, Cryptomattes, denoiser guides.
 COVERAGE_SPP = 16
-
-#: ``on_pass(image so far, passes done, passes in the frame)``.
-PassCallback = Callable[[np.ndarray, int, int], None]
-
 
 @dataclass(frozen=True)
 class FrameSize:
@@ -130,6 +121,7 @@ class FrameRenderer:
 
     @property
     def leaf_model(self) -> str:
+        """How the leaves are shaded (written to the EXR header)."""
         return self.materials.leaf_model
 
     def restart(self) -> None:
@@ -184,31 +176,20 @@ class FrameRenderer:
         return self._scene
 
     def sensor(self, frame: float, spp: int, *, rfilter: str = "box"):
+        """The Mitsuba sensor of the camera at (fractional) ``frame``, ``spp`` samples per pixel."""
         mitsuba(self.variant)
         return self.mi.load_dict(
             sensor_dict(self.config, frame, self.width, self.height, spp, self.variant, rfilter=rfilter)
         )
 
     def passes(self, spp: int) -> list[int]:
+        """Samples per pixel of each pass of ``spp`` samples: as equal as possible, :data:`SCALAR_PASS_SPP` at most."""
         n = max(1, math.ceil(spp / SCALAR_PASS_SPP))
         base, extra = divmod(spp, n)
         return [base + (1 if i < extra else 0) for i in range(n)]
 
-    # -- passes ----------------------------------------------------------------------
-    def beauty(self, scene, sensor, spp: int, seed0: int, tick: Callable[[np.ndarray, int], None]) -> np.ndarray:
-        """Mean of ``spp`` samples per pixel in passes; ``tick(pass image, its samples)`` after each pass."""
-        acc = np.zeros((self.height, self.width, 3), dtype=np.float64)
-        for i, n in enumerate(self.passes(spp)):
-            img = np.asarray(self.mi.render(scene, sensor=sensor, spp=n, seed=seed0 + i), dtype=np.float64)[..., :3]
-            acc += img * n
-            tick(img, n)
-        return (acc / spp).astype(np.float32)
-
     def path_scene(self, levels: np.ndarray, time_s: float):
         """forest_path's scene of the same forest in the same pose (``llvm_ad_rgb``), for coverage and layers."""
-        from .path import PathScene
-        from .path.from_scene import path_inputs
-
         wind = self.config.wind
         key = (levels.tobytes(), round(time_s, 9) if wind.strength > 0 else None)
         t0 = time.perf_counter()
@@ -226,97 +207,44 @@ class FrameRenderer:
         self.load_seconds += time.perf_counter() - t0
         return self._path
 
-    def coverage(self, frame: float, levels: np.ndarray) -> dict:
-        """Alpha, Cryptomattes, guides (coverage samples) and depth/id/species (pixel centres) of a frame."""
-        from .path.from_scene import path_camera
-        from .path.integrator import NO_HIT
+    # -- the frame loop's backend (forest.render.loop) -------------------------------------
+    def pose(self, levels: np.ndarray, time_s: float) -> None:
+        """Build the Mitsuba scene of this pose (:meth:`scene_at`; kept while the pose stays)."""
+        self.scene_at(levels, time_s)
 
-        cam = self.config.camera
-        path = self.path_scene(levels, frame / cam.fps)
+    def samples(self, frame: float, spp: int, seed: int) -> Iterator[PassResult]:
+        """The beauty's passes at camera time ``frame``: Mitsuba renders of equal size, consecutive seeds."""
+        sensor = self.sensor(frame, spp)
+        for i, n in enumerate(self.passes(spp)):
+            img = np.asarray(self.mi.render(self._scene, sensor=sensor, spp=n, seed=seed + i), np.float64)[..., :3]
+            yield PassResult(spp=n, rgb=img.reshape(-1, 3) * n, alpha=np.zeros(0))
+
+    def first_hits(self, frame: float, levels: np.ndarray) -> Iterator[PassResult]:
+        """Up to :data:`COVERAGE_SPP` jittered camera samples per pixel traced by forest_path at the frame's
+        centre: coverage, per-sample ids and the denoiser's guides."""
+        path = self.path_scene(levels, frame / self.config.camera.fps)
         camera = path_camera(self.config, frame, self.width, self.height)
-        h, w = self.height, self.width
-        coverage = SampleCoverage(h, w)
-        alpha = np.zeros(h * w)
-        albedo = np.zeros((h * w, 3))
-        normal = np.zeros((h * w, 3))
-        samples = 0
-        n_trees = len(self.instances)
-        seed = int(self.config.render.seed) * 1_000_003 + int(round(frame * 1000)) * 997
-        for p in path.first_hits(camera, spp=min(self.spp, COVERAGE_SPP), seed=seed):
-            coverage.add(sample_ids(p.rows, self.instances.id, n_trees=n_trees, no_hit=NO_HIT))
-            alpha += p.alpha
-            albedo += p.albedo
-            normal += p.normal
-            samples += p.spp
-        layers = path.layers(camera)
-        return {
-            "alpha": (alpha / samples).reshape(h, w).astype(np.float32),
-            "albedo": (albedo / samples).reshape(h, w, 3).astype(np.float32),
-            "normal": (normal / samples).reshape(h, w, 3).astype(np.float32),
-            "mattes": frame_mattes(coverage, self.instances, self.species_names),
-            "camera": camera,
-            **layers,
-        }
+        yield from path.first_hits(camera, spp=min(self.spp, COVERAGE_SPP), seed=frame_seed(self.config, frame))
 
-    # -- one frame ---------------------------------------------------------------------
+    def layers(self, frame: float, levels: np.ndarray) -> dict[str, np.ndarray]:
+        """Depth, id and species through the pixel centres, by forest_path at the frame's centre."""
+        path = self.path_scene(levels, frame / self.config.camera.fps)
+        return path.layers(path_camera(self.config, frame, self.width, self.height))
+
+    def post(self, rgb: np.ndarray, alpha: np.ndarray, layers: dict[str, np.ndarray], frame: float) -> np.ndarray:
+        """Aerial perspective after the fact (:func:`forest.render.post.apply_haze`), along each pixel's camera
+        ray, split between its geometry and its sky by the coverage."""
+        if self._path is None or self.config.render.haze <= 0:
+            return rgb
+        camera = path_camera(self.config, frame, self.width, self.height)
+        return apply_haze(rgb, alpha, layers["depth"], camera, self.config, self._path)
+
+    def frame_lod_counts(self) -> dict[str, int]:
+        """Trees per level of detail in the Mitsuba scene just rendered."""
+        assert self.graph is not None  # pose built it
+        return dict(self.graph.lod_counts)
+
     def frame(self, frame: float, on_pass: PassCallback | None = None) -> FrameImage:
-        """Render one frame: beauty (motion-blur sub-frames averaged), coverage, layers, haze.
-
-        ``on_pass(image so far, passes done, passes in the frame)`` is called after
-        every sample pass with the running mean of the frame's samples.
-        """
-        cam = self.config.camera
-        state = camera_at(cam, frame)
-        levels = self.scene.lod.levels(self.instances.position, self.instances.species, state.position)
-        times = subframe_times(frame, cam.shutter, self.subframes)
-        spp_sub = max(1, math.ceil(self.spp / len(times)))
-        total = len(times) * len(self.passes(spp_sub))
-        running = np.zeros((self.height, self.width, 3), dtype=np.float64)
-        taken = [0, 0]  # samples, passes
-
-        def tick(img: np.ndarray, n: int) -> None:
-            running[:] += img * n
-            taken[0] += n
-            taken[1] += 1
-            if on_pass is not None:
-                on_pass((running / taken[0]).astype(np.float32), taken[1], total)
-
-        acc = np.zeros((self.height, self.width, 3), dtype=np.float64)
-        seed = int(self.config.render.seed) * 1_000_003 + int(round(frame * 1000)) * 997
-        scene = None
-        for k, t in enumerate(times):
-            scene = None  # let a superseded scene go before the next is built
-            scene = self.scene_at(levels, t / cam.fps)
-            sensor = self.sensor(t, spp_sub)
-            t0 = time.perf_counter()
-            acc += self.beauty(scene, sensor, spp_sub, seed + 101 * k, tick)
-            self.render_seconds += time.perf_counter() - t0
-        rgb = (acc / len(times)).astype(np.float32)
-        scene = None
-        t0 = time.perf_counter()
-        cov = self.coverage(frame, levels)
-        self.render_seconds += time.perf_counter() - t0
-        assert self.graph is not None  # scene_at built it
-        for name, c in self.graph.lod_counts.items():
-            self.lod_counts[name] = self.lod_counts.get(name, 0) + c
-        path = self._path
-        if path is not None and self.config.render.haze > 0:
-            rgb = apply_haze(rgb, cov["alpha"], cov["depth"], cov["camera"], self.config, path)
-        denoised = False
-        if self.preview:
-            d = denoise(rgb, cov["albedo"], cov["normal"])
-            if d is not None:
-                rgb, denoised = d, True
-        return FrameImage(
-            rgb=rgb,
-            alpha=cov["alpha"],
-            depth=cov["depth"],
-            id=cov["id"],
-            species=cov["species"],
-            camera=state,
-            levels=levels,
-            mattes=cov["mattes"],
-            albedo=cov["albedo"],
-            normal=cov["normal"],
-            denoised=denoised,
-        )
+        """Render one frame (:func:`forest.render.loop.render_frame`); ``on_pass(image so far, passes done,
+        passes in the frame)`` is called after every sample pass with the running mean of the frame's samples."""
+        return render_frame(self, frame, on_pass)

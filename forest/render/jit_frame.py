@@ -1,58 +1,32 @@
 """Rendering the frames of a Scene with forest_path, forest's path tracer (``llvm_ad_rgb``, ``cuda_ad_rgb``).
 
-The same frame recipe as :mod:`forest.render.frame` (``scalar_rgb``), through
-:class:`~forest.render.path.PathScene`:
-
-1. the camera at frame f is interpolated along its keys; every tree gets its
-   level of detail from its distance to that camera (the Scene's plan);
-2. with ``shutter`` s > 0 the frame averages K = ``[render] subframes``
-   sub-frames at f + s·((k + ½)/K − ½), each with its own camera and wind pose
-   (:meth:`PathScene.pose` reloads the traversal scene only when the pose
-   changes: wind, or a new LOD plan).  The sub-frame nearest the frame's
-   centre is rendered last, so the layers pass (step 4) finds its pose loaded;
-3. each sub-frame traces ⌈spp / K⌉ samples per pixel in passes of at most
-   ``forest.render.path.frame.MAX_LANES`` paths.  Every sample also reports
-   what its camera ray met first (tree, ground or nothing), the albedo and the
-   shading normal there: the coverage (alpha), the per-tree and per-species
-   Cryptomattes (:mod:`forest.render.coverage`) and the denoiser's guides;
-4. one ray through each pixel centre gives ``depth``, ``id`` and ``species``;
-5. ``--preview`` denoises with Open Image Denoise guided by the albedo and
-   normal (:func:`forest.imaging.denoise`).
-
-Aerial perspective is part of the path (:mod:`forest.render.path.haze`), not a
-post-process.  Seeds: sub-frame k of frame f starts from
-``seed · 1 000 003 + round(1000 f) · 997 + 101 k``, the same numbers the
-scalar renderer uses, so a frame's image depends only on the config and the
-frame number.
+:class:`PathFrameRenderer` is the frame loop's backend (:mod:`forest.render.loop`,
+the recipe of a frame, shared with ``scalar_rgb``) over a
+:class:`~forest.render.path.PathScene`: :meth:`PathScene.pose` reloads the
+traversal scene only when the pose changes (wind, or a new LOD plan); each
+sub-frame traces its samples in passes of at most
+``forest.render.path.frame.MAX_LANES`` paths, and every sample also reports
+what its camera ray met first (tree, ground or nothing), the albedo and the
+shading normal there — the coverage, the Cryptomattes and the denoiser's
+guides come with the beauty.  Aerial perspective is part of the path
+(:mod:`forest.render.path.haze`), not a post-process.
 """
 
 from __future__ import annotations
 
-import math
 import time
-from collections.abc import Callable
+from collections.abc import Iterator
 
 import numpy as np
 
-from ..camera import camera_at, subframe_times
-from ..imaging import denoise
 from ..scene import Scene
 from ..wind import tree_matrices
-from .coverage import SampleCoverage, frame_mattes, sample_ids
 from .frame import FrameSize
+from .loop import PassCallback, frame_seed, render_frame
 from .output import FrameImage
 from .path import PathScene
-from .path.frame import split_passes
+from .path.frame import PassResult, split_passes
 from .path.from_scene import path_camera, path_inputs
-from .path.integrator import NO_HIT
-
-#: ``on_pass(image so far, passes done, passes in the frame)``.
-PassCallback = Callable[[np.ndarray, int, int], None]
-
-
-def frame_seed(config, frame: float) -> int:
-    """The seed of sub-frame 0 of ``frame`` (sub-frame k adds 101·k)."""
-    return int(config.render.seed) * 1_000_003 + int(round(frame * 1000)) * 997
 
 
 class PathFrameRenderer:
@@ -125,67 +99,43 @@ class PathFrameRenderer:
         self.max_unique = max(self.max_unique, int(self.path.geometry.parts.n_faces))
         self.max_groups = max(self.max_groups, st.shapegroups)
 
-    # -- one frame -------------------------------------------------------------------------
+    # -- the frame loop's backend (forest.render.loop) -----------------------------------
+    def pose(self, levels: np.ndarray, time_s: float) -> None:
+        """Load the pose (levels of detail, wind at ``time_s``); see :meth:`PathScene.pose`."""
+        self._pose(levels, time_s)
+
+    def samples(self, frame: float, spp: int, seed: int) -> Iterator[PassResult]:
+        """The beauty's passes at camera time ``frame``, each with its samples' first hits."""
+        camera = path_camera(self.config, frame, self.width, self.height)
+        yield from self.path.passes(camera, spp=spp, seed=seed, aux=True)
+
+    def first_hits(self, frame: float, levels: np.ndarray) -> Iterator[PassResult]:
+        """First hits at the frame's centre (the loop needs none: :meth:`samples` carries them)."""
+        self._pose(levels, frame / self.config.camera.fps)
+        camera = path_camera(self.config, frame, self.width, self.height)
+        yield from self.path.first_hits(camera, spp=self.spp, seed=frame_seed(self.config, frame))
+
+    def layers(self, frame: float, levels: np.ndarray) -> dict[str, np.ndarray]:
+        """Depth, id and species through the pixel centres at the frame's centre pose."""
+        self._pose(levels, frame / self.config.camera.fps)
+        return self.path.layers(path_camera(self.config, frame, self.width, self.height))
+
+    def post(
+        self,
+        rgb: np.ndarray,
+        alpha: np.ndarray,  # noqa: ARG002 (the Backend protocol's signature)
+        layers: dict[str, np.ndarray],  # noqa: ARG002
+        frame: float,  # noqa: ARG002
+    ) -> np.ndarray:
+        """The beauty as traced: haze is part of forest_path's paths (the Backend protocol's other arguments are
+        for renderers that finish their beauty after the fact)."""
+        return rgb
+
+    def frame_lod_counts(self) -> dict[str, int]:
+        """Trees per level of detail in the loaded pose."""
+        return dict(self.path.stats.lod_counts)
+
     def frame(self, frame: float, on_pass: PassCallback | None = None) -> FrameImage:
-        """Render one frame (see the module docstring); ``on_pass`` sees the running mean after every pass."""
-        config, cam = self.config, self.config.camera
-        w, h = self.width, self.height
-        levels = self.scene.levels(frame) if len(self.instances) else np.zeros(0, np.int64)
-        times = subframe_times(frame, cam.shutter, self.subframes)
-        order = sorted(range(len(times)), key=lambda k: (-abs(times[k] - frame), k))  # the centre last
-        spp_sub = max(1, math.ceil(self.spp / len(times)))
-        total_passes = len(times) * len(self.passes(spp_sub))
-        rgb = np.zeros((h * w, 3))
-        alpha = np.zeros(h * w)
-        albedo = np.zeros((h * w, 3))
-        normal = np.zeros((h * w, 3))
-        samples = 0
-        done = 0
-        coverage = SampleCoverage(h, w)
-        n_trees = len(self.instances)
-        seed = frame_seed(config, frame)
-        for k in order:
-            t = times[k]
-            self._pose(levels, t / cam.fps)
-            camera = path_camera(config, t, w, h)
-            t0 = time.perf_counter()
-            for p in self.path.passes(camera, spp=spp_sub, seed=seed + 101 * k, aux=True):
-                assert p.albedo is not None and p.normal is not None and p.rows is not None  # aux=True
-                rgb += p.rgb
-                alpha += p.alpha
-                albedo += p.albedo
-                normal += p.normal
-                samples += p.spp
-                done += 1
-                coverage.add(sample_ids(p.rows, self.instances.id, n_trees=n_trees, no_hit=NO_HIT))
-                if on_pass is not None:
-                    on_pass((rgb / samples).reshape(h, w, 3).astype(np.float32), done, total_passes)
-            self.render_seconds += time.perf_counter() - t0
-        self._pose(levels, frame / cam.fps)
-        t0 = time.perf_counter()
-        layers = self.path.layers(path_camera(config, frame, w, h))
-        mattes = frame_mattes(coverage, self.instances, self.species_names)
-        self.render_seconds += time.perf_counter() - t0
-        for name, c in self.path.stats.lod_counts.items():
-            self.lod_counts[name] = self.lod_counts.get(name, 0) + c
-        beauty = (rgb / samples).reshape(h, w, 3).astype(np.float32)
-        guide_a = (albedo / samples).reshape(h, w, 3).astype(np.float32)
-        guide_n = (normal / samples).reshape(h, w, 3).astype(np.float32)
-        denoised = False
-        if self.preview:
-            d = denoise(beauty, guide_a, guide_n)
-            if d is not None:
-                beauty, denoised = d, True
-        return FrameImage(
-            rgb=beauty,
-            alpha=(alpha / samples).reshape(h, w).astype(np.float32),
-            depth=layers["depth"],
-            id=layers["id"],
-            species=layers["species"],
-            camera=camera_at(cam, frame),
-            levels=levels,
-            mattes=mattes,
-            albedo=guide_a,
-            normal=guide_n,
-            denoised=denoised,
-        )
+        """Render one frame (:func:`forest.render.loop.render_frame`); ``on_pass`` sees the running mean after
+        every pass."""
+        return render_frame(self, frame, on_pass)

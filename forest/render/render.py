@@ -31,7 +31,7 @@ from .jit_frame import PathFrameRenderer
 from .output import write_frame
 from .variant import choose_variant
 
-Renderer = FrameRenderer | PathFrameRenderer
+Renderer = FrameRenderer | PathFrameRenderer  # both are forest.render.loop.Backend
 
 PREVIEW_WIDTH = 480
 PREVIEW_SPP = 8

@@ -1,0 +1,193 @@
+"""One frame loop for both renderers: the recipe of a frame, over a small :class:`Backend`.
+
+The split follows pbrt-v4's ``RayIntegrator`` (``Render`` drives the pixels and
+samples, ``Li`` traces a ray) and Mitsuba 3's ``ADIntegrator`` (``render``
+drives, ``sample`` traces): the recipe is written once here, and a backend
+only poses its scene and traces.  Per frame f (time t = f / fps seconds):
+
+1. every tree gets its level of detail from its distance to the camera at f
+   (the Scene's plan, :meth:`forest.scene.Scene.levels`);
+2. with ``shutter`` s > 0 the frame averages K = ``[render] subframes``
+   sub-frames at f + s·((k + ½)/K − ½) (:func:`forest.camera.subframe_times`),
+   each with its own camera and wind pose (:meth:`Backend.pose`) — a box
+   filter over the shutter.  The sub-frame nearest the frame's centre is
+   rendered last, so the centre's pose is loaded for step 4;
+3. each sub-frame traces ⌈spp / K⌉ samples per pixel in passes
+   (:meth:`Backend.passes`, :meth:`Backend.samples`), seeded
+   ``seed · 1 000 003 + round(1000 f) · 997 + 101 k`` for sub-frame k
+   (:func:`frame_seed`), so a frame's image depends only on the config and
+   the frame number; the running mean is handed to ``on_pass`` after every
+   pass.  The beauty is Σ (samples' radiance) / Σ samples;
+4. the frame's first hits — per-sample coverage (alpha), the per-tree and
+   per-species Cryptomattes (:mod:`forest.render.coverage`) and the
+   denoiser's guides (albedo, normal) — come with the beauty's samples when
+   the backend traces them (forest_path), else from a pass of their own
+   (:meth:`Backend.first_hits`); one ray through each pixel centre gives
+   ``depth``, ``id`` and ``species`` (:meth:`Backend.layers`);
+5. :meth:`Backend.post` finishes the beauty (``scalar_rgb``'s haze), and
+   ``--preview`` denoises it guided by the albedo and normal
+   (:func:`forest.imaging.denoise`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator
+from typing import Protocol
+
+import numpy as np
+
+from ..camera import camera_at, subframe_times
+from ..imaging import denoise
+from ..scene import Scene
+from .coverage import SampleCoverage, frame_mattes, sample_ids
+from .output import FrameImage
+from .path.frame import PassResult
+from .path.integrator import NO_HIT
+
+#: ``on_pass(image so far, passes done, passes in the frame)``.
+PassCallback = Callable[[np.ndarray, int, int], None]
+
+
+def frame_seed(config, frame: float) -> int:
+    """The seed of sub-frame 0 of ``frame`` (sub-frame k adds 101·k)."""
+    return int(config.render.seed) * 1_000_003 + int(round(frame * 1000)) * 997
+
+
+class Backend(Protocol):
+    """What a renderer does for the frame loop: pose its scene, trace samples, first hits and layers."""
+
+    scene: Scene
+    width: int
+    height: int
+    spp: int
+    subframes: int
+    preview: bool
+    load_seconds: float
+    render_seconds: float
+    lod_counts: dict[str, int]
+    max_instanced: int
+    max_unique: int
+    max_groups: int
+
+    @property
+    def leaf_model(self) -> str:
+        """How the leaves are shaded (written to the EXR header)."""
+
+    def restart(self) -> None:
+        """Start the statistics of a new render that reuses this backend."""
+
+    def stats(self) -> dict[str, object]:
+        """The loaded scene's statistics for the EXR header."""
+
+    def passes(self, spp: int) -> list[int]:
+        """Samples per pixel of each pass of ``spp`` samples."""
+
+    def pose(self, levels: np.ndarray, time_s: float) -> None:
+        """Load the scene with these levels of detail and the wind at ``time_s`` (a no-op when already loaded)."""
+
+    def samples(self, frame: float, spp: int, seed: int) -> Iterator[PassResult]:
+        """The beauty's passes of ``spp`` samples per pixel at camera time ``frame`` in the loaded pose; each
+        :class:`PassResult` holds per-pixel sums, and its first hits (``rows``, ``alpha``, ``albedo``,
+        ``normal``) when the backend traces them with the beauty."""
+
+    def first_hits(self, frame: float, levels: np.ndarray) -> Iterator[PassResult]:
+        """Passes of first hits only (``rows``, ``alpha``, ``albedo``, ``normal``) at the frame's centre, for a
+        backend whose beauty passes carry none."""
+
+    def layers(self, frame: float, levels: np.ndarray) -> dict[str, np.ndarray]:
+        """``depth``, ``id`` and ``species`` (H, W) from one ray through each pixel centre at the frame's centre."""
+
+    def post(self, rgb: np.ndarray, alpha: np.ndarray, layers: dict[str, np.ndarray], frame: float) -> np.ndarray:
+        """The beauty (H, W, 3) finished (e.g. haze applied after the fact); ``alpha`` (H, W) is the coverage."""
+
+    def frame_lod_counts(self) -> dict[str, int]:
+        """Trees per level of detail in the pose just rendered."""
+
+
+class FirstHits:
+    """Sums of the first hits of a frame's samples: coverage, per-sample ids, albedo and normal."""
+
+    def __init__(self, scene: Scene, height: int, width: int):
+        self.instances = scene.instances
+        self.n_trees = len(scene.instances)
+        self.height, self.width = height, width
+        n = height * width
+        self.alpha = np.zeros(n)
+        self.albedo = np.zeros((n, 3))
+        self.normal = np.zeros((n, 3))
+        self.coverage = SampleCoverage(height, width)
+        self.samples = 0
+
+    def add(self, p: PassResult) -> None:
+        """Add one pass's first hits (its ``rows`` must be set)."""
+        assert p.rows is not None and p.albedo is not None and p.normal is not None
+        self.coverage.add(sample_ids(p.rows, self.instances.id, n_trees=self.n_trees, no_hit=NO_HIT))
+        self.alpha += p.alpha
+        self.albedo += p.albedo
+        self.normal += p.normal
+        self.samples += p.spp
+
+    def image(self, a: np.ndarray, channels: int) -> np.ndarray:
+        """A per-pixel sum as its mean image, (H, W) or (H, W, channels), float32."""
+        shape = (self.height, self.width) if channels == 1 else (self.height, self.width, channels)
+        return (a / max(self.samples, 1)).reshape(shape).astype(np.float32)
+
+
+def render_frame(backend: Backend, frame: float, on_pass: PassCallback | None = None) -> FrameImage:
+    """Render one frame with ``backend`` by the recipe of the module docstring."""
+    scene = backend.scene
+    config, cam = scene.config, scene.config.camera
+    w, h = backend.width, backend.height
+    levels = scene.levels(frame) if len(scene.instances) else np.zeros(0, np.int64)
+    times = subframe_times(frame, cam.shutter, backend.subframes)
+    order = sorted(range(len(times)), key=lambda k: (-abs(times[k] - frame), k))  # the centre last
+    spp_sub = max(1, math.ceil(backend.spp / len(times)))
+    total = len(times) * len(backend.passes(spp_sub))
+    rgb = np.zeros((h * w, 3))
+    samples = done = 0
+    hits = FirstHits(scene, h, w)
+    seed = frame_seed(config, frame)
+    for k in order:
+        backend.pose(levels, times[k] / cam.fps)
+        t0 = time.perf_counter()
+        for p in backend.samples(times[k], spp_sub, seed + 101 * k):
+            rgb += p.rgb
+            samples += p.spp
+            done += 1
+            if p.rows is not None:
+                hits.add(p)
+            if on_pass is not None:
+                on_pass((rgb / samples).reshape(h, w, 3).astype(np.float32), done, total)
+        backend.render_seconds += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if hits.samples == 0:
+        for p in backend.first_hits(frame, levels):
+            hits.add(p)
+    layers = backend.layers(frame, levels)
+    mattes = frame_mattes(hits.coverage, scene.instances, [str(n) for n in scene.instances.species_names])
+    backend.render_seconds += time.perf_counter() - t0
+    for name, c in backend.frame_lod_counts().items():
+        backend.lod_counts[name] = backend.lod_counts.get(name, 0) + c
+    alpha = hits.image(hits.alpha, 1)
+    albedo, normal = hits.image(hits.albedo, 3), hits.image(hits.normal, 3)
+    beauty = backend.post((rgb / samples).reshape(h, w, 3).astype(np.float32), alpha, layers, frame)
+    denoised = False
+    if backend.preview:
+        d = denoise(beauty, albedo, normal)
+        if d is not None:
+            beauty, denoised = d, True
+    return FrameImage(
+        rgb=beauty,
+        alpha=alpha,
+        depth=layers["depth"],
+        id=layers["id"],
+        species=layers["species"],
+        camera=camera_at(cam, frame),
+        levels=levels,
+        mattes=mattes,
+        albedo=albedo,
+        normal=normal,
+        denoised=denoised,
+    )
