@@ -178,3 +178,75 @@ def test_a_grid_ground_is_tinted_in_every_export(tmp_path, lib):
     a, b = terrain_texture(plain), terrain_texture(fitted)
     assert a is not None and b is not None
     np.testing.assert_allclose(b, a * np.asarray(GROUND, np.float32), rtol=1e-6)
+
+
+#: The test scene's lights, and as ``forest match`` writes them back (fitted sun irradiance and colour, sky radiance
+#: and colour).
+PLAIN_LIGHTS = "[lights.sun]\nelevation = 40.0\nazimuth = 135.0\nirradiance = 3.0\n[lights.sky]\nradiance = 0.4\n"
+FITTED_LIGHTS = (
+    "[lights.sun]\nelevation = 41.0\nazimuth = 205.0\nirradiance = 4.3\ncolour = [1.0, 0.88, 0.74]\n"
+    "[lights.sky]\nradiance = 0.42\ncolour = [0.52, 0.64, 0.95]\n"
+)
+
+
+def _rib_lights(text: str) -> dict[str, dict]:
+    """``LightSource`` calls of RIB text by shader name: their parameters as name → value list."""
+    out = {}
+    for call in ribcheck.parse(text.encode()):
+        if call.name == "LightSource":
+            args = call.args
+            out[args[0]] = {args[i]: args[i + 1] for i in range(2, len(args) - 1, 2)}
+    return out
+
+
+def test_the_fitted_sun_and_sky_reach_every_backend_as_numbers(tmp_path, lib):
+    """The fitted light values, through Scene.lights, in the scalar renderer's emitters, forest_path's lights, the
+    RIB light sources, the USD lights and the Blender manifest, each in its target's units
+    (:mod:`forest.export.radiometry`)."""
+    from forest.export import radiometry
+    from forest.export.blender import write_manifest
+    from forest.export.rib import lights_text
+    from forest.export.usd import _lights
+    from forest.render.path.from_scene import path_lights
+    from forest.render.scene import emitter_dicts
+
+    from export_support import SCENE
+
+    assert PLAIN_LIGHTS in SCENE
+    path = tmp_path / "lit.toml"
+    path.write_text(SCENE.replace(PLAIN_LIGHTS, FITTED_LIGHTS) + "terrain_colour = [0.2, 0.18, 0.12]\n" + LOOK)
+    scene = load_scene(parse_config(path.read_text(), path=path), make_instances(20), library=lib)
+    e_sun = 4.3 * np.array([1.0, 0.88, 0.74])
+    l_sky = 0.42 * np.array([0.52, 0.64, 0.95])
+    d = scene.lights.sun.direction
+    # scalar_rgb (a point sun here) and forest_path
+    em = emitter_dicts(scene.config, "scalar_rgb")
+    np.testing.assert_allclose(em["sun"]["irradiance"]["value"], e_sun, rtol=1e-9)
+    np.testing.assert_allclose(em["sun"]["direction"], -d, atol=1e-12)
+    np.testing.assert_allclose(em["sky"]["radiance"]["value"], l_sky, rtol=1e-9)
+    sun, sky = path_lights(scene.lights)
+    np.testing.assert_allclose(sun.irradiance, e_sun, rtol=1e-9)
+    np.testing.assert_allclose(sky.radiance, l_sky, rtol=1e-9)
+    # RIB, RI 3.2: distantlight intensity E/π with the colour, ambientlight intensity L with the colour
+    calls = _rib_lights(lights_text(scene.config, renderman22=False))
+    sun_rib = calls["distantlight"]
+    assert sun_rib["intensity"][0] == pytest.approx(radiometry.distantlight_intensity(4.3), rel=1e-5)
+    np.testing.assert_allclose(sun_rib["lightcolor"], [1.0, 0.88, 0.74], rtol=1e-5)
+    np.testing.assert_allclose(sun_rib["from"], d, atol=1e-5)
+    sky_rib = calls["ambientlight"]
+    assert sky_rib["intensity"][0] == pytest.approx(radiometry.ambient_intensity(0.42), rel=1e-5)
+    np.testing.assert_allclose(sky_rib["lightcolor"], [0.52, 0.64, 0.95], rtol=1e-5)
+    # USD: DistantLight intensity = the sun disc's radiance, DomeLight intensity = L, colours as given
+    stage = Usd.Stage.CreateInMemory()
+    _lights(stage, scene.config, tmp_path)
+    us, uk = stage.GetPrimAtPath("/World/Lights/Sun"), stage.GetPrimAtPath("/World/Lights/Sky")
+    assert us.GetAttribute("inputs:intensity").Get() == pytest.approx(radiometry.disk_radiance(4.3), rel=1e-6)
+    np.testing.assert_allclose(us.GetAttribute("inputs:color").Get(), [1.0, 0.88, 0.74], rtol=1e-6)
+    assert uk.GetAttribute("inputs:intensity").Get() == pytest.approx(0.42, rel=1e-6)
+    np.testing.assert_allclose(uk.GetAttribute("inputs:color").Get(), [0.52, 0.64, 0.95], rtol=1e-6)
+    # Blender: sun strength E (W/m²), world strength L with the colour
+    manifest = write_manifest(scene, tmp_path, [1])
+    assert manifest["sun"]["strength"] == pytest.approx(radiometry.blender_sun_strength(4.3), rel=1e-9)
+    np.testing.assert_allclose(manifest["sun"]["colour"], [1.0, 0.88, 0.74], rtol=1e-9)
+    assert manifest["sky"]["strength"] == pytest.approx(0.42, rel=1e-9)
+    np.testing.assert_allclose(manifest["sky"]["colour"], [0.52, 0.64, 0.95], rtol=1e-9)
