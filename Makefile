@@ -10,7 +10,8 @@ demo: setup
 	.venv/bin/forest scatter configs/demo.toml -o out/demo_trees.npz
 	.venv/bin/forest render configs/demo.toml --instances out/demo_trees.npz -o out/demo.exr
 
-# Conventions CI enforces before the tests: ruff (lint + format) and mypy (forest/, strict on the hub).
+# Conventions CI enforces before the tests: ruff (lint + format) and mypy (forest/ and service/; strict on the hub,
+# forest.render and forest.lookdev).
 lint: setup
 	.venv/bin/ruff check .
 	.venv/bin/ruff format --check .

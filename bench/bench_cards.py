@@ -72,7 +72,7 @@ def quad_library(root: Path) -> Path:
 # -- workers (run in a child process, FOREST_LIBRARY naming the library) -------------------------
 
 
-def worker_build(args) -> dict:
+def worker_build(_args) -> dict:
     from forest.library import open_library
     from forest.runtime import mitsuba
 
@@ -84,7 +84,7 @@ def worker_build(args) -> dict:
     return {"wall": wall, "cpu": cpu, "levels": levels, "species": len(species)}
 
 
-def worker_outlines(args) -> dict:
+def worker_outlines(_args) -> dict:
     """Per tree preset and level: coverage, outline area, triangles per card and fill of the leaf part."""
     from forest.library import open_library
     from forest.library.mesh import components

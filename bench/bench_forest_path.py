@@ -248,7 +248,7 @@ def worker_million(args) -> dict:
     }
 
 
-def worker_atlas(args) -> dict:
+def worker_atlas(_args) -> dict:
     """Texture lookups in llvm: one RGBA atlas against one masked lookup per texture."""
     import drjit as dr
 

@@ -499,7 +499,10 @@ def _point_sun() -> None:
 
     from_scene.path_lights = point_lights
     emitters = scalar_frame.emitter_dicts
-    scalar_frame.emitter_dicts = lambda config, variant, disc_sun=False: emitters(config, variant, disc_sun=False)
+    # emitter_dicts is called with disc_sun=True: the stand-in takes it and keeps the point sun
+    scalar_frame.emitter_dicts = lambda config, variant, disc_sun=False: emitters(  # noqa: ARG005
+        config, variant, disc_sun=False
+    )
 
 
 def worker_frame(args) -> dict:

@@ -144,12 +144,12 @@ def bench_submissions(tmp: Path, n: int, concurrency: int) -> dict:
                 async with sem:
                     return (await c.post("/jobs", json={**body, "name": f"bench {i}"})).status_code
 
-            async def ping(i: int) -> int:
+            async def ping() -> int:
                 async with sem:
                     return (await c.get("/health")).status_code
 
             t0 = time.perf_counter()
-            await asyncio.gather(*(ping(i) for i in range(n)))
+            await asyncio.gather(*(ping() for _ in range(n)))
             t_health = time.perf_counter() - t0
             t0 = time.perf_counter()
             codes = await asyncio.gather(*(one(i) for i in range(n)))

@@ -1,6 +1,11 @@
 """Atomic output files: write to a temporary name beside the target, then rename.
 
 A failed run therefore leaves neither a half-written file nor an empty one.
+A run killed outright (``kill -9``, a lost node) cannot remove its temporary;
+temporaries are therefore named after their owner, ``.<name>.forest-<host>-<pid>.…tmp…``,
+and the next write of the same output on the same host removes those whose
+process is gone (:func:`_remove_stale`) — a live writer's are never touched,
+nor another host's.
 The file system's own refusals (a read-only folder, a file where a folder
 should be, a folder where the file should go, a full disk) raise
 :class:`~forest.errors.ForestError` naming the output, never a bare
@@ -13,6 +18,7 @@ import contextlib
 import errno
 import os
 import shutil
+import socket
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -35,6 +41,45 @@ def _refused(dest: Path, e: OSError) -> ForestError:
     return ForestError(f"{dest}: cannot write: {reason}")
 
 
+def _owner() -> str:
+    """This process's tag in temporary names: ``forest-<host>-<pid>`` (the host's dots and dashes kept out)."""
+    host = socket.gethostname().replace(".", "_").replace("-", "_") or "host"
+    return f"forest-{host}-{os.getpid()}"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True  # someone else's process: alive
+    return True
+
+
+def _remove_stale(folder: Path, prefix: str) -> None:
+    """Remove ``folder``'s temporaries ``<prefix>forest-<this host>-<pid>.…`` whose process has exited."""
+    host = _owner().rsplit("-", 1)[0]
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return
+    for name in names:
+        if not name.startswith(prefix + host + "-") or ".tmp" not in name:
+            continue
+        pid = name[len(prefix + host) + 1 :].split(".", 1)[0]
+        if not pid.isdigit() or _alive(int(pid)):
+            continue
+        path = folder / name
+        try:
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+        except OSError:
+            pass  # someone else's leftovers we may not remove: leave them
+
+
 def _make_parent(dest: Path) -> None:
     try:
         dest.parent.mkdir(parents=True, exist_ok=True)
@@ -53,10 +98,13 @@ def atomic_path(dest: str | Path, suffix: str | None = None) -> Iterator[Path]:
     dest = Path(dest)
     if dest.is_dir():
         raise ForestError(f"{dest}: is a folder; cannot write a file there")
+    if os.path.exists(dest) and not dest.is_file():  # a device, pipe or socket: never replace the node itself
+        raise ForestError(f"{dest}: is not a regular file; cannot write a file there")
     _make_parent(dest)
     suffix = dest.suffix if suffix is None else suffix
+    _remove_stale(dest.parent, f".{dest.stem}.")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{dest.stem}.", suffix=f".tmp{suffix}", dir=dest.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{dest.stem}.{_owner()}.", suffix=f".tmp{suffix}", dir=dest.parent)
     except OSError as e:
         raise _refused(dest, e) from None
     os.close(fd)
@@ -91,8 +139,9 @@ def atomic_dir(dest: str | Path) -> Iterator[Path]:
     if os.path.lexists(dest) and not dest.is_dir():
         raise ForestError(f"{dest}: exists and is not a folder")
     _make_parent(dest)
+    _remove_stale(dest.parent, f".{dest.name}.")
     try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", suffix=".tmp", dir=dest.parent))
+        tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.{_owner()}.", suffix=".tmp", dir=dest.parent))
     except OSError as e:
         raise _refused(dest, e) from None
     try:

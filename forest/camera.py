@@ -23,6 +23,8 @@ from .errors import ParameterError
 
 @dataclass(frozen=True)
 class CameraState:
+    """A camera pose: world position, look-at target and up vector (metres, Y up) and its horizontal fov in degrees."""
+
     position: np.ndarray  # (3,)
     target: np.ndarray  # (3,)
     up: np.ndarray  # (3,)

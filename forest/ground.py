@@ -258,6 +258,7 @@ def crown_radii(species: Sequence[Species]) -> np.ndarray:
 
 
 def read_grey(path: Path, config: Config, field: str) -> np.ndarray:
+    """A grey map as painted (:func:`forest.images.read_map_grey`); a bad file is a ``ConfigError`` on ``field``."""
     from .images import read_map_grey
 
     try:

@@ -115,6 +115,7 @@ def read_image(
 
 
 def is_linear_file(path: str | Path) -> bool:
+    """Whether ``path``'s suffix names a linear-light format (EXR, HDR, PFM) rather than an sRGB-encoded one."""
     return Path(path).suffix.lower() in LINEAR_FORMATS
 
 
@@ -156,6 +157,7 @@ def read_map_grey(path: str | Path, *, what: str = "map", linearise: bool = Fals
 
 
 def to_rgb(img: np.ndarray) -> np.ndarray:
+    """The first three channels of an ``(H, W, C)`` image; grey (C = 1 or 2) repeated to RGB."""
     c = img.shape[2]
     if c == 1 or c == 2:
         return np.repeat(img[..., :1], 3, axis=2)

@@ -76,6 +76,8 @@ FORMAT_VERSION = 1
 
 @dataclass
 class InstanceSet:
+    """One row per tree (columns, metadata and file format in the module docstring)."""
+
     id: np.ndarray
     position: np.ndarray
     rotation: np.ndarray
@@ -110,6 +112,7 @@ class InstanceSet:
     # -- construction --------------------------------------------------------
     @classmethod
     def empty(cls, species_names=(), partition_names=("default",), **kw) -> InstanceSet:
+        """A set of no rows with the given species and partition names (``kw``: other metadata)."""
         cols: dict[str, Any] = {k: np.zeros((0, *s), dtype=d) for k, (d, s) in COLUMNS.items()}
         return cls(**cols, species_names=list(species_names), partition_names=list(partition_names), **kw)
 
@@ -135,6 +138,7 @@ class InstanceSet:
         return m
 
     def counts(self) -> dict:
+        """Trees per species name and per partition name: ``{"species": {...}, "partitions": {...}}``."""
         sp = np.bincount(self.species, minlength=len(self.species_names))
         pa = np.bincount(self.partition.astype(np.int64), minlength=len(self.partition_names))
         return {

@@ -30,6 +30,7 @@ def pixel_coords(u: np.ndarray, v: np.ndarray, shape: tuple[int, int]) -> tuple[
 
 
 def sample_nearest(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Nearest-pixel lookup of ``img`` at map coordinates (u, v) in [0, 1] (v down the rows), clamped to the edges."""
     h, w = img.shape[:2]
     i = np.clip(np.floor(np.asarray(v) * h).astype(np.int64), 0, h - 1)
     j = np.clip(np.floor(np.asarray(u) * w).astype(np.int64), 0, w - 1)
@@ -67,6 +68,7 @@ class PartitionMap:
 
     @property
     def unlabelled(self) -> int:
+        """Index of the ``unlabelled`` partition in :attr:`names`, −1 when every pixel has a label."""
         return self.names.index("unlabelled") if "unlabelled" in self.names else -1
 
 
@@ -114,7 +116,7 @@ class MapSet:
 
         self.presence = load(read_map_grey, "presence", m.presence)
         self.density = load(read_map_grey, "density", m.density)
-        raw_colour = load(lambda p, what: read_colour_map(p), "colour", m.colour)
+        raw_colour = load(lambda p, what: read_colour_map(p), "colour", m.colour)  # noqa: ARG005 (load passes what=)
         self.colour = None if raw_colour is None else colour_tint_grid(raw_colour, m.colour_normalise)[0]
         self.partition: PartitionMap | None = None
         if m.partition is not None:
@@ -134,14 +136,17 @@ class MapSet:
 
     @property
     def partition_names(self) -> list[str]:
+        """The partition names, ``["default"]`` without a partition map."""
         return self.partition.names if self.partition is not None else ["default"]
 
     def present(self, u, v) -> np.ndarray:
+        """Whether the presence map allows a tree at (u, v): value ≥ ``presence_threshold`` (all True without a map)."""
         if self.presence is None:
             return np.ones(len(u), dtype=bool)
         return sample_nearest(self.presence, u, v) >= self.presence_threshold
 
     def density_at(self, u, v) -> np.ndarray:
+        """The density map at (u, v), bilinear and clipped to [0, 1] (1 without a map)."""
         if self.density is None:
             return np.ones(len(u), dtype=np.float32)
         return np.clip(sample_bilinear(self.density, u, v), 0.0, 1.0)
@@ -153,6 +158,7 @@ class MapSet:
         return colour_at(self.colour, extent, x, z)
 
     def partition_at(self, u, v) -> np.ndarray:
+        """Partition index at (u, v), nearest pixel (0 without a partition map)."""
         if self.partition is None:
             return np.zeros(len(u), dtype=np.int16)
         return sample_nearest(self.partition.labels, u, v)

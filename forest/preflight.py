@@ -52,8 +52,10 @@ temporary file that is removed at once.
   2.73 GiB measured, 3.43 estimated.
   ``bench/bench_preflight.py`` compares estimate and measurement.
   The estimate is compared with the memory this process may use
-  (:func:`available_memory`: ``MemAvailable`` and the cgroup's limit, or
-  ``$FOREST_MEMORY_GB``); a render that does not fit fails before rendering
+  (:func:`available_memory`: :func:`forest.memory.memory_room`, the least of
+  ``MemAvailable`` and the room under every limit of the process's own cgroup
+  and its parents, v1 or v2, or ``$FOREST_MEMORY_GB``; a cgroup limit that binds
+  is named in the messages); a render that does not fit fails before rendering
   naming ``render.width``/``render.height`` and the largest image of the same
   aspect ratio that fits or, when the trees alone do not fit, ``scatter.count``
   and about how many trees would.
@@ -72,12 +74,15 @@ import json
 import math
 import os
 import re
+import stat
 import tempfile
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+from . import memory
 from .errors import ConfigError, ForestError, ParameterError
+from .memory import Room
 
 GiB = 1 << 30
 
@@ -167,19 +172,70 @@ def _probe(folder: Path, path: Path, field: str) -> None:
     os.unlink(tmp)
 
 
+def special_file(path: str | Path) -> str | None:
+    """What ``path`` is when it exists and is neither a regular file nor a folder ("a device", "a named pipe",
+    "a socket"), else None.  An output there is refused: the atomic writer would replace the node itself
+    (``-o /dev/null`` run as root turned the device into a file)."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return None
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISFIFO(mode):
+        return "a named pipe (FIFO)"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return None
+
+
+def _not_special(path: Path, field: str) -> None:
+    kind = special_file(path)
+    if kind is not None:
+        raise ParameterError(field, f"{path}: is {kind}, not a file; give a file name")
+
+
 def output_file(path: str | Path, *, field: str = "output") -> Path:
     """Check that a file can be written at ``path`` (folders above it may still be missing).
 
-    Refused: a folder at ``path``; a file where one of its folders should be;
-    a folder this process cannot create files in; a name too long for the file
-    system.  Nothing is created.
+    Refused: a folder at ``path``; a device, named pipe or socket at ``path``;
+    a file where one of its folders should be; a folder this process cannot
+    create files in; a name too long for the file system.  Nothing is created.
     """
     path = Path(path)
     folder = _existing_ancestor(path, field)
     if _is_dir(path):
         raise ParameterError(field, f"{path}: is a folder; give a file name")
+    _not_special(path, field)
     _probe(folder, path, field)
     return path
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
+
+
+def distinct_from_inputs(
+    outputs: Iterable[str | Path], inputs: Iterable[str | Path | None], *, field: str = "output"
+) -> None:
+    """Refuse an output that is one of the command's inputs (the same file, through any link or path).
+
+    Writing it would replace what the command reads — ``forest match scene.toml … -o .`` replaced the
+    user's scene with the fitted one.  ``outputs`` are the files the command will write (those of an
+    output folder included); ``inputs`` the files it reads (None entries are skipped).
+    """
+    ins = [Path(p) for p in inputs if p is not None]
+    for out in outputs:
+        out = Path(out)
+        for inp in ins:
+            if _same_file(out, inp):
+                shown = "" if out == inp else f" (as {inp})"
+                raise ParameterError(
+                    field, f"{out}: is an input of this command{shown}; writing it would replace it — give another name"
+                )
 
 
 def output_files(paths: Iterable[str | Path], *, field: str = "output") -> list[Path]:
@@ -191,6 +247,7 @@ def output_files(paths: Iterable[str | Path], *, field: str = "output") -> list[
         folder = _existing_ancestor(p, field)
         if _is_dir(p):
             raise ParameterError(field, f"{p}: is a folder; give a file name")
+        _not_special(p, field)
         if folder not in probed:
             _probe(folder, p, field)
             probed.add(folder)
@@ -306,37 +363,10 @@ def check_species(config, library) -> None:
 # ---------------------------------------------------------------------------------------------
 
 
-def _meminfo_available() -> int | None:
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        return None
-    return None
-
-
-def _cgroup_available() -> int | None:
-    """Room left under this process's cgroup memory limit (v2, else v1), or None without a limit."""
-    for limit_file, usage_file in (
-        ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
-        ("/sys/fs/cgroup/memory/memory.limit_in_bytes", "/sys/fs/cgroup/memory/memory.usage_in_bytes"),
-    ):
-        try:
-            limit = Path(limit_file).read_text().strip()
-            usage = int(Path(usage_file).read_text().strip())
-        except (OSError, ValueError):
-            continue
-        if limit == "max" or not limit.isdigit() or int(limit) >= 1 << 60:
-            return None
-        return max(0, int(limit) - usage)
-    return None
-
-
-def available_memory() -> int | None:
-    """Bytes this process may still use: ``$FOREST_MEMORY_GB``, else the least of the machine's
-    available memory and the room under its cgroup limit; None where neither can be read."""
+def memory_room() -> Room | None:
+    """The memory this process may still use: ``$FOREST_MEMORY_GB``, else :func:`forest.memory.memory_room`
+    (the least of the machine's available memory and the room under each of its cgroups' limits, with the
+    cgroup that binds); None where neither can be read."""
     env = os.environ.get(MEMORY_ENV)
     if env:
         try:
@@ -345,9 +375,24 @@ def available_memory() -> int | None:
             gb = float("nan")
         if not (math.isfinite(gb) and gb > 0):
             raise ForestError(f"${MEMORY_ENV}: must be a positive number of GiB, got {env!r}")
-        return int(gb * GiB)
-    found = [v for v in (_meminfo_available(), _cgroup_available()) if v is not None]
-    return min(found) if found else None
+        return Room(int(gb * GiB))
+    return memory.memory_room()
+
+
+def available_memory() -> int | None:
+    """:func:`memory_room` in bytes alone."""
+    room = memory_room()
+    return None if room is None else room.bytes
+
+
+def _available(room: int | Room) -> str:
+    """``1.0 GiB available``, naming the cgroup limit when one binds: ``… (cgroup limit of 1.0 GiB on /a/b)``."""
+    if isinstance(room, int):
+        return f"{format_bytes(room)} available"
+    text = f"{format_bytes(room.bytes)} available"
+    if room.cgroup is not None:
+        text += f" (cgroup limit of {format_bytes(room.cgroup.limit)} on {room.cgroup.path})"
+    return text
 
 
 @dataclass(frozen=True)
@@ -367,10 +412,11 @@ class RenderEstimate:
     far_trees: int | None = None  # JIT variants: trees merged at the far level (None: not known yet)
     far_triangles: int = 0
 
-    def line(self, available: int | None = None) -> str:
-        """One line for the user: size, samples, trees, memory and time."""
+    def line(self, available: int | Room | None = None) -> str:
+        """One line for the user: size, samples, trees, memory and time (``available``: bytes, or a
+        :class:`~forest.memory.Room` whose binding cgroup limit is named)."""
         frames = f"{self.frames} frames" if self.frames > 1 else "1 frame"
-        room = f" of {format_bytes(available)} available" if available is not None else ""
+        room = f" of {_available(available)}" if available is not None else ""
         return (
             f"{frames} {self.width}x{self.height} at {self.spp} spp, {self.trees:,} trees: "
             f"about {format_bytes(self.memory)}{room}, about {format_seconds(self.seconds)}"
@@ -470,16 +516,20 @@ def largest_fitting(width: int, height: int, budget: int, estimate) -> tuple[int
 
 
 def check_render_memory(
-    config, estimate: RenderEstimate, *, available: int | None = None, flags: bool = False
+    config, estimate: RenderEstimate, *, available: int | Room | None = None, flags: bool = False
 ) -> int | None:
     """Refuse a render whose estimate exceeds the memory available; return the bytes available.
 
-    The error names ``render.width``/``render.height`` (``--width``/``--height``
-    when ``flags``: the size came from the command line) and the largest image
-    of the same aspect ratio that fits, or says that the trees alone do not fit.
+    ``available``: bytes, or a :class:`~forest.memory.Room` (the cgroup limit that binds is named in
+    the error); None reads :func:`memory_room`.  The error names ``render.width``/``render.height``
+    (``--width``/``--height`` when ``flags``: the size came from the command line) and the largest
+    image of the same aspect ratio that fits, or says that the trees alone do not fit.
     """
-    room = available_memory() if available is None else available
-    if room is None or estimate.memory <= room:
+    found = memory_room() if available is None else available
+    if found is None:
+        return None
+    room = found if isinstance(found, int) else found.bytes
+    if estimate.memory <= room:
         return room
 
     def need(w: int, h: int) -> int:
@@ -496,7 +546,7 @@ def check_render_memory(
 
     trees = f" of {estimate.trees:,} trees" if estimate.trees else ""
     what = f"a {estimate.width}x{estimate.height} render{trees} needs about {format_bytes(estimate.memory)}, "
-    what += f"{format_bytes(room)} available"
+    what += _available(found)
     fits = largest_fitting(estimate.width, estimate.height, room, need)
     if fits is None and estimate.trees:
         # The trees alone do not fit: how many would, at the same share of far-level trees.
@@ -622,6 +672,7 @@ def record_match(variant: str, mode: str, *, samples: int, seconds: float) -> No
 
 
 def format_bytes(n: float) -> str:
+    """``n`` bytes in the largest binary unit it reaches, KiB to TiB: ``1.5 GiB``."""
     for unit, scale in (("TiB", 1 << 40), ("GiB", GiB), ("MiB", 1 << 20)):
         if n >= scale:
             return f"{n / scale:.1f} {unit}"
@@ -629,6 +680,7 @@ def format_bytes(n: float) -> str:
 
 
 def format_seconds(s: float) -> str:
+    """A duration for an estimate: whole seconds under 90 s, minutes under 90 min, else hours to one decimal."""
     if s < 90:
         return f"{max(1, round(s))} s"
     if s < 90 * 60:

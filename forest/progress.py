@@ -14,7 +14,7 @@ def progress_bar(description: str, *, quiet: bool = False) -> Iterator[ProgressF
     """Yield ``update(fraction, message)``; draws a rich progress bar on stderr."""
     if quiet or not sys.stderr.isatty():
 
-        def ignore(fraction: float, message: str = "") -> None:
+        def ignore(_fraction: float, _message: str = "") -> None:
             return None
 
         yield ignore

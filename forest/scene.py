@@ -137,6 +137,7 @@ class Scene:
 
     @property
     def path(self) -> Path | None:
+        """The config file's path (None for a config built in memory)."""
         return self.config.path
 
     def camera_at(self, frame: float) -> CameraState:

@@ -66,6 +66,7 @@ class Terrain:
 
     @cached_property
     def face_normals(self) -> np.ndarray:
+        """(F, 3) unit face normals, each oriented upwards (+Y)."""
         n = self._cross.copy()
         # Orient every face upwards (terrains are height fields or close to it).
         n[n[:, 1] < 0] *= -1.0
@@ -87,6 +88,7 @@ class Terrain:
 
     @property
     def area(self) -> float:
+        """Total surface area (m²)."""
         return float(self.face_areas.sum())
 
     @cached_property
@@ -253,6 +255,9 @@ def load_terrain(cfg: TerrainConfig, config_path: Path | None = None) -> Terrain
 
 
 def load_mesh_terrain(path: Path, where: str = "terrain.mesh") -> Terrain:
+    """A terrain from a mesh file (any format trimesh reads); missing, oversized, empty or non-finite meshes raise
+    ``ForestError`` naming ``where``.
+    """
     import trimesh
 
     path = Path(path)

@@ -47,6 +47,8 @@ LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 @dataclass
 class ServiceConfig:
+    """How ``forest serve`` runs: data folder, executor and workers, token, limits, retention, leases, retries."""
+
     data_dir: Path
     workers: int = 1
     executor: Literal["local", "ray"] = "local"
@@ -88,6 +90,7 @@ def seed_examples(datadir: DataDir) -> None:
 
 
 def make_executor(cfg: ServiceConfig, datadir: DataDir) -> Executor:
+    """The executor ``cfg`` names: Ray tasks on a cluster, or local worker processes (the default)."""
     if cfg.executor == "ray":
         return RayExecutor(
             cfg.ray_address,
@@ -109,11 +112,14 @@ def make_executor(cfg: ServiceConfig, datadir: DataDir) -> Executor:
 
 
 def create_app(cfg: ServiceConfig) -> FastAPI:
+    """The FastAPI app of the service over ``cfg.data_dir``: routes, page and static files; its lifespan locks the data
+    folder and runs the store, executor and dispatcher.
+    """
     datadir = DataDir(cfg.data_dir)
     svc = Service(config=cfg, datadir=datadir, notifier=Notifier())
 
     @contextlib.asynccontextmanager
-    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
         lock = datadir.lock()
         if lock is None:
             raise RuntimeError(f"{datadir.root}: another forest service is using this data folder")
@@ -153,15 +159,16 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
 
     @app.exception_handler(RequestValidationError)
-    async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+    async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
         return JSONResponse({"detail": validation_line(list(exc.errors()), exc.body)}, status_code=422)
 
     @app.exception_handler(RequestError)
-    async def _request_error(request: Request, exc: RequestError) -> JSONResponse:
+    async def _request_error(_request: Request, exc: RequestError) -> JSONResponse:
         return JSONResponse({"detail": str(exc)}, status_code=exc.status)
 
     return app
 
 
 def is_loopback(host: str) -> bool:
+    """Whether ``host`` is a loopback address (``localhost``, ``::1``, 127.x.x.x), which may serve without a token."""
     return host in LOOPBACK or host.startswith("127.")

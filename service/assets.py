@@ -29,6 +29,7 @@ import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path, PurePosixPath
+from typing import IO
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr")
 MESH_EXTS = (".ply", ".obj", ".stl", ".glb", ".gltf", ".off")
@@ -58,7 +59,7 @@ class DataDir:
             p.mkdir(parents=True, exist_ok=True)
         self.db = self.root / "jobs.sqlite3"
 
-    def lock(self):
+    def lock(self) -> IO[str] | None:
         """Hold an exclusive lock on the data folder (one service per folder); None if another holds it.
 
         Returns the open lock file; the lock lasts while it stays open (and dies with the process).
@@ -74,6 +75,7 @@ class DataDir:
         return f
 
     def job_dir(self, job_id: str) -> Path:
+        """The folder of job ``job_id`` (32 hex digits; anything else is a 404 ``AssetError``)."""
         if not re.fullmatch(r"[0-9a-f]{32}", job_id):
             raise AssetError(f"bad job id {job_id!r}", 404)
         return self.jobs / job_id
@@ -89,6 +91,7 @@ class DataDir:
         return p
 
     def list_assets(self) -> list[dict]:
+        """Every uploaded file under ``assets/`` (hidden ones skipped), sorted: name, bytes and kind."""
         out = []
         for p in sorted(self.assets.rglob("*")):
             if p.is_file() and not p.name.startswith("."):
@@ -103,6 +106,7 @@ class DataDir:
 
 
 def is_inside(path: Path, root: Path) -> bool:
+    """Whether ``path`` lies under ``root`` (both as given: resolve them first to follow links)."""
     try:
         path.relative_to(root)
         return True
@@ -125,6 +129,7 @@ def check_relative(name: str, *, field: str) -> PurePosixPath:
 
 
 def asset_kind(name: str) -> str | None:
+    """``"image"`` or ``"mesh"`` by the name's extension, None for any other."""
     ext = Path(name).suffix.lower()
     if ext in IMAGE_EXTS:
         return "image"

@@ -52,6 +52,8 @@ def frames_on_disk(job_dir: Path, spec: TaskSpec) -> list[int]:
 
 
 class Dispatcher:
+    """The dispatcher thread over ``store`` and ``executor`` (module docstring); while ``paused`` it starts no task."""
+
     def __init__(
         self,
         store: Store,
@@ -82,11 +84,13 @@ class Dispatcher:
 
     # -- lifecycle -------------------------------------------------------------
     def start(self) -> None:
+        """Start the dispatcher thread (once)."""
         if self._thread is None:
             self._thread = threading.Thread(target=self._run, name="dispatcher", daemon=True)
             self._thread.start()
 
     def stop(self) -> None:
+        """Stop the thread (waiting up to 10 s) and close the executor."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=10)
@@ -152,6 +156,7 @@ class Dispatcher:
 
     # -- reports ---------------------------------------------------------------
     def handle(self, msg: Any) -> None:
+        """Apply one report of a worker (step 1 of the module docstring), shipped files first."""
         key = (msg.task_id, msg.attempt)
         entry = self.jobs.get(key)
         if msg.files and entry is not None and key not in self.canceling:
@@ -205,6 +210,7 @@ class Dispatcher:
 
     # -- housekeeping ----------------------------------------------------------
     def housekeeping(self) -> None:
+        """Kill and requeue attempts whose lease expired, and stop the running attempts of canceled jobs."""
         for key in self.store.expired_leases():
             self.executor.kill(*key)
             self.canceling.discard(key)
@@ -224,6 +230,7 @@ class Dispatcher:
                     write_manifest(self.datadir, self.store, t["job_id"])
 
     def fill(self) -> None:
+        """Start queued tasks while the executor has room; a task that cannot start fails with the reason."""
         while self.executor.capacity() > 0 and not self._stop.is_set():
             run = self.store.claim_next(self.owner, self.lease_s)
             if run is None:

@@ -116,6 +116,8 @@ class JobRequest(BaseModel):
 
 
 class RequestError(Exception):
+    """A job request the service refuses: one line for ``detail`` and the HTTP ``status`` (422 by default)."""
+
     def __init__(self, message: str, status: int = 422):
         super().__init__(message)
         self.status = status
@@ -127,7 +129,7 @@ class _Errors:
     def __init__(self, errors: list[dict[str, Any]]):
         self._errors = errors
 
-    def errors(self, include_url: bool = False) -> list[dict[str, Any]]:
+    def errors(self, include_url: bool = False) -> list[dict[str, Any]]:  # noqa: ARG002 (ValidationError.errors)
         return self._errors
 
 
@@ -170,11 +172,14 @@ def _pattern_words(loc: tuple[Any, ...]) -> str:
 
 
 def request_hash(req: JobRequest) -> str:
+    """SHA-256 of the request's canonical JSON: what an ``Idempotency-Key`` is checked against."""
     return hashlib.sha256(json.dumps(req.model_dump(mode="json"), sort_keys=True).encode()).hexdigest()
 
 
 @dataclass
 class PreparedJob:
+    """A checked request ready for the store: the job's id, folder, name, settings and task specs."""
+
     job_id: str
     job_dir: Path
     name: str | None

@@ -27,6 +27,7 @@ class Notifier:
         self._waiters: dict[str, set[tuple[asyncio.AbstractEventLoop, asyncio.Event]]] = {}
 
     def publish(self, job_ids: Iterable[str]) -> None:
+        """Wake every stream subscribed to one of ``job_ids`` or to :data:`ALL` (callable from any thread)."""
         targets: list[tuple[asyncio.AbstractEventLoop, asyncio.Event]] = []
         with self._lock:
             for key in (*job_ids, ALL):
@@ -52,5 +53,6 @@ class Notifier:
                         del self._waiters[job_id]
 
     def subscribers(self) -> int:
+        """Number of subscriptions open (event streams)."""
         with self._lock:
             return sum(len(w) for w in self._waiters.values())

@@ -71,6 +71,7 @@ def read_manifest(datadir: DataDir, job_id: str) -> dict | None:
 
 
 def folder_bytes(folder: Path) -> int:
+    """Bytes of the files under ``folder`` (links not followed; files that vanish meanwhile count 0)."""
     total = 0
     for dirpath, _, names in os.walk(folder):
         for n in names:
@@ -82,6 +83,7 @@ def folder_bytes(folder: Path) -> int:
 
 
 def delete_outputs(folder: Path) -> None:
+    """Delete a job folder's outputs (``out/``, ``thumbs/``, ``preview/``, cached zips); logs and config stay."""
     for name in OUTPUT_DIRS:
         shutil.rmtree(folder / name, ignore_errors=True)
 

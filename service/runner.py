@@ -97,10 +97,12 @@ class TaskContext:
     _last_progress: float = field(default=0.0, repr=False)
 
     def send(self, cls: type, files: list[str] | None = None, **fields: Any) -> None:
+        """Emit a report of type ``cls`` for this attempt, with ``files`` (job-relative) attached when shipping."""
         shipped = read_files(self.job_dir, files) if self.ship and files else {}
         self.emit(cls(task_id=self.task_id, attempt=self.attempt, files=shipped, **fields))
 
     def log(self, line: str) -> None:
+        """Send one line for the task's log."""
         self.send(Log, line=line)
 
     def progress(self, fraction: float, message: str, *, force: bool = False, **fields: Any) -> None:
@@ -281,7 +283,7 @@ def _render(spec: TaskSpec, ctx: TaskContext) -> TaskResult:
                 fields["preview"] = _publish(ctx, preview_rel, rgb, PREVIEW_MAX)
             ctx.progress(fraction, f"{label}: pass {done}/{total}", force=True, **fields)
 
-        def progress(fraction: float, message: str = "", label: str = label, base: int = finished, f: int = f) -> None:
+        def progress(_fraction: float, message: str = "", label: str = label, base: int = finished, f: int = f) -> None:
             if message == "building scene":
                 ctx.progress(base / n, f"{label}: building scene", force=True, frame=f)
 
@@ -372,7 +374,7 @@ def _last(thumbs: dict[int, str]) -> str | None:
 def _ranges(frames: list[int]) -> str:
     out: list[str] = []
     start = prev = frames[0]
-    for f in frames[1:] + [None]:  # type: ignore[list-item]
+    for f in [*frames[1:], None]:
         if f is not None and f == prev + 1:
             prev = f
             continue

@@ -47,14 +47,17 @@ class LoadedScene:
 
     @property
     def config(self) -> Any:
+        """The scene's config."""
         return self.scene.config
 
     @property
     def instances(self) -> Any:
+        """The scene's InstanceSet."""
         return self.scene.instances
 
     @property
     def library(self) -> Any:
+        """The tree library the scene resolved its species from."""
         return self.scene.library
 
 
@@ -129,8 +132,10 @@ class SceneCache:
             cache.popitem(last=False)
 
     def clear(self) -> None:
+        """Forget every cached scene and InstanceSet."""
         self.scenes.clear()
         self.instance_sets.clear()
 
     def keys(self) -> list[str]:
+        """Keys of the cached scenes, least recently used first."""
         return list(self.scenes)

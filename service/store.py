@@ -269,6 +269,7 @@ class Store:
         return Store._Tx(self)
 
     def close(self) -> None:
+        """Close every thread's connection; a later call opens a new one."""
         with self._conns_lock:
             for c in self._conns:
                 try:
@@ -280,6 +281,7 @@ class Store:
 
     # -- events ----------------------------------------------------------------
     def events_after(self, job_id: str, after: int, limit: int = 500) -> list[dict]:
+        """Up to ``limit`` events of ``job_id`` with id > ``after``, in order: ``{"id", "type", "data", "ts"}``."""
         rows = (
             self._conn()
             .execute(
@@ -291,11 +293,13 @@ class Store:
         return [{"id": r["id"], "type": r["type"], "data": json.loads(r["data"]), "ts": r["ts"]} for r in rows]
 
     def last_event_id(self, job_id: str) -> int:
+        """The newest event id of ``job_id`` (0 without events)."""
         return int(
             self._conn().execute("SELECT COALESCE(MAX(id), 0) FROM events WHERE job_id=?", (job_id,)).fetchone()[0]
         )
 
     def event_count(self) -> int:
+        """Number of events stored, over all jobs."""
         return int(self._conn().execute("SELECT COUNT(*) FROM events").fetchone()[0])
 
     # -- jobs ------------------------------------------------------------------
@@ -390,6 +394,7 @@ class Store:
         return job
 
     def get_task(self, job_id: str, index: int) -> dict | None:
+        """Task ``index`` of ``job_id`` as a dict (spec kept as JSON text), or None."""
         r = self._conn().execute("SELECT * FROM tasks WHERE job_id=? AND idx=?", (job_id, index)).fetchone()
         return _task_dict(r) if r is not None else None
 
@@ -523,6 +528,7 @@ class Store:
             tx.executemany(f"DELETE FROM {table} WHERE {col}=?", [(i,) for i in ids])
 
     def mark_outputs_deleted(self, job_id: str) -> None:
+        """Record that a job's outputs were deleted (preview and frames forgotten), with an ``outputs`` event."""
         with self._tx() as tx:
             tx.execute("UPDATE jobs SET outputs_deleted=1, preview=NULL WHERE id=?", (job_id,))
             tx.execute("DELETE FROM frames WHERE job_id=?", (job_id,))
@@ -598,6 +604,7 @@ class Store:
             )
 
     def set_worker(self, task_id: int, attempt: int, worker: str) -> None:
+        """Record where an attempt runs (only while that attempt is running)."""
         with self._tx() as tx:
             tx.execute(
                 "UPDATE tasks SET worker=? WHERE id=? AND attempt=? AND state='running'", (worker, task_id, attempt)
@@ -808,6 +815,7 @@ class Store:
             return True
 
     def running_tasks(self) -> list[dict]:
+        """Every running task, with its job's ``cancel_requested``."""
         return [
             _task_dict(r)
             for r in self._conn().execute(
@@ -816,6 +824,7 @@ class Store:
         ]
 
     def expired_leases(self, now: float | None = None) -> list[tuple[int, int]]:
+        """(task id, attempt) of each running attempt whose lease expired before ``now`` (default: the time now)."""
         now = time.time() if now is None else now
         return [
             (r["id"], r["attempt"])

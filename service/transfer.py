@@ -69,9 +69,11 @@ class BlobStore:
         self.keep_inputs = keep_inputs
 
     def path(self, sha: str) -> Path:
+        """Where blob ``sha`` is (or would be) stored."""
         return self.blobs / sha
 
     def has(self, sha: str) -> bool:
+        """Whether blob ``sha`` is stored."""
         return self.path(sha).is_file()
 
     def put_bytes(self, sha: str, data: bytes) -> Path:

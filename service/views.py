@@ -52,6 +52,7 @@ def _links(jid: str) -> dict[str, str]:
 
 
 def task_view(job_id: str, t: dict, frames_done: list[int], now: float) -> dict:
+    """A task as :class:`~forest.service.api.schemas.TaskView` shows it; ``seconds`` counts up while it runs."""
     started, finished = t.get("started"), t.get("finished")
     if t["state"] == "running" and started:
         seconds = now - started
@@ -83,6 +84,9 @@ def task_view(job_id: str, t: dict, frames_done: list[int], now: float) -> dict:
 
 
 def job_eta(tasks: list[dict], now: float) -> float | None:
+    """Seconds until the job's tasks finish: the running tasks' estimates plus the queued ones at the mean task time,
+    over the tasks running at once; 0 when none is left, None while an estimate is missing.
+    """
     running = [t for t in tasks if t["state"] == "running"]
     queued = sum(t["state"] == "queued" for t in tasks)
     if not running and not queued:

@@ -38,6 +38,7 @@ class Channel:
         self.lock = threading.Lock()
 
     def send(self, report: Any) -> None:
+        """Write ``report`` as one JSON line; exit the worker (75) when the service has gone."""
         line = report.model_dump_json()
         with self.lock:
             try:
@@ -71,6 +72,9 @@ def _warm_up() -> None:
 
 
 def main(argv: list[str]) -> int:
+    """Worker process loop (``argv``: report pipe fd, own folder): run each task order read from stdin and report on
+    the pipe, with heartbeats while a task runs; a task's mistakes and errors become ``error`` reports.
+    """
     from forest.errors import ForestError, ParameterError
 
     from .models import Done, Failed, Heartbeat, TaskOrder
@@ -113,7 +117,7 @@ def main(argv: list[str]) -> int:
         job_dir = Path(order.job_dir)
 
         def inputs(order: TaskOrder = order, job_dir: Path = job_dir) -> Path:
-            return blobs.inputs(order.spec.inputs, lambda rel, sha: job_dir / rel)
+            return blobs.inputs(order.spec.inputs, lambda rel, _sha: job_dir / rel)
 
         def emit(report: Any, tag: str = tag) -> None:
             if getattr(report, "type", "") == "log":

@@ -604,11 +604,14 @@ def test_a_forest_too_large_for_memory_fails_before_loading(library, monkeypatch
         sun=SunLight((0.0, 1.0, 0.0), (1.0, 1.0, 1.0)),
         flatten_triangles=0,
     )
-    monkeypatch.setattr(frame, "available_bytes", lambda: frame.MEMORY_HEADROOM + 10 * 16 * 1024)
+    headroom = frame.memory_headroom(8, 8, inputs.spp)
+    assert frame.MEMORY_MARGIN <= headroom < frame.MEMORY_HEADROOM  # a small image keeps a small headroom
+    assert frame.memory_headroom(1920, 1080, 64) == frame.MEMORY_HEADROOM
+    monkeypatch.setattr(frame, "available_bytes", lambda: headroom + 10 * 16 * 1024)
     with pytest.raises(ForestError, match=r"\[lod\] distances: 11 instanced trees .* GB") as err:
         PathScene(inputs, VARIANT)
     assert "\n" not in str(err.value)
-    monkeypatch.setattr(frame, "available_bytes", lambda: frame.MEMORY_HEADROOM + 11 * 16 * 1024)
+    monkeypatch.setattr(frame, "available_bytes", lambda: headroom + 11 * 16 * 1024)
     assert PathScene(inputs, VARIANT).stats.instances == 11
 
 

@@ -13,7 +13,7 @@ from forest.service.jobs import Limits
 
 from test_service_support import ServerThread
 
-EXAMPLES_PER_OPERATION = 12
+EXAMPLES_PER_OPERATION = 8
 
 
 def test_no_server_errors_for_any_operation(tmp_path):

@@ -8,6 +8,7 @@ import typer
 
 
 def register(app: typer.Typer) -> None:
+    """Add ``forest examples`` (``list``, ``copy``) to ``app``."""
     ex_app = typer.Typer(
         help="Example scenes shipped with forest (configs and painted maps).",
         no_args_is_help=True,

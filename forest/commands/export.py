@@ -15,6 +15,7 @@ class ExportGroup(TyperGroup):
     """``forest export`` with an unknown target is a user mistake: one line naming it, exit 2."""
 
     def resolve_command(self, ctx: Any, args: list[str]):
+        """Click's command lookup, refusing a first argument that names no target with a ``ParameterError``."""
         name = args[0] if args else None
         if name is not None and not name.startswith("-") and self.get_command(ctx, name) is None:
             from ..errors import ParameterError
@@ -23,13 +24,29 @@ class ExportGroup(TyperGroup):
         return super().resolve_command(ctx, args)
 
 
-def _scene(config: Path, instances: Path | None, library: Path | None, quiet: bool):
-    from ..config import load_config
+def _scene(
+    config: Path,
+    instances: Path | None,
+    library: Path | None,
+    quiet: bool,
+    *,
+    files: tuple[Path | None, ...] = (),
+    folder: Path | None = None,
+):
+    """The Scene to export, after the outputs are checked (before any scatter): the ``files`` the export
+    writes, or the ``folder`` it writes into, writable and none of them one of its inputs."""
+    from .. import preflight
+    from ..config import load_config, referenced_files
     from ..library import open_library
     from ..progress import progress_bar
     from ..scene import load_scene
 
+    outputs = [f for f in files if f is not None]
+    if folder is not None:
+        preflight.output_folder(folder)
+    preflight.output_files(outputs)
     cfg = load_config(config)
+    preflight.distinct_from_inputs(outputs, [config, instances, *referenced_files(cfg)])
     lib = open_library(library) if library is not None else None
     with progress_bar("scene", quiet=quiet or instances is not None) as bar:
         return load_scene(cfg, instances, library=lib, progress=bar)
@@ -50,6 +67,7 @@ QUIET = typer.Option(False, "-q", "--quiet", help="Print nothing on success.")
 
 
 def register(app: typer.Typer) -> None:
+    """Add ``forest export`` (``rib``, ``usd``, ``blender``, ``points``) to ``app``."""
     export_app = typer.Typer(
         cls=ExportGroup,
         help="Export the scene as RenderMan RIB, USD, a Blender file or points for any DCC.",
@@ -85,7 +103,7 @@ def register(app: typer.Typer) -> None:
         from ..export.rib import export_rib
         from ..progress import progress_bar
 
-        scene = _scene(config, instances, library, quiet)
+        scene = _scene(config, instances, library, quiet, folder=output)
         with progress_bar("export rib", quiet=quiet) as bar:
             res = export_rib(scene, output, renderman22=renderman22, frames=frames, display=display, progress=bar)
         if not quiet:
@@ -117,7 +135,7 @@ def register(app: typer.Typer) -> None:
 
         if output.suffix.lower() not in SUFFIXES:
             raise ForestError(f"{output}: a USD file name must end in .usda, .usdc or .usd")
-        scene = _scene(config, instances, library, quiet)
+        scene = _scene(config, instances, library, quiet, files=(output,))
         with progress_bar("export usd", quiet=quiet) as bar:
             res = export_usd(scene, output, frames=frames, progress=bar)
         if not quiet:
@@ -151,7 +169,7 @@ def register(app: typer.Typer) -> None:
 
         if output.suffix.lower() != ".blend":
             raise ParameterError("output", f"{output}: a Blender file name must end in .blend")
-        scene = _scene(config, instances, library, quiet)
+        scene = _scene(config, instances, library, quiet, files=(output, render))
         with progress_bar("export blender", quiet=quiet) as bar:
             res = export_blender(scene, output, blender=blender, frames=frames, render=render, progress=bar)
         if not quiet:
@@ -175,7 +193,7 @@ def register(app: typer.Typer) -> None:
 
         if output.suffix.lower() not in SUFFIXES:
             raise ParameterError("output", f"{output}: a points file must end in {', '.join(SUFFIXES)}")
-        scene = _scene(config, instances, library, quiet)
+        scene = _scene(config, instances, library, quiet, files=(output,))
         res = export_points(scene, output)
         if not quiet:
             typer.echo(f"{res.trees:,} points in {res.seconds:.2f} s")

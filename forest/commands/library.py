@@ -16,6 +16,7 @@ def _fmt_bounds(b) -> str:
 
 
 def register(app: typer.Typer) -> None:
+    """Add ``forest library`` (``list``, ``build``, ``preview``, ``add``) to ``app``."""
     lib_app = typer.Typer(
         help="The tree library: generated and imported species with levels of detail.",
         no_args_is_help=True,

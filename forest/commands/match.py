@@ -10,6 +10,8 @@ from ..errors import ForestError
 
 
 def register(app: typer.Typer) -> None:
+    """Add ``forest match`` (look-dev: fit the scene's look to a reference) to ``app``."""
+
     @app.command("match")
     def match_cmd(
         config: Path = typer.Argument(..., help="Scene config (TOML)."),
@@ -60,10 +62,11 @@ def register(app: typer.Typer) -> None:
         import warnings
 
         from .. import preflight
-        from ..config import load_config
+        from ..config import load_config, referenced_files
         from ..errors import ParameterError
         from ..lookdev import match, optimiser_size, resolve_settings
         from ..lookdev.reference import load_reference, painted_labels
+        from ..lookdev.report import WRITTEN
         from ..progress import progress_bar
         from ..render.scene import check_render_inputs
         from ..scene import load_scene
@@ -74,6 +77,8 @@ def register(app: typer.Typer) -> None:
         if mask is not None:
             preflight.input_file(mask, field="mask", what="mask")
         cfg = load_config(config)
+        inputs = [config, reference, mask, instances, *referenced_files(cfg)]
+        preflight.distinct_from_inputs([output / name for name in WRITTEN], inputs)
         settings = resolve_settings(
             cfg,
             iterations=iterations,

@@ -8,6 +8,8 @@ import typer
 
 
 def register(app: typer.Typer) -> None:
+    """Add ``forest render`` (a still or a frame sequence) to ``app``."""
+
     @app.command("render")
     def render_cmd(
         config: Path = typer.Argument(..., help="Scene config (TOML)."),
@@ -51,6 +53,7 @@ def register(app: typer.Typer) -> None:
             )
 
         from ..camera import frame_path, parse_frames
+        from ..config import referenced_files
         from ..errors import ParameterError
         from ..progress import progress_bar
         from ..render import choose_variant, render_scene
@@ -68,6 +71,7 @@ def register(app: typer.Typer) -> None:
                 raise ParameterError("output", f"{output}: every frame needs its own file; put #### in the name")
         preflight.output_files(targets)
         cfg = load_with_flags(config, {"render.spp": spp, "render.width": width, "render.height": height})
+        preflight.distinct_from_inputs(targets, [config, instances, *referenced_files(cfg)])
         if variant is not None:
             choose_variant(0, variant)  # reject a bad --variant before any work
         # 2. The inputs only the render reads, the disk, and the image's memory before any tree is loaded.
@@ -105,7 +109,8 @@ def register(app: typer.Typer) -> None:
             far_trees=far_trees,
             far_triangles=far_triangles,
         )
-        room = preflight.check_render_memory(cfg, estimate, flags=flags)
+        room = preflight.memory_room()  # with the cgroup limit that binds, named in the lines below
+        preflight.check_render_memory(cfg, estimate, available=room, flags=flags)
         if not quiet:
             typer.echo(f"render: {estimate.line(room)}", err=True)
             typer.echo(f"variant: {chosen} ({reason})", err=True)

@@ -8,6 +8,8 @@ import typer
 
 
 def register(app: typer.Typer) -> None:
+    """Add ``forest scatter`` (trees to an InstanceSet ``.npz``) to ``app``."""
+
     @app.command("scatter")
     def scatter_cmd(
         config: Path = typer.Argument(..., help="Scene config (TOML)."),
@@ -18,6 +20,7 @@ def register(app: typer.Typer) -> None:
     ):
         """Scatter trees over the terrain and save one row per tree as .npz."""
         from .. import preflight
+        from ..config import referenced_files
         from ..errors import ParameterError
         from ..library import open_library
         from ..progress import progress_bar
@@ -28,6 +31,7 @@ def register(app: typer.Typer) -> None:
             raise ParameterError("output", f"{output}: an InstanceSet is a .npz file")
         preflight.output_file(output)
         cfg = load_with_flags(config, {"seed": seed, "scatter.count": count})
+        preflight.distinct_from_inputs([output], [config, *referenced_files(cfg)])
         preflight.check_species(cfg, open_library())  # a misspelled species fails here, not at render
         with progress_bar("scatter", quiet=quiet) as bar:
             inst, report = scatter(cfg, progress=bar)

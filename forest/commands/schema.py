@@ -8,6 +8,8 @@ import typer
 
 
 def register(app: typer.Typer) -> None:
+    """Add ``forest schema`` (the scene files' JSON Schema) to ``app``."""
+
     @app.command("schema")
     def schema_cmd(
         output: Path | None = typer.Option(None, "-o", "--output", help="Write to this file instead of stdout."),

@@ -9,6 +9,8 @@ import typer
 
 
 def register(app: typer.Typer) -> None:
+    """Add ``forest serve`` (the HTTP job service) to ``app``."""
+
     @app.command("serve")
     def serve_cmd(
         host: str = typer.Option("127.0.0.1", "--host", help="Address to bind; anything but loopback needs --token."),

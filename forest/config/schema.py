@@ -268,6 +268,8 @@ class PartitionsConfig(Section):
 
 
 class ScatterConfig(Section):
+    """Candidate sites over the terrain and how trees are kept: by percentages (random) or by growth (ecosystem)."""
+
     count: Annotated[Int, Field(ge=0, le=MAX_TREES)] = Field(
         10000, description="Candidate sites over the whole terrain (all maps white)."
     )
@@ -371,6 +373,8 @@ class SpeciesConfig(Section):
 
 
 class EcosystemConfig(Section):
+    """The ``ecosystem`` scatter method: years of growth and competition, and the fitness a seed needs."""
+
     steps: Annotated[Int, Field(ge=1, le=200)] = Field(15, description="Years of growth and competition.")
     establish: Unit = Field(0.25, description="Site fitness below which a seed never establishes.")
 
@@ -524,6 +528,8 @@ Fov = Annotated[float, Field(ge=0.1, le=179.0, allow_inf_nan=False)]
 
 
 class CameraKey(Section):
+    """One key of the camera's path: its frame and the pose there (fov: the camera's unless given)."""
+
     frame: Float = Field(description="Frame number of this key (fractional allowed).")
     position: Vec3
     target: Vec3
@@ -586,6 +592,8 @@ class CameraConfig(Section):
 
 
 class SunConfig(Section):
+    """The sun: elevation, azimuth (clockwise from +Z, north, towards +X), and the irradiance and colour it sends."""
+
     elevation: Annotated[float, Field(ge=-90.0, le=90.0, allow_inf_nan=False)] = Field(
         35.0, description="Degrees above the horizon."
     )
@@ -679,6 +687,8 @@ def _exposure(value: Any) -> float:
 
 
 class RenderConfig(Section):
+    """The image (size, samples, variant), light paths, aerial haze, the ground's look and the PNG's view transform."""
+
     width: Side = Field(1280, description="Pixels.")
     height: Side = Field(720, description="Pixels.")
     spp: Annotated[Int, Field(ge=1, le=65536)] = Field(64, description="Samples per pixel.")
@@ -719,6 +729,8 @@ class RenderConfig(Section):
 
 
 class LodConfig(Section):
+    """Level-of-detail boundaries by camera distance; without them every tree is at its highest level."""
+
     distances: (
         Annotated[list[Positive], Field(min_length=1, max_length=3, json_schema_extra={"uniqueItems": True})] | None
     ) = Field(None, description="Boundaries high → medium → low → far, metres from the camera.")
@@ -732,6 +744,7 @@ class LodConfig(Section):
 
     @property
     def enabled(self) -> bool:
+        """Whether ``distances`` are given."""
         return self.distances is not None
 
     @property
@@ -741,6 +754,8 @@ class LodConfig(Section):
 
 
 class WindConfig(Section):
+    """Wind sway of the trees over time: amplitude, frequency and direction."""
+
     strength: Annotated[float, Field(ge=0.0, le=45.0, allow_inf_nan=False)] = Field(
         0.0, description="Sway amplitude, degrees."
     )
@@ -813,6 +828,8 @@ class LookdevConfig(Section):
 
 
 class ExportConfig(Section):
+    """How ``forest export`` writes: RIB level cross-fades, display and textures; the USD and Blender levels."""
+
     lod_transition: Annotated[float, Field(ge=0.0, le=0.9, allow_inf_nan=False)] = Field(
         0.1, description="Fraction of a LOD distance over which RIB levels cross-fade."
     )

@@ -326,7 +326,7 @@ def export_blender(
     exe = find_blender(blender)
     check_instances(scene.config, scene.instances)
     frame_list = export_frames(scene.config, frames)
-    report = progress or (lambda f, m="": None)
+    report = progress or (lambda _f, _m="": None)
     result = BlenderExport(path=path, trees=len(scene.instances))
     with tempfile.TemporaryDirectory(prefix="forest-blender-") as tmp_name:
         folder = Path(tmp_name)

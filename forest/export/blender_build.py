@@ -40,6 +40,7 @@ import bpy
 
 
 def read(folder: Path, name: str, code: str) -> array:
+    """The raw little-endian array ``folder/name`` as an ``array`` of type ``code`` (``"f"``, ``"i"``)."""
     a = array(code)
     a.frombytes((folder / name).read_bytes())
     if sys.byteorder != "little":
@@ -48,12 +49,14 @@ def read(folder: Path, name: str, code: str) -> array:
 
 
 def clear_scene() -> None:
+    """Remove every object, mesh, material, light and camera of Blender's start-up file."""
     for coll in (bpy.data.objects, bpy.data.meshes, bpy.data.materials, bpy.data.lights, bpy.data.cameras):
         for block in list(coll):
             coll.remove(block)
 
 
 def make_mesh(name: str, folder: Path, part: dict):
+    """A Blender mesh of a manifest part: triangles, per-vertex uv (``UVMap``) and custom normals, smooth shaded."""
     v = read(folder, part["vertices"], "f")
     f = read(folder, part["faces"], "i")
     n = read(folder, part["normals"], "f")
@@ -83,6 +86,7 @@ def make_mesh(name: str, folder: Path, part: dict):
 
 
 def image_node(nodes, path: str):
+    """An image texture node for the sRGB PNG at ``path`` (packed into the .blend, straight alpha, linear, clamped)."""
     img = bpy.data.images.load(path, check_existing=True)
     img.colorspace_settings.name = "sRGB"
     img.alpha_mode = "STRAIGHT"
@@ -149,6 +153,7 @@ def make_material(name: str, part: dict):
 
 
 def make_species(manifest: dict, folder: Path):
+    """One object per species, its parts joined, in the hidden collection ``forest_species`` (returned)."""
     coll = bpy.data.collections.new("forest_species")
     bpy.context.scene.collection.children.link(coll)
     coll.hide_render = False
@@ -174,6 +179,7 @@ def make_species(manifest: dict, folder: Path):
 
 
 def make_points(manifest: dict, folder: Path, coll):
+    """The point cloud ``forest_points`` (species, rotation, scale, tint per point) instancing ``coll``'s species."""
     pts = manifest["points"]
     n = pts["count"]
     mesh = bpy.data.meshes.new("forest_points")
@@ -223,6 +229,7 @@ def make_points(manifest: dict, folder: Path, coll):
 
 
 def make_terrain(manifest: dict, folder: Path):
+    """The terrain object, its material the manifest's colour (and texture)."""
     t = manifest["terrain"]
     mesh = make_mesh("terrain", folder, t)
     part = {"colour": t["colour"], "texture": t.get("texture"), "tinted": False, "translucency": 0.0}
@@ -233,6 +240,7 @@ def make_terrain(manifest: dict, folder: Path):
 
 
 def make_camera(manifest: dict):
+    """The scene camera, keyframed per exported frame when there is more than one key."""
     c = manifest["camera"]
     cam = bpy.data.cameras.new("camera")
     cam.sensor_fit = "HORIZONTAL"
@@ -254,6 +262,7 @@ def make_camera(manifest: dict):
 
 
 def make_lights(manifest: dict) -> None:
+    """A Sun lamp for the manifest's sun and the World background for its sky (constant or envmap); none is black."""
     from mathutils import Matrix
 
     sun = manifest.get("sun")
@@ -289,6 +298,7 @@ def make_lights(manifest: dict) -> None:
 
 
 def set_render(manifest: dict) -> None:
+    """Cycles on the CPU with the manifest's samples, seed, bounces, size and frame range; Standard view transform."""
     r = manifest["render"]
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
@@ -347,6 +357,7 @@ def make_haze(manifest: dict) -> None:
 
 
 def main(argv: list[str]) -> None:
+    """Build the .blend from ``blender ... -- manifest.json out.blend [--render PNG [--coverage]]``, save it, render."""
     args = argv[argv.index("--") + 1 :] if "--" in argv else []
     manifest_path, out = Path(args[0]), Path(args[1])
     render_to = args[args.index("--render") + 1] if "--render" in args else None

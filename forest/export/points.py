@@ -177,7 +177,7 @@ def export_points(scene: Scene, path: str | Path, *, progress=None) -> PointsExp
     check_instances(scene.config, scene.instances)
     attrs = point_attributes(look_instances(scene))
     names = [str(n) for n in scene.instances.species_names]
-    report = progress or (lambda f, m="": None)
+    report = progress or (lambda _f, _m="": None)
     report(0.1, "points")
     try:
         with atomic_path(path) as tmp:

@@ -236,6 +236,7 @@ def num(x: float, digits: int = 9) -> str:
 
 
 def nums(values, digits: int = 9) -> str:
+    """Numbers as :func:`num` writes them, space separated."""
     return " ".join(num(v, digits) for v in np.asarray(values, dtype=np.float64).ravel())
 
 
@@ -261,6 +262,7 @@ def bound6(b: np.ndarray) -> list[float]:
 
 
 def rib_string(s: str) -> str:
+    """``s`` as a RIB string literal: double-quoted, backslashes and quotes escaped."""
     return '"' + str(s).replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
@@ -281,10 +283,12 @@ class RibOptions:
 
     @property
     def driver(self) -> str:
+        """The RIB Display driver name of :attr:`display`."""
         return DISPLAYS[self.display][0]
 
     @property
     def image_suffix(self) -> str:
+        """The file suffix of the display's image (empty for a framebuffer)."""
         return DISPLAYS[self.display][1]
 
 
@@ -479,6 +483,9 @@ class ObjectTable:
         self._fh: BinaryIO | None = None
 
     def define(self, key: tuple[int, str, int], name: str, mesh) -> str:
+        """Write ``mesh`` as a retained object (``ObjectBegin`` … ``ObjectEnd``; the file opens on first use) and
+        return its handle: ``name`` quoted for RenderMan 22, else its number.
+        """
         if self._fh is None:
             self._fh = open(self.path, "wb")
             self._write(
@@ -620,6 +627,7 @@ def detail_ranges(plan: SpeciesPlan, detail_bound: np.ndarray, width: int, fov: 
 
 
 def check_transition(config: Config, transition: float) -> None:
+    """Refuse (``ConfigError``) a ``lod_transition`` whose cross-fades would make neighbouring LOD bands overlap."""
     d = list(config.lod.bands)
     for a, b in itertools.pairwise(d):
         if b * (1 - transition) < a * (1 + transition):
@@ -637,6 +645,7 @@ def check_transition(config: Config, transition: float) -> None:
 
 
 def procedural(path: str, bound, renderman22: bool, indent: str = "  ") -> str:
+    """A delayed-read archive call for ``path`` in ``bound`` ((2, 3) [min, max]); ``Procedural2`` for RenderMan 22."""
     b = fixed(bound6(bound))
     if renderman22:
         return (
@@ -878,6 +887,7 @@ def scene_text(
     has_objects: bool = True,
     envmap: str | None = None,
 ) -> str:
+    """The RIB of one frame: display, format, sampling, camera (with motion blur), lights and its archives."""
     cam = config.camera
     r = config.render
     r22 = opts.renderman22
@@ -996,7 +1006,7 @@ def export_rib(
     frame_list = export_frames(config, frames)
     check_instances(config, instances)
     plans = species_plans(scene)
-    report = progress or (lambda f, m="": None)
+    report = progress or (lambda _f, _m="": None)
     result = RibExport(out_dir=out_dir, trees=len(instances))
     r22 = renderman22
     try:

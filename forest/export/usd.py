@@ -99,6 +99,7 @@ class UsdExport:
 
     @property
     def files(self) -> list[Path]:
+        """Every file written: the stage, the species layers and the textures."""
         return [self.path] + list(self.species_layers) + list(self.textures)
 
 
@@ -506,7 +507,7 @@ def export_usd(
         if c is not None:
             canopies[plan.index] = c
         radii[plan.index] = bound_radius(measured_bounds(lod, lod_mesh(lod)))
-    report = progress or (lambda f, m="": None)
+    report = progress or (lambda _f, _m="": None)
     _Gf, Sdf, Usd, UsdGeom, _UsdLux, _Vt = _pxr()
     from pxr import Tf
 

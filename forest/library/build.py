@@ -55,6 +55,7 @@ def recipe_hash(recipe: dict, seed: int) -> str:
 
 
 def write_json(path: Path, data: dict) -> None:
+    """Write ``data`` to ``path`` atomically as sorted, indented JSON (the same data, the same bytes)."""
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
 
@@ -62,6 +63,7 @@ def write_json(path: Path, data: dict) -> None:
 def part_entry(
     kind: str, file: str, mesh: MeshData, colour, texture: str | None, tinted: bool, translucency: float
 ) -> dict:
+    """The metadata entry of one part: kind, file, colour (6 decimals), texture, tinted, translucency, size."""
     return {
         "kind": kind,
         "file": file,
@@ -75,6 +77,7 @@ def part_entry(
 
 
 def lod_entry(name: str, parts: list[dict]) -> dict:
+    """The metadata entry of a level of detail: its ``parts``, their total triangles and the union of their bounds."""
     b = np.array([p["bounds"] for p in parts])
     return {
         "name": name,

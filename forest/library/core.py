@@ -85,6 +85,7 @@ class Species:
     description: str = ""
 
     def lod(self, name: str) -> Lod:
+        """The level of detail named ``name``; ``ForestError`` when the species has none of that name."""
         for lod in self.lods:
             if lod.name == name:
                 return lod
@@ -97,6 +98,7 @@ class Species:
 
     @property
     def preview_path(self) -> Path:
+        """Where the preview PNG is cached: ``cache/previews/<name>-<hash prefix>.png``."""
         return self.library.cache / "previews" / f"{self.name}-{self.hash[:16]}.png"
 
     @property
@@ -345,6 +347,7 @@ class Library:
         )
 
     def species(self) -> list[Species]:
+        """Every species of both layers by :meth:`get` (built if stale), in :meth:`names` order."""
         return [self.get(n) for n in self.names()]
 
     def build(

@@ -248,6 +248,7 @@ def _classify(parts) -> list[tuple[str, bool]]:
 
 
 def seed_of(digest: str) -> int:
+    """A generation seed from a mesh digest: its first 32 bits (0 without a digest)."""
     return int(digest[:8], 16) if digest else 0
 
 
@@ -323,7 +324,7 @@ def _digest(path: Path, **options) -> str:
     return h.hexdigest()
 
 
-def _into_place(lib: Library, path: Path, folder: Path, name: str, replace: bool, **options) -> dict:
+def _into_place(path: Path, folder: Path, name: str, replace: bool, **options) -> dict:
     """Convert into a temporary folder beside ``folder`` and rename it into place."""
     if not path.is_file():
         raise ForestError(f"{path}: mesh file not found")
@@ -381,7 +382,7 @@ def import_cached(lib: Library, path: Path) -> Species:
     folder = lib.cache / "imported" / f"{path.stem}-{digest[:16]}"
     meta = _load_meta(folder)
     if meta is None:
-        meta = _into_place(lib, path, folder, path.stem, False, up="auto", units="auto", height=None)
+        meta = _into_place(path, folder, path.stem, False, up="auto", units="auto", height=None)
     return _species_from_meta(lib, meta, folder, f"imported from {path.name}")
 
 
@@ -424,7 +425,7 @@ def add_species(
     if height is not None and not (math.isfinite(height) and height > 0):
         raise ParameterError("height", f"must be a positive number of metres, got {height!r}")
     folder = lib.root / "imported" / name
-    meta = _into_place(lib, path, folder, name, True, up=up, units=units, height=height)
+    meta = _into_place(path, folder, name, True, up=up, units=units, height=height)
     text = (
         lib.manifest_path.read_text()
         if lib.manifest_path.is_file()

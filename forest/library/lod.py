@@ -118,6 +118,7 @@ class CardTemplate:
 
     @property
     def triangles(self) -> int:
+        """Triangles of one card."""
         return len(self.faces)
 
 
@@ -281,6 +282,7 @@ def _tube_plan(sk: Skeleton, lod: str, budget: float) -> list[tuple[int, int, np
 
 
 def bark_mesh(sk: Skeleton, lod: str, budget: float) -> MeshData:
+    """The bark of skeleton ``sk`` at level ``lod``: its levels' tubes, merged, within about ``budget`` triangles."""
     from .mesh import merge_meshes
 
     return merge_meshes([tubes(sk.levels[i], sides, rows) for i, sides, rows in _tube_plan(sk, lod, budget)])

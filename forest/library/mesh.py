@@ -33,6 +33,7 @@ class MeshData:
 
     @property
     def triangles(self) -> int:
+        """Number of triangles (faces)."""
         return int(len(self.faces))
 
     def bounds(self) -> np.ndarray:

@@ -61,6 +61,7 @@ class Outline:
 
     @property
     def triangles(self) -> int:
+        """Triangles of the outline's fan: its K vertices less 2."""
         return len(self.uv) - 2
 
     @property

@@ -62,6 +62,10 @@ def part_bsdf(mi, part, cache: dict | None = None) -> dict:
 
 
 def camera_for(bounds: np.ndarray, size: tuple[int, int]) -> dict:
+    """A ``perspective`` sensor dict framing ``bounds`` in a ``size`` (width, height) image, seen from +Z, 12° up.
+
+    ``_eye`` and ``_target`` stand in for ``to_world`` (built once the variant is set).
+    """
     lo, hi = np.asarray(bounds, dtype=np.float64)
     centre = 0.5 * (lo + hi)
     r = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-3)

@@ -15,10 +15,13 @@ second row of ``M_sRGB``).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+import numpy.typing as npt
 
 
-def _colour():
+def _colour() -> Any:
     import colour
 
     return colour
@@ -34,37 +37,38 @@ def luminance_weights() -> np.ndarray:
     return srgb_matrix()[1].copy()
 
 
-def luminance(rgb) -> np.ndarray:
+def luminance(rgb: npt.ArrayLike) -> np.ndarray:
     """CIE Y of linear sRGB values ``(..., 3)``."""
     return np.asarray(rgb, dtype=np.float64) @ luminance_weights()
 
 
-def rgb_to_xyz(rgb) -> np.ndarray:
+def rgb_to_xyz(rgb: npt.ArrayLike) -> np.ndarray:
+    """Linear sRGB → CIE XYZ (D65) (colour-science)."""
     c = _colour()
     cs = c.models.RGB_COLOURSPACE_sRGB
     return c.RGB_to_XYZ(np.asarray(rgb, dtype=np.float64), cs, apply_cctf_decoding=False)
 
 
-def xyz_to_rgb(xyz) -> np.ndarray:
+def xyz_to_rgb(xyz: npt.ArrayLike) -> np.ndarray:
     """CIE XYZ (D65) → linear sRGB (colour-science)."""
     c = _colour()
     cs = c.models.RGB_COLOURSPACE_sRGB
     return np.asarray(c.XYZ_to_RGB(np.asarray(xyz, dtype=np.float64), cs, apply_cctf_encoding=False))
 
 
-def rgb_to_lab(rgb) -> np.ndarray:
+def rgb_to_lab(rgb: npt.ArrayLike) -> np.ndarray:
     """Linear sRGB → CIELAB (D65 white, colour-science)."""
     c = _colour()
     wp = c.models.RGB_COLOURSPACE_sRGB.whitepoint
     return c.XYZ_to_Lab(rgb_to_xyz(rgb), wp)
 
 
-def rgb_to_oklab(rgb) -> np.ndarray:
+def rgb_to_oklab(rgb: npt.ArrayLike) -> np.ndarray:
     """Linear sRGB → Oklab (colour-science)."""
     return _colour().XYZ_to_Oklab(rgb_to_xyz(np.maximum(rgb, 0.0)))
 
 
-def delta_e2000(rgb_a, rgb_b) -> np.ndarray:
+def delta_e2000(rgb_a: npt.ArrayLike, rgb_b: npt.ArrayLike) -> np.ndarray:
     """CIEDE2000 between two arrays of linear sRGB colours (colour-science)."""
     return np.asarray(_colour().delta_E(rgb_to_lab(rgb_a), rgb_to_lab(rgb_b), method="CIE 2000"))
 
@@ -78,7 +82,7 @@ def oklab_matrices() -> tuple[np.ndarray, np.ndarray]:
     return m1, m2
 
 
-def oklab_dr(r, g, b, eps: float = 1e-5):
+def oklab_dr(r: Any, g: Any, b: Any, eps: float = 1e-5) -> tuple[Any, ...]:
     """Oklab of drjit arrays ``r, g, b`` (linear sRGB), differentiable.
 
     ``∛(LMS + ε)`` with a small ε keeps the derivative finite at black.

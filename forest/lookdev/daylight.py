@@ -28,6 +28,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+import numpy.typing as npt
 
 #: Mired range of the tables: 10⁶/T for T from 100 000 K down to 1 000 K.
 MIRED_RANGE = (10.0, 1000.0)
@@ -36,7 +37,7 @@ MIRED_STEP = 0.5
 D65_CCT = 6504.0
 
 
-def mired(kelvin) -> np.ndarray:
+def mired(kelvin: npt.ArrayLike) -> np.ndarray:
     """10⁶ / T."""
     return 1e6 / np.asarray(kelvin, np.float64)
 
@@ -58,7 +59,7 @@ def _tables() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return m, on, normal, duv
 
 
-def daylight_duv(kelvin) -> np.ndarray:
+def daylight_duv(kelvin: npt.ArrayLike) -> np.ndarray:
     """Duv of the CIE daylight locus at ``kelvin`` (held constant outside 4000–25 000 K)."""
     m, _, _, duv = _tables()
     return np.interp(mired(kelvin), m, duv)
@@ -73,7 +74,7 @@ def _xyz_to_rgb() -> np.ndarray:
     return np.linalg.inv(srgb_matrix())
 
 
-def locus_rgb(kelvin, duv=0.0) -> np.ndarray:
+def locus_rgb(kelvin: npt.ArrayLike, duv: npt.ArrayLike = 0.0) -> np.ndarray:
     """Linear sRGB with unit luminance of the colour (T, Duv); broadcasts, shape (..., 3)."""
     from .colour import luminance
 
@@ -91,12 +92,12 @@ def locus_rgb(kelvin, duv=0.0) -> np.ndarray:
     return rgb / luminance(rgb)[..., None]
 
 
-def daylight_rgb(kelvin) -> np.ndarray:
+def daylight_rgb(kelvin: npt.ArrayLike) -> np.ndarray:
     """Unit-luminance linear sRGB of daylight (the D-series locus) at ``kelvin``."""
     return locus_rgb(kelvin, daylight_duv(kelvin))
 
 
-def rgb_to_cct(rgb) -> tuple[float, float]:
+def rgb_to_cct(rgb: npt.ArrayLike) -> tuple[float, float]:
     """(T, Duv) of a linear sRGB colour (Ohno 2013, colour-science); (D65, 0) for black."""
     import colour
 

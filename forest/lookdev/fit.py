@@ -28,6 +28,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -80,9 +81,11 @@ STALL = 2e-3
 
 @dataclass
 class FitResult:
+    """What :meth:`Fitter.run` returns: start and best looks, their (data, prior) objectives, diagnostics."""
+
     start: Look
     best: Look
-    history: list[dict] = field(default_factory=list)  # per iteration: data, prior, total, accepted
+    history: list[dict[str, Any]] = field(default_factory=list)  # per iteration: data, prior, total, accepted
     start_objective: tuple[float, float] = (0.0, 0.0)
     best_objective: tuple[float, float] = (0.0, 0.0)
     shares: dict[str, float] = field(default_factory=dict)  # posterior variance share per parameter
@@ -110,6 +113,7 @@ class Fitter:
 
     # -- applying a look to the renderer --------------------------------------------------
     def grid(self, look: Look) -> np.ndarray | None:
+        """The colour grid at ``look``: the base map times exp(upsampled ln-correction); None without a map."""
         if self.base_map is None:
             return None
         if look.correction is None or self._up is None:
@@ -118,6 +122,7 @@ class Fitter:
         return self.base_map * np.exp(f).reshape(self.base_map.shape)
 
     def apply(self, look: Look) -> None:
+        """Set the renderer's lights, haze and albedos (leaf and ground tints, colour grid) to ``look``."""
         st = self.p.start
         self.r.set_lights(self.p.light_scales(look))
         self.r.set_haze(look.get("haze", st.haze))
@@ -127,6 +132,7 @@ class Fitter:
         )
 
     def render(self, look: Look, seed: int, spp: int | None = None) -> np.ndarray:
+        """Linear image of ``look`` rendered with ``seed`` (and ``spp``, default the renderer's)."""
         self.apply(look)
         return self.r.render(seed, spp)
 
@@ -137,6 +143,9 @@ class Fitter:
 
     # -- linearisation --------------------------------------------------------------------
     def linearise(self, look: Look, k: int, previous: Linearisation | None) -> Linearisation:
+        """The surrogate at ``look`` for iteration ``k``: fresh light images (two seeds), pooled; the albedo
+        elasticities are rendered at the first iteration and at :data:`REFRESH`, else taken from ``previous``.
+        """
         self.apply(look)
         seed = self.seed * 1_000_003 + 7919 * k
         u = self.r.light_images(seed)
@@ -220,6 +229,7 @@ class Fitter:
 
     # -- the loop -------------------------------------------------------------------------
     def run(self, start: Look, *, iterations: int, progress: Callable[[float, str], None] | None = None) -> FitResult:
+        """Fit from ``start`` for at most ``iterations`` (fewer after two stalls); the best held-out iterate wins."""
         t0 = time.perf_counter()
         say = progress if progress is not None else _quiet
         res = FitResult(start=start.copy(), best=start.copy())

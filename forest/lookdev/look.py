@@ -94,7 +94,7 @@ def camera_gain(look: Look) -> np.ndarray:
     return (2.0 ** _v(look, "exposure", 0.0)) * w
 
 
-def haze_colour(look: Look, start: Start, lt: Lights) -> np.ndarray:
+def haze_colour(start: Start, lt: Lights) -> np.ndarray:
     """Airlight radiance: the horizon sky's times the start's ratio (the config's haze colour at the start)."""
     if lt.horizon is not None:
         return start.haze_ratio * lt.horizon
@@ -112,4 +112,5 @@ def leaf_tints(look: Look, n_species: int) -> np.ndarray:
 
 
 def ground_tint(look: Look) -> np.ndarray:
+    """(3,) multiplier of the ground albedo: exp of the look's ``ground_r/g/b`` (1 where unset)."""
     return np.exp(np.array([_v(look, f"ground_{c}", 0.0) for c in CHANNELS]))

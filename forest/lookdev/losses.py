@@ -55,12 +55,16 @@ and its ground are, does.  The report gives CIEDE2000 between the means.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .colour import luminance
 from .reference import Reference
 from .regions import Region, region_means
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
 
 PIXEL_TOLERANCE = 0.02
 #: κ_c of the aligned residuals, as a share of the reference channel's median block.
@@ -77,7 +81,7 @@ def log_colour(rgb: np.ndarray) -> np.ndarray:
     return np.stack([np.log(y), np.log(c[..., 0] / c[..., 1]), np.log(c[..., 2] / c[..., 1])], axis=-1)
 
 
-def block_operator(height: int, width: int, block: int):
+def block_operator(height: int, width: int, block: int) -> sp.csr_matrix:
     """The sparse (blocks·3) × (H·W·3) matrix of block means over ``block`` × ``block`` pixels, per channel (a
     last row or column of partial blocks is dropped)."""
     import scipy.sparse as sp
@@ -149,10 +153,11 @@ class PixelLoss:
         self.base = np.where(whole, self.base, 0.0)
 
     def residuals(self, image: np.ndarray) -> np.ndarray:
+        """r = √w (ln(⟨Q⟩ + κ) − ln(⟨P⟩ + κ))/τ per block and channel, of the block means ⟨Q⟩ of linear ``image``."""
         q = self.blocks @ np.asarray(image, np.float64).ravel()
         return np.sqrt(self.weight) * (np.log(np.maximum(q, 0.0) + self.kappa) - self.log_target) / PIXEL_TOLERANCE
 
-    def project(self, jac, image: np.ndarray):
+    def project(self, jac: sp.csr_matrix, image: np.ndarray) -> sp.csr_matrix:
         """∂r/∂x from ∂Q/∂x per pixel value (a sparse (pixels·3) × n matrix) at the photo ``image``:
         √w/(τ (⟨Q⟩ + κ)) · B · J."""
         import scipy.sparse as sp
@@ -162,6 +167,7 @@ class PixelLoss:
         return sp.diags(scale) @ (self.blocks @ jac)
 
     def value(self, image: np.ndarray) -> float:
+        """½‖r‖² of ``image``."""
         r = self.residuals(image)
         return 0.5 * float(r @ r)
 
@@ -193,6 +199,7 @@ class RegionLoss:
         return np.concatenate([m, whole]) if len(m) else whole
 
     def residuals(self, image: np.ndarray) -> np.ndarray:
+        """(ln Y, ln r/g, ln b/g) of the region means minus the photo's, over :data:`LOG_TOLERANCE`, flattened."""
         return ((log_colour(self.means(image)) - self.target) / LOG_TOLERANCE).ravel()
 
     def delta_e(self, image: np.ndarray) -> dict[str, float]:
@@ -203,5 +210,6 @@ class RegionLoss:
         return {n: float(d) for n, d in zip(self.names, np.atleast_1d(de))}
 
     def value(self, image: np.ndarray) -> float:
+        """½‖r‖² of ``image``."""
         r = self.residuals(image)
         return 0.5 * float(r @ r)

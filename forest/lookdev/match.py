@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import time
 import warnings as _warnings
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -31,12 +33,18 @@ from ..config import Config, ConfigError
 from ..errors import ParameterError
 from .params import DEFAULT_GROUPS, GROUPS, Look, specs_for, start_values
 
+if TYPE_CHECKING:
+    from ..scene import Scene
+    from .solve import Problem
+
 MODES = ("aligned", "statistics")
 SEED_TAG = 0x100CDE7
 
 
 @dataclass
 class Settings:
+    """A fit's settings: the ``[lookdev]`` table with the caller's overrides applied (:func:`resolve_settings`)."""
+
     iterations: int
     resolution: int
     spp: int
@@ -61,8 +69,8 @@ class MatchResult:
     colour_map_path: Path | None
     report_path: Path
     json_path: Path
-    table: list[dict]  # every parameter: name, label, start, fitted, range, prior, determination, flag
-    figures: dict
+    table: list[dict[str, Any]]  # every parameter: name, label, start, fitted, range, prior, determination, flag
+    figures: dict[str, Any]
     fitted: tuple[str, ...]
     variant: str
     seconds: float
@@ -76,10 +84,11 @@ class MatchResult:
 
     @property
     def paths(self) -> list[Path]:
+        """The files written: scene, colour map (when fitted), report and JSON."""
         return [p for p in (self.scene_path, self.colour_map_path, self.report_path, self.json_path) if p]
 
 
-def parse_params(value, where: str = "lookdev.params") -> tuple[str, ...]:
+def parse_params(value: str | Iterable[str], where: str = "lookdev.params") -> tuple[str, ...]:
     """``"camera,sun"`` or a list → validated tuple of parameter groups."""
     items = value.split(",") if isinstance(value, str) else list(value)
     out: list[str] = []
@@ -99,22 +108,22 @@ def parse_params(value, where: str = "lookdev.params") -> tuple[str, ...]:
 def resolve_settings(
     config: Config,
     *,
-    iterations=None,
-    resolution=None,
-    spp=None,
-    params=None,
-    mode=None,
-    mask=None,
-    variant=None,
-    grid=None,
-    anchor=None,
-    map_prior=None,
+    iterations: int | None = None,
+    resolution: int | None = None,
+    spp: int | None = None,
+    params: str | Iterable[str] | None = None,
+    mode: str | None = None,
+    mask: str | Path | None = None,
+    variant: str | None = None,
+    grid: int | str | None = None,
+    anchor: str | None = None,
+    map_prior: str | None = None,
 ) -> Settings:
     """Call arguments over ``[lookdev]`` over its defaults, validated by the scene schema (errors name
     ``lookdev.<option>``)."""
     if isinstance(grid, str) and grid.strip().isdigit():
         grid = int(grid)
-    given = {
+    given: dict[str, Any] = {
         "iterations": iterations,
         "resolution": resolution,
         "spp": spp,
@@ -216,7 +225,7 @@ ANCHOR_TEXT = {
 }
 
 
-def hold_degenerate(problem, anchor: str) -> list[str]:
+def hold_degenerate(problem: Problem, anchor: str) -> list[str]:
     """Hold what the image cannot tell apart, by construction (:mod:`.params`): the camera when the lights are
     fitted (exactly one thing), and the anchor's side of albedos against light.  Returns notes for the user."""
     names = {s.name for s in problem.specs}
@@ -252,18 +261,18 @@ def optimiser_size(config: Config, resolution: int) -> tuple[int, int]:
 
 
 def match(
-    scene,
-    reference,
-    out_dir,
+    scene: Scene,
+    reference: str | Path | np.ndarray,
+    out_dir: str | Path,
     *,
     iterations: int | None = None,
     resolution: int | None = None,
     spp: int | None = None,
-    params=None,
+    params: str | Iterable[str] | None = None,
     mode: str | None = None,
-    mask=None,
+    mask: str | Path | None = None,
     variant: str | None = None,
-    progress=None,
+    progress: Callable[[float, str], None] | None = None,
     grid: int | str | None = None,
     seed: int | None = None,
     anchor: str | None = None,
@@ -283,7 +292,7 @@ def match(
     from .solve import Problem
 
     t0 = time.perf_counter()
-    say = progress or (lambda f, m="": None)
+    say: Callable[[float, str], None] = progress or (lambda _f, _m: None)
     config = scene.config
     st = resolve_settings(
         config,

@@ -177,6 +177,7 @@ class Spec:
     natural_lo: str = ""
 
     def show(self, value: float) -> str:
+        """``value`` (a fit coordinate) as an artist reads it: mireds as kelvin, logs as a multiplier, with its unit."""
         if self.kind == "mired":
             return f"{1e6 / value:,.0f} K"
         if self.kind == "log":
@@ -186,6 +187,7 @@ class Spec:
         return f"{value:.4g}{(' ' + self.unit) if self.unit else ''}"
 
     def show_range(self) -> str:
+        """The range [lo, hi] shown as :meth:`show` shows a value."""
         if self.kind == "mired":
             return f"{1e6 / self.hi:,.0f}–{1e6 / self.lo:,.0f} K"
         if self.kind == "log":
@@ -227,6 +229,7 @@ class Start:
 
     @property
     def share0(self) -> float:
+        """The sun's share of :attr:`g0` at the start (0 without light)."""
         g = self.g0
         return (
             0.0
@@ -401,9 +404,11 @@ class Look:
     held: dict[str, float] = field(default_factory=dict)  # parameters held at these values
 
     def copy(self) -> Look:
+        """An independent copy (values, held values and correction copied)."""
         return Look(dict(self.values), None if self.correction is None else self.correction.copy(), dict(self.held))
 
     def get(self, name: str, default: float = 0.0) -> float:
+        """The value of parameter ``name``, free or held; ``default`` when the look has neither."""
         if name in self.values:
             return float(self.values[name])
         return float(self.held.get(name, default))

@@ -63,6 +63,7 @@ class Reference:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """(H, W) of the reference at the optimiser's size."""
         return self.rgb.shape[0], self.rgb.shape[1]
 
 

@@ -55,6 +55,7 @@ dark albedos by colour alone.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -90,7 +91,7 @@ def render_labels(layers: dict[str, np.ndarray]) -> np.ndarray:
     return lab
 
 
-def read_mask(path, what: str = "mask") -> np.ndarray:
+def read_mask(path: str | Path, what: str = "mask") -> np.ndarray:
     """A painted mask file → (H, W) labels (SKY, CANOPY, GROUND, IGNORE, AUTO); a :class:`ForestError`
     naming the file when its colours do not fit the palette."""
     from ..images import read_image
@@ -292,6 +293,7 @@ class Region:
 
 
 def lightness(rgb: np.ndarray) -> np.ndarray:
+    """Rec. 709 luminance of each colour of ``rgb`` (..., 3), flattened to (N,)."""
     return np.asarray(rgb, np.float64).reshape(-1, 3) @ np.array([0.2126, 0.7152, 0.0722])
 
 

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -47,11 +48,15 @@ from .daylight import rgb_to_cct
 from .image_model import optical_length
 from .params import Start
 
+if TYPE_CHECKING:
+    from ..config import Config
+    from ..scene import Scene
+
 #: The sampler of the fit's renders (see the module docstring).
 FIT_SAMPLER = "multijitter"
 
 
-def _leaf_colours(scene) -> np.ndarray:
+def _leaf_colours(scene: Scene) -> np.ndarray:
     """(S, 3) mean colour of each species' leaf parts at its first level (for albedo bounds)."""
     out = []
     for sp in scene.species:
@@ -61,7 +66,7 @@ def _leaf_colours(scene) -> np.ndarray:
     return np.asarray(out).reshape(-1, 3)
 
 
-def species_labels(config) -> list[str]:
+def species_labels(config: Config) -> list[str]:
     """A label per species index: ``[[species]] name`` or its ``model``."""
     return [s.name or s.model for s in config.species]
 
@@ -71,7 +76,7 @@ class FitRenderer:
 
     def __init__(
         self,
-        scene,
+        scene: Scene,
         *,
         width: int,
         height: int,
@@ -107,7 +112,7 @@ class FitRenderer:
         self.layers = self._layers()
 
     # -- the start ------------------------------------------------------------------------
-    def _start(self, config, scene) -> Start:
+    def _start(self, config: Config, scene: Scene) -> Start:
         lights = scene.lights
         sun = lights.sun
         sky = lights.sky
@@ -119,7 +124,7 @@ class FitRenderer:
         sky_rgb = np.zeros(3)
         sky_power = 0.0
         sky_k, sky_d = 12000.0, 0.0
-        if kind == "constant":
+        if sky is not None and sky.kind == "constant":
             sky_rgb = sky.radiance
             sky_power = math.pi * float(luminance(sky_rgb))
             sky_k, sky_d = rgb_to_cct(sky_rgb)
@@ -220,6 +225,7 @@ class FitRenderer:
             self.scene.params["haze_density"] = self.mi.Float(max(float(density), 0.0))
 
     def set_albedo(self, leaf_tint: np.ndarray, ground_tint: np.ndarray, grid: np.ndarray | None) -> None:
+        """Set the (S, 3) leaf tints, the RGB ground tint and (when the scene has one) the colour grid."""
         mi = self.mi
         p = self.scene.params
         p["leaf_tint"] = mi.Float(np.asarray(leaf_tint, np.float32).ravel())
@@ -229,6 +235,7 @@ class FitRenderer:
 
     # -- images -------------------------------------------------------------------------
     def render(self, seed: int, spp: int | None = None) -> np.ndarray:
+        """Linear RGB image (H, W, 3) of the current parameters with ``seed`` and ``spp`` (default the fit's)."""
         return np.asarray(self.scene.render(spp=spp or self.spp, seed=seed).rgb, np.float64)
 
     def light_images(self, seed: int, spp: int | None = None) -> dict[str, np.ndarray]:
@@ -251,7 +258,9 @@ class FitRenderer:
                 p[k] = v
         return out
 
-    def log_derivative(self, what: str, seed: int, *, species: int | None = None, tangent=None) -> np.ndarray:
+    def log_derivative(
+        self, what: str, seed: int, *, species: int | None = None, tangent: np.ndarray | None = None
+    ) -> np.ndarray:
         """∂I/∂ln m by forward-mode path replay; ``what``: ``leaves`` (all species, or ``species``), ``ground``,
         or ``grid`` (``tangent``: the (H, W, 3) change of the colour grid per unit ln-change of the cells)."""
         import drjit as dr

@@ -26,9 +26,12 @@ depend on the last bits of a sum.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ..atomic import atomic_dir, atomic_path
 from ..config import load_config, rebase_paths
@@ -38,8 +41,23 @@ from .colour import luminance
 from .fit import determination
 from .look import camera_gain, ground_tint, haze_colour, leaf_tints, lights
 
+if TYPE_CHECKING:
+    from ..config import Config
+    from ..scene import Scene
+    from .fit import FitResult, Fitter
+    from .match import Settings
+    from .params import Look
+    from .reference import Reference
+    from .renders import FitRenderer
+    from .solve import Problem
+
+#: (region, photo, start and fitted mean colours, ΔE00 of start and of fitted) per region (:func:`_region_means`).
+RegionMeans = list[tuple[str, np.ndarray, np.ndarray, np.ndarray, float, float]]
+
 MAP_NAME = "colour_map.exr"
 SKY_NAME = "sky.exr"
+#: Every file ``forest match`` may write into its output folder (none of them may be one of its inputs).
+WRITTEN = ("scene.toml", MAP_NAME, SKY_NAME, "report.png", "match.json")
 SKY_SIZE = (256, 512)
 #: A gradient whose zenith and horizon differ by less than this (relative, per channel) is written as constant.
 FLAT_SKY = 0.01
@@ -49,11 +67,13 @@ def _r(x: float, digits: int = 6) -> float:
     return float(f"{float(x):.{digits}g}")
 
 
-def _rgb(v) -> list[float]:
+def _rgb(v: npt.ArrayLike) -> list[float]:
     return [_r(c) for c in np.asarray(v, np.float64).ravel()[:3]]
 
 
-def gradient_envmap(zenith, horizon, size: tuple[int, int] = SKY_SIZE, exponent: float = 1.0) -> np.ndarray:
+def gradient_envmap(
+    zenith: np.ndarray, horizon: np.ndarray, size: tuple[int, int] = SKY_SIZE, exponent: float = 1.0
+) -> np.ndarray:
     """The gradient sky L = zenith·(1 − b) + horizon·b, b = (1 − μ)^k, μ = max(ω_y, 0)
     (:func:`forest.render.path.emitters.gradient_radiance`), as a latitude–longitude map (+Y up,
     Mitsuba's ``envmap`` convention: row i at polar angle π(i + ½)/H)."""
@@ -63,7 +83,9 @@ def gradient_envmap(zenith, horizon, size: tuple[int, int] = SKY_SIZE, exponent:
     return np.broadcast_to(img, (h, w, 3)).astype(np.float32)
 
 
-def fitted_data(config, problem, look, out_dir: Path, *, fit_map: bool) -> tuple[dict, dict[str, np.ndarray]]:
+def fitted_data(
+    config: Config, problem: Problem, look: Look, out_dir: Path, *, fit_map: bool
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """(TOML-ready config dict, files to write beside it) for a fitted look (see the module docstring)."""
     start = problem.start
     data = rebase_paths(config.data, Path(config.base_dir), Path(out_dir))
@@ -92,17 +114,21 @@ def fitted_data(config, problem, look, out_dir: Path, *, fit_map: bool) -> tuple
     elif start.sky_kind == "envmap" and lt.sky_scale is not None:
         from ..images import read_image
 
-        src = read_image(config.lights.sky.envmap, what="environment map")[..., :3]
+        sky_cfg = config.lights.sky
+        assert sky_cfg is not None and sky_cfg.envmap is not None  # the start's sky kind is the config's
+        src = read_image(sky_cfg.envmap, what="environment map")[..., :3]
         sky["envmap"] = SKY_NAME
         sky.pop("scale", None)
-        files[SKY_NAME] = (src * (float(lt.sky_scale[0]) * float(config.lights.sky.scale)) * g).astype(np.float32)
+        files[SKY_NAME] = (src * (float(lt.sky_scale[0]) * float(sky_cfg.scale)) * g).astype(np.float32)
     elif start.sky_kind == "sunsky" and lt.sky_scale is not None:
-        sky.setdefault("sunsky", {})["scale"] = _r(float(config.lights.sky.sunsky.scale) * float(np.mean(g)))
+        sky_cfg = config.lights.sky
+        assert sky_cfg is not None and sky_cfg.sunsky is not None  # the start's sky kind is the config's
+        sky.setdefault("sunsky", {})["scale"] = _r(float(sky_cfg.sunsky.scale) * float(np.mean(g)))
     rd = data.setdefault("render", {})
     sigma = look.get("haze", start.haze)
     if start.has_haze and (sigma > 0 or config.render.haze > 0):
         rd["haze"] = _r(sigma)
-        rd["haze_colour"] = _rgb(g * haze_colour(look, start, lt))
+        rd["haze_colour"] = _rgb(g * haze_colour(start, lt))
     gt = ground_tint(look)
     if not np.allclose(gt, 1.0, atol=1e-6):
         data.setdefault("lookdev", {})["ground_tint"] = _rgb(start.ground_tint0 * gt)
@@ -122,10 +148,12 @@ def fitted_data(config, problem, look, out_dir: Path, *, fit_map: bool) -> tuple
 
 
 def rounded_grid(grid: np.ndarray) -> np.ndarray:
+    """``grid`` clipped at 0 and rounded to 1/65536 as float32: the colour map as written, the same on every machine."""
     return (np.round(np.maximum(grid, 0.0) * 65536.0) / 65536.0).astype(np.float32)
 
 
-def write_toml(path: Path, data: dict) -> Path:
+def write_toml(path: Path, data: dict[str, Any]) -> Path:
+    """Write the fitted scene ``data`` to ``path`` atomically as TOML under a header comment; return ``path``."""
     import tomli_w
 
     text = "# look-dev result: the scene's look fitted to a reference (forest match)\n" + tomli_w.dumps(data)
@@ -138,7 +166,7 @@ class Production:
     """The production renderer of one Scene (the forest path tracer with its haze, as ``forest render`` builds it
     for the JIT variants), built once, rendered at any size."""
 
-    def __init__(self, scene, variant: str):
+    def __init__(self, scene: Scene, variant: str):
         from ..render.path import PathScene
         from ..render.path.from_scene import path_inputs
 
@@ -154,12 +182,13 @@ class Production:
         return np.asarray(self.scene.render(cam, spp=spp, seed=seed).rgb, np.float64)
 
 
-def production_image(scene, *, width: int, height: int, spp: int, seed: int, variant: str) -> np.ndarray:
+def production_image(scene: Scene, *, width: int, height: int, spp: int, seed: int, variant: str) -> np.ndarray:
     """The production render of a Scene at one size (see :class:`Production`)."""
     return Production(scene, variant).image(width=width, height=height, spp=spp, seed=seed)
 
 
-def parameter_table(problem, result) -> list[dict]:
+def parameter_table(problem: Problem, result: FitResult) -> list[dict[str, Any]]:
+    """One row per parameter: start and fitted value (raw and shown), range, prior, determination, flag."""
     rows = []
     for s in problem.specs:
         v0 = result.start.get(s.name, s.mean)
@@ -195,7 +224,13 @@ def parameter_table(problem, result) -> list[dict]:
     return rows
 
 
-def _region_figures(settings, reference, photo_labels, render_labels, renderer, image) -> dict[str, float]:
+def _region_figures(
+    reference: Reference,
+    photo_labels: np.ndarray,
+    render_labels: np.ndarray,
+    renderer: FitRenderer,
+    image: np.ndarray,
+) -> dict[str, float]:
     from .losses import RegionLoss
     from .regions import regions
 
@@ -209,20 +244,20 @@ def _region_figures(settings, reference, photo_labels, render_labels, renderer, 
 def write_outputs(
     out_dir: Path,
     *,
-    scene,
-    settings,
-    renderer,
-    problem,
-    fitter,
-    result,
-    reference,
-    photo_labels,
-    render_labels,
-    notes,
-    seconds,
-    seed,
-    sun_lit=None,
-) -> dict:
+    scene: Scene,
+    settings: Settings,
+    renderer: FitRenderer,
+    problem: Problem,
+    fitter: Fitter,
+    result: FitResult,
+    reference: Reference,
+    photo_labels: np.ndarray,
+    render_labels: np.ndarray,
+    notes: list[str],
+    seconds: float,
+    seed: int,
+    sun_lit: np.ndarray | None = None,
+) -> dict[str, Any]:
     """Write everything into ``out_dir`` atomically; returns paths, the table and the figures (``sun_lit``:
     the render's sunlit pixels, for the lit-over-shadowed contrasts)."""
     from .colour import delta_e2000
@@ -230,7 +265,7 @@ def write_outputs(
     config = scene.config
     fit_map = problem.cells is not None
     best = result.best
-    out: dict = {}
+    out: dict[str, Any] = {}
     w, h = renderer.width, renderer.height
     spp_eval = 4 * settings.spp
     with atomic_dir(out_dir) as tmp:
@@ -239,6 +274,7 @@ def write_outputs(
             write_image(tmp / name, img, half=False)
         if fit_map:
             grid = fitter.grid(best)
+            assert grid is not None  # a fitted map has a base map
             write_image(tmp / MAP_NAME, rounded_grid(grid), half=False)
             out["colour_map"] = out_dir / MAP_NAME
         # The temporary folder is the output folder's sibling: relative paths resolve the same from both.
@@ -247,8 +283,10 @@ def write_outputs(
         # Production renders of the start and of the written scene: figures at the fit's size, pictures larger.
         prod = {name: Production(sc, renderer.variant) for name, sc in (("start", scene), ("fitted", fitted_scene))}
         ev = {name: p.image(width=w, height=h, spp=spp_eval, seed=seed + 101) for name, p in prod.items()}
-        clip = (lambda x: np.minimum(x, 1.0)) if reference.display_referred else (lambda x: x)
-        figures: dict = {
+        clip: Callable[[np.ndarray], np.ndarray] = (
+            (lambda x: np.minimum(x, 1.0)) if reference.display_referred else (lambda x: x)
+        )
+        figures: dict[str, Any] = {
             "objective_start": _r(sum(result.start_objective)),
             "objective_fitted": _r(sum(result.best_objective)),
             "data_start": _r(result.start_objective[0]),
@@ -261,8 +299,7 @@ def write_outputs(
             de = delta_e2000(img.reshape(-1, 3)[valid], reference.rgb.reshape(-1, 3)[valid])
             figures[f"{name}_pixel_de_mean"] = _r(float(np.mean(de)), 4)
             figures[f"{name}_regions"] = {
-                k: _r(v, 4)
-                for k, v in _region_figures(settings, reference, photo_labels, render_labels, renderer, img).items()
+                k: _r(v, 4) for k, v in _region_figures(reference, photo_labels, render_labels, renderer, img).items()
             }
         figures["region_statistics"] = _statistics(
             reference, photo_labels, render_labels, renderer, {k: clip(v) for k, v in ev.items()}, sun_lit
@@ -302,7 +339,7 @@ def write_outputs(
             "iterations": settings.iterations,
             "spp": settings.spp,
             "resolution": [w, h],
-            "grid": problem.cells[0] if fit_map else None,
+            "grid": problem.cells[0] if problem.cells is not None else None,
             "map_prior": settings.map_prior if fit_map else None,
             # What held the scale of albedos against light, and the directions the data left weak.
             "anchor": problem.anchor,
@@ -337,7 +374,14 @@ def write_outputs(
     return out
 
 
-def _statistics(reference, photo_labels, render_labels, renderer, images: dict, sun_lit) -> dict:
+def _statistics(
+    reference: Reference,
+    photo_labels: np.ndarray,
+    render_labels: np.ndarray,
+    renderer: FitRenderer,
+    images: dict[str, np.ndarray],
+    sun_lit: np.ndarray | None,
+) -> dict[str, Any]:
     """Per region, beyond its mean: L*, a*, b* percentiles of the photo and of each image, and for canopy and
     ground the lit-over-shadowed luminance contrast (the render's sunlit share splits both alike)."""
     from .regions import CANOPY, GROUND, NAMES, lit_contrast, region_statistics, regions
@@ -351,7 +395,7 @@ def _statistics(reference, photo_labels, render_labels, renderer, images: dict, 
         render_img=images["fitted"],
         photo_img=reference.rgb,
     )
-    out: dict = {}
+    out: dict[str, Any] = {}
     for r in regs:
         row = {"photo": region_statistics(reference.rgb, r.photo)}
         row.update({k: region_statistics(img, r.render) for k, img in images.items()})
@@ -379,7 +423,7 @@ ANCHOR_NOTE = {
 }
 
 
-def _leaf_maps(problem, fitter, result) -> tuple[np.ndarray, np.ndarray]:
+def _leaf_maps(problem: Problem, fitter: Fitter, result: FitResult) -> tuple[np.ndarray, np.ndarray]:
     """The painted and the fitted colour map as the leaf colour they give (the species' mean leaf colour × the
     leaf tint × the map), so both show the canopy's albedo."""
     leaf = np.asarray(problem.start.leaf_colours, np.float64).mean(axis=0)
@@ -388,7 +432,14 @@ def _leaf_maps(problem, fitter, result) -> tuple[np.ndarray, np.ndarray]:
     return fitter.base_map * leaf * t0, fitter.grid(result.best) * leaf * t1
 
 
-def _region_means(reference, photo_labels, render_labels, renderer, start, fitted) -> list[tuple]:
+def _region_means(
+    reference: Reference,
+    photo_labels: np.ndarray,
+    render_labels: np.ndarray,
+    renderer: FitRenderer,
+    start: np.ndarray,
+    fitted: np.ndarray,
+) -> RegionMeans:
     """(name, photo, start, fitted mean colours, ΔE start, ΔE fitted) per region."""
     from .colour import delta_e2000
     from .regions import regions
@@ -411,7 +462,19 @@ def _show(img: np.ndarray) -> np.ndarray:
 
 
 def write_report(
-    path: Path, *, reference, start, fitted, table, figures, history, maps, settings, size, region_means, notes=()
+    path: Path,
+    *,
+    reference: np.ndarray,
+    start: np.ndarray,
+    fitted: np.ndarray,
+    table: list[dict[str, Any]],
+    figures: dict[str, Any],
+    history: list[dict[str, Any]],
+    maps: tuple[np.ndarray, np.ndarray] | None,
+    settings: Settings,
+    size: tuple[int, int],
+    region_means: RegionMeans,
+    notes: Sequence[str] = (),
 ) -> Path:
     """report.png (see the module docstring)."""
     import matplotlib

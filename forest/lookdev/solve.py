@@ -200,6 +200,7 @@ class Problem:
 
     @property
     def free(self) -> list[Spec]:
+        """The specs the fit varies (not held)."""
         return [s for s in self.specs if s.name not in self.held]
 
     @property
@@ -215,6 +216,7 @@ class Problem:
 
     # -- the surrogate --------------------------------------------------------------------
     def light_scales(self, look: Look) -> dict[str, np.ndarray]:
+        """RGB light scales by scene parameter name at ``look`` (with a haze, its colour too)."""
         lt = lights(look, self.start)
         out: dict[str, np.ndarray] = {}
         if lt.sun is not None:
@@ -227,7 +229,7 @@ class Problem:
         if lt.sun_scale is not None:
             out["sun_scale"] = lt.sun_scale  # a sunsky's sun follows its sky's scale
         if self.start.has_haze:
-            out["haze_colour"] = haze_colour(look, self.start, lt)
+            out["haze_colour"] = haze_colour(self.start, lt)
         return out
 
     def render_model(self, look: Look, lin: Linearisation) -> np.ndarray:
@@ -240,7 +242,7 @@ class Problem:
         assert base is not None
         return base * np.exp(self.albedo_exponent(look, lin.look, lin, base.shape))
 
-    def albedo_exponent(self, look: Look, at: Look, lin: Linearisation, shape: tuple) -> np.ndarray:
+    def albedo_exponent(self, look: Look, at: Look, lin: Linearisation, shape: tuple[int, ...]) -> np.ndarray:
         """Σ_a e_a ⊙ (ln m_a(look) − ln m_a(at)) (+ the map cells'): the first-order ln-change of the image from
         the albedos of ``at`` to those of ``look``, with ``lin``'s elasticities; (H, W, 3), clipped to ±20."""
         expo = np.zeros(shape)
@@ -260,9 +262,7 @@ class Problem:
         if rendered_at is not None:
             d_sigma = look.get("haze", self.start.haze) - rendered_at.get("haze", self.start.haze)
         lt = lights(look, self.start)
-        return self.image.apply(
-            render, gain=camera_gain(look), d_sigma=d_sigma, airlight=haze_colour(look, self.start, lt)
-        )
+        return self.image.apply(render, gain=camera_gain(look), d_sigma=d_sigma, airlight=haze_colour(self.start, lt))
 
     def predict(self, look: Look, lin: Linearisation) -> np.ndarray:
         """The surrogate's photo at ``look``."""
@@ -270,6 +270,9 @@ class Problem:
 
     # -- residuals --------------------------------------------------------------------------
     def prior_residuals(self, look: Look) -> np.ndarray:
+        """Prior residuals at ``look``: (x − μ)/σ of the free globals, the per-channel sum of the species' relative
+        leaf ln-multipliers, and with a map its cells, their differences (smooth, or Huber for edges) and mean.
+        """
         parts = [np.array([(look.values[s.name] - s.mean) / s.sigma for s in self.free])]
         rel = [s.name for s in self.free if s.name.startswith("leaf") and not s.name.startswith("leaves")]
         if rel:
@@ -286,6 +289,7 @@ class Problem:
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def data_residuals(self, photo: np.ndarray) -> np.ndarray:
+        """The loss's residuals of a predicted photo (linear)."""
         assert self.loss is not None
         return self.loss.residuals(photo)
 
@@ -302,12 +306,14 @@ class Problem:
 
     # -- packing --------------------------------------------------------------------------
     def pack(self, look: Look) -> np.ndarray:
+        """The free coordinates of ``look`` as a vector: free globals in :attr:`free` order, then the free map cells."""
         x = [look.values[s.name] for s in self.free]
         if look.correction is not None:
             x += list(look.correction.ravel()[self._cell_free()])
         return np.asarray(x, np.float64)
 
     def unpack(self, x: np.ndarray, like: Look) -> Look:
+        """Inverse of :meth:`pack`: a copy of ``like`` with the free coordinates set from ``x``."""
         out = like.copy()
         free = self.free
         for s, v in zip(free, x[: len(free)]):
@@ -329,6 +335,7 @@ _SMOOTH: dict[tuple[int, int], sp.csr_matrix] = {}
 
 
 def smoothness(cells: tuple[int, int]) -> sp.csr_matrix:
+    """The 4-neighbour first-difference operator of a ``cells`` grid (cached per shape)."""
     if cells not in _SMOOTH:
         from .correction import smoothness_operator
 
@@ -386,6 +393,7 @@ def _grid_jacobian(problem: Problem, look: Look, lin: Linearisation) -> sp.csr_m
 
 
 def prior_jacobian(problem: Problem, look: Look) -> sp.csr_matrix:
+    """∂/∂x of :meth:`Problem.prior_residuals` at ``look`` (sparse; columns as :meth:`Problem.pack`)."""
     free = problem.free
     blocks_rows = []
     ng = len(free)

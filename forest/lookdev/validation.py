@@ -27,10 +27,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .colour import delta_e2000, luminance
+
+if TYPE_CHECKING:
+    from ..scene import Scene
 
 #: The middle grey both images of a comparison are exposed to (the truth's mean luminance).
 MIDDLE_GREY = 0.18
@@ -51,7 +55,9 @@ def exposed_delta_e(image: np.ndarray, truth: np.ndarray) -> float:
     return float(np.mean(delta_e2000((image * k).reshape(-1, 3), (truth * k).reshape(-1, 3))))
 
 
-def render_view(scene, overrides: Mapping, *, width: int, height: int, spp: int, seed: int, variant: str):
+def render_view(
+    scene: Scene, overrides: Mapping[str, Any], *, width: int, height: int, spp: int, seed: int, variant: str
+) -> np.ndarray:
     """The production render of ``scene`` with config ``overrides`` (linear (H, W, 3))."""
     from .report import Production
 
@@ -60,9 +66,9 @@ def render_view(scene, overrides: Mapping, *, width: int, height: int, spp: int,
 
 
 def compare(
-    fitted,
-    truth,
-    views: Mapping[str, Mapping],
+    fitted: Any,
+    truth: Any,
+    views: Mapping[str, Mapping[str, Any]],
     *,
     width: int,
     height: int,
@@ -70,7 +76,7 @@ def compare(
     variant: str = "llvm_ad_rgb",
     seed: int = 21,
     render: Callable[..., np.ndarray] | None = None,
-    images: dict | None = None,
+    images: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> list[ViewFigure]:
     """Each view's :class:`ViewFigure` for two scenes rendered alike (module docstring).
 
@@ -80,7 +86,7 @@ def compare(
     ``{name: (fitted, truth)}``."""
     if render is None:
 
-        def render(thing, overrides, seed):
+        def render(thing: Any, overrides: Mapping[str, Any], seed: int) -> np.ndarray:
             return render_view(thing, overrides, width=width, height=height, spp=spp, seed=seed, variant=variant)
 
     out = []
@@ -112,7 +118,9 @@ def pattern_correlation(fitted: np.ndarray, truth: np.ndarray, keep: np.ndarray 
     return float((a * b).sum() / max(np.sqrt((a * a).sum() * (b * b).sum()), 1e-30))
 
 
-def covered_cells(layers: dict[str, np.ndarray], labels: np.ndarray, shape: tuple[int, int], least: int = 4):
+def covered_cells(
+    layers: dict[str, np.ndarray], labels: np.ndarray, shape: tuple[int, int], least: int = 4
+) -> np.ndarray:
     """(n, m) bool: the cells of an n×m map over the terrain that hold at least ``least`` canopy pixels of a
     render's layers (:attr:`.renders.FitRenderer.layers`, :func:`.regions.render_labels`)."""
     from .regions import CANOPY

@@ -21,10 +21,14 @@ the stored slots (``forest.imaging.CoverageAccumulator``) took seconds.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..imaging.cryptomatte import NONE, Cryptomatte, Ranking, TreeTable, encode, rank_coverage
+
+if TYPE_CHECKING:
+    from ..instances import InstanceSet
 
 #: Sample id of the terrain and the ground that continues it.
 TERRAIN = -2
@@ -101,12 +105,12 @@ class SampleCoverage:
         return rank_coverage(ids.reshape(shape), weights.reshape(shape), ranks=ranks)
 
 
-def tree_table(instances, species_names: Sequence[str]) -> TreeTable:
+def tree_table(instances: InstanceSet, species_names: Sequence[str]) -> TreeTable:
     """The id → species table of a frame's trees, with the ground as ``"terrain"``."""
     return TreeTable(np.asarray(instances.id), np.asarray(instances.species), species_names, others=OTHERS)
 
 
-def frame_mattes(coverage: SampleCoverage, instances, species_names: Sequence[str]) -> list[Cryptomatte]:
+def frame_mattes(coverage: SampleCoverage, instances: InstanceSet, species_names: Sequence[str]) -> list[Cryptomatte]:
     """The per-tree (``CryptoObject``, names ``<species>/<id>``) and per-species (``CryptoAsset``) Cryptomattes."""
     from ..imaging.cryptomatte import SPECIES_MATTE, TREE_MATTE
 

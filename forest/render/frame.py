@@ -63,6 +63,7 @@ RR_DEPTH = 2
 #: Camera samples per pixel (at most) of the coverage pass: alpha, Cryptomattes, denoiser guides.
 COVERAGE_SPP = 16
 
+
 @dataclass(frozen=True)
 class FrameSize:
     """Image size, samples per pixel and motion-blur sub-frames of a render."""
@@ -114,7 +115,7 @@ class FrameRenderer:
         self.graph: ForestGraph | None = None
         self.load_seconds = 0.0
         self.render_seconds = 0.0
-        self.lod_counts: dict = {}
+        self.lod_counts: dict[str, int] = {}
         self.max_instanced = 0
         self.max_unique = 0
         self.max_groups = 0
@@ -148,7 +149,7 @@ class FrameRenderer:
         }
 
     # -- scene ---------------------------------------------------------------------
-    def scene_at(self, levels: np.ndarray, time_s: float):
+    def scene_at(self, levels: np.ndarray, time_s: float) -> Any:
         """The scene for an LOD assignment and a wind time (rebuilt only when either changes)."""
         mitsuba(self.variant)  # the coverage pass runs in llvm_ad_rgb: make scalar_rgb current again
         wind = self.config.wind
@@ -175,7 +176,7 @@ class FrameRenderer:
         self.load_seconds += time.perf_counter() - t0
         return self._scene
 
-    def sensor(self, frame: float, spp: int, *, rfilter: str = "box"):
+    def sensor(self, frame: float, spp: int, *, rfilter: str = "box") -> Any:
         """The Mitsuba sensor of the camera at (fractional) ``frame``, ``spp`` samples per pixel."""
         mitsuba(self.variant)
         return self.mi.load_dict(
@@ -188,7 +189,7 @@ class FrameRenderer:
         base, extra = divmod(spp, n)
         return [base + (1 if i < extra else 0) for i in range(n)]
 
-    def path_scene(self, levels: np.ndarray, time_s: float):
+    def path_scene(self, levels: np.ndarray, time_s: float) -> PathScene:
         """forest_path's scene of the same forest in the same pose (``llvm_ad_rgb``), for coverage and layers."""
         wind = self.config.wind
         key = (levels.tobytes(), round(time_s, 9) if wind.strength > 0 else None)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,23 +19,27 @@ from ..lod import LOD_NAMES
 from ..runtime import mitsuba
 from .materials import MaterialBuilder
 
+if TYPE_CHECKING:
+    from ..library.core import Part
+    from ..scene import Scene
+
 
 @dataclass
 class ForestGraph:
     """A forest as scene-dict entries plus what it cost."""
 
-    entries: dict | None  # shapegroups, shared BSDFs and instances, ready for a scene dict (None once loaded)
+    entries: dict[str, Any] | None  # shapegroups, shared BSDFs and instances, ready for a scene dict (None once loaded)
     trees: int
     instanced_triangles: int
     unique_triangles: int
     shapegroups: int
-    lod_counts: dict = field(default_factory=dict)
+    lod_counts: dict[str, int] = field(default_factory=dict)
 
 
 class ForestBuilder:
     """Builds per-frame instance graphs of a Scene's trees for one variant."""
 
-    def __init__(self, scene, materials: MaterialBuilder):
+    def __init__(self, scene: Scene, materials: MaterialBuilder):
         self.config = scene.config
         self.instances = scene.instances
         self.materials = materials
@@ -53,17 +57,17 @@ class ForestBuilder:
         self.individual = (
             np.zeros(len(self.instances), np.int64) if column is None else np.asarray(column, np.int64).ravel()
         )
-        self._bsdf_ids: dict = {}
-        self._bsdfs: dict = {}
+        self._bsdf_ids: dict[tuple[Any, ...], str] = {}
+        self._bsdfs: dict[str, dict[str, Any]] = {}
         # The fitted leaf tint of each species index (Scene.leaf_tint; 1 without [lookdev] leaf_tint).
         tint = getattr(scene, "leaf_tint", None)
         self.leaf_tint = np.ones((len(self.species), 3)) if tint is None else np.asarray(tint, np.float64)
 
-    def _bsdf_ref(self, part, s: int | None = None) -> dict:
+    def _bsdf_ref(self, part: Part, s: int | None = None) -> dict[str, Any]:
         tinted = bool(getattr(part, "tinted", False))  # the leaf tint multiplies the parts the colour map tints
         if s is not None and tinted and s < len(self.leaf_tint) and not np.all(self.leaf_tint[s] == 1.0):
-            colour = tuple(float(c) for c in np.asarray(part.colour, np.float64) * self.leaf_tint[s])
-            part = dataclasses.replace(part, colour=colour)
+            r, g, b = (float(c) for c in np.asarray(part.colour, np.float64) * self.leaf_tint[s])
+            part = dataclasses.replace(part, colour=(r, g, b))
         key = (
             part.kind,
             tuple(np.round(np.asarray(part.colour, float), 6)),
@@ -77,7 +81,8 @@ class ForestBuilder:
             self._bsdfs[bid] = self.materials.part_bsdf(part)
         return {"type": "ref", "id": self._bsdf_ids[key]}
 
-    def shapegroup(self, s: int, level: int, individual: int = 0) -> dict:
+    def shapegroup(self, s: int, level: int, individual: int = 0) -> dict[str, Any]:
+        """Mitsuba ``shapegroup`` of species ``s``, individual ``individual`` (cycled), LOD ``level`` (clamped)."""
         options = self.individuals[s]
         sp = options[individual % len(options)]
         lod = sp.lods[min(level, len(sp.lods) - 1)]
@@ -95,7 +100,7 @@ class ForestBuilder:
         species = inst.species.astype(np.int64)
         counts_per = np.array([len(o) for o in self.individuals], np.int64)
         individual = self.individual % counts_per[species] if len(species) else self.individual
-        entries: dict = {}
+        entries: dict[str, Any] = {}
         tris = {}
         keys = (species * 256 + individual) * 8 + levels
         used = np.unique(keys)

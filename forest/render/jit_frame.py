@@ -82,7 +82,7 @@ class PathFrameRenderer:
         """Samples per pixel of each pass of ``spp`` samples."""
         return split_passes(self.width, self.height, spp)
 
-    def _key(self, levels: np.ndarray, time_s: float) -> tuple:
+    def _key(self, levels: np.ndarray, time_s: float) -> tuple[bytes, float | None]:
         wind = self.config.wind
         return (np.asarray(levels).tobytes(), round(time_s, 9) if wind.strength > 0 else None)
 

@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterator
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -46,11 +46,14 @@ from .output import FrameImage
 from .path.frame import PassResult
 from .path.integrator import NO_HIT
 
+if TYPE_CHECKING:
+    from ..config import Config
+
 #: ``on_pass(image so far, passes done, passes in the frame)``.
 PassCallback = Callable[[np.ndarray, int, int], None]
 
 
-def frame_seed(config, frame: float) -> int:
+def frame_seed(config: Config, frame: float) -> int:
     """The seed of sub-frame 0 of ``frame`` (sub-frame k adds 101·k)."""
     return int(config.render.seed) * 1_000_003 + int(round(frame * 1000)) * 997
 

@@ -24,15 +24,20 @@ Opacity is the texture's alpha (``mask``).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ..images import read_image, srgb_to_linear
 from ..runtime import mitsuba
 from .scene import colour_grid_texture
+
+if TYPE_CHECKING:
+    from ..library.core import Part
 
 
 @lru_cache(maxsize=64)
@@ -52,7 +57,7 @@ def _texture_arrays(path: str) -> tuple[np.ndarray, np.ndarray | None, np.ndarra
     )
 
 
-def _bitmap(mi, array: np.ndarray) -> dict:
+def _bitmap(mi: Any, array: np.ndarray) -> dict[str, Any]:
     return {
         "type": "bitmap",
         "bitmap": mi.Bitmap(np.ascontiguousarray(array, dtype=np.float32)),
@@ -70,7 +75,9 @@ class MaterialBuilder:
     it over the terrain.
     """
 
-    def __init__(self, variant: str, colour_grid: np.ndarray | None, extent, height_range):
+    def __init__(
+        self, variant: str, colour_grid: np.ndarray | None, extent: Sequence[float], height_range: Sequence[float]
+    ):
         self.variant = variant
         self.mi = mitsuba(variant)
         self.grid = None if colour_grid is None else np.asarray(colour_grid, np.float32)
@@ -79,7 +86,7 @@ class MaterialBuilder:
         self.leaf_model = "principledthin (diff_trans = 2t)"
 
     # -- albedo textures ---------------------------------------------------------
-    def _albedo(self, colour, tinted: bool, texture: Path | None, share: float) -> dict:
+    def _albedo(self, colour: npt.ArrayLike, tinted: bool, texture: Path | None, share: float) -> dict[str, Any]:
         mi = self.mi
         c = np.asarray(colour, np.float32) * np.float32(share)
         detail = None
@@ -92,7 +99,7 @@ class MaterialBuilder:
             return _bitmap(mi, detail * c)
         return {"type": "rgb", "value": [float(x) for x in c]}
 
-    def _opacity(self, texture: Path | None) -> dict | None:
+    def _opacity(self, texture: Path | None) -> dict[str, Any] | None:
         if texture is None:
             return None
         _, alpha, _ = _texture_arrays(str(texture))
@@ -101,7 +108,7 @@ class MaterialBuilder:
         return _bitmap(self.mi, alpha)
 
     # -- BSDFs -------------------------------------------------------------------
-    def part_bsdf(self, part) -> dict:
+    def part_bsdf(self, part: Part) -> dict[str, Any]:
         """The BSDF dict of one library part (see the module docstring)."""
         texture = getattr(part, "texture", None)
         tinted = bool(getattr(part, "tinted", False))

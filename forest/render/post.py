@@ -23,12 +23,18 @@ the haze's light is not shadowed in either renderer.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .path.haze import source_np, transmittance_np
 
+if TYPE_CHECKING:
+    from ..config import Config
+    from .path import PathCamera, PathScene
 
-def pixel_directions(camera) -> np.ndarray:
+
+def pixel_directions(camera: PathCamera) -> np.ndarray:
     """(H, W, 3) unit world directions through the pixel centres of a ``PathCamera`` (pinhole, fov along x)."""
     w, h = int(camera.width), int(camera.height)
     t = np.tan(np.radians(float(camera.fov)) / 2.0)
@@ -40,7 +46,9 @@ def pixel_directions(camera) -> np.ndarray:
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
-def apply_haze(rgb: np.ndarray, alpha: np.ndarray, depth: np.ndarray, camera, config, path) -> np.ndarray:
+def apply_haze(
+    rgb: np.ndarray, alpha: np.ndarray, depth: np.ndarray, camera: PathCamera, config: Config, path: PathScene
+) -> np.ndarray:
     """The hazed beauty (see the module docstring).
 
     ``depth`` is the pixel-centre distance (the far clip where nothing is hit);

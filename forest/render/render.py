@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..camera import frame_path, parse_frames
+from ..config import Config
 from ..errors import ParameterError
 from ..scene import Scene
 from .frame import FrameRenderer, FrameSize
@@ -59,7 +60,7 @@ class RenderResult:
     load_seconds: float
     render_seconds: float
     peak_memory_gb: float
-    lod_counts: dict = field(default_factory=dict)
+    lod_counts: dict[str, int] = field(default_factory=dict)
     denoised: bool = False
     leaf_model: str = ""
 
@@ -90,7 +91,7 @@ def output_paths(output: str | Path) -> tuple[Path, Path]:
     raise ParameterError("output", f"{output}: the output must end in .exr (an sRGB .png is written beside it)")
 
 
-def frame_size(config, *, preview: bool) -> FrameSize:
+def frame_size(config: Config, *, preview: bool) -> FrameSize:
     """The render's size: ``[render]``, or the preview's (≤ 480 px wide, ≤ 8 spp, no motion blur)."""
     rc = config.render
     if preview:
@@ -145,16 +146,16 @@ def render_image(
     return np.asarray(r.frame(1.0).rgb, np.float64)[..., :3]
 
 
-def _no_progress(fraction: float, message: str = "") -> None:
-    return None
+def _no_progress(_fraction: float, _message: str = "") -> None:
+    """A progress callback that reports nothing."""
 
 
 def render_scene(
     scene: Scene,
     *,
-    output,
+    output: str | Path,
     variant: str | None = None,
-    frames=None,
+    frames: str | list[int] | None = None,
     preview: bool = False,
     progress: Callable[[float, str], None] | None = None,
     announce: Callable[[str, str], None] | None = None,
@@ -178,7 +179,7 @@ def render_scene(
     if isinstance(frames, str):
         frames = parse_frames(frames)
     still = frames is None
-    frame_list = [1] if still else [int(f) for f in frames]
+    frame_list = [1] if frames is None else [int(f) for f in frames]
     if not frame_list:
         raise ParameterError("frames", "no frames to render")
     if still:

@@ -14,14 +14,22 @@ direction is −s.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ..camera import camera_at, look_at_matrix
 from ..errors import ConfigError, ForestError
 from ..ground import read_terrain_texture
 from ..lights import resolve_lights
 from ..runtime import captured_stderr, mitsuba
+
+if TYPE_CHECKING:
+    from ..config import Config
+    from ..ground import TerrainAlbedo
+    from ..terrain import Terrain
 
 #: Height margin (metres) added above and below the terrain's height range for the
 #: colour-grid box.  The grid is constant along Y and clamps outside its box, so
@@ -37,13 +45,13 @@ def _is_scalar(variant: str) -> bool:
     return variant.startswith("scalar")
 
 
-def transform(variant: str, matrix) -> object:
+def transform(variant: str, matrix: npt.ArrayLike) -> object:
     """A ``ScalarTransform4f`` from a 4×4 array (scene dicts always take scalar transforms)."""
     mi = mitsuba(variant)
     return mi.ScalarTransform4f(np.asarray(matrix, dtype=np.float64))
 
 
-def _rgb(value) -> dict:
+def _rgb(value: Iterable[float]) -> dict[str, Any]:
     v = [float(x) for x in value]
     return {"type": "rgb", "value": v}
 
@@ -54,7 +62,7 @@ def _rgb(value) -> dict:
 
 
 def sensor_dict(
-    config,
+    config: Config,
     frame: float = 1.0,
     width: int | None = None,
     height: int | None = None,
@@ -64,7 +72,7 @@ def sensor_dict(
     seed: int | None = None,
     rfilter: str = "box",
     sampler: str = "independent",
-) -> dict:
+) -> dict[str, Any]:
     """A ``perspective`` sensor at ``frame`` of the config's camera path.
 
     The camera-to-world matrix comes from :func:`forest.camera.look_at_matrix`
@@ -109,7 +117,7 @@ def sensor_dict(
 # ---------------------------------------------------------------------------
 
 
-def check_envmap(config) -> None:
+def check_envmap(config: Config) -> None:
     """Check ``[lights.sky] envmap`` before anything is built; a :class:`ConfigError` on ``lights.sky.envmap``.
 
     The file must be in a format Mitsuba reads (:data:`ENVMAP_SUFFIXES`),
@@ -140,7 +148,7 @@ def check_envmap(config) -> None:
         raise ConfigError(config.path, ENVMAP_FIELD, f"{path}: {bad:,} negative values; radiance must be >= 0")
 
 
-def check_render_inputs(config) -> None:
+def check_render_inputs(config: Config) -> None:
     """The files only a render reads (environment map, terrain texture), checked before any work.
 
     An environment map is also test-loaded by Mitsuba (:func:`_envmap`), which
@@ -156,7 +164,7 @@ def check_render_inputs(config) -> None:
 _checked_envmaps: set[tuple[str, int, int]] = set()
 
 
-def _envmap(config, variant: str) -> dict:
+def _envmap(config: Config, variant: str) -> dict[str, Any]:
     """The ``envmap`` emitter dict, checked (:func:`check_envmap`) and test-loaded by Mitsuba.
 
     Whatever Mitsuba's loader still refuses is reported against ``lights.sky.envmap``
@@ -189,7 +197,9 @@ def _envmap(config, variant: str) -> dict:
     return d
 
 
-def sun_disc_dict(variant: str, direction, irradiance, angular_diameter: float, distance: float) -> dict:
+def sun_disc_dict(
+    variant: str, direction: npt.ArrayLike, irradiance: npt.ArrayLike, angular_diameter: float, distance: float
+) -> dict[str, Any]:
     """A sun of finite size for Mitsuba's integrators: a ``disk`` area light far away toward the sun.
 
     Mitsuba 3.9.1's ``directional`` emitter is a point on the sky (razor-sharp
@@ -222,7 +232,7 @@ def sun_disc_dict(variant: str, direction, irradiance, angular_diameter: float, 
 SUN_DISTANCE = 1.0e6
 
 
-def emitter_dicts(config, variant: str, *, disc_sun: bool = False) -> dict[str, dict]:
+def emitter_dicts(config: Config, variant: str, *, disc_sun: bool = False) -> dict[str, dict[str, Any]]:
     """Emitters for the config's lights (:func:`forest.lights.resolve_lights`): ``{"sun": directional | disk,
     "sky": constant | envmap | sunsky}``.
 
@@ -252,7 +262,7 @@ def emitter_dicts(config, variant: str, *, disc_sun: bool = False) -> dict[str, 
         d = sky.sun.direction
         k = sunsky_scale(mi, d, sky.turbidity, sky.albedo, float(sky.sun.irradiance)) * float(sky.intensity)
         return {"sky": sunsky_dict(mi, d, sky.turbidity, sky.albedo, sun_scale=k, sky_scale=k)}
-    out: dict[str, dict] = {}
+    out: dict[str, dict[str, Any]] = {}
     sun = lights.sun
     if sun is not None:
         s = sun.direction
@@ -272,7 +282,7 @@ def emitter_dicts(config, variant: str, *, disc_sun: bool = False) -> dict[str, 
 # ---------------------------------------------------------------------------
 
 
-def grid_to_world(extent, height_range) -> np.ndarray:
+def grid_to_world(extent: Sequence[float], height_range: Sequence[float]) -> np.ndarray:
     """4×4 matrix mapping the grid's unit cube onto the terrain box.
 
     Local (x, y, z) ∈ [0, 1]³ → world (xmin + x·(xmax−xmin), y0 + y·(y1−y0),
@@ -288,7 +298,14 @@ def grid_to_world(extent, height_range) -> np.ndarray:
     return m
 
 
-def colour_grid_texture(grid, extent, height_range, variant: str, *, filter_type: str = "trilinear") -> dict:
+def colour_grid_texture(
+    grid: npt.ArrayLike,
+    extent: Sequence[float],
+    height_range: Sequence[float],
+    variant: str,
+    *,
+    filter_type: str = "trilinear",
+) -> dict[str, Any]:
     """A ``volume`` texture over a ``gridvolume`` laid on the terrain's box.
 
     ``grid`` is (H, W, 3) linear RGB in the map convention (row i → +Z with
@@ -329,7 +346,9 @@ def colour_grid_texture(grid, extent, height_range, variant: str, *, filter_type
 # ---------------------------------------------------------------------------
 
 
-def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "terrain", *, skirt: float = 0.0):
+def terrain_mesh(
+    terrain: Terrain, variant: str, bsdf: dict[str, Any] | None = None, name: str = "terrain", *, skirt: float = 0.0
+) -> Any:
     """The terrain as a Mitsuba ``Mesh`` object (positions, faces, smooth normals, uv) with ``bsdf``.
 
     ``skirt`` > 0 adds the ground that carries it to that radius (:func:`forest.skirt.skirt_mesh`).
@@ -361,7 +380,9 @@ def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "t
         name, vertex_count=len(v), face_count=len(f), has_vertex_normals=True, has_vertex_texcoords=True, props=props
     )
     params = mi.traverse(mesh)
-    conv = (lambda a: a.ravel()) if _is_scalar(variant) else (lambda a: mi.Float(a.ravel()))
+    conv: Callable[[np.ndarray], Any] = (
+        (lambda a: a.ravel()) if _is_scalar(variant) else (lambda a: mi.Float(a.ravel()))
+    )
     params["vertex_positions"] = conv(v)
     params["faces"] = f.ravel() if _is_scalar(variant) else mi.UInt32(f.ravel())
     params["vertex_normals"] = conv(n)
@@ -370,7 +391,9 @@ def terrain_mesh(terrain, variant: str, bsdf: dict | None = None, name: str = "t
     return mesh
 
 
-def terrain_reflectance(albedo, terrain, variant: str, *, fade: bool = False, tint=None) -> dict:
+def terrain_reflectance(
+    albedo: TerrainAlbedo, terrain: Terrain, variant: str, *, fade: bool = False, tint: npt.ArrayLike | None = None
+) -> dict[str, Any]:
     """The terrain's reflectance: the Scene's albedo grid × its fitted ground tint.
 
     ``albedo`` is the Scene's ``terrain_albedo`` (:class:`forest.ground.TerrainAlbedo`,
@@ -397,7 +420,9 @@ def terrain_reflectance(albedo, terrain, variant: str, *, fade: bool = False, ti
     return colour_grid_texture(grid, extent, terrain.height_range, variant)
 
 
-def terrain_dict(albedo, terrain, variant: str, *, skirt: float = 0.0, tint=None):
+def terrain_dict(
+    albedo: TerrainAlbedo, terrain: Terrain, variant: str, *, skirt: float = 0.0, tint: npt.ArrayLike | None = None
+) -> Any:
     """The terrain as a scene child: a ``Mesh`` object with a diffuse BSDF.
 
     The returned object goes into a scene dict like any shape dict

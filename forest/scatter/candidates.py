@@ -86,6 +86,7 @@ class Candidates:
         return len(self.index)
 
     def subset(self, mask: np.ndarray) -> Candidates:
+        """The candidates selected by ``mask`` (a boolean mask or an index array), every column alike."""
         return Candidates(
             self.index[mask],
             self.position[mask],
@@ -133,10 +134,12 @@ def outside(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, tolerance: float = 0.
 
 
 def slope_windows(species: Sequence[SpeciesConfig]) -> tuple[np.ndarray, np.ndarray]:
+    """(slope_min, slope_max) per species, degrees."""
     return np.array([sp.slope_min for sp in species]), np.array([sp.slope_max for sp in species])
 
 
 def altitude_windows(species: Sequence[SpeciesConfig]) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) height window per species, metres (±∞ where a species sets none)."""
     lo = np.array([sp.altitude[0] if sp.altitude else -np.inf for sp in species])
     hi = np.array([sp.altitude[1] if sp.altitude else np.inf for sp in species])
     return lo, hi

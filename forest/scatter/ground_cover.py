@@ -70,6 +70,7 @@ class CoverResult:
 
     @property
     def kept(self) -> int:
+        """Number of ground-cover rows kept."""
         return len(self.columns["id"])
 
 

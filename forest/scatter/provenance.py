@@ -73,6 +73,7 @@ def scatter_inputs(config: Config) -> dict[str, Path]:
 
 
 def file_sha256(path: Path, field: str, config: Config) -> str:
+    """SHA-256 (hex) of the file at ``path``; an unreadable file is a ``ConfigError`` on ``field``."""
     try:
         with open(path, "rb") as f:
             return hashlib.file_digest(f, "sha256").hexdigest()

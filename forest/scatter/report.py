@@ -36,6 +36,7 @@ class ScatterReport:
     cover: dict[str, tuple[int, int]] = field(default_factory=dict)  # ground cover → (plants, candidates)
 
     def lines(self) -> list[str]:
+        """The report as the CLI prints it: totals, species, individuals, partitions, rejections, cover, warnings."""
         out = [
             f"{self.kept:,} trees from {self.candidates:,} candidates over {self.area_m2 / 1e6:.3f} km² "
             f"in {self.seconds:.2f} s"

@@ -50,13 +50,14 @@ class Survival:
 
     @property
     def alive(self) -> np.ndarray:
+        """(m,) bool: the candidates that survive (``fate == 0``)."""
         return self.fate == 0
 
 
 SurvivalRule = Callable[[Candidates, Config, Terrain, Progress], Survival]
 
 
-def random_rule(cand: Candidates, config: Config, terrain: Terrain, progress: Progress) -> Survival:
+def random_rule(cand: Candidates, config: Config, _terrain: Terrain, progress: Progress) -> Survival:
     """Keep every candidate; with ``min_distance`` > 0 keep a Poisson-disk subset in candidate order."""
     fate = np.zeros(len(cand), dtype=np.uint8)
     r = config.scatter.min_distance

@@ -21,6 +21,11 @@ router = APIRouter()
     summary="Upload a map, mesh or reference photo (the raw file as the body; e.g. maps/height.png)",
 )
 async def upload(name: str, request: Request, svc: Service = Depends(service)) -> dict:
+    """Store the request body as ``assets/{name}`` (folders kept; a file of that name is replaced).
+
+    413 past the upload limit, 415 for an extension that is no image or mesh, 422 for an unsafe
+    name or a file that does not read as what its extension says.
+    """
     limit = svc.config.limits.max_upload_bytes
     length = request.headers.get("content-length")
     if length is not None and length.isdigit() and int(length) > limit:
@@ -40,4 +45,5 @@ async def upload(name: str, request: Request, svc: Service = Depends(service)) -
 
 @router.get("/assets", response_model=list[AssetView], summary="Uploaded assets (paths inside assets/)")
 def assets(svc: Service = Depends(service)) -> list[dict]:
+    """Every uploaded file under ``assets/``, sorted by name, with its size and kind (image or mesh)."""
     return svc.datadir.list_assets()

@@ -35,12 +35,14 @@ class Service:
 
     @property
     def db(self) -> Store:
+        """The job store; 503 while the service is still starting."""
         if self.store is None:
             raise HTTPException(503, "the service is starting")
         return self.store
 
 
 def service(request: Request) -> Service:
+    """The running :class:`Service` (a FastAPI dependency)."""
     return request.app.state.service
 
 

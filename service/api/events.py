@@ -43,6 +43,12 @@ async def events(
     last_event_id: str | None = Header(None, max_length=20, include_in_schema=False),
     svc: Service = Depends(service),
 ) -> StreamingResponse:
+    """Stream a job's events as ``text/event-stream``: first a ``snapshot`` (the job as ``GET /jobs/{id}`` shows it),
+    then each event as it happens (``id``: its number), with keep-alive comments every 15 s.
+
+    With ``after`` or a ``Last-Event-ID`` header it replays the events after that id instead of the snapshot.
+    The stream ends once the job has finished and every event has been sent.
+    """
     store = svc.db
 
     def opening() -> tuple[int, dict | None]:

@@ -74,6 +74,9 @@ def downloads(job: dict, outputs: list[str]) -> list[dict]:
 
 @router.get("/jobs/{job_id}/result", response_model=ResultView, responses=ERRORS, summary="Outputs of a succeeded job")
 def result(job_id: str, svc: Service = Depends(service)) -> dict:
+    """The files a succeeded job wrote (``out/``, ``thumbs/``, ``preview/``), its main image, download links and
+    statistics; 409 while it has not succeeded or once its outputs were deleted.
+    """
     job = job_or_404(svc, job_id, archived=True)
     if job["state"] != "succeeded":
         msg = f"job {job_id} is {job['state']}"
@@ -107,6 +110,7 @@ def result(job_id: str, svc: Service = Depends(service)) -> dict:
     summary="A file of a job (outputs, thumbnails, previews)",
 )
 def job_file(job_id: str, path: str, svc: Service = Depends(service)) -> FileResponse:
+    """One file of a job under ``out/``, ``thumbs/`` or ``preview/`` (previews are not cached); 404 elsewhere."""
     job_or_404(svc, job_id, archived=True)
     if not path.startswith(SERVED):
         raise HTTPException(404, "only out/, thumbs/ and preview/ files are served")
@@ -125,6 +129,7 @@ def outputs_zip(
     folder: str = Query("out", max_length=200, pattern=r"^out(/[A-Za-z0-9._-]+)*$", description="A folder of out/"),
     svc: Service = Depends(service),
 ) -> FileResponse:
+    """A zip of the files under ``folder`` (default ``out``), with ``ext`` only those ending in it; 404 if none."""
     job = job_or_404(svc, job_id, archived=True)
     root = svc.datadir.job_dir(job_id)
     try:
@@ -149,6 +154,7 @@ def outputs_zip(
     summary="The newest image of a job (PNG)",
 )
 def preview(job_id: str, svc: Service = Depends(service)) -> FileResponse:
+    """The job's newest preview image (not cached); 404 until there is one."""
     job = job_or_404(svc, job_id)
     if not job.get("preview"):
         raise HTTPException(404, f"job {job_id} has no preview yet")
@@ -166,6 +172,7 @@ def _tail(p: Path) -> PlainTextResponse:
 
 @router.get("/jobs/{job_id}/log", response_class=PlainTextResponse, responses=ERRORS, summary="The job's log")
 def job_log(job_id: str, svc: Service = Depends(service)) -> PlainTextResponse:
+    """The last MiB of the job's log (empty before it has one)."""
     job_or_404(svc, job_id, archived=True)
     return _tail(svc.datadir.job_dir(job_id) / "job.log")
 
@@ -174,6 +181,7 @@ def job_log(job_id: str, svc: Service = Depends(service)) -> PlainTextResponse:
     "/jobs/{job_id}/tasks/{index}/log", response_class=PlainTextResponse, responses=ERRORS, summary="One task's log"
 )
 def task_log(job_id: str, index: int, svc: Service = Depends(service)) -> PlainTextResponse:
+    """The last MiB of task ``index``'s log (empty before it has one); 404 for a task the job does not have."""
     job = job_or_404(svc, job_id, archived=True)
     if not 0 <= index < 1_000_000 or (not job.get("archived") and svc.db.get_task(job_id, index) is None):
         raise HTTPException(404, f"job {job_id} has no task {index}")

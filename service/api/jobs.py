@@ -63,6 +63,11 @@ def submit(
     idempotency_key: str | None = Header(None, max_length=200, description="Makes re-submits safe."),
     svc: Service = Depends(service),
 ) -> JSONResponse:
+    """Check the request, lay out the job's folder and queue its tasks; 202 with the job and its ``Location``.
+
+    The same ``Idempotency-Key`` with the same request returns the first job (``Idempotent-Replayed: true``);
+    with a different request it is a 409.
+    """
     store = svc.db
     h = request_hash(req)
     if idempotency_key is not None:
@@ -123,6 +128,7 @@ def list_jobs(
     limit: int = Query(50, ge=1, le=500),
     svc: Service = Depends(service),
 ) -> dict:
+    """Up to ``limit`` jobs, newest first, with the number of jobs in each state."""
     store = svc.db
     now = time.time()
     counts = store.counts()
@@ -140,6 +146,7 @@ def list_jobs(
     summary="A job's state, progress, times and tasks",
 )
 def get_job(job_id: str, svc: Service = Depends(service)) -> JSONResponse:
+    """The job with its tasks and frames; a forgotten job's saved view while its folder remains."""
     job = job_or_404(svc, job_id, tasks=True, archived=True)
     if job.get("archived"):
         return JSONResponse({k: v for k, v in job.items() if k in JobView.model_fields})
@@ -150,6 +157,7 @@ def get_job(job_id: str, svc: Service = Depends(service)) -> JSONResponse:
     "/jobs/{job_id}", status_code=204, responses=ERRORS, summary="Forget a finished job and delete its outputs"
 )
 def delete_job(job_id: str, svc: Service = Depends(service)) -> Response:
+    """Remove a finished job from the store and delete its folder; 409 while it is queued or running."""
     job = job_or_404(svc, job_id, archived=True)
     if job["state"] not in TERMINAL:
         raise HTTPException(409, f"job {job_id} is {job['state']}; cancel it first")
@@ -163,6 +171,7 @@ def delete_job(job_id: str, svc: Service = Depends(service)) -> Response:
 
 @router.get("/jobs/{job_id}/frames", response_model=list[FrameView], responses=ERRORS, summary="A job's frames")
 def frames(job_id: str, svc: Service = Depends(service)) -> list[dict]:
+    """Each frame of a frame job with its task, state, attempt, time and images; empty for other kinds."""
     job = job_or_404(svc, job_id, tasks=True, archived=True)
     if job.get("archived"):
         return job.get("frame_list") or []
@@ -171,6 +180,7 @@ def frames(job_id: str, svc: Service = Depends(service)) -> list[dict]:
 
 @router.post("/jobs/{job_id}/cancel", status_code=202, response_model=JobView, responses=ERRORS, summary="Cancel a job")
 def cancel(job_id: str, svc: Service = Depends(service)) -> dict:
+    """Cancel the job: its queued tasks at once, its running ones at the dispatcher's next tick; 409 once finished."""
     job = job_or_404(svc, job_id)
     if job["state"] in TERMINAL:
         raise HTTPException(409, f"job {job_id} already {job['state']}")
@@ -196,6 +206,7 @@ def _resume(job_id: str, svc: Service) -> dict:
     summary="Run the failed or canceled tasks of a finished job again; frames on disk are kept",
 )
 def resume(job_id: str, svc: Service = Depends(service)) -> dict:
+    """Queue the failed and canceled tasks of a failed or canceled job again (frames on disk are kept); else 409."""
     return _resume(job_id, svc)
 
 
@@ -208,6 +219,7 @@ def resume(job_id: str, svc: Service = Depends(service)) -> dict:
     deprecated=True,
 )
 def retry(job_id: str, svc: Service = Depends(service)) -> dict:
+    """Deprecated: the same as ``POST /jobs/{job_id}/resume``."""
     return _resume(job_id, svc)
 
 
@@ -231,6 +243,7 @@ def _drop_frame_files(svc: Service, job: dict, task: dict, frames: list[int]) ->
     summary="Run one finished task again (its frames are rendered anew)",
 )
 def requeue_task(job_id: str, index: int, svc: Service = Depends(service)) -> dict:
+    """Delete the task's frames and queue the finished task again; 409 while it is queued or running."""
     job = job_or_404(svc, job_id)
     task = svc.db.get_task(job_id, index)
     if task is None:
@@ -253,6 +266,7 @@ def requeue_task(job_id: str, index: int, svc: Service = Depends(service)) -> di
     summary="Render one frame again (the other frames of its task stay on disk)",
 )
 def requeue_frame(job_id: str, frame: int, svc: Service = Depends(service)) -> dict:
+    """Delete one frame and queue it again (its task's other frames stay); 409 while its task is queued or running."""
     job = job_or_404(svc, job_id, tasks=True)
     task = next((t for t in job["tasks"] if frame in (t["frames"] or ())), None)
     if task is None or job["kind"] not in FRAME_KINDS:

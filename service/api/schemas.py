@@ -12,6 +12,8 @@ JobState = Literal["queued", "running", "succeeded", "failed", "canceled"]
 
 
 class TaskView(BaseModel):
+    """One task of a job: its state, attempt, progress and frames, with the worker and log of its attempt."""
+
     index: int
     state: str
     attempt: int
@@ -34,6 +36,8 @@ class TaskView(BaseModel):
 
 
 class JobView(BaseModel):
+    """A job: state, progress, times, settings and links; ``GET /jobs/{id}`` adds its tasks."""
+
     id: str
     kind: str
     name: str | None = None
@@ -60,11 +64,15 @@ class JobView(BaseModel):
 
 
 class JobList(BaseModel):
+    """A page of jobs, newest first, and the number of jobs in each state."""
+
     jobs: list[JobView]
     counts: dict[str, int] = Field(..., description="Jobs per state; `total` is their sum.")
 
 
 class FrameView(BaseModel):
+    """One frame of a render or fly-through job: its task, state and, once rendered, its images."""
+
     frame: int
     task: int
     state: str = Field(..., description="done, rendering, queued, failed or canceled")
@@ -79,17 +87,23 @@ class FrameView(BaseModel):
 
 
 class OutputFile(BaseModel):
+    """One output of a job: its path in the job's folder, its URL and size."""
+
     path: str
     url: str
     bytes: int
 
 
 class Download(BaseModel):
+    """A labelled link to download outputs (one file, or a zip of several)."""
+
     label: str
     url: str
 
 
 class ResultView(BaseModel):
+    """The outputs of a succeeded job: its files, its main image, download links and per-task statistics."""
+
     id: str
     outputs: list[OutputFile]
     image: str | None = None
@@ -98,6 +112,8 @@ class ResultView(BaseModel):
 
 
 class AssetView(BaseModel):
+    """An uploaded file (path under ``assets/``) with its size and kind; an upload also gives image or mesh sizes."""
+
     name: str
     kind: str | None
     bytes: int
@@ -109,11 +125,15 @@ class AssetView(BaseModel):
 
 
 class Example(BaseModel):
+    """An example scene: the config's file name and its TOML text."""
+
     name: str
     text: str
 
 
 class Health(BaseModel):
+    """Liveness: the executor, worker count, jobs per state, capabilities and open event streams."""
+
     status: str
     executor: str
     workers: int
@@ -124,10 +144,14 @@ class Health(BaseModel):
 
 
 class WorkerList(BaseModel):
+    """The executor's worker slots."""
+
     workers: list[WorkerInfo]
 
 
 class Problem(BaseModel):
+    """An error: one line saying what was wrong."""
+
     detail: str
 
 

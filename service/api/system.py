@@ -13,6 +13,7 @@ router = APIRouter()
 
 @router.get("/health", response_model=Health, summary="Liveness and queue counts")
 def health(svc: Service = Depends(service)) -> dict:
+    """``ok`` with the executor, worker count, jobs per state, the capabilities and the open event streams."""
     counts = svc.db.counts()
     counts["total"] = sum(counts[s] for s in JOB_STATES)
     return {
@@ -28,6 +29,7 @@ def health(svc: Service = Depends(service)) -> dict:
 
 @router.get("/workers", response_model=WorkerList, summary="Worker slots and what each runs")
 def workers(svc: Service = Depends(service)) -> dict:
+    """Each worker slot and, when busy, the job, task, frame and progress it runs."""
     if svc.executor is None:
         return {"workers": []}
     out = []
@@ -48,6 +50,7 @@ def workers(svc: Service = Depends(service)) -> dict:
 
 @router.get("/examples", response_model=list[Example], summary="Example scene configs")
 def examples(svc: Service = Depends(service)) -> list[dict]:
+    """The example scene configs (name and TOML text), the data folder's before the shipped ones of the same name."""
     from ..app import example_folders
 
     out: list[dict] = []

@@ -90,18 +90,22 @@ class LocalExecutor(Executor):
 
     # -- state -----------------------------------------------------------------------
     def capacity(self) -> int:
+        """Idle slots."""
         with self.lock:
             return sum(s.current is None for s in self._slots)
 
     def active(self) -> set[tuple[int, int]]:
+        """The attempts the slots run."""
         with self.lock:
             return {s.current for s in self._slots if s.current is not None}
 
     @property
     def slots(self) -> int:
+        """Number of slots (``workers``)."""
         return len(self._slots)
 
     def workers(self) -> list[WorkerInfo]:
+        """Each slot: busy, idle (a live worker) or stopped, with its process, attempt and counts."""
         with self.lock:
             out = []
             for s in self._slots:
@@ -126,6 +130,7 @@ class LocalExecutor(Executor):
             return out
 
     def pid(self, task_id: int, attempt: int) -> int | None:
+        """Process id of the worker running this attempt (None when no slot runs it)."""
         with self.lock:
             for s in self._slots:
                 if s.current == (task_id, attempt) and s.proc is not None:
@@ -171,6 +176,7 @@ class LocalExecutor(Executor):
         threading.Thread(target=self._read, args=(slot, proc, r), daemon=True, name=f"worker-{slot.index}").start()
 
     def start(self, run: TaskRun) -> str:
+        """Send the attempt to an idle slot, preferring a live worker that has the scene loaded; returns ``pid:<n>``."""
         with self.lock:
             slot = self._pick(run.spec.scene_key)
             if slot is None:
@@ -223,6 +229,7 @@ class LocalExecutor(Executor):
 
     # -- the dispatcher's loop ----------------------------------------------------------
     def poll(self, timeout: float) -> list[Any]:
+        """Reports within ``timeout`` seconds (all queued once one arrives); then idle workers go and slots prewarm."""
         out = []
         try:
             out.append(self.q.get(timeout=timeout))
@@ -256,12 +263,14 @@ class LocalExecutor(Executor):
                     s.stdin = None
 
     def kill(self, task_id: int, attempt: int) -> None:
+        """Kill the process group of the worker running this attempt; its reader then reports the exit."""
         with self.lock:
             proc = next((s.proc for s in self._slots if s.current == (task_id, attempt)), None)
         if proc is not None:
             _kill_group(proc)
 
     def close(self) -> None:
+        """Kill every worker's process group and wait up to 5 s for them to end."""
         self.closed = True
         with self.lock:
             procs = [s.proc for s in self._slots if s.proc is not None]

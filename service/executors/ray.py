@@ -56,9 +56,13 @@ class RayWorker:
         self.blobs = BlobStore(self.root / "store")
 
     def info(self) -> dict:
+        """Where the actor runs: ``{"pid", "host", "folder"}``."""
         return {"pid": os.getpid(), "host": socket.gethostname(), "folder": str(self.root)}
 
     def run(self, order_json: str, blob_refs: dict, reporter: Any) -> Any:
+        """Run one attempt (a ``TaskOrder`` as JSON) with its inputs fetched from ``blob_refs``; reports go to
+        ``reporter`` (heartbeats from a thread of their own) and the result, ``Done`` or ``Failed``, is returned.
+        """
         import traceback
 
         import ray
@@ -81,7 +85,7 @@ class RayWorker:
                 emit(Heartbeat(task_id=order.task_id, attempt=order.attempt))
                 stop.wait(order.heartbeat_s)
 
-        def fetch(rel: str, sha: str) -> Path:
+        def fetch(_rel: str, sha: str) -> Path:
             return self.blobs.put_bytes(sha, ray.get(blob_refs[sha]))
 
         def inputs() -> Path:
@@ -119,12 +123,15 @@ class Reporter:
         self.items: list[Any] = []
 
     def put(self, item: Any) -> None:
+        """Keep one report until the next :meth:`drain`."""
         self.items.append(item)
 
     def ping(self) -> bool:
+        """True, once every report sent before it has arrived (an actor's calls run in order)."""
         return True
 
     def drain(self) -> list[Any]:
+        """The reports received since the last drain, in order."""
         items, self.items = self.items, []
         return items
 
@@ -197,17 +204,21 @@ class RayExecutor(Executor):
     # -- state -----------------------------------------------------------------------
     @property
     def slots(self) -> int:
+        """The most actors the executor keeps at once."""
         return self.max_slots
 
     def capacity(self) -> int:
+        """Slots without a running attempt (idle actors and ones not yet created)."""
         with self.lock:
             return self.max_slots - sum(a.current is not None for a in self._actors)
 
     def active(self) -> set[tuple[int, int]]:
+        """The attempts the actors run."""
         with self.lock:
             return {a.current for a in self._actors if a.current is not None}
 
     def workers(self) -> list[WorkerInfo]:
+        """Each actor: busy, idle or starting (waiting for its node), with its host, attempt and counts."""
         with self.lock:
             return [
                 WorkerInfo(
@@ -279,6 +290,9 @@ class RayExecutor(Executor):
         return actor
 
     def start(self, run: TaskRun) -> str:
+        """Run the attempt on an idle actor of its resource shape (one with the scene loaded first), else on a
+        new one; returns ``ray:<n>``.
+        """
         res = self.resources(run.spec)
         order = TaskOrder(
             task_id=run.task_id, attempt=run.attempt, spec=run.spec, job_dir=None, heartbeat_s=self.heartbeat_s
@@ -294,6 +308,9 @@ class RayExecutor(Executor):
 
     # -- the dispatcher's loop ----------------------------------------------------------
     def poll(self, timeout: float) -> list[Any]:
+        """Reports within ``timeout`` seconds: the reporter's drain, then the results and exits of the runs it covers;
+        heartbeats for attempts whose actor still waits for its node.
+        """
         ray = self.ray
         with self.lock:
             running = [a for a in self._actors if a.current is not None]
@@ -353,6 +370,7 @@ class RayExecutor(Executor):
         return out
 
     def kill(self, task_id: int, attempt: int) -> None:
+        """Kill the actor running this attempt (its run then ends as a lost worker)."""
         with self.lock:
             actor = next((a for a in self._actors if a.current == (task_id, attempt)), None)
         if actor is not None:
@@ -362,6 +380,7 @@ class RayExecutor(Executor):
                 pass
 
     def close(self) -> None:
+        """Kill every actor, and shut Ray down if this executor started it."""
         with self.lock:
             actors, self._actors = self._actors, []
         for a in actors:

@@ -239,6 +239,38 @@ def cases(tmp: Path) -> list[Case]:
             {"scene.toml": scene(), "seq/f_0002.exr/keep": "x"},
         ),
         L(
+            "match_out_folder_holds_the_scene",
+            "output",
+            ["match", "scene.toml", "--reference", "ref.png", "-o", ".", "--iterations", "2"],
+            ["-o", "scene.toml", "is an input"],
+            {"scene.toml": scene(), "ref.png": ref_png},
+        ),
+        L(
+            "match_out_folder_holds_the_colour_map",
+            "output",
+            ["match", "scene.toml", "--reference", "ref.png", "-o", "maps", "--iterations", "2"],
+            ["-o", "colour_map.exr", "is an input"],
+            {
+                "scene.toml": scene('[maps]\ncolour = "maps/colour_map.exr"\n'),
+                "maps/colour_map.exr": exr_ok,
+                "ref.png": ref_png,
+            },
+        ),
+        L(
+            "render_png_beside_is_the_colour_map",
+            "output",
+            ["render", "scene.toml", "-o", "colour.exr"],
+            ["-o", "colour.png", "is an input"],
+            {"scene.toml": scene('[maps]\ncolour = "colour.png"\n'), "colour.png": good_png},
+        ),
+        L(
+            "export_rib_out_is_a_file_before_scatter",
+            "output",
+            ["export", "rib", "scene.toml", "-o", "afile"],
+            ["-o", "afile", "not a folder"],
+            {"scene.toml": scene(), "afile": "x"},
+        ),
+        L(
             "render_out_wrong_suffix",
             "output",
             ["render", "scene.toml", "-o", "frame.jpg"],

@@ -35,9 +35,11 @@ p_L(ω) = Σ_k P_k p_k(ω), the density the power heuristic of Veach (1997,
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from .inputs import SkyLight, SunLight
 
@@ -51,10 +53,14 @@ SUN_SAMPLES = 1024
 MIN_NORMALISE_ELEVATION = 2.0
 
 #: Local (Mitsuba sunsky, Z up) → world (Y up): x → x, y → −z, z → y.
+#: A sun as the haze sees it (:meth:`LightSet.sun`): (direction toward it, scale → RGB irradiance, its scale).
+SunTerm = tuple[tuple[float, ...], Callable[[Any], Any], Any]
+
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
 
-def luminance(rgb) -> float:
+def luminance(rgb: npt.ArrayLike) -> float:
+    """Rec. 709 luminance Y = 0.2126 R + 0.7152 G + 0.0722 B of the first three values of ``rgb``."""
     r, g, b = (float(x) for x in np.asarray(rgb, dtype=np.float64).ravel()[:3])
     return 0.2126 * r + 0.7152 * g + 0.0722 * b
 
@@ -73,7 +79,7 @@ class DiscSun:
 
     param = "sun_irradiance"
 
-    def __init__(self, mi, sun: SunLight):
+    def __init__(self, mi: Any, sun: SunLight):
         d = np.asarray(sun.direction, dtype=np.float64)
         self.direction = d / np.linalg.norm(d)
         alpha = math.radians(float(sun.angular_diameter)) / 2.0
@@ -88,18 +94,20 @@ class DiscSun:
         self.initial = np.asarray(sun.irradiance, dtype=np.float64)
         self.mi = mi
 
-    def power(self, scale) -> float:
+    def power(self, scale: npt.ArrayLike) -> float:
+        """Pick weight for next-event estimation: luminance of E times the sun's elevation sine (at least 0.05)."""
         return luminance(scale) * max(self.direction[1], 0.05)
 
-    def irradiance(self, scale):
+    def irradiance(self, scale: Any) -> Any:
         """RGB irradiance facing the sun: the scale itself."""
         return self.mi.Color3f(scale)
 
-    def _frame(self):
+    def _frame(self) -> Any:
         mi = self.mi
         return mi.Frame3f(mi.Vector3f(*[float(x) for x in self.direction]))
 
-    def sample(self, scale, u, active):
+    def sample(self, scale: Any, u: Any, active: Any) -> tuple[Any, Any, Any]:  # noqa: ARG002 (every light has this signature)
+        """A direction uniform in the sun's cone: (d, pdf = 1/(2π(1 − cos α)), radiance s·ℓ)."""
         import drjit as dr
 
         mi = self.mi
@@ -108,19 +116,22 @@ class DiscSun:
         pdf = dr.full(mi.Float, self.inv_solid_angle, dr.width(u))
         return d, pdf, scale * self.radiance_per_irradiance
 
-    def inside(self, d):
+    def inside(self, d: Any) -> Any:
+        """Whether unit direction ``d`` lies in the sun's cone, tested on the chord: |d − s|² ≤ 2(1 − cos α)."""
         import drjit as dr
 
         s = self.direction
         dx, dy, dz = d.x - float(s[0]), d.y - float(s[1]), d.z - float(s[2])
         return dr.fma(dx, dx, dr.fma(dy, dy, dz * dz)) <= self.chord2
 
-    def eval(self, scale, d, active):
+    def eval(self, scale: Any, d: Any, active: Any) -> Any:
+        """Radiance toward ``d``: E/(π sin²α) inside the cone, else 0."""
         import drjit as dr
 
         return dr.select(active & self.inside(d), scale * self.radiance_per_irradiance, 0.0)
 
-    def pdf(self, d, active):
+    def pdf(self, d: Any, active: Any) -> Any:
+        """Solid-angle density of :meth:`sample` at ``d``: 1/(2π(1 − cos α)) inside the cone, else 0."""
         import drjit as dr
 
         return dr.select(active & self.inside(d), self.inv_solid_angle, 0.0)
@@ -138,15 +149,17 @@ class ConstantSky:
 
     param = "sky_radiance"
 
-    def __init__(self, mi, sky: SkyLight):
+    def __init__(self, mi: Any, sky: SkyLight):
         self.mi = mi
         self.initial = np.asarray(sky.radiance, dtype=np.float64)
         self.mean_radiance = np.ones(3)  # times the scale: the radiance itself
 
-    def power(self, scale) -> float:
+    def power(self, scale: npt.ArrayLike) -> float:
+        """Pick weight for next-event estimation: luminance of the irradiance π·s on an upward plane."""
         return math.pi * luminance(scale)
 
-    def sample(self, scale, u, active):
+    def sample(self, scale: Any, u: Any, active: Any) -> tuple[Any, Any, Any]:  # noqa: ARG002 (every light has this signature)
+        """A cosine-weighted direction about +Y: (d, pdf = max(d_y, 0)/π, radiance s)."""
         import drjit as dr
 
         mi = self.mi
@@ -154,12 +167,14 @@ class ConstantSky:
         d = mi.Vector3f(local.x, local.z, -local.y)  # local +Z → world +Y
         return d, dr.maximum(d.y, 0.0) * dr.inv_pi, mi.Color3f(scale)
 
-    def eval(self, scale, d, active):
+    def eval(self, scale: Any, d: Any, active: Any) -> Any:  # noqa: ARG002 (every light has this signature)
+        """Radiance s, the same toward every direction (0 where not ``active``)."""
         import drjit as dr
 
         return dr.select(active, scale, 0.0)
 
-    def pdf(self, d, active):
+    def pdf(self, d: Any, active: Any) -> Any:
+        """Solid-angle density of :meth:`sample` at ``d``: max(d_y, 0)/π."""
         import drjit as dr
 
         return dr.select(active, dr.maximum(d.y, 0.0) * dr.inv_pi, 0.0)
@@ -177,7 +192,7 @@ class SkyBasis(ConstantSky):
     reached by BSDF sampling).
     """
 
-    def __init__(self, mi, param: str, initial, zenith: bool, exponent: float = 1.0):
+    def __init__(self, mi: Any, param: str, initial: npt.ArrayLike, zenith: bool, exponent: float = 1.0):
         self.mi = mi
         self.param = param
         self.zenith = bool(zenith)
@@ -191,22 +206,25 @@ class SkyBasis(ConstantSky):
         h = 1.0 / (self.exponent + 1.0)
         self.mean_radiance = np.full(3, 1.0 - h if self.zenith else h)
 
-    def power(self, scale) -> float:
+    def power(self, scale: npt.ArrayLike) -> float:
+        """Pick weight: luminance of s times ℓ's irradiance on an upward plane (zenith π − a_k, horizon a_k)."""
         a = horizon_irradiance(self.exponent)
         return luminance(scale) * (math.pi - a if self.zenith else a)
 
-    def _shape(self, d):
+    def _shape(self, d: Any) -> Any:
         import drjit as dr
 
         mu = dr.maximum(d.y, 0.0)
         band = 1.0 - mu if self.exponent == 1.0 else dr.power(1.0 - mu, self.exponent)
         return 1.0 - band if self.zenith else band
 
-    def sample(self, scale, u, active):
+    def sample(self, scale: Any, u: Any, active: Any) -> tuple[Any, Any, Any]:
+        """As :meth:`ConstantSky.sample`, with radiance s·ℓ(d)."""
         d, pdf, _ = super().sample(scale, u, active)
         return d, pdf, scale * self._shape(d)
 
-    def eval(self, scale, d, active):
+    def eval(self, scale: Any, d: Any, active: Any) -> Any:
+        """Radiance s·ℓ(d) toward ``d``."""
         import drjit as dr
 
         return dr.select(active, scale * self._shape(d), 0.0)
@@ -218,13 +236,15 @@ def horizon_irradiance(exponent: float) -> float:
     return 2.0 * math.pi / ((k + 1.0) * (k + 2.0))
 
 
-def gradient_radiance(zenith, horizon, mu, exponent: float = 1.0) -> np.ndarray:
+def gradient_radiance(
+    zenith: npt.ArrayLike, horizon: npt.ArrayLike, mu: npt.ArrayLike, exponent: float = 1.0
+) -> np.ndarray:
     """The ``gradient`` sky's radiance at μ = max(ω_y, 0) (numpy; ``mu`` broadcasts against the colours)."""
     b = (1.0 - np.clip(np.asarray(mu, np.float64), 0.0, 1.0)) ** float(exponent)
     return np.asarray(zenith, np.float64) * (1.0 - b) + np.asarray(horizon, np.float64) * b
 
 
-def sun_irradiance_of(mi, emitter, direction, samples: int = SUN_SAMPLES) -> np.ndarray:
+def sun_irradiance_of(mi: Any, emitter: Any, direction: npt.ArrayLike, samples: int = SUN_SAMPLES) -> np.ndarray:
     """RGB irradiance E⊥ = ∫ L(ω) (ω · s) dω that a sun-like emitter sends onto a plane facing ``direction`` s.
 
     Estimated from ``samples`` of the emitter's own direction sampling (weights L/pdf), on a
@@ -255,7 +275,9 @@ def sun_irradiance_of(mi, emitter, direction, samples: int = SUN_SAMPLES) -> np.
     return np.asarray(e) / len(u1)
 
 
-def sunsky_dict(mi, direction, turbidity: float, albedo: float, *, sun_scale: float, sky_scale: float) -> dict:
+def sunsky_dict(
+    mi: Any, direction: npt.ArrayLike, turbidity: float, albedo: float, *, sun_scale: float, sky_scale: float
+) -> dict[str, Any]:
     """Mitsuba's ``sunsky`` rotated to Y-up (``to_world`` local +Z → world +Y), sun toward ``direction`` (world)."""
     d = np.asarray(direction, np.float64)
     d = d / np.linalg.norm(d)
@@ -270,7 +292,7 @@ def sunsky_dict(mi, direction, turbidity: float, albedo: float, *, sun_scale: fl
     }
 
 
-def sunsky_scale(mi, direction, turbidity: float, albedo: float, sun_irradiance: float) -> float:
+def sunsky_scale(mi: Any, direction: npt.ArrayLike, turbidity: float, albedo: float, sun_irradiance: float) -> float:
     """The factor k that makes the ``sunsky`` sun toward ``direction`` send ``sun_irradiance`` (luminance, facing it).
 
     Below :data:`MIN_NORMALISE_ELEVATION` degrees the model's sun fades to nothing; k is then taken at that
@@ -291,7 +313,7 @@ def sunsky_scale(mi, direction, turbidity: float, albedo: float, sun_irradiance:
     return float(sun_irradiance) / unit if unit > 0 else 0.0
 
 
-_SUN_UNIT: dict[tuple, float] = {}
+_SUN_UNIT: dict[tuple[Any, ...], float] = {}
 
 
 class EmitterLight:
@@ -302,7 +324,9 @@ class EmitterLight:
     hemisphere probes would miss a half-degree disc).
     """
 
-    def __init__(self, mi, emitter, param: str, initial, *, direction=None):
+    def __init__(
+        self, mi: Any, emitter: Any, param: str, initial: npt.ArrayLike, *, direction: npt.ArrayLike | None = None
+    ):
         import drjit as dr
 
         self.mi = mi
@@ -327,15 +351,16 @@ class EmitterLight:
             self.unit_irradiance = sun_irradiance_of(mi, emitter, self.direction)
             self.unit_power = luminance(self.unit_irradiance) * max(float(self.direction[1]), 0.05)
 
-    def power(self, scale) -> float:
+    def power(self, scale: npt.ArrayLike) -> float:
+        """Pick weight: luminance of s times :attr:`unit_power` (a sun's: E facing it times its elevation sine)."""
         return luminance(scale) * self.unit_power
 
-    def irradiance(self, scale):
+    def irradiance(self, scale: Any) -> Any:
         """The sun's RGB irradiance facing it at scale ``scale`` (a Color3f that may carry gradients)."""
         mi = self.mi
         return scale * mi.Color3f(*[float(v) for v in self.unit_irradiance])
 
-    def _eval_unit(self, d, active):
+    def _eval_unit(self, d: Any, active: Any) -> Any:
         import drjit as dr
 
         mi = self.mi
@@ -343,7 +368,8 @@ class EmitterLight:
         si.wi = -d
         return self.emitter.eval(si, active)
 
-    def sample(self, scale, u, active):
+    def sample(self, scale: Any, u: Any, active: Any) -> tuple[Any, Any, Any]:
+        """Mitsuba's importance sampling of the emitter: (d, pdf, radiance s·ℓ(d)), 0 where it fails."""
         import drjit as dr
 
         mi = self.mi
@@ -352,12 +378,14 @@ class EmitterLight:
         ok = active & (ds.pdf > 0.0)
         return ds.d, dr.select(ok, ds.pdf, 0.0), dr.select(ok, scale * w * ds.pdf, 0.0)
 
-    def eval(self, scale, d, active):
+    def eval(self, scale: Any, d: Any, active: Any) -> Any:
+        """Radiance s·ℓ(d) of the emitter toward ``d``."""
         import drjit as dr
 
         return dr.select(active, scale * self._eval_unit(d, active), 0.0)
 
-    def pdf(self, d, active):
+    def pdf(self, d: Any, active: Any) -> Any:
+        """Mitsuba's solid-angle density of sampling direction ``d`` (:meth:`sample`)."""
         import drjit as dr
 
         mi = self.mi
@@ -367,7 +395,7 @@ class EmitterLight:
         return dr.select(active, self.emitter.pdf_direction(it, ds, active), 0.0)
 
 
-def make_lights(mi, sun: SunLight | None, sky: SkyLight | None) -> list[Any]:
+def make_lights(mi: Any, sun: SunLight | None, sky: SkyLight | None) -> list[Any]:
     """The light objects for a sun and sky description (see the module docstring)."""
     lights: list[Any] = []
     if sky is not None and sky.kind == "sunsky":
@@ -400,7 +428,7 @@ def make_lights(mi, sun: SunLight | None, sky: SkyLight | None) -> list[Any]:
 class LightSet:
     """The lights of a render with their current scales and pick probabilities."""
 
-    def __init__(self, mi, lights: list[Any], params: dict):
+    def __init__(self, mi: Any, lights: list[Any], params: dict[str, Any]):
         self.mi = mi
         self.lights = lights
         self.scales = [params[light.param] for light in lights]
@@ -416,7 +444,7 @@ class LightSet:
                 pick /= pick.sum()
         self.pick = [float(p) for p in pick]
 
-    def sun(self) -> tuple | None:
+    def sun(self) -> SunTerm | None:
         """(direction toward the sun, scale → RGB irradiance, current scale) of the sun, or None."""
         for light, s in zip(self.lights, self.scales):
             direction = getattr(light, "direction", None)
@@ -424,7 +452,7 @@ class LightSet:
                 return (tuple(float(v) for v in direction), light.irradiance, s)
         return None
 
-    def eval(self, d, active):
+    def eval(self, d: Any, active: Any) -> Any:
         """Radiance arriving from direction ``d`` (a ray that left the scene), all lights summed."""
         mi = self.mi
         total = mi.Color3f(0.0)
@@ -432,7 +460,7 @@ class LightSet:
             total += light.eval(s, d, active)
         return total
 
-    def pdf(self, d, active):
+    def pdf(self, d: Any, active: Any) -> Any:
         """Light-sampling density p_L(d) = Σ P_k p_k(d) (solid angle)."""
         import drjit as dr
 
@@ -442,7 +470,7 @@ class LightSet:
             total += p * light.pdf(d, active)
         return total
 
-    def sample_direction(self, u_pick, u, active):
+    def sample_direction(self, u_pick: Any, u: Any, active: Any) -> tuple[Any, Any]:
         """Pick light k with probability P_k and sample d ~ p_k: (d, p_L(d)).
 
         The pick-then-sample mixture is one strategy of density p_L; its

@@ -41,7 +41,7 @@ import numpy as np
 from ...errors import ForestError
 from ...runtime import mitsuba
 from .emitters import LightSet, make_lights, sky_mean_radiance
-from .geometry import ForestGeometry, PartArrays, TraversalScene, available_bytes, memory_plan
+from .geometry import ForestGeometry, FrameStats, PartArrays, TraversalScene, available_bytes, memory_plan
 from .haze import HazeInputs, HazeModel
 from .inputs import PathCamera, PathInputs
 from .integrator import LAYER_ALPHA, NO_HIT, PathKernel, integrator_class
@@ -51,8 +51,20 @@ from .materials import MaterialArrays, MaterialStore, world_map_texture
 MAX_LANES = 1 << 21
 SEED_TAG = 0x5041_5448  # "PATH"
 JIT_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb")
-#: Memory kept free for the render's wavefronts, textures and the rest of the process.
+#: Memory kept free beside the traversal scene for the render's film, wavefronts, kernels and the rest of the
+#: process (:func:`memory_headroom`): the pre-flight model's per-pixel and per-lane costs and
+#: :data:`MEMORY_MARGIN`, at most :data:`MEMORY_HEADROOM` — so a small image still renders in a 1 GiB cgroup.
 MEMORY_HEADROOM = 1 << 30
+MEMORY_MARGIN = 256 << 20
+
+
+def memory_headroom(width: int, height: int, spp: int) -> int:
+    """Bytes :meth:`PathScene.check_memory` keeps free beside the traversal scene for a ``width``×``height`` render."""
+    from ...preflight import BYTES_PER_LANE, BYTES_PER_PIXEL
+
+    pixels = int(width) * int(height)
+    passes = BYTES_PER_PIXEL["jit"] * pixels + BYTES_PER_LANE * min(MAX_LANES, pixels * max(1, int(spp)))
+    return min(MEMORY_HEADROOM, MEMORY_MARGIN + passes)
 
 
 def pass_seed(seed: int, k: int) -> int:
@@ -60,7 +72,7 @@ def pass_seed(seed: int, k: int) -> int:
     return int(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, SEED_TAG, int(k)]).generate_state(1)[0])
 
 
-def sampler_count(mi, kind: str, spp: int) -> int:
+def sampler_count(mi: Any, kind: str, spp: int) -> int:
     """The samples per pixel Mitsuba's sampler ``kind`` takes when asked for ``spp``.
 
     A stratified sampler rounds its count to its grid (``multijitter``: 34 → 35 = 5 × 7)
@@ -90,7 +102,7 @@ def split_passes(width: int, height: int, spp: int, max_lanes: int | None = None
     return [base + (1 if i < extra else 0) for i in range(n)]
 
 
-def sensor_dict(mi, camera: PathCamera) -> dict:
+def sensor_dict(mi: Any, camera: PathCamera) -> dict[str, Any]:
     """A Mitsuba ``perspective`` sensor for ``camera`` (horizontal fov, box filter)."""
     return {
         "type": "perspective",
@@ -127,7 +139,7 @@ class PassResult:
     normal: np.ndarray | None = None  # (H·W, 3) summed
 
 
-def _columns(v, n: int) -> np.ndarray:
+def _columns(v: Any, n: int) -> np.ndarray:
     """A drjit n-vector (Color3f, Vector3f) as an (lanes, n) float64 array."""
     return np.stack([np.asarray(v[i], np.float64) for i in range(n)], axis=1)
 
@@ -214,16 +226,19 @@ class PathScene:
         if self.variant != "llvm_ad_rgb":
             return
         instances, flat, need = memory_plan(self.geometry, np.asarray(levels))
-        have = available_bytes()
-        if have is not None and need > have - MEMORY_HEADROOM:
+        have = available_bytes()  # the machine's and this process's cgroups' room (forest.memory)
+        camera = self.inputs.camera
+        headroom = memory_headroom(camera.width, camera.height, self.inputs.spp)
+        if have is not None and need > have - headroom:
             raise ForestError(
                 f"[lod] distances: {instances:,} instanced trees and {flat:,} merged far-level triangles need about "
-                f"{need / 2**30:.1f} GB, {max(have - MEMORY_HEADROOM, 0) / 2**30:.1f} GB is available; bring the "
+                f"{need / 2**30:.1f} GB, {max(have - headroom, 0) / 2**30:.1f} GB is available; bring the "
                 "level-of-detail distances closer so more trees use the merged far level"
             )
 
     @property
-    def stats(self):
+    def stats(self) -> FrameStats:
+        """The traversal's :class:`~forest.render.path.geometry.FrameStats` (trees, instances, triangles, load time)."""
         assert self.traversal is not None
         return self.traversal.stats
 
@@ -262,7 +277,7 @@ class PathScene:
             haze=haze,
         )
 
-    def integrator(self, *, max_depth: int | None = None):
+    def integrator(self, *, max_depth: int | None = None) -> Any:
         """A ``forest_path`` Mitsuba integrator bound to this scene, for ``mi.render(self.traversal.scene, ...)``.
 
         ``mi.render`` splats with Mitsuba's film (atomic adds): use :meth:`render`
@@ -271,12 +286,13 @@ class PathScene:
         cls = integrator_class(self.mi)
         return cls(self.mi.Properties()).bind(self.kernel(max_depth=max_depth))
 
-    def scene_parameters(self):
+    def scene_parameters(self) -> Any:
         """:attr:`params` as a read-only ``mi.SceneParameters`` view, the ``params`` argument ``mi.render`` takes."""
         self.activate()
         return self.mi.SceneParameters({k: (v, None, None, 0) for k, v in self.params.items()})
 
-    def sensor(self, camera: PathCamera | None = None):
+    def sensor(self, camera: PathCamera | None = None) -> Any:
+        """The Mitsuba sensor of ``camera`` (default: the inputs' camera), cached per pose, fov and size."""
         camera = camera or self.inputs.camera
         key = (
             np.asarray(camera.to_world, np.float64).tobytes()
@@ -289,7 +305,7 @@ class PathScene:
         return self._sensors[key]
 
     # -- sampling -------------------------------------------------------------------------
-    def _camera_rays(self, camera: PathCamera, spp: int, seed: int):
+    def _camera_rays(self, camera: PathCamera, spp: int, seed: int) -> tuple[Any, Any, int]:
         """(sampler, rays, spp actually used) for one pass: lanes pixel-major, ``spp`` consecutive per pixel."""
         import drjit as dr
 
@@ -417,7 +433,7 @@ class PathScene:
                 )
 
     # -- derivatives ------------------------------------------------------------------------
-    def _passes(self, camera: PathCamera, spp: int, seed: int):
+    def _passes(self, camera: PathCamera, spp: int, seed: int) -> Iterator[tuple[int, Any, Any, int]]:
         """(pass index, sampler, rays, samples per pixel) of each sample pass of a render."""
         w, h = int(camera.width), int(camera.height)
         for k, n in enumerate(split_passes(w, h, spp)):
@@ -471,7 +487,7 @@ class PathScene:
         return (acc / total).reshape(h, w, 3).astype(np.float32)
 
     def render_backward(
-        self, grad_image, camera: PathCamera | None = None, *, spp: int | None = None, seed: int | None = None
+        self, grad_image: Any, camera: PathCamera | None = None, *, spp: int | None = None, seed: int | None = None
     ) -> None:
         """Reverse mode: accumulate ∂(Σ grad_image · image)/∂p into ``dr.grad(p)`` of every ``params`` entry with
         gradients enabled.  ``grad_image``: (H, W, 3) array or ``TensorXf``, the adjoint of the image."""
@@ -496,7 +512,7 @@ class PathScene:
                 kernel.sample(dr.ADMode.Backward, sampler, ray, δL, L, mi.Bool(True))
                 dr.eval()  # run the kernel whose side effects are the parameter gradients
 
-    def render_ad(self, camera: PathCamera | None = None, *, spp: int | None = None, seed: int | None = None):
+    def render_ad(self, camera: PathCamera | None = None, *, spp: int | None = None, seed: int | None = None) -> Any:
         """The image as a ``TensorXf`` (H, W, 3) attached to the AD graph of :attr:`params`.
 
         Use it like ``mi.render``: build a loss from it and call ``dr.backward``
@@ -561,33 +577,43 @@ def _render_op() -> type:
     class RenderOp(dr.CustomOp):
         """Primal: :meth:`PathScene.render`; derivatives: :meth:`PathScene.render_forward` / ``render_backward``."""
 
-        def eval(self, scene, camera, spp, seed, params):
+        # params (the attached parameters) is passed through dr.custom only so drjit tracks its gradients
+        def eval(
+            self,
+            scene: PathScene,
+            camera: PathCamera,
+            spp: int | None,
+            seed: int | None,
+            params: dict[str, Any],  # noqa: ARG002
+        ) -> Any:
             self.scene, self.camera, self.spp, self.seed = scene, camera, spp, seed
             mi = scene.mi
             img = scene.render(camera, spp=spp, seed=seed).rgb
             return mi.TensorXf(np.ascontiguousarray(img, dtype=np.float32))
 
-        def forward(self):
+        def forward(self) -> None:
             mi = self.scene.mi
             d = self.scene.render_forward(self.camera, spp=self.spp, seed=self.seed)
             self.set_grad_out(mi.TensorXf(np.ascontiguousarray(d, dtype=np.float32)))
 
-        def backward(self):
+        def backward(self) -> None:
             g = np.asarray(self.grad_out(), dtype=np.float32)
             self.scene.render_backward(g, self.camera, spp=self.spp, seed=self.seed)
 
-        def name(self):
+        def name(self) -> str:
             return "forest_path render"
 
     _RENDER_OP.append(RenderOp)
     return RenderOp
 
 
-def mi_bool(mi, value: bool):
+def mi_bool(mi: Any, value: bool) -> Any:
+    """A Mitsuba ``Bool`` holding ``value`` (the all-lanes mask)."""
     return mi.Bool(value)
 
 
-def mi_float(mi, mask):
+def mi_float(mi: Any, mask: Any) -> Any:
+    """``mask`` as a Float: 1 where set, 0 elsewhere."""
     import drjit as dr
 
     return dr.select(mask, mi.Float(1.0), mi.Float(0.0))

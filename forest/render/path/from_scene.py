@@ -10,7 +10,9 @@ to Y-up and normalised so its sun sends ``[lights.sun] irradiance``.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,8 +25,13 @@ from .ground import ground_look
 from .haze import HazeInputs
 from .inputs import PathCamera, PathInputs, SkyLight, SunLight
 
+if TYPE_CHECKING:
+    from ...config import Config
+    from ...library.core import Species
+    from ...terrain import Terrain
 
-def path_camera(config, frame: float = 1.0, width: int | None = None, height: int | None = None) -> PathCamera:
+
+def path_camera(config: Config, frame: float = 1.0, width: int | None = None, height: int | None = None) -> PathCamera:
     """The config's camera at ``frame`` (interpolated along its keys)."""
     cam = config.camera
     state = camera_at(cam, frame)
@@ -73,7 +80,7 @@ def path_lights(lights: Lights) -> tuple[SunLight | None, SkyLight | None]:
     return disc, SkyLight("constant", radiance=tuple(k.radiance.tolist()))
 
 
-def haze_inputs(config, terrain) -> HazeInputs | None:
+def haze_inputs(config: Config, terrain: Terrain) -> HazeInputs | None:
     """``[render] haze`` & co as :class:`HazeInputs` (None when ``haze`` is 0): the ground is the terrain's
     lowest point; a camera ray that leaves the scene is hazed up to the end of the ground (the skirt's
     radius, else the far clip)."""
@@ -92,14 +99,14 @@ def haze_inputs(config, terrain) -> HazeInputs | None:
     )
 
 
-def scene_species(scene: Scene) -> tuple[list, np.ndarray | None]:
+def scene_species(scene: Scene) -> tuple[list[list[Species]], np.ndarray | None]:
     """Per species index the list of its individuals (element 0 = the species itself) and each tree's individual.
 
     Reads ``Scene.individuals`` and ``InstanceSet.individual`` where the Scene has them; one individual
     per species otherwise.
     """
     individuals = getattr(scene, "individuals", None)
-    species: list = (
+    species: list[list[Species]] = (
         [list(ind) if ind else [sp] for ind, sp in zip(individuals, scene.species)]
         if individuals
         else [[sp] for sp in scene.species]
@@ -110,7 +117,7 @@ def scene_species(scene: Scene) -> tuple[list, np.ndarray | None]:
     return species, np.asarray(column, np.int64)
 
 
-def inputs_extent(extent) -> tuple[float, float, float, float]:
+def inputs_extent(extent: Iterable[float]) -> tuple[float, float, float, float]:
     xmin, zmin, xmax, zmax = (float(v) for v in extent)
     return (xmin, zmin, xmax, zmax)
 
@@ -199,7 +206,7 @@ def far_plan(scene: Scene, frames: list[float] | None = None, flatten_triangles:
     return best
 
 
-def preview_size(config, preview_width: int = 480) -> tuple[int, int]:
+def preview_size(config: Config, preview_width: int = 480) -> tuple[int, int]:
     """The ``--preview`` size of a config: at most ``preview_width`` pixels wide, same aspect."""
     rc = config.render
     k = min(1.0, preview_width / rc.width)

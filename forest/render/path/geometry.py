@@ -44,13 +44,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ...errors import ForestError
 from ...library.mesh import read_ply
+from ...memory import available_bytes as available_bytes  # MemAvailable and this process's cgroup limits
 from .inputs import Material, PathInputs
 from .materials import MaterialStore
 
@@ -71,17 +71,6 @@ def memory_plan(geometry: ForestGeometry, levels: np.ndarray) -> tuple[int, int,
     return instances, flat, instances * INSTANCE_BYTES + flat * FLAT_TRIANGLE_BYTES
 
 
-def available_bytes() -> int | None:
-    """MemAvailable of this machine (Linux), or None where it cannot be read."""
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError):
-        return None
-    return None
-
-
 @dataclass
 class PartBuffers:
     """All parts concatenated: object-space vertices, faces with global vertex indices, per-part slices."""
@@ -97,7 +86,7 @@ class PartBuffers:
     n_vertices: int = 0
     n_faces: int = 0
 
-    def add(self, mesh, material: int) -> int:
+    def add(self, mesh: Any, material: int) -> int:
         """Append a mesh (``MeshData``-like) as a new part; its index."""
         v = np.ascontiguousarray(mesh.vertices, dtype=np.float32).reshape(-1, 3)
         f = np.ascontiguousarray(mesh.faces, dtype=np.uint32).reshape(-1, 3)
@@ -132,7 +121,7 @@ class Prototype:
     flatten: bool
 
 
-def _species_list(entry) -> list:
+def _species_list(entry: Any) -> list[Any]:
     return list(entry) if isinstance(entry, (list, tuple)) else [entry]
 
 
@@ -236,7 +225,7 @@ class _Mesh:
     uv: np.ndarray | None
 
 
-def _mi_mesh(mi, name: str, vertices: np.ndarray, faces: np.ndarray):
+def _mi_mesh(mi: Any, name: str, vertices: np.ndarray, faces: np.ndarray) -> Any:
     """A Mitsuba mesh with positions and faces only (what traversal needs)."""
     m = mi.Mesh(
         name, vertex_count=len(vertices), face_count=len(faces), has_vertex_normals=False, has_vertex_texcoords=False
@@ -270,13 +259,13 @@ class FrameStats:
     shapegroups: int = 0
     instanced_triangles: int = 0
     load_seconds: float = 0.0
-    lod_counts: dict = field(default_factory=dict)
+    lod_counts: dict[str, int] = field(default_factory=dict)
 
 
 class TraversalScene:
     """The Mitsuba scene of one pose (levels + matrices) and the tables that map its hits to forest's buffers."""
 
-    def __init__(self, mi, geometry: ForestGeometry, levels: np.ndarray, matrices: np.ndarray):
+    def __init__(self, mi: Any, geometry: ForestGeometry, levels: np.ndarray, matrices: np.ndarray):
         import drjit as dr
 
         t0 = time.perf_counter()
@@ -378,7 +367,7 @@ class TraversalScene:
 class PartArrays:
     """The part buffers as drjit arrays (built once per scene; grown when new prototypes appear)."""
 
-    def __init__(self, mi, parts: PartBuffers):
+    def __init__(self, mi: Any, parts: PartBuffers):
         self.count = len(parts.triangles)
         self.vertices = mi.Float(np.concatenate(parts.vertices).ravel()) if parts.vertices else mi.Float(0)
         self.normals = mi.Float(np.concatenate(parts.normals).ravel()) if parts.normals else mi.Float(0)
@@ -402,7 +391,7 @@ class Hit:
     b2: Any
 
 
-def resolve(mi, scene: TraversalScene, parts: PartArrays, pi, active) -> Hit:
+def resolve(mi: Any, scene: TraversalScene, parts: PartArrays, pi: Any, active: Any) -> Hit:
     """Row, part and triangle of a preliminary intersection (see the module docstring)."""
     import drjit as dr
 
@@ -427,7 +416,7 @@ def resolve(mi, scene: TraversalScene, parts: PartArrays, pi, active) -> Hit:
     return Hit(valid, dr.select(valid, pi.t, dr.inf), row, tri, part, pi.prim_uv.x, pi.prim_uv.y)
 
 
-def hit_uv(mi, parts: PartArrays, hit: Hit, active):
+def hit_uv(mi: Any, parts: PartArrays, hit: Hit, active: Any) -> Any:
     """Texture coordinates at a hit (barycentric interpolation)."""
     import drjit as dr
 
@@ -450,7 +439,7 @@ class SurfacePoint:
     material: Any  # UInt32
 
 
-def surface(mi, scene: TraversalScene, parts: PartArrays, hit: Hit, active) -> SurfacePoint:
+def surface(mi: Any, scene: TraversalScene, parts: PartArrays, hit: Hit, active: Any) -> SurfacePoint:
     """Position, normals, uv and material of a hit from the part buffers and the row's transform."""
     import drjit as dr
 
@@ -460,7 +449,7 @@ def surface(mi, scene: TraversalScene, parts: PartArrays, hit: Hit, active) -> S
     r1 = dr.gather(mi.Vector4f, scene.row_matrix, hit.row * 3 + 1, active)
     r2 = dr.gather(mi.Vector4f, scene.row_matrix, hit.row * 3 + 2, active)
 
-    def xform(v):
+    def xform(v: Any) -> Any:
         return mi.Point3f(
             dr.fma(r0.x, v.x, dr.fma(r0.y, v.y, dr.fma(r0.z, v.z, r0.w))),
             dr.fma(r1.x, v.x, dr.fma(r1.y, v.y, dr.fma(r1.z, v.z, r1.w))),

@@ -14,10 +14,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ...skirt import fade_beyond_edge
+
+if TYPE_CHECKING:
+    from ...scene import Scene
 
 
 @dataclass(frozen=True)
@@ -35,7 +39,7 @@ class GroundLook:
     detail_tile: float = 1.0
 
 
-def ground_look(scene) -> GroundLook:
+def ground_look(scene: Scene) -> GroundLook:
     """The :class:`GroundLook` of a Scene (module docstring)."""
     albedo = scene.terrain_albedo
     grid = np.asarray(albedo.rgb, np.float32)

@@ -52,9 +52,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from .emitters import SunTerm
 
 #: |x| below which φ(x) = (1 − e^(−x))/x is evaluated by its Taylor series (float32 cancellation).
 SERIES_BELOW = 1e-3
@@ -80,6 +84,7 @@ class HazeInputs:
     sky_distance: float = 20_000.0
 
     def validate(self) -> None:
+        """Raise ``ForestError`` unless density ≥ 0, height > 0, g ∈ (−1, 1) and the colour a non-negative RGB."""
         from ...errors import ForestError
 
         if not (math.isfinite(self.density) and self.density >= 0.0):
@@ -105,7 +110,9 @@ def phi_np(x: np.ndarray) -> np.ndarray:
     return np.where(small, 1.0 - x / 2.0 + x * x / 6.0, -np.expm1(-safe) / safe)
 
 
-def transmittance_np(origin_y, direction_y, length, haze: HazeInputs) -> np.ndarray:
+def transmittance_np(
+    origin_y: npt.ArrayLike, direction_y: npt.ArrayLike, length: npt.ArrayLike, haze: HazeInputs
+) -> np.ndarray:
     """T(ℓ) of segments starting at height ``origin_y`` with unit-direction y component ``direction_y``."""
     oy = np.asarray(origin_y, np.float64)
     sigma = haze.density * np.exp(-(oy - haze.ground) / haze.height)
@@ -114,13 +121,18 @@ def transmittance_np(origin_y, direction_y, length, haze: HazeInputs) -> np.ndar
     return np.exp(-tau)
 
 
-def hg_np(mu, g: float) -> np.ndarray:
+def hg_np(mu: npt.ArrayLike, g: float) -> np.ndarray:
     """Henyey–Greenstein phase function p(μ; g), per steradian."""
     mu = np.asarray(mu, np.float64)
     return (1.0 - g * g) / (4.0 * math.pi * np.power(1.0 + g * g - 2.0 * g * mu, 1.5))
 
 
-def source_np(directions: np.ndarray, haze: HazeInputs, sun_direction, sun_irradiance) -> np.ndarray:
+def source_np(
+    directions: np.ndarray,
+    haze: HazeInputs,
+    sun_direction: npt.ArrayLike | None,
+    sun_irradiance: npt.ArrayLike | None,
+) -> np.ndarray:
     """J(d) (…, 3) for unit view directions ``directions`` (…, 3) (propagation away from the viewer)."""
     d = np.asarray(directions, np.float64)
     c = np.asarray(haze.colour if haze.colour is not None else (0.0, 0.0, 0.0), np.float64)
@@ -147,7 +159,7 @@ class HazeModel:
 
     PARAMS = ("haze_density", "haze_height", "haze_colour", "haze_anisotropy")
 
-    def __init__(self, mi, haze: HazeInputs, params: dict[str, Any], sun: tuple | None):
+    def __init__(self, mi: Any, haze: HazeInputs, params: dict[str, Any], sun: SunTerm | None):
         self.mi = mi
         self.ground = float(haze.ground)
         self.sky_distance = float(haze.sky_distance)
@@ -158,7 +170,8 @@ class HazeModel:
         self.sun = sun
 
     @staticmethod
-    def initial_params(mi, haze: HazeInputs) -> dict[str, Any]:
+    def initial_params(mi: Any, haze: HazeInputs) -> dict[str, Any]:
+        """The haze's scene parameters (:attr:`PARAMS`) at ``haze``'s values, as drjit scalars (no colour: black)."""
         return {
             "haze_density": mi.Float(float(haze.density)),
             "haze_height": mi.Float(float(haze.height)),
@@ -166,7 +179,7 @@ class HazeModel:
             "haze_anisotropy": mi.Float(float(haze.anisotropy)),
         }
 
-    def transmittance(self, o, d, length):
+    def transmittance(self, o: Any, d: Any, length: Any) -> Any:
         """T(ℓ) of the segments o + s·d, s ∈ [0, ``length``] (Float)."""
         import drjit as dr
 
@@ -178,7 +191,7 @@ class HazeModel:
         phi = dr.select(small, 1.0 - x * 0.5 + x * x * (1.0 / 6.0), (1.0 - dr.exp(-xs)) / xs)
         return dr.exp(-sigma * length * phi)
 
-    def source(self, d):
+    def source(self, d: Any) -> Any:
         """J(d) (Color3f): the ambient colour plus the sun through the Henyey–Greenstein phase function."""
         import drjit as dr
 

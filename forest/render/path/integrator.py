@@ -58,10 +58,15 @@ which ``cuda_ad_rgb`` provides as well.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable, Iterable, Sequence
+from typing import TYPE_CHECKING, Any
 
 from .geometry import Hit, PartArrays, TraversalScene, hit_uv, resolve, surface
 from .materials import MaterialArrays, bsdf_eval, bsdf_sample, shading
+
+if TYPE_CHECKING:
+    from .emitters import LightSet
+    from .haze import HazeModel
 
 #: First-hit code of a path whose camera ray hit nothing (``PathKernel.sample(aux=True)``).
 NO_HIT = 0xFFFFFFFF
@@ -74,7 +79,7 @@ RAY_EPSILON = 1500.0 * 2.0**-24
 LAYER_ALPHA = 0.5
 
 
-def mis_weight(pdf_a, pdf_b):
+def mis_weight(pdf_a: Any, pdf_b: Any) -> Any:
     """Power heuristic p_a² / (p_a² + p_b²) (0 where both are 0)."""
     import drjit as dr
 
@@ -88,18 +93,18 @@ class PathKernel:
 
     def __init__(
         self,
-        mi,
+        mi: Any,
         scene: TraversalScene,
         parts: PartArrays,
         mats: MaterialArrays,
         *,
-        grid,
-        terrain_map,
-        extent,
-        lights,
+        grid: Any,
+        terrain_map: tuple[Any, Sequence[float]] | None,
+        extent: Iterable[float],
+        lights: LightSet,
         max_depth: int,
         rr_depth: int,
-        haze: Any = None,
+        haze: HazeModel | None = None,
     ):
         self.mi = mi
         self.haze = haze
@@ -114,7 +119,7 @@ class PathKernel:
         self.rr_depth = int(rr_depth)
 
     # -- rays -------------------------------------------------------------------------
-    def offset(self, p, ng, d):
+    def offset(self, p: Any, ng: Any, d: Any) -> Any:
         """Origin for a ray leaving ``p`` along ``d``: pushed off the surface to ``d``'s side (as Mitsuba)."""
         import drjit as dr
 
@@ -122,26 +127,35 @@ class PathKernel:
         side = dr.select(dr.dot(ng, d) >= 0.0, mag, -mag)
         return dr.fma(ng, side, p)
 
-    def _hit(self, o, d, maxt, active, coherent: bool = False) -> Hit:
+    def _hit(self, o: Any, d: Any, maxt: Any, active: Any, coherent: bool = False) -> Hit:
         mi = self.mi
         ray = mi.Ray3f(o, d, maxt, 0.0, mi.Color0f())
         pi = self.scene.scene.ray_intersect_preliminary(ray, coherent=coherent, active=active)
         return resolve(mi, self.scene, self.parts, pi, active)
 
-    def _alpha(self, hit: Hit, active):
+    def _alpha(self, hit: Hit, active: Any) -> Any:
         import drjit as dr
 
         mi = self.mi
         material = dr.gather(mi.UInt32, self.parts.material, hit.part, active)
         return self.mats.alpha(mi, material, hit_uv(mi, self.parts, hit, active), active)
 
-    def _past(self, origin, d, t):
+    def _past(self, origin: Any, d: Any, t: Any) -> Any:
         """Distance to advance along ``d`` to leave a surface hit at distance ``t`` behind (Mitsuba's ray epsilon)."""
         import drjit as dr
 
         return t + (1.0 + dr.max(dr.abs(dr.fma(d, t, origin)))) * RAY_EPSILON
 
-    def trace(self, o, d, maxt, rng, active, threshold: float | None = None, coherent: bool = False):
+    def trace(
+        self,
+        o: Any,
+        d: Any,
+        maxt: Any,
+        rng: Any,
+        active: Any,
+        threshold: float | None = None,
+        coherent: bool = False,
+    ) -> tuple[Any, ...]:
         """The first surface along a ray that is not a skipped cut-out texel.
 
         Returns (valid, t from ``o``, row, p, n_geo, n_sh, uv, material, rng).
@@ -162,10 +176,11 @@ class PathKernel:
                 mi.Float(0.0), through, mi.UInt32(0), rng, mi.Point3f(o), mi.Float(maxt), mi.Vector3f(d),
             )  # fmt: skip
 
-            def cond(valid, t, row, tri, part, b1, b2, base, through, skips, rng, origin, remaining, d):
+            # dr.while_loop hands cond the whole loop state
+            def cond(valid: Any, t: Any, row: Any, tri: Any, part: Any, b1: Any, b2: Any, base: Any, through: Any, skips: Any, rng: Any, origin: Any, remaining: Any, d: Any) -> Any:  # noqa: ARG001  # fmt: skip
                 return through
 
-            def body(valid, t, row, tri, part, b1, b2, base, through, skips, rng, origin, remaining, d):
+            def body(valid: Any, t: Any, row: Any, tri: Any, part: Any, b1: Any, b2: Any, base: Any, through: Any, skips: Any, rng: Any, origin: Any, remaining: Any, d: Any) -> tuple[Any, ...]:  # fmt: skip
                 step = self._past(origin, d, t - base)
                 origin = dr.fma(d, step, origin)
                 remaining = remaining - step
@@ -190,7 +205,7 @@ class PathKernel:
         sp = surface(mi, self.scene, self.parts, hit, hit.valid)
         return hit.valid, hit.t, hit.row, sp.p, sp.n_geo, sp.n_sh, sp.uv, sp.material, rng
 
-    def first_hit(self, sampler, ray, active):
+    def first_hit(self, sampler: Any, ray: Any, active: Any) -> tuple[Any, Any, Any]:
         """What each camera ray meets first, passing cut-out texels stochastically as the beauty's rays do.
 
         Returns (row or :data:`NO_HIT`, albedo R + T, shading normal facing the camera): the
@@ -209,7 +224,9 @@ class PathKernel:
         return dr.select(valid, row, NO_HIT), albedo, dr.select(valid, normal, 0.0)
 
     # -- the estimator ------------------------------------------------------------------
-    def sample(self, mode, sampler, ray, δL, state_in, active, aux: bool = False):
+    def sample(
+        self, mode: Any, sampler: Any, ray: Any, δL: Any, state_in: Any, active: Any, aux: bool = False
+    ) -> tuple[Any, ...]:
         """One path per lane: (L, or δL in a derivative mode; the camera ray's hit flag; L as state).
 
         ``aux`` (primal only) adds a fourth value, a dict of what the camera ray met first:
@@ -277,25 +294,24 @@ class PathKernel:
         if not primal:  # the vertex a pending shadow ray belongs to
             state.update(
                 vp=mi.Point3f(0.0), vuv=mi.Point2f(0.0), vmat=mi.UInt32(0), vns=mi.Vector3f(zeros3),
-                vwi=mi.Vector3f(zeros3), vwo=mi.Vector3f(zeros3), vdl=mi.Vector3f(zeros3), vβ=mi.Color3f(0.0),
-                vw=mi.Float(0.0),
+                vwo=mi.Vector3f(zeros3), vdl=mi.Vector3f(zeros3), vβ=mi.Color3f(0.0), vw=mi.Float(0.0),
             )  # fmt: skip
         keys = list(state)
 
-        def cond(*values):
+        def cond(*values: Any) -> Any:
             return values[keys.index("active")]
 
         # A term may not depend on the parameters being differentiated (the sky's emission when only the
         # colour grid has gradients): allowed here, since the terms are propagated one by one.
         flags = dr.ADFlag.Default | dr.ADFlag.AllowNoGrad
 
-        def differentiate(S, Lo):
+        def differentiate(S: dict[str, Any], Lo: Any) -> None:
             if mode == dr.ADMode.Backward:
                 dr.backward_from(S["δL"] * Lo, flags=flags)
             else:
                 S["δL"] = S["δL"] + dr.forward_to(Lo, flags=flags)
 
-        def body(*values):
+        def body(*values: Any) -> tuple[Any, ...]:
             S = dict(zip(keys, values))
             active = S["active"]
             shadow = active & S["shadowing"]
@@ -319,11 +335,11 @@ class PathKernel:
                 with dr.resume_grad():
                     sh = shading(mi, self.mats, S["vmat"], S["vuv"], S["vp"], self.grid, self.extent,
                                  self.terrain_map, s_done)  # fmt: skip
-                    f_l, _ = bsdf_eval(mi, sh, S["vns"], S["vwi"], S["vdl"])
+                    f_l, _ = bsdf_eval(sh, S["vns"], S["vdl"])
                     Lr_dir = dr.select(s_done, S["vβ"] * f_l * lights.eval(S["vdl"], s_done) * (S["vw"] * vis), 0.0)
                 L = dr.select(s_done, S["L"] - dr.detach(Lr_dir), S["L"])
                 with dr.resume_grad():
-                    f_o, _ = bsdf_eval(mi, sh, S["vns"], S["vwi"], S["vwo"])
+                    f_o, _ = bsdf_eval(sh, S["vns"], S["vwo"])
                     Lr_ind = L * dr.select(s_done & S["cont"], dr.relative_grad(f_o), 0.0)
                     differentiate(S, Lr_dir + Lr_ind)
                 S["L"] = L
@@ -372,7 +388,17 @@ class PathKernel:
             )
             return tuple(out)
 
-        def shade_vertex(S, h_valid, h_t, h_row, h_tri, h_part, h_b1, h_b2, d):
+        def shade_vertex(
+            S: dict[str, Any],
+            h_valid: Any,
+            h_t: Any,
+            h_row: Any,
+            h_tri: Any,
+            h_part: Any,
+            h_b1: Any,
+            h_b2: Any,
+            d: Any,
+        ) -> tuple[Any, ...]:
             vertex = mi.Bool(True)
             hit = Hit(h_valid, h_t, h_row, h_tri, h_part, h_b1, h_b2)
             sp = surface(mi, self.scene, self.parts, hit, vertex)
@@ -393,7 +419,7 @@ class PathKernel:
             u_dir = S["sampler"].next_2d(nee)
             dl, pdf_l = lights.sample_direction(u_pick, u_dir, nee)
             shd = sh.detached()
-            f_l, pdf_b = bsdf_eval(mi, shd, ns, wi, dl)
+            f_l, pdf_b = bsdf_eval(shd, ns, dl)
             nee &= (pdf_l > 0.0) & (dr.max(f_l) > 0.0)
             w_l = mis_weight(pdf_l, pdf_b) / dr.maximum(pdf_l, 1e-30)
             S["C"] = dr.select(nee, S["β"] * f_l * lights.eval(dl, nee) * w_l, S["C"])
@@ -413,10 +439,10 @@ class PathKernel:
             if not primal:
                 # No shadow ray pending: this vertex's path derivative can be taken now.
                 with dr.resume_grad():
-                    f_o, _ = bsdf_eval(mi, sh, ns, wi, wo)
+                    f_o, _ = bsdf_eval(sh, ns, wo)
                     Lr_ind = S["L"] * dr.select(~nee & cont, dr.relative_grad(f_o), 0.0)
                     differentiate(S, Lr_ind)
-                for k, v in (("vp", sp.p), ("vuv", sp.uv), ("vmat", sp.material), ("vns", ns), ("vwi", wi),
+                for k, v in (("vp", sp.p), ("vuv", sp.uv), ("vmat", sp.material), ("vns", ns),
                              ("vwo", wo), ("vdl", dl), ("vβ", β_vertex), ("vw", w_l)):  # fmt: skip
                     S[k] = dr.select(nee, v, S[k])
             S["β"] = β
@@ -442,7 +468,17 @@ class PathKernel:
             return L, out["covered"], L, {"row": out["first"], "albedo": out["albedo"], "normal": out["normal"]}
         return (L if primal else out["δL"]), out["covered"], L
 
-    def _haze_step(self, S, haze, o, d, hit, ext, primal: bool, differentiate) -> None:
+    def _haze_step(
+        self,
+        S: dict[str, Any],
+        haze: HazeModel,
+        o: Any,
+        d: Any,
+        hit: Hit,
+        ext: Any,
+        primal: bool,
+        differentiate: Callable[[dict[str, Any], Any], None],
+    ) -> None:
         """The haze along this step of an extension segment (see :mod:`.haze`), in place on the state ``S``.
 
         The step runs to the surface hit (a cut-out texel passed or the vertex), or — for a camera
@@ -470,7 +506,7 @@ class PathKernel:
 _CLASSES: dict[str, type] = {}
 
 
-def integrator_class(mi) -> type:
+def integrator_class(mi: Any) -> type:
     """``forest_path`` as a Mitsuba integrator class for the active variant (registered on first use).
 
     It derives from Mitsuba's ``RBIntegrator`` (the base of ``prb``), so ``mi.render(scene, params,
@@ -485,25 +521,38 @@ def integrator_class(mi) -> type:
     from mitsuba.python.ad.integrators.common import RBIntegrator as base
 
     class ForestPathIntegrator(base):
-        def __init__(self, props):
-            super().__init__(props)
+        def __init__(self, props: Any) -> None:
+            super().__init__(props)  # type: ignore[no-untyped-call]  # Mitsuba's RBIntegrator.__init__ is unannotated
             self.kernel: PathKernel | None = None
 
-        def bind(self, kernel: PathKernel):
+        def bind(self, kernel: PathKernel) -> ForestPathIntegrator:
             self.kernel = kernel
             self.max_depth = kernel.max_depth
             return self
 
-        def sample(self, mode, scene, sampler, ray, δL, state_in, active, **kwargs):
+        # RBIntegrator.sample's signature; the kernel holds the scene.  Mitsuba passes every argument by keyword,
+        # depth and δaovs too (taken by **kwargs).  The override is not one mypy accepts, and cannot be: Mitsuba's
+        # stubs already type RBIntegrator.sample as incompatible with SamplingIntegrator.sample.
+        def sample(  # type: ignore[override]
+            self,
+            mode: Any,
+            scene: Any,  # noqa: ARG002
+            sampler: Any,
+            ray: Any,
+            δL: Any,
+            state_in: Any,
+            active: Any,
+            **kwargs: Any,  # noqa: ARG002
+        ) -> tuple[Any, Any, list[Any], Any]:
             if self.kernel is None:
                 raise RuntimeError("forest_path: bind the integrator to a PathKernel first (PathScene.integrator())")
             L, valid, state = self.kernel.sample(mode, sampler, ray, δL, state_in, active)
             return L, valid, [], state
 
-        def aov_names(self):
+        def aov_names(self) -> list[str]:
             return []
 
-        def to_string(self):
+        def to_string(self) -> str:
             return "ForestPathIntegrator[]"
 
     mi.register_integrator("forest_path", lambda props: ForestPathIntegrator(props))

@@ -32,6 +32,7 @@ follow Mitsuba's image convention (v = 0 is the image's top row).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -129,8 +130,8 @@ class MaterialStore:
     """Collects materials while the geometry is built; :meth:`table` freezes them."""
 
     def __init__(self) -> None:
-        self._rows: list[tuple] = []
-        self._index: dict[tuple, int] = {}
+        self._rows: list[tuple[Any, ...]] = []
+        self._index: dict[tuple[Any, ...], int] = {}
         self._textures: list[str] = []
         self._arrays: dict[str, np.ndarray] = {}
 
@@ -191,6 +192,7 @@ class MaterialStore:
         return len(self._rows)
 
     def table(self) -> MaterialTable:
+        """The stored materials as a :class:`MaterialTable` with one texture atlas (empty: one grey surface)."""
         atlas = pack_atlas([self._arrays[p] if p in self._arrays else texture_rgba(p) for p in self._textures])
         rows = self._rows or [(KIND_SURFACE, (0.5, 0.5, 0.5), 0.0, -1, False, False, -1)]
         tex = np.array([r[3] for r in rows], np.int32)
@@ -208,7 +210,7 @@ class MaterialStore:
         )
 
 
-def world_map_texture(mi, data, *, differentiable: bool = False):
+def world_map_texture(mi: Any, data: Any, *, differentiable: bool = False) -> Any:
     """A bilinear, edge-clamped ``Texture2f`` over an (H, W, 3) map (numpy array or ``TensorXf``).
 
     Its (0, 0) corner is (xmin, zmin) and texel (i, j)'s centre lies at the
@@ -245,7 +247,8 @@ class MaterialArrays:
     tint_row: np.ndarray | None = None  # (M,) int32, numpy: the tint table row of each material, −1 none
 
     @classmethod
-    def build(cls, mi, table: MaterialTable) -> MaterialArrays:
+    def build(cls, mi: Any, table: MaterialTable) -> MaterialArrays:
+        """``table`` as drjit arrays of ``mi``'s variant; the atlas a linear-filtered, clamped ``Texture2f``."""
         import drjit as dr
 
         atlas = mi.Texture2f(
@@ -271,7 +274,7 @@ class MaterialArrays:
             tint_row=table.tint_row.copy(),
         )
 
-    def tinted_colours(self, mi, table):
+    def tinted_colours(self, mi: Any, table: Any) -> MaterialArrays:
         """The materials with their colours multiplied by a tint table: a copy whose ``colour`` is
         c_m ⊙ t[row_m] (rows −1 keep c_m).  ``table`` is a flat Float of R·3 values (R rows, RGB);
         gradients flow from it into every image rendered with the copy."""
@@ -290,7 +293,7 @@ class MaterialArrays:
         tint = dr.gather(mi.Float, ext, mi.UInt32(flat))
         return dataclasses.replace(self, colour=self.colour * tint)
 
-    def tile_uv(self, mi, tex, uv, active):
+    def tile_uv(self, mi: Any, tex: Any, uv: Any, active: Any) -> Any:
         """Atlas coordinates of ``uv`` on tile ``tex`` (repeat wrap)."""
         import drjit as dr
 
@@ -298,7 +301,7 @@ class MaterialArrays:
         f = uv - dr.floor(uv)
         return mi.Point2f(dr.fma(f.x, r.z, r.x), dr.fma(f.y, r.w, r.y))
 
-    def alpha(self, mi, material, uv, active):
+    def alpha(self, mi: Any, material: Any, uv: Any, active: Any) -> Any:
         """Opacity α ∈ [0, 1] of the hit (1 for materials without cut-outs)."""
         import drjit as dr
 
@@ -320,12 +323,23 @@ class Shading:
     p_reflect: Any  # Float: probability of sampling the reflection lobe
 
     def detached(self) -> Shading:
+        """The same shading with gradients cut (``dr.detach`` of each field)."""
         import drjit as dr
 
         return Shading(dr.detach(self.reflect), dr.detach(self.transmit), dr.detach(self.p_reflect))
 
 
-def shading(mi, mats: MaterialArrays, material, uv, p, grid, extent, terrain_map, active) -> Shading:
+def shading(
+    mi: Any,
+    mats: MaterialArrays,
+    material: Any,
+    uv: Any,
+    p: Any,
+    grid: Any,
+    extent: Sequence[float],
+    terrain_map: tuple[Any, Sequence[float]] | None,
+    active: Any,
+) -> Shading:
     """R, T and the lobe probability at a hit (see the module docstring).
 
     ``grid`` is a ``Texture2f`` over ``extent`` (xmin, zmin, xmax, zmax) or None;
@@ -363,8 +377,8 @@ def shading(mi, mats: MaterialArrays, material, uv, p, grid, extent, terrain_map
     return Shading(reflect=R, transmit=T, p_reflect=p_r)
 
 
-def bsdf_eval(mi, sh: Shading, n, wi, wo):
-    """(f·|cos θo|, pdf) of direction ``wo`` (world) with shading normal ``n`` facing ``wi``."""
+def bsdf_eval(sh: Shading, n: Any, wo: Any) -> tuple[Any, Any]:
+    """(f·|cos θo|, pdf) of direction ``wo`` (world) with shading normal ``n`` (already facing ωi)."""
     import drjit as dr
 
     cos_o = dr.dot(n, wo)
@@ -375,7 +389,7 @@ def bsdf_eval(mi, sh: Shading, n, wi, wo):
     return value, pdf
 
 
-def bsdf_sample(mi, sh: Shading, frame, u1, u2):
+def bsdf_sample(mi: Any, sh: Shading, frame: Any, u1: Any, u2: Any) -> tuple[Any, Any, Any]:
     """Sample ωo: (direction (world), weight f·|cos|/pdf, pdf).  ``frame``'s normal faces ωi."""
     import drjit as dr
 
