@@ -18,6 +18,10 @@ from .errors import ForestError
 
 MAX_IMAGE_BYTES = 512 * 1024 * 1024
 MAX_IMAGE_PIXELS = 16384 * 16384
+#: Largest decoded image (float32, every channel) a read may allocate: width × height × channels × 4 bytes,
+#: checked from the header before decoding.  A small file can hold a huge image (a 1 MB PNG of
+#: 16384×16000 RGBA decodes to 4 GiB); the job service reads uploads with a far smaller limit.
+MAX_DECODED_BYTES = MAX_IMAGE_PIXELS * 4 * 4
 LINEAR_FORMATS = (".exr", ".hdr", ".pfm")
 
 
@@ -45,6 +49,7 @@ def read_image(
     what: str = "image",
     max_bytes: int = MAX_IMAGE_BYTES,
     max_pixels: int = MAX_IMAGE_PIXELS,
+    max_decoded_bytes: int = MAX_DECODED_BYTES,
     unassociated: bool = False,
 ) -> np.ndarray:
     """Read an image as float32 ``(H, W, C)`` with the file's own encoding (no conversion).
@@ -57,7 +62,9 @@ def read_image(
     printed later.  A decoder that reports an error after returning pixels (a
     truncated JPEG, filled with grey) counts as a failure.  With
     ``unassociated``, RGBA colour comes back as stored (straight alpha) instead
-    of OpenImageIO's default of multiplying it by alpha on read.
+    of OpenImageIO's default of multiplying it by alpha on read.  ``max_pixels``
+    and ``max_decoded_bytes`` (:data:`MAX_DECODED_BYTES`) are checked from the
+    file's header, before anything is decoded.
     """
     from .runtime import captured_stderr
 
@@ -92,6 +99,14 @@ def read_image(
                 inp.close()
                 del inp
                 raise ForestError(f"{path}: {what} is {spec.width}x{spec.height}, over the {max_pixels} pixel limit")
+            decoded = spec.width * spec.height * spec.nchannels * 4
+            if decoded > max_decoded_bytes:
+                inp.close()
+                del inp
+                raise ForestError(
+                    f"{path}: {what} is {spec.width}x{spec.height} with {spec.nchannels} channels, "
+                    f"{decoded / 2**20:.0f} MiB decoded, over the {max_decoded_bytes / 2**20:.0f} MiB limit"
+                )
             data = inp.read_image(0, 0, 0, spec.nchannels, "float")
             error = inp.geterror()
             if data is None or not hasattr(data, "shape") or error:

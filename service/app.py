@@ -32,7 +32,7 @@ from fastapi.staticfiles import StaticFiles
 from .api import assets, events, files, jobs, system
 from .api.deps import Service, authorize
 from .api.schemas import Problem
-from .assets import DataDir, asset_kind
+from .assets import DataDir, asset_kind, remove_partial_uploads
 from .dispatcher import Dispatcher
 from .executors import Executor, LocalExecutor, RayExecutor
 from .jobs import Limits, RequestError, validation_line
@@ -123,6 +123,7 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
         lock = datadir.lock()
         if lock is None:
             raise RuntimeError(f"{datadir.root}: another forest service is using this data folder")
+        remove_partial_uploads(datadir)  # a killed service's half-stored uploads
         if cfg.seed_examples:
             seed_examples(datadir)
         store = Store(datadir.db, max_attempts=cfg.max_attempts, on_events=svc.notifier.publish)

@@ -173,18 +173,21 @@ def link_into(job_dir: Path, assets: dict[str, Path]) -> None:
 # -- uploads --------------------------------------------------------------------
 
 
-def check_image(path: Path, name: str | None = None) -> dict:
+def check_image(path: Path, name: str | None = None, max_decoded_bytes: int | None = None) -> dict:
     """Decode with :func:`forest.images.read_image` (the CLI's reader); raise :class:`AssetError` if it fails.
 
     The reader's one line — ``cannot read image: <decoder's words>``, ``image contains NaN
     or infinite values (n of N)`` — is the CLI's, with the file named by ``name`` (the
-    upload's name) rather than the temporary file it was streamed to.
+    upload's name) rather than the temporary file it was streamed to.  ``max_decoded_bytes``
+    bounds the decoded image (checked from the header, before decoding): a small file can hold
+    an image whose decode would exhaust the server's memory.
     """
     from forest.errors import ForestError
-    from forest.images import read_image
+    from forest.images import MAX_DECODED_BYTES, read_image
 
+    limit = MAX_DECODED_BYTES if max_decoded_bytes is None else max_decoded_bytes
     try:
-        data = read_image(path, what="image")
+        data = read_image(path, what="image", max_decoded_bytes=limit)
     except ForestError as e:
         text = str(e).replace(str(path), name or path.name)
         if name is not None and text.startswith(f"{name}: "):
@@ -227,7 +230,22 @@ def check_asset_name(name: str) -> PurePosixPath:
     return PurePosixPath(*parts)
 
 
-def store_upload(datadir: DataDir, name: str, chunks: Iterator[bytes], max_bytes: int) -> dict:
+def remove_partial_uploads(datadir: DataDir) -> list[Path]:
+    """Remove uploads a killed service left half-stored (``assets/**/.upload.*``); returns what was removed.
+
+    Called at start-up, before any request: an upload in progress then belongs to no live process.
+    """
+    removed = []
+    for p in sorted(datadir.assets.rglob(".upload.*")):
+        if p.is_file():
+            p.unlink()
+            removed.append(p)
+    return removed
+
+
+def store_upload(
+    datadir: DataDir, name: str, chunks: Iterator[bytes], max_bytes: int, max_decoded_bytes: int | None = None
+) -> dict:
     """Stream an upload to a temporary file, check it, and move it to ``assets/name`` atomically.
 
     ``name`` may name folders (``maps/height.png``): they are kept, so a config's relative
@@ -249,7 +267,7 @@ def store_upload(datadir: DataDir, name: str, chunks: Iterator[bytes], max_bytes
                 f.write(chunk)
         if size == 0:
             raise AssetError(f"{kind} is empty", 422)
-        info = check_image(tmp_path, name) if kind == "image" else check_mesh(tmp_path)
+        info = check_image(tmp_path, name, max_decoded_bytes) if kind == "image" else check_mesh(tmp_path)
         os.chmod(tmp_path, 0o644)
         dest = datadir.assets / rel
         if not is_inside(dest.parent.resolve(), datadir.assets):

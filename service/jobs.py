@@ -53,6 +53,7 @@ class Limits:
     max_trees: int = 2_000_000
     max_frames: int = 2000
     max_upload_bytes: int = 64 * 2**20
+    max_decoded_bytes: int = 512 * 2**20  # an uploaded image decoded (float32), checked from its header first
     max_config_bytes: int = MAX_CONFIG_BYTES  # the CLI's limit too
     max_iterations: int = 2000
 

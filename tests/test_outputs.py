@@ -84,3 +84,17 @@ def test_a_killed_runs_temporaries_are_removed_by_the_next_write(tmp_path):
     assert (tmp_path / "frame.exr").read_bytes() == b"whole"
     assert not stale.exists()
     assert live.exists() and other_host.exists() and other_name.exists()
+
+
+def test_serve_on_a_taken_port_is_one_line_and_creates_nothing(tmp_path):
+    """Before, the banner was printed, then uvicorn's error, exit 3, and a new data folder was left behind."""
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        r = run_forest("serve", "--port", str(port), "--data", "data", cwd=tmp_path, timeout=60)
+    line = _one_line(r)
+    assert f"--port {port}" in line and "cannot listen" in line
+    assert not (tmp_path / "data").exists()

@@ -489,6 +489,35 @@ def test_unknown_job_and_bad_request_shapes(server):
 # -- assets ------------------------------------------------------------------------------------
 
 
+def test_an_upload_is_refused_by_its_decoded_size_before_it_is_decoded(tmp_path):
+    """A small file can hold a huge image (a 1 MB PNG of 16384×16000 RGBA decodes to 4 GiB, which killed the
+    service): the decoded size, from the header, is limited (max_decoded_bytes), and nothing is stored."""
+    limits = Limits(max_decoded_bytes=1 << 20)  # 1 MiB: a 512×512 RGB image (3 MiB as float32) is over it
+    with ServerThread(
+        create_app(ServiceConfig(data_dir=tmp_path / "data", workers=0, dispatch=False, limits=limits))
+    ) as srv:
+        with httpx.Client(base_url=srv.url, timeout=30) as c:
+            big = png_bytes(512, 512)
+            assert len(big) < 20_000  # small on disk
+            r = c.put("/assets/big.png", content=big)
+            assert r.status_code == 422 and "512x512" in r.json()["detail"] and "MiB limit" in r.json()["detail"]
+            assert c.put("/assets/small.png", content=png_bytes(64, 64)).status_code == 201
+    assets = tmp_path / "data" / "assets"
+    assert not (assets / "big.png").exists() and not list(assets.rglob(".upload.*"))
+
+
+def test_half_stored_uploads_are_removed_at_start_up(tmp_path):
+    """An upload a killed service was storing (its temporary file) does not survive a restart."""
+    assets = tmp_path / "data" / "assets" / "maps"
+    assets.mkdir(parents=True)
+    (assets / ".upload.abc123.png").write_bytes(b"half a png")
+    (assets / "kept.png").write_bytes(png_bytes())
+    cfg = ServiceConfig(data_dir=tmp_path / "data", workers=0, dispatch=False, seed_examples=False)
+    with ServerThread(create_app(cfg)):
+        pass
+    assert sorted(p.name for p in assets.iterdir()) == ["kept.png"]
+
+
 def test_uploads_are_checked_and_size_limited(server):
     c = server.client
     ok = c.put("/assets/presence.png", content=png_bytes())

@@ -8,6 +8,28 @@ from pathlib import Path
 import typer
 
 
+def _check_port(host: str, port: int) -> None:
+    """Refuse a ``--host``/``--port`` this process cannot bind (taken, or not an address of this machine) with one
+    line, before anything is created; uvicorn would otherwise print its own error after the banner and exit 3."""
+    import socket
+
+    from ..errors import ForestError
+
+    if port == 0:
+        return
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except OSError as e:
+        raise ForestError(f"--host {host}: cannot resolve it: {e.strerror or e}") from None
+    family, kind, proto, _, address = infos[0]
+    with socket.socket(family, kind, proto) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn binds: a port in TIME_WAIT is free
+        try:
+            s.bind(address)
+        except OSError as e:
+            raise ForestError(f"--port {port}: cannot listen on {host}:{port}: {e.strerror or e}") from None
+
+
 def register(app: typer.Typer) -> None:
     """Add ``forest serve`` (the HTTP job service) to ``app``."""
 
@@ -84,6 +106,7 @@ def register(app: typer.Typer) -> None:
             )
         if token is not None and len(token) < 8:
             raise ForestError("--token: use at least 8 characters")
+        _check_port(host, port)  # a taken port: one line, before the data folder is made
         if data.exists() and not data.is_dir():
             raise ForestError(f"--data {data}: not a folder")
         try:

@@ -38,7 +38,8 @@ async def upload(name: str, request: Request, svc: Service = Depends(service)) -
             raise HTTPException(413, f"upload is larger than the {limit} byte limit")
         chunks.append(chunk)
     try:
-        return await asyncio.to_thread(store_upload, svc.datadir, name, iter(chunks), limit)
+        decoded = svc.config.limits.max_decoded_bytes
+        return await asyncio.to_thread(store_upload, svc.datadir, name, iter(chunks), limit, decoded)
     except AssetError as e:
         raise HTTPException(e.status, f"{name}: {e}") from None
 
