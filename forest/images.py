@@ -72,7 +72,7 @@ def read_image(
     if path.is_dir():
         raise ForestError(f"{path}: {what} is a folder, not an image file")
     if not path.is_file():
-        raise ForestError(f"{path}: {what} not found")
+        raise ForestError(f"{path}: {what} {'is not a regular file' if path.exists() else 'not found'}")
     size = path.stat().st_size
     if size == 0:
         raise ForestError(f"{path}: {what} is empty")

@@ -180,8 +180,12 @@ class InstanceSet:
         if path.is_dir():
             raise ForestError(f"{path}: is a folder, not an instance file")
         if not path.is_file():
-            raise ForestError(f"{path}: instance file not found")
+            kind = "not a regular file" if path.exists() else "instance file not found"
+            raise ForestError(f"{path}: {kind}")
         try:
+            with open(path, "rb") as f:
+                if f.read(4) != b"PK\x03\x04":  # an .npz is a zip archive; np.load would try other formats
+                    raise ForestError(f"{path}: not a forest instance file (a .npz written by `forest scatter`)")
             with np.load(path, allow_pickle=False) as z:
                 meta = json.loads(bytes(z["meta"]).decode())
                 cols = {k: z[k] for k in COLUMNS if k not in OPTIONAL_COLUMNS or k in z.files}

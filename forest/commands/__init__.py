@@ -15,6 +15,7 @@ FLAGS = {
     "output": "-o",
     "library": "--library",
     "display": "--display",
+    "render": "--render",
     "export target": "forest export",
     "frames": "--frames",
     "variant": "--variant",

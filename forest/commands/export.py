@@ -169,6 +169,8 @@ def register(app: typer.Typer) -> None:
 
         if output.suffix.lower() != ".blend":
             raise ParameterError("output", f"{output}: a Blender file name must end in .blend")
+        if render is not None and render.suffix.lower() != ".png":  # Cycles' frame is written as a PNG
+            raise ParameterError("render", f"{render}: the Cycles render is a PNG; the name must end in .png")
         scene = _scene(config, instances, library, quiet, files=(output, render))
         with progress_bar("export blender", quiet=quiet) as bar:
             res = export_blender(scene, output, blender=blender, frames=frames, render=render, progress=bar)

@@ -173,6 +173,7 @@ def read_toml(text: str, path: Path | None = None) -> dict[str, Any]:
     """Parse scene-file TOML with the size and nesting limits; one :class:`ConfigError` line otherwise."""
     if len(text.encode("utf-8", "replace")) > MAX_CONFIG_BYTES:
         raise ConfigError(path, None, f"the config is over {MAX_CONFIG_BYTES // 1024} KiB")
+    text = text.removeprefix("\ufeff")  # a UTF-8 byte-order mark is no TOML statement
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
@@ -188,11 +189,13 @@ def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> Co
     """Read, parse and validate a TOML scene config.  Raises :class:`ForestError` on any problem."""
     path = Path(path)
     if not path.is_file():
-        raise ForestError(f"{path}: config file not found")
+        if path.is_dir():
+            raise ForestError(f"{path}: is a folder, not a config file")
+        raise ForestError(f"{path}: {'is not a regular file' if path.exists() else 'config file not found'}")
     try:
         if path.stat().st_size > MAX_CONFIG_BYTES:
             raise ConfigError(path, None, f"the config is over {MAX_CONFIG_BYTES // 1024} KiB")
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a UTF-8 byte-order mark (some Windows editors) is dropped
     except (OSError, UnicodeDecodeError) as e:
         raise ForestError(f"{path}: cannot read config: {e}") from None
     return parse_config(text, path=path.resolve(), overrides=overrides)

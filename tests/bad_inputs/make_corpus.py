@@ -473,6 +473,27 @@ def cases(tmp: Path) -> list[Case]:
             {"scene.toml": scene(terrain='mesh = "ground.obj"'), "ground.obj": flat_quad},
         ),
         L(
+            "instances_are_a_csv",
+            "input",
+            [*RENDER, "--instances", "trees.csv"],
+            ["trees.csv", "not a forest instance file", "forest scatter"],
+            {"scene.toml": scene(), "trees.csv": "x,y,z\n1,2,3\n"},
+        ),
+        L(
+            "config_is_a_folder",
+            "input",
+            ["render", "scenes", "-o", "out/frame.exr"],
+            ["scenes", "is a folder, not a config file"],
+            {"scenes/scene.toml": scene()},
+        ),
+        L(
+            "blender_render_not_png",
+            "option",
+            ["export", "blender", "scene.toml", "-o", "out/scene.blend", "--render", "out/r.jpg"],
+            ["--render", "r.jpg", ".png"],
+            {"scene.toml": scene()},
+        ),
+        L(
             "instances_nan_position",
             "input",
             [*RENDER, "--instances", "trees.npz"],
