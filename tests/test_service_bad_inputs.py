@@ -114,7 +114,7 @@ def skip_reason(case: make_corpus.Case) -> str | None:
         return "the CLI's environment or output disk"
     if "--instances" in case.argv:
         return "a job cannot name a saved InstanceSet"
-    if case.name in ("config_missing", "config_not_utf8"):
+    if case.name in ("config_missing", "config_not_utf8", "config_is_a_folder"):
         return "the config is JSON text"
     if "--mask" in case.argv:
         return "a match job has no mask setting"
