@@ -133,12 +133,18 @@ def test_submit_the_demo_with_its_maps_folder_watch_it_refine_and_download_an_ex
         # the frame grid: one cell per frame, coloured by state, thumbnails loaded
         grid = "return [...document.querySelectorAll('#frame-grid .cell')].map(c => [c.dataset.frame, c.dataset.state])"
         wait(lambda: js(d, grid) == [["1", "done"], ["2", "done"], ["3", "done"]])
-        cells = js(
-            d,
+        cells_js = (
             "return [...document.querySelectorAll('#frame-grid .cell')].map(c => [c.querySelector('img').naturalWidth,"
-            " getComputedStyle(c).borderTopColor])",
+            " getComputedStyle(c).borderTopColor])"
         )
-        assert all(w > 0 for w, _ in cells) and len({colour for _, colour in cells}) == 1
+
+        def cells_ready() -> bool:
+            # thumbnails load and the border colour transitions after the state changes: wait for both (on a
+            # loaded machine they lag the grid's state by a moment)
+            cells = js(d, cells_js)
+            return all(w > 0 for w, _ in cells) and len({colour for _, colour in cells}) == 1
+
+        wait(cells_ready, timeout=30)
         d.find_element(By.CSS_SELECTOR, "#frame-grid .cell[data-frame='2']").click()
         wait(lambda: d.find_element(By.ID, "frame-title").text == "Frame 2")
         d.save_screenshot(str(tmp_path / "job-page.png"))
