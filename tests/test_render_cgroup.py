@@ -23,6 +23,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from test_render_cli import SCENE as CLI_SCENE
 
 from forest.memory import own_cgroups
 
@@ -30,34 +31,9 @@ ROOT = Path(__file__).resolve().parents[1]
 GiB = 1 << 30
 LIMIT = GiB
 
-SCENE = """
-seed = 11
-[terrain]
-procedural = { size = 80.0, height = 6.0, resolution = 33 }
-[scatter]
-count = 60
-[[species]]
-model = "shrub"
-percent = 60
-scale = [2.0, 3.0]
-[[species]]
-model = "fern"
-percent = 40
-scale = [3.0, 4.0]
-[camera]
-position = [0.0, 30.0, -60.0]
-target = [0.0, 0.0, 0.0]
-fov = 45.0
-[lights]
-sun = { elevation = 40.0, azimuth = 150.0, irradiance = 3.0 }
-sky = { radiance = 0.4 }
-[render]
-width = 160
-height = 90
-spp = 4
-[lod]
-distances = [40.0, 70.0, 100.0]
-"""
+#: The render CLI tests' scene (terrain, two species, sun and sky, LOD bands) at 160×90, 4 spp.
+SCENE = CLI_SCENE.format(render="").replace("width = 32\nheight = 24\nspp = 2\n", "width = 160\nheight = 90\nspp = 4\n")
+assert "width = 160" in SCENE
 
 
 class Group:

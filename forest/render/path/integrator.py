@@ -532,7 +532,7 @@ def integrator_class(mi: Any) -> type:
 
         # RBIntegrator.sample's signature; the kernel holds the scene.  Mitsuba passes every argument by keyword,
         # depth and δaovs too (taken by **kwargs).  The override is not one mypy accepts, and cannot be: Mitsuba's
-        # stubs already type RBIntegrator.sample as incompatible with SamplingIntegrator.sample.
+        # own type annotations already make RBIntegrator.sample incompatible with SamplingIntegrator.sample.
         def sample(  # type: ignore[override]
             self,
             mode: Any,
