@@ -137,6 +137,7 @@ class PassResult:
     rows: np.ndarray | None = None  # (H·W, spp) uint32
     albedo: np.ndarray | None = None  # (H·W, 3) summed
     normal: np.ndarray | None = None  # (H·W, 3) summed
+    segments: np.ndarray | None = None  # (H·W, spp) uint32: ray segments each path traced (beauty passes only)
 
 
 def _columns(v: Any, n: int) -> np.ndarray:
@@ -368,6 +369,7 @@ class PathScene:
                     result.rows = np.asarray(extra["row"], np.uint32).reshape(h * w, used)
                     result.albedo = _columns(extra["albedo"], 3).reshape(h * w, used, 3).sum(axis=1)
                     result.normal = _columns(extra["normal"], 3).reshape(h * w, used, 3).sum(axis=1)
+                    result.segments = np.asarray(extra["segments"], np.uint32).reshape(h * w, used)
                 del sampler, ray, out, L, covered, extra
                 yield result
 

@@ -28,7 +28,10 @@ rebuilt from forest's buffers:
   ``pi.shape``).  Tables indexed by registry id give the row (instances), or
   the part and, for flattened meshes, the group whose tree is
   ``rows[⌊prim / triangles(part)⌋]``.  Part p of an instanced tree is
-  ``first_part(row) + pi.shape_index``.  Then triangle t = face_offset(p) +
+  ``first_part(row) + k``, k the part's index inside its shapegroup: Embree
+  (``llvm_ad_rgb``) reports k as ``pi.shape_index`` and a null ``pi.shape``;
+  OptiX (``cuda_ad_rgb``) reports the part mesh's registry id as ``pi.shape``
+  (mapped to k by a table) and 0 as ``pi.shape_index``.  Then triangle t = face_offset(p) +
   local prim, and with barycentrics (b₁, b₂) = ``pi.prim_uv``:
 
       x = M (b₀ v₀ + b₁ v₁ + b₂ v₂),  n_g ∝ (x₁ − x₀) × (x₂ − x₀),
@@ -237,6 +240,14 @@ def _mi_mesh(mi: Any, name: str, vertices: np.ndarray, faces: np.ndarray) -> Any
     return m
 
 
+def registry_id(mi: Any, shape: Any) -> int:
+    """The registry id of a Mitsuba shape in a JIT variant (what ``pi.shape`` / ``pi.instance`` report for it)."""
+    import drjit as dr
+
+    ids: Any = dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))
+    return int(ids[0])
+
+
 def normal_matrices(m: np.ndarray) -> np.ndarray:
     """(N, 3, 3) inverse transposes of the upper 3×3 blocks (singular blocks give zeros)."""
     a = np.asarray(m, dtype=np.float64)[:, :3, :3]
@@ -284,6 +295,8 @@ class TraversalScene:
         flat_meta: dict[str, tuple[int, int]] = {}  # mesh id -> (part, offset into flat_rows)
         flat_offset = 0
         top_parts: dict[str, int] = {}
+        member_local: dict[int, int] = {}  # registry id of a shapegroup's mesh -> its index in the group
+        part_mesh_reg: dict[int, int] = {}  # part -> registry id of its mesh in a shapegroup (what OptiX reports)
         T, M4 = mi.ScalarTransform4f, mi.ScalarMatrix4f
         for pi_, proto in enumerate(protos):
             rows = np.nonzero(proto_of_tree == pi_)[0]
@@ -310,7 +323,10 @@ class TraversalScene:
             sg = f"sg_{pi_}"
             group: dict[str, Any] = {"type": "shapegroup"}
             for k, p in enumerate(proto.parts):
-                group[f"part_{k:02d}"] = _mi_mesh(mi, f"{sg}_{k:02d}", parts.vertices[p], parts.local_faces[p])
+                mesh = _mi_mesh(mi, f"{sg}_{k:02d}", parts.vertices[p], parts.local_faces[p])
+                group[f"part_{k:02d}"] = mesh
+                member_local[registry_id(mi, mesh)] = k
+                part_mesh_reg[p] = registry_id(mi, mesh)
             entries[sg] = group
             stats.shapegroups += 1
             ref = {"type": "ref", "id": sg}
@@ -332,10 +348,13 @@ class TraversalScene:
         # Registry-id tables.
         shapes = self.scene.shapes()
         reg = np.asarray(dr.reinterpret_array(mi.UInt32, self.scene.shapes_dr()), dtype=np.int64)
-        size = int(reg.max()) + 1 if len(reg) else 1
+        size = max([int(reg.max()) if len(reg) else 0, *member_local]) + 1
         reg_row = np.full(size, n, np.uint32)
         reg_part = np.zeros(size, np.uint32)
         reg_flat = np.full(size, -1, np.int32)
+        reg_local = np.zeros(size, np.uint32)
+        for r, k in member_local.items():
+            reg_local[r] = k
         for s, r in zip(shapes, reg.tolist()):
             sid = s.id()
             if sid.startswith("tree_"):
@@ -355,6 +374,8 @@ class TraversalScene:
         self.reg_row = mi.UInt32(reg_row)
         self.reg_part = mi.UInt32(reg_part)
         self.reg_flat = mi.Int32(reg_flat)
+        self.reg_local = mi.UInt32(reg_local)
+        self.part_mesh_reg = part_mesh_reg
         self.flat_rows = mi.UInt32(rows_all)
         self.first_part = mi.UInt32(first_part)
         self.row_matrix = mi.Float(mat3.ravel())
@@ -397,14 +418,19 @@ def resolve(mi: Any, scene: TraversalScene, parts: PartArrays, pi: Any, active: 
 
     valid = active & pi.is_valid()
     inst = dr.reinterpret_array(mi.UInt32, pi.instance)
-    shape = dr.reinterpret_array(mi.UInt32, pi.shape)
+    shape: Any = dr.reinterpret_array(mi.UInt32, pi.shape)
     is_inst = valid & (inst != 0)
     top = valid & ~is_inst
     reg: Any = dr.select(is_inst, inst, shape)
     row = dr.gather(mi.UInt32, scene.reg_row, reg, valid)
     part_top = dr.gather(mi.UInt32, scene.reg_part, reg, top)
     flat = dr.gather(mi.Int32, scene.reg_flat, reg, top)
-    part_inst = dr.gather(mi.UInt32, scene.first_part, row, is_inst) + pi.shape_index
+    # The part's index inside its shapegroup: Embree (llvm) reports it as ``pi.shape_index`` and leaves ``pi.shape``
+    # null on instanced hits; OptiX (cuda) reports the part mesh's registry id as ``pi.shape`` and 0 as
+    # ``pi.shape_index``.  Either way this is the index.
+    member = is_inst & (shape != 0)
+    local = dr.select(member, dr.gather(mi.UInt32, scene.reg_local, shape, member), pi.shape_index)
+    part_inst = dr.gather(mi.UInt32, scene.first_part, row, is_inst) + local
     part = dr.select(is_inst, part_inst, part_top)
     is_flat = top & (flat >= 0)
     # Masked-off lanes gather 0: keep the divisor ≥ 1 (an integer division by 0 traps on CPUs).

@@ -73,6 +73,22 @@ NO_HIT = 0xFFFFFFFF
 
 #: Cut-out surfaces a camera, bounce or shadow ray may pass before it is taken as blocked.
 MAX_SKIPS = 24
+
+
+def segment_cap(max_depth: int) -> int:
+    """The most ray segments one path of :meth:`PathKernel.sample` can trace, by construction.
+
+    A path has ``max_depth`` extension chains (camera or bounce ray), each at most
+    :data:`MAX_SKIPS` passed texels and one stop, and ``max_depth − 1`` shadow chains, each at
+    most :data:`MAX_SKIPS` segments (the last sets its visibility to 0):
+    ``max_depth·(MAX_SKIPS + 1) + (max_depth − 1)·MAX_SKIPS``.  The segment loop stops a lane one
+    segment past this, a guard that no path can reach unless the bound above is broken (a lane
+    that reached it would lose its pending light, and its counter shows it).
+    """
+    d = max(1, int(max_depth))
+    return d * (MAX_SKIPS + 1) + (d - 1) * MAX_SKIPS
+
+
 #: Mitsuba's ray offset: (1 + max |x_i|) · 1500 · 2⁻²⁴ metres along the geometric normal.
 RAY_EPSILON = 1500.0 * 2.0**-24
 #: Alpha at or above which the pixel-centre layers pass takes a hit as opaque.
@@ -234,7 +250,9 @@ class PathKernel:
         identity row for world-space parts — :data:`NO_HIT` where the camera ray left the
         scene), ``albedo`` (R + T there; the sky's radiance clamped to 1 where nothing
         was hit) and ``normal`` (the shading normal facing the camera) — the guides
-        of a denoiser and the per-sample ids of coverage mattes.
+        of a denoiser and the per-sample ids of coverage mattes — and ``segments``, the
+        ray segments the path traced (at most :func:`segment_cap`; a per-lane counter
+        for checking the loop's bound on any variant).
 
         The estimator (module docstring) runs as one loop of ray *segments*.
 
@@ -288,6 +306,7 @@ class PathKernel:
             sskips=mi.UInt32(0),
             C=mi.Color3f(0.0),
             cont=mi.Bool(False),
+            segments=mi.UInt32(0),
         )
         if aux:
             state.update(first=mi.UInt32(NO_HIT), albedo=mi.Color3f(0.0), normal=mi.Vector3f(0.0))
@@ -297,9 +316,11 @@ class PathKernel:
                 vwo=mi.Vector3f(zeros3), vdl=mi.Vector3f(zeros3), vβ=mi.Color3f(0.0), vw=mi.Float(0.0),
             )  # fmt: skip
         keys = list(state)
+        i_active, i_segments = keys.index("active"), keys.index("segments")
+        guard = segment_cap(self.max_depth) + 1  # a hard stop no path reaches (see segment_cap)
 
         def cond(*values: Any) -> Any:
-            return values[keys.index("active")]
+            return values[i_active] & (values[i_segments] < guard)
 
         # A term may not depend on the parameters being differentiated (the sky's emission when only the
         # colour grid has gradients): allowed here, since the terms are propagated one by one.
@@ -314,6 +335,7 @@ class PathKernel:
         def body(*values: Any) -> tuple[Any, ...]:
             S = dict(zip(keys, values))
             active = S["active"]
+            S["segments"] = S["segments"] + 1
             shadow = active & S["shadowing"]
             o = dr.select(shadow, S["so"], S["eo"])
             d = dr.select(shadow, S["sd"], S["ed"])
@@ -465,7 +487,8 @@ class PathKernel:
         out = dict(zip(keys, dr.while_loop(tuple(state.values()), cond, body, label="forest_path: segments")))
         L = out["L"]
         if aux:
-            return L, out["covered"], L, {"row": out["first"], "albedo": out["albedo"], "normal": out["normal"]}
+            first = {"row": out["first"], "albedo": out["albedo"], "normal": out["normal"], "segments": out["segments"]}
+            return L, out["covered"], L, first
         return (L if primal else out["δL"]), out["covered"], L
 
     def _haze_step(

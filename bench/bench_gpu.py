@@ -1,0 +1,275 @@
+"""forest_path on the GPU (``cuda_ad_rgb``) beside the CPU (``llvm_ad_rgb``) on the same machine.
+
+    python bench/bench_gpu.py [--cases probe demo original million lookdev] [--variants cuda_ad_rgb llvm_ad_rgb]
+                              [--timeout 120] [--out DIR]
+
+Every case runs in a child process under its own time limit (a case that runs past it prints
+``TIMEOUT`` and the next one starts), so one device run measures them all:
+
+* ``probe`` — the demo at 320×180, 4 spp through :class:`forest.render.path.PathScene`: load and
+  per-pass seconds, the per-lane segment counters against their bound
+  (:func:`forest.render.path.integrator.segment_cap`), where the time goes (drjit's kernel
+  history: each launch's size, op count, compile and execution time), and the image, compared
+  across variants (relative mean difference of the two renders: same seeds, so only the
+  floating-point differences of the two back-ends remain);
+* ``demo`` — ``forest render configs/demo.toml`` at its own 800×450, 12 spp (target on an H100/H200:
+  ≤ 2 s of render);
+* ``original`` — the 2005 case study 3: 130 000 trees, 1920×1080, 64 spp, max_depth 3
+  (target ≤ 10 s of render);
+* ``million`` — 1 000 000 trees at 1280×720, 16 spp: time and peak memory (GPU memory from
+  drjit's allocator where the variant is cuda);
+* ``lookdev`` — an aligned look-dev round trip: the demo rendered as a reference at 192×108, then
+  ``forest match`` fitting it from the demo's config (target ≤ 10 s).
+
+Render seconds come from ``forest render``'s summary line (scene load and render apart; the first
+run of a kernel includes its compilation, which drjit caches on disk for the runs after).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+CASES = ("probe", "demo", "original", "million", "lookdev")
+VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb")
+SUMMARY = re.compile(r"load ([\d.]+) s, render ([\d.]+) s, peak ([\d.]+) GB")
+
+
+def forest_cmd() -> list[str]:
+    """The ``forest`` command beside this interpreter (an installed forest), else forest's CLI through it."""
+    exe = Path(sys.executable).parent / "forest"
+    return [str(exe)] if exe.exists() else [sys.executable, "-c", "from forest.cli import main; main()"]
+
+
+def run(cmd: list[str], timeout: float, env: dict[str, str] | None = None) -> tuple[str, float, str]:
+    """(status, wall seconds, output) of a child process: status is ``ok``, ``failed (rc)`` or ``TIMEOUT``."""
+    t0 = time.perf_counter()
+    try:
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+    except subprocess.TimeoutExpired as e:
+        out = (e.stdout or b"").decode() if isinstance(e.stdout, bytes) else (e.stdout or "")
+        return "TIMEOUT", time.perf_counter() - t0, out
+    status = "ok" if r.returncode == 0 else f"failed ({r.returncode})"
+    return status, time.perf_counter() - t0, r.stdout + r.stderr
+
+
+def render_line(out: str) -> str:
+    return next((line for line in out.splitlines() if line.startswith("rendered")), "")
+
+
+def render_case(name: str, config: Path, variant: str, out: Path, timeout: float, extra: list[str] = ()) -> dict:
+    """``forest render CONFIG --variant V`` end to end; load and render seconds from its summary."""
+    exr = out / f"{name}_{variant}.exr"
+    status, wall, text = run([*forest_cmd(), "render", str(config), "-o", str(exr), "--variant", variant, *extra],
+                             timeout)  # fmt: skip
+    m = SUMMARY.search(render_line(text))
+    r = {"case": name, "variant": variant, "status": status, "wall_s": wall}
+    if m:
+        r.update(load_s=float(m.group(1)), render_s=float(m.group(2)), peak_gb=float(m.group(3)))
+    if status != "ok":
+        r["tail"] = text[-1500:]
+    return r
+
+
+def scene_file(folder: Path, **kw) -> Path:
+    sys.path.insert(0, str(ROOT / "bench"))
+    from bench_render import write_scene
+
+    folder.mkdir(parents=True, exist_ok=True)
+    return write_scene(folder, **kw)
+
+
+# -- the probe (child process) ------------------------------------------------------------------------------------
+
+
+def worker_probe(variant: str, out: Path, width: int, height: int, spp: int, max_depth: int | None = None) -> dict:
+    import drjit as dr
+
+    from forest.config import load_config
+    from forest.render.path import PathScene
+    from forest.render.path.from_scene import path_inputs
+    from forest.render.path.integrator import segment_cap
+    from forest.scene import load_scene
+
+    t0 = time.perf_counter()
+    scene = load_scene(load_config(ROOT / "configs" / "demo.toml"))
+    inputs = path_inputs(scene, width=width, height=height, spp=spp)
+    path = PathScene(inputs, variant)
+    t_load = time.perf_counter() - t0
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    passes, segs, rgb = [], [], []
+    t1 = time.perf_counter()
+    for p in path.passes(spp=spp, aux=True, max_depth=max_depth):
+        passes.append(round(time.perf_counter() - t1, 3))
+        segs.append(p.segments.ravel())
+        rgb.append(p.rgb / p.spp)
+    history = dr.kernel_history()
+    s = np.concatenate(segs)
+    cap = segment_cap(max_depth or inputs.max_depth)
+    image = np.mean(rgb, axis=0).reshape(height, width, 3).astype(np.float32)
+    np.save(out / f"probe_{variant}.npy", image)
+    kernels = sorted(
+        (
+            {
+                "size": int(k.get("size", 0)),
+                "ops": int(k.get("operation_count", 0)),
+                "exec_ms": float(k.get("execution_time", 0.0)),
+                "compile_ms": float(k.get("codegen_time", 0.0)) + float(k.get("backend_time", 0.0)),
+                "cache_hit": bool(k.get("cache_hit", False)),
+            }
+            for k in history
+            if k.get("type") == dr.KernelType.JIT
+        ),
+        key=lambda k: -k["exec_ms"],
+    )
+    return {
+        "case": "probe",
+        "variant": variant,
+        "status": "ok",
+        "max_depth": max_depth or inputs.max_depth,
+        "load_s": t_load,
+        "pass_s": passes,
+        "segments": {
+            "cap": cap,
+            "max": int(s.max()),
+            "mean": float(s.mean()),
+            "p999": float(np.quantile(s, 0.999)),
+            "at_guard": int((s > cap).sum()),
+        },
+        "kernels": kernels[:6],
+        "kernel_exec_s": sum(k["exec_ms"] for k in kernels) / 1000.0,
+        "kernel_compile_s": sum(k["compile_ms"] for k in kernels) / 1000.0,
+        "image_mean": image.reshape(-1, 3).mean(axis=0).round(5).tolist(),
+    }
+
+
+# -- cases ----------------------------------------------------------------------------------------------------------
+
+
+def case_probe(
+    variants: list[str], out: Path, timeout: float, size: str = "320x180", spp: int = 4, max_depth: int | None = None
+) -> list[dict]:
+    rows = []
+    for v in variants:
+        cmd = [sys.executable, __file__, "--worker", "probe", "--variant", v, "--out", str(out), "--size", size,
+               "--spp", str(spp)] + ([] if max_depth is None else ["--max-depth", str(max_depth)])  # fmt: skip
+        status, wall, text = run(cmd, timeout)
+        lines = [line for line in text.splitlines() if line.startswith('{"case"')]
+        r = json.loads(lines[-1]) if lines else {"case": "probe", "variant": v, "status": status, "tail": text[-2500:]}
+        r["wall_s"] = wall
+        rows.append(r)
+    images = {v: out / f"probe_{v}.npy" for v in variants if (out / f"probe_{v}.npy").exists()}
+    if len(images) == 2:
+        a, b = (np.load(p) for p in images.values())
+        rows.append(
+            {
+                "case": "probe",
+                "variant": "compare",
+                "status": "ok",
+                "relative_mean_difference": float(np.abs(a - b).mean() / max(np.abs(b).mean(), 1e-12)),
+                "means": [a.reshape(-1, 3).mean(0).round(5).tolist(), b.reshape(-1, 3).mean(0).round(5).tolist()],
+            }
+        )
+    return rows
+
+
+def case_demo(variants: list[str], out: Path, timeout: float) -> list[dict]:
+    return [render_case("demo", ROOT / "configs" / "demo.toml", v, out, timeout) for v in variants]
+
+
+def case_original(variants: list[str], out: Path, timeout: float) -> list[dict]:
+    cfg = scene_file(out / "original", count=130_000, width=1920, height=1080, spp=64, depth=3,
+                     lod="distances = [150.0, 600.0, 1800.0]")  # fmt: skip
+    return [render_case("original", cfg, v, out, timeout) for v in variants]
+
+
+def case_million(variants: list[str], out: Path, timeout: float) -> list[dict]:
+    cfg = scene_file(out / "million", count=1_000_000, width=1280, height=720, spp=16,
+                     lod="distances = [150.0, 600.0, 1800.0]")  # fmt: skip
+    return [render_case("million", cfg, v, out, timeout) for v in variants]
+
+
+def case_lookdev(variants: list[str], out: Path, timeout: float) -> list[dict]:
+    demo = ROOT / "configs" / "demo.toml"
+    rows = []
+    for v in variants:
+        ref = out / f"lookdev_ref_{v}.exr"
+        status, _, text = run([*forest_cmd(), "render", str(demo), "-o", str(ref), "--width", "192", "--height", "108",
+                               "--spp", "16", "--variant", v, "-q"], timeout)  # fmt: skip
+        if status != "ok":
+            rows.append({"case": "lookdev", "variant": v, "status": f"reference {status}", "tail": text[-1500:]})
+            continue
+        cmd = [*forest_cmd(), "match", str(demo), "-r", str(ref.with_suffix(".png")), "-o", str(out / f"match_{v}"),
+               "--mode", "aligned", "--variant", v]  # fmt: skip
+        status, wall, text = run(cmd, timeout)
+        fitted = next((line for line in text.splitlines() if line.startswith("fitted")), "")
+        r = {"case": "lookdev", "variant": v, "status": status, "wall_s": wall, "summary": fitted}
+        m = re.search(r"in ([\d.]+) s", fitted)
+        if m:
+            r["fit_s"] = float(m.group(1))
+        if status != "ok":
+            r["tail"] = text[-1500:]
+        rows.append(r)
+    return rows
+
+
+def report(rows: list[dict]) -> None:
+    by_case: dict[str, dict[str, dict]] = {}
+    for r in rows:
+        by_case.setdefault(r["case"], {})[r["variant"]] = r
+    print("\n| case | variant | status | load s | render s | wall s | peak GB |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        if r["variant"] == "compare":
+            continue
+        render = r.get("render_s", r.get("fit_s", sum(r.get("pass_s", [])) if "pass_s" in r else None))
+        cells = [r["case"], r["variant"], r["status"], r.get("load_s"), render, r.get("wall_s"), r.get("peak_gb")]
+        print("| " + " | ".join(f"{c:.2f}" if isinstance(c, float) else str(c) for c in cells) + " |")
+    for case, rs in by_case.items():
+        g, c = rs.get("cuda_ad_rgb", {}), rs.get("llvm_ad_rgb", {})
+        key = "render_s" if "render_s" in g else "fit_s"
+        if key in g and key in c:
+            print(f"{case}: llvm_ad_rgb / cuda_ad_rgb render time = {c[key] / max(g[key], 1e-9):.1f}x")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cases", nargs="*", default=list(CASES), choices=CASES)
+    ap.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=VARIANTS)
+    ap.add_argument("--timeout", type=float, default=120.0, help="seconds each child process may run")
+    ap.add_argument("--out", default=None)
+    ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--variant", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--size", default="320x180", help="probe image size")
+    ap.add_argument("--spp", type=int, default=4, help="probe samples per pixel")
+    ap.add_argument("--max-depth", type=int, default=None, help="probe max_depth (default: the demo's)")
+    a = ap.parse_args()
+    out = Path(a.out or tempfile.mkdtemp(prefix="bench_gpu_"))
+    out.mkdir(parents=True, exist_ok=True)
+    if a.worker == "probe":
+        w, h = (int(x) for x in a.size.split("x"))
+        print(json.dumps(worker_probe(a.variant, out, w, h, a.spp, a.max_depth)))
+        return
+    os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    rows: list[dict] = []
+    for case in a.cases:
+        kw = {"size": a.size, "spp": a.spp, "max_depth": a.max_depth} if case == "probe" else {}
+        got = globals()[f"case_{case}"](a.variants, out, a.timeout, **kw)
+        for r in got:
+            print(json.dumps(r), flush=True)
+        rows += got
+    report(rows)
+
+
+if __name__ == "__main__":
+    main()
