@@ -549,15 +549,13 @@ def test_same_inputs_and_seed_give_identical_images(ad_scene, library):
     assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.rgb, fresh.rgb) and np.array_equal(a.alpha, fresh.alpha)
     assert not np.array_equal(a.rgb, ad_scene.render(spp=4, seed=12).rgb)
     # Passes: a wavefront cap that splits the samples gives another, equally valid, deterministic image.
-    import forest.render.path.frame as frame
-
-    cap = frame.MAX_LANES
+    cap = ad_scene.max_lanes
     try:
-        frame.MAX_LANES = 24 * 18 * 2  # two samples per pixel per pass
+        ad_scene.max_lanes = 24 * 18 * 2  # two samples per pixel per pass
         c = ad_scene.render(spp=4, seed=11)
         d = ad_scene.render(spp=4, seed=11)
     finally:
-        frame.MAX_LANES = cap
+        ad_scene.max_lanes = cap
     assert np.array_equal(c.rgb, d.rgb) and c.spp == 4 and not np.array_equal(c.rgb, a.rgb)
     assert c.rgb.mean() == pytest.approx(a.rgb.mean(), rel=0.05)
 

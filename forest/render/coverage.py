@@ -13,9 +13,10 @@ first empty slot; a sample of a pixel whose K slots already hold other ids is
 counted in the total only.  With K = 12 and 6 ranks written this is exact for
 every pixel that sees at most 12 objects over all its samples (the frames
 rendered here: a few near leaf silhouettes, hundreds of metres away at most
-a dozen).  Each sample costs O(K) vectorised compares — at 1920×1080 and one
-sample per pixel per pass about 40 ms, where sorting every pass's samples with
-the stored slots (``forest.imaging.CoverageAccumulator``) took seconds.
+a dozen).  A sample costs one compare when it meets the object in its pixel's
+first slot (most do) and O(K) vectorised compares otherwise: at 1920×1080,
+4 samples per pixel per pass (a GPU pass), 0.25 s a pass where comparing
+every sample with every slot took 0.6 s (2-core machine).
 """
 
 from __future__ import annotations
@@ -62,24 +63,34 @@ class SampleCoverage:
         self.total = np.zeros(n, np.float64)
 
     def add(self, ids: np.ndarray) -> None:
-        """Add samples: ``ids`` (H·W, S) or (H, W, S) integer sample ids, one column per sample."""
+        """Add samples: ``ids`` (H·W, S) or (H, W, S) integer sample ids, one column per sample.
+
+        Samples are taken in order, each as the module docstring says.  Most samples of a
+        pixel meet the object already in its first slot: those are counted for the whole pass
+        at once, and only the others are compared with every slot, sample by sample.
+        """
         a = np.asarray(ids, np.int64).reshape(self.height * self.width, -1)
         self.total += a.shape[1]
-        rows = np.arange(len(a))
+        first = self.ids[:, 0]
+        same = (a == first[:, None]) & (first != NONE)[:, None]
+        self.count[:, 0] += same.sum(axis=1)
+        others = ~same & (a != NONE)
         for s in range(a.shape[1]):
-            x = a[:, s]
-            match = self.ids == x[:, None]
+            (pix,) = np.nonzero(others[:, s])
+            if len(pix) == 0:
+                continue
+            x = a[pix, s]
+            slots = self.ids[pix]
+            match = slots == x[:, None]
             found = match.any(axis=1)
-            slot = match.argmax(axis=1)
-            hit = found & (x != NONE)
-            self.count[rows[hit], slot[hit]] += 1.0
-            new = ~found & (x != NONE)
+            self.count[pix[found], match[found].argmax(axis=1)] += 1.0
+            new = ~found
             if new.any():
-                empty = self.ids[new] == NONE
+                empty = slots[new] == NONE
                 room = empty.any(axis=1)
-                take = rows[new][room]
+                take = pix[new][room]
                 where = empty[room].argmax(axis=1)
-                self.ids[take, where] = x[take]
+                self.ids[take, where] = x[new][room]
                 self.count[take, where] = 1.0
 
     def ranking(self, ranks: int = RANKS) -> Ranking:

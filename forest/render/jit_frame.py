@@ -80,7 +80,7 @@ class PathFrameRenderer:
 
     def passes(self, spp: int) -> list[int]:
         """Samples per pixel of each pass of ``spp`` samples."""
-        return split_passes(self.width, self.height, spp)
+        return split_passes(self.width, self.height, spp, self.path.max_lanes)
 
     def _key(self, levels: np.ndarray, time_s: float) -> tuple[bytes, float | None]:
         wind = self.config.wind

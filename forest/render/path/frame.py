@@ -47,8 +47,11 @@ from .inputs import PathCamera, PathInputs
 from .integrator import LAYER_ALPHA, NO_HIT, PathKernel, integrator_class
 from .materials import MaterialArrays, MaterialStore, world_map_texture
 
-#: Largest number of paths (pixels × samples) traced in one pass.
+#: Largest number of paths (pixels × samples) traced in one pass on the CPU (``llvm_ad_rgb``).
 MAX_LANES = 1 << 21
+#: The same on the GPU (``cuda_ad_rgb``): larger passes keep a GPU busy and halve the passes' fixed host-side
+#: cost each time they double (``bench/bench_gpu.py``); 8 M paths hold a few GB of loop state on the device.
+GPU_MAX_LANES = 1 << 23
 SEED_TAG = 0x5041_5448  # "PATH"
 JIT_VARIANTS = ("llvm_ad_rgb", "cuda_ad_rgb")
 #: Memory kept free beside the traversal scene for the render's film, wavefronts, kernels and the rest of the
@@ -92,6 +95,32 @@ def sampler_count(mi: Any, kind: str, spp: int) -> int:
 
 
 _SAMPLER_COUNTS: dict[tuple[str, str, int], int] = {}
+
+
+def max_lanes(variant: str) -> int:
+    """Paths one pass of ``variant`` traces at most."""
+    return GPU_MAX_LANES if variant == "cuda_ad_rgb" else MAX_LANES
+
+
+def pixel_sums(mi: Any, value: Any, spp: int, pixels: int) -> np.ndarray:
+    """Per-pixel sums of a per-lane value (lanes pixel-major, ``spp`` consecutive per pixel), summed on the device.
+
+    ``value`` is a Float or a 3-vector; returns (pixels,) or (pixels, 3) float64.  A component that
+    drjit holds as one broadcast literal is widened first (a block sum of a literal is the literal).
+    """
+    import drjit as dr
+
+    n = pixels * spp
+    comps = [value] if dr.depth_v(value) == 1 else [value[i] for i in range(len(value))]
+    sums = []
+    for c in comps:
+        c = mi.Float(c)
+        if dr.width(c) != n:
+            c = dr.full(mi.Float, c, n) if dr.width(c) == 1 else c
+        sums.append(dr.block_sum(c, spp) if spp > 1 else c)
+    dr.eval(*sums)
+    out = np.stack([np.asarray(x, np.float64) for x in sums], axis=1)
+    return out[:, 0] if len(comps) == 1 else out
 
 
 def split_passes(width: int, height: int, spp: int, max_lanes: int | None = None) -> list[int]:
@@ -140,11 +169,6 @@ class PassResult:
     segments: np.ndarray | None = None  # (H·W, spp) uint32: ray segments each path traced (beauty passes only)
 
 
-def _columns(v: Any, n: int) -> np.ndarray:
-    """A drjit n-vector (Color3f, Vector3f) as an (lanes, n) float64 array."""
-    return np.stack([np.asarray(v[i], np.float64) for i in range(n)], axis=1)
-
-
 @dataclass
 class PathImage:
     """A rendered frame: linear RGB and coverage (fraction of a pixel's paths whose camera ray hit a surface)."""
@@ -163,6 +187,7 @@ class PathScene:
             raise ForestError(f"--variant: the forest path tracer runs in {' or '.join(JIT_VARIANTS)}, not {variant}")
         inputs.validate()
         self.variant = variant
+        self.max_lanes = max_lanes(variant)
         self.mi = mi = mitsuba(variant)
         self.inputs = inputs
         self.materials = MaterialStore()
@@ -353,22 +378,22 @@ class PathScene:
         w, h = int(camera.width), int(camera.height)
         kernel = self.kernel(max_depth=max_depth)
         with dr.suspend_grad():
-            for k, n in enumerate(split_passes(w, h, spp)):
+            for k, n in enumerate(split_passes(w, h, spp, self.max_lanes)):
                 sampler, ray, used = self._camera_rays(camera, n, pass_seed(seed, k))
                 out = kernel.sample(dr.ADMode.Primal, sampler, ray, None, None, mi_bool(self.mi, True), aux=aux)
                 L, covered = out[0], mi_float(self.mi, out[1])
                 extra = out[3] if aux else {}
                 dr.eval(L, covered, *extra.values())  # one kernel for all outputs
-                rgb = _columns(L, 3).reshape(h * w, used, 3)
+                # Per-pixel sums on the device: only pixels, not samples, cross to the host (ids excepted).
                 result = PassResult(
                     spp=used,
-                    rgb=rgb.sum(axis=1),
-                    alpha=np.asarray(covered, np.float64).reshape(h * w, used).sum(axis=1),
+                    rgb=pixel_sums(self.mi, L, used, h * w),
+                    alpha=pixel_sums(self.mi, covered, used, h * w),
                 )
                 if aux:
                     result.rows = np.asarray(extra["row"], np.uint32).reshape(h * w, used)
-                    result.albedo = _columns(extra["albedo"], 3).reshape(h * w, used, 3).sum(axis=1)
-                    result.normal = _columns(extra["normal"], 3).reshape(h * w, used, 3).sum(axis=1)
+                    result.albedo = pixel_sums(self.mi, extra["albedo"], used, h * w)
+                    result.normal = pixel_sums(self.mi, extra["normal"], used, h * w)
                     result.segments = np.asarray(extra["segments"], np.uint32).reshape(h * w, used)
                 del sampler, ray, out, L, covered, extra
                 yield result
@@ -392,7 +417,7 @@ class PathScene:
         acc = np.zeros((h * w, 4), np.float64)
         total = 0
         t0 = time.perf_counter()
-        n_passes = len(split_passes(w, h, spp_))
+        n_passes = len(split_passes(w, h, spp_, self.max_lanes))
         for k, p in enumerate(self.passes(camera, spp=spp_, seed=seed, max_depth=max_depth)):
             acc[:, :3] += p.rgb
             acc[:, 3] += p.alpha
@@ -420,7 +445,7 @@ class PathScene:
         w, h = int(camera.width), int(camera.height)
         kernel = self.kernel()
         with dr.suspend_grad():
-            for k, n in enumerate(split_passes(w, h, int(spp))):
+            for k, n in enumerate(split_passes(w, h, int(spp), self.max_lanes)):
                 sampler, ray, used = self._camera_rays(camera, n, pass_seed(int(seed), k))
                 row, albedo, normal = kernel.first_hit(sampler, ray, mi_bool(self.mi, True))
                 dr.eval(row, albedo, normal)
@@ -430,15 +455,15 @@ class PathScene:
                     rgb=np.zeros((h * w, 3)),
                     alpha=(rows != NO_HIT).sum(axis=1).astype(np.float64),
                     rows=rows,
-                    albedo=_columns(albedo, 3).reshape(h * w, used, 3).sum(axis=1),
-                    normal=_columns(normal, 3).reshape(h * w, used, 3).sum(axis=1),
+                    albedo=pixel_sums(self.mi, albedo, used, h * w),
+                    normal=pixel_sums(self.mi, normal, used, h * w),
                 )
 
     # -- derivatives ------------------------------------------------------------------------
     def _passes(self, camera: PathCamera, spp: int, seed: int) -> Iterator[tuple[int, Any, Any, int]]:
         """(pass index, sampler, rays, samples per pixel) of each sample pass of a render."""
         w, h = int(camera.width), int(camera.height)
-        for k, n in enumerate(split_passes(w, h, spp)):
+        for k, n in enumerate(split_passes(w, h, spp, self.max_lanes)):
             sampler, ray, used = self._camera_rays(camera, n, pass_seed(seed, k))
             yield k, sampler, ray, used
 
@@ -446,7 +471,7 @@ class PathScene:
         """Samples per pixel a render of ``spp`` actually takes (the sampler may round each pass)."""
         mi = self.mi
         total = 0
-        for n in split_passes(int(camera.width), int(camera.height), spp):
+        for n in split_passes(int(camera.width), int(camera.height), spp, self.max_lanes):
             total += sampler_count(mi, self.inputs.sampler, n)
         return total
 
