@@ -7,6 +7,7 @@ a closed form.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -611,6 +612,12 @@ def test_a_forest_too_large_for_memory_fails_before_loading(library, monkeypatch
     assert "\n" not in str(err.value)
     monkeypatch.setattr(frame, "available_bytes", lambda: headroom + 11 * 16 * 1024)
     assert PathScene(inputs, VARIANT).stats.instances == 11
+    # The trees fit, a 1920×1080 image's film and passes beside them do not: the message names the image size.
+    big = replace(inputs, camera=PathCamera(inputs.camera.to_world, 40.0, 1920, 1080))
+    monkeypatch.setattr(frame, "available_bytes", lambda: frame.MEMORY_MARGIN + 11 * 16 * 1024 + (64 << 20))
+    with pytest.raises(ForestError, match=r"^\[render\] width, height: a 1920x1080 image needs about 0\.8 GB") as err:
+        PathScene(big, VARIANT)
+    assert "[lod]" not in str(err.value)
 
 
 def test_render_frame_returns_every_layer(ad_scene):

@@ -255,6 +255,15 @@ class PathScene:
         have = available_bytes()  # the machine's and this process's cgroups' room (forest.memory)
         camera = self.inputs.camera
         headroom = memory_headroom(camera.width, camera.height, self.inputs.spp)
+        image = headroom - MEMORY_MARGIN
+        if have is not None and need > have - headroom and need <= have - MEMORY_MARGIN and image > need:
+            # The trees alone fit and the image's film and sample passes are the larger share: the image is the cause.
+            raise ForestError(
+                f"[render] width, height: a {camera.width}x{camera.height} image needs about "
+                f"{image / 2**30:.1f} GB for its film and sample passes beside the "
+                f"{need / 2**30:.1f} GB of {instances:,} instanced trees, and {have / 2**30:.1f} GB is available; "
+                "render a smaller image"
+            )
         if have is not None and need > have - headroom:
             raise ForestError(
                 f"[lod] distances: {instances:,} instanced trees and {flat:,} merged far-level triangles need about "
