@@ -722,3 +722,26 @@ def test_leaf_cut_quad_keeps_quads(tmp_path):
         corners = np.isin(np.round(m.uv[:, 0], 6), [0.0, 1.0]) | (entry["name"] == "far")
         assert corners.all(), entry["name"]
     assert meta["lods"][-1]["triangles"] == 6
+
+
+def test_library_add_warns_of_missing_materials_and_textures(tmp_path, capsys):
+    """An OBJ whose MTL, or a texture its MTL names, is missing still imports, with a warning naming the file."""
+    import shutil
+
+    work = tmp_path / "in"
+    work.mkdir()
+    shutil.copy(FIXTURES / "cards.obj", work / "cards.obj")
+    lib = str(tmp_path / "lib")
+    # No cards.mtl beside it: the material library is named.
+    assert run_cli(["library", "add", str(work / "cards.obj"), "--name", "a", "--library", lib, "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: cards.obj: material library 'cards.mtl' not found" in err
+    # The MTL is there but its texture is not: the texture is named.
+    shutil.copy(FIXTURES / "cards.mtl", work / "cards.mtl")
+    assert run_cli(["library", "add", str(work / "cards.obj"), "--name", "b", "--library", lib, "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: cards.mtl: texture 'leaf.png' (map_Kd) not found" in err
+    # With everything in place: no warning.
+    shutil.copy(FIXTURES / "leaf.png", work / "leaf.png")
+    assert run_cli(["library", "add", str(work / "cards.obj"), "--name", "c", "--library", lib, "-q"]) == 0
+    assert "warning" not in capsys.readouterr().err

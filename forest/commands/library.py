@@ -148,12 +148,14 @@ def register(app: typer.Typer) -> None:
         """Import a mesh as a species: normalise it, derive levels of detail, measure bounds, render a preview."""
         from .. import preflight
         from ..library import open_library
-        from ..library.importer import add_species
+        from ..library.importer import add_species, missing_references
 
         preflight.input_file(mesh, field=None, what="mesh file")
         lib = open_library(library)
         preflight.output_folder(lib.root, field="library")  # the import writes there: check before converting
         sp = add_species(lib, mesh, name, up=up, units=units, height=height, force=force)
+        for line in missing_references(Path(mesh)):
+            typer.echo(f"warning: {line}", err=True)
         if quiet:
             typer.echo(sp.name)
             return

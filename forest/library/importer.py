@@ -122,6 +122,40 @@ def _size(n: int) -> str:
     return f"{n} bytes"
 
 
+#: MTL statements that name a texture file (the file name is the statement's last word).
+MTL_MAPS = ("map_Kd", "map_Ka", "map_Ks", "map_d", "map_Bump", "map_bump", "bump", "norm", "disp")
+
+
+def missing_references(path: Path) -> list[str]:
+    """What an OBJ names and the import cannot find: its material libraries (``mtllib``) and their textures.
+
+    trimesh imports such a file without complaint, with default grey materials or no texture, so
+    the import would look successful; these are said instead, one line each, naming the file.
+    Other formats carry their materials inside (glTF/GLB) or have none (PLY, STL): nothing to check.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".obj":
+        return []
+    out: list[str] = []
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError:
+        return []
+    for line in lines:
+        words = line.split(maxsplit=1)
+        if len(words) < 2 or words[0] != "mtllib":
+            continue
+        mtl = path.parent / words[1].strip()
+        if not mtl.is_file():
+            out.append(f"{path.name}: material library {words[1].strip()!r} not found: imported without its materials")
+            continue
+        for m in mtl.read_text(errors="replace").splitlines():
+            w = m.split()
+            if len(w) >= 2 and w[0] in MTL_MAPS and not (mtl.parent / w[-1]).is_file():
+                out.append(f"{mtl.name}: texture {w[-1]!r} ({w[0]}) not found: imported without it")
+    return out
+
+
 def load_parts(path: Path, *, up: str = "auto", units: str = "auto", height: float | None = None):
     """Load, check and normalise a mesh file; return ``[(label, MeshData, colour, image)]``."""
     path = Path(path)
