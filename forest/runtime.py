@@ -1,9 +1,12 @@
-"""Mitsuba / drjit runtime set-up: LLVM discovery, variant selection, third-party stderr.
+"""Mitsuba / drjit runtime set-up: LLVM discovery, the GPU, variant selection, third-party stderr.
 
 drjit 1.5's CPU backend needs LLVM 19 (LLVM 14–16 crash with
 ``Cannot select: fminimum``).  :func:`ensure_llvm` finds ``libLLVM-19.so`` and
 names it in ``DRJIT_LIBLLVM_PATH`` before mitsuba is imported;
-:func:`mitsuba` imports mitsuba with a variant set.
+:func:`mitsuba` imports mitsuba with a variant set.  :func:`cuda_available` and
+:func:`gpu_info` say whether there is a GPU and which, without starting CUDA
+(whether forest_path renders correctly on it is :mod:`forest.render.selfcheck`'s
+question).
 
 C and C++ libraries (libpng, libjpeg, OpenImageIO, Mitsuba, drjit) print
 their own complaints straight to file descriptor 2, around and beside the one
@@ -16,10 +19,14 @@ the error through its API).
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
+import re
+import subprocess
 import sys
 import tempfile
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import ForestError, ParameterError
@@ -64,9 +71,79 @@ def ensure_llvm() -> str:
     return path
 
 
-def cuda_available() -> bool:
-    """True when an NVIDIA driver is present (cheap check, no CUDA context)."""
+#: ``CUDA_VISIBLE_DEVICES`` values (its first entry) that hide every GPU from CUDA: empty (what a scheduler sets
+#: for work given no GPU, as :class:`forest.service.executors.ray.RayWorker` does), ``-1`` (CUDA stops at the first
+#: invalid entry) and ``NoDevFiles`` (Slurm).
+HIDDEN_DEVICES = ("", "-1", "NoDevFiles")
+
+
+def visible_devices() -> str | None:
+    """``CUDA_VISIBLE_DEVICES``'s first entry (a GPU index or UUID), ``""`` when it hides every GPU, None when unset."""
+    value = os.environ.get("CUDA_VISIBLE_DEVICES")
+    if value is None:
+        return None
+    first = value.split(",")[0].strip()
+    return "" if first in HIDDEN_DEVICES else first
+
+
+def nvidia_driver() -> bool:
+    """True when an NVIDIA driver is loaded (its device file or its ``/proc`` entry exists)."""
     return any(Path(p).exists() for p in ("/dev/nvidia0", "/proc/driver/nvidia/version"))
+
+
+def cuda_available() -> bool:
+    """True when an NVIDIA driver is present and ``CUDA_VISIBLE_DEVICES`` does not hide every GPU (cheap check, no
+    CUDA context)."""
+    return visible_devices() != "" and nvidia_driver()
+
+
+@dataclass(frozen=True)
+class GpuInfo:
+    """The GPU this process would render on: its name, memory (MiB) and driver version (None where not known)."""
+
+    name: str
+    memory_mib: int | None
+    driver: str | None
+
+
+#: What :func:`gpu_info` names a GPU that ``nvidia-smi`` could not describe.
+UNKNOWN_GPU = "NVIDIA GPU (nvidia-smi not found)"
+_NVIDIA_SMI_QUERY = ("--query-gpu=name,memory.total,driver_version", "--format=csv,noheader,nounits")
+
+
+def gpu_info() -> GpuInfo | None:
+    """The first GPU ``CUDA_VISIBLE_DEVICES`` leaves visible, from ``nvidia-smi`` (kept for the process); without
+    ``nvidia-smi``, a GPU of unknown name and memory with the driver version of ``/proc/driver/nvidia/version``.
+    None when :func:`cuda_available` is False.  Never starts CUDA."""
+    if not cuda_available():
+        return None
+    return _gpu_info(visible_devices())
+
+
+@functools.lru_cache(maxsize=4)
+def _gpu_info(device: str | None) -> GpuInfo:
+    for args in ([*_NVIDIA_SMI_QUERY, "-i", device], list(_NVIDIA_SMI_QUERY)) if device else [list(_NVIDIA_SMI_QUERY)]:
+        try:
+            run = subprocess.run(["nvidia-smi", *args], capture_output=True, text=True, timeout=15)
+        except (OSError, subprocess.SubprocessError):
+            break  # not installed, or hung: /proc below
+        lines = [line for line in run.stdout.splitlines() if line.strip()]
+        if run.returncode == 0 and lines:
+            fields = [f.strip() for f in lines[0].rsplit(",", 2)]
+            if len(fields) == 3 and fields[0]:
+                memory = int(fields[1]) if fields[1].isdigit() else None
+                return GpuInfo(fields[0], memory, fields[2] or None)
+    try:
+        driver = proc_driver_version(Path("/proc/driver/nvidia/version").read_text(errors="replace"))
+    except OSError:
+        driver = None
+    return GpuInfo(UNKNOWN_GPU, None, driver)
+
+
+def proc_driver_version(text: str) -> str | None:
+    """The driver version in the text of ``/proc/driver/nvidia/version`` (proprietary or open kernel module)."""
+    match = re.search(r"Kernel Module(?:\s+for\s+\S+)?\s+(\d+(?:\.\d+)+)", text)
+    return match.group(1) if match else None
 
 
 _current: str | None = None

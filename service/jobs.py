@@ -81,7 +81,13 @@ class JobSettings(BaseModel):
         default=None, ge=1, le=10000, description="Frames per fly-through task (default 1)."
     )
     cpus: float | None = Field(default=None, gt=0, le=1024, description="CPUs to reserve per task (Ray executor).")
-    gpus: float | None = Field(default=None, ge=0, le=64, description="GPUs to reserve per task (Ray executor).")
+    gpus: float | None = Field(
+        default=None,
+        ge=0,
+        le=64,
+        description="GPUs to reserve per task (Ray executor); default 1 for cuda_ad_rgb, else 0. A task that names "
+        "no variant uses a reserved GPU where it passed forest's self-check.",
+    )
     preview: bool = Field(default=False, description="Fast low-quality preview render.")
     quick_look: bool = Field(default=True, description="Stills: show a small one-sample image before the first pass.")
     reference: str | None = Field(
@@ -307,6 +313,7 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
             raise _library_error(e, req.kind, overrides, job_dir) from None
         r = config.render
         width, height, spp = r.width, r.height, r.spp
+        configured = config.lookdev.variant if req.kind == "match" else r.variant  # what the task renders with
         _check_limits(config, overrides, limits)
         candidates = config.scatter.count
         try:
@@ -322,7 +329,7 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
             "preview": s.preview,
             "quick_look": s.quick_look,
             "inputs": inputs,
-            "resources": Resources(cpus=s.cpus, gpus=s.gpus if s.gpus is not None else _gpus(s.variant or r.variant)),
+            "resources": Resources(cpus=s.cpus, gpus=s.gpus if s.gpus is not None else _gpus(s.variant or configured)),
         }
         frames: list[int] | None = None
         if s.frames is not None and req.kind not in ("flythrough", "rib", "usd"):
@@ -387,7 +394,9 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
 
 
 def _gpus(variant: str | None) -> float | None:
-    """A GPU for the CUDA variant (so a Ray cluster places the task on a GPU node)."""
+    """A GPU for the CUDA variant (so a Ray cluster places the task on a GPU node).  None for the automatic choice:
+    on Ray such a task renders on the CPU (an actor without a GPU hides the node's), unless ``settings.gpus`` gives
+    it one, which it then uses where the GPU passed forest's self-check."""
     return 1.0 if str(variant or "").startswith("cuda") else None
 
 
@@ -512,6 +521,7 @@ def _check_match(
             params=list(match.params) if match.params is not None else None,
             mode=match.mode,
             variant=variant,
+            pick_variant=False,  # the worker chooses; no GPU self-check in the service
         )
     except ForestError as e:
         raise _library_error(e, "match", job_dir=job_dir) from None

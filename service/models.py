@@ -182,6 +182,18 @@ class Exit(_Report):
     code: int | None = None
 
 
+class Capability(_Report):
+    """What a worker renders with when a task names no variant, sent once as it starts (``task_id`` and ``attempt``
+    −1: about no task): :func:`forest.render.variant.capability`. The executor keeps it for the worker list; it is
+    no :data:`Report`."""
+
+    type: Literal["capability"] = "capability"
+    variant: str
+    variant_reason: str = ""
+    gpu: str | None = None
+    gpu_memory_mib: int | None = None
+
+
 Report = Annotated[Heartbeat | Progress | FrameDone | Log | Done | Failed | Exit, Field(discriminator="type")]
 REPORT = TypeAdapter(Report)
 

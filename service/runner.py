@@ -261,6 +261,15 @@ def _render(spec: TaskSpec, ctx: TaskContext) -> TaskResult:
     last_preview = [0.0]
     stats: list[Any] = []
     render_seconds = 0.0
+    said: set[str] = set()
+
+    def announce(variant: str, reason: str) -> None:
+        """The variant and why, once per task (a failed GPU self-check says so here)."""
+        line = f"variant: {variant} ({reason})"
+        if line not in said:
+            said.add(line)
+            ctx.log(line)
+
     for f in todo:
         exr, png = frame_files(spec, f)
         clock.start_frame()
@@ -296,6 +305,7 @@ def _render(spec: TaskSpec, ctx: TaskContext) -> TaskResult:
             progress=progress,
             on_pass=on_pass,
             reuse=scene.reuse,
+            announce=announce,
         )
         seconds = clock.end_frame()
         render_seconds += result.render_seconds

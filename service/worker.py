@@ -11,7 +11,9 @@ Started by :class:`forest.service.executors.local.LocalExecutor` as
   ``error`` per task;
 * keeps a :class:`~forest.service.scenecache.SceneCache` (``$FOREST_WORKER_SCENES``
   scenes, default 1; 0 loads every task's scene anew) and its inputs in ``FOLDER`` (a content-addressed store of its own);
-* imports the renderer as it starts, so the first task does not wait for it;
+* imports the renderer as it starts, so the first task does not wait for it, and sends
+  one ``capability`` report (task and attempt −1): the variant it renders with when a task
+  names none, and its GPU (:func:`forest.render.variant.capability`);
 * exits at once when stdin reaches end-of-file: the service that started it is gone,
   so every lease is void and the work would be redone anyway.
 
@@ -71,6 +73,26 @@ def _warm_up() -> None:
         print(f"warm-up: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
 
 
+def _report_capability(chan: Channel) -> None:
+    """Send the executor what this worker renders with when a task names no variant (:class:`Capability`).
+
+    That choice may run the GPU self-check (a child process, up to a minute, once per machine, driver and Mitsuba),
+    so it runs in a thread of its own: tasks are taken meanwhile (one that needs the choice waits for it).
+    """
+    from .models import Capability
+
+    try:
+        from forest.render.variant import capability
+
+        cap = Capability.model_validate({"task_id": -1, "attempt": -1, **capability()})
+    except Exception as e:  # the worker list shows no variant; tasks still report their own
+        print(f"capability: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
+        return
+    gpu = f", GPU {cap.gpu}" if cap.gpu else ""
+    print(f"renders with {cap.variant} ({cap.variant_reason}){gpu}", file=sys.stderr, flush=True)
+    chan.send(cap)
+
+
 def main(argv: list[str]) -> int:
     """Worker process loop (``argv``: report pipe fd, own folder): run each task order read from stdin and report on
     the pipe, with heartbeats while a task runs; a task's mistakes and errors become ``error`` reports.
@@ -108,6 +130,7 @@ def main(argv: list[str]) -> int:
 
     threading.Thread(target=beat, daemon=True).start()
     _warm_up()
+    threading.Thread(target=_report_capability, args=(chan,), daemon=True, name="capability").start()
     print(f"worker pid {os.getpid()} ready (folder {folder})", file=sys.stderr, flush=True)
     while True:
         order = TaskOrder.model_validate_json(orders.get())

@@ -76,3 +76,47 @@ def flat_scene(tmp_path):
         )
 
     return make
+
+
+def selfcheck_image(trees: bool = True) -> np.ndarray:
+    """An image as forest's GPU self-check expects it (:mod:`forest.render.selfcheck`): 64×36, linear RGB and
+    coverage, a lit ground with (``trees``) a block of green leaves on 10 % of it."""
+    img = np.empty((36, 64, 4), np.float32)
+    img[...] = (0.3, 0.28, 0.22, 1.0)
+    if trees:
+        img[10:25, 20:35, :3] = (0.15, 0.45, 0.1)
+    return img
+
+
+@pytest.fixture
+def fake_gpu(monkeypatch, tmp_path):
+    """A machine with an NVIDIA GPU whose self-check passes — both faked, so no CUDA and no child process.
+
+    Returns a namespace tests change: ``name``, ``memory`` (MiB) and ``driver`` of the GPU (what ``nvidia-smi``
+    would say), ``outcome`` (called as the check's child: returns its image or raises
+    :class:`forest.render.selfcheck.SelfCheckError`); ``calls`` lists the checks run.  The results file goes to a
+    fresh ``$FOREST_CACHE_DIR``, LLVM 19 is "found", and the process's memo of results starts empty.
+    """
+    from types import SimpleNamespace
+
+    import forest.render.variant as variant
+    from forest import runtime
+    from forest.render import selfcheck
+
+    state = SimpleNamespace(
+        name="NVIDIA H100 80GB HBM3", memory=81559, driver="580.159.04", outcome=selfcheck_image, calls=[]
+    )
+    state.cache = tmp_path / "forest-cache"
+    monkeypatch.setenv("FOREST_CACHE_DIR", str(state.cache))
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "0")  # restored afterwards, whoever changes it
+    monkeypatch.setattr(runtime, "nvidia_driver", lambda: True)
+    monkeypatch.setattr(runtime, "_gpu_info", lambda _device: runtime.GpuInfo(state.name, state.memory, state.driver))
+    monkeypatch.setattr(variant, "find_llvm", lambda: "/usr/lib/llvm-19/lib/libLLVM-19.so")
+    monkeypatch.setattr(selfcheck, "_memo", {})
+
+    def launch(variant: str = "cuda_ad_rgb", *, timeout_s: float, command=None):
+        state.calls.append((variant, timeout_s))
+        return state.outcome()
+
+    monkeypatch.setattr(selfcheck, "launch", launch)
+    return state

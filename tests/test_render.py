@@ -332,15 +332,16 @@ def test_bad_input(tmp_path, library):
     assert not list(tmp_path.glob("x*"))
 
 
-def test_default_variant_choice(monkeypatch):
-    """forest_path on the CPU by default, on the GPU where there is one; a request or the config wins."""
+def test_default_variant_choice(monkeypatch, fake_gpu):
+    """forest_path on the CPU by default, on the GPU where there is one that passed its self-check (faked here;
+    tests/test_selfcheck.py has the rest); a request or the config wins."""
     import forest.render.variant as variant
 
     monkeypatch.setattr(variant, "cuda_available", lambda: False)
     v, why = choose_variant(130_000)
     assert v == "llvm_ad_rgb" and "forest_path" in why and "bench/bench_render.py" in why
     monkeypatch.setattr(variant, "cuda_available", lambda: True)
-    assert choose_variant(130_000)[0] == "cuda_ad_rgb"
+    assert choose_variant(130_000)[0] == "cuda_ad_rgb" and len(fake_gpu.calls) == 1
     assert choose_variant(10, "llvm_ad_rgb") == ("llvm_ad_rgb", "requested")
     assert choose_variant(10, None, "scalar_rgb") == ("scalar_rgb", "[render] variant")
     monkeypatch.setattr(variant, "cuda_available", lambda: False)

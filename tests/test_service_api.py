@@ -156,6 +156,7 @@ def test_six_frame_flythrough_is_six_tasks_on_workers_that_keep_the_scene(server
         assert t["state"] == "succeeded" and t["attempt"] == 1 and t["seconds"] > 0
         assert t["frames_done"] == t["frames"] and t["worker"].startswith("pid:")
         assert f"frame {t['frames'][0]} rendered" in c.get(t["log"]).text
+        assert "variant: scalar_rgb ([render] variant)" in c.get(t["log"]).text  # the choice and why
     # two worker processes at most: each loads the scene once and keeps it for the frames after
     log = c.get(f"/jobs/{jid}/log").text
     workers = {t["worker"] for t in job["tasks"]}

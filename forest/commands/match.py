@@ -55,7 +55,9 @@ def register(app: typer.Typer) -> None:
             "painted map) (lookdev.map_prior, edges).",
         ),
         instances: Path = typer.Option(None, "--instances", help="A saved InstanceSet (.npz) instead of scattering."),
-        variant: str = typer.Option(None, "--variant", help="llvm_ad_rgb or cuda_ad_rgb (default: cuda if present)."),
+        variant: str = typer.Option(
+            None, "--variant", help="llvm_ad_rgb or cuda_ad_rgb (default: cuda where the GPU passed its self-check)."
+        ),
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No progress bar, no summary."),
     ):
         """Fit the colour map and light values so the forest render looks like a reference."""
@@ -79,6 +81,12 @@ def register(app: typer.Typer) -> None:
         cfg = load_config(config)
         inputs = [config, reference, mask, instances, *referenced_files(cfg)]
         preflight.distinct_from_inputs([output / name for name in WRITTEN], inputs)
+        if variant is None and cfg.lookdev.variant is None and not quiet:
+            from ..render.selfcheck import TIME_LIMIT_S
+            from ..render.variant import gpu_check_pending
+
+            if gpu_check_pending():
+                typer.echo(f"variant: checking the GPU (once per GPU and driver, at most {TIME_LIMIT_S:g} s)", err=True)
         settings = resolve_settings(
             cfg,
             iterations=iterations,
@@ -123,6 +131,8 @@ def register(app: typer.Typer) -> None:
                 f"{preflight.format_bytes(memory)}, about {preflight.format_seconds(seconds)}",
                 err=True,
             )
+            if settings.variant_reason:  # chosen automatically: say why, as forest render does
+                typer.echo(f"variant: {settings.variant} ({settings.variant_reason})", err=True)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             with progress_bar("match", quiet=quiet) as bar:

@@ -91,6 +91,12 @@ def register(app: typer.Typer) -> None:
             scene = load_scene(cfg, instances, progress=bar)
         # 3. With the trees known: the whole render's memory, then say what will happen.
         trees = len(scene.instances)
+        if variant is None and cfg.render.variant is None and not quiet:
+            from ..render.selfcheck import TIME_LIMIT_S
+            from ..render.variant import gpu_check_pending
+
+            if gpu_check_pending():
+                typer.echo(f"variant: checking the GPU (once per GPU and driver, at most {TIME_LIMIT_S:g} s)", err=True)
         chosen, reason = choose_variant(trees, variant, cfg.render.variant)
         far_trees, far_triangles = None, 0
         if not chosen.startswith("scalar"):

@@ -58,6 +58,8 @@ class Settings:
     report_width: int
     anchor: str = "auto"
     map_prior: str = "edges"
+    #: Why ``variant`` when it was chosen automatically (:func:`forest.render.variant.default_jit_variant`), else "".
+    variant_reason: str = ""
 
 
 @dataclass
@@ -118,9 +120,14 @@ def resolve_settings(
     grid: int | str | None = None,
     anchor: str | None = None,
     map_prior: str | None = None,
+    pick_variant: bool = True,
 ) -> Settings:
     """Call arguments over ``[lookdev]`` over its defaults, validated by the scene schema (errors name
-    ``lookdev.<option>``)."""
+    ``lookdev.<option>``).
+
+    Without a variant given or configured, the automatic choice (the GPU where it passed its self-check, else
+    ``llvm_ad_rgb``); ``pick_variant=False`` (a check of the settings alone, as the job service makes on
+    submission) leaves ``variant`` ``"auto"`` instead, so that no GPU self-check runs."""
     if isinstance(grid, str) and grid.strip().isdigit():
         grid = int(grid)
     given: dict[str, Any] = {
@@ -152,11 +159,16 @@ def resolve_settings(
     groups = parse_params(lk.params) if lk.params is not None else DEFAULT_GROUPS[lk.mode]
     if lk.mode == "statistics" and "colour_map" in groups:
         groups = tuple(g for g in groups if g != "colour_map")  # an unrelated photo cannot place colours
-    v = lk.variant
-    if v is None:
-        from ..runtime import cuda_available
+    v: str
+    why = ""
+    if lk.variant is not None:
+        v = lk.variant
+    elif not pick_variant:
+        v = "auto"
+    else:
+        from ..render.variant import default_jit_variant
 
-        v = "cuda_ad_rgb" if cuda_available() else "llvm_ad_rgb"
+        v, why = default_jit_variant()
     return Settings(
         iterations=lk.iterations,
         resolution=lk.resolution,
@@ -168,6 +180,7 @@ def resolve_settings(
         mask=lk.mask,
         fit=lk.fit,
         variant=v,
+        variant_reason=why,
         report_width=lk.report_width,
         anchor=lk.anchor,
         map_prior=lk.map_prior,

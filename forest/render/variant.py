@@ -3,9 +3,14 @@
 An explicit request wins, then ``[render] variant``.  Otherwise the renderer
 that is faster *for the same look* on this machine:
 
-* a GPU present (an NVIDIA driver): ``cuda_ad_rgb`` — forest_path, the same
-  code as in ``llvm_ad_rgb``, on the GPU;
-* else ``llvm_ad_rgb`` — forest_path on the CPU.
+* a GPU present (an NVIDIA driver) that passed the self-check
+  (:mod:`forest.render.selfcheck`: forest_path renders a tiny forest in
+  ``cuda_ad_rgb``, in a child process, finite and not black, within
+  :data:`~forest.render.selfcheck.TIME_LIMIT_S`; the result is cached per GPU,
+  driver and Mitsuba): ``cuda_ad_rgb`` — forest_path, the same code as in
+  ``llvm_ad_rgb``, on the GPU;
+* else ``llvm_ad_rgb`` — forest_path on the CPU (``scalar_rgb`` without LLVM 19);
+  where the GPU failed its self-check the reason says why, and how to force it.
 
 The look is forest's: leaves that transmit light and cast card-shaped
 (alpha-cut) shadows, a finite sun.  ``scalar_rgb`` renders it with Mitsuba's
@@ -44,7 +49,7 @@ holds that scene too.
 from __future__ import annotations
 
 from ..errors import ParameterError
-from ..runtime import VARIANTS, cuda_available, find_llvm
+from ..runtime import VARIANTS, cuda_available, find_llvm, gpu_info
 
 #: scalar_rgb's CPU time over forest_path's (llvm_ad_rgb) for forest's default look, the range measured by
 #: ``bench/bench_render.py --case scale`` (1 000 to 130 000 trees), ``--case original`` and ``--case look`` (see the
@@ -70,14 +75,74 @@ def check_variant(variant: str) -> str:
     return variant
 
 
+def gpu_passes() -> tuple[bool, str]:
+    """Whether the automatic choice may take the GPU, and why: a GPU is present and passed its self-check
+    (run now if this machine, driver and Mitsuba have no stored result)."""
+    if not cuda_available():
+        return False, "no GPU"
+    from .selfcheck import gpu_selfcheck  # here: `python -m forest.render.selfcheck` imports forest.render first
+
+    check = gpu_selfcheck()
+    return check.ok, check.reason
+
+
+def gpu_check_pending() -> bool:
+    """True when the automatic choice would first run the GPU self-check (a GPU present, no result stored for it):
+    a command says so before it waits for it."""
+    if not cuda_available():
+        return False
+    from .selfcheck import pending
+
+    return pending()
+
+
+def _gpu_failed(reason: str, fallback: str) -> str:
+    return f"GPU self-check failed: {reason}; using {fallback} — force the GPU with --variant cuda_ad_rgb"
+
+
+def default_variant(trees: int | None = None) -> tuple[str, str]:
+    """The automatic choice on this machine (no request, no ``[render] variant``) and the reason; ``trees`` only
+    words the reason."""
+    ok, why = gpu_passes()
+    many = "" if trees is None else f" ({trees:,} trees)"
+    if ok:
+        return "cuda_ad_rgb", f"GPU found and its self-check passed: forest_path on the GPU{many}"
+    if find_llvm() is None:
+        fallback, reason = "scalar_rgb", "no LLVM 19 for the JIT variants: Mitsuba's scalar_rgb"
+    else:
+        fallback, reason = "llvm_ad_rgb", f"no GPU: forest_path on the CPU; {MEASURED}"
+    return fallback, reason if why == "no GPU" else _gpu_failed(why, fallback)
+
+
+def default_jit_variant() -> tuple[str, str]:
+    """The automatic choice among the JIT variants (look-dev differentiates, so never ``scalar_rgb``): the GPU where
+    it passed its self-check, else ``llvm_ad_rgb``."""
+    ok, why = gpu_passes()
+    if ok:
+        return "cuda_ad_rgb", "GPU found and its self-check passed"
+    return "llvm_ad_rgb", "no GPU" if why == "no GPU" else _gpu_failed(why, "llvm_ad_rgb")
+
+
+def capability() -> dict[str, str | int | None]:
+    """What this process renders with when a job names no variant, for the job service's worker list:
+    ``variant`` and ``variant_reason`` (:func:`default_variant`) and, with a GPU, its name (``gpu``) and memory
+    (``gpu_memory_mib``), else None."""
+    v, why = default_variant()
+    gpu = gpu_info()
+    return {
+        "variant": v,
+        "variant_reason": why,
+        "gpu": gpu.name if gpu is not None else None,
+        "gpu_memory_mib": gpu.memory_mib if gpu is not None else None,
+    }
+
+
 def choose_variant(trees: int, requested: str | None = None, configured: str | None = None) -> tuple[str, str]:
-    """The variant to render ``trees`` trees with, and the reason (see the module docstring)."""
+    """The variant to render ``trees`` trees with, and the reason (see the module docstring).
+
+    An explicit variant (``requested``, then ``configured``) is checked and taken, with no GPU self-check."""
     for v, why in ((requested, "requested"), (configured, "[render] variant")):
         if v is not None:
             check_variant(v)
             return v, why
-    if cuda_available():
-        return "cuda_ad_rgb", f"GPU found: forest_path on the GPU ({trees:,} trees)"
-    if find_llvm() is None:
-        return "scalar_rgb", "no LLVM 19 for the JIT variants: Mitsuba's scalar_rgb"
-    return "llvm_ad_rgb", f"no GPU: forest_path on the CPU; {MEASURED}"
+    return default_variant(trees)

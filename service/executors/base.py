@@ -41,6 +41,14 @@ class WorkerInfo(BaseModel):
     since: float | None = Field(default=None, description="When the slot entered its state (epoch seconds).")
     tasks_done: int = 0
     scenes: int = Field(0, description="Scenes the worker keeps loaded.")
+    variant: str | None = Field(
+        default=None,
+        description="The Mitsuba variant the worker renders with when a job names none: cuda_ad_rgb only where its "
+        "GPU passed forest's self-check (null until the worker has said).",
+    )
+    variant_reason: str | None = Field(default=None, description="Why that variant (a failed GPU self-check says why).")
+    gpu: str | None = Field(default=None, description="The worker's GPU (absent without one).")
+    gpu_memory_mib: int | None = Field(default=None, description="That GPU's memory, MiB.")
 
 
 class Executor(abc.ABC):

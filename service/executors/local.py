@@ -10,7 +10,8 @@ waiting (``prewarm``): started with the service, and again after one is killed o
 go, so the first task of a job does not wait for Python and Mitsuba to load.
 
 Each slot has a folder under ``root`` (its content-addressed inputs) and a log file
-(``worker-<n>.log``: the process's own stdout and stderr).
+(``worker-<n>.log``: the process's own stdout and stderr).  The worker list shows what each
+slot's worker said it renders with (its ``capability`` report: variant, reason, GPU).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from typing import IO, Any
 
 from pydantic import ValidationError
 
-from ..models import Exit, TaskOrder, parse_report
+from ..models import Capability, Exit, TaskOrder, parse_report
 from ..store import TaskRun
 from .base import Executor, WorkerInfo
 
@@ -49,6 +50,7 @@ class _Slot:
     tasks_done: int = 0
     scenes: set[str] = field(default_factory=set)
     spawned: float = 0.0
+    capability: Capability | None = None  # what its last worker said it renders with
 
 
 class LocalExecutor(Executor):
@@ -125,6 +127,7 @@ class LocalExecutor(Executor):
                         since=s.since,
                         tasks_done=s.tasks_done,
                         scenes=len(s.scenes) if alive else 0,
+                        **_capability(s.capability),
                     )
                 )
             return out
@@ -205,6 +208,13 @@ class LocalExecutor(Executor):
                 try:
                     report = parse_report(line)
                 except ValidationError:
+                    try:
+                        cap = Capability.model_validate_json(line)
+                    except ValidationError:
+                        continue
+                    with self.lock:
+                        if slot.proc is proc:
+                            slot.capability = cap
                     continue
                 key = (report.task_id, report.attempt)
                 finished = False
@@ -282,6 +292,11 @@ class LocalExecutor(Executor):
                 p.wait(max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 pass
+
+
+def _capability(cap: Capability | None) -> dict[str, Any]:
+    """The :class:`WorkerInfo` fields of a worker's capability report (none before it came)."""
+    return cap.model_dump(include={"variant", "variant_reason", "gpu", "gpu_memory_mib"}) if cap is not None else {}
 
 
 def _kill_group(proc: subprocess.Popen) -> None:

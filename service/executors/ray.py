@@ -18,9 +18,14 @@ While an actor waits for its node (resources to free, a cold start), the executo
 its task's lease; once it runs, the worker's own heartbeats do.
 
 Resource requests: ``num_cpus`` (``settings.cpus``, default 1) and ``num_gpus``
-(``settings.gpus``, default 1 for ``cuda_*`` variants, so such tasks land on GPU nodes);
-an actor keeps its resources while it lives, and an idle actor of another shape is let
-go when a task needs a slot of a different one.
+(``settings.gpus``, default 1 for ``cuda_*`` variants — ``settings.variant``, else the
+config's ``[render] variant``, or ``[lookdev] variant`` for a match — so such tasks land
+on GPU nodes); an actor keeps its resources while it lives, and an idle actor of another
+shape is let go when a task needs a slot of a different one.  An actor that reserved no
+GPU hides the node's GPUs from itself, so a task that names no variant renders on the
+CPU there; with a GPU reserved (``settings.gpus``) such a task takes the GPU where it
+passed forest's self-check (:mod:`forest.render.selfcheck`).  Each actor reports that
+choice and its GPU (:meth:`RayWorker.info`) for the worker list.
 """
 
 from __future__ import annotations
@@ -44,10 +49,15 @@ from .base import Executor, WorkerInfo
 class RayWorker:
     """One slot: runs task after task in its own folder (a Ray actor; see the module docstring)."""
 
-    def __init__(self, scenes: int = 1):
+    def __init__(self, scenes: int = 1, gpus: float = 0.0):
         from ..scenecache import SceneCache
         from ..transfer import BlobStore
 
+        if not gpus:
+            # Ray leaves CUDA_VISIBLE_DEVICES alone for an actor that reserved no GPU: hide the node's GPUs, so a
+            # task that names no variant renders on the CPU here (forest.runtime.cuda_available) rather than on a
+            # GPU reserved by another actor.
+            os.environ["CUDA_VISIBLE_DEVICES"] = ""
         base = os.environ.get("FOREST_WORKER_DIR") or None
         if base:
             Path(base).mkdir(parents=True, exist_ok=True)
@@ -56,8 +66,18 @@ class RayWorker:
         self.blobs = BlobStore(self.root / "store")
 
     def info(self) -> dict:
-        """Where the actor runs: ``{"pid", "host", "folder"}``."""
-        return {"pid": os.getpid(), "host": socket.gethostname(), "folder": str(self.root)}
+        """Where the actor runs and what it renders with: ``{"pid", "host", "folder"}`` and the fields of
+        :func:`forest.render.variant.capability` (``variant``, ``variant_reason``, ``gpu``, ``gpu_memory_mib``;
+        missing when the choice failed).  The choice may run the GPU self-check (up to a minute, once per node,
+        driver and Mitsuba) before the actor's first task, while the executor holds that task's lease."""
+        out: dict[str, Any] = {"pid": os.getpid(), "host": socket.gethostname(), "folder": str(self.root)}
+        try:
+            from forest.render.variant import capability
+
+            out.update(capability())
+        except Exception as e:
+            out["variant_reason"] = f"cannot choose a variant: {type(e).__name__}: {e}"
+        return out
 
     def run(self, order_json: str, blob_refs: dict, reporter: Any) -> Any:
         """Run one attempt (a ``TaskOrder`` as JSON) with its inputs fetched from ``blob_refs``; reports go to
@@ -235,6 +255,10 @@ class RayExecutor(Executor):
                     since=a.since,
                     tasks_done=a.tasks_done,
                     scenes=len(a.scenes),
+                    variant=a.info.get("variant"),
+                    variant_reason=a.info.get("variant_reason"),
+                    gpu=a.info.get("gpu"),
+                    gpu_memory_mib=a.info.get("gpu_memory_mib"),
                 )
                 for a in self._actors
             ]
@@ -282,7 +306,7 @@ class RayExecutor(Executor):
             self._actors.remove(old)
             self.ray.kill(old.handle, no_restart=True)
         handle = self.actor_cls.options(num_cpus=shape[0], num_gpus=shape[1], max_restarts=0, max_concurrency=1).remote(
-            self.scenes
+            self.scenes, shape[1]
         )
         actor = _Actor(index=self._next, handle=handle, shape=shape, info_ref=handle.info.remote())  # type: ignore[attr-defined]
         self._next += 1

@@ -217,6 +217,13 @@ async function refreshList() {
   } catch (e) { $("#counts").textContent = e.message; }
 }
 
+// What a worker renders with when a job names no variant, and its GPU (the reason is the cell's tooltip).
+function rendersWith(w) {
+  if (!w.variant) return "—";
+  const gpu = w.gpu ? ` · ${w.gpu}` + (w.gpu_memory_mib ? ` ${(w.gpu_memory_mib / 1024).toFixed(0)} GiB` : "") : "";
+  return w.variant + gpu;
+}
+
 async function refreshWorkers() {
   try {
     const h = await api("GET", "/health");
@@ -232,6 +239,7 @@ async function refreshWorkers() {
             (w.progress !== null && w.progress !== undefined ? ` · ${pct(w.progress)}` : ""))
         : "—"),
       el("td", {}, String(w.tasks_done)),
+      el("td", { title: w.variant_reason || null }, rendersWith(w)),
       el("td", { class: "muted" }, [w.host, w.pid ? `pid ${w.pid}` : null].filter(Boolean).join(" · ") || "—"))));
   } catch (e) { $("#health").textContent = e.message; }
 }
