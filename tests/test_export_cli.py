@@ -74,6 +74,9 @@ def test_rib_and_usd_from_the_command_line(tmp_path, fake_library, capsys):
     "argv,message",
     [
         (["export", "rib", "{cfg}", "-o", "{tmp}/out", "--frames", "9-1"], "--frames: bad range"),
+        (["export", "usd", "{cfg}", "-o", "{tmp}/out.usda", "--frames", "x"], "--frames: cannot read 'x'"),
+        (["export", "blender", "{cfg}", "-o", "{tmp}/o.blend", "--frames", "3-2"], "--frames: bad range"),
+        (["export", "blender", "{cfg}", "-o", "{tmp}/o.blend", "--blender", "{tmp}/no/blender"], "Blender not found"),
         (["export", "usd", "{cfg}", "-o", "{tmp}/out.abc"], "must end in .usda, .usdc or .usd"),
         (["export", "rib", "{tmp}/missing.toml", "-o", "{tmp}/out"], "config file not found"),
         (["export", "fbx", "{cfg}", "-o", "{tmp}/out"], "forest export: unknown target 'fbx'; use one of rib, usd"),
@@ -86,7 +89,14 @@ def test_rib_and_usd_from_the_command_line(tmp_path, fake_library, capsys):
         ),
     ],
 )
-def test_bad_input_exits_2_with_one_line(tmp_path, fake_library, capsys, argv, message):
+def test_bad_input_exits_2_with_one_line(tmp_path, fake_library, capsys, monkeypatch, argv, message):
+    """Every option is checked before the scatter: the scene is never loaded."""
+    import forest.scene
+
+    def no_scene(*a, **k):
+        raise AssertionError("the scene was loaded before the options were checked")
+
+    monkeypatch.setattr(forest.scene, "load_scene", no_scene)
     cfg = make_config(tmp_path, "")
     argv = [a.format(cfg=cfg.path, tmp=tmp_path) for a in argv]
     message = message.format(tmp=tmp_path)

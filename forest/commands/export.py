@@ -32,21 +32,33 @@ def _scene(
     *,
     files: tuple[Path | None, ...] = (),
     folder: Path | None = None,
+    frames: str | None = None,
+    check: Any = None,
 ):
-    """The Scene to export, after the outputs are checked (before any scatter): the ``files`` the export
-    writes, or the ``folder`` it writes into, writable and none of them one of its inputs."""
+    """The Scene to export, after the outputs and options are checked (before any scatter): the ``files`` the
+    export writes, or the ``folder`` it writes into, writable and none of them one of its inputs; ``--frames``
+    readable; ``check(config)``, the command's own checks of its options against the config."""
     from .. import preflight
+    from ..camera import parse_frames
     from ..config import load_config, referenced_files
     from ..library import open_library
     from ..progress import progress_bar
     from ..scene import load_scene
 
+    if frames is not None and not parse_frames(frames):
+        from ..errors import ParameterError
+
+        raise ParameterError("frames", "no frames selected")
+    if instances is not None:
+        preflight.input_file(instances, field="instances", what="instance file")
     outputs = [f for f in files if f is not None]
     if folder is not None:
         preflight.output_folder(folder)
     preflight.output_files(outputs)
     cfg = load_config(config)
     preflight.distinct_from_inputs(outputs, [config, instances, *referenced_files(cfg)])
+    if check is not None:
+        check(cfg)
     lib = open_library(library) if library is not None else None
     with progress_bar("scene", quiet=quiet or instances is not None) as bar:
         return load_scene(cfg, instances, library=lib, progress=bar)
@@ -100,10 +112,11 @@ def register(app: typer.Typer) -> None:
         quiet: bool = QUIET,
     ):
         """Objects, archives per species and level, textures, instance files, a scene file per frame."""
-        from ..export.rib import export_rib
+        from ..export.rib import export_rib, rib_options
         from ..progress import progress_bar
 
-        scene = _scene(config, instances, library, quiet, folder=output)
+        scene = _scene(config, instances, library, quiet, folder=output, frames=frames,
+                       check=lambda cfg: rib_options(cfg, renderman22, display))  # fmt: skip
         with progress_bar("export rib", quiet=quiet) as bar:
             res = export_rib(scene, output, renderman22=renderman22, frames=frames, display=display, progress=bar)
         if not quiet:
@@ -135,7 +148,7 @@ def register(app: typer.Typer) -> None:
 
         if output.suffix.lower() not in SUFFIXES:
             raise ForestError(f"{output}: a USD file name must end in .usda, .usdc or .usd")
-        scene = _scene(config, instances, library, quiet, files=(output,))
+        scene = _scene(config, instances, library, quiet, files=(output,), frames=frames)
         with progress_bar("export usd", quiet=quiet) as bar:
             res = export_usd(scene, output, frames=frames, progress=bar)
         if not quiet:
@@ -164,14 +177,15 @@ def register(app: typer.Typer) -> None:
     ):
         """Species meshes and materials once, the trees as Geometry Nodes instances, camera, sun and sky."""
         from ..errors import ParameterError
-        from ..export.blender import export_blender
+        from ..export.blender import export_blender, find_blender
         from ..progress import progress_bar
 
         if output.suffix.lower() != ".blend":
             raise ParameterError("output", f"{output}: a Blender file name must end in .blend")
         if render is not None and render.suffix.lower() != ".png":  # Cycles' frame is written as a PNG
             raise ParameterError("render", f"{render}: the Cycles render is a PNG; the name must end in .png")
-        scene = _scene(config, instances, library, quiet, files=(output, render))
+        find_blender(blender)  # before the scatter: a missing Blender is known now
+        scene = _scene(config, instances, library, quiet, files=(output, render), frames=frames)
         with progress_bar("export blender", quiet=quiet) as bar:
             res = export_blender(scene, output, blender=blender, frames=frames, render=render, progress=bar)
         if not quiet:
