@@ -7,9 +7,11 @@ as linear EXR (half or float) and sRGB-encoded 8-bit PNG, always atomically.
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -206,6 +208,41 @@ def _set_attributes(spec, attributes: dict | None) -> None:
             spec.attribute(key, str(value))
 
 
+#: What OpenImageIO's writers say, through ``geterror()`` alone, when a write was cut short (its other messages, such
+#: as a TIFF's optional Exif block it could not add, leave a valid file).
+SHORT_WRITE = re.compile(r"write error|could only write|failed to write|file output failed", re.IGNORECASE)
+
+
+def _write_failed(path: Path, tmp: Path, err: str) -> ForestError:
+    """One line for an image write that failed: the storage's own reason where the folder has no space left
+    (OpenImageIO's message names the temporary file, not the output), else the writer's first line."""
+    reason = (err or "write failed").strip().splitlines()[0].replace(str(tmp), str(path))
+    if _no_space(tmp):
+        reason = os.strerror(errno.ENOSPC)
+    return ForestError(f"{path}: cannot write: {reason}")
+
+
+def _no_space(tmp: Path) -> bool:
+    """Whether the folder of ``tmp`` has (almost) no space left."""
+    try:
+        st = os.statvfs(tmp.parent)
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < 1 << 20
+
+
+def _finish(out: Any, path: Path, tmp: Path) -> None:
+    """Close an OpenImageIO writer and raise a one-line :class:`ForestError` if any write failed.
+
+    OpenImageIO reports a short write (a full disk, a quota, a file size limit) only through ``geterror()`` —
+    ``write_image`` and ``close`` still return True — and would leave a truncated file behind the atomic rename.
+    """
+    out.close()
+    err = out.geterror()
+    if err and (SHORT_WRITE.search(err) or _no_space(tmp)):
+        raise _write_failed(path, tmp, err)
+
+
 def write_image(path: str | Path, pixels: np.ndarray, *, attributes: dict | None = None, half: bool = True) -> Path:
     """Write ``pixels`` ``(H, W, C)`` atomically.
 
@@ -252,9 +289,11 @@ def write_image(path: str | Path, pixels: np.ndarray, *, attributes: dict | None
             if not out.open(str(tmp), spec):
                 raise ForestError(f"{path}: cannot write image: {out.geterror()}")
             if not out.write_image(np.ascontiguousarray(data)):
-                raise ForestError(f"{path}: cannot write image: {out.geterror()}")
-        finally:
+                raise _write_failed(path, tmp, out.geterror())
+        except BaseException:
             out.close()
+            raise
+        _finish(out, path, tmp)
     return path
 
 
@@ -313,8 +352,8 @@ def write_exr_channels(
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec) or not out.write_image(np.ascontiguousarray(data)):
-            raise ForestError(f"{path}: cannot write image: {oiio.geterror()}")
-        out.close()
+            raise _write_failed(path, tmp, (out.geterror() if out is not None else "") or oiio.geterror())
+        _finish(out, path, tmp)
     return path
 
 
@@ -376,8 +415,8 @@ def write_encoded_image(path: str | Path, pixels: np.ndarray, *, attributes: dic
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None or not out.open(str(tmp), spec) or not out.write_image(np.ascontiguousarray(pixels)):
-            raise ForestError(f"{path}: cannot write image: {oiio.geterror()}")
-        out.close()
+            raise _write_failed(path, tmp, (out.geterror() if out is not None else "") or oiio.geterror())
+        _finish(out, path, tmp)
     return path
 
 

@@ -89,5 +89,9 @@ def write_frame(
         camera=matrices,
         attributes=attrs,
     )
-    write_display(png, image.rgb, view=view, exposure=exposure)
+    try:
+        write_display(png, image.rgb, view=view, exposure=exposure)
+    except BaseException:
+        exr.unlink(missing_ok=True)  # the frame is the pair: no EXR left without its PNG
+        raise
     return [exr, png]
