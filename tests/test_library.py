@@ -237,6 +237,7 @@ def test_import_replaces_only_with_force(tmp_lib):
         ("lines.obj", "only points or lines"),
         ("points.ply", "no triangles"),
         ("nan.obj", "NaN"),
+        ("huge.obj", r"vertex coordinates up to 1e\+308, beyond ±1e\+09"),
         ("garbage.glb", "cannot read mesh"),
         ("missing.obj", "not found"),
         ("tree.mtl", "unsupported mesh format"),

@@ -122,6 +122,10 @@ def _size(n: int) -> str:
     return f"{n} bytes"
 
 
+#: Largest vertex coordinate accepted, in the file's own unit: a tree of a billion millimetres is 1 000 km; beyond
+#: that a file is broken, and its numbers would overflow the normalisation (1e308 did, with an internal error).
+MAX_COORDINATE = 1e9
+
 #: MTL statements that name a texture file (the file name is the statement's last word).
 MTL_MAPS = ("map_Kd", "map_Ka", "map_Ks", "map_d", "map_Bump", "map_bump", "bump", "norm", "disp")
 
@@ -197,6 +201,11 @@ def load_parts(path: Path, *, up: str = "auto", units: str = "auto", height: flo
         v = np.asarray(geom.vertices, dtype=np.float64)
         if not np.isfinite(v).all():
             raise ForestError(f"{path}: mesh {gname!r} has NaN or infinite vertex coordinates")
+        if len(v) and np.abs(v).max() > MAX_COORDINATE:
+            raise ForestError(
+                f"{path}: mesh {gname!r} has vertex coordinates up to {np.abs(v).max():.3g}, beyond ±{MAX_COORDINATE:g} "
+                "(a tree, in any unit)"
+            )
         total += len(faces)
         if total > MAX_TRIANGLES:
             raise ForestError(f"{path}: mesh has more than {MAX_TRIANGLES:,} triangles (the import limit)")
