@@ -25,9 +25,11 @@ from pathlib import Path
 from typing import Literal
 
 from fastapi import APIRouter, Depends, FastAPI, Request
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from .api import assets, events, files, jobs, system
 from .api.deps import Service, authorize
@@ -160,14 +162,35 @@ def create_app(cfg: ServiceConfig) -> FastAPI:
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
 
     @app.exception_handler(RequestValidationError)
-    async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
+    async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+        if isinstance(exc.body, (bytes, bytearray)):  # a body sent as something other than JSON: never echoed
+            kind = request.headers.get("content-type") or "no Content-Type"
+            return JSONResponse({"detail": f"body: must be JSON sent as application/json, got {kind[:60]}"}, 415)
         return JSONResponse({"detail": validation_line(list(exc.errors()), exc.body)}, status_code=422)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http_error(request: Request, exc: StarletteHTTPException) -> Response:
+        detail = body_error(exc.__cause__) if exc.status_code == 400 else None
+        if detail is not None:
+            return JSONResponse({"detail": detail}, status_code=400)
+        return await http_exception_handler(request, exc)
 
     @app.exception_handler(RequestError)
     async def _request_error(_request: Request, exc: RequestError) -> JSONResponse:
         return JSONResponse({"detail": str(exc)}, status_code=exc.status)
 
     return app
+
+
+def body_error(cause: BaseException | None) -> str | None:
+    """One line for a request body FastAPI could not read as JSON, from the error behind its generic 400: text
+    that is not UTF-8 (where), JSON nested past Python's recursion limit.  None for other causes."""
+    if isinstance(cause, UnicodeDecodeError):
+        bad = cause.object[cause.start : cause.start + 1]
+        return f"body: not UTF-8 text (byte 0x{bad.hex() or '??'} at position {cause.start})"
+    if isinstance(cause, RecursionError):
+        return "body: JSON nested too deeply"
+    return None
 
 
 def is_loopback(host: str) -> bool:

@@ -152,6 +152,8 @@ def validation_line(errors: list[dict[str, Any]], body: Any = None) -> str:
     if not errors:
         return "invalid request"
     e = dict(errors[0])
+    if "input" in e:
+        e["input"] = _short(e["input"])
     loc = tuple(e.get("loc") or ())
     if loc[:1] == ("body",):
         loc = loc[1:]
@@ -168,6 +170,33 @@ def validation_line(errors: list[dict[str, Any]], body: Any = None) -> str:
         return f"{dotted(loc)}: {_pattern_words(loc)}, got {e.get('input')!r}"
     field, message = first_error(_Errors([e]), data)  # type: ignore[arg-type]
     return f"{field}: {message}" if field else message
+
+
+#: Longest value a validation message quotes back; a longer one is described, never echoed.
+ECHO_CHARS = 80
+
+
+class _Described:
+    """A value too long to quote in a message: its ``repr`` is a description (a 5,000-character string)."""
+
+    def __init__(self, text: str):
+        self.text = text
+
+    def __repr__(self) -> str:
+        return self.text
+
+
+def _short(value: Any) -> Any:
+    """``value`` itself when its ``repr`` is short, else a :class:`_Described` of its type and size."""
+    text = repr(value)
+    if len(text) <= ECHO_CHARS:
+        return value
+    if isinstance(value, (str, bytes, bytearray)):
+        return _Described(f"a {len(value):,}-character {'string' if isinstance(value, str) else 'byte string'}")
+    if isinstance(value, (list, tuple, dict)):
+        kind = "table" if isinstance(value, dict) else "list"
+        return _Described(f"a {kind} of {len(value):,} item{'s' if len(value) != 1 else ''}")
+    return _Described(f"a {type(value).__name__} value ({len(text):,} characters)")
 
 
 def _pattern_words(loc: tuple[Any, ...]) -> str:
