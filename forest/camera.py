@@ -13,6 +13,7 @@ frame averages sub-frames at ``frame + s·(k + ½)/K − s/2`` for k = 0 … K�
 from __future__ import annotations
 
 import re
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -140,3 +141,35 @@ def frame_from_z(direction) -> np.ndarray:
     m = np.eye(4)
     m[:3, 0], m[:3, 1], m[:3, 2] = x, y, z
     return m
+
+
+#: Height above the ground under which a camera counts as under it: a camera exactly on the surface, or a few
+#: millimetres into it (float rounding of a painted or meshed terrain), still sees the scene.
+UNDERGROUND = 0.01
+#: Frames of a long shot checked against the ground at most (evenly spread, first and last included).
+CLEARANCE_SAMPLES = 2000
+
+
+def under_ground(cam: CameraConfig, height_at: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                 frames: Sequence[float]) -> str | None:  # fmt: skip
+    """A warning when the camera is under the terrain at any of ``frames``, else None.
+
+    ``height_at(x, z)`` is the terrain's height (:meth:`forest.terrain.Terrain.height_at`).  A camera
+    under the ground sees it from beneath (black under a physical sky, or the ground's underside):
+    renders still run, since an artist may want exactly that, but never without a word.
+    """
+    fs = np.asarray(sorted(set(float(f) for f in frames)), np.float64)
+    if len(fs) > CLEARANCE_SAMPLES:
+        fs = fs[np.unique(np.linspace(0, len(fs) - 1, CLEARANCE_SAMPLES).round().astype(np.int64))]
+    pos = np.array([camera_at(cam, f).position for f in fs], np.float64).reshape(-1, 3)
+    ground = np.asarray(height_at(pos[:, 0], pos[:, 2]), np.float64)
+    depth = ground - pos[:, 1]
+    under = depth > UNDERGROUND
+    if not under.any():
+        return None
+    k = int(np.argmax(under))
+    where = f"{depth[k]:.2f} m below the terrain (ground {ground[k]:.2f} m, camera {pos[k, 1]:.2f} m at x {pos[k, 0]:.1f}, z {pos[k, 2]:.1f})"
+    what = "[camera] keys" if cam.keys else "[camera] position"
+    if len(fs) == 1:
+        return f"the camera is {where}: it sees the ground from beneath; raise {what}"
+    return f"the camera is under the terrain at {int(under.sum())} of {len(fs)} frames checked, first at frame {fs[k]:g}, {where}: raise {what}"

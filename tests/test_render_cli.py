@@ -263,3 +263,29 @@ def test_a_tiny_render_does_not_set_the_time_forecast(tmp_path, monkeypatch):
     assert preflight.render_estimate(1920, 1080, 64, 130_000, "llvm_ad_rgb").measured
     preflight.record_render("llvm_ad_rgb", samples=32 * 24 * 2, trees=60, render_seconds=3.0, load_seconds=1.0)
     assert preflight.render_estimate(1920, 1080, 64, 130_000, "llvm_ad_rgb").measured  # the real render's rate kept
+
+
+def test_a_camera_under_the_terrain_is_warned_about(scene):
+    cfg = scene / "under.toml"
+    cfg.write_text(SCENE.format(render="").replace("position = [0.0, 30.0, -60.0]", "position = [0.0, -20.0, -30.0]"))
+    r = run("render", cfg, "--instances", scene / "trees.npz", "-o", scene / "under.exr", "-q")
+    assert r.returncode == 0, r.stderr
+    warning = [line for line in r.stderr.splitlines() if line.startswith("warning:")]
+    assert len(warning) == 1 and "below the terrain" in warning[0] and "raise [camera] position" in warning[0]
+    r = run("render", scene / "scene.toml", "--instances", scene / "trees.npz", "-o", scene / "over.exr", "-q")
+    assert r.returncode == 0 and "warning" not in r.stderr
+
+
+def test_under_ground_checks_every_frame_of_a_keyed_path():
+    from forest.camera import under_ground
+    from forest.config import CameraConfig
+
+    cam = CameraConfig.model_validate(
+        {"keys": [{"frame": 1, "position": [0, 10, 0], "target": [0, 0, 50]},
+                  {"frame": 11, "position": [0, -10, 100], "target": [0, 0, 150]}]}
+    )  # fmt: skip
+    flat = lambda x, z: np.zeros_like(x)  # noqa: E731 - the ground at y = 0
+    line = under_ground(cam, flat, range(1, 12))
+    assert line is not None and "under the terrain at 5 of 11 frames checked, first at frame 7" in line
+    assert "raise [camera] keys" in line
+    assert under_ground(cam, flat, range(1, 6)) is None

@@ -90,6 +90,11 @@ def register(app: typer.Typer) -> None:
         with progress_bar("scene", quiet=quiet or instances is not None) as bar:
             scene = load_scene(cfg, instances, progress=bar)
         # 3. With the trees known: the whole render's memory, then say what will happen.
+        from ..camera import under_ground
+
+        below = under_ground(cfg.camera, scene.terrain.height_at, [float(f) for f in frame_list])
+        if below is not None:
+            typer.echo(f"warning: {below}", err=True)
         trees = len(scene.instances)
         if variant is None and cfg.render.variant is None and not quiet:
             from ..render.selfcheck import TIME_LIMIT_S
