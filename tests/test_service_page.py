@@ -128,7 +128,8 @@ def test_submit_the_demo_with_its_maps_folder_watch_it_refine_and_download_an_ex
         wait(refined, timeout=300)
         passes = {p for _, p in seen}
         assert len(passes) >= 2 and any(label.startswith("frame ") for label, _ in seen), seen
-        assert js(d, "return document.getElementById('job-preview').naturalWidth") == 160
+        # the final image replaces the last pass's: wait for it to load rather than read it mid-swap
+        wait(lambda: js(d, "return document.getElementById('job-preview').naturalWidth") == 160, timeout=30)
 
         # the frame grid: one cell per frame, coloured by state, thumbnails loaded
         grid = "return [...document.querySelectorAll('#frame-grid .cell')].map(c => [c.dataset.frame, c.dataset.state])"
