@@ -31,6 +31,11 @@ Cases (each measurement runs in its own process so peak memory is its own):
   2 idle cores.  With ``--original-size``/``--scale`` smaller, a second run at
   a quarter of the samples splits fixed and per-sample cost and the full
   frame is extrapolated (printed as such).
+* ``lod`` — automatic level of detail (the default: no ``[lod]``) against every
+  tree at its highest level (the old default) on the case study's scene
+  (130 000 trees, broadleaf/conifer, 1920×1080): trees per level and the
+  instanced triangles of each, summed from the species' triangle counts at
+  the levels ``Scene.levels`` picks (nothing is rendered), and their ratio.
 * ``million`` — 1 000 000 trees of ≥ 5 000 triangles each at 1280×720, 16 spp:
   peak memory ≤ 6 GB.
 * ``flatten`` — the same trees instanced vs flattened into one mesh per part
@@ -72,6 +77,9 @@ Notes (2-core machine shared with other work, load average 4.5–6, Nov 2026; no
   trees × 57 626 triangles, 1280×720 16 spp, peak 4.83 GB; flatten 2 000 trees
   179×; original max_depth 2 295 CPU-s, max_depth 3 397 CPU-s.
 * cuda_ad_rgb: not measured (no GPU was available).
+* lod (130 000 trees, 1920x1080; levels and triangle sums only, nothing rendered): every tree high (the
+  old default) 8.210 G instanced triangles; automatic (pixels 240, 80, 20) 0.108 G — 0 high, 3 242 medium,
+  45 406 low, 81 352 far — 76.1x fewer; the original case's hand-set distances 150, 600, 1800 m give 0.129 G.
 """
 
 from __future__ import annotations
@@ -336,6 +344,57 @@ def case_original(
         f"render original: EXTRAPOLATED (not measured) to {count:,} trees, 1920x1080 64 spp: about {full_cpu:.0f} "
         f"CPU-s ≈ {full_cpu / 2:.0f} s on 2 idle cores (target ≤ 180 s); the film's memory at 1920x1080 is not "
         "in the peak above"
+    )
+
+
+def case_lod(tmp: Path, scale: float) -> None:
+    """Automatic LOD (no ``[lod]``) vs every tree at its highest level: trees per level and instanced triangles."""
+    from forest.config import load_config
+    from forest.lod import LOD_NAMES, LodPlan
+    from forest.render.path.from_scene import scene_species
+    from forest.scatter import scatter
+    from forest.scene import load_scene
+
+    count = max(100, int(130_000 * scale))
+    cfg = load_config(write_scene(tmp, count=count, width=1920, height=1080, spp=64, lod=""))
+    inst, _ = scatter(cfg)
+    scene = load_scene(cfg, inst)
+    groups, individual = scene_species(scene)  # the renderer's prototypes: (species, individual)
+    nind, nlev = max(len(g) for g in groups), max(len(sp.lods) for g in groups for sp in g)
+    tri = np.zeros((len(groups), nind, nlev), np.int64)  # triangles of each (species, individual, level)
+    for s, g in enumerate(groups):
+        for k in range(nind):
+            sp = g[min(k, len(g) - 1)]
+            for lv in range(nlev):
+                tri[s, k, lv] = sp.lods[min(lv, len(sp.lods) - 1)].triangles
+    species = np.asarray(scene.instances.species, np.int64)
+    ind = np.zeros(len(species), np.int64) if individual is None else individual
+    t0 = time.perf_counter()
+    levels = scene.levels(1.0)
+    t_levels = time.perf_counter() - t0
+    rows = {"old default (every tree high)": np.zeros(len(species), np.int64), scene.lod.describe(): levels}
+    # for reference, the hand-set distances of the ``original`` case
+    manual = LodPlan((150.0, 600.0, 1800.0), scene.lod.n_lods)
+    cam = scene.camera_at(1.0).position
+    rows[manual.describe() + " (the original case)"] = manual.levels(scene.instances.position, species, cam)
+    totals = {}
+    for name, lv in rows.items():
+        t = tri[species, ind, lv]
+        totals[name] = int(t.sum())
+        per = ", ".join(
+            f"{LOD_NAMES[k]} {int((lv == k).sum()):,} ({int(t[lv == k].sum()) / 1e6:,.1f} M)" for k in range(nlev)
+        )
+        print(
+            f"render lod: {len(inst):,} trees, 1920x1080, {name}: {totals[name] / 1e9:.3f} G instanced triangles; {per}"
+        )
+    old, new = totals["old default (every tree high)"], totals[scene.lod.describe()]
+    bands = "; ".join(
+        f"{sp.name} " + ", ".join(f"{b.near:.0f}" for b in scene.lod.bands(s)[1:]) + " m"
+        for s, sp in enumerate(scene.species)
+    )
+    print(
+        f"render lod: automatic / old default = {new / max(old, 1):.4f} ({old / max(new, 1):.1f}x fewer triangles); "
+        f"boundaries at scale 1: {bands}; levels of {len(inst):,} trees in {t_levels * 1e3:.0f} ms"
     )
 
 
@@ -625,7 +684,7 @@ def case_jit_memory(scale: float) -> None:
 
 
 WORKERS = {"render": worker_render, "memory": worker_memory, "frame": worker_frame, "cli": worker_cli}
-CASES = ("scale", "look", "jit_memory", "original", "million", "flatten", "blender")
+CASES = ("scale", "look", "jit_memory", "original", "lod", "million", "flatten", "blender")
 
 
 def main() -> None:
@@ -670,6 +729,8 @@ def main() -> None:
                 case_jit_memory(args.scale)
             elif c == "original":
                 case_original(sub, args.scale, args.variant, args.max_depth, size, args.original_spp)
+            elif c == "lod":
+                case_lod(sub, args.scale)
             elif c == "million":
                 case_million(sub, args.scale, args.variant)
             elif c == "flatten":

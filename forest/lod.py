@@ -1,30 +1,64 @@
-"""Levels of detail: the one rule from camera distance to a species' level, for every backend.
+"""Levels of detail: the one rule from a tree's view to its species' level, for every backend.
 
-With boundaries d₀ < d₁ < d₂ (``[lod] distances``), a tree at distance
-r = |p − c| from the camera gets level
+Levels are 0 = high, 1 = medium, 2 = low, 3 = far, clamped to the species'
+last level.  A species s has boundaries d₀ < d₁ < d₂ (metres, for a tree of
+scale 1) and a tree of scale σ at distance r = |p − c| from the camera gets
 
-    k = #{dᵢ ≤ r}        (0 = high, 1 = medium, 2 = low, 3 = far),
+    k = #{dᵢ ≤ r / σ}.
 
-clamped to the species' last level.  Without ``[lod]`` every tree is level 0.
-The Mitsuba renderer applies it per frame and tree; RIB writes the same rule
-as ``DetailRange`` bands (:meth:`LodPlan.bands`); look-dev renders the
+``[lod] pixels`` (the automatic rule, the default): a tree covers about
+
+    p = σ · H_s · f / r   pixels high,   f = (W / 2) / tan(fov / 2)
+
+(H_s the height of the species' highest level's bound, W ``[render] width``,
+fov the camera's horizontal field of view at the frame; with square pixels f
+is also (H_px / 2) / tan(fov_v / 2)).  With thresholds t₀ > t₁ > t₂ the level
+is k = #{tᵢ ≥ p}, which is the rule above with per-species boundaries
+
+    dᵢ = H_s · f / tᵢ.
+
+**Seen from above** (the automatic rule only): the far level is crossed
+vertical cards, which from high above are nearly edge-on and let the ground
+through.  A tree the camera sees at more than :data:`STEEP_VIEW` degrees above
+its horizon, sin θ = (c_y − p_y) / r, keeps the level before its far one
+(``low``), however small it is.  RIB's ``DetailRange`` measures raster area
+alone and cannot say this: a RIB export seen from steeply above uses the far
+level where forest's renderers do not.
+
+``[lod] distances`` (manual): the same boundaries dᵢ for every species and no
+division by the scale, k = #{dᵢ ≤ r}.  ``[lod] auto = false``: every tree is
+level 0.
+
+The Mitsuba and forest_path renderers apply it per frame and tree
+(:meth:`forest.scene.Scene.levels`); RIB writes the same rule as
+``DetailRange`` bands (:meth:`LodPlan.bands`; RenderMan measures each tree's
+own scaled bound, which is the division by σ); look-dev renders the
 production scene with it.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from .config import Config
+    from .library import Species
+
 LOD_NAMES = ("high", "medium", "low", "far")
+#: Elevation (degrees) above which a tree keeps the level before its far one in the automatic rule: vertical
+#: crossed cards seen at θ above their horizon cover about cos θ of what they cover side on (0.77 at 40°).
+STEEP_VIEW = 40.0
 
 
 def lod_levels(
     position: np.ndarray, camera: np.ndarray, distances: tuple[float, ...] | list[float], n_lods: np.ndarray
 ) -> np.ndarray:
-    """Level per tree: k = #{dᵢ ≤ |p − c|}, clamped to ``n_lods − 1`` (the module's rule)."""
+    """Level per tree: k = #{dᵢ ≤ |p − c|}, clamped to ``n_lods − 1`` (the manual rule)."""
     position = np.asarray(position, dtype=np.float64)
     n_lods = np.asarray(n_lods)
     if len(distances) == 0 or len(position) == 0:
@@ -35,9 +69,20 @@ def lod_levels(
     return out
 
 
+def focal_pixels(width: int, fov: float) -> float:
+    """Focal length in pixels of an image ``width`` pixels wide with horizontal field of view ``fov`` degrees."""
+    return (width / 2) / math.tan(math.radians(fov) / 2)
+
+
+def projected_pixels(height: np.ndarray, distance: np.ndarray, width: int, fov: float) -> np.ndarray:
+    """Projected height in pixels, p = h · f / r, of objects ``height`` metres tall at ``distance`` metres."""
+    f = focal_pixels(width, fov)
+    return np.asarray(height, np.float64) * f / np.maximum(np.asarray(distance, np.float64), 1e-9)
+
+
 @dataclass(frozen=True)
 class Band:
-    """Camera distances [near, far) metres over which a species uses ``level``."""
+    """Camera distances [near, far) metres (for a tree of scale 1) over which a species uses ``level``."""
 
     level: int
     near: float
@@ -46,19 +91,78 @@ class Band:
 
 @dataclass(frozen=True)
 class LodPlan:
-    """The ``[lod]`` boundaries and how many levels each species has."""
+    """The rule of ``[lod]`` (module docstring) and how many levels each species has.
+
+    Manual: ``distances``.  Automatic: ``pixels`` with ``heights`` (each species'
+    highest-level bound height, metres), the image ``width`` and the camera's
+    ``fov`` (degrees, horizontal; the default of :meth:`bands` and :meth:`levels`).
+    Neither: off, every tree at level 0.
+    """
 
     distances: tuple[float, ...]
     n_lods: tuple[int, ...]  # per species index
+    pixels: tuple[float, ...] = ()
+    heights: tuple[float, ...] = ()  # per species index, the automatic rule's H_s
+    width: int = 0
+    fov: float = 40.0
+    impostor: tuple[bool, ...] = ()  # per species index: its last level is the far crossed-card impostor
 
-    def levels(self, position: np.ndarray, species: np.ndarray, camera: np.ndarray) -> np.ndarray:
-        """Level per tree for a camera position (see the module docstring)."""
-        n = np.asarray(self.n_lods or (1,), dtype=np.int64)[np.asarray(species, dtype=np.int64)]
-        return lod_levels(position, camera, self.distances, n)
+    @property
+    def mode(self) -> str:
+        """``"pixels"`` (automatic), ``"distances"`` (manual) or ``"off"``."""
+        if self.pixels:
+            return "pixels"
+        return "distances" if self.distances else "off"
 
-    def bands(self, species: int) -> list[Band]:
-        """The distance bands of one species, consecutive bands of the same level merged."""
-        edges = [0.0, *self.distances, math.inf]
+    def describe(self) -> str:
+        """The rule in words, e.g. ``auto: pixels 240, 80, 20`` or ``distances 40, 120, 300 m``."""
+        if self.mode == "pixels":
+            return "auto: pixels " + ", ".join(f"{t:g}" for t in self.pixels)
+        if self.mode == "distances":
+            return "distances " + ", ".join(f"{d:g}" for d in self.distances) + " m"
+        return "off"
+
+    def boundaries(self, species: int, fov: float | None = None) -> tuple[float, ...]:
+        """The boundaries d₀ < d₁ < … of one species for a tree of scale 1, metres (camera ``fov``: the plan's)."""
+        if not self.pixels:
+            return self.distances
+        f = focal_pixels(self.width, self.fov if fov is None else fov)
+        h = max(float(self.heights[species]), 1e-6)
+        return tuple(h * f / t for t in self.pixels)
+
+    def levels(
+        self,
+        position: np.ndarray,
+        species: np.ndarray,
+        camera: np.ndarray,
+        scale: np.ndarray | None = None,
+        fov: float | None = None,
+    ) -> np.ndarray:
+        """Level per tree for a camera position (and, automatic, the trees' ``scale`` and the camera's ``fov``)."""
+        species = np.asarray(species, dtype=np.int64)
+        n = np.asarray(self.n_lods or (1,), dtype=np.int64)[species]
+        if not self.pixels:
+            return lod_levels(position, camera, self.distances, n)
+        position = np.asarray(position, dtype=np.float64)
+        if len(position) == 0:
+            return np.zeros(0, dtype=np.int64)
+        r = np.linalg.norm(position - np.asarray(camera, dtype=np.float64)[None, :], axis=1)
+        if scale is not None:
+            r = r / np.asarray(scale, dtype=np.float64)
+        edges = np.array([self.boundaries(s, fov) for s in range(len(self.n_lods))], dtype=np.float64)
+        k = (r[:, None] >= edges[species]).sum(axis=1)
+        out: np.ndarray = np.minimum(k, n - 1).astype(np.int64)
+        if any(self.impostor):
+            # Seen from steeply above, a far impostor shows its cards edge-on: keep the level before it.
+            d = np.asarray(camera, dtype=np.float64)[None, :] - position
+            steep = d[:, 1] > math.sin(math.radians(STEEP_VIEW)) * np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+            cap = np.where(np.asarray(self.impostor, bool)[species] & steep & (n > 1), n - 2, n - 1)
+            out = np.minimum(out, cap)
+        return out
+
+    def bands(self, species: int, fov: float | None = None) -> list[Band]:
+        """The distance bands of one species (scale 1), consecutive bands of the same level merged."""
+        edges = [0.0, *self.boundaries(species, fov), math.inf]
         last = self.n_lods[species] - 1
         out: list[Band] = []
         for b in range(len(edges) - 1):
@@ -68,3 +172,18 @@ class LodPlan:
             else:
                 out.append(Band(level, edges[b], edges[b + 1]))
         return out
+
+
+def lod_plan(config: Config, species: Sequence[Species]) -> LodPlan:
+    """The :class:`LodPlan` of a config's ``[lod]`` for the resolved species (per species index of the InstanceSet)."""
+    lod = config.lod
+    n_lods = tuple(len(sp.lods) for sp in species)
+    if lod.mode == "pixels":
+        heights = tuple(
+            float(np.asarray(sp.lods[0].bounds)[1, 1] - np.asarray(sp.lods[0].bounds)[0, 1]) for sp in species
+        )
+        impostor = tuple(len(sp.lods) > 1 and sp.lods[-1].name == "far" for sp in species)
+        return LodPlan(
+            (), n_lods, lod.thresholds, heights, int(config.render.width), float(config.camera.fov), impostor
+        )
+    return LodPlan(lod.bands, n_lods)

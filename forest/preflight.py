@@ -558,7 +558,10 @@ def check_render_memory(
         kept = f"about {can:,} trees fit" if can > 0 else "no trees fit"
         message = what + f"; even a small image does not fit: {kept} (render fewer trees, or --instances)"
         if _kind(estimate.variant) == "jit":
-            message += "; or bring [lod] distances closer so more trees merge at the far level"
+            if config.lod.mode == "pixels":
+                message += "; or raise [lod] pixels (the last is the far level's) so more trees merge at the far level"
+            else:
+                message += "; or bring [lod] distances closer so more trees merge at the far level"
         raise ConfigError(config.path, "scatter.count", message)
     if fits is None:
         message = what + "; even a small image does not fit: render fewer trees (scatter.count, --instances)"

@@ -85,7 +85,7 @@ from .ground import TerrainAlbedo, terrain_albedo
 from .instances import InstanceSet
 from .library import Library, Species
 from .lights import Lights, resolve_lights
-from .lod import LodPlan
+from .lod import LodPlan, lod_plan
 from .maps import colour_at, colour_tint_grid, read_colour_map
 from .preflight import check_species
 from .scatter.models import model_settings, resolve_individuals, resolve_models, scatter_models
@@ -145,9 +145,11 @@ class Scene:
         return camera_at(self.config.camera, frame)
 
     def levels(self, frame: float) -> np.ndarray:
-        """Level of detail per tree seen from the camera at ``frame`` (:mod:`forest.lod`)."""
+        """Level of detail per tree seen from the camera at ``frame`` (:mod:`forest.lod`: its position and fov,
+        and each tree's scale)."""
         inst = self.instances
-        return self.lod.levels(inst.position, inst.species, self.camera_at(frame).position)
+        cam = self.camera_at(frame)
+        return self.lod.levels(inst.position, inst.species, cam.position, inst.scale, float(cam.fov))
 
     @property
     def lights(self) -> Lights:
@@ -180,6 +182,7 @@ class Scene:
         A colour map named or normalised differently is read again, the tints
         are recomputed (a set scatter made), and the ground's albedo is
         recomputed when ``[ground]`` or the terrain's texture or colour changed.
+        The LOD plan follows the new config's ``[lod]``, ``[render] width`` and camera.
         """
         colour = self.colour
         old = self.config
@@ -191,7 +194,8 @@ class Scene:
         ground = self.terrain_albedo
         if _ground_inputs(config) != _ground_inputs(old):
             ground = terrain_albedo(config, self.terrain, inst, self.species)
-        return dataclasses.replace(self, config=config, colour=colour, instances=inst, terrain_albedo=ground)
+        lod = lod_plan(config, self.species)
+        return dataclasses.replace(self, config=config, colour=colour, instances=inst, terrain_albedo=ground, lod=lod)
 
 
 def _ground_inputs(config: Config) -> tuple[object, ...]:
@@ -335,6 +339,6 @@ def load_scene(
         inst = retint(inst, colour, tint_params(model_settings(config), species, config.seed))
     step(0.85, "ground")
     ground = terrain_albedo(config, terrain, inst, species)
-    lod = LodPlan(config.lod.bands, tuple(len(sp.lods) for sp in species))
+    lod = lod_plan(config, species)
     step(1.0, "scene")
     return Scene(config, terrain, inst, colour, library, species, lod, ground, individuals)

@@ -104,7 +104,8 @@ def test_the_exr_is_comp_ready_and_the_png_is_its_view(tmp_path, library, varian
 def test_preview_denoises_with_albedo_and_normal_guides(tmp_path, library):
     from forest.render.render import frame_size, make_renderer
 
-    cfg = scene_config(tmp_path, lights=WHITE_SKY)
+    # every box at its highest level (white): at 40 px the automatic LOD would draw the far level (blue)
+    cfg = scene_config(tmp_path, lights=WHITE_SKY).with_overrides({"lod.auto": False})
     scene = load_scene(cfg, trees([[x, 0.0, 0.0] for x in (-20.0, 0.0, 20.0)], scale=6.0), library=library)
     r = make_renderer(scene, "llvm_ad_rgb", frame_size(cfg, preview=True), preview=True)
     out = r.frame(1.0)

@@ -728,12 +728,37 @@ class RenderConfig(Section):
     )
 
 
+#: ``[lod] pixels`` when none are given: thresholds of a tree's projected height, pixels, high → medium → low → far.
+#: With the library's budgets (high ≤ 70 000 triangles, medium ~12 000, low ~1 500, far 6) each level is used
+#: where it spends very roughly 0.3–3 triangles per pixel the tree covers, and the far level's crossed cards
+#: (a 128-pixel impostor per view) only where the whole tree is under 20 pixels tall.
+DEFAULT_LOD_PIXELS = (240.0, 80.0, 20.0)
+
+
 class LodConfig(Section):
-    """Level-of-detail boundaries by camera distance; without them every tree is at its highest level."""
+    """Level of detail per tree: by its projected size in pixels (automatic, the default), by camera distance
+    (``distances``), or off (``auto = false``: every tree at its highest level)."""
 
     distances: (
         Annotated[list[Positive], Field(min_length=1, max_length=3, json_schema_extra={"uniqueItems": True})] | None
-    ) = Field(None, description="Boundaries high → medium → low → far, metres from the camera.")
+    ) = Field(
+        None,
+        description="Manual boundaries high → medium → low → far, metres from the camera, the same for every "
+        "species and tree size; given, they replace the automatic rule.",
+    )
+    pixels: (
+        Annotated[list[Positive], Field(min_length=1, max_length=3, json_schema_extra={"uniqueItems": True})] | None
+    ) = Field(
+        None,
+        description="Automatic rule: thresholds of a tree's projected height in pixels (its species' highest "
+        "level's bound height × its scale, at its camera distance, for [render] width and the camera's fov), "
+        "strictly decreasing, high → medium → low → far (default [240, 80, 20]).",
+    )
+    auto: Bool = Field(
+        True,
+        description="Without distances: choose each tree's level by its projected size (pixels); "
+        "false turns level of detail off, every tree at its highest level.",
+    )
 
     @field_validator("distances")
     @classmethod
@@ -742,15 +767,44 @@ class LodConfig(Section):
             raise fail(f"must be positive and strictly increasing, got {list(v)}")
         return v
 
+    @field_validator("pixels")
+    @classmethod
+    def _decreasing(cls, v: list[float] | None) -> list[float] | None:
+        if v is not None and list(v) != sorted(set(v), reverse=True):
+            raise fail(f"must be positive and strictly decreasing, got {list(v)}")
+        return v
+
+    @model_validator(mode="after")
+    def _one_rule(self) -> LodConfig:
+        if self.pixels is not None and self.distances is not None:
+            raise fail("give distances (manual) or pixels (automatic), not both", "pixels")
+        if self.pixels is not None and not self.auto:
+            raise fail("apply to the automatic rule, which auto = false turns off; remove one of them", "pixels")
+        return self
+
+    @property
+    def mode(self) -> Literal["distances", "pixels", "off"]:
+        """Which rule chooses the levels: ``distances``, ``pixels`` (automatic) or ``off``."""
+        if self.distances is not None:
+            return "distances"
+        return "pixels" if self.auto else "off"
+
     @property
     def enabled(self) -> bool:
-        """Whether ``distances`` are given."""
-        return self.distances is not None
+        """Whether trees change level at all (``auto = false`` without distances turns it off)."""
+        return self.mode != "off"
 
     @property
     def bands(self) -> tuple[float, ...]:
-        """The boundaries as a tuple (empty without [lod])."""
+        """The manual distance boundaries as a tuple (empty unless ``distances`` is given)."""
         return tuple(self.distances or ())
+
+    @property
+    def thresholds(self) -> tuple[float, ...]:
+        """The automatic rule's pixel thresholds (:data:`DEFAULT_LOD_PIXELS` unless given; empty in the other modes)."""
+        if self.mode != "pixels":
+            return ()
+        return tuple(self.pixels) if self.pixels is not None else DEFAULT_LOD_PIXELS
 
 
 class WindConfig(Section):

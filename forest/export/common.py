@@ -10,11 +10,14 @@ Conventions (both exporters, and the same as the Mitsuba renderer):
   towards +X (east), so φ = 0 puts the sun over +Z, φ = 90° over +X; sunlight
   travels along −d.  A physical sun-sky is written as its sun (a distant light)
   and a dome (:meth:`forest.lights.Sky.dome`).
-* **Levels of detail.**  ``[lod] distances = [d₁, …, dₙ]`` split the distance
-  from the camera into n + 1 bands; band i (0 = nearest) uses the species'
-  i-th level (high, medium, low, far).  A species with fewer levels keeps its
-  last level for the remaining bands.  Without ``[lod]`` every tree uses the
-  first level.
+* **Levels of detail.**  :mod:`forest.lod`'s rule: boundaries d₁ < … < dₙ
+  split the distance from the camera into n + 1 bands; band i (0 = nearest)
+  uses the species' i-th level (high, medium, low, far).  A species with fewer
+  levels keeps its last level for the remaining bands.  The boundaries are
+  ``[lod] distances``, the same for every species, or — the automatic rule,
+  the default — per species from ``[lod] pixels`` (dᵢ = H·f/tᵢ for a tree of
+  scale 1, H its highest level's bound height, f the camera's focal length
+  in pixels); with ``[lod] auto = false`` every tree uses the first level.
 """
 
 from __future__ import annotations
@@ -106,11 +109,12 @@ class SpeciesPlan:
         return out
 
 
-def species_plans(scene, *, used_only: bool = True) -> list[SpeciesPlan]:
+def species_plans(scene, *, used_only: bool = True, fov: float | None = None) -> list[SpeciesPlan]:
     """Every species of the scene with trees (all with ``used_only=False``) and its LOD bands.
 
     Species come resolved from the Scene; the bands from its LOD plan
-    (:meth:`forest.lod.LodPlan.bands`), the one rule every backend shares.
+    (:meth:`forest.lod.LodPlan.bands`), the one rule every backend shares,
+    for a camera of horizontal field of view ``fov`` (default the config's).
     """
     instances = scene.instances
     counts = np.bincount(instances.species, minlength=len(instances.species_names))
@@ -125,7 +129,7 @@ def species_plans(scene, *, used_only: bool = True) -> list[SpeciesPlan]:
         while name in taken:
             name, n = f"{base}_{n}", n + 1
         taken.add(name)
-        bands = [Band(sp.lods[b.level], b.near, b.far) for b in scene.lod.bands(i)]
+        bands = [Band(sp.lods[b.level], b.near, b.far) for b in scene.lod.bands(i, fov)]
         plans.append(SpeciesPlan(i, model, name, sp, bands))
     return plans
 

@@ -83,7 +83,9 @@ takes the ground's albedo grid (the renderers' ``terrain_texture``, else
 ``[ground]``'s rules) through ``textures/terrain.tif``, or ``[render]
 terrain_colour`` when the ground is that one material.
 
-**Level of detail.**  With ``[lod] distances`` each tree gets ``Detail`` (the
+**Level of detail.**  When its species has several levels in the scene's LOD
+plan (:mod:`forest.lod`: automatic by projected size, the default, or ``[lod]
+distances``) each tree gets ``Detail`` (the
 union of its levels' bounds) and, per level, ``DetailRange`` in raster pixels²
 of that bound — in its block of the instance file, or, with ``[export] rib_lod =
 "archive"``, in one ``archives/<species>_lod.rib`` per species that every tree
@@ -94,6 +96,10 @@ reads through a single ``Procedural``.  A band [near, far) metres becomes
 (h the bound's height, w its larger horizontal side, f the focal length in
 pixels of the frame's camera fov and ``[render] width``), with a cross-fade of
 ± ``[export] lod_transition`` (default 10 %) of the distance at each boundary.
+The bands are the plan's for a tree of scale 1; RenderMan measures each tree's
+own scaled bound, so a tree of scale σ switches at σ·d — the automatic rule's
+r/σ.  With the automatic rule the bands are computed for the frame's fov
+(dᵢ = H·f/tᵢ), so the areas A(dᵢ) = h·w·(tᵢ/H)² do not depend on it.
 
 **Scene files.**  ``Display`` by ``[export] rib_display`` (default ``"file"``,
 the driver every RenderMan-compliant renderer has: a TIFF named after the
@@ -626,17 +632,27 @@ def detail_ranges(plan: SpeciesPlan, detail_bound: np.ndarray, width: int, fov: 
     return out
 
 
-def check_transition(config: Config, transition: float) -> None:
-    """Refuse (``ConfigError``) a ``lod_transition`` whose cross-fades would make neighbouring LOD bands overlap."""
-    d = list(config.lod.bands)
-    for a, b in itertools.pairwise(d):
-        if b * (1 - transition) < a * (1 + transition):
-            limit = (b - a) / (b + a)
-            raise ConfigError(
-                config.path,
-                "export.lod_transition",
-                f"{transition:g} makes the LOD bands around {a:g} m and {b:g} m overlap; use at most {limit:.3f}",
-            )
+def check_transition(config: Config, transition: float, plans: list[SpeciesPlan] | None = None) -> None:
+    """Refuse (``ConfigError``) a ``lod_transition`` whose cross-fades would make neighbouring LOD bands overlap.
+
+    With ``[lod] distances`` the bands are those distances; with the automatic rule each species plan's
+    (:meth:`forest.lod.LodPlan.bands`, whose ratios are the pixel thresholds' ratios).
+    """
+    if plans is None or config.lod.mode == "distances":
+        pairs: list[tuple[SpeciesPlan | None, list[float]]] = [(None, list(config.lod.bands))]
+    else:
+        pairs = [(p, [b.far for b in p.bands[:-1]]) for p in plans]
+    for plan, d in pairs:
+        for a, b in itertools.pairwise(d):
+            if b * (1 - transition) < a * (1 + transition):
+                limit = (b - a) / (b + a)
+                what = "" if plan is None else f" of {plan.model!r}"
+                raise ConfigError(
+                    config.path,
+                    "export.lod_transition",
+                    f"{transition:g} makes the LOD bands{what} around {a:g} m and {b:g} m overlap; "
+                    f"use at most {limit:.3f}",
+                )
 
 
 # ---------------------------------------------------------------------------
@@ -1002,10 +1018,10 @@ def export_rib(
     if out_dir.exists() and not out_dir.is_dir():
         raise ForestError(f"{out_dir}: exists and is not a folder")
     opts = rib_options(config, renderman22, display)
-    check_transition(config, opts.lod_transition)
     frame_list = export_frames(config, frames)
     check_instances(config, instances)
     plans = species_plans(scene)
+    check_transition(config, opts.lod_transition, plans)
     report = progress or (lambda _f, _m="": None)
     result = RibExport(out_dir=out_dir, trees=len(instances))
     r22 = renderman22
@@ -1075,8 +1091,10 @@ def export_rib(
             t1, c1 = time.perf_counter(), time.process_time()
             for group in groups:
                 tag = "" if len(groups) == 1 else f"_{group.frames[0]:04d}"
+                # the automatic rule's boundaries scale with the frame's focal length (its DetailRange areas do not)
+                group_plans = species_plans(scene, fov=group.fov) if scene.lod.mode == "pixels" else plans
                 suffixes, lod_archives = tree_suffixes(
-                    plans, archive_paths, bounds, opts, config.render.width, group.fov, tag
+                    group_plans, archive_paths, bounds, opts, config.render.width, group.fov, tag
                 )
                 for rel, data in lod_archives.items():
                     (tmp / rel).write_bytes(data)

@@ -63,15 +63,20 @@ class RenderResult:
     lod_counts: dict[str, int] = field(default_factory=dict)
     denoised: bool = False
     leaf_model: str = ""
+    lod_rule: str = ""  # the rule that chose the levels (:meth:`forest.lod.LodPlan.describe`)
 
     def summary(self) -> str:
-        """One line: trees, instanced and unique triangles, times, peak memory."""
+        """One line: trees, instanced and unique triangles, times, peak memory, and the levels and their rule."""
         frames = f"{len(self.frames)} frames" if len(self.frames) > 1 else "1 frame"
+        lod = ""
+        if self.lod_counts:
+            counts = ", ".join(f"{k} {v:,}" for k, v in self.lod_counts.items())
+            lod = f"; LOD {counts}" + (f" ({self.lod_rule})" if self.lod_rule else "")
         return (
             f"rendered {frames} {self.width}x{self.height} {self.spp} spp ({self.variant}): "
             f"{self.trees:,} trees, {self.instanced_triangles:,} instanced triangles, "
             f"{self.unique_triangles:,} unique, load {self.load_seconds:.1f} s, "
-            f"render {self.render_seconds:.1f} s, peak {self.peak_memory_gb:.2f} GB"
+            f"render {self.render_seconds:.1f} s, peak {self.peak_memory_gb:.2f} GB{lod}"
         )
 
 
@@ -244,6 +249,8 @@ def render_scene(
             "forest:haze_height": float(rc.haze_height),
             "forest:sky": sky.kind if (sky := scene.lights.sky) is not None else "none",
         }
+        if scene.lod.mode != "distances":  # which rule chose the levels (forest:lod_distances says it for that one)
+            attrs["forest:lod_rule"] = scene.lod.describe()
         written += write_frame(
             exr,
             png,
@@ -273,6 +280,7 @@ def render_scene(
         render_seconds=r.render_seconds,
         peak_memory_gb=peak_memory_gb(),
         lod_counts=r.lod_counts,
+        lod_rule=scene.lod.describe(),
         denoised=denoised,
         leaf_model=r.leaf_model,
     )

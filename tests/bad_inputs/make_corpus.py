@@ -652,6 +652,13 @@ def cases(tmp: Path) -> list[Case]:
             {"scene.toml": scene("[lod]\ndistances = [400.0, 80.0]\n")},
         ),
         L(
+            "lod_distances_and_pixels",
+            "value",
+            RENDER,
+            ["scene.toml", "lod.pixels", "not both"],
+            {"scene.toml": scene("[lod]\ndistances = [80.0, 400.0]\npixels = [200.0, 50.0]\n")},
+        ),
+        L(
             "sun_colour_negative",
             "value",
             RENDER,

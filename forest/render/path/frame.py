@@ -265,10 +265,15 @@ class PathScene:
                 "render a smaller image"
             )
         if have is not None and need > have - headroom:
+            setting = self.inputs.lod_setting
+            advice = {
+                "pixels": "raise the [lod] pixels thresholds",
+                "auto": "turn level of detail on (leave [lod] auto out)",
+            }.get(setting, "bring the level-of-detail distances closer")
             raise ForestError(
-                f"[lod] distances: {instances:,} instanced trees and {flat:,} merged far-level triangles need about "
-                f"{need / 2**30:.1f} GB, {max(have - headroom, 0) / 2**30:.1f} GB is available; bring the "
-                "level-of-detail distances closer so more trees use the merged far level"
+                f"[lod] {setting}: {instances:,} instanced trees and {flat:,} merged far-level triangles need about "
+                f"{need / 2**30:.1f} GB, {max(have - headroom, 0) / 2**30:.1f} GB is available; {advice} "
+                "so more trees use the merged far level"
             )
 
     @property

@@ -165,6 +165,7 @@ def path_inputs(
         spp=int(spp or rc.spp),
         seed=int(rc.seed),
         leaf_tint=scene.leaf_tint if config.lookdev.leaf_tint else None,
+        lod_setting={"pixels": "pixels", "off": "auto"}.get(scene.lod.mode, "distances"),
         ground_tint=tuple(float(x) for x in scene.ground_tint),
     )
 

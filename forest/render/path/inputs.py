@@ -172,6 +172,9 @@ class PathInputs:
     seed: int = 0
     sampler: str = "multijitter"
     flatten_triangles: int = FLATTEN_MAX_TRIANGLES
+    #: The ``[lod]`` setting that decides how many trees are instanced (named when they do not fit in memory):
+    #: ``distances`` (manual), ``pixels`` (automatic) or ``auto`` (level of detail off).
+    lod_setting: str = "distances"
     leaf_tint: np.ndarray | None = None
     ground_tint: Sequence[float] = (1.0, 1.0, 1.0)
 
