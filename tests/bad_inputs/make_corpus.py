@@ -194,6 +194,7 @@ def cases(tmp: Path) -> list[Case]:
 
     flat_quad = _obj([(0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0)], [(0, 1, 2), (1, 2, 3)])
     nan_obj = _obj([(0, 0, 0), (1, 0, 0), ("nan", 0, 1)], [(0, 1, 2)])
+    huge_obj = _obj([(0, 0, 0), (1e308, 0, 0), (0, 1, 0)], [(0, 1, 2)])
     tri_obj = _obj([(0, 0, 0), (1, 0, 0), (0, 2, 0)], [(0, 1, 2)])
     deep = "seed = " + "[" * 2000 + "]" * 2000 + "\n"
     big = scene() + "# " + "x" * 1100 + "\n"
@@ -811,6 +812,55 @@ def cases(tmp: Path) -> list[Case]:
             ["library", "add", "nan.obj", "--name", "bad", "--library", "lib"],
             ["nan.obj", "NaN"],
             {"nan.obj": nan_obj},
+        ),
+        L(
+            "add_huge_mesh",
+            "library",
+            ["library", "add", "huge.obj", "--name", "bad", "--library", "lib"],
+            ["huge.obj", "beyond"],
+            {"huge.obj": huge_obj},
+        ),
+        L(
+            "export_rib_frames_backwards_before_scatter",
+            "option",
+            ["export", "rib", "scene.toml", "-o", "rib", "--frames", "9-1"],
+            ["--frames", "9-1"],
+            {"scene.toml": scene()},
+        ),
+        L(
+            "export_rib_display_unknown_before_scatter",
+            "option",
+            ["export", "rib", "scene.toml", "-o", "rib", "--display", "nuke"],
+            ["--display", "nuke"],
+            {"scene.toml": scene()},
+        ),
+        L(
+            "export_usd_frames_unreadable_before_scatter",
+            "option",
+            ["export", "usd", "scene.toml", "-o", "s.usda", "--frames", "one"],
+            ["--frames", "one"],
+            {"scene.toml": scene()},
+        ),
+        L(
+            "export_blender_missing_before_scatter",
+            "option",
+            ["export", "blender", "scene.toml", "-o", "s.blend", "--blender", "no/blender"],
+            ["Blender not found", "no/blender"],
+            {"scene.toml": scene()},
+        ),
+        L(
+            "export_usd_instances_missing_before_scatter",
+            "option",
+            ["export", "usd", "scene.toml", "-o", "s.usda", "--instances", "gone.npz"],
+            ["--instances", "gone.npz", "not found"],
+            {"scene.toml": scene()},
+        ),
+        L(
+            "lod_pixels_increasing",
+            "value",
+            ["render", "scene.toml", "-o", "out.exr"],
+            ["scene.toml", "lod.pixels"],
+            {"scene.toml": scene("[lod]\npixels = [20.0, 80.0]\n")},
         ),
         L(
             "add_missing_mesh",
