@@ -325,6 +325,14 @@ def input_file(path: str | Path, *, field: str | None, what: str = "file") -> Pa
 # ---------------------------------------------------------------------------------------------
 
 
+#: Library tree variants (a species' individuals, each ``NAME@SEED`` its own) one scene may draw on.  Each is
+#: generated on first use; 10 000 seeded species once ran for hours and filled the user library.  256 is 64
+#: species of 4 individuals, or one of 255.
+MAX_TREE_VARIANTS = 256
+#: What generating one variant costs, for the message (a broadleaf on the 2-core reference machine).
+VARIANT_SECONDS, VARIANT_MB = 2.0, 6.0
+
+
 def check_species(config, library) -> None:
     """Every ``[[species]]`` and ``[[ground_cover]]`` model names a library species, ``NAME@SEED`` of one, or a mesh.
 
@@ -337,8 +345,21 @@ def check_species(config, library) -> None:
     cover = getattr(getattr(config, "model", None), "ground_cover", None) or []
     models = [(f"species[{i}].model", sp) for i, sp in enumerate(config.species)]
     models += [(f"ground_cover[{j}].model", gc) for j, gc in enumerate(cover)]
+    from .config.schema import individual_count
+
+    variants = 0
     for field, sp in models:
         model = sp.model
+        if not sp.is_mesh:
+            variants += individual_count(model, getattr(sp, "individuals", None))
+            if variants > MAX_TREE_VARIANTS:
+                raise ConfigError(
+                    config.path,
+                    field,
+                    f"the species up to here draw {variants:,} tree variants (individuals and seeds, each built on "
+                    f"first use: about {VARIANT_SECONDS:g} s and {VARIANT_MB:g} MB); at most {MAX_TREE_VARIANTS} a "
+                    "scene — use fewer species, seeds or individuals",
+                )
         if sp.is_mesh:
             p = Path(model).expanduser()
             p = p if p.is_absolute() else config.base_dir / p

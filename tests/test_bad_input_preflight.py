@@ -494,3 +494,17 @@ def test_render_says_what_it_will_do_before_it_starts(tmp_path):
 def test_option_type_errors_are_one_line(tmp_path):
     r = run_forest("library", "preview", "shrub", "--size", "abc")
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--size" in r.stderr and "╭" not in r.stderr
+
+
+def test_a_scene_may_draw_on_at_most_256_tree_variants(tmp_path):
+    """Seeded species and individuals are generated on first use (seconds and megabytes each): 10 000 of them ran
+    for hours.  The count is checked before anything is built, naming the species that crosses the limit."""
+    from forest.preflight import MAX_TREE_VARIANTS, check_species
+
+    many = "".join(f'[[species]]\nmodel = "conifer@{i}"\npercent = 1\n' for i in range(70))  # 4 individuals each
+    with pytest.raises(ConfigError) as e:
+        check_species(_config(tmp_path, many), _Lib())
+    assert e.value.field == "species[64].model"  # the 65th: 260 variants
+    assert "260 tree variants" in str(e.value) and f"at most {MAX_TREE_VARIANTS}" in str(e.value)
+    few = "".join(f'[[species]]\nmodel = "conifer@{i}"\npercent = 1\nindividuals = 1\n' for i in range(70))
+    check_species(_config(tmp_path, few), _Lib())  # 70 variants: fine

@@ -856,6 +856,17 @@ def cases(tmp: Path) -> list[Case]:
             {"scene.toml": scene()},
         ),
         L(
+            "seeded_species_by_the_thousand",
+            "species",
+            ["scatter", "scene.toml", "-o", "trees.npz"],
+            ["scene.toml", "species[64].model", "tree variants"],
+            {
+                "scene.toml": scene(
+                    species="".join(f'[[species]]\nmodel = "broadleaf@{i}"\npercent = 0.01\n' for i in range(10_000))
+                )
+            },
+        ),
+        L(
             "lod_pixels_increasing",
             "value",
             ["render", "scene.toml", "-o", "out.exr"],
