@@ -169,7 +169,7 @@ def under_ground(cam: CameraConfig, height_at: Callable[[np.ndarray, np.ndarray]
         return None
     k = int(np.argmax(under))
     where = f"{depth[k]:.2f} m below the terrain (ground {ground[k]:.2f} m, camera {pos[k, 1]:.2f} m at x {pos[k, 0]:.1f}, z {pos[k, 2]:.1f})"
-    what = "[camera] keys" if cam.keys else "[camera] position"
+    what = ("[camera] keys" if cam.keys else "[camera] position") + " (or set [camera] height_above_ground)"
     if len(fs) == 1:
         return f"the camera is {where}: it sees the ground from beneath; raise {what}"
     return f"the camera is under the terrain at {int(under.sum())} of {len(fs)} frames checked, first at frame {fs[k]:g}, {where}: raise {what}"

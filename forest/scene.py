@@ -314,6 +314,7 @@ def load_scene(
         library = open_library()
     check_species(config, library)  # a misspelled species fails now, not after the trees are scattered
     terrain = load_terrain(config.terrain, config.path)
+    config.camera.stand_on(terrain.height_at)  # [camera] height_above_ground: heights from the ground, once for all
     if instances is None or isinstance(instances, (str, Path)):
         from .scatter import scene_instances
 

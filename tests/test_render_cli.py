@@ -289,3 +289,29 @@ def test_under_ground_checks_every_frame_of_a_keyed_path():
     assert line is not None and "under the terrain at 5 of 11 frames checked, first at frame 7" in line
     assert "raise [camera] keys" in line
     assert under_ground(cam, flat, range(1, 6)) is None
+
+
+def test_height_above_ground_stands_the_camera_on_the_terrain(scene):
+    """``[camera] height_above_ground`` puts the camera (still and keys) that high above the ground under it, for
+    the render and every backend that reads the Scene's camera."""
+    from forest.config import load_config
+    from forest.scene import load_scene
+
+    text = SCENE.format(render="").replace("position = [0.0, 30.0, -60.0]", "position = [5.0, -50.0, -20.0]")
+    cfg = scene / "eye.toml"
+    cfg.write_text(text.replace("fov = 45.0", "fov = 45.0\nheight_above_ground = 1.7"))
+    r = run("render", cfg, "--instances", scene / "trees.npz", "-o", scene / "eye.exr", "-q")
+    assert r.returncode == 0 and "warning" not in r.stderr, r.stderr
+    s = load_scene(load_config(cfg), scene / "trees.npz")
+    ground = float(s.terrain.height_at(5.0, -20.0)[0])
+    np.testing.assert_allclose(s.camera_at(1.0).position, [5.0, ground + 1.7, -20.0], atol=1e-9)
+    header = oiio.ImageInput.open(str(scene / "eye.exr")).spec().getattribute("forest:camera_position")
+    np.testing.assert_allclose([float(v) for v in header.split(",")], [5.0, ground + 1.7, -20.0], atol=1e-3)
+    # keys too: each key's height comes from the ground under it
+    keyed = text.replace("fov = 45.0", "fov = 45.0\nheight_above_ground = 2.0\nkeys = [{ frame = 1, position = "
+                         "[-10.0, 0.0, -10.0], target = [0.0, 0.0, 0.0] }, { frame = 9, position = [10.0, 99.0, 10.0], "
+                         "target = [0.0, 0.0, 0.0] }]")  # fmt: skip
+    (scene / "keys.toml").write_text(keyed)
+    k = load_scene(load_config(scene / "keys.toml"), scene / "trees.npz")
+    for frame, (x, z) in ((1.0, (-10.0, -10.0)), (9.0, (10.0, 10.0))):
+        np.testing.assert_allclose(k.camera_at(frame).position[1], float(k.terrain.height_at(x, z)[0]) + 2.0)

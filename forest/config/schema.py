@@ -548,6 +548,11 @@ class CameraConfig(Section):
     near: Positive = 0.5
     far: Positive = 100000.0
     fps: Positive = 24.0
+    height_above_ground: Annotated[float, Field(ge=0.0, le=100000.0, allow_inf_nan=False)] | None = Field(
+        None,
+        description="Metres above the terrain under the camera (e.g. 1.7 for eye level): the height of position "
+        "and of every key is taken from the ground there, their y ignored.",
+    )
 
     @model_validator(mode="after")
     def _path(self) -> CameraConfig:
@@ -565,6 +570,22 @@ class CameraConfig(Section):
             self.position = self.position or self.keys[0].position
             self.target = self.target or self.keys[0].target
         return self
+
+    def stand_on(self, height_at: Any) -> None:
+        """With ``height_above_ground``: set the y of position and of every key to the terrain's ``height_at(x, z)``
+        plus that height (in place; the same result however often it is called)."""
+        h = self.height_above_ground
+        if h is None:
+            return
+
+        def placed(p: tuple[float, float, float]) -> tuple[float, float, float]:
+            y = float(height_at(float(p[0]), float(p[2]))[0])
+            return (float(p[0]), y + float(h), float(p[2]))
+
+        if self.position is not None:
+            self.position = placed(self.position)
+        for k in self.keys:
+            k.position = placed(k.position)
 
     def resolve(self, terrain_size: tuple[float, float] | None, where: str = "camera.") -> None:
         """Fill a missing position/target with a view over the terrain and check the frame.
