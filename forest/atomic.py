@@ -38,7 +38,19 @@ def _refused(dest: Path, e: OSError) -> ForestError:
             if parent.exists() and not parent.is_dir():
                 return ForestError(f"{dest}: {parent} is a file, not a folder")
     reason = e.strerror or str(e)
+    if e.errno in STORAGE_ERRNOS or (e.errno == errno.EXDEV and no_space(dest.parent)):
+        # A full disk can surface as the rename of a temporary that could not be completed (EXDEV): say so.
+        reason = os.strerror(errno.ENOSPC) if no_space(dest.parent) else reason
     return ForestError(f"{dest}: cannot write: {reason}")
+
+
+def no_space(folder: str | Path) -> bool:
+    """Whether ``folder``'s file system has (almost) no space left: what a writer that reports no errno meant."""
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < 1 << 20
 
 
 def _owner() -> str:
@@ -145,7 +157,10 @@ def atomic_dir(dest: str | Path) -> Iterator[Path]:
     except OSError as e:
         raise _refused(dest, e) from None
     try:
-        yield tmp
+        try:
+            yield tmp
+        except ForestError as e:  # name the output, not the temporary folder it was being written into
+            raise ForestError(str(e).replace(str(tmp), str(dest))) from None
         files = sorted(p for p in tmp.rglob("*") if p.is_file())
         for p in files:
             target = dest / p.relative_to(tmp)

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from .atomic import atomic_path
+from .atomic import atomic_path, no_space
 from .errors import ForestError
 
 MAX_IMAGE_BYTES = 512 * 1024 * 1024
@@ -224,11 +224,7 @@ def _write_failed(path: Path, tmp: Path, err: str) -> ForestError:
 
 def _no_space(tmp: Path) -> bool:
     """Whether the folder of ``tmp`` has (almost) no space left."""
-    try:
-        st = os.statvfs(tmp.parent)
-    except OSError:
-        return False
-    return st.f_bavail * st.f_frsize < 1 << 20
+    return no_space(tmp.parent)
 
 
 def _finish(out: Any, path: Path, tmp: Path) -> None:

@@ -108,3 +108,29 @@ def test_a_png_cut_short_by_the_file_size_limit_is_refused_not_truncated(tmp_pat
     assert r.returncode == 2, (r.stdout, r.stderr)
     assert r.stdout.startswith(f"{tmp_path / 'f.png'}: cannot write: ")
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_a_full_disk_seen_as_a_failed_rename_is_named_for_what_it_is(tmp_path, monkeypatch):
+    """USD saves through a temporary of its own: on a full disk the error that surfaces is the rename's EXDEV."""
+    import errno
+
+    from forest import atomic
+
+    exdev = OSError(errno.EXDEV, "Invalid cross-device link")
+    monkeypatch.setattr(atomic, "no_space", lambda _folder: True)
+    assert (
+        str(atomic._refused(tmp_path / "s.usda", exdev))
+        == f"{tmp_path / 's.usda'}: cannot write: No space left on device"
+    )
+    monkeypatch.setattr(atomic, "no_space", lambda _folder: False)
+    assert str(atomic._refused(tmp_path / "s.usda", exdev)).endswith("cannot write: Invalid cross-device link")
+
+
+def test_errors_inside_an_output_folder_name_the_output_not_its_temporary(tmp_path):
+    from forest.atomic import atomic_dir
+
+    out = tmp_path / "rib"
+    with pytest.raises(ForestError) as err, atomic_dir(out) as tmp:
+        raise ForestError(f"{tmp / 'textures' / 'bark.tif'}: cannot write: No space left on device")
+    assert str(err.value) == f"{out / 'textures' / 'bark.tif'}: cannot write: No space left on device"
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

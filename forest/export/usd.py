@@ -48,6 +48,7 @@ st = (u, 1 − v).
 
 from __future__ import annotations
 
+import errno
 import math
 import os
 import shutil
@@ -57,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_dir
+from ..atomic import atomic_dir, no_space
 from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import Config, ConfigError
 from ..errors import ForestError
@@ -566,6 +567,9 @@ def export_usd(
             del stage, layer
             report(1.0, "done")
     except (OSError, Tf.ErrorException) as e:  # disk full, permissions: one line, nothing left behind
-        raise ForestError(f"{path}: cannot write the export: {getattr(e, 'strerror', None) or e}") from None
+        # USD saves through a temporary file of its own and reports a full disk by the rename it could not make
+        # ("Invalid cross-device link"): the folder's free space says what happened.
+        reason = os.strerror(errno.ENOSPC) if no_space(path.parent) else getattr(e, "strerror", None) or e
+        raise ForestError(f"{path}: cannot write the export: {reason}") from None
     result.seconds = time.perf_counter() - t0
     return result
