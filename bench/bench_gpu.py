@@ -42,7 +42,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 CASES = ("probe", "demo", "original", "million", "lookdev")
 VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb")
-SUMMARY = re.compile(r"load ([\d.]+) s, render ([\d.]+) s, peak ([\d.]+) GB")
+SUMMARY = re.compile(r"load ([\d.]+) s, render ([\d.]+) s, peak ([\d.]+) GB(?: \(GPU ([\d.]+) GB\))?")
 
 
 def forest_cmd() -> list[str]:
@@ -76,6 +76,8 @@ def render_case(name: str, config: Path, variant: str, out: Path, timeout: float
     r = {"case": name, "variant": variant, "status": status, "wall_s": wall}
     if m:
         r.update(load_s=float(m.group(1)), render_s=float(m.group(2)), peak_gb=float(m.group(3)))
+        if m.group(4):
+            r["gpu_peak_gb"] = float(m.group(4))
     if status != "ok":
         r["tail"] = text[-1500:]
     return r
@@ -227,13 +229,14 @@ def report(rows: list[dict]) -> None:
     by_case: dict[str, dict[str, dict]] = {}
     for r in rows:
         by_case.setdefault(r["case"], {})[r["variant"]] = r
-    print("\n| case | variant | status | load s | render s | wall s | peak GB |")
-    print("|---|---|---|---|---|---|---|")
+    print("\n| case | variant | status | load s | render s | wall s | peak GB | GPU peak GB |")
+    print("|---|---|---|---|---|---|---|---|")
     for r in rows:
         if r["variant"] == "compare":
             continue
         render = r.get("render_s", r.get("fit_s", sum(r.get("pass_s", [])) if "pass_s" in r else None))
-        cells = [r["case"], r["variant"], r["status"], r.get("load_s"), render, r.get("wall_s"), r.get("peak_gb")]
+        cells = [r["case"], r["variant"], r["status"], r.get("load_s"), render, r.get("wall_s"), r.get("peak_gb"),
+                 r.get("gpu_peak_gb")]  # fmt: skip
         print("| " + " | ".join(f"{c:.2f}" if isinstance(c, float) else str(c) for c in cells) + " |")
     for case, rs in by_case.items():
         g, c = rs.get("cuda_ad_rgb", {}), rs.get("llvm_ad_rgb", {})

@@ -315,3 +315,14 @@ def test_height_above_ground_stands_the_camera_on_the_terrain(scene):
     k = load_scene(load_config(scene / "keys.toml"), scene / "trees.npz")
     for frame, (x, z) in ((1.0, (-10.0, -10.0)), (9.0, (10.0, 10.0))):
         np.testing.assert_allclose(k.camera_at(frame).position[1], float(k.terrain.height_at(x, z)[0]) + 2.0)
+
+
+def test_the_summary_gives_the_gpus_peak_memory_in_cuda_only():
+    from dataclasses import replace
+
+    from forest.render.render import RenderResult, gpu_peak_gb
+
+    assert gpu_peak_gb("llvm_ad_rgb") is None and gpu_peak_gb("scalar_rgb") is None
+    r = RenderResult([], [1], "cuda_ad_rgb", "", 8, 6, 4, 1, 10, 100, 50, 1, 1.0, 2.0, 3.0)
+    assert "peak 3.00 GB;" not in r.summary() and r.summary().endswith("peak 3.00 GB")
+    assert replace(r, gpu_peak_gb=1.25).summary().endswith("peak 3.00 GB (GPU 1.25 GB)")

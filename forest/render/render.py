@@ -64,6 +64,7 @@ class RenderResult:
     denoised: bool = False
     leaf_model: str = ""
     lod_rule: str = ""  # the rule that chose the levels (:meth:`forest.lod.LodPlan.describe`)
+    gpu_peak_gb: float | None = None  # cuda_ad_rgb: drjit's peak device memory (its allocator's watermark)
 
     def summary(self) -> str:
         """One line: trees, instanced and unique triangles, times, peak memory, and the levels and their rule."""
@@ -76,8 +77,19 @@ class RenderResult:
             f"rendered {frames} {self.width}x{self.height} {self.spp} spp ({self.variant}): "
             f"{self.trees:,} trees, {self.instanced_triangles:,} instanced triangles, "
             f"{self.unique_triangles:,} unique, load {self.load_seconds:.1f} s, "
-            f"render {self.render_seconds:.1f} s, peak {self.peak_memory_gb:.2f} GB{lod}"
+            f"render {self.render_seconds:.1f} s, peak {self.peak_memory_gb:.2f} GB"
+            + (f" (GPU {self.gpu_peak_gb:.2f} GB)" if self.gpu_peak_gb is not None else "")
+            + lod
         )
+
+
+def gpu_peak_gb(variant: str) -> float | None:
+    """Peak GPU memory drjit's CUDA allocator held in this process, GB (None outside ``cuda_ad_rgb``)."""
+    if variant != "cuda_ad_rgb":
+        return None
+    import drjit as dr
+
+    return float(dr.detail.malloc_watermark(dr.JitBackend.CUDA)) / 2**30
 
 
 def peak_memory_gb() -> float:
@@ -279,6 +291,7 @@ def render_scene(
         load_seconds=r.load_seconds,
         render_seconds=r.render_seconds,
         peak_memory_gb=peak_memory_gb(),
+        gpu_peak_gb=gpu_peak_gb(chosen),
         lod_counts=r.lod_counts,
         lod_rule=scene.lod.describe(),
         denoised=denoised,
