@@ -275,6 +275,12 @@ def load_mesh_terrain(path: Path, where: str = "terrain.mesh") -> Terrain:
     f = np.asarray(mesh.faces, dtype=np.int64)
     if not np.isfinite(v).all():
         raise ForestError(f"{where}: {path} has NaN or infinite vertices")
+    from .config.schema import WORLD_METRES
+
+    if np.abs(v).max() > WORLD_METRES:
+        raise ForestError(
+            f"{where}: {path} has vertices up to {np.abs(v).max():.3g} m from the origin, beyond ±{WORLD_METRES:g} m"
+        )
     t = Terrain(v, f, source="mesh")
     if t.area <= 0:
         raise ForestError(f"{where}: {path} has zero surface area")

@@ -88,6 +88,15 @@ Positive = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 Unit = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
 RGB = tuple[NonNegative, NonNegative, NonNegative]
 Vec3 = tuple[Float, Float, Float]
+#: Largest coordinate or terrain extent, metres: float32 (every renderer's precision) spaces numbers 1 m apart at
+#: 1e7 m, so beyond it a forest is meaningless; 1e308 once overflowed into infinities with an internal error.
+WORLD_METRES = 1.0e7
+Metres = Annotated[float, Strict(False), Field(ge=-WORLD_METRES, le=WORLD_METRES, allow_inf_nan=False)]
+#: A point of the world (camera positions and targets), each coordinate within ±:data:`WORLD_METRES`.
+Point3 = tuple[Metres, Metres, Metres]
+#: A terrain's side or height, metres: positive (or ≥ 0) and at most :data:`WORLD_METRES`.
+Extent = Annotated[float, Field(gt=0.0, le=WORLD_METRES, allow_inf_nan=False)]
+ExtentOrZero = Annotated[float, Field(ge=0.0, le=WORLD_METRES, allow_inf_nan=False)]
 InputFile = Annotated[Path, FileRef(), AfterValidator(_resolve_file), Field(json_schema_extra={"format": "path"})]
 
 
@@ -120,8 +129,8 @@ def _ordered_pair(v: tuple[float, float] | None) -> tuple[float, float] | None:
 class ProceduralTerrain(Section):
     """Fractal value noise (fBm) over a square."""
 
-    size: Positive = Field(2000.0, description="Side of the square, metres.")
-    height: NonNegative = Field(150.0, description="Height of the highest point, metres.")
+    size: Extent = Field(2000.0, description="Side of the square, metres.")
+    height: ExtentOrZero = Field(150.0, description="Height of the highest point, metres.")
     octaves: Annotated[Int, Field(ge=1, le=16)] = Field(6, description="Noise lattices, each twice as fine.")
     resolution: Annotated[Int, Field(ge=8, le=8192)] = Field(512, description="Grid vertices per side.")
     roughness: Unit = Field(0.5, description="Strength of each octave relative to the previous one.")
@@ -131,7 +140,7 @@ class ProceduralTerrain(Section):
 class FlatTerrain(Section):
     """A flat square at height 0."""
 
-    size: Positive = Field(1000.0, description="Side of the square, metres.")
+    size: Extent = Field(1000.0, description="Side of the square, metres.")
 
 
 class TerrainConfig(Section):
@@ -143,8 +152,8 @@ class TerrainConfig(Section):
     mesh: InputFile | None = Field(None, description="Terrain mesh trimesh reads, metres, Y up.")
     procedural: ProceduralTerrain | None = None
     flat: FlatTerrain | None = None
-    size: tuple[Positive, Positive] = Field((1000.0, 1000.0), description="Heightmap extent along X and Z, metres.")
-    height: NonNegative = Field(100.0, description="Heightmap: metres at full white.")
+    size: tuple[Extent, Extent] = Field((1000.0, 1000.0), description="Heightmap extent along X and Z, metres.")
+    height: ExtentOrZero = Field(100.0, description="Heightmap: metres at full white.")
 
     @model_validator(mode="after")
     def _one_source(self) -> TerrainConfig:
@@ -531,16 +540,16 @@ class CameraKey(Section):
     """One key of the camera's path: its frame and the pose there (fov: the camera's unless given)."""
 
     frame: Float = Field(description="Frame number of this key (fractional allowed).")
-    position: Vec3
-    target: Vec3
+    position: Point3
+    target: Point3
     fov: Fov | None = Field(None, description="Horizontal field of view, degrees (default: the camera's).")
 
 
 class CameraConfig(Section):
     """A still camera, or a path through ``keys`` (centripetal Catmull–Rom)."""
 
-    position: Vec3 | None = Field(None, description="Default: the first key, else a view over the terrain.")
-    target: Vec3 | None = None
+    position: Point3 | None = Field(None, description="Default: the first key, else a view over the terrain.")
+    target: Point3 | None = None
     fov: Fov = Field(40.0, description="Horizontal field of view, degrees.")
     up: Vec3 = (0.0, 1.0, 0.0)
     keys: list[CameraKey] = Field(default_factory=list)

@@ -867,6 +867,30 @@ def cases(tmp: Path) -> list[Case]:
             },
         ),
         L(
+            "terrain_size_astronomical",
+            "value",
+            ["scatter", "scene.toml", "-o", "trees.npz"],
+            ["scene.toml", "terrain.flat.size", "1e+07"],
+            {"scene.toml": scene(terrain="flat = { size = 1e300 }")},
+        ),
+        L(
+            "camera_at_1e308",
+            "value",
+            ["render", "scene.toml", "-o", "out.exr"],
+            ["scene.toml", "camera.position", "1e+07"],
+            {"scene.toml": scene().replace("position = [0.0, 30.0, -80.0]", "position = [0.0, 1e308, -80.0]")},
+        ),
+        L(
+            "terrain_mesh_astronomical",
+            "value",
+            ["scatter", "scene.toml", "-o", "trees.npz"],
+            ["terrain.mesh", "ground.obj", "beyond"],
+            {
+                "scene.toml": scene(terrain='mesh = "ground.obj"'),
+                "ground.obj": _obj([(0, 0, 0), (1e12, 0, 0), (0, 0, 1e12)], [(0, 1, 2)]),
+            },
+        ),
+        L(
             "lod_pixels_increasing",
             "value",
             ["render", "scene.toml", "-o", "out.exr"],
