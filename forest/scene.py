@@ -184,6 +184,7 @@ class Scene:
         recomputed when ``[ground]`` or the terrain's texture or colour changed.
         The LOD plan follows the new config's ``[lod]``, ``[render] width`` and camera.
         """
+        config.camera.stand_on(self.terrain.height_at)  # [camera] height_above_ground, as load_scene does
         colour = self.colour
         old = self.config
         if (config.maps.colour, config.maps.colour_normalise) != (old.maps.colour, old.maps.colour_normalise):
