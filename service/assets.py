@@ -199,7 +199,8 @@ def check_image(path: Path, name: str | None = None, max_decoded_bytes: int | No
 
 
 def check_mesh(path: Path) -> dict:
-    """Load with trimesh; refuse anything without finite vertices, at least one face and some area."""
+    """Load with trimesh; refuse anything without finite vertices (within ±1e9, any unit), at least one face and
+    some area."""
     import numpy as np
     import trimesh
 
@@ -213,6 +214,11 @@ def check_mesh(path: Path) -> dict:
         raise AssetError("upload is not a mesh with triangles", 415)
     if not np.isfinite(np.asarray(verts)).all():
         raise AssetError("mesh has NaN or infinite vertices", 422)
+    from forest.library.importer import MAX_COORDINATE
+
+    far = float(np.abs(np.asarray(verts, np.float64)).max()) if len(verts) else 0.0
+    if far > MAX_COORDINATE:
+        raise AssetError(f"mesh has vertices up to {far:.3g}, beyond ±{MAX_COORDINATE:g}", 422)
     if not float(getattr(m, "area", 0.0)) > 0.0:
         raise AssetError("has zero surface area", 422)
     return {"vertices": int(len(verts)), "triangles": int(len(faces))}
