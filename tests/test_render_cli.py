@@ -326,3 +326,42 @@ def test_the_summary_gives_the_gpus_peak_memory_in_cuda_only():
     r = RenderResult([], [1], "cuda_ad_rgb", "", 8, 6, 4, 1, 10, 100, 50, 1, 1.0, 2.0, 3.0)
     assert "peak 3.00 GB;" not in r.summary() and r.summary().endswith("peak 3.00 GB")
     assert replace(r, gpu_peak_gb=1.25).summary().endswith("peak 3.00 GB (GPU 1.25 GB)")
+
+
+def test_render_denoise_cleans_a_final_frame_and_stays_deterministic(scene):
+    """``[render] denoise = true``: the frame is denoised (header ``forest:denoised``), closer to a 64-spp render than
+    the same samples left noisy, and the same bytes on a second run."""
+
+    def frame(name: str, render: str, spp: int) -> np.ndarray:
+        cfg = scene / f"{name}.toml"
+        cfg.write_text(SCENE.format(render=render).replace("width = 32\nheight = 24", "width = 64\nheight = 48"))
+        r = run("render", cfg, "--instances", scene / "trees.npz", "-o", scene / f"{name}.exr", "--spp", spp)
+        assert r.returncode == 0, r.stderr
+        inp = oiio.ImageInput.open(str(scene / f"{name}.exr"))
+        px = np.asarray(inp.read_image(0, 0, 0, 3, "float"))
+        denoised = inp.spec().getattribute("forest:denoised")
+        inp.close()
+        assert bool(denoised) == ("denoise = true" in render)
+        return px
+
+    ref = frame("ref", "", 64)
+    noisy = frame("noisy", "", 2)
+    clean = frame("clean", "denoise = true", 2)
+    assert np.abs(clean - ref).mean() < 0.7 * np.abs(noisy - ref).mean()
+    again = frame("clean2", "denoise = true", 2)
+    assert np.array_equal(clean, again)
+    assert (scene / "clean.exr").read_bytes() != (scene / "noisy.exr").read_bytes()
+
+
+def test_render_denoise_without_open_image_denoise_is_refused_before_work(scene, monkeypatch):
+    import sys
+
+    from forest.config import ConfigError, load_config
+    from forest.render.scene import check_render_inputs
+
+    cfg = scene / "dn.toml"
+    cfg.write_text(SCENE.format(render="denoise = true"))
+    monkeypatch.setitem(sys.modules, "pyoidn", None)  # as if the 'denoise' extra were not installed
+    with pytest.raises(ConfigError) as e:
+        check_render_inputs(load_config(cfg))
+    assert e.value.field == "render.denoise" and "pyoidn" in str(e.value)

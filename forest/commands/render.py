@@ -141,6 +141,8 @@ def register(app: typer.Typer) -> None:
                     if result.denoised
                     else "preview: not denoised (install the 'denoise' extra for Open Image Denoise)"
                 )
+            elif result.denoised:
+                typer.echo("denoised with Open Image Denoise (guided by first-hit albedo and normal)")
             typer.echo(result.summary())
             exrs = [p for p in result.paths if p.suffix == ".exr"]
             typer.echo(f"wrote {exrs[0]}" if len(exrs) == 1 else f"wrote {len(exrs)} frames: {exrs[0]} … {exrs[-1]}")

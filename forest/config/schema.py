@@ -750,6 +750,11 @@ class RenderConfig(Section):
     alpha_shadows: Bool = Field(
         True, description="scalar_rgb: shadow rays see through leaf-card alpha (forest_path always does)."
     )
+    denoise: Bool = Field(
+        False,
+        description="Denoise every frame with Open Image Denoise, guided by the first-hit albedo and normal "
+        "(--preview always does); needs the 'denoise' extra (pyoidn).",
+    )
     view: Annotated[str, AfterValidator(_view)] = Field(
         "agx", description="View transform of the PNG: agx, filmic or standard (the EXR stays scene-linear)."
     )

@@ -177,7 +177,7 @@ def render_frame(backend: Backend, frame: float, on_pass: PassCallback | None = 
     albedo, normal = hits.image(hits.albedo, 3), hits.image(hits.normal, 3)
     beauty = backend.post((rgb / samples).reshape(h, w, 3).astype(np.float32), alpha, layers, frame)
     denoised = False
-    if backend.preview:
+    if backend.preview or config.render.denoise:
         d = denoise(beauty, albedo, normal)
         if d is not None:
             beauty, denoised = d, True

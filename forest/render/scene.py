@@ -158,6 +158,13 @@ def check_render_inputs(config: Config) -> None:
     if sky is not None and sky.kind == "envmap":
         _envmap(config, "scalar_rgb")
     read_terrain_texture(config)
+    if config.render.denoise:
+        try:
+            import pyoidn  # noqa: F401 - only whether it is there
+        except ImportError:
+            raise config.fail(
+                "render.denoise", "needs Open Image Denoise: install the 'denoise' extra (pip install pyoidn)"
+            ) from None
 
 
 #: Environment maps already checked in this process, by (path, size, modification time).
