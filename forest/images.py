@@ -217,14 +217,9 @@ def _write_failed(path: Path, tmp: Path, err: str) -> ForestError:
     """One line for an image write that failed: the storage's own reason where the folder has no space left
     (OpenImageIO's message names the temporary file, not the output), else the writer's first line."""
     reason = (err or "write failed").strip().splitlines()[0].replace(str(tmp), str(path))
-    if _no_space(tmp):
+    if no_space(tmp.parent):
         reason = os.strerror(errno.ENOSPC)
     return ForestError(f"{path}: cannot write: {reason}")
-
-
-def _no_space(tmp: Path) -> bool:
-    """Whether the folder of ``tmp`` has (almost) no space left."""
-    return no_space(tmp.parent)
 
 
 def _finish(out: Any, path: Path, tmp: Path) -> None:
@@ -235,7 +230,7 @@ def _finish(out: Any, path: Path, tmp: Path) -> None:
     """
     out.close()
     err = out.geterror()
-    if err and (SHORT_WRITE.search(err) or _no_space(tmp)):
+    if err and (SHORT_WRITE.search(err) or no_space(tmp.parent)):
         raise _write_failed(path, tmp, err)
 
 

@@ -115,8 +115,8 @@ def pixel_sums(mi: Any, value: Any, spp: int, pixels: int) -> np.ndarray:
     sums = []
     for c in comps:
         c = mi.Float(c)
-        if dr.width(c) != n:
-            c = dr.full(mi.Float, c, n) if dr.width(c) == 1 else c
+        if dr.width(c) == 1 and n > 1:
+            c = c + dr.zeros(mi.Float, n)  # a broadcast literal, widened to one value per lane
         sums.append(dr.block_sum(c, spp) if spp > 1 else c)
     dr.eval(*sums)
     out = np.stack([np.asarray(x, np.float64) for x in sums], axis=1)

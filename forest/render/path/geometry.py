@@ -240,12 +240,13 @@ def _mi_mesh(mi: Any, name: str, vertices: np.ndarray, faces: np.ndarray) -> Any
     return m
 
 
-def registry_id(mi: Any, shape: Any) -> int:
-    """The registry id of a Mitsuba shape in a JIT variant (what ``pi.shape`` / ``pi.instance`` report for it)."""
+def registry_ids(mi: Any, shapes: list[Any]) -> np.ndarray:
+    """The registry ids of Mitsuba shapes in a JIT variant (what ``pi.shape`` / ``pi.instance`` report), read at once."""
     import drjit as dr
 
-    ids: Any = dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))
-    return int(ids[0])
+    if not shapes:
+        return np.zeros(0, np.int64)
+    return np.asarray(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shapes)), np.int64)
 
 
 def normal_matrices(m: np.ndarray) -> np.ndarray:
@@ -295,8 +296,7 @@ class TraversalScene:
         flat_meta: dict[str, tuple[int, int]] = {}  # mesh id -> (part, offset into flat_rows)
         flat_offset = 0
         top_parts: dict[str, int] = {}
-        member_local: dict[int, int] = {}  # registry id of a shapegroup's mesh -> its index in the group
-        part_mesh_reg: dict[int, int] = {}  # part -> registry id of its mesh in a shapegroup (what OptiX reports)
+        members: list[tuple[Any, int, int]] = []  # each shapegroup's meshes: (mesh, index in its group, part)
         T, M4 = mi.ScalarTransform4f, mi.ScalarMatrix4f
         for pi_, proto in enumerate(protos):
             rows = np.nonzero(proto_of_tree == pi_)[0]
@@ -325,8 +325,7 @@ class TraversalScene:
             for k, p in enumerate(proto.parts):
                 mesh = _mi_mesh(mi, f"{sg}_{k:02d}", parts.vertices[p], parts.local_faces[p])
                 group[f"part_{k:02d}"] = mesh
-                member_local[registry_id(mi, mesh)] = k
-                part_mesh_reg[p] = registry_id(mi, mesh)
+                members.append((mesh, k, p))
             entries[sg] = group
             stats.shapegroups += 1
             ref = {"type": "ref", "id": sg}
@@ -348,13 +347,13 @@ class TraversalScene:
         # Registry-id tables.
         shapes = self.scene.shapes()
         reg = np.asarray(dr.reinterpret_array(mi.UInt32, self.scene.shapes_dr()), dtype=np.int64)
-        size = max([int(reg.max()) if len(reg) else 0, *member_local]) + 1
+        member_reg = registry_ids(mi, [m for m, _, _ in members])
+        size = max(int(reg.max()) if len(reg) else 0, int(member_reg.max()) if len(member_reg) else 0) + 1
         reg_row = np.full(size, n, np.uint32)
         reg_part = np.zeros(size, np.uint32)
         reg_flat = np.full(size, -1, np.int32)
         reg_local = np.zeros(size, np.uint32)
-        for r, k in member_local.items():
-            reg_local[r] = k
+        reg_local[member_reg] = [k for _, k, _ in members]
         for s, r in zip(shapes, reg.tolist()):
             sid = s.id()
             if sid.startswith("tree_"):
@@ -375,7 +374,8 @@ class TraversalScene:
         self.reg_part = mi.UInt32(reg_part)
         self.reg_flat = mi.Int32(reg_flat)
         self.reg_local = mi.UInt32(reg_local)
-        self.part_mesh_reg = part_mesh_reg
+        #: part -> registry id of its mesh in a shapegroup (what OptiX reports as ``pi.shape``)
+        self.part_mesh_reg = {p: int(r) for (_, _, p), r in zip(members, member_reg)}
         self.flat_rows = mi.UInt32(rows_all)
         self.first_part = mi.UInt32(first_part)
         self.row_matrix = mi.Float(mat3.ravel())
