@@ -3,8 +3,10 @@
 Positions and targets follow a centripetal Catmull–Rom spline through the keys
 (Yuksel, Schaefer & Keyser 2011, "Parameterization and applications of
 Catmull–Rom curves"): C¹, passes through every key, no cusps or overshoot
-loops.  The field of view is interpolated linearly.  Frames outside the keyed
-range hold the first or last key.
+loops.  The field of view is interpolated linearly, or — between two keys that
+both give a ``focal_length`` (an animated zoom, as a DCC keys it) — the focal
+length is, and the fov follows from it on ``[camera] sensor_width``.  Frames
+outside the keyed range hold the first or last key.
 
 A frame is rendered at time ``frame / fps`` seconds; with ``shutter`` = s > 0 a
 frame averages sub-frames at ``frame + s·(k + ½)/K − s/2`` for k = 0 … K−1.
@@ -12,14 +14,13 @@ frame averages sub-frames at ``frame + s·(k + ½)/K − s/2`` for k = 0 … K�
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from .config import CameraConfig
-from .errors import ParameterError
+from .config.schema import fov_from_focal_length
 
 
 @dataclass(frozen=True)
@@ -72,7 +73,12 @@ def camera_at(cam: CameraConfig, frame: float) -> CameraState:
         p3 = X[i + 2] if i + 2 < len(X) else 2 * p2 - p1
         return _catmull_rom(p0, p1, p2, p3, t)
 
-    return CameraState(spline(P), spline(T), up, float(F[i] + t * (F[i + 1] - F[i])))
+    f0, f1 = keys[i].focal_length, keys[i + 1].focal_length
+    if f0 is not None and f1 is not None:  # a zoom keyed in focal length moves linearly in focal length
+        fov = fov_from_focal_length(f0 + t * (f1 - f0), cam.sensor_width)
+    else:
+        fov = float(F[i] + t * (F[i + 1] - F[i]))
+    return CameraState(spline(P), spline(T), up, fov)
 
 
 def subframe_times(frame: float, shutter: float, count: int) -> list[float]:
@@ -80,34 +86,6 @@ def subframe_times(frame: float, shutter: float, count: int) -> list[float]:
     if shutter <= 0 or count <= 1:
         return [float(frame)]
     return [float(frame + shutter * ((k + 0.5) / count - 0.5)) for k in range(count)]
-
-
-def parse_frames(spec: str) -> list[int]:
-    """``"1-120"``, ``"1-120x2"`` (every 2nd), ``"5"``, ``"1,5,9-12"`` → sorted unique frames."""
-    out: set[int] = set()
-    for part in str(spec).split(","):
-        part = part.strip()
-        m = re.fullmatch(r"(-?\d+)(?:-(-?\d+)(?:x(\d+))?)?", part)
-        if not m:
-            raise ParameterError("frames", f"cannot read {spec!r}; use e.g. 1-120, 1-120x2 or 1,5,9")
-        a = int(m.group(1))
-        b = int(m.group(2)) if m.group(2) is not None else a
-        step = int(m.group(3) or 1)
-        if b < a or step < 1:
-            raise ParameterError("frames", f"bad range {part!r}")
-        if (b - a) // step > 100000:
-            raise ParameterError("frames", f"range {part!r} has more than 100000 frames")
-        out.update(range(a, b + 1, step))
-    return sorted(out)
-
-
-def frame_path(pattern: str, frame: int) -> str:
-    """Replace a run of ``#`` in ``pattern`` by the zero-padded frame (``frame_####.exr``)."""
-    m = re.search(r"#+", pattern)
-    if not m:
-        stem, dot, ext = pattern.rpartition(".")
-        return f"{stem}_{frame:04d}.{ext}" if dot else f"{pattern}_{frame:04d}"
-    return pattern[: m.start()] + f"{frame:0{len(m.group())}d}" + pattern[m.end() :]
 
 
 def look_at_matrix(position, target, up) -> np.ndarray:

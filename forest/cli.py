@@ -17,14 +17,16 @@ import sys
 import warnings
 from collections.abc import Callable
 from pathlib import Path
-from typing import NoReturn, TextIO
+from typing import Literal, NoReturn, TextIO
 
 import typer
 
 try:  # typer ≥ 0.17 carries its own copy of click
     from typer._click import exceptions as click_errors
+    from typer._click.utils import PacifyFlushWrapper
 except ImportError:  # pragma: no cover - older typer on the public click
     from click import exceptions as click_errors  # type: ignore[no-redef]
+    from click.utils import PacifyFlushWrapper  # type: ignore[no-redef]
 
 from .errors import ForestError, ForestWarning, ParameterError
 
@@ -32,9 +34,11 @@ app = typer.Typer(
     name="forest",
     help="Grow, render, export and look-dev forests of 100 000 to 1 000 000+ trees.",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,
     pretty_exceptions_enable=False,
-    context_settings={"help_option_names": ["-h", "--help"]},
+    # Plain help: ``[render]`` in a help text is a config section, not markup, and flags show no value type.
+    rich_markup_mode=None,
+    context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 120},
 )
 
 
@@ -48,19 +52,31 @@ def _version(value: bool):
 
 @app.callback()
 def _root(
-    version: bool = typer.Option(
+    _print_version: bool = typer.Option(
         False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
+    ),
+    progress: Literal["auto", "bar", "lines", "none"] = typer.Option(
+        "auto",
+        "--progress",
+        envvar="FOREST_PROGRESS",
+        help="How long work shows its progress on stderr: a bar, 'Progress: N%' lines for render farms, or "
+        "nothing (auto: a bar on a terminal, lines otherwise). A command's --quiet silences it.",
     ),
 ):
     """Grow, render, export and look-dev forests of 100 000 to 1 000 000+ trees."""
+    from .progress import set_mode
+
+    set_mode(progress)
 
 
 # Each module defines ``register(app)``.
 COMMAND_MODULES = (
     "scatter",
     "render",
+    "wedge",
     "library",
     "serve",
+    "submit",
     "export",
     "match",
     "examples",
@@ -123,7 +139,31 @@ def _usage_error(e: click_errors.UsageError) -> str:
     path = e.ctx.command_path if e.ctx is not None else "forest"
     command = path.removeprefix("forest").strip()
     where = f"{command}: " if command else ""
-    return f"{where}{e.format_message()} (see '{path} --help')"
+    message = e.format_message().replace(": Value error, ", ": ")  # typer's wording for a value not among the choices
+    return f"{where}{message} (see '{path} --help')"
+
+
+#: Commands whose output is a listing: a reader that stops early (``forest examples list | head``) is no error.
+LISTINGS = (("examples", "list"), ("library", "list"), ("schema",))
+
+
+def _is_listing(args: list[str]) -> bool:
+    """Whether ``args`` ask for a listing, help or the version (see :data:`LISTINGS`)."""
+    if any(a in ("-h", "--help", "--version", "--show-completion") for a in args):
+        return True
+    words = [a for a, before in zip(args, ["", *args]) if not a.startswith("-") and before != "--progress"]
+    return any(tuple(words[: len(cmd)]) == cmd for cmd in LISTINGS)
+
+
+def _reader_gone(args: list[str]) -> NoReturn:
+    """The reader of our output went away (``| head``): print nothing more and exit, 0 for a listing, else 1."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # the interpreter's last flush of stdout must not fail too
+    except (OSError, ValueError):
+        pass
+    sys.stderr = open(os.devnull, "w")
+    raise SystemExit(0 if _is_listing(args) else 1)
 
 
 def save_traceback(exc: BaseException, argv: list[str]) -> Path | None:
@@ -168,10 +208,17 @@ def main(argv: list[str] | None = None) -> NoReturn:
         with warnings.catch_warnings():
             warnings.showwarning = _one_line_warnings(warnings.showwarning)
             code = app(args=args, prog_name="forest", standalone_mode=False)
+    except SystemExit:
+        if isinstance(sys.stdout, PacifyFlushWrapper):  # typer met a broken pipe (EPIPE), wrapped stdout and exits 1
+            _reader_gone(args)
+        raise
     except click_errors.NoArgsIsHelpError as e:
-        text = e.ctx.get_help()  # typer's rich help prints itself and returns ""
-        if text:
-            typer.echo(text)
+        try:
+            text = e.ctx.get_help()  # typer's rich help prints itself and returns ""
+            if text:
+                typer.echo(text)
+        except BrokenPipeError:
+            _reader_gone(args)
         raise SystemExit(2) from None
     except click_errors.UsageError as e:
         fail(_usage_error(e), 2)
@@ -195,8 +242,7 @@ def main(argv: list[str] | None = None) -> NoReturn:
         fail("out of memory: render fewer pixels (render.width, render.height) or fewer trees", 2)
     except OSError as e:
         if e.errno == errno.EPIPE:  # the reader of our output went away (e.g. `| head`)
-            sys.stderr = open(os.devnull, "w")  # nothing more may be printed
-            raise SystemExit(1) from None
+            _reader_gone(args)
         if e.errno in USER_ERRNOS:
             name = e.filename if e.filename is not None else ""
             fail(f"{name}: {e.strerror}" if name else str(e.strerror or e), 2)

@@ -282,9 +282,9 @@ def _library_error(
 
 def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dict[str, bool]) -> PreparedJob:
     """Validate a request completely and lay out its job folder; raise :class:`RequestError`."""
-    from forest.camera import parse_frames
     from forest.config import Config, apply_overrides, read_toml
     from forest.errors import ForestError
+    from forest.frames import parse_frames
 
     if not capabilities.get(req.kind):
         raise RequestError(

@@ -13,7 +13,8 @@ Frame tasks (stills and fly-throughs) render frame by frame with
   holds, ``spec.skip_frames``) is not rendered again: it is reported ``resumed``;
 * after every sample pass the image so far is published as the task's preview
   (``preview/task-<i>.png``, at most every ``PREVIEW_INTERVAL_S``, always the last;
-  once the task is done its last frame's PNG takes that place);
+  once the task is done its last frame's PNG takes that place), through the scene's
+  view transform and exposure (``[render] view``, ``exposure``) as the final PNG is;
   a still first shows a *quick look* — the same scene at a fraction of the size with
   one sample per pixel — so the first pixels appear before the first full pass;
 * each finished frame gets a thumbnail (``thumbs/frame_NNNN.png``) and a ``frame`` report;
@@ -158,11 +159,15 @@ def _fit(rgb: np.ndarray, longest: int) -> np.ndarray:
     return resample(rgb, max(1, round(h * k)), max(1, round(w * k)))
 
 
-def _publish(ctx: TaskContext, rel: str, rgb: np.ndarray, longest: int) -> str:
-    """Write a linear image as an sRGB PNG at ``rel`` in the job folder (atomically)."""
-    from forest.images import write_image
+def _publish(ctx: TaskContext, rel: str, rgb: np.ndarray, longest: int, config: Any) -> str:
+    """Write a scene-linear image at ``rel`` in the job folder (atomically) as the final PNG will look: through the
+    config's view transform and exposure (``[render] view``, ``exposure``; :func:`forest.imaging.write_display`)."""
+    from forest.imaging import write_display
 
-    write_image(ctx.job_dir / rel, _fit(np.asarray(rgb, np.float32)[..., :3], longest))
+    r = config.render
+    write_display(
+        ctx.job_dir / rel, _fit(np.asarray(rgb, np.float32)[..., :3], longest), view=r.view, exposure=float(r.exposure)
+    )
     return rel
 
 
@@ -183,7 +188,7 @@ def _thumbnail(ctx: TaskContext, png: str, frame: int) -> str | None:
 
 def frame_files(spec: TaskSpec, frame: int) -> tuple[str, str]:
     """Job-relative EXR and PNG of a frame (a still has one, named by ``spec.output``)."""
-    from forest.camera import frame_path
+    from forest.frames import frame_path
 
     exr = spec.output if spec.kind == "render" else frame_path(spec.output, frame)
     return exr, str(Path(exr).with_suffix(".png").as_posix())
@@ -289,7 +294,7 @@ def _render(spec: TaskSpec, ctx: TaskContext) -> TaskResult:
             }
             if done == total or now - last_preview[0] >= PREVIEW_INTERVAL_S:
                 last_preview[0] = now
-                fields["preview"] = _publish(ctx, preview_rel, rgb, PREVIEW_MAX)
+                fields["preview"] = _publish(ctx, preview_rel, rgb, PREVIEW_MAX, scene.config)
             ctx.progress(fraction, f"{label}: pass {done}/{total}", force=True, **fields)
 
         def progress(_fraction: float, message: str = "", label: str = label, base: int = finished, f: int = f) -> None:
@@ -359,7 +364,7 @@ def _quick_look(spec: TaskSpec, ctx: TaskContext, scene: LoadedScene, rel: str) 
         return
     t0 = time.monotonic()
     rgb = render_image(scene.scene, width=qw, height=qh, spp=1, reuse=scene.quick)
-    ctx.progress(0.0, "quick look", force=True, preview=_publish(ctx, rel, rgb, PREVIEW_MAX), frame=1)
+    ctx.progress(0.0, "quick look", force=True, preview=_publish(ctx, rel, rgb, PREVIEW_MAX, scene.config), frame=1)
     ctx.log(f"quick look {qw}x{qh} in {time.monotonic() - t0:.2f} s")
 
 

@@ -15,6 +15,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 os.environ.setdefault("OPENIMAGEIO_THREADS", "1")
+# The CLI's stderr is captured here, not a terminal: no "Progress: N%" lines among the messages tests read
+# (tests/test_progress_lines.py sets the mode itself).
+os.environ.setdefault("FOREST_PROGRESS", "none")
 
 
 def write_png(path: Path, img: np.ndarray, bits: int = 8) -> Path:

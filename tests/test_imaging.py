@@ -101,7 +101,7 @@ def test_agx_takes_over_exposed_colour_to_white_instead_of_a_pure_primary():
 def test_view_and_exposure_validation_name_the_field():
     assert check_view("AgX") == "agx"
     assert check_exposure(2) == 2.0
-    for bad in ("aces", "", None, 3):
+    for bad in ("aces2", "", None, 3):
         with pytest.raises(ConfigError) as e:
             check_view(bad, path="shot.toml")
         assert str(e.value).startswith("shot.toml: render.view: unknown view")

@@ -684,5 +684,5 @@ def test_cli_bad_input_names_the_option_and_exits_2(tmp_path):
     _one_line_exit_2(run_forest("match", cfg, "--reference", ok, "--anchor", "sky", "-o", out), "anchor")
     _one_line_exit_2(run_forest("match", cfg, "--reference", ok, "--grid", "fine", "-o", out), "grid")
     _one_line_exit_2(run_forest("match", cfg, "--reference", ok, "--grid", "65", "-o", out), "grid")
-    _one_line_exit_2(run_forest("match", cfg, "--reference", ok, "--map-prior", "flat", "-o", out), "map_prior")
+    _one_line_exit_2(run_forest("match", cfg, "--reference", ok, "--map-prior", "flat", "-o", out), "--map-prior")
     assert not out.exists()

@@ -134,7 +134,7 @@ def test_render_bad_input_exits_2_without_output(scene, args, message):
     "render, field, words",
     [
         ("max_depth = 0", "render.max_depth", ""),
-        ('view = "aces"', "render.view", "unknown view 'aces'; use one of agx, filmic, standard"),
+        ('view = "acescc"', "render.view", "unknown view 'acescc'; use one of "),
         ("exposure = 12.0", "render.exposure", "out of range; use -10 to 10"),
         ('terrain_texture = "notes.txt"', "render.terrain_texture", "notes.txt"),
     ],

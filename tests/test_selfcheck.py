@@ -145,7 +145,7 @@ def test_no_gpu_or_a_hidden_one_runs_no_check(fake_gpu, monkeypatch):
     fake_gpu.outcome = lambda: pytest.fail("no GPU: no self-check")
     monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "")  # what a scheduler sets for work given no GPU
     v, why = choose_variant(10)
-    assert v == "llvm_ad_rgb" and why.startswith("no GPU: forest_path on the CPU") and "bench/bench_render.py" in why
+    assert v == "llvm_ad_rgb" and why.startswith("no GPU: forest_path on the CPU") and "faster than scalar_rgb" in why
     with pytest.raises(ForestError, match=r"variant: cuda_ad_rgb needs an NVIDIA GPU"):
         choose_variant(10, "cuda_ad_rgb")
     for hidden in ("-1", "NoDevFiles", "-1,0"):

@@ -8,6 +8,8 @@ from typing import Any
 import typer
 from typer.core import TyperGroup
 
+from . import SET_HELP
+
 TARGETS = ("rib", "usd", "blender", "points")
 
 
@@ -34,16 +36,19 @@ def _scene(
     folder: Path | None = None,
     frames: str | None = None,
     check: Any = None,
+    sets: list[str] | None = None,
 ):
     """The Scene to export, after the outputs and options are checked (before any scatter): the ``files`` the
     export writes, or the ``folder`` it writes into, writable and none of them one of its inputs; ``--frames``
-    readable; ``check(config)``, the command's own checks of its options against the config."""
+    readable; ``check(config)``, the command's own checks of its options against the config; ``sets``: ``--set``
+    items applied to the config."""
     from .. import preflight
-    from ..camera import parse_frames
-    from ..config import load_config, referenced_files
+    from ..config import referenced_files
+    from ..frames import parse_frames
     from ..library import open_library
     from ..progress import progress_bar
     from ..scene import load_scene
+    from . import load_with_flags
 
     if frames is not None and not parse_frames(frames):
         from ..errors import ParameterError
@@ -55,7 +60,7 @@ def _scene(
     if folder is not None:
         preflight.output_folder(folder)
     preflight.output_files(outputs)
-    cfg = load_config(config)
+    cfg = load_with_flags(config, {}, sets)
     preflight.distinct_from_inputs(outputs, [config, instances, *referenced_files(cfg)])
     if check is not None:
         check(cfg)
@@ -76,6 +81,7 @@ CONFIG = typer.Argument(..., help="Scene config (TOML).")
 INSTANCES = typer.Option(None, "--instances", help="A saved InstanceSet (.npz) instead of scattering.")
 LIBRARY = typer.Option(None, "--library", help="Tree library folder.")
 QUIET = typer.Option(False, "-q", "--quiet", help="Print nothing on success.")
+SETS = typer.Option(None, "--set", metavar="KEY=VALUE", help=SET_HELP)
 
 
 def register(app: typer.Typer) -> None:
@@ -109,13 +115,14 @@ def register(app: typer.Typer) -> None:
         ),
         instances: Path | None = INSTANCES,
         library: Path | None = LIBRARY,
+        sets: list[str] | None = SETS,
         quiet: bool = QUIET,
     ):
         """Objects, archives per species and level, textures, instance files, a scene file per frame."""
         from ..export.rib import export_rib, rib_options
         from ..progress import progress_bar
 
-        scene = _scene(config, instances, library, quiet, folder=output, frames=frames,
+        scene = _scene(config, instances, library, quiet, folder=output, frames=frames, sets=sets,
                        check=lambda cfg: rib_options(cfg, renderman22, display))  # fmt: skip
         with progress_bar("export rib", quiet=quiet) as bar:
             res = export_rib(scene, output, renderman22=renderman22, frames=frames, display=display, progress=bar)
@@ -139,6 +146,7 @@ def register(app: typer.Typer) -> None:
         ),
         instances: Path | None = INSTANCES,
         library: Path | None = LIBRARY,
+        sets: list[str] | None = SETS,
         quiet: bool = QUIET,
     ):
         """Terrain, camera, sun and sky, and a PointInstancer per partition over per-species layers."""
@@ -148,7 +156,7 @@ def register(app: typer.Typer) -> None:
 
         if output.suffix.lower() not in SUFFIXES:
             raise ForestError(f"{output}: a USD file name must end in .usda, .usdc or .usd")
-        scene = _scene(config, instances, library, quiet, files=(output,), frames=frames)
+        scene = _scene(config, instances, library, quiet, files=(output,), frames=frames, sets=sets)
         with progress_bar("export usd", quiet=quiet) as bar:
             res = export_usd(scene, output, frames=frames, progress=bar)
         if not quiet:
@@ -173,6 +181,7 @@ def register(app: typer.Typer) -> None:
         ),
         instances: Path | None = INSTANCES,
         library: Path | None = LIBRARY,
+        sets: list[str] | None = SETS,
         quiet: bool = QUIET,
     ):
         """Species meshes and materials once, the trees as Geometry Nodes instances, camera, sun and sky."""
@@ -185,7 +194,7 @@ def register(app: typer.Typer) -> None:
         if render is not None and render.suffix.lower() != ".png":  # Cycles' frame is written as a PNG
             raise ParameterError("render", f"{render}: the Cycles render is a PNG; the name must end in .png")
         find_blender(blender)  # before the scatter: a missing Blender is known now
-        scene = _scene(config, instances, library, quiet, files=(output, render), frames=frames)
+        scene = _scene(config, instances, library, quiet, files=(output, render), frames=frames, sets=sets)
         with progress_bar("export blender", quiet=quiet) as bar:
             res = export_blender(scene, output, blender=blender, frames=frames, render=render, progress=bar)
         if not quiet:
@@ -201,6 +210,7 @@ def register(app: typer.Typer) -> None:
         output: Path = typer.Option(..., "-o", "--output", help="Points file: .usda, .usd, .usdc, .ply or .csv."),
         instances: Path | None = INSTANCES,
         library: Path | None = LIBRARY,
+        sets: list[str] | None = SETS,
         quiet: bool = QUIET,
     ):
         """One point per tree with P, orient (x,y,z,w), pscale, id, species and Cd, for any DCC to instance."""
@@ -209,7 +219,7 @@ def register(app: typer.Typer) -> None:
 
         if output.suffix.lower() not in SUFFIXES:
             raise ParameterError("output", f"{output}: a points file must end in {', '.join(SUFFIXES)}")
-        scene = _scene(config, instances, library, quiet, files=(output,))
+        scene = _scene(config, instances, library, quiet, files=(output,), sets=sets)
         res = export_points(scene, output)
         if not quiet:
             typer.echo(f"{res.trees:,} points in {res.seconds:.2f} s")

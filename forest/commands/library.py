@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import typer
 
@@ -108,7 +109,7 @@ def register(app: typer.Typer) -> None:
     def preview(
         name: str = typer.Argument(..., help="Species name (or NAME@SEED)."),
         library: Path | None = typer.Option(None, "--library", help="Library folder."),
-        lod: str = typer.Option("high", "--lod", help="Level of detail to render: high, medium, low, far."),
+        lod: Literal["high", "medium", "low", "far"] = typer.Option("high", "--lod", help="Level of detail to render."),
         output: Path | None = typer.Option(None, "--output", "-o", help="Write here instead of the cache."),
         size: int = typer.Option(192, "--size", min=16, max=2048, help="Image width and height in pixels."),
         spp: int = typer.Option(16, "--spp", min=1, max=4096, help="Samples per pixel."),
@@ -137,8 +138,10 @@ def register(app: typer.Typer) -> None:
         mesh: Path = typer.Argument(..., help="Mesh file: OBJ (with MTL materials), PLY, glTF/GLB, STL."),
         name: str = typer.Option(..., "--name", "-n", help="Species name to add to the manifest."),
         library: Path | None = typer.Option(None, "--library", help="Library folder."),
-        up: str = typer.Option("auto", "--up", help="The file's up axis: auto, y or z (auto: z for STL, y otherwise)."),
-        units: str = typer.Option("auto", "--units", help="The file's unit: auto, m, cm, mm, in, ft."),
+        up: Literal["auto", "y", "z"] = typer.Option(
+            "auto", "--up", help="The file's up axis (auto: z for STL, y otherwise)."
+        ),
+        units: Literal["auto", "m", "cm", "mm", "in", "ft"] = typer.Option("auto", "--units", help="The file's unit."),
         height: float | None = typer.Option(
             None, "--height", min=0.0, help="Scale the model to this height in metres."
         ),

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import typer
 
 from ..errors import ForestError
+from . import SET_HELP, load_with_flags
 
 
 def register(app: typer.Typer) -> None:
@@ -28,7 +30,9 @@ def register(app: typer.Typer) -> None:
             help="What to fit, some of camera,sun,sky,leaves,ground,haze,colour_map (default: all; colour_map in "
             "aligned mode only).",
         ),
-        mode: str = typer.Option(None, "--mode", help="aligned (same camera) or statistics (unrelated photo)."),
+        mode: Literal["aligned", "statistics"] | None = typer.Option(
+            None, "--mode", help="aligned (same camera) or statistics (unrelated photo)."
+        ),
         mask: Path = typer.Option(
             None,
             "--mask",
@@ -41,30 +45,31 @@ def register(app: typer.Typer) -> None:
             help="Colour-map cells per side the fit varies, 1 to 64, or auto: the finest grid the reference "
             "resolves (lookdev.grid, auto).",
         ),
-        anchor: str = typer.Option(
+        anchor: Literal["auto", "ground", "leaves", "lights", "none"] | None = typer.Option(
             None,
             "--anchor",
             help="What holds the scale of albedos against light: ground, leaves, lights, none or auto "
             "(lookdev.anchor, auto: ground in aligned mode when the frame shows it, else leaves; none in "
             "statistics mode).",
         ),
-        map_prior: str = typer.Option(
+        map_prior: Literal["edges", "smooth"] | None = typer.Option(
             None,
             "--map-prior",
             help="The colour map's prior: edges (recovers painted patches) or smooth (a smooth correction of the "
             "painted map) (lookdev.map_prior, edges).",
         ),
         instances: Path = typer.Option(None, "--instances", help="A saved InstanceSet (.npz) instead of scattering."),
-        variant: str = typer.Option(
-            None, "--variant", help="llvm_ad_rgb or cuda_ad_rgb (default: cuda where the GPU passed its self-check)."
+        variant: Literal["llvm_ad_rgb", "cuda_ad_rgb"] | None = typer.Option(
+            None, "--variant", help="Mitsuba variant (default: cuda_ad_rgb where the GPU passed its self-check)."
         ),
+        sets: list[str] = typer.Option(None, "--set", metavar="KEY=VALUE", help=SET_HELP),
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No progress bar, no summary."),
     ):
         """Fit the colour map and light values so the forest render looks like a reference."""
         import warnings
 
         from .. import preflight
-        from ..config import load_config, referenced_files
+        from ..config import referenced_files
         from ..errors import ParameterError
         from ..lookdev import match, optimiser_size, resolve_settings
         from ..lookdev.reference import load_reference, painted_labels
@@ -78,7 +83,7 @@ def register(app: typer.Typer) -> None:
         preflight.input_file(reference, field="reference", what="reference")
         if mask is not None:
             preflight.input_file(mask, field="mask", what="mask")
-        cfg = load_config(config)
+        cfg = load_with_flags(config, {}, sets)
         inputs = [config, reference, mask, instances, *referenced_files(cfg)]
         preflight.distinct_from_inputs([output / name for name in WRITTEN], inputs)
         if variant is None and cfg.lookdev.variant is None and not quiet:

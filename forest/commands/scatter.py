@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from . import SET_HELP
+
 
 def register(app: typer.Typer) -> None:
     """Add ``forest scatter`` (trees to an InstanceSet ``.npz``) to ``app``."""
@@ -16,6 +18,7 @@ def register(app: typer.Typer) -> None:
         output: Path = typer.Option(..., "-o", "--output", help="InstanceSet file to write (.npz)."),
         seed: int = typer.Option(None, "--seed", help="Override the config's seed."),
         count: int = typer.Option(None, "--count", help="Override [scatter] count."),
+        sets: list[str] = typer.Option(None, "--set", metavar="KEY=VALUE", help=SET_HELP),
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No summary, no progress bar."),
     ):
         """Scatter trees over the terrain and save one row per tree as .npz."""
@@ -30,7 +33,7 @@ def register(app: typer.Typer) -> None:
         if output.suffix.lower() != ".npz":
             raise ParameterError("output", f"{output}: an InstanceSet is a .npz file")
         preflight.output_file(output)
-        cfg = load_with_flags(config, {"seed": seed, "scatter.count": count})
+        cfg = load_with_flags(config, {"seed": seed, "scatter.count": count}, sets)
         preflight.distinct_from_inputs([output], [config, *referenced_files(cfg)])
         preflight.check_species(cfg, open_library())  # a misspelled species fails here, not at render
         with progress_bar("scatter", quiet=quiet) as bar:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Literal
 
 import typer
 
@@ -30,6 +31,49 @@ def _check_port(host: str, port: int) -> None:
             raise ForestError(f"--port {port}: cannot listen on {host}:{port}: {e.strerror or e}") from None
 
 
+def service_limits(
+    *,
+    max_side: int | None = None,
+    max_pixels: int | None = None,
+    max_spp: int | None = None,
+    max_trees: int | None = None,
+    max_frames: int | None = None,
+    max_upload_mb: float | None = None,
+):
+    """The service's :class:`forest.service.jobs.Limits` with the ``forest serve --max-…`` flags given (None: keep
+    the default)."""
+    import dataclasses
+
+    from forest.service.jobs import Limits
+
+    given: dict[str, int] = {}
+    if max_side is not None:
+        given.update(max_width=max_side, max_height=max_side)
+    for key, value in (("max_pixels", max_pixels), ("max_spp", max_spp), ("max_trees", max_trees)):
+        if value is not None:
+            given[key] = value
+    if max_frames is not None:
+        given["max_frames"] = max_frames
+    if max_upload_mb is not None:
+        given["max_upload_bytes"] = max(1, int(max_upload_mb * 2**20))
+    return dataclasses.replace(Limits(), **given)
+
+
+def log_config(*, quiet: bool) -> dict:
+    """uvicorn's logging set-up for ``forest serve``: its start-up lines are dropped (forest prints its own banner),
+    the access log shows unless ``quiet``; warnings and errors always show."""
+    import copy
+
+    from uvicorn.config import LOGGING_CONFIG
+
+    cfg = copy.deepcopy(LOGGING_CONFIG)
+    cfg["loggers"]["uvicorn"]["level"] = "WARNING"
+    cfg["loggers"]["uvicorn.error"] = {"level": "WARNING"}
+    cfg["loggers"]["uvicorn.access"]["level"] = "WARNING" if quiet else "INFO"
+    cfg["loggers"]["forest.service"] = {"handlers": ["default"], "level": "WARNING", "propagate": False}
+    return cfg
+
+
 def register(app: typer.Typer) -> None:
     """Add ``forest serve`` (the HTTP job service) to ``app``."""
 
@@ -41,7 +85,7 @@ def register(app: typer.Typer) -> None:
         workers: int = typer.Option(
             1, "--workers", min=0, max=256, help="Tasks run at once (local processes or Ray tasks in flight)."
         ),
-        executor: str = typer.Option("local", "--executor", help="Where tasks run: local or ray."),
+        executor: Literal["local", "ray"] = typer.Option("local", "--executor", help="Where tasks run."),
         ray_address: str = typer.Option(
             None,
             "--ray-address",
@@ -90,7 +134,39 @@ def register(app: typer.Typer) -> None:
         worker_nice: int = typer.Option(
             19, "--worker-nice", min=0, max=19, help="CPU niceness of local workers (the service itself stays at 0)."
         ),
-        quiet: bool = typer.Option(False, "-q", "--quiet", help="No access log."),
+        max_side: int = typer.Option(
+            None, "--max-side", min=1, max=16384, help="Widest or tallest image a job may ask for [default: 4096]."
+        ),
+        max_pixels: int = typer.Option(
+            None,
+            "--max-pixels",
+            min=1,
+            max=16384 * 16384,
+            help="Most pixels (width × height) a job may ask for [default: 4096×2160 = 8847360].",
+        ),
+        max_spp: int = typer.Option(
+            None, "--max-spp", min=1, max=65536, help="Most samples per pixel a job may ask for [default: 1024]."
+        ),
+        max_trees: int = typer.Option(
+            None,
+            "--max-trees",
+            min=1,
+            max=20_000_000,
+            help="Most candidate trees ([scatter] count) a job may ask for [default: 2000000].",
+        ),
+        max_frames: int = typer.Option(
+            None, "--max-frames", min=1, max=1_000_000, help="Most frames one job may ask for [default: 2000]."
+        ),
+        max_upload_mb: float = typer.Option(
+            None,
+            "--max-upload-mb",
+            min=0.001,
+            max=65536.0,
+            help="Largest upload (map, mesh or photo) in MiB [default: 64].",
+        ),
+        quiet: bool = typer.Option(
+            False, "-q", "--quiet", help="No start-up banner and no access log (warnings and errors still show)."
+        ),
     ):
         """Serve the job API and web page: queue renders, fly-throughs and colour matches."""
         from ..errors import ForestError
@@ -131,6 +207,14 @@ def register(app: typer.Typer) -> None:
                 ) from None
         import uvicorn
 
+        limits = service_limits(
+            max_side=max_side,
+            max_pixels=max_pixels,
+            max_spp=max_spp,
+            max_trees=max_trees,
+            max_frames=max_frames,
+            max_upload_mb=max_upload_mb,
+        )
         cfg = ServiceConfig(
             data_dir=data,
             workers=workers,
@@ -142,6 +226,7 @@ def register(app: typer.Typer) -> None:
             worker_idle_s=worker_idle,
             worker_scenes=worker_scenes,
             nice=worker_nice,
+            limits=limits,
             retention=Retention(
                 max_age_s=keep_days * 86400.0,
                 max_jobs=keep_jobs,
@@ -149,18 +234,19 @@ def register(app: typer.Typer) -> None:
                 output_quota_bytes=int(output_quota * 2**30) if output_quota is not None else None,
             ),
         )
-        typer.echo(
-            f"forest service on http://{host if ':' not in host else f'[{host}]'}:{port}/ "
-            f"(data {data.resolve()}, {executor} executor, {workers} worker(s)"
-            f"{', token required' if token else ''})",
-            err=True,
-        )
+        if not quiet:
+            typer.echo(
+                f"forest service on http://{host if ':' not in host else f'[{host}]'}:{port}/ "
+                f"(data {data.resolve()}, {executor} executor, {workers} worker(s)"
+                f"{', token required' if token else ''})",
+                err=True,
+            )
         os.environ.setdefault("PYTHONUNBUFFERED", "1")
         uvicorn.run(
             create_app(cfg),
             host=host,
             port=port,
-            log_level="warning",
+            log_config=log_config(quiet=quiet),
             access_log=not quiet,
             timeout_graceful_shutdown=5,
             loop="auto",

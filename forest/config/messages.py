@@ -31,6 +31,14 @@ def _fmt(v: Any) -> str:
     return repr(v)
 
 
+def _whole_number(v: Any) -> str:
+    """The message for a value that is not an integer; ``64.0`` is told to lose its decimal point (TOML reads
+    ``64.0`` as a float, and ``{v:g}`` would print it as 64)."""
+    if isinstance(v, float) and v.is_integer():
+        return f"must be a whole number without a decimal point, got {v!r}"
+    return f"must be a whole number, got {_fmt(v)}"
+
+
 def dotted(loc: tuple[Any, ...] | list[Any]) -> str:
     """``('species', 1, 'percent')`` → ``species[1].percent``."""
     out = ""
@@ -113,9 +121,9 @@ def first_error(error: ValidationError, data: Any) -> tuple[str | None, str]:
 
     messages = {
         "missing": "is required",
-        "int_type": f"must be a whole number, got {_fmt(value)}",
-        "int_parsing": f"must be a whole number, got {_fmt(value)}",
-        "int_from_float": f"must be a whole number, got {_fmt(value)}",
+        "int_type": _whole_number(value),
+        "int_parsing": _whole_number(value),
+        "int_from_float": _whole_number(value),
         "float_type": f"must be a number, got {_fmt(value)}",
         "float_parsing": f"must be a number, got {_fmt(value)}",
         "bool_type": f"must be true or false, got {_fmt(value)}",

@@ -534,25 +534,79 @@ class GroundCoverConfig(Section):
 # ---------------------------------------------------------------------------
 
 Fov = Annotated[float, Field(ge=0.1, le=179.0, allow_inf_nan=False)]
+#: A lens's focal length, millimetres (a 4 mm fisheye to a 10 m mirror telescope).
+FocalLength = Annotated[float, Field(ge=0.1, le=10000.0, allow_inf_nan=False)]
+#: A filmback's width (horizontal aperture), millimetres (a phone's 5 mm to an 8×10 inch plate's 254 mm).
+SensorWidth = Annotated[float, Field(ge=0.1, le=1000.0, allow_inf_nan=False)]
+#: Full-frame 35 mm stills: 36 × 24 mm.
+FULL_FRAME_MM = 36.0
+
+
+def fov_from_focal_length(focal_length: float, sensor_width: float) -> float:
+    """Horizontal field of view, degrees, of a ``focal_length`` mm lens on a ``sensor_width`` mm filmback:
+    2·atan(sensor_width / (2·focal_length))."""
+    return math.degrees(2.0 * math.atan(sensor_width / (2.0 * focal_length)))
+
+
+def focal_length_from_fov(fov: float, sensor_width: float) -> float:
+    """Focal length, millimetres, that gives a horizontal ``fov`` (degrees) on a ``sensor_width`` mm filmback."""
+    return (sensor_width / 2.0) / math.tan(math.radians(fov) / 2.0)
+
+
+def _lens_fov(focal_length: float, sensor_width: float, field: str) -> float:
+    fov = fov_from_focal_length(focal_length, sensor_width)
+    if not 0.1 <= fov <= 179.0:
+        raise fail(
+            f"{focal_length:g} mm on a {sensor_width:g} mm sensor_width gives a {fov:.4g}° field of view; "
+            "it must be 0.1–179°",
+            field,
+        )
+    return fov
 
 
 class CameraKey(Section):
-    """One key of the camera's path: its frame and the pose there (fov: the camera's unless given)."""
+    """One key of the camera's path: its frame and the pose there (fov or focal_length: the camera's unless given)."""
 
     frame: Float = Field(description="Frame number of this key (fractional allowed).")
     position: Point3
     target: Point3
     fov: Fov | None = Field(None, description="Horizontal field of view, degrees (default: the camera's).")
+    focal_length: FocalLength | None = Field(
+        None,
+        description="Focal length, mm, on the camera's sensor_width (an animated zoom): sets fov; not with fov.",
+    )
 
 
 class CameraConfig(Section):
-    """A still camera, or a path through ``keys`` (centripetal Catmull–Rom)."""
+    """A still camera, or a path through ``keys`` (centripetal Catmull–Rom), or one read from a USD stage (``usd``).
+
+    The lens is either ``fov`` (horizontal, degrees) or ``focal_length`` (mm) on a ``sensor_width`` (mm, the
+    filmback's horizontal aperture: USD ``horizontalAperture``, Maya's horizontal film aperture × 25.4); from
+    the latter ``fov`` = 2·atan(sensor_width / (2·focal_length)) is derived here, so every backend reads ``fov``.
+    """
 
     position: Point3 | None = Field(None, description="Default: the first key, else a view over the terrain.")
     target: Point3 | None = None
-    fov: Fov = Field(40.0, description="Horizontal field of view, degrees.")
+    fov: Fov = Field(40.0, description="Horizontal field of view, degrees (derived when focal_length is given).")
+    focal_length: FocalLength | None = Field(
+        None, description="Focal length, mm (e.g. 50): sets fov from sensor_width; give fov or focal_length, not both."
+    )
+    sensor_width: SensorWidth = Field(
+        FULL_FRAME_MM,
+        description="Filmback width (horizontal aperture), mm: 36 full frame, 24.89 Super 35, 36.7 ARRI Alexa LF.",
+    )
     up: Vec3 = (0.0, 1.0, 0.0)
     keys: list[CameraKey] = Field(default_factory=list)
+    usd: InputFile | None = Field(
+        None,
+        exclude=True,  # what it sets (pose, keys, lens) is in the dump; the file's own path would tie it to a folder
+        description="A USD stage (.usda/.usdc/.usd) to take the camera from: its transform (animated: time "
+        "samples become keys, frame = time code), focalLength, horizontalAperture and clippingRange; "
+        "the stage's upAxis and metersPerUnit are converted to forest's Y up, metres.",
+    )
+    usd_camera: Annotated[Str, AfterValidator(_non_empty)] | None = Field(
+        None, description="Prim path of the camera in usd (e.g. /World/cam); optional when the stage has one camera."
+    )
     shutter: Unit = Field(0.0, description="Fraction of a frame the shutter is open (> 0: motion blur).")
     near: Positive = 0.5
     far: Positive = 100000.0
@@ -564,7 +618,12 @@ class CameraConfig(Section):
     )
 
     @model_validator(mode="after")
-    def _path(self) -> CameraConfig:
+    def _path(self, info: ValidationInfo) -> CameraConfig:
+        given = set(self.model_fields_set)  # as written: what the usd camera sets below is not "given"
+        if self.usd is not None:
+            self._from_usd(info)
+        elif self.usd_camera is not None:
+            raise fail("names a camera prim, but usd (the stage) is not given", "usd_camera")
         frames = [k.frame for k in self.keys]
         if frames != sorted(frames) or len(set(frames)) != len(frames):
             raise fail("frames must be strictly increasing", "keys")
@@ -572,13 +631,45 @@ class CameraConfig(Section):
             raise fail(f"must be > near ({self.near:g})", "far")
         if math.hypot(*self.up) < 1e-9:
             raise fail("must not be the zero vector", "up")
-        for k in self.keys:
-            if k.fov is None:
-                k.fov = self.fov
+        if self.focal_length is not None:
+            if "fov" in given:
+                raise fail(f"give fov or focal_length, not both (fov = {self.fov:g})", "focal_length")
+            self.fov = _lens_fov(self.focal_length, self.sensor_width, "focal_length")
+        for i, k in enumerate(self.keys):
+            if k.focal_length is not None:
+                if k.fov is not None:
+                    raise fail(f"give fov or focal_length, not both (fov = {k.fov:g})", f"keys[{i}].focal_length")
+                k.fov = _lens_fov(k.focal_length, self.sensor_width, f"keys[{i}].focal_length")
+            elif k.fov is None:
+                k.fov, k.focal_length = self.fov, self.focal_length
         if self.keys:
             self.position = self.position or self.keys[0].position
             self.target = self.target or self.keys[0].target
         return self
+
+    def _from_usd(self, info: ValidationInfo) -> None:
+        """Take pose, path and lens from the ``usd`` stage's camera (see :mod:`forest.usd_camera`)."""
+        from ..usd_camera import USD_SETS, read_usd_camera
+
+        assert self.usd is not None
+        clash = sorted(USD_SETS & self.model_fields_set)
+        if clash:
+            raise fail(f"comes from the camera in usd ({self.usd.name}); remove it or remove usd", clash[0])
+        if not (info.context or {}).get("check_files", True) and not self.usd.is_file():
+            return  # validated again once its files are in place (the job service)
+        try:
+            shot = read_usd_camera(self.usd, self.usd_camera)
+        except ForestError as e:
+            raise fail(f"{self.usd.name}: {e.message}", e.field or "usd") from None
+        self.position, self.target, self.up = shot.position, shot.target, shot.up
+        self.focal_length, self.sensor_width, self.fov = shot.focal_length, shot.sensor_width, shot.fov
+        try:
+            self.keys = [CameraKey.model_validate(k) for k in shot.keys]
+        except ValueError as e:  # a pose beyond the world's bounds
+            raise fail(f"{self.usd.name}: a key out of range ({str(e).splitlines()[-1].strip()})", "usd") from None
+        for name, value in (("near", shot.near), ("far", shot.far), ("fps", shot.fps), ("shutter", shot.shutter)):
+            if value is not None and name not in self.model_fields_set:
+                setattr(self, name, value)
 
     def stand_on(self, height_at: Any) -> None:
         """With ``height_above_ground``: set the y of position and of every key to the terrain's ``height_at(x, z)``
@@ -716,6 +807,20 @@ def _exposure(value: Any) -> float:
         raise fail(e.message) from None
 
 
+#: The comp AOVs ``[render] aovs`` may name (see docs/rendering.md, *Comp AOVs*). None is written by default:
+#: N, P and albedo cost no render time (they come with the beauty's samples and the pixel-centre layers pass)
+#: but double the EXR's size, which a farm writing thousands of frames pays for on every one; ask for them.
+AOV_NAMES = ("N", "P", "albedo", "motion", "lightgroups")
+DEFAULT_AOVS: tuple[str, ...] = ()
+
+
+def _aovs(value: list[str]) -> list[str]:
+    unknown = [v for v in value if v not in AOV_NAMES]
+    if unknown:
+        raise fail(f"unknown AOV {unknown[0]!r}; choose from {', '.join(AOV_NAMES)}")
+    return sorted(set(value), key=AOV_NAMES.index)
+
+
 class RenderConfig(Section):
     """The image (size, samples, variant), light paths, aerial haze, the ground's look and the PNG's view transform."""
 
@@ -756,10 +861,22 @@ class RenderConfig(Section):
         "(--preview always does); needs the 'denoise' extra (pyoidn).",
     )
     view: Annotated[str, AfterValidator(_view)] = Field(
-        "agx", description="View transform of the PNG: agx, filmic or standard (the EXR stays scene-linear)."
+        "agx",
+        description="View transform of the PNG: agx, filmic, standard or aces (the EXR stays scene-linear).",
     )
     exposure: Annotated[Any, AfterValidator(_exposure)] = Field(
         0.0, description="Exposure of the PNG, EV (stops), -10 to 10.", json_schema_extra={"type": "number"}
+    )
+    working_space: Literal["rec709", "acescg"] = Field(
+        "rec709",
+        description="Colour space of the EXR's beauty and colour layers: rec709 (linear Rec.709, as rendered) or "
+        "acescg (linear ACES AP1, converted; the header says which). The PNG is the same in both.",
+    )
+    aovs: Annotated[list[str], AfterValidator(_aovs)] = Field(
+        list(DEFAULT_AOVS),
+        description="Comp layers written beside the beauty: N (first-hit normal), P (world position), albedo, "
+        "motion (screen-space vectors, forward.u/v) and lightgroups (sun, sky, haze; forest_path only).",
+        json_schema_extra={"items": {"enum": list(AOV_NAMES)}, "uniqueItems": True},
     )
 
 

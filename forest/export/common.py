@@ -31,9 +31,9 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import parse_frames
 from ..config import Config
 from ..errors import ForestError, ParameterError
+from ..frames import parse_frames
 from ..instances import InstanceSet
 from ..library import Species
 from ..scatter.models import scatter_models

@@ -106,7 +106,9 @@ the driver every RenderMan-compliant renderer has: a TIFF named after the
 scene and frame); ``Format``, and ``PixelSamples`` (RI 3.2) or ``Hider`` +
 ``PxrPathTracer`` from ``[render]``; ``Projection "perspective"`` whose ``fov``
 spans the shorter screen side (the config's spans the width: fov_ri =
-2·atan(tan(fov/2)·min(W, H)/W)); ``Clipping``; the camera at the frame, or —
+2·atan(tan(fov/2)·min(W, H)/W); the fov derived from ``[camera] focal_length``
+and ``sensor_width`` when those are given, noted in a ``# lens:`` comment);
+``Clipping``; the camera at the frame, or —
 with ``[camera] shutter`` s > 0 — ``Shutter 0 s`` and ``MotionBegin`` with
 max(2, ``[render] subframes``) camera transforms.  In the world: the lights
 (:func:`lights_text`, units in :mod:`forest.export.radiometry`), ``objects.rib``,
@@ -132,6 +134,7 @@ import numpy as np
 from ..atomic import atomic_dir
 from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import Config, ConfigError
+from ..config.schema import focal_length_from_fov
 from ..errors import ForestError, ParameterError
 from ..instances import InstanceSet, quaternion_to_matrix
 from ..lights import resolve_lights
@@ -927,6 +930,9 @@ def scene_text(
         ps = max(1, int(round(math.sqrt(r.spp))))
         out.append(f"  PixelSamples {ps} {ps}")
     state = camera_at(cam, frame)
+    if cam.focal_length is not None or any(k.focal_length is not None for k in cam.keys):
+        lens = focal_length_from_fov(state.fov, cam.sensor_width)
+        out.append(f"  # lens: {lens:.6g} mm on a {cam.sensor_width:g} mm filmback, horizontal fov {state.fov:.6g} deg")
     out.append(
         f'  Projection "perspective" "{"float " if r22 else ""}fov" [{num(ri_fov(state.fov, r.width, r.height))}]'
     )

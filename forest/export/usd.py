@@ -35,11 +35,16 @@ material that multiplies the two (the product is the reflectance the Mitsuba
 render uses).
 
 **Camera and lights.**  USD cameras look down −Z with +Y up: the camera's
-transform has columns (right, up, −forward, position).  Its apertures keep the
-config's horizontal field of view: focalLength = (horizontalAperture / 2) /
-tan(fov / 2).  A DistantLight emits along its local −Z; its transform turns
-local +Z onto d, the direction towards the sun (:mod:`forest.lights`), so the
-light travels along −d.
+transform has columns (right, up, −forward, position).  Its lens is the
+config's, in millimetres: horizontalAperture = ``[camera] sensor_width``
+(36 by default), verticalAperture = sensor_width · height / width, and
+focalLength = (horizontalAperture / 2) / tan(fov / 2) — ``[camera]
+focal_length`` itself when it is given.  focusDistance is the distance to the
+target, so :mod:`forest.usd_camera` reads the same target back (fStop stays
+unauthored: no depth of field).  A keyed camera is time-sampled at every
+exported frame (transform, focalLength, focusDistance).  A DistantLight emits
+along its local −Z; its transform turns local +Z onto d, the direction towards
+the sun (:mod:`forest.lights`), so the light travels along −d.
 
 **Texture coordinates.**  USD's st has t = 0 at the bottom of an image; the
 library's uv and the terrain's map coordinates have v = 0 at the top row, so
@@ -49,7 +54,6 @@ st = (u, 1 − v).
 from __future__ import annotations
 
 import errno
-import math
 import os
 import shutil
 import time
@@ -61,6 +65,7 @@ import numpy as np
 from ..atomic import atomic_dir, no_space
 from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import Config, ConfigError
+from ..config.schema import focal_length_from_fov
 from ..errors import ForestError
 from ..instances import InstanceSet
 from ..lights import resolve_lights
@@ -83,7 +88,6 @@ from .common import (
 )
 
 SUFFIXES = (".usda", ".usdc", ".usd")
-HORIZONTAL_APERTURE = 36.0  # the camera's film width; only its ratio to focalLength matters
 
 
 @dataclass
@@ -355,28 +359,29 @@ def _camera(stage, config: Config, frames: list[int]):
     r = config.render
     cam = UsdGeom.Camera.Define(stage, "/World/Camera")
     cam.CreateProjectionAttr(UsdGeom.Tokens.perspective)
-    cam.CreateHorizontalApertureAttr(HORIZONTAL_APERTURE)
-    cam.CreateVerticalApertureAttr(HORIZONTAL_APERTURE * r.height / r.width)
+    aperture = float(cam_cfg.sensor_width)
+    cam.CreateHorizontalApertureAttr(aperture)
+    cam.CreateVerticalApertureAttr(aperture * r.height / r.width)
     cam.CreateClippingRangeAttr(Gf.Vec2f(cam_cfg.near, cam_cfg.far))
     if cam_cfg.shutter > 0:
         cam.CreateShutterOpenAttr(-cam_cfg.shutter / 2)
         cam.CreateShutterCloseAttr(cam_cfg.shutter / 2)
     op = cam.AddTransformOp()
     focal = cam.CreateFocalLengthAttr()
+    focus = cam.CreateFocusDistanceAttr()
     animated = bool(cam_cfg.keys) and len(frames) > 1
 
     def focal_length(fov):
-        return (HORIZONTAL_APERTURE / 2) / math.tan(math.radians(fov) / 2)
+        if not cam_cfg.keys and cam_cfg.focal_length is not None:
+            return float(cam_cfg.focal_length)  # as given (not through a float round trip of the fov)
+        return focal_length_from_fov(fov, aperture)
 
-    if animated:
-        for f in frames:
-            s = camera_at(cam_cfg, f)
-            op.Set(gf_matrix(usd_camera_matrix(s.position, s.target, s.up)), Usd.TimeCode(f))
-            focal.Set(focal_length(s.fov), Usd.TimeCode(f))
-    else:
-        s = camera_at(cam_cfg, frames[0])
-        op.Set(gf_matrix(usd_camera_matrix(s.position, s.target, s.up)))
-        focal.Set(focal_length(s.fov))
+    for f in frames if animated else [frames[0]]:
+        s = camera_at(cam_cfg, f)
+        t = Usd.TimeCode(f) if animated else Usd.TimeCode.Default()
+        op.Set(gf_matrix(usd_camera_matrix(s.position, s.target, s.up)), t)
+        focal.Set(focal_length(s.fov), t)
+        focus.Set(float(np.linalg.norm(np.asarray(s.target, float) - np.asarray(s.position, float))), t)
     return cam
 
 

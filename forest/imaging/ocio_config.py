@@ -15,9 +15,19 @@ Spaces
     the IEC 61966-2-1 sRGB curve (OCIO's ExponentWithLinearTransform, γ 2.4,
     offset 0.055).
 
+    ``ACEScg`` — scene-linear ACES AP1 (aliases ``lin_ap1_scene``, ``lin_ap1``): the
+    EXR's space with ``[render] working_space = "acescg"``; to the reference by the
+    Bradford-adapted AP1 → Rec.709 matrix (colour-science).
+
 Views of the display ``sRGB``: ``AgX``, ``Filmic``, ``Standard`` (view transforms
-from the scene reference to display-linear light, see :mod:`forest.imaging.curves`)
-and ``Raw``.  The two curved views share one log2 shaper (OCIO's
+from the scene reference to display-linear light, see :mod:`forest.imaging.curves`),
+``ACES 1.0 - SDR Video`` and ``Raw``.  The ACES view is the Academy's ACES 1.x
+output transform (RRT + SDR video ODT) as OCIO builds it in (:data:`ACES_OUTPUT`; no
+hand-written approximation): Rec.709 → ACES2065-1 (Bradford, colour-science), the
+built-in transform to display-linear CIE XYZ (D65), XYZ → Rec.709 — the same picture
+as the view of that name in OCIO's ACES 1.3 ``cg-config`` on ``sRGB - Display``.  It
+is ACES 1.x, not 2.0, because OCIO only builds ACES 2.0 into configs of version 2.4
+and up, which hosts with an older OCIO cannot read; this config stays at 2.1.  The two curved views share one log2 shaper (OCIO's
 RangeTransform + LogAffineTransform: 18 % grey ± [−10, +6.5] stops → [0, 1])
 followed by a 4096-entry 1D LUT (``.spi1d``) of the tone curve.
 """
@@ -29,16 +39,22 @@ from pathlib import Path
 import numpy as np
 
 from . import curves
+from .working_space import INTEROP_IDS, rgb_matrix, xyz_to_rec709
 
 SCENE_LINEAR = "Linear Rec.709 (sRGB)"
 """Name of the scene-linear colour space of forest's renders in the shipped config."""
-SCENE_LINEAR_INTEROP_ID = "lin_rec709_scene"
+SCENE_LINEAR_INTEROP_ID = INTEROP_IDS["rec709"]
 """Color Interop Forum identifier of that space (an alias in the config; written to EXR headers)."""
+INTEROP_ACESCG = INTEROP_IDS["acescg"]
 DISPLAY = "sRGB"
 DISPLAY_SPACE = "sRGB - Display"
 RAW = "Raw"
-VIEW_NAMES = {"agx": "AgX", "filmic": "Filmic", "standard": "Standard"}
-"""forest's view keys (``[render] view``) → the OCIO view names."""
+VIEW_NAMES = {"agx": "AgX", "filmic": "Filmic", "standard": "Standard", "aces": "ACES 1.0 - SDR Video"}
+"""forest's view keys (``[render] view``) → the OCIO view names (``aces``: named as in OCIO's built-in ACES configs)."""
+ACESCG = "ACEScg"
+"""Name of the ACEScg space in the shipped config (aliases ``lin_ap1_scene``, ``lin_ap1``)."""
+ACES_OUTPUT = "ACES-OUTPUT - ACES2065-1_to_CIE-XYZ-D65 - SDR-VIDEO_1.0"
+"""OCIO's built-in ACES 1.x output transform (SDR video, Rec.709) behind the ``aces`` view."""
 LUT_SIZE = 4096
 LUT_FILES = {"agx": "agx_sigmoid.spi1d", "filmic": "filmic_hable.spi1d"}
 
@@ -134,7 +150,16 @@ def build_config():
             ]
         ),
     )
-    for cs in (lin, raw, display):
+    acescg = OCIO.ColorSpace(
+        referenceSpace=OCIO.REFERENCE_SPACE_SCENE,
+        name=ACESCG,
+        aliases=[INTEROP_ACESCG, "lin_ap1"],
+        family="Scene-linear",
+        encoding="scene-linear",
+        description="Scene-linear ACES AP1 primaries, ACES white: forest's EXR with working_space = acescg.",
+        toReference=OCIO.MatrixTransform(matrix=_matrix44(rgb_matrix("acescg", "rec709"))),
+    )
+    for cs in (lin, acescg, raw, display):
         cfg.addColorSpace(cs)
 
     inset, outset = curves.agx_inset_matrix(), curves.agx_outset_matrix()
@@ -156,6 +181,15 @@ def build_config():
         "standard": (
             [OCIO.MatrixTransform(matrix=_matrix44(np.eye(3)))],
             "Scene-linear shown as display-linear, clipped: 18% grey -> code 0.461.",
+        ),
+        "aces": (
+            [
+                OCIO.MatrixTransform(matrix=_matrix44(rgb_matrix("rec709", "aces2065-1"))),
+                OCIO.BuiltinTransform(style=ACES_OUTPUT),
+                OCIO.MatrixTransform(matrix=_matrix44(xyz_to_rec709())),
+            ],
+            "ACES 1.x output transform, SDR video (OCIO built-in): Rec.709 -> ACES2065-1, "
+            "RRT + ODT to display XYZ D65, XYZ -> Rec.709.",
         ),
     }
     for key, (steps, description) in view_transforms.items():

@@ -14,6 +14,8 @@ view      18 % grey →            highlights
 agx       0.500 (127.5/255)      roll off to white at +6.5 EV (scene 16.3)
 filmic    0.500 (127.5/255)      roll off to white at +4.1 EV (scene 3.12)
 standard  0.461 (117.7/255)      clip at scene 1.0 (+2.5 EV)
+aces      0.356 (90.8/255)       ACES 1.x RRT + SDR video ODT (OCIO built-in):
+                                 scene 1 → 0.81, 4 → 0.955, 16 → 0.9997
 ========  =====================  ==============================================
 
 Each +1 EV of ``exposure`` doubles the scene values before the view, so grey at
@@ -34,7 +36,7 @@ import numpy as np
 from ..errors import ConfigError
 from . import ocio_config as _cfg
 
-VIEWS = ("agx", "filmic", "standard")
+VIEWS = ("agx", "filmic", "standard", "aces")
 """The values ``[render] view`` accepts."""
 DEFAULT_VIEW = "agx"
 EXPOSURE_RANGE = (-10.0, 10.0)

@@ -174,6 +174,48 @@ def _read_manifest(path: Path) -> dict:
     return sp
 
 
+MANIFEST_HEADER = "forest tree library (see `forest library --help`)."
+
+
+def write_manifest_entry(path: Path, name: str, entry: dict) -> None:
+    """Set ``[species.NAME]`` of the manifest at ``path`` to ``entry`` and write it atomically.
+
+    The manifest is edited as a TOML document (tomlkit), so its comments, the
+    order of its tables and every other entry stay as they were; a replaced
+    entry keeps its place.  Strings are escaped by the writer, so a file name
+    with a backslash or a quote reads back as it was written.  A missing
+    manifest is created with ``version = 1``.
+    """
+    import tomlkit
+
+    from ..atomic import atomic_path
+
+    if path.is_file():
+        try:
+            doc = tomlkit.parse(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError) as e:
+            raise ConfigError(path, None, f"cannot read: {e}") from None
+        except tomlkit.exceptions.ParseError as e:
+            raise ConfigError(path, None, f"invalid TOML: {e}") from None
+    else:
+        doc = tomlkit.document()
+        doc.add(tomlkit.comment(MANIFEST_HEADER))
+        doc.add("version", 1)
+    species = doc.get("species")
+    if species is None:
+        species = tomlkit.table(is_super_table=True)
+        doc.add("species", species)
+    elif not isinstance(species, dict):
+        raise ConfigError(path, "species", "must be a table of [species.NAME] tables")
+    table = tomlkit.table()
+    for k, v in entry.items():
+        table.add(k, v)
+    species[name] = table  # replaced where it stands, or appended
+    text = tomlkit.dumps(doc)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
 class Library:
     """A writable folder (``manifest.toml``, ``presets/``, ``imported/``, ``cache/``) over
     an optional read-only ``base`` folder (the shipped presets).

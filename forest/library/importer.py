@@ -22,8 +22,11 @@ Steps, for a file and a name:
    when larger); medium and low get about 12 000 and 1 500 triangles, shared
    among the parts by their triangle counts — leaf parts made of many small
    cards keep a random subset of whole cards, enlarged to keep their total area
-   (:func:`forest.library.mesh.thin_cards`), other parts are vertex-clustered
-   (:func:`forest.library.mesh.decimate_to`); far is the crossed-card impostor
+   (:func:`forest.library.mesh.thin_cards`; other leaf meshes are vertex-clustered,
+   :func:`forest.library.mesh.decimate_to`), solid parts are simplified by quadric
+   error (Garland & Heckbert 1997, :func:`forest.library.mesh.quadric_decimate`),
+   which keeps trunk and branch silhouettes, UVs carried over from the nearest
+   source triangle; far is the crossed-card impostor
    (:func:`forest.library.lod.impostor`).
 5. **Store** the parts as PLY under ``imported/NAME/`` with ``species.json``,
    add ``[species.NAME]`` to the manifest, and render the preview.
@@ -43,13 +46,12 @@ from typing import Any
 
 import numpy as np
 
-from ..atomic import atomic_path
 from ..errors import ForestError, ParameterError
 from ..images import srgb_to_linear
 from . import lod as lodmod
 from .build import code_hash, far_coverage, lod_entry, part_entry, write_json
-from .core import MESH_SUFFIXES, NAME_RE, Library, Species, _load_meta, _species_from_meta
-from .mesh import MeshData, decimate_to, thin_cards, vertex_normals, write_ply
+from .core import MESH_SUFFIXES, NAME_RE, Library, Species, _load_meta, _species_from_meta, write_manifest_entry
+from .mesh import MeshData, decimate_to, quadric_decimate, thin_cards, vertex_normals, write_ply
 from .textures import write_texture
 
 MAX_FILE_BYTES = 256 * 1024 * 1024
@@ -326,9 +328,13 @@ def convert(
             share = max(8, int(round(target * mesh.triangles / total)))
             m = mesh
             if mesh.triangles > share:
-                # Leaf cards thin out as whole cards (area kept); solid surfaces cluster.
-                thinned = thin_cards(mesh, share, seed_of(digest), TAG_IMPORT + i) if kind == "leaf" else None
-                m = thinned if thinned is not None and thinned.triangles else decimate_to(mesh, share)
+                # Leaf cards thin out as whole cards (area kept), other leaf meshes cluster (their alpha cut-outs
+                # hang on UVs); solid surfaces (trunks, branches) collapse edges by quadric error.
+                if kind == "leaf":
+                    thinned = thin_cards(mesh, share, seed_of(digest), TAG_IMPORT + i)
+                    m = thinned if thinned is not None and thinned.triangles else decimate_to(mesh, share)
+                else:
+                    m = quadric_decimate(mesh, share)
             if m.triangles == 0:
                 continue
             fname = f"{lod}_part{i}.ply"
@@ -429,19 +435,6 @@ def import_cached(lib: Library, path: Path) -> Species:
     return _species_from_meta(lib, meta, folder, f"imported from {path.name}")
 
 
-def _manifest_without(text: str, name: str) -> str:
-    """Remove the ``[species.NAME]`` table (up to the next table header) from manifest text."""
-    lines = text.splitlines(keepends=True)
-    out, skip = [], False
-    header = re.compile(r"^\s*\[")
-    for line in lines:
-        if header.match(line):
-            skip = line.strip() in (f"[species.{name}]", f'[species."{name}"]')
-        if not skip:
-            out.append(line)
-    return "".join(out)
-
-
 def add_species(
     lib: Library,
     path: str | Path,
@@ -469,22 +462,13 @@ def add_species(
         raise ParameterError("height", f"must be a positive number of metres, got {height!r}")
     folder = lib.root / "imported" / name
     meta = _into_place(path, folder, name, True, up=up, units=units, height=height)
-    text = (
-        lib.manifest_path.read_text()
-        if lib.manifest_path.is_file()
-        else "# forest tree library (see `forest library --help`).\nversion = 1\n"
-    )
-    text = _manifest_without(text, name).rstrip("\n") + "\n"
-    opts = "".join(f"{k} = {v!r}\n".replace("'", '"') for k, v in (("up", up), ("units", units)) if v != "auto")
+    entry: dict[str, Any] = {"source": "imported", "path": f"imported/{name}", "original": path.name}
+    entry.update((k, v) for k, v in (("up", up), ("units", units)) if v != "auto")
     if height is not None:
-        opts += f"height = {float(height)!r}\n"
-    desc = f"imported from {path.name}".replace('"', "'")
-    text += (
-        f'\n[species.{name}]\nsource = "imported"\npath = "imported/{name}"\n'
-        f'original = "{path.name.replace(chr(34), "")}"\n{opts}description = "{desc}"\n'
-    )
-    with atomic_path(lib.manifest_path) as tmp:
-        tmp.write_text(text)
+        entry["height"] = float(height)
+    desc = f"imported from {path.name}"
+    entry["description"] = desc
+    write_manifest_entry(lib.manifest_path, name, entry)
     lib._species.pop(name, None)
     sp = _species_from_meta(lib, meta, folder, desc)
     if preview:

@@ -152,13 +152,101 @@ def rounded_grid(grid: np.ndarray) -> np.ndarray:
     return (np.round(np.maximum(grid, 0.0) * 65536.0) / 65536.0).astype(np.float32)
 
 
-def write_toml(path: Path, data: dict[str, Any]) -> Path:
-    """Write the fitted scene ``data`` to ``path`` atomically as TOML under a header comment; return ``path``."""
-    import tomli_w
+HEADER = "# look-dev result: the scene's look fitted to a reference (forest match)"
 
-    text = "# look-dev result: the scene's look fitted to a reference (forest match)\n" + tomli_w.dumps(data)
+
+def _plain(value: Any) -> Any:
+    """A tomlkit item as plain Python (plain values pass through)."""
+    unwrap = getattr(value, "unwrap", None)
+    return unwrap() if callable(unwrap) else value
+
+
+def sync_document(target: Any, data: dict[str, Any]) -> None:
+    """Make the TOML container ``target`` (a tomlkit document or table) hold ``data``, editing in place.
+
+    Keys whose values are unchanged keep their item, so their comments and
+    formatting stay; changed values are replaced where they stand (a trailing
+    comment stays); new keys are appended; keys ``data`` lacks are removed.
+    Tables and same-length arrays of tables are walked into.
+    """
+    for key in [k for k in target if k not in data]:
+        del target[key]
+    for key, value in data.items():
+        if key not in target:
+            _append(target, key, value)
+            continue
+        old = target[key]
+        if isinstance(value, dict) and isinstance(old, dict):
+            sync_document(old, value)
+        elif (
+            isinstance(value, list)
+            and isinstance(old, list)
+            and len(old) == len(value)
+            and value
+            and all(isinstance(v, dict) and isinstance(o, dict) for v, o in zip(value, old, strict=True))
+        ):
+            for o, v in zip(old, value, strict=True):
+                sync_document(o, v)
+        elif not _same(_plain(old), value):
+            target[key] = value
+
+
+def _append(target: Any, key: str, value: Any) -> None:
+    """Add ``key`` to ``target``; in a ``[table]``, before the comments and blank lines that end it (they
+    introduce what follows, e.g. ``# --- lights ---`` above the next header)."""
+    from tomlkit.items import Comment, Table, Whitespace
+
+    if not isinstance(target, Table):
+        target[key] = value
+        return
+    body = target.value.body
+    tail = []
+    while body and body[-1][0] is None and isinstance(body[-1][1], Comment | Whitespace):
+        tail.append(body.pop())
+    target[key] = value
+    body.extend(reversed(tail))
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal as TOML values (``1`` and ``1.0`` are, ``true`` and ``1`` are not)."""
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, bool) or isinstance(b, bool):
+        return type(a) is type(b) and a == b
+    return bool(a == b)
+
+
+def fitted_document(data: dict[str, Any], original: str | None = None) -> str:
+    """The text of the fitted ``scene.toml``: ``original`` (the artist's scene file, if given and readable)
+    edited to hold ``data``, so its comments, key order and untouched values survive (:func:`sync_document`),
+    under the look-dev header comment."""
+    import tomlkit
+
+    doc = None
+    if original is not None:
+        try:
+            doc = tomlkit.parse(original.removeprefix("\ufeff"))
+        except (tomlkit.exceptions.ParseError, RecursionError):  # unparsable now: write the values alone
+            doc = None
+    if doc is None:
+        doc = tomlkit.document()
+    sync_document(doc, data)
+    text = tomlkit.dumps(doc)
+    return text if text.startswith(HEADER) else HEADER + "\n" + text
+
+
+def write_toml(path: Path, data: dict[str, Any], original: Path | str | None = None) -> Path:
+    """Write the fitted scene ``data`` to ``path`` atomically as TOML (:func:`fitted_document`); ``original``
+    is the scene file it was fitted from, whose comments and order the written file keeps. Returns ``path``."""
+    text = None
+    if original is not None:
+        try:
+            text = Path(original).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError):
+            text = None
+    out = fitted_document(data, text)
     with atomic_path(path) as tmp:
-        tmp.write_text(text, encoding="utf-8")
+        tmp.write_text(out, encoding="utf-8")
     return path
 
 
@@ -278,7 +366,7 @@ def write_outputs(
             write_image(tmp / MAP_NAME, rounded_grid(grid), half=False)
             out["colour_map"] = out_dir / MAP_NAME
         # The temporary folder is the output folder's sibling: relative paths resolve the same from both.
-        write_toml(tmp / "scene.toml", data)
+        write_toml(tmp / "scene.toml", data, config.path)
         fitted_scene = scene.with_config(load_config(tmp / "scene.toml"))
         # Production renders of the start and of the written scene: figures at the fit's size, pictures larger.
         prod = {name: Production(sc, renderer.variant) for name, sc in (("start", scene), ("fitted", fitted_scene))}

@@ -21,6 +21,10 @@ the recipe of a frame, shared with forest_path).  What it does itself:
   the height-falloff model of :mod:`forest.render.path.haze` applied along
   each pixel's camera ray, split between the pixel's geometry and its sky by
   the coverage — forest_path applies the same model along every path segment.
+* the comp AOVs of ``[render] aovs`` (:mod:`forest.render.path.aovs`): N and albedo
+  from the coverage pass's first hits, P and the motion vectors from the layers
+  pass.  Light groups need forest_path's estimator: asked for here, a one-line
+  warning names the variant and no ``lightgroup.*`` layers are written.
 
 The look: leaves with τ > 0 are ``principledthin`` (diffuse transmission),
 shadow rays see through leaf-card alpha (``volpath``, ``[render]
@@ -35,6 +39,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -51,6 +56,7 @@ from .loop import PassCallback, frame_seed, render_frame
 from .materials import MaterialBuilder
 from .output import FrameImage
 from .path import PathScene
+from .path.aovs import frame_aovs
 from .path.frame import PassResult
 from .path.from_scene import path_camera, path_inputs
 from .post import apply_haze
@@ -119,6 +125,13 @@ class FrameRenderer:
         self.max_instanced = 0
         self.max_unique = 0
         self.max_groups = 0
+        self.aovs = tuple(rc.aovs)
+        self._layers: dict[str, np.ndarray] = {}
+        if "lightgroups" in self.aovs:
+            warnings.warn(
+                f"render.aovs: light groups need forest_path (llvm_ad_rgb or cuda_ad_rgb); {variant} writes none",
+                stacklevel=2,
+            )
 
     @property
     def leaf_model(self) -> str:
@@ -230,7 +243,8 @@ class FrameRenderer:
     def layers(self, frame: float, levels: np.ndarray) -> dict[str, np.ndarray]:
         """Depth, id and species through the pixel centres, by forest_path at the frame's centre."""
         path = self.path_scene(levels, frame / self.config.camera.fps)
-        return path.layers(path_camera(self.config, frame, self.width, self.height))
+        self._layers = path.layers(path_camera(self.config, frame, self.width, self.height))
+        return self._layers
 
     def post(self, rgb: np.ndarray, alpha: np.ndarray, layers: dict[str, np.ndarray], frame: float) -> np.ndarray:
         """Aerial perspective after the fact (:func:`forest.render.post.apply_haze`), along each pixel's camera
@@ -247,5 +261,16 @@ class FrameRenderer:
 
     def frame(self, frame: float, on_pass: PassCallback | None = None) -> FrameImage:
         """Render one frame (:func:`forest.render.loop.render_frame`); ``on_pass(image so far, passes done,
-        passes in the frame)`` is called after every sample pass with the running mean of the frame's samples."""
-        return render_frame(self, frame, on_pass)
+        passes in the frame)`` is called after every sample pass with the running mean of the frame's samples;
+        the comp AOVs of ``[render] aovs`` (all but the light groups) are attached to the image."""
+        image = render_frame(self, frame, on_pass)
+        image.aovs = frame_aovs(
+            self.aovs,
+            config=self.config,
+            instances=self.instances,
+            frame=frame,
+            normal=image.normal,
+            albedo=image.albedo,
+            layers=self._layers,
+        )
+        return image

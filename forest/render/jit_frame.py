@@ -9,24 +9,34 @@ sub-frame traces its samples in passes of at most
 what its camera ray met first (tree, ground or nothing), the albedo and the
 shading normal there — the coverage, the Cryptomattes and the denoiser's
 guides come with the beauty.  Aerial perspective is part of the path
-(:mod:`forest.render.path.haze`), not a post-process.
+(:mod:`forest.render.path.haze`), not a post-process.  The comp AOVs of
+``[render] aovs`` (:mod:`forest.render.path.aovs`) come from the same traversal:
+the light groups from the beauty's own samples (``lightgroups`` switches their
+split on in the kernel), N and albedo from its first hits, P and the motion
+vectors from the pixel-centre layers pass.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
+from ..runtime import mitsuba
 from ..scene import Scene
 from ..wind import tree_matrices
 from .frame import FrameSize
 from .loop import PassCallback, frame_seed, render_frame
 from .output import FrameImage
 from .path import PathScene
+from .path.aovs import GroupSums, frame_aovs
 from .path.frame import PassResult, split_passes
 from .path.from_scene import path_camera, path_inputs
+
+
+def _no_progress(_fraction: float, _step: str) -> None:
+    """A progress callback that reports nothing."""
 
 
 class PathFrameRenderer:
@@ -39,7 +49,15 @@ class PathFrameRenderer:
 
     leaf_model = "forest_path (R = (1-t)a reflected, T = ta transmitted)"
 
-    def __init__(self, scene: Scene, variant: str, size: FrameSize, *, preview: bool = False):
+    def __init__(
+        self,
+        scene: Scene,
+        variant: str,
+        size: FrameSize,
+        *,
+        preview: bool = False,
+        progress: Callable[[float, str], None] | None = None,
+    ):
         self.scene = scene
         self.config = config = scene.config
         self.instances = scene.instances
@@ -48,9 +66,18 @@ class PathFrameRenderer:
         self.width, self.height, self.spp, self.subframes = size.width, size.height, size.spp, size.subframes
         self.species_names = [str(n) for n in self.instances.species_names]
         t0 = time.perf_counter()
+        report = progress or _no_progress
+        report(0.0, f"loading Mitsuba ({variant})")
+        mitsuba(variant)
+        report(0.15, f"levels of detail and wind of {len(self.instances):,} trees")
         inputs = path_inputs(scene, frame=1.0, width=self.width, height=self.height, spp=self.spp)
+        report(0.25, f"Mitsuba scene of {len(self.instances):,} trees, {len(scene.species)} species")
         self.path = PathScene(inputs, variant)
+        report(1.0, "scene built")
         self._pose_key = self._key(inputs.levels, 1.0 / config.camera.fps)
+        self.aovs = tuple(config.render.aovs)
+        self._groups: GroupSums | None = None  # the light groups of the frame being rendered
+        self._layers: dict[str, np.ndarray] = {}
         self.restart()
         self.load_seconds = time.perf_counter() - t0
 
@@ -107,7 +134,11 @@ class PathFrameRenderer:
     def samples(self, frame: float, spp: int, seed: int) -> Iterator[PassResult]:
         """The beauty's passes at camera time ``frame``, each with its samples' first hits."""
         camera = path_camera(self.config, frame, self.width, self.height)
-        yield from self.path.passes(camera, spp=spp, seed=seed, aux=True)
+        groups = self._groups
+        for p in self.path.passes(camera, spp=spp, seed=seed, aux=True, groups=groups is not None):
+            if groups is not None:
+                groups.add(p)
+            yield p
 
     def first_hits(self, frame: float, levels: np.ndarray) -> Iterator[PassResult]:
         """First hits at the frame's centre (the loop needs none: :meth:`samples` carries them)."""
@@ -118,7 +149,8 @@ class PathFrameRenderer:
     def layers(self, frame: float, levels: np.ndarray) -> dict[str, np.ndarray]:
         """Depth, id and species through the pixel centres at the frame's centre pose."""
         self._pose(levels, frame / self.config.camera.fps)
-        return self.path.layers(path_camera(self.config, frame, self.width, self.height))
+        self._layers = self.path.layers(path_camera(self.config, frame, self.width, self.height))
+        return self._layers
 
     def post(
         self,
@@ -137,5 +169,18 @@ class PathFrameRenderer:
 
     def frame(self, frame: float, on_pass: PassCallback | None = None) -> FrameImage:
         """Render one frame (:func:`forest.render.loop.render_frame`); ``on_pass`` sees the running mean after
-        every pass."""
-        return render_frame(self, frame, on_pass)
+        every pass; its comp AOVs (``[render] aovs``) are attached to the image."""
+        self._groups = GroupSums(self.width * self.height) if "lightgroups" in self.aovs else None
+        image = render_frame(self, frame, on_pass)
+        image.aovs = frame_aovs(
+            self.aovs,
+            config=self.config,
+            instances=self.instances,
+            frame=frame,
+            normal=image.normal,
+            albedo=image.albedo,
+            layers=self._layers,
+            groups=self._groups,
+        )
+        self._groups = None
+        return image

@@ -10,11 +10,17 @@ forest_path) return a :class:`FrameImage`; :func:`write_frame` writes it with
   0 where only sky is seen), ``depth.Z`` / ``id.Z`` / ``species.Z`` from one
   ray through each pixel centre, ``CryptoObject`` (per tree, names
   ``<species>/<tree id>``, and ``terrain``) and ``CryptoAsset`` (per species)
-  Cryptomattes from per-sample ids, ``worldToCamera`` / ``worldToNDC``, the
+  Cryptomattes from per-sample ids, the comp AOVs of ``[render] aovs``
+  (``N``, ``P``, ``albedo``, ``forward`` motion vectors, ``lightgroup.*``; see
+  :mod:`forest.render.path.aovs`), ``worldToCamera`` / ``worldToNDC``, the
   colour space (``chromaticities``, ``colorInteropID``), the species-name
   table, and forest's settings and statistics (``forest:*``);
 * the PNG (:func:`forest.imaging.write_display`): the beauty through
   ``[render] view`` at ``[render] exposure``.
+
+With ``[render] working_space = "acescg"`` the EXR's beauty and colour layers are converted
+from the renderer's linear Rec.709 to ACEScg and its header says so
+(:mod:`forest.imaging.working_space`); the PNG is made from the Rec.709 beauty, unchanged.
 """
 
 from __future__ import annotations
@@ -28,6 +34,8 @@ import numpy as np
 from ..camera import CameraState
 from ..imaging import camera_matrices, write_comp_exr, write_display
 from ..imaging.cryptomatte import Cryptomatte
+from ..imaging.exr import AOV_CHANNELS
+from ..imaging.working_space import from_rec709
 
 
 @dataclass
@@ -45,6 +53,7 @@ class FrameImage:
     albedo: np.ndarray | None = None  # (H, W, 3) first-hit albedo (denoiser guide)
     normal: np.ndarray | None = None  # (H, W, 3) first-hit shading normal
     denoised: bool = False
+    aovs: dict[str, np.ndarray] = field(default_factory=dict)  # comp layers, name → (H, W, C) ([render] aovs)
 
 
 def header_value(v: Any) -> Any:
@@ -69,17 +78,22 @@ def write_frame(
     view: str,
     exposure: float,
     attributes: dict[str, Any],
+    working_space: str = "rec709",
 ) -> list[Path]:
-    """Write ``image`` as its EXR and PNG (see the module docstring); the paths written."""
+    """Write ``image`` as its EXR (in ``working_space``) and PNG (see the module docstring); the paths written."""
     h, w = image.rgb.shape[:2]
     cam = image.camera
     matrices = camera_matrices(cam.position, cam.target, cam.up, cam.fov, w, h, near=near, far=far)
     attrs = {k: header_value(v) for k, v in attributes.items()}
     attrs["forest:view"] = view
     attrs["forest:exposure"] = float(exposure)
+    aovs = {
+        name: from_rec709(a, working_space) if AOV_CHANNELS.get(name, ("R", "G", "B")) == ("R", "G", "B") else a
+        for name, a in image.aovs.items()
+    }
     write_comp_exr(
         exr,
-        image.rgb,
+        from_rec709(image.rgb, working_space),
         alpha=image.alpha,
         depth=image.depth,
         tree_id=image.id,
@@ -88,6 +102,8 @@ def write_frame(
         mattes=image.mattes,
         camera=matrices,
         attributes=attrs,
+        aovs=aovs,
+        working_space=working_space,
     )
     try:
         write_display(png, image.rgb, view=view, exposure=exposure)

@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import frame_path, parse_frames
 from ..config import Config
 from ..errors import ParameterError
+from ..frames import frame_path, parse_frames
 from ..scene import Scene
 from .frame import FrameRenderer, FrameSize
 from .jit_frame import PathFrameRenderer
@@ -117,11 +117,31 @@ def frame_size(config: Config, *, preview: bool) -> FrameSize:
     return FrameSize(rc.width, rc.height, rc.spp, rc.subframes if config.camera.shutter > 0 else 1)
 
 
-def make_renderer(scene: Scene, variant: str, size: FrameSize, *, preview: bool = False) -> Renderer:
-    """The frame renderer of ``variant``: forest_path in the JIT variants, Mitsuba's integrators in scalar_rgb."""
+def make_renderer(
+    scene: Scene,
+    variant: str,
+    size: FrameSize,
+    *,
+    preview: bool = False,
+    progress: Callable[[float, str], None] | None = None,
+) -> Renderer:
+    """The frame renderer of ``variant``: forest_path in the JIT variants, Mitsuba's integrators in scalar_rgb.
+
+    ``progress(fraction, step)`` follows forest_path's scene build step by step."""
     if variant.startswith("scalar"):
         return FrameRenderer(scene, variant, size, preview=preview)
-    return PathFrameRenderer(scene, variant, size, preview=preview)
+    return PathFrameRenderer(scene, variant, size, preview=preview, progress=progress)
+
+
+def build_share(variant: str, trees: int, size: FrameSize, frames: int) -> float:
+    """The part of a render's time its scene build takes, as this machine's render rates forecast it
+    (:func:`forest.preflight.throughput`), between 0.05 and 0.95: where the build ends on the progress bar."""
+    from ..preflight import throughput
+
+    sample_s, tree_s, _ = throughput(variant)
+    build = 1.0 + trees * tree_s  # a second for Mitsuba and the terrain, then the trees
+    samples = size.width * size.height * max(size.spp, size.subframes) * max(1, frames)
+    return min(0.95, max(0.05, build / (build + samples * sample_s)))
 
 
 def _kept(reuse: dict[str, Any] | None, key: tuple[Any, ...], build: Callable[[], Renderer]) -> Renderer:
@@ -212,7 +232,16 @@ def render_scene(
     progress = progress or _no_progress
     progress(0.0, "building scene")
     size = frame_size(config, preview=preview)
-    r = _kept(reuse, (scene, chosen, size, bool(preview)), lambda: make_renderer(scene, chosen, size, preview=preview))
+    built = build_share(chosen, len(inst), size, len(frame_list))
+
+    def building(fraction: float, step: str) -> None:
+        progress(built * fraction, f"building scene: {step}")
+
+    r = _kept(
+        reuse,
+        (scene, chosen, size, bool(preview)),
+        lambda: make_renderer(scene, chosen, size, preview=preview, progress=building),
+    )
     n_sub = size.subframes
     per_frame = n_sub * len(r.passes(max(1, math.ceil(size.spp / n_sub))))
     total = len(frame_list) * per_frame
@@ -222,7 +251,8 @@ def render_scene(
     for fi, (f, (exr, png)) in enumerate(zip(frame_list, targets)):
 
         def passed(img: np.ndarray, done: int, n: int, fi: int = fi, f: int = f) -> None:
-            progress((fi * per_frame + done) / total, f"frame {f} ({fi + 1}/{len(frame_list)})")
+            which = "" if still else f"frame {f} ({fi + 1}/{len(frame_list)}), "
+            progress(built + (1.0 - built) * (fi * per_frame + done) / total, f"{which}pass {done}/{n}")
             if on_pass is not None:
                 on_pass(f, img, done, n)
 
@@ -273,6 +303,7 @@ def render_scene(
             view=rc.view,
             exposure=float(rc.exposure),
             attributes=attrs,
+            working_space=rc.working_space,
         )
     progress(1.0, "done")
     return RenderResult(

@@ -55,11 +55,8 @@ from ..runtime import VARIANTS, cuda_available, find_llvm, gpu_info
 #: ``bench/bench_render.py --case scale`` (1 000 to 130 000 trees), ``--case original`` and ``--case look`` (see the
 #: module docstring).
 SCALAR_COST = "1.8-2.4"
-#: What the choice rests on, printed with it.
-MEASURED = (
-    "forest_path renders forest's look (leaf transmission, alpha-cut shadows, disc sun) in "
-    f"{SCALAR_COST}x less CPU time than scalar_rgb's volpath at equal samples (bench/bench_render.py)"
-)
+#: What the choice rests on, in a few words (the measurements are in the module docstring and docs/rendering.md).
+MEASURED = f"{SCALAR_COST}x faster than scalar_rgb for forest's look"
 
 
 def check_variant(variant: str) -> str:
@@ -110,7 +107,7 @@ def default_variant(trees: int | None = None) -> tuple[str, str]:
     if find_llvm() is None:
         fallback, reason = "scalar_rgb", "no LLVM 19 for the JIT variants: Mitsuba's scalar_rgb"
     else:
-        fallback, reason = "llvm_ad_rgb", f"no GPU: forest_path on the CPU; {MEASURED}"
+        fallback, reason = "llvm_ad_rgb", f"no GPU: forest_path on the CPU, {MEASURED}"
     return fallback, reason if why == "no GPU" else _gpu_failed(why, fallback)
 
 

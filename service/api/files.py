@@ -10,7 +10,7 @@
 ``GET /jobs/{id}/tasks/{i}/log``       one task's log
 =====================================  ===================================================
 
-Files of a job the store has forgotten stay downloadable while its folder exists.
+Each answers ``HEAD`` too: the same status and headers, no body.  Files of a job the store has forgotten stay downloadable while its folder exists.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from pathlib import Path
 
 from fastapi import APIRouter, Depends, HTTPException, Query
 from fastapi.responses import FileResponse, PlainTextResponse
+from fastapi.routing import APIRoute
 
 from ..assets import AssetError, check_relative, is_inside
 from ..downloads import archive, collect
@@ -186,3 +187,22 @@ def task_log(job_id: str, index: int, svc: Service = Depends(service)) -> PlainT
     if not 0 <= index < 1_000_000 or (not job.get("archived") and svc.db.get_task(job_id, index) is None):
         raise HTTPException(404, f"job {job_id} has no task {index}")
     return _tail(svc.datadir.job_dir(job_id) / "logs" / f"task-{index:04d}.log")
+
+
+def _add_head_routes() -> None:
+    """``HEAD`` for every download above: the same status and headers as ``GET`` (``Content-Length``,
+    ``Content-Type``, ``Content-Disposition``), no body — what download managers and farm tools ask first.
+    Left out of the OpenAPI document, which lists the ``GET``\\ s."""
+    for route in list(router.routes):
+        if isinstance(route, APIRoute) and "GET" in (route.methods or ()):
+            router.add_api_route(
+                route.path,
+                route.endpoint,
+                methods=["HEAD"],
+                response_class=route.response_class,
+                include_in_schema=False,
+                name=f"{route.name}_head",
+            )
+
+
+_add_head_routes()

@@ -131,8 +131,22 @@ class Example(BaseModel):
     text: str
 
 
+class LimitsView(BaseModel):
+    """What one job may ask of this service (``forest serve --max-…``); over a limit a job is refused."""
+
+    max_width: int = Field(..., description="Widest image, pixels (settings.width, render.width).")
+    max_height: int = Field(..., description="Tallest image, pixels (settings.height, render.height).")
+    max_pixels: int = Field(..., description="Most pixels, width × height.")
+    max_spp: int = Field(..., description="Most samples per pixel.")
+    max_trees: int = Field(..., description="Most candidate trees (settings.count, scatter.count).")
+    max_frames: int = Field(..., description="Most frames in one job.")
+    max_iterations: int = Field(..., description="Most look-dev iterations in a match job.")
+    max_upload_bytes: int = Field(..., description="Largest upload (PUT /assets), bytes.")
+    max_config_bytes: int = Field(..., description="Largest config text, bytes.")
+
+
 class Health(BaseModel):
-    """Liveness: the executor, worker count, jobs per state, capabilities and open event streams."""
+    """Liveness: the executor, worker count, jobs per state, capabilities, limits and open event streams."""
 
     status: str
     executor: str
@@ -141,6 +155,7 @@ class Health(BaseModel):
     capabilities: dict[str, bool]
     requeued_at_start: int
     streams: int = Field(0, description="Open event streams.")
+    limits: LimitsView
 
 
 class WorkerList(BaseModel):

@@ -6,14 +6,15 @@ from fastapi import APIRouter, Depends
 
 from ..store import JOB_STATES
 from .deps import Service, service
-from .schemas import Example, Health, WorkerList
+from .schemas import Example, Health, LimitsView, WorkerList
 
 router = APIRouter()
 
 
 @router.get("/health", response_model=Health, summary="Liveness and queue counts")
 def health(svc: Service = Depends(service)) -> dict:
-    """``ok`` with the executor, worker count, jobs per state, the capabilities and the open event streams."""
+    """``ok`` with the executor, worker count, jobs per state, the capabilities, the limits on what a job may ask
+    for (``forest serve --max-…``; the page's inputs follow them) and the open event streams."""
     counts = svc.db.counts()
     counts["total"] = sum(counts[s] for s in JOB_STATES)
     return {
@@ -24,7 +25,14 @@ def health(svc: Service = Depends(service)) -> dict:
         "capabilities": svc.caps,
         "requeued_at_start": svc.db.requeued_on_open,
         "streams": svc.notifier.subscribers(),
+        "limits": limits_view(svc),
     }
+
+
+def limits_view(svc: Service) -> dict:
+    """The service's limits as :class:`~.schemas.LimitsView` shows them."""
+    limits = svc.config.limits
+    return {name: getattr(limits, name) for name in LimitsView.model_fields}
 
 
 @router.get("/workers", response_model=WorkerList, summary="Worker slots and what each runs")

@@ -103,11 +103,29 @@ $("#example").addEventListener("change", () => {
   if (ex) $("#config").value = ex.text;
 });
 
+// The server's limits on what a job may ask for (GET /health: limits); the form's inputs follow them.
+let limits = null;
+function applyLimits(l) {
+  if (!l) return;
+  limits = l;
+  const set = (sel, max) => { if (max) { $(sel).max = String(max); $(sel).title = `at most ${max.toLocaleString()} on this server`; } };
+  set("#width", l.max_width);
+  set("#height", l.max_height);
+  set("#spp", l.max_spp);
+  set("#count", l.max_trees);
+  set("#iterations", l.max_iterations);
+}
+
 async function upload(entries) {
   // entries: [{file, path}]; every path keeps its folders (maps/height.png)
   const status = $("#asset-status");
   const done = [], failed = [];
   for (const { file, path } of entries) {
+    if (limits && file.size > limits.max_upload_bytes) {
+      failed.push(`${path}: ${(file.size / 2 ** 20).toFixed(1)} MiB is over this server's upload limit of ` +
+        `${(limits.max_upload_bytes / 2 ** 20).toFixed(1)} MiB`);
+      continue;
+    }
     status.textContent = `uploading ${path}…`;
     try {
       const url = "/assets/" + path.split("/").map(encodeURIComponent).join("/");
@@ -228,6 +246,7 @@ async function refreshWorkers() {
   try {
     const h = await api("GET", "/health");
     $("#health").textContent = `${h.executor} executor · ${h.workers} worker(s)`;
+    applyLimits(h.limits);
     for (const opt of $("#kind").options) opt.disabled = !h.capabilities[opt.value];
     const { workers } = await api("GET", "/workers");
     keepRows($("#workers tbody"), workers.map(w => el("tr", { dataset: { state: w.state } },

@@ -460,6 +460,27 @@ class LightSet:
             total += light.eval(s, d, active)
         return total
 
+    @property
+    def groups(self) -> list[str]:
+        """The light groups of these lights, in order of first appearance (:func:`light_group`)."""
+        return list(dict.fromkeys(light_group(light) for light in self.lights))
+
+    def eval_groups(self, d: Any, active: Any) -> tuple[Any, dict[str, Any]]:
+        """:meth:`eval` and its split by light group: (Σ_k L_k(d), {group g: Σ_{k ∈ g} L_k(d)}).
+
+        The total is summed in the same order and with the same operations as :meth:`eval`, so it is
+        bit for bit the same value; each light is evaluated once.
+        """
+        mi = self.mi
+        total = mi.Color3f(0.0)
+        parts: dict[str, Any] = {}
+        for light, s in zip(self.lights, self.scales):
+            value = light.eval(s, d, active)
+            total += value
+            g = light_group(light)
+            parts[g] = value if g not in parts else parts[g] + value
+        return total, parts
+
     def pdf(self, d: Any, active: Any) -> Any:
         """Light-sampling density p_L(d) = Σ P_k p_k(d) (solid angle)."""
         import drjit as dr
@@ -493,6 +514,13 @@ class LightSet:
             dk, _, _ = light.sample(s, u, sel)
             d = dr.select(sel, dk, d)
         return d, self.pdf(d, active)
+
+
+def light_group(light: Any) -> str:
+    """The comp light group a light's contributions are written to: ``sun`` for a sun (a light with a
+    ``direction``: :class:`DiscSun`, a ``sunsky``'s sun), ``sky`` for every sky (constant, gradient,
+    ``envmap``, a ``sunsky``'s sky).  forest has no other emitters."""
+    return "sun" if getattr(light, "direction", None) is not None else "sky"
 
 
 def sky_mean_radiance(lights: list[Any]) -> np.ndarray:

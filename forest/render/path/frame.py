@@ -167,6 +167,7 @@ class PassResult:
     albedo: np.ndarray | None = None  # (H·W, 3) summed
     normal: np.ndarray | None = None  # (H·W, 3) summed
     segments: np.ndarray | None = None  # (H·W, spp) uint32: ray segments each path traced (beauty passes only)
+    groups: dict[str, np.ndarray] | None = None  # light group → (H·W, 3) summed; Σ groups = rgb (``groups=True``)
 
 
 @dataclass
@@ -376,13 +377,16 @@ class PathScene:
         seed: int | None = None,
         max_depth: int | None = None,
         aux: bool = False,
+        groups: bool = False,
     ) -> Iterator[PassResult]:
         """Render the beauty pass by pass (primal only): one :class:`PassResult` per sample pass.
 
         Pass k traces ``split_passes(...)[k]`` samples per pixel seeded with
         :func:`pass_seed` (seed, k), so the passes of a render are the same
         whether they are consumed one by one or summed by :meth:`render`.
-        ``aux`` also returns each sample's first hit (row), albedo and normal.
+        ``aux`` also returns each sample's first hit (row), albedo and normal; ``groups`` (with ``aux``)
+        the beauty split by light group (:meth:`PathKernel.sample`): ``rgb`` = Σ ``groups`` per pixel up to
+        float rounding, the same samples summed the same way.
         """
         import drjit as dr
 
@@ -394,10 +398,13 @@ class PathScene:
         with dr.suspend_grad():
             for k, n in enumerate(split_passes(w, h, spp, self.max_lanes)):
                 sampler, ray, used = self._camera_rays(camera, n, pass_seed(seed, k))
-                out = kernel.sample(dr.ADMode.Primal, sampler, ray, None, None, mi_bool(self.mi, True), aux=aux)
+                out = kernel.sample(
+                    dr.ADMode.Primal, sampler, ray, None, None, mi_bool(self.mi, True), aux=aux, groups=groups
+                )
                 L, covered = out[0], mi_float(self.mi, out[1])
-                extra = out[3] if aux else {}
-                dr.eval(L, covered, *extra.values())  # one kernel for all outputs
+                extra = dict(out[3]) if aux else {}
+                split = extra.pop("groups", {})
+                dr.eval(L, covered, *extra.values(), *split.values())  # one kernel for all outputs
                 # Per-pixel sums on the device: only pixels, not samples, cross to the host (ids excepted).
                 result = PassResult(
                     spp=used,
@@ -409,7 +416,9 @@ class PathScene:
                     result.albedo = pixel_sums(self.mi, extra["albedo"], used, h * w)
                     result.normal = pixel_sums(self.mi, extra["normal"], used, h * w)
                     result.segments = np.asarray(extra["segments"], np.uint32).reshape(h * w, used)
-                del sampler, ray, out, L, covered, extra
+                if split:
+                    result.groups = {g: pixel_sums(self.mi, v, used, h * w) for g, v in split.items()}
+                del sampler, ray, out, L, covered, extra, split
                 yield result
 
     def render(
@@ -570,7 +579,9 @@ class PathScene:
 
     def layers(self, camera: PathCamera | None = None) -> dict[str, np.ndarray]:
         """Per pixel, from one ray through its centre: ``depth`` (metres from the camera to the first opaque
-        hit; the far clip where nothing is hit), ``id`` (InstanceSet id, −1 none), ``species`` (index, −1 none).
+        hit; the far clip where nothing is hit), ``id`` (InstanceSet id, −1 none), ``species`` (index, −1 none),
+        ``position`` (H, W, 3: the hit's world position, 0 where none) and ``row`` (the hit's row: a tree
+        index < N, N for world-space parts — terrain, merged far trees — and −1 where nothing is hit).
 
         A cut-out texel counts as opaque where α ≥ 0.5, up to the tracer's skip limit.
         """
@@ -587,8 +598,9 @@ class PathScene:
             valid, _, row, p, *_ = kernel.trace(ray.o, ray.d, ray.maxt, None, mi_bool(mi, True), threshold=LAYER_ALPHA)
             origin = np.asarray(camera.to_world, np.float64)[:3, 3]
             dist = dr.norm(p - mi.Point3f(*[float(v) for v in origin]))
-            dr.eval(valid, row, dist)
+            dr.eval(valid, row, dist, p)
             valid_np = np.asarray(valid).astype(bool)
+            position = np.stack([np.asarray(c, np.float64) for c in (p.x, p.y, p.z)], axis=1)
             depth = np.where(valid_np, np.asarray(dist, np.float64), float(camera.far))
             rows = np.asarray(row, np.int64)
         n = self.geometry.n_trees
@@ -599,10 +611,13 @@ class PathScene:
         ids[tree] = inst.id[rows[tree]].astype(np.float64)
         species[tree] = np.asarray(inst.species)[rows[tree]].astype(np.float64)
         shape = (h, w)
+        position[~valid_np] = 0.0
         return {
             "depth": depth.reshape(shape).astype(np.float32),
             "id": ids.reshape(shape).astype(np.float32),
             "species": species.reshape(shape).astype(np.float32),
+            "position": position.reshape(h, w, 3).astype(np.float32),
+            "row": np.where(valid_np, rows, -1).reshape(shape),
         }
 
 

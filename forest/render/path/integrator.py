@@ -241,7 +241,15 @@ class PathKernel:
 
     # -- the estimator ------------------------------------------------------------------
     def sample(
-        self, mode: Any, sampler: Any, ray: Any, δL: Any, state_in: Any, active: Any, aux: bool = False
+        self,
+        mode: Any,
+        sampler: Any,
+        ray: Any,
+        δL: Any,
+        state_in: Any,
+        active: Any,
+        aux: bool = False,
+        groups: bool = False,
     ) -> tuple[Any, ...]:
         """One path per lane: (L, or δL in a derivative mode; the camera ray's hit flag; L as state).
 
@@ -253,6 +261,14 @@ class PathKernel:
         of a denoiser and the per-sample ids of coverage mattes — and ``segments``, the
         ray segments the path traced (at most :func:`segment_cap`; a per-lane counter
         for checking the loop's bound on any variant).
+
+        ``groups`` (with ``aux``) adds ``groups`` to that dict: the path's radiance split by where
+        the light came from, {``sun``, ``sky`` (:func:`.emitters.light_group`), ``haze``: Color3f}.
+        Every term the estimator adds to L is added to exactly one group — an emission hit
+        β·w_b·L_k(ω) and a next-event estimate β·w_l·f·L_k(ω_l)·V/p_L to the group of light k
+        (the light sum Σ_k L_k split into its terms), the haze's in-scattering β·(1 − T)·J(d) to
+        ``haze`` — so Σ_g L_g = L up to float rounding, from the same samples.  Off, the traced
+        code is the one without groups.
 
         The estimator (module docstring) runs as one loop of ray *segments*.
 
@@ -280,6 +296,7 @@ class PathKernel:
         aux = bool(aux) and primal
         lights = self.lights
         haze = self.haze
+        lgroups = lights.groups if (groups and aux) else []
         n = dr.width(ray.d)
         seed = dr.reinterpret_array(mi.UInt32, sampler.next_1d())
         rng = mi.PCG32(size=n, initstate=mi.UInt64(seed), initseq=mi.UInt64(dr.arange(mi.UInt32, n)))
@@ -310,6 +327,11 @@ class PathKernel:
         )
         if aux:
             state.update(first=mi.UInt32(NO_HIT), albedo=mi.Color3f(0.0), normal=mi.Vector3f(0.0))
+        for g in lgroups:  # radiance gathered per light group, and the pending shadow ray's share of C
+            state[f"G:{g}"] = mi.Color3f(0.0)
+            state[f"C:{g}"] = mi.Color3f(0.0)
+        if groups and aux and haze is not None:
+            state["G:haze"] = mi.Color3f(0.0)
         if not primal:  # the vertex a pending shadow ray belongs to
             state.update(
                 vp=mi.Point3f(0.0), vuv=mi.Point2f(0.0), vmat=mi.UInt32(0), vns=mi.Vector3f(zeros3),
@@ -353,6 +375,8 @@ class PathKernel:
             S["vis"], S["sskips"] = vis, sskips
             if primal:
                 S["L"] = dr.select(s_done, S["L"] + S["C"] * vis, S["L"])
+                for g in lgroups:
+                    S[f"G:{g}"] = dr.select(s_done, S[f"G:{g}"] + S[f"C:{g}"] * vis, S[f"G:{g}"])
             else:
                 with dr.resume_grad():
                     sh = shading(mi, self.mats, S["vmat"], S["vuv"], S["vp"], self.grid, self.extent,
@@ -385,7 +409,13 @@ class PathKernel:
             # Light from where the ray left the scene, weighed against light sampling (power heuristic).
             mis = dr.select(S["prev_delta"], 1.0, mis_weight(S["prev_pdf"], lights.pdf(d, escaped)))
             with dr.resume_grad(when=not primal):
-                Le = S["β"] * mis * lights.eval(d, escaped)
+                if lgroups:
+                    sky, parts = lights.eval_groups(d, escaped)
+                    Le = S["β"] * mis * sky
+                    for g in lgroups:
+                        S[f"G:{g}"] = S[f"G:{g}"] + S["β"] * mis * parts[g]
+                else:
+                    Le = S["β"] * mis * lights.eval(d, escaped)
             if aux:
                 seen = escaped & (S["depth"] == 0)
                 S["albedo"] = dr.select(seen, dr.clip(dr.detach(Le), 0.0, 1.0), S["albedo"])
@@ -444,7 +474,13 @@ class PathKernel:
             f_l, pdf_b = bsdf_eval(shd, ns, dl)
             nee &= (pdf_l > 0.0) & (dr.max(f_l) > 0.0)
             w_l = mis_weight(pdf_l, pdf_b) / dr.maximum(pdf_l, 1e-30)
-            S["C"] = dr.select(nee, S["β"] * f_l * lights.eval(dl, nee) * w_l, S["C"])
+            if lgroups:
+                Ll, parts = lights.eval_groups(dl, nee)
+                S["C"] = dr.select(nee, S["β"] * f_l * Ll * w_l, S["C"])
+                for g in lgroups:
+                    S[f"C:{g}"] = dr.select(nee, S["β"] * f_l * parts[g] * w_l, S[f"C:{g}"])
+            else:
+                S["C"] = dr.select(nee, S["β"] * f_l * lights.eval(dl, nee) * w_l, S["C"])
             u_lobe = S["sampler"].next_1d()
             u_bsdf = S["sampler"].next_2d()
             wo, weight, pdf_o = bsdf_sample(mi, shd, mi.Frame3f(ns), u_lobe, u_bsdf)
@@ -488,6 +524,9 @@ class PathKernel:
         L = out["L"]
         if aux:
             first = {"row": out["first"], "albedo": out["albedo"], "normal": out["normal"], "segments": out["segments"]}
+            split = {k[2:]: v for k, v in out.items() if k.startswith("G:")}
+            if split:
+                first["groups"] = split
             return L, out["covered"], L, first
         return (L if primal else out["δL"]), out["covered"], L
 
@@ -518,6 +557,8 @@ class PathKernel:
             C = dr.select(seg, S["β"] * (1.0 - T) * haze.source(d), 0.0)
         if primal:
             S["L"] = S["L"] + C
+            if "G:haze" in S:
+                S["G:haze"] = S["G:haze"] + C
         else:
             L = S["L"] - dr.detach(C)
             with dr.resume_grad():
