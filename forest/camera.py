@@ -8,6 +8,16 @@ both give a ``focal_length`` (an animated zoom, as a DCC keys it) — the focal
 length is, and the fov follows from it on ``[camera] sensor_width``.  Frames
 outside the keyed range hold the first or last key.
 
+Depth of field (``[camera] f_stop``): a thin lens (Pharr, Jakob & Humphreys, *Physically Based
+Rendering*, 4th ed., §5.2.3; Kolb, Mitchell & Hanrahan 1995) of focal length f (metres: the
+``focal_length`` in mm / 1000, given or derived from the fov on ``sensor_width``) and f-number N has an
+aperture of radius r = f / (2N).  It is focused at the distance z_f along the view axis: ``focus_distance``,
+or the depth of ``focus_on`` (dot(focus_on − position, view axis), every frame), or |target − position|.
+A point at depth z is then imaged as a disc (circle of confusion) of diameter
+c = 2r·f·|z − z_f| / (z·(z_f − f)) on the sensor.  Keys may pull focus and aperture: where either of two
+keys gives ``focus_distance`` (``f_stop``), the value is linear between the keys' values, a key without one
+taking the camera's (for focus, its default evaluated at that key's pose).
+
 A frame is rendered at time ``frame / fps`` seconds; with ``shutter`` = s > 0 a
 frame averages sub-frames at ``frame + s·(k + ½)/K − s/2`` for k = 0 … K−1.
 """
@@ -15,12 +25,12 @@ frame averages sub-frames at ``frame + s·(k + ½)/K − s/2`` for k = 0 … K�
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .config import CameraConfig
-from .config.schema import fov_from_focal_length
+from .config.schema import focal_length_from_fov, fov_from_focal_length
 
 
 @dataclass(frozen=True)
@@ -31,6 +41,14 @@ class CameraState:
     target: np.ndarray  # (3,)
     up: np.ndarray  # (3,)
     fov: float  # degrees (horizontal... see forest.render: Mitsuba's fov_axis="x")
+    f_stop: float | None = None  # f-number N; None: a pinhole
+    focus_distance: float = 0.0  # metres along the view axis to the plane in focus (camera_at fills it)
+    lens_radius: float = 0.0  # metres: f / (2N), 0 for a pinhole
+
+    @property
+    def depth_of_field(self) -> bool:
+        """Whether this pose renders through a thin lens (an f-stop, so a lens radius > 0)."""
+        return self.lens_radius > 0.0 and self.focus_distance > 0.0
 
 
 def _catmull_rom(p0, p1, p2, p3, t, alpha=0.5):
@@ -50,8 +68,55 @@ def _catmull_rom(p0, p1, p2, p3, t, alpha=0.5):
     return (t2 - u) / (t2 - t1) * b1 + (u - t1) / (t2 - t1) * b2
 
 
+def _default_focus(cam: CameraConfig, position: np.ndarray, target: np.ndarray) -> float:
+    """z_f of a pose without a keyed focus: ``focus_distance``, the depth of ``focus_on``, or |target − position|."""
+    if cam.focus_distance is not None:
+        return float(cam.focus_distance)
+    axis = target - position
+    n = float(np.linalg.norm(axis))
+    if cam.focus_on is not None:
+        return float(np.dot(np.asarray(cam.focus_on, np.float64) - position, axis / max(n, 1e-12)))
+    return n
+
+
+def _with_lens(cam: CameraConfig, state: CameraState, f_stop: float | None, focus: float) -> CameraState:
+    """``state`` with its thin lens: r = f / (2N), f = sensor_width / (2·tan(fov/2)) mm → metres."""
+    if f_stop is None:
+        return replace(state, focus_distance=focus)
+    focal_m = focal_length_from_fov(state.fov, cam.sensor_width) / 1000.0
+    return replace(state, f_stop=float(f_stop), focus_distance=float(focus), lens_radius=focal_m / (2.0 * f_stop))
+
+
 def camera_at(cam: CameraConfig, frame: float) -> CameraState:
-    """The camera at a (possibly fractional) frame."""
+    """The camera at a (possibly fractional) frame, with its lens (:class:`CameraState`)."""
+    state = _pose_at(cam, frame)
+    keys = cam.keys
+    if not keys or not any(k.focus_distance is not None or k.f_stop is not None for k in keys):
+        return _with_lens(cam, state, cam.f_stop, _default_focus(cam, state.position, state.target))
+    frames = [k.frame for k in keys]
+
+    def key_focus(k) -> float:
+        if k.focus_distance is not None:
+            return float(k.focus_distance)
+        return _default_focus(cam, np.asarray(k.position, np.float64), np.asarray(k.target, np.float64))
+
+    def key_stop(k) -> float | None:
+        return cam.f_stop if k.f_stop is None else float(k.f_stop)
+
+    if len(keys) == 1 or frame <= frames[0] or frame >= frames[-1]:
+        k = keys[0] if frame <= frames[0] else keys[-1]
+        return _with_lens(cam, state, key_stop(k), key_focus(k))
+    i = int(np.searchsorted(frames, frame, side="right") - 1)
+    t = (frame - frames[i]) / (frames[i + 1] - frames[i])
+    a, b = keys[i], keys[i + 1]
+    focus = key_focus(a) + t * (key_focus(b) - key_focus(a))
+    sa, sb = key_stop(a), key_stop(b)
+    stop = None if sa is None or sb is None else sa + t * (sb - sa)
+    return _with_lens(cam, state, stop, focus)
+
+
+def _pose_at(cam: CameraConfig, frame: float) -> CameraState:
+    """The pinhole pose (position, target, up, fov) at a frame."""
     up = np.asarray(cam.up, dtype=np.float64)
     keys = cam.keys
     if not keys:

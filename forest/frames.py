@@ -14,7 +14,9 @@ the studio tools write them (frame 7 shown):
 * ``%04d`` → ``0007``, ``%d`` → ``7`` (printf: Nuke, ffmpeg);
 * ``$F4`` → ``0007``, ``$F`` → ``7`` (Houdini).
 
-A pattern without a token gets ``_0007`` before its extension.  Any other
+A pattern without a token gets ``_0007`` before its extension.  A still (no
+``--frames``) written to a pattern is frame 1 named by it, as Nuke and Houdini
+render the current frame through the pattern (:func:`still_path`).  Any other
 ``%``, ``$`` or ``<…>`` token in the file name (``%s``, ``%4x``, ``$T``, ``<UDIM>``), or two
 tokens, is refused: it would otherwise end up, unexpanded, in every file's name.
 """
@@ -114,3 +116,9 @@ def frame_path(pattern: str, frame: int) -> str:
         return f"{stem}_{frame:04d}.{ext}" if dot else f"{pattern}_{frame:04d}"
     width = fileseq.getPaddingNum(m.group(), fileseq.PAD_STYLE_HASH1)
     return pattern[: m.start()] + f"{frame:0{width}d}" + pattern[m.end() :]
+
+
+def still_path(output: str) -> str:
+    """Where a still (frame 1) goes: ``output`` with its frame token filled in (``f.%04d.exr`` → ``f.0001.exr``),
+    as Nuke and Houdini render the current frame through the pattern; ``output`` as given when it has no token."""
+    return str(output) if frame_token(str(output)) is None else frame_path(str(output), 1)

@@ -26,6 +26,10 @@ had their own test).  Here:
 * A ``constant`` sky has radiance ``radiance × colour``; an ``envmap`` sky is
   the latitude–longitude image (+Y up) times ``scale``.
 
+* ``[lights.clouds]`` lays a procedural cloud layer over the sky (:class:`Clouds`;
+  forest_path only — Mitsuba's own integrator in ``scalar_rgb`` has no such sky and
+  renders the clear sky with a warning; exporters ignore it).
+
 The Scene carries the result (``scene.lights``); functions that have only a
 config call :func:`resolve_lights`, the same rule.
 """
@@ -116,11 +120,29 @@ class Sky:
 
 
 @dataclass(frozen=True)
+class Clouds:
+    """A cloud layer in the sky (:mod:`forest.render.path.clouds`): a fraction ``cover`` of the sky covered,
+    on a plane ``altitude`` metres up, clouds about ``scale`` metres across, optical thickness up to about
+    3 × ``density``, edges ``softness`` wide (noise units), the pattern from ``seed`` and slid by ``wind``
+    (x, z metres)."""
+
+    cover: float = 0.4
+    altitude: float = 2000.0
+    scale: float = 800.0
+    seed: int = 0
+    density: float = 4.0
+    softness: float = 0.12
+    wind: tuple[float, float] = (0.0, 0.0)
+
+
+@dataclass(frozen=True)
 class Lights:
-    """The sun that lights the scene (None when off) and the sky (None without one); see the module docstring."""
+    """The sun that lights the scene (None when off), the sky (None without one) and its clouds (None
+    without); see the module docstring."""
 
     sun: Sun | None
     sky: Sky | None
+    clouds: Clouds | None = None
 
     @property
     def sunsky(self) -> bool:
@@ -160,4 +182,16 @@ def resolve_lights(config) -> Lights:
         else:
             r, g, b = (float(c) for c in k.colour)
             sky = Sky("constant", float(k.radiance), (r, g, b))
-    return Lights(sun=sun if sun is not None and sun.lit else None, sky=sky)
+    clouds = None
+    c = getattr(cfg, "clouds", None)
+    if c is not None and sky is not None and float(c.cover) > 0.0:
+        clouds = Clouds(
+            float(c.cover),
+            float(c.altitude),
+            float(c.scale),
+            int(c.seed),
+            float(c.density),
+            float(c.softness),
+            (float(c.wind[0]), float(c.wind[1])),
+        )
+    return Lights(sun=sun if sun is not None and sun.lit else None, sky=sky, clouds=clouds)

@@ -16,7 +16,13 @@ temporary file that is removed at once.
   ``[[ground_cover]]`` model names a library species, ``NAME@SEED`` of one, or
   an existing mesh file — checked
   before scatter, so a misspelling fails at ``forest scatter`` and not at the
-  end of a render (with the closest names as a suggestion).
+  end of a render (with the closest names as a suggestion).  A scene draws on
+  at most :data:`MAX_TREE_VARIANTS` generated variants (individuals and seeds);
+  of those, the ones not yet in the library's cache are generated on first use
+  (about 2 s and 6 MB each): over :data:`WARN_NEW_VARIANTS` a warning says how
+  many, how long and how much disk, and over :data:`MAX_NEW_VARIANTS`
+  (``$FOREST_ALLOW_GENERATE`` sets another number) the run is refused before
+  any work (:func:`variants_to_generate`, :func:`check_generation`).
 * **Memory** (:func:`render_estimate`, :func:`check_render_memory`): a render
   needs, to first order,
 
@@ -377,6 +383,109 @@ def check_species(config, library) -> None:
             f"unknown species {model!r}{hint} (the library has {', '.join(names) or 'no species'}; "
             "or name a mesh file)",
         )
+    check_generation(config, library)
+
+
+#: Generated tree variants one run may build (those not yet in the library's cache) before it is refused;
+#: ``$FOREST_ALLOW_GENERATE`` (:data:`GENERATE_ENV`) sets another number.  64 is about 2 minutes and 400 MB.
+MAX_NEW_VARIANTS = 64
+#: Over this many variants to generate, a warning says how many, how long and how much disk.
+WARN_NEW_VARIANTS = 8
+#: Environment variable: how many tree variants one run may generate (a whole number; 0 refuses any).
+GENERATE_ENV = "FOREST_ALLOW_GENERATE"
+
+
+def allowed_new_variants() -> int:
+    """How many tree variants one run may generate: ``$FOREST_ALLOW_GENERATE``, else :data:`MAX_NEW_VARIANTS`."""
+    env = os.environ.get(GENERATE_ENV)
+    if env is None or not env.strip():
+        return MAX_NEW_VARIANTS
+    text = env.strip()
+    if not text.isdigit():
+        raise ForestError(f"${GENERATE_ENV}: must be a whole number of tree variants >= 0, got {env!r}")
+    return int(text)
+
+
+def _real_library(library):
+    """The :class:`~forest.library.Library` behind ``library`` (itself, or its ``library``), None if there is none."""
+    lib = getattr(library, "library", library)
+    return lib if all(hasattr(lib, a) for a in ("get", "entry", "recipe")) else None
+
+
+def variants_to_generate(config, library) -> list[tuple[str, str]]:
+    """``(field, label)`` of every generated tree variant the scene draws on that the library has not built yet.
+
+    A generated species ``NAME`` (manifest seed b) or ``NAME@b`` with c individuals draws seeds b … b + c − 1
+    (:mod:`forest.library.individuals`); each distinct variant is counted once, by the first field naming it.
+    Empty for a library object that cannot tell (one that only knows the names).
+    """
+    lib = _real_library(library)
+    if lib is None:
+        return []
+    from .config.schema import individual_count
+
+    cover = getattr(getattr(config, "model", None), "ground_cover", None) or []
+    models = [(f"species[{i}].model", sp) for i, sp in enumerate(config.species)]
+    models += [(f"ground_cover[{j}].model", gc) for j, gc in enumerate(cover)]
+    seen: set[tuple[str, int]] = set()
+    out: list[tuple[str, str]] = []
+    for field, sp in models:
+        if sp.is_mesh:
+            continue
+        m = re.fullmatch(r"(.+)@(\d+)", sp.model)
+        name = m.group(1) if m else sp.model
+        try:
+            if lib.entry(name).get("source", "generated") != "generated":
+                continue
+            base = int(m.group(2)) if m else lib.recipe(name)[1]
+        except ForestError:
+            continue  # a broken library entry: the scene names it as it loads
+        count = individual_count(sp.model, getattr(sp, "individuals", None))
+        for seed in range(base, base + max(1, count)):
+            if (name, seed) in seen:
+                continue
+            seen.add((name, seed))
+            try:
+                lib.get(name, seed=seed, build=False)
+            except ForestError:
+                out.append((field, f"{name}@{seed}"))
+    return out
+
+
+def _generation_cost(n: int) -> str:
+    return f"about {format_seconds(n * VARIANT_SECONDS)} and {n * VARIANT_MB:,.0f} MB"
+
+
+def check_generation(config, library) -> int:
+    """Refuse a scene that would generate more tree variants than one run may; warn over a few; return how many.
+
+    The limit is :func:`allowed_new_variants`; the error names the field at which the count passes it, the
+    count and its cost.  Over :data:`WARN_NEW_VARIANTS` (and within the limit) a
+    :class:`~forest.errors.ForestWarning` says how many will be generated first, how long and how much disk.
+    """
+    import warnings
+
+    from .errors import ForestWarning
+
+    allowed = allowed_new_variants()
+    new = variants_to_generate(config, library)
+    if len(new) > allowed:
+        field = new[allowed][0]
+        raise ConfigError(
+            config.path,
+            field,
+            f"the scene needs {len(new):,} tree variants the library has not built yet ({_generation_cost(len(new))}"
+            f" to generate); at most {allowed} a run — set ${GENERATE_ENV}={len(new)} to build them, or use fewer "
+            "seeds or individuals",
+        )
+    if len(new) > WARN_NEW_VARIANTS:
+        warnings.warn(
+            f"{config.path}: {len(new)} tree variants are not built yet and are generated first "
+            f"({_generation_cost(len(new))} in the tree library)",
+            ForestWarning,
+            stacklevel=3,
+        )
+    return len(new)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -13,7 +13,10 @@ chosen by ``forest --progress auto|bar|lines|none`` or the environment variable
   always a last ``Progress: 100%`` line when the stage finishes;
 * ``none``: nothing.
 
-A command's ``-q/--quiet`` silences progress in every mode.
+A command's ``-q/--quiet`` silences progress in every mode.  ``forest render``,
+``wedge`` and ``match`` also take ``--progress`` after the command
+(:func:`command_mode`), where a farm's job template appends its flags; it wins
+over the root option.
 """
 
 from __future__ import annotations
@@ -45,6 +48,19 @@ def set_mode(mode: str | None) -> None:
     _mode = mode
 
 
+#: The help of a command's own ``--progress`` (:func:`command_mode`).
+COMMAND_HELP = (
+    "How this command shows its progress on stderr: bar, 'Progress: N%' lines for render farms, none, or auto "
+    "(a bar on a terminal, lines otherwise); wins over 'forest --progress'."
+)
+
+
+def command_mode(mode: str | None) -> None:
+    """Apply a command's own ``--progress`` (None: not given, the root option or :data:`ENV` stays in effect)."""
+    if mode is not None:
+        set_mode(mode)
+
+
 def progress_mode(stream: TextIO | None = None) -> str:
     """The mode in effect for ``stream`` (default stderr): ``bar``, ``lines`` or ``none``.
 
@@ -62,6 +78,20 @@ def progress_mode(stream: TextIO | None = None) -> str:
 
 def _ignore(_fraction: float, _message: str = "") -> None:
     return None
+
+
+def scaled(progress: ProgressFn | None, start: float, end: float) -> ProgressFn:
+    """``progress`` for a step that fills ``start``..``end`` of its caller's work (None: a callback that says nothing).
+
+    A builder reports its own 0..1; the caller's bar moves from ``start`` to ``end``."""
+    if progress is None:
+        return _ignore
+    span = float(end) - float(start)
+
+    def update(fraction: float, message: str = "") -> None:
+        progress(float(start) + span * max(0.0, min(1.0, float(fraction))), message)
+
+    return update
 
 
 def _percent(fraction: float) -> int:
@@ -137,7 +167,7 @@ def progress_bar(description: str, *, quiet: bool = False) -> Iterator[ProgressF
         yield _ignore
         return
     if mode == "lines":
-        lines = ProgressLines(description, sys.stderr)
+        lines = ProgressLines(description, sys.stderr, interval=LINE_INTERVAL_S)
         yield lines.update
         lines.finish()
         return

@@ -14,7 +14,10 @@ X, the inverse of a Y-up → Z-up export).  USD's lens attributes are read as mi
 writes; only their ratio matters): ``focalLength`` and ``horizontalAperture`` become ``focal_length`` and
 ``sensor_width``, so the horizontal fov is 2·atan(horizontalAperture / (2·focalLength)).
 ``clippingRange`` (when authored) becomes ``near``/``far`` in metres, ``timeCodesPerSecond`` ``fps`` and
-``shutterClose − shutterOpen`` ``shutter``, each unless the scene file gives it.
+``shutterClose − shutterOpen`` ``shutter``, each unless the scene file gives it.  ``fStop`` (when authored
+and > 0; USD's 0 means no depth of field) becomes ``f_stop``, unless the scene file gives it; the focus
+distance needs no field of its own: the target sits at ``focusDistance`` (below), and forest focuses on the
+target by default.  An animated ``fStop`` is read at its first sample.
 
 **Pose.**  A USD camera looks down its local −Z with +Y up; its world transform (every ancestor's
 transform composed) gives ``position``, the look direction and ``up``.  The ``target`` lies along the look
@@ -69,6 +72,7 @@ class UsdCamera:
     far: float | None = None
     fps: float | None = None
     shutter: float | None = None
+    f_stop: float | None = None
     warnings: tuple[str, ...] = field(default=())
 
 
@@ -234,6 +238,12 @@ def _read(path: Path, prim_path: str | None) -> UsdCamera:
     if open_.HasAuthoredValue() or close.HasAuthoredValue():
         shutter = min(1.0, max(0.0, float(close.Get()) - float(open_.Get())))
     fps = float(stage.GetTimeCodesPerSecond()) if stage.HasAuthoredMetadata("timeCodesPerSecond") else None
+    f_stop = None
+    stop = cam.GetFStopAttr()
+    if stop.HasAuthoredValue():
+        value = stop.Get(codes[0])
+        if value is not None and math.isfinite(float(value)) and float(value) > 0:
+            f_stop = float(value)
     focal0, aperture0, fov0 = lenses[0]
     return UsdCamera(
         path=where,
@@ -248,6 +258,7 @@ def _read(path: Path, prim_path: str | None) -> UsdCamera:
         far=far,
         fps=fps if fps is not None and fps > 0 else None,
         shutter=shutter,
+        f_stop=f_stop,
         warnings=(note,) if note else (),
     )
 

@@ -19,21 +19,43 @@ Uploads are accepted only when they decode as the CLI decodes an input image
 (:func:`forest.images.read_image`: the whole file, finite values) or trimesh reads them as
 a mesh with finite vertices and some surface area; anything else is refused before it is
 stored, in the CLI's words, naming the upload (``maps/colour.png: cannot read image: …``).
+A USD stage (``[camera] usd = "shot.usda"``) must open as one USD layer (:func:`check_usd`),
+hold a camera, stay under :data:`USD_MAX_BYTES` and name no other file.
+
+An upload is hostile until checked: a 1 MB PNG can declare 16384×16000 RGBA pixels (4 GiB
+decoded as float32).  So the check never runs in the service process
+(:func:`check_isolated`): a child process reads the file's header first and refuses an image
+whose decoded size (width × height × channels × 4 bytes, the reader's float32) is over the
+decode budget (:attr:`forest.service.jobs.Limits.max_decoded_bytes`) before anything is
+decoded, and only then decodes it, under an address-space limit (``RLIMIT_AS``, from
+:func:`check_memory_limit`), a CPU-time limit and a wall-clock timeout.  A file that still
+exhausts the child only kills the child: the upload is refused with one line and nothing
+of it is stored.  Uploads are streamed to a hidden ``.upload.*`` file beside their
+destination and renamed into place only once checked; a service killed meanwhile leaves
+that file, which :func:`remove_partial_uploads` deletes at the next start.
 """
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import re
 import shutil
+import subprocess
+import sys
 import tempfile
+import threading
 from collections.abc import Iterator
 from pathlib import Path, PurePosixPath
 from typing import IO
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr")
 MESH_EXTS = (".ply", ".obj", ".stl", ".glb", ".gltf", ".off")
-ASSET_EXTS = IMAGE_EXTS + MESH_EXTS
+USD_EXTS = (".usda", ".usdc", ".usd")  # a camera's stage ([camera] usd)
+ASSET_EXTS = IMAGE_EXTS + MESH_EXTS + USD_EXTS
+#: Largest USD stage an upload may be (a camera's stage is kilobytes; a scene's worth is refused).
+USD_MAX_BYTES = 16 << 20
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 MAX_DEPTH = 8  # folders in an asset's name
 
@@ -129,8 +151,10 @@ def check_relative(name: str, *, field: str) -> PurePosixPath:
 
 
 def asset_kind(name: str) -> str | None:
-    """``"image"`` or ``"mesh"`` by the name's extension, None for any other."""
+    """``"image"``, ``"mesh"`` or ``"usd"`` by the name's extension, None for any other."""
     ext = Path(name).suffix.lower()
+    if ext in USD_EXTS:
+        return "usd"
     if ext in IMAGE_EXTS:
         return "image"
     if ext in MESH_EXTS:
@@ -151,7 +175,7 @@ def collect_assets(data: dict, datadir: DataDir) -> dict[str, Path]:
         rel = check_relative(s, field=f"config: {field}")
         if Path(s).suffix.lower() not in ASSET_EXTS:
             raise AssetError(
-                f"config: {field}: {s!r} is not an image or mesh asset (expected one of {', '.join(ASSET_EXTS)})"
+                f"config: {field}: {s!r} is not an image, mesh or USD asset (expected one of {', '.join(ASSET_EXTS)})"
             )
         out[rel.as_posix()] = datadir.asset_path(rel.as_posix(), field=f"config: {field}")
     return out
@@ -224,6 +248,36 @@ def check_mesh(path: Path) -> dict:
     return {"vertices": int(len(verts)), "triangles": int(len(faces))}
 
 
+def check_usd(path: Path) -> dict:
+    """Open ``path`` as one USD layer (``pxr.Sdf.Layer.OpenAsAnonymous``: parsed, nothing it names is opened) and
+    refuse it when it is over :data:`USD_MAX_BYTES`, is no USD layer, names other files (sublayers, references,
+    payloads: a job's stage stands alone and reaches no file on the server) or holds no camera."""
+    size = path.stat().st_size
+    if size > USD_MAX_BYTES:
+        raise AssetError(f"USD stage is larger than the {USD_MAX_BYTES} byte limit", 413)
+    from pxr import Sdf, Tf
+
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(str(path))
+    except Tf.ErrorException:
+        layer = None
+    if layer is None:
+        raise AssetError("cannot read USD stage: not a USD layer", 415)
+    names = sorted(str(d) for d in layer.GetCompositionAssetDependencies())
+    if names:
+        raise AssetError(
+            f"USD stage names other files ({', '.join(names[:3])}); flatten it into one file (usdcat --flatten)", 422
+        )
+    prims: list[str] = []
+    layer.Traverse(
+        Sdf.Path.absoluteRootPath,
+        lambda p: prims.append(str(p)) if p.IsPrimPath() and layer.GetPrimAtPath(p).typeName == "Camera" else None,
+    )
+    if not prims:
+        raise AssetError("USD stage has no camera (a UsdGeom.Camera prim)", 422)
+    return {"cameras": sorted(prims)[:16]}
+
+
 def check_asset_name(name: str) -> PurePosixPath:
     """An upload's name: a relative path of up to ``MAX_DEPTH`` folders, each part plain."""
     parts = (name or "").split("/")
@@ -250,12 +304,19 @@ def remove_partial_uploads(datadir: DataDir) -> list[Path]:
 
 
 def store_upload(
-    datadir: DataDir, name: str, chunks: Iterator[bytes], max_bytes: int, max_decoded_bytes: int | None = None
+    datadir: DataDir,
+    name: str,
+    chunks: Iterator[bytes],
+    max_bytes: int,
+    max_decoded_bytes: int | None = None,
+    max_check_memory: int | None = None,
 ) -> dict:
     """Stream an upload to a temporary file, check it, and move it to ``assets/name`` atomically.
 
     ``name`` may name folders (``maps/height.png``): they are kept, so a config's relative
-    paths find its maps as they do beside the config on disk.
+    paths find its maps as they do beside the config on disk.  The check runs in a child
+    process (:func:`check_isolated`: the decode budget ``max_decoded_bytes``, the child's
+    address space ``max_check_memory``, default :func:`check_memory_limit`).
     """
     rel = check_asset_name(name)
     kind = asset_kind(name)
@@ -273,7 +334,7 @@ def store_upload(
                 f.write(chunk)
         if size == 0:
             raise AssetError(f"{kind} is empty", 422)
-        info = check_image(tmp_path, name, max_decoded_bytes) if kind == "image" else check_mesh(tmp_path)
+        info = check_isolated(tmp_path, kind, name, max_decoded_bytes, max_check_memory)
         os.chmod(tmp_path, 0o644)
         dest = datadir.assets / rel
         if not is_inside(dest.parent.resolve(), datadir.assets):
@@ -289,3 +350,159 @@ def store_upload(
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+# -- checking an upload in a child process ----------------------------------------------------
+
+#: What a checking child may use besides the decoded image: the interpreter, numpy, OpenImageIO
+#: or trimesh (≈ 300 MiB of address space measured after the imports) with room to spare.
+CHECK_BASE_BYTES = 768 * 2**20
+#: The decoded image counts this many times: OpenImageIO's native buffer, the float32 copy and
+#: the finite-value test's masks.
+CHECK_DECODED_FACTOR = 3
+#: Wall-clock and CPU seconds a checking child may take (a decompression bomb is stopped too).
+CHECK_TIMEOUT_S = 120.0
+#: Checking children at once: more uploads wait their turn, so that parallel uploads cannot add up their
+#: children's memory limits.
+CHECK_CONCURRENCY = 2
+_check_slots = threading.BoundedSemaphore(CHECK_CONCURRENCY)
+
+
+def check_memory_limit(max_decoded_bytes: int | None = None) -> int:
+    """The address space (bytes) a checking child may use: :data:`CHECK_BASE_BYTES` plus
+    :data:`CHECK_DECODED_FACTOR` × the decode budget (512 MiB by default: 2.25 GiB)."""
+    from forest.images import MAX_DECODED_BYTES
+
+    decoded = MAX_DECODED_BYTES if max_decoded_bytes is None else int(max_decoded_bytes)
+    return CHECK_BASE_BYTES + CHECK_DECODED_FACTOR * decoded
+
+
+def _mib(n: int) -> str:
+    return f"{n / 2**20:.0f} MiB"
+
+
+def check_isolated(
+    path: Path,
+    kind: str,
+    name: str | None = None,
+    max_decoded_bytes: int | None = None,
+    max_memory: int | None = None,
+    *,
+    timeout_s: float = CHECK_TIMEOUT_S,
+) -> dict:
+    """:func:`check_image`, :func:`check_usd` or :func:`check_mesh` of ``path`` (by ``kind``) in a child process;
+    what they return or raise.
+
+    The child limits its own address space to ``max_memory`` bytes (default
+    :func:`check_memory_limit` of ``max_decoded_bytes``) and its CPU time to ``timeout_s``
+    before it imports anything, and is killed after ``timeout_s`` seconds; at most
+    :data:`CHECK_CONCURRENCY` children run at once.  A child that
+    dies (killed by the kernel, out of memory, a decoder's crash) or overruns is one
+    :class:`AssetError` (422) saying so; the service process never holds the decoded file.
+    """
+    memory = check_memory_limit(max_decoded_bytes) if max_memory is None else int(max_memory)
+    request = {
+        "path": str(path),
+        "kind": kind,
+        "name": name,
+        "max_decoded_bytes": max_decoded_bytes,
+        "max_memory": memory,
+        "cpu_s": max(1, math.ceil(timeout_s)),
+    }
+    env = {
+        **os.environ,
+        # one thread each: every thread's stack and malloc arena would count against the address space
+        "OMP_NUM_THREADS": "1",
+        "OPENBLAS_NUM_THREADS": "1",
+        "MKL_NUM_THREADS": "1",
+        "MALLOC_ARENA_MAX": "2",
+        "PYTHONDONTWRITEBYTECODE": "1",
+    }
+    env.pop("PYTHONSTARTUP", None)
+    what = _what(kind)
+    try:
+        with _check_slots:
+            done = subprocess.run(
+                [sys.executable, "-c", "from forest.service.assets import _check_child; _check_child()"],
+                input=json.dumps(request),
+                capture_output=True,
+                text=True,
+                timeout=timeout_s,
+                env=env,
+            )
+    except subprocess.TimeoutExpired:
+        raise AssetError(f"cannot read {what}: checking it took over {timeout_s:g} s", 422) from None
+    answer = None
+    for line in reversed(done.stdout.splitlines()):
+        if line.startswith("{"):
+            try:
+                answer = json.loads(line)
+            except ValueError:
+                answer = None
+            break
+    if isinstance(answer, dict) and "info" in answer:
+        return answer["info"]
+    if isinstance(answer, dict) and "error" in answer:
+        raise AssetError(str(answer["error"]), int(answer.get("status", 422)))
+    import signal
+
+    if done.returncode == -signal.SIGXCPU:
+        raise AssetError(f"cannot read {what}: checking it took over {timeout_s:g} s of CPU", 422)
+    raise AssetError(f"{_over_memory(kind, memory)} ({_ended(done.returncode)})", 422)
+
+
+def _over_memory(kind: str, memory: int) -> str:
+    what = _what(kind)
+    return f"cannot read {what}: decoding it needs more than the {_mib(memory)} the service allows one upload's check"
+
+
+def _what(kind: str) -> str:
+    """An upload's kind in a message: ``image``, ``mesh`` or ``USD stage``."""
+    return {"image": "image", "usd": "USD stage"}.get(kind, "mesh")
+
+
+def _ended(returncode: int) -> str:
+    """How a checking child ended, in words: ``the check was killed by SIGKILL``, ``… exited with status 1``."""
+    if returncode < 0:
+        import signal
+
+        try:
+            return f"the check was killed by {signal.Signals(-returncode).name}"
+        except ValueError:
+            return f"the check was killed by signal {-returncode}"
+    return f"the check exited with status {returncode}"
+
+
+def _check_child() -> None:
+    """The checking child: read the request (JSON on stdin), limit itself, check, answer one JSON line.
+
+    The limits are set before the decoders are imported, so they bind everything the check does.
+    """
+    import resource
+
+    request = json.loads(sys.stdin.read())
+    memory = int(request["max_memory"])
+    resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
+    cpu = int(request["cpu_s"])
+    resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu + 1))
+    try:
+        os.nice(10)
+    except OSError:
+        pass
+    path, name = Path(request["path"]), request["name"]
+    try:
+        if request["kind"] == "image":
+            info = check_image(path, name, request["max_decoded_bytes"])
+        elif request["kind"] == "usd":
+            info = check_usd(path)
+        else:
+            info = check_mesh(path)
+        answer: dict = {"info": info}
+    except AssetError as e:
+        answer = {"error": str(e), "status": e.status}
+    except MemoryError:
+        answer = {"error": _over_memory(request["kind"], memory), "status": 422}
+    except Exception as e:  # a reader's own failure: refused, named by its kind
+        answer = {"error": f"cannot read {_what(request['kind'])}: {type(e).__name__}", "status": 415}
+    sys.stdout.write("\n" + json.dumps(answer) + "\n")
+    sys.stdout.flush()

@@ -5,9 +5,10 @@ names the field: the JSON schema (pydantic), the config's TOML syntax, every ass
 in the config (inside the data folder, see :mod:`forest.service.assets`), the config's own
 validation (``forest.config``), the service's limits on resolution, samples, candidates
 and frames, then what the CLI checks before it starts work (:func:`_check_inputs`: the
-species against the library, the environment map and terrain texture; a match job's
-reference at the fit's size).  Only then is the job stored, so a bad request leaves
-nothing.  The words are the CLI's: a malformed request's first problem is worded as the
+species against the library and how many tree variants it would generate, the environment
+map and terrain texture; a render's image against the memory its workers have room for,
+:func:`_check_memory`; a match job's reference at the fit's size).  Only then is the job
+stored, so a bad request leaves nothing.  The words are the CLI's: a malformed request's first problem is worded as the
 config's (:func:`validation_line`), an upload is decoded by the CLI's image reader, and
 files are named as the request names them, never by their place in the job folder.
 A limit is named by the setting that gave the value (``settings.width``) or else by the
@@ -56,6 +57,11 @@ class Limits:
     max_decoded_bytes: int = 512 * 2**20  # an uploaded image decoded (float32), checked from its header first
     max_config_bytes: int = MAX_CONFIG_BYTES  # the CLI's limit too
     max_iterations: int = 2000
+    #: Refuse at submission a render whose image alone needs more memory than the workers have room for.
+    check_memory: bool = True
+    #: The room (bytes) a render task has; None: this machine's (``forest.preflight.memory_room``: available
+    #: memory and cgroup limits, read at each submission), where the local workers run.
+    worker_memory_bytes: int | None = None
 
 
 class JobSettings(BaseModel):
@@ -280,8 +286,14 @@ def _library_error(
     return RequestError(line)
 
 
-def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dict[str, bool]) -> PreparedJob:
-    """Validate a request completely and lay out its job folder; raise :class:`RequestError`."""
+def prepare(
+    req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dict[str, bool], *, local: bool = True
+) -> PreparedJob:
+    """Validate a request completely and lay out its job folder; raise :class:`RequestError`.
+
+    ``local``: the tasks run on this machine (the local executor), so a render's memory estimate is
+    checked against this machine's room (:attr:`Limits.check_memory`); on a cluster it is not.
+    """
     from forest.config import Config, apply_overrides, read_toml
     from forest.errors import ForestError
     from forest.frames import parse_frames
@@ -347,6 +359,10 @@ def prepare(req: JobRequest, datadir: DataDir, limits: Limits, capabilities: dic
         candidates = config.scatter.count
         try:
             _check_inputs(config)
+            if limits.check_memory and (local or limits.worker_memory_bytes is not None):
+                _check_memory(
+                    config, req.kind, s.variant or configured, s.preview, limits.worker_memory_bytes, overrides
+                )
         except ForestError as e:
             raise _library_error(e, req.kind, overrides, job_dir) from None
         base: dict[str, Any] = {
@@ -490,9 +506,40 @@ def _check_inputs(config: Any) -> None:
     from forest.preflight import check_species
     from forest.render.scene import check_envmap
 
-    check_species(config, _library())
+    check_species(config, _library())  # and how many tree variants the job would generate
     check_envmap(config)
     read_terrain_texture(config)
+
+
+def _check_memory(
+    config: Any, kind: str, variant: str | None, preview: bool, room: Any, overrides: dict[str, Any]
+) -> None:
+    """Refuse a render whose image alone needs more memory than the workers' machine has room for.
+
+    The estimate is the CLI's before it loads the scene (:func:`forest.preflight.render_estimate` of the
+    frame's size, no trees yet, in the variant the job names or else ``scalar_rgb``), compared with ``room``
+    (bytes or a :class:`forest.memory.Room`; None: :func:`forest.preflight.memory_room` of this process, the
+    machine the local workers share).  One line with the estimate and the room, naming the field that set
+    the size.  Only ``render`` and ``flythrough`` jobs render frames.
+    """
+    if kind not in ("render", "flythrough"):
+        return
+    from forest import preflight
+    from forest.errors import ConfigError
+    from forest.render.render import frame_size
+
+    found = preflight.memory_room() if room is None else room
+    if found is None:
+        return
+    size = frame_size(config, preview=preview)
+    estimate = preflight.render_estimate(size.width, size.height, size.spp, 0, variant or "scalar_rgb")
+    try:
+        preflight.check_render_memory(config, estimate, available=found)
+    except ConfigError as e:
+        given = [SETTING_OF[f] for f in ("render.width", "render.height") if f in overrides]
+        if not given or e.field != "render.width/render.height":
+            raise
+        raise RequestError(f"{'/'.join(given)}: {e.message}") from None
 
 
 class _Names:
@@ -521,6 +568,15 @@ class _Names:
         if tuple(stamps) != self._key:
             self._names, self._key = lib.names(), tuple(stamps)
         return list(self._names)
+
+    @property
+    def library(self) -> Any:
+        """The library itself (what :func:`forest.preflight.variants_to_generate` asks which variants are built)."""
+        from forest.library import open_library
+
+        if self._lib is None:
+            self._lib = open_library()
+        return self._lib
 
 
 _NAMES = _Names()

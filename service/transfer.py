@@ -67,6 +67,32 @@ class BlobStore:
         self.blobs.mkdir(parents=True, exist_ok=True)
         self.folders.mkdir(parents=True, exist_ok=True)
         self.keep_inputs = keep_inputs
+        self.remove_partial()
+
+    def remove_partial(self, older_than_s: float = 60.0) -> list[Path]:
+        """Remove what a killed worker left half-written (``blobs/.blob.*``, ``blobs/.link.*``,
+        ``inputs/.build.*``) over ``older_than_s`` seconds ago; returns what was removed.
+
+        A blob is written in one go and an input folder built in seconds, so an older one belongs to no
+        live process; a half-written blob is never taken for a stored one (only ``blobs/<sha256>`` is).
+        """
+        import time
+
+        now = time.time()
+        removed = []
+        for pattern, folder in ((".blob.*", self.blobs), (".link.*", self.blobs), (".build.*", self.folders)):
+            for p in folder.glob(pattern):
+                try:
+                    if now - p.lstat().st_mtime < older_than_s:
+                        continue
+                    if p.is_dir() and not p.is_symlink():
+                        shutil.rmtree(p, ignore_errors=True)
+                    else:
+                        p.unlink()
+                    removed.append(p)
+                except OSError:
+                    pass
+        return removed
 
     def path(self, sha: str) -> Path:
         """Where blob ``sha`` is (or would be) stored."""
@@ -83,9 +109,13 @@ class BlobStore:
         dst = self.path(sha)
         if not dst.exists():
             fd, tmp = tempfile.mkstemp(dir=self.blobs, prefix=".blob.")
-            with os.fdopen(fd, "wb") as f:
-                f.write(data)
-            os.replace(tmp, dst)
+            try:
+                with os.fdopen(fd, "wb") as f:
+                    f.write(data)
+                os.replace(tmp, dst)
+            except BaseException:
+                Path(tmp).unlink(missing_ok=True)
+                raise
         return dst
 
     def put_file(self, sha: str, src: Path) -> Path:
@@ -93,8 +123,12 @@ class BlobStore:
         dst = self.path(sha)
         if not dst.exists():
             tmp = self.blobs / f".link.{os.getpid()}.{threading.get_ident()}.{sha}"
-            _link_or_copy(src, tmp)
-            os.replace(tmp, dst)
+            try:
+                _link_or_copy(src, tmp)
+                os.replace(tmp, dst)
+            except BaseException:
+                tmp.unlink(missing_ok=True)
+                raise
         return dst
 
     def relative(self, text: str, *folders: Path) -> str:
@@ -158,9 +192,13 @@ def write_shipped(job_dir: Path, files: Mapping[str, bytes]) -> list[str]:
             continue
         dst.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=dst.parent, prefix=f".{dst.name}.", suffix=".tmp")
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, dst)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+            os.chmod(tmp, 0o644)
+            os.replace(tmp, dst)
+        except BaseException:  # a full disk: no half-written output stays beside the outputs
+            Path(tmp).unlink(missing_ok=True)
+            raise
         written.append(name.as_posix())
     return written

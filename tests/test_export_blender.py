@@ -3,6 +3,7 @@
 Runs Debian's ``blender`` (installed by scripts/setup.sh); skipped where no Blender is installed.
 """
 
+import re
 import shutil
 from pathlib import Path
 
@@ -196,3 +197,27 @@ def test_command_line(tmp_path, monkeypatch, capsys):
     assert (tmp_path / "out" / "s.blend").stat().st_size > 0
     assert read_image(tmp_path / "s.png").shape == (48, 64, 4)
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["s.blend"]
+
+
+def test_a_focal_length_goes_over_as_sensor_width_and_lens(tmp_path, library):
+    """A lens given in mm is written as Blender's sensor_width + lens (horizontal fit); a fov stays an angle."""
+    import importlib.util
+
+    cfg = make_config(tmp_path, "").with_overrides({"species[0].model": "box", "species[1].model": "card"})
+    plain = write_manifest(load_scene(cfg, forest_trees(5), library=library), tmp_path, [1])
+    assert "sensor_width" not in plain["camera"] and "lens" not in plain["camera"]["keys"][0]
+    from forest.config import parse_config
+
+    text = (tmp_path / "scene.toml").read_text()  # make_config wrote it
+    text = re.sub(r"(?m)^fov\s*=.*$", "focal_length = 35.0\nsensor_width = 24.0", text)
+    lens = parse_config(text, path=tmp_path / "lens.toml").with_overrides(
+        {"species[0].model": "box", "species[1].model": "card"}
+    )
+    got = write_manifest(load_scene(lens, forest_trees(5), library=library), tmp_path, [1])
+    assert got["camera"]["sensor_width"] == 24.0
+    assert got["camera"]["keys"][0]["lens"] == pytest.approx(35.0)
+    spec = importlib.util.find_spec("forest.export.blender_build")  # runs inside Blender only (imports bpy)
+    assert spec is not None and spec.origin is not None
+    code = Path(spec.origin).read_text().split("def make_camera", 1)[1].split("\ndef ", 1)[0]
+    assert 'cam.sensor_fit = "HORIZONTAL"' in code and 'cam.lens = key["lens"]' in code
+    assert 'cam.sensor_width = c["sensor_width"]' in code

@@ -7,7 +7,7 @@ import pytest
 
 from forest.cli import main
 from forest.errors import ParameterError
-from forest.frames import MAX_FRAMES, frame_path, parse_frames
+from forest.frames import MAX_FRAMES, frame_path, parse_frames, still_path
 
 SCENE = """
 seed = 11
@@ -150,3 +150,16 @@ def test_render_refuses_a_bad_pattern_or_spec_in_one_line(scene, tmp_path, capsy
     err = capsys.readouterr().err
     assert err.startswith(f"forest: error: {flag}") and len(err.strip().splitlines()) == 1
     assert not list(tmp_path.iterdir())
+
+
+def test_a_still_to_a_pattern_is_frame_1_named_by_it(scene, tmp_path):
+    """As Nuke and Houdini render the current frame through the pattern: no literal %04d in a file name."""
+    assert still_path("out/f.%04d.exr") == "out/f.0001.exr" and still_path("out/f.$F.exr") == "out/f.1.exr"
+    assert still_path("out/f.exr") == "out/f.exr"  # no token: the name as given, no _0001
+    args = ["render", scene / "scene.toml", "--instances", scene / "trees.npz", "-q"]
+    assert run([*args, "-o", tmp_path / "f.%04d.exr"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.0001.exr", "f.0001.png"]
+    import OpenImageIO as oiio
+
+    spec = oiio.ImageInput.open(str(tmp_path / "f.0001.exr")).spec()
+    assert spec.get_int_attribute("forest:frame") == 1

@@ -159,6 +159,76 @@ def test_the_scene_build_reports_its_steps_between_0_and_1(tmp_path):
     fractions = [f for f, _ in seen]
     assert fractions[0] == 0.0 and fractions[-1] == 1.0 and fractions == sorted(fractions)
     assert any(0.0 < f < 1.0 for f in fractions) and len({m for _, m in seen}) == len(seen)
+    # The build inside the scene: prototypes, trees, then Mitsuba's one load_dict call, before and after.
+    steps = [m for _, m in seen]
+    at = {
+        key: next(i for i, m in enumerate(steps) if m.startswith(key))
+        for key in (
+            "geometry: terrain",
+            "geometry: 1/",
+            "instances 2/2",
+            "Mitsuba scene: loading",
+            "Mitsuba scene loaded",
+        )
+    }
+    assert list(at.values()) == sorted(at.values()), steps
+    assert 0.25 < seen[at["instances 2/2"]][0] < seen[at["Mitsuba scene loaded"]][0] < 1.0
+
+
+def test_render_and_wedge_take_progress_after_the_command(tmp_path, flat_scene, capsys, monkeypatch):
+    """``forest render … --progress lines`` wins over ``forest --progress none``, and the lines show the scene build
+    inside the render stage (trees written in blocks, Mitsuba's load before and after); ``--progress none`` after
+    the command silences them."""
+    from forest.cli import main
+    from forest.render.path import geometry
+    from forest.runtime import find_llvm
+
+    if find_llvm() is None:
+        pytest.skip("llvm_ad_rgb needs LLVM 19")
+    monkeypatch.setattr(progress, "LINE_INTERVAL_S", 0.0)  # every step, not one a second
+    monkeypatch.setattr(geometry, "REPORT_TREES", 10)
+    cfg = flat_scene(
+        "[camera]\nposition = [0.0, 40.0, -80.0]\ntarget = [0.0, 0.0, 0.0]\n"
+        '[render]\nwidth = 16\nheight = 9\nspp = 1\nvariant = "llvm_ad_rgb"\n',
+        count=40,
+    )
+    trees = tmp_path / "t.npz"
+    with pytest.raises(SystemExit) as e:
+        main(["scatter", str(cfg), "-o", str(trees), "-q"])
+    assert not e.value.code
+    capsys.readouterr()
+
+    def run(*argv: str) -> list[tuple[int, str]]:
+        with pytest.raises(SystemExit) as e:
+            main(list(argv))
+        err = capsys.readouterr().err
+        assert not e.value.code, err
+        return parsed("\n".join(line for line in err.splitlines() if line.startswith("Progress:")))
+
+    got = run(
+        "--progress",
+        "none",
+        "render",
+        str(cfg),
+        "--instances",
+        str(trees),
+        "-o",
+        str(tmp_path / "a.exr"),
+        "--progress",
+        "lines",
+    )
+    build = [m for _, m in got if m.startswith("render: building scene: ")]
+    placed = [m.split("instances ", 1)[1].split()[0] for m in build if "instances " in m]
+    assert len(placed) >= 3 and placed[-1] == "40/40", build  # the trees, prototype by prototype
+    assert any("Mitsuba scene: loading" in m for m in build) and any("Mitsuba scene loaded" in m for m in build)
+    assert [p for p, _ in got] == sorted(p for p, _ in got) and got[-1][0] == 100
+    out = tmp_path / "w.exr"
+    wedge = ["wedge", str(cfg), "--instances", str(trees), "--wedge", "render.exposure=0", "-o", str(out)]
+    assert run("--progress", "lines", *wedge, "--progress", "none") == []
+    assert (tmp_path / "w_exposure_0.exr").is_file()
+    with pytest.raises(SystemExit) as e:
+        main(["render", str(cfg), "-o", str(tmp_path / "b.exr"), "--progress", "sometimes"])
+    assert e.value.code == 2 and "--progress" in capsys.readouterr().err
 
 
 def test_the_build_share_stays_inside_the_bar(monkeypatch):

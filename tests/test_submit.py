@@ -160,3 +160,53 @@ def test_client_names_a_refused_request_and_an_unknown_job(server):
         assert e.value.status == 404 and e.value.exit_code == 2
         limits = client.health()["limits"]
         assert limits["max_width"] == 4096
+
+
+class InterruptedClient:
+    """A ServiceClient whose wait is interrupted (Ctrl-C) after the job was submitted."""
+
+    def __init__(self, server: str, token: str | None = None):
+        self.server = server
+
+    def __enter__(self) -> InterruptedClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def health(self) -> dict:
+        return {}
+
+    def submit_scene(self, scene, kind, **_kw) -> dict:
+        return {"id": "ab" * 16}
+
+    def wait(self, job_id: str, **_kw) -> dict:
+        raise KeyboardInterrupt
+
+
+def test_ctrl_c_while_waiting_says_the_job_goes_on_and_how_to_cancel_it(scene, monkeypatch, capsys):
+    import forest.client
+    from forest.cli import main
+
+    monkeypatch.setattr(forest.client, "ServiceClient", InterruptedClient)
+    with pytest.raises(SystemExit) as e:
+        main(["submit", str(scene), "--server", "http://farm:8000", "--wait"])
+    out, err = capsys.readouterr()
+    assert e.value.code == 130 and out.splitlines() == ["ab" * 16]
+    assert err.strip() == (
+        f"interrupted: job {'ab' * 16} keeps running on the server; "
+        f"cancel it with: forest submit --cancel {'ab' * 16} --server http://farm:8000"
+    )
+
+
+def test_submit_cancel_stops_a_job_on_the_service(server, scene, tmp_path):
+    with ServiceClient(server.url) as client:  # eight frames at 512 spp: still running when canceled
+        job = client.submit_scene(scene, "flythrough", settings={"frames": "1-8", "spp": 512})
+        r = forest("submit", "--cancel", job["id"], "--server", server.url)
+        assert r.returncode == 0, r.stderr
+        assert r.stdout.startswith(f"job {job['id']}: cancel requested (")
+        assert client.wait(job["id"], interval=0.1, check=False)["state"] == "canceled"
+    r = forest("submit", str(scene), "--cancel", job["id"], "--server", server.url)
+    assert r.returncode == 2 and r.stderr.startswith("forest: error: --cancel: ") and r.stderr.count("\n") == 1
+    r = forest("submit", "--server", server.url)
+    assert r.returncode == 2 and r.stderr.startswith("forest: error: SCENE: ") and r.stderr.count("\n") == 1

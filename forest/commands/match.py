@@ -8,6 +8,8 @@ from typing import Literal
 import typer
 
 from ..errors import ForestError
+from ..progress import COMMAND_HELP as PROGRESS_HELP
+from ..progress import command_mode
 from . import SET_HELP, load_with_flags
 
 
@@ -64,8 +66,10 @@ def register(app: typer.Typer) -> None:
         ),
         sets: list[str] = typer.Option(None, "--set", metavar="KEY=VALUE", help=SET_HELP),
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No progress bar, no summary."),
+        progress: Literal["auto", "bar", "lines", "none"] | None = typer.Option(None, "--progress", help=PROGRESS_HELP),
     ):
         """Fit the colour map and light values so the forest render looks like a reference."""
+        command_mode(progress)
         import warnings
 
         from .. import preflight

@@ -8,6 +8,8 @@ from typing import Any, Literal
 
 import typer
 
+from ..progress import COMMAND_HELP as PROGRESS_HELP
+from ..progress import command_mode
 from . import SET_HELP
 
 
@@ -22,7 +24,7 @@ def register(app: typer.Typer) -> None:
             "-o",
             "--output",
             help="Image to write (.exr; an sRGB .png is written beside it). "
-            "With --frames a pattern such as out/frame_####.exr.",
+            "With --frames a pattern such as out/frame_####.exr (without, a pattern names the still as frame 1).",
         ),
         preview: bool = typer.Option(
             False,
@@ -44,8 +46,10 @@ def register(app: typer.Typer) -> None:
         height: int = typer.Option(None, "--height", help="Override the config's render.height."),
         sets: list[str] = typer.Option(None, "--set", metavar="KEY=VALUE", help=SET_HELP),
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No progress bar, no summary."),
+        progress: Literal["auto", "bar", "lines", "none"] | None = typer.Option(None, "--progress", help=PROGRESS_HELP),
     ):
         """Render the scene's forest with Mitsuba 3: linear EXR (with depth, id and species layers) + sRGB PNG."""
+        command_mode(progress)
         plan = prepare_render(
             config,
             output,
@@ -96,7 +100,10 @@ def prepare_render(
     Raises a :class:`~forest.errors.ForestError` (one line) for any mistake; writes nothing.
     """
     from .. import preflight
+    from ..frames import still_path
 
+    if frames is None:  # a still to a pattern (f.%04d.exr) is frame 1 named by it
+        output = Path(still_path(str(output)))
     if frames is None and output.suffix.lower() in (".exr", ".png"):
         # The still's EXR and PNG, checked before the renderer's modules are even imported.
         preflight.output_files(

@@ -1,4 +1,9 @@
-"""``forest submit``: send a scene to a forest job service, optionally wait for it and download its outputs."""
+"""``forest submit``: send a scene to a forest job service, optionally wait for it and download its outputs.
+
+``forest submit --cancel JOB`` cancels a job.  Ctrl-C while ``--wait`` follows a job stops the waiting only: the
+job keeps running on the service, and one line says so and how to cancel it (exit status 130, as for any
+interrupted command).
+"""
 
 from __future__ import annotations
 
@@ -41,7 +46,9 @@ def register(app: typer.Typer) -> None:
 
     @app.command("submit")
     def submit_cmd(
-        scene: Path = typer.Argument(..., help="Scene config (TOML); the maps and meshes it names are uploaded."),
+        scene: Path = typer.Argument(
+            None, help="Scene config (TOML); the maps and meshes it names are uploaded (leave out with --cancel)."
+        ),
         server: str = typer.Option(
             "http://127.0.0.1:8000",
             "--server",
@@ -87,12 +94,24 @@ def register(app: typer.Typer) -> None:
         timeout: float = typer.Option(
             None, "--timeout", min=1.0, help="Give up waiting after this many seconds (the job goes on)."
         ),
+        cancel: str = typer.Option(
+            None, "--cancel", metavar="JOB", help="Cancel job JOB (its id, as submit printed it) instead of submitting."
+        ),
     ):
         """Submit SCENE to a forest service and print the job's id; with --wait, follow it to the end."""
         from ..client import KINDS, ServiceClient
         from ..errors import ForestError, ParameterError
         from ..preflight import input_file, output_folder
 
+        if cancel is not None:
+            if scene is not None:
+                raise ForestError(f"--cancel: cancels job {cancel}; leave out the scene ({scene})")
+            with ServiceClient(server, token=token) as client:
+                job = client.cancel(cancel.strip())
+            typer.echo(f"job {job.get('id', cancel)}: cancel requested ({job.get('state', '?')})")
+            return
+        if scene is None:
+            raise ForestError("SCENE: give the scene config to submit (or --cancel JOB)")
         if kind not in KINDS:
             raise ForestError(f"--kind: must be one of {', '.join(KINDS)}, got {kind!r}")
         if kind != "match" and (reference is not None or mask is not None or iterations is not None):
@@ -145,7 +164,15 @@ def register(app: typer.Typer) -> None:
                     last.append(key)
                     typer.echo(progress_line(j))
 
-            done = client.wait(job_id, interval=interval, timeout=timeout, on_update=show)
+            try:
+                done = client.wait(job_id, interval=interval, timeout=timeout, on_update=show)
+            except KeyboardInterrupt:  # only the waiting stops: say so, and how to stop the job too
+                typer.echo(
+                    f"interrupted: job {job_id} keeps running on the server; "
+                    f"cancel it with: forest submit --cancel {job_id} --server {server}",
+                    err=True,
+                )
+                raise typer.Exit(130) from None
             elapsed = done.get("elapsed_s")
             typer.echo(f"job {job_id} succeeded" + (f" in {elapsed:.1f} s" if elapsed is not None else ""))
             if output is not None:

@@ -27,6 +27,8 @@ from typing import Any, Literal
 
 import typer
 
+from ..progress import COMMAND_HELP as PROGRESS_HELP
+from ..progress import command_mode
 from . import SET_HELP
 
 
@@ -143,8 +145,10 @@ def register(app: typer.Typer) -> None:
         width: int = typer.Option(None, "--width", help="Override the config's render.width."),
         height: int = typer.Option(None, "--height", help="Override the config's render.height."),
         quiet: bool = typer.Option(False, "-q", "--quiet", help="No progress bar, no summary."),
+        progress: Literal["auto", "bar", "lines", "none"] | None = typer.Option(None, "--progress", help=PROGRESS_HELP),
     ):
         """Render the scene once per value of one config field (a wedge), each value to its own file."""
+        command_mode(progress)
         from ..errors import ParameterError
         from .render import prepare_render, run_render
 

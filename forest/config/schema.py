@@ -540,6 +540,10 @@ FocalLength = Annotated[float, Field(ge=0.1, le=10000.0, allow_inf_nan=False)]
 SensorWidth = Annotated[float, Field(ge=0.1, le=1000.0, allow_inf_nan=False)]
 #: Full-frame 35 mm stills: 36 × 24 mm.
 FULL_FRAME_MM = 36.0
+#: A lens's f-number N = focal length / aperture diameter (f/0.7, the fastest lenses made, to a pinhole-like f/256).
+FStop = Annotated[float, Field(ge=0.7, le=256.0, allow_inf_nan=False)]
+#: Metres from the lens to the plane in focus, along the view axis.
+FocusDistance = Annotated[float, Field(gt=0.0, le=1.0e6, allow_inf_nan=False)]
 
 
 def fov_from_focal_length(focal_length: float, sensor_width: float) -> float:
@@ -575,6 +579,10 @@ class CameraKey(Section):
         None,
         description="Focal length, mm, on the camera's sensor_width (an animated zoom): sets fov; not with fov.",
     )
+    f_stop: FStop | None = Field(None, description="f-number at this key (a pulled aperture; default: the camera's).")
+    focus_distance: FocusDistance | None = Field(
+        None, description="Metres to the plane in focus at this key (a focus pull; default: the camera's)."
+    )
 
 
 class CameraConfig(Section):
@@ -583,6 +591,10 @@ class CameraConfig(Section):
     The lens is either ``fov`` (horizontal, degrees) or ``focal_length`` (mm) on a ``sensor_width`` (mm, the
     filmback's horizontal aperture: USD ``horizontalAperture``, Maya's horizontal film aperture × 25.4); from
     the latter ``fov`` = 2·atan(sensor_width / (2·focal_length)) is derived here, so every backend reads ``fov``.
+
+    Depth of field: ``f_stop`` N makes the camera a thin lens of radius r = f / (2N) (f the focal length in
+    metres, given or derived from fov on sensor_width), focused at ``focus_distance`` metres along the view axis,
+    or on the world point ``focus_on``, or — by default — on ``target`` (:mod:`forest.camera`).
     """
 
     position: Point3 | None = Field(None, description="Default: the first key, else a view over the terrain.")
@@ -596,6 +608,17 @@ class CameraConfig(Section):
         description="Filmback width (horizontal aperture), mm: 36 full frame, 24.89 Super 35, 36.7 ARRI Alexa LF.",
     )
     up: Vec3 = (0.0, 1.0, 0.0)
+    f_stop: FStop | None = Field(
+        None, description="Aperture as an f-number (e.g. 2.8): depth of field; default none, a pinhole (all sharp)."
+    )
+    focus_distance: FocusDistance | None = Field(
+        None, description="Metres from the camera to the plane in focus, along the view axis (default: to target)."
+    )
+    focus_on: Point3 | None = Field(
+        None,
+        description="A world point to focus on (its distance along the view axis, every frame); not with "
+        "focus_distance.",
+    )
     keys: list[CameraKey] = Field(default_factory=list)
     usd: InputFile | None = Field(
         None,
@@ -642,10 +665,21 @@ class CameraConfig(Section):
                 k.fov = _lens_fov(k.focal_length, self.sensor_width, f"keys[{i}].focal_length")
             elif k.fov is None:
                 k.fov, k.focal_length = self.fov, self.focal_length
+        self._lens()
         if self.keys:
             self.position = self.position or self.keys[0].position
             self.target = self.target or self.keys[0].target
         return self
+
+    def _lens(self) -> None:
+        """Refuse contradictory depth-of-field settings (ranges are the field types')."""
+        if self.focus_on is not None and self.focus_distance is not None:
+            raise fail("give focus_distance or focus_on, not both", "focus_on")
+        for i, k in enumerate(self.keys):
+            if k.f_stop is not None and self.f_stop is None:
+                raise fail("animates the aperture of a pinhole camera; give [camera] f_stop too", f"keys[{i}].f_stop")
+            if k.focus_distance is not None and self.focus_on is not None:
+                raise fail("give focus_distance on keys or [camera] focus_on, not both", f"keys[{i}].focus_distance")
 
     def _from_usd(self, info: ValidationInfo) -> None:
         """Take pose, path and lens from the ``usd`` stage's camera (see :mod:`forest.usd_camera`)."""
@@ -667,7 +701,13 @@ class CameraConfig(Section):
             self.keys = [CameraKey.model_validate(k) for k in shot.keys]
         except ValueError as e:  # a pose beyond the world's bounds
             raise fail(f"{self.usd.name}: a key out of range ({str(e).splitlines()[-1].strip()})", "usd") from None
-        for name, value in (("near", shot.near), ("far", shot.far), ("fps", shot.fps), ("shutter", shot.shutter)):
+        for name, value in (
+            ("near", shot.near),
+            ("far", shot.far),
+            ("fps", shot.fps),
+            ("shutter", shot.shutter),
+            ("f_stop", shot.f_stop),
+        ):
             if value is not None and name not in self.model_fields_set:
                 setattr(self, name, value)
 
@@ -705,6 +745,15 @@ class CameraConfig(Section):
         cross = (u[1] * d[2] - u[2] * d[1], u[2] * d[0] - u[0] * d[2], u[0] * d[1] - u[1] * d[0])
         if math.hypot(*cross) < 1e-6 * n * math.hypot(*u) and not self.keys:
             raise fail("is parallel to the view direction; give another up vector", where + "up")
+        if self.focus_on is not None:
+            poses = [(k.position, k.target) for k in self.keys] or [(self.position, self.target)]
+            for p, t in poses:
+                d = [b - a for a, b in zip(p, t)]
+                ahead = sum((f - a) * c for a, f, c in zip(p, self.focus_on, d)) / max(math.hypot(*d), 1e-12)
+                if ahead <= 0.0:
+                    raise fail(
+                        f"lies behind the camera at {tuple(p)} (depth {ahead:g} m); focus ahead", where + "focus_on"
+                    )
 
 
 # ---------------------------------------------------------------------------
@@ -767,19 +816,48 @@ class SkyConfig(Section):
         return "constant"
 
 
+class CloudsConfig(Section):
+    """A procedural cloud layer in the sky (forest_path; ``scalar_rgb`` renders the clear sky with a warning)."""
+
+    cover: Unit = Field(0.4, description="Fraction of the sky covered, 0–1 (0: no clouds).")
+    altitude: Annotated[float, Field(gt=0.0, le=100_000.0, allow_inf_nan=False)] = Field(
+        2000.0, description="Height of the cloud layer, metres."
+    )
+    scale: Annotated[float, Field(gt=0.0, le=1.0e6, allow_inf_nan=False)] = Field(
+        800.0, description="Size of the clouds, metres."
+    )
+    seed: Annotated[int, Strict(), Field(ge=0, le=2**31 - 1)] = Field(0, description="Pattern of the clouds.")
+    density: Annotated[float, Field(gt=0.0, le=100.0, allow_inf_nan=False)] = Field(
+        4.0, description="Optical thickness of a cloud's edge-to-core body (a core reaches about 3×)."
+    )
+    softness: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = Field(
+        0.12, description="Width of the clouds' soft edges, in noise units (0.02 crisp – 0.3 wispy)."
+    )
+    wind: tuple[Metres, Metres] = Field((0.0, 0.0), description="Offset of the layer (x, z), metres.")
+
+
 class LightsConfig(Section):
-    """``sun`` and ``sky``; an empty or missing [lights] gives an outdoor daylight: the default sun
-    (35° high, from the south-east) in Mitsuba's physical ``sunsky`` sky."""
+    """``sun``, ``sky`` and ``clouds``; an empty or missing [lights] (or one with only ``clouds``) gives an
+    outdoor daylight: the default sun (35° high, from the south-east) in Mitsuba's physical ``sunsky`` sky."""
 
     sun: SunConfig | None = None
     sky: SkyConfig | None = None
+    clouds: CloudsConfig | None = None
 
     @model_validator(mode="before")
     @classmethod
     def _defaults(cls, data: Any) -> Any:
         if data is None or data == {}:
             return {"sun": {}, "sky": {"sunsky": {}}}
+        if isinstance(data, dict) and set(data) == {"clouds"}:
+            return {"sun": {}, "sky": {"sunsky": {}}, **data}
         return data
+
+    @model_validator(mode="after")
+    def _clouds_need_a_sky(self) -> LightsConfig:
+        if self.clouds is not None and self.sky is None:
+            raise fail("a cloud layer needs a sky ([lights.sky])", "clouds")
+        return self
 
 
 # ---------------------------------------------------------------------------
@@ -878,6 +956,22 @@ class RenderConfig(Section):
         "motion (screen-space vectors, forward.u/v) and lightgroups (sun, sky, haze; forest_path only).",
         json_schema_extra={"items": {"enum": list(AOV_NAMES)}, "uniqueItems": True},
     )
+    noise_threshold: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = Field(
+        0.0,
+        description="Adaptive sampling (forest_path): a pixel stops once the relative standard error of its mean "
+        "luminance is below this (e.g. 0.01-0.05); 0 traces spp everywhere. scalar_rgb ignores it.",
+    )
+    min_spp: Annotated[Int, Field(ge=1, le=65536)] | None = Field(
+        None,
+        description="Adaptive sampling: samples every pixel takes before it may stop, and per pass after "
+        "(default max(16, spp/8), at most spp).",
+    )
+
+    @model_validator(mode="after")
+    def _adaptive(self) -> RenderConfig:
+        if self.min_spp is not None and self.min_spp > self.spp:
+            raise fail(f"must be at most spp ({self.spp}), got {self.min_spp}", "min_spp")
+        return self
 
 
 #: ``[lod] pixels`` when none are given: thresholds of a tree's projected height, pixels, high → medium → low → far.

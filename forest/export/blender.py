@@ -55,6 +55,7 @@ import numpy as np
 from ..atomic import atomic_path
 from ..camera import camera_at, frame_from_z, look_at_matrix
 from ..config import ConfigError
+from ..config.schema import focal_length_from_fov
 from ..errors import ForestError, ParameterError
 from ..instances import quaternion_to_matrix
 from ..lights import resolve_lights
@@ -245,11 +246,20 @@ def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
         write_image(folder / "terrain.png", grid)
         t.update(texture=str((folder / "terrain.png").resolve()), colour=[1.0, 1.0, 1.0])
     keys = []
+    # A lens given in millimetres goes over as one (sensor_width + lens), else as the angle.
+    lens = config.camera.focal_length is not None or any(k.focal_length is not None for k in config.camera.keys)
+    lens = lens or config.camera.f_stop is not None  # depth of field: Blender's lens radius is lens / (2·f-stop)
     for f in frames:
         s = camera_at(config.camera, f)
         m = to_blender_matrix(look_at_matrix(s.position, s.target, s.up) @ np.diag([-1.0, 1.0, -1.0, 1.0]))
         keys.append({"frame": int(f), "matrix": [float(x) for x in m.ravel()], "fov": float(s.fov)})
+        if lens:
+            keys[-1]["lens"] = focal_length_from_fov(float(s.fov), float(config.camera.sensor_width))
+        if s.depth_of_field:  # Cycles' thin lens: f-stop, focus distance along the view axis (metres)
+            keys[-1]["dof"] = {"f_stop": float(s.f_stop or 0.0), "focus_distance": float(s.focus_distance or 0.0)}
     camera = {"near": float(config.camera.near), "far": float(config.camera.far), "keys": keys}
+    if lens:
+        camera["sensor_width"] = float(config.camera.sensor_width)
     lights = scene.lights
     sun = None
     if lights.sun is not None:

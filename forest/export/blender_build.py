@@ -253,11 +253,23 @@ def make_camera(manifest: dict):
 
     for key in c["keys"]:
         obj.matrix_world = Matrix([key["matrix"][4 * i : 4 * i + 4] for i in range(4)])
-        cam.angle = math.radians(key["fov"])
+        if "lens" in key:  # a focal length on a filmback, as the config gives it
+            cam.sensor_width = c["sensor_width"]
+            cam.lens = key["lens"]
+        else:
+            cam.angle = math.radians(key["fov"])
+        dof = key.get("dof")
+        if dof:  # depth of field: Cycles' thin lens of radius lens / (2·f-stop), in focus at focus_distance
+            cam.dof.use_dof = True
+            cam.dof.aperture_fstop = dof["f_stop"]
+            cam.dof.focus_distance = dof["focus_distance"]
         if len(c["keys"]) > 1:
             obj.keyframe_insert("location", frame=key["frame"])
             obj.keyframe_insert("rotation_euler", frame=key["frame"])
             cam.keyframe_insert("lens", frame=key["frame"])
+            if dof:
+                cam.dof.keyframe_insert("aperture_fstop", frame=key["frame"])
+                cam.dof.keyframe_insert("focus_distance", frame=key["frame"])
     return obj
 
 

@@ -937,6 +937,11 @@ def scene_text(
         f'  Projection "perspective" "{"float " if r22 else ""}fov" [{num(ri_fov(state.fov, r.width, r.height))}]'
     )
     out.append(f"  Clipping {num(cam.near)} {num(cam.far)}")
+    if state.depth_of_field:
+        # RI spec 3.2 §4.1.3: DepthOfField fstop focallength focaldistance, the last two in camera-space
+        # (scene) units — metres here, so focal length f mm / 1000; lens radius f / (2·fstop) as forest's.
+        lens_m = focal_length_from_fov(state.fov, cam.sensor_width) / 1000.0
+        out.append(f"  DepthOfField {num(state.f_stop or 0.0)} {num(lens_m)} {num(state.focus_distance)}")
     if cam.shutter > 0:
         k = max(2, r.subframes)
         s = cam.shutter

@@ -369,6 +369,9 @@ def _camera(stage, config: Config, frames: list[int]):
     op = cam.AddTransformOp()
     focal = cam.CreateFocalLengthAttr()
     focus = cam.CreateFocusDistanceAttr()
+    # Depth of field: USD's fStop is the f-number N (0: none) and focusDistance is in the stage's units (metres
+    # here, metersPerUnit = 1); the lens radius follows from focalLength (mm) as f / (2N), as forest renders it.
+    stop = cam.CreateFStopAttr() if cam_cfg.f_stop is not None else None
     animated = bool(cam_cfg.keys) and len(frames) > 1
 
     def focal_length(fov):
@@ -381,7 +384,9 @@ def _camera(stage, config: Config, frames: list[int]):
         t = Usd.TimeCode(f) if animated else Usd.TimeCode.Default()
         op.Set(gf_matrix(usd_camera_matrix(s.position, s.target, s.up)), t)
         focal.Set(focal_length(s.fov), t)
-        focus.Set(float(np.linalg.norm(np.asarray(s.target, float) - np.asarray(s.position, float))), t)
+        focus.Set(float(s.focus_distance), t)  # |target − position| unless [camera] focuses elsewhere
+        if stop is not None:
+            stop.Set(float(s.f_stop or 0.0), t)
     return cam
 
 

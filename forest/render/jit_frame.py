@@ -14,29 +14,71 @@ guides come with the beauty.  Aerial perspective is part of the path
 the light groups from the beauty's own samples (``lightgroups`` switches their
 split on in the kernel), N and albedo from its first hits, P and the motion
 vectors from the pixel-centre layers pass.
+
+With ``[render] noise_threshold`` > 0 the sub-frame's samples are adaptive
+(:mod:`forest.render.adaptive`): every pixel takes ``min_spp`` samples, then
+rounds of ``min_spp`` more go only to the pixels whose relative error is still
+above the threshold (or next to one that is); each pass's rays are built for
+those pixels alone, so a stopped pixel costs nothing.  The passes carry
+per-pixel sample counts, and the image is each pixel's mean over its samples.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import numpy as np
 
 from ..runtime import mitsuba
 from ..scene import Scene
 from ..wind import tree_matrices
+from .adaptive import LUMA, AdaptivePass, Convergence, chunks, default_min_spp, rounds_passes, schedule
 from .frame import FrameSize
 from .loop import PassCallback, frame_seed, render_frame
 from .output import FrameImage
 from .path import PathScene
 from .path.aovs import GroupSums, frame_aovs
-from .path.frame import PassResult, split_passes
+from .path.frame import PassResult, mi_bool, mi_float, pass_seed, pixel_sums, split_passes
 from .path.from_scene import path_camera, path_inputs
+from .path.integrator import NO_HIT
 
 
 def _no_progress(_fraction: float, _step: str) -> None:
     """A progress callback that reports nothing."""
+
+
+class PixelGroupSums(GroupSums):
+    """Light groups of adaptive passes: each pixel's mean over its own samples, averaged over the sub-frames
+    (as the beauty is, :func:`forest.render.loop.render_frame`)."""
+
+    def __init__(self, pixels: int):
+        super().__init__(pixels)
+        self.means = {g: np.zeros((self.pixels, 3)) for g in self.sums}
+        self.counts = np.zeros(self.pixels)
+        self.subframes = 0
+
+    def add(self, p: PassResult) -> None:
+        """Add one adaptive pass's group sums and its per-pixel counts."""
+        for g, v in (p.groups or {}).items():
+            self.sums[g] += v
+        counts = getattr(p, "counts", None)
+        self.counts += p.spp if counts is None else counts
+
+    def end_subframe(self) -> None:
+        """Fold the sub-frame's per-pixel means into the frame's and start the next sub-frame."""
+        n = np.maximum(self.counts, 1.0)[:, None]
+        for g, v in self.sums.items():
+            self.means[g] += v / n
+            v[:] = 0.0
+        self.counts[:] = 0.0
+        self.subframes += 1
+
+    def images(self, height: int, width: int) -> dict[str, np.ndarray]:
+        """``lightgroup.<g>`` → (H, W, 3) float32: the mean over the sub-frames of each pixel's mean."""
+        k = max(self.subframes, 1)
+        return {f"lightgroup.{g}": (v / k).reshape(height, width, 3).astype(np.float32) for g, v in self.means.items()}
 
 
 class PathFrameRenderer:
@@ -72,12 +114,15 @@ class PathFrameRenderer:
         report(0.15, f"levels of detail and wind of {len(self.instances):,} trees")
         inputs = path_inputs(scene, frame=1.0, width=self.width, height=self.height, spp=self.spp)
         report(0.25, f"Mitsuba scene of {len(self.instances):,} trees, {len(scene.species)} species")
-        self.path = PathScene(inputs, variant)
+        self.path = PathScene(inputs, variant, progress=lambda f, m: report(0.25 + 0.75 * f, m))
         report(1.0, "scene built")
         self._pose_key = self._key(inputs.levels, 1.0 / config.camera.fps)
         self.aovs = tuple(config.render.aovs)
         self._groups: GroupSums | None = None  # the light groups of the frame being rendered
         self._layers: dict[str, np.ndarray] = {}
+        rc = config.render
+        self.noise_threshold = float(rc.noise_threshold)
+        self.min_spp = default_min_spp(self.spp) if rc.min_spp is None else min(int(rc.min_spp), self.spp)
         self.restart()
         self.load_seconds = time.perf_counter() - t0
 
@@ -91,6 +136,7 @@ class PathFrameRenderer:
         self.max_instanced = st.instanced_triangles + st.flattened_triangles
         self.max_unique = int(self.path.geometry.parts.n_faces)
         self.max_groups = st.shapegroups
+        self.samples_traced = 0.0  # mean samples per pixel traced in the last frame
 
     def stats(self) -> dict[str, object]:
         """The loaded pose's statistics for the EXR header."""
@@ -103,10 +149,13 @@ class PathFrameRenderer:
             "instances": st.instances,
             "merged_far_trees": st.flattened_trees,
             "lod": ", ".join(f"{k}={v}" for k, v in st.lod_counts.items()),
+            "samples_traced": round(float(self.samples_traced), 3),
         }
 
     def passes(self, spp: int) -> list[int]:
-        """Samples per pixel of each pass of ``spp`` samples."""
+        """Samples per pixel of each pass of ``spp`` samples (adaptive: while every pixel is still going)."""
+        if self.noise_threshold > 0.0:
+            return rounds_passes(self.width, self.height, spp, min(self.min_spp, spp), self.path.max_lanes)
         return split_passes(self.width, self.height, spp, self.path.max_lanes)
 
     def _key(self, levels: np.ndarray, time_s: float) -> tuple[bytes, float | None]:
@@ -135,10 +184,83 @@ class PathFrameRenderer:
         """The beauty's passes at camera time ``frame``, each with its samples' first hits."""
         camera = path_camera(self.config, frame, self.width, self.height)
         groups = self._groups
+        if self.noise_threshold > 0.0:
+            yield from self._adaptive(camera, spp, seed)
+            return
         for p in self.path.passes(camera, spp=spp, seed=seed, aux=True, groups=groups is not None):
             if groups is not None:
                 groups.add(p)
+            self.samples_traced += p.spp
             yield p
+
+    def _adaptive(self, camera: Any, spp: int, seed: int) -> Iterator[PassResult]:
+        """Adaptive passes of one sub-frame (the module docstring): rounds of :func:`~.adaptive.schedule`, each
+        cut into passes of at most ``max_lanes`` paths over the pixels still going, pass k seeded
+        :func:`~.path.frame.pass_seed` (seed, k); a convergence test after every round."""
+        import drjit as dr
+
+        w, h = self.width, self.height
+        conv = Convergence(h, w, self.noise_threshold)
+        groups = self._groups
+        kernel = self.path.kernel()
+        pixels = np.arange(w * h)
+        k = 0
+        with dr.suspend_grad():
+            for r, s in enumerate(schedule(spp, min(self.min_spp, spp))):
+                if r > 0:
+                    pixels = conv.update()
+                    if len(pixels) == 0:
+                        break
+                for part in chunks(pixels, s, self.path.max_lanes):
+                    p = self._adaptive_pass(kernel, camera, part, s, pass_seed(seed, k), groups is not None)
+                    k += 1
+                    conv.add(p)
+                    if groups is not None:
+                        groups.add(p)
+                    assert p.counts is not None
+                    self.samples_traced += float(p.counts.sum()) / (w * h)
+                    yield p
+        if isinstance(groups, PixelGroupSums):
+            groups.end_subframe()
+
+    def _adaptive_pass(
+        self, kernel: Any, camera: Any, part: np.ndarray, spp: int, seed: int, groups: bool
+    ) -> AdaptivePass:
+        """One pass of ``spp`` samples through each pixel of ``part`` (row-major indices), as whole-image sums."""
+        import drjit as dr
+
+        mi = self.path.mi
+        m, n = len(part), self.width * self.height
+        sampler, ray, used = self.path._camera_rays(camera, spp, seed, pixels=mi.UInt32(part.astype(np.uint32)))
+        out = kernel.sample(dr.ADMode.Primal, sampler, ray, None, None, mi_bool(mi, True), aux=True, groups=groups)
+        L, covered = out[0], mi_float(mi, out[1])
+        extra = dict(out[3])
+        split = extra.pop("groups", {})
+        y = L[0] * LUMA[0] + L[1] * LUMA[1] + L[2] * LUMA[2]
+        dr.eval(L, covered, y, *extra.values(), *split.values())  # one kernel for all outputs
+
+        def full(a: np.ndarray) -> np.ndarray:
+            z = np.zeros((n, *a.shape[1:]), a.dtype)
+            z[part] = a
+            return z
+
+        rows = np.full((n, used), NO_HIT, np.uint32)
+        rows[part] = np.asarray(extra["row"], np.uint32).reshape(m, used)
+        counts = np.zeros(n)
+        counts[part] = used
+        result = AdaptivePass(
+            spp=used,
+            rgb=full(pixel_sums(mi, L, used, m)),
+            alpha=full(pixel_sums(mi, covered, used, m)),
+            rows=rows,
+            albedo=full(pixel_sums(mi, extra["albedo"], used, m)),
+            normal=full(pixel_sums(mi, extra["normal"], used, m)),
+            counts=counts,
+            lum2=full(pixel_sums(mi, y * y, used, m)),
+        )
+        if split:
+            result.groups = {g: full(pixel_sums(mi, v, used, m)) for g, v in split.items()}
+        return result
 
     def first_hits(self, frame: float, levels: np.ndarray) -> Iterator[PassResult]:
         """First hits at the frame's centre (the loop needs none: :meth:`samples` carries them)."""
@@ -170,7 +292,9 @@ class PathFrameRenderer:
     def frame(self, frame: float, on_pass: PassCallback | None = None) -> FrameImage:
         """Render one frame (:func:`forest.render.loop.render_frame`); ``on_pass`` sees the running mean after
         every pass; its comp AOVs (``[render] aovs``) are attached to the image."""
-        self._groups = GroupSums(self.width * self.height) if "lightgroups" in self.aovs else None
+        sums = PixelGroupSums if self.noise_threshold > 0.0 else GroupSums
+        self._groups = sums(self.width * self.height) if "lightgroups" in self.aovs else None
+        self.samples_traced = 0.0
         image = render_frame(self, frame, on_pass)
         image.aovs = frame_aovs(
             self.aovs,

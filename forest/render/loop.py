@@ -17,7 +17,11 @@ only poses its scene and traces.  Per frame f (time t = f / fps seconds):
    ``seed · 1 000 003 + round(1000 f) · 997 + 101 k`` for sub-frame k
    (:func:`frame_seed`), so a frame's image depends only on the config and
    the frame number; the running mean is handed to ``on_pass`` after every
-   pass.  The beauty is Σ (samples' radiance) / Σ samples;
+   pass.  The beauty is Σ (samples' radiance) / Σ samples.  With adaptive
+   sampling (:mod:`forest.render.adaptive`) a pass carries per-pixel sample
+   counts n_p: each sub-frame's image is its per-pixel mean Σ L / n_p, and the
+   frame the mean of its sub-frames' images (the box filter over the shutter
+   stays even where a pixel stopped earlier in one sub-frame than another);
 4. the frame's first hits — per-sample coverage (alpha), the per-tree and
    per-species Cryptomattes (:mod:`forest.render.coverage`) and the
    denoiser's guides (albedo, normal) — come with the beauty's samples when
@@ -122,20 +126,76 @@ class FirstHits:
         self.normal = np.zeros((n, 3))
         self.coverage = SampleCoverage(height, width)
         self.samples = 0
+        self.counts: np.ndarray | None = None  # per-pixel samples, once an adaptive pass came
+
+    @property
+    def empty(self) -> bool:
+        """No pass added yet."""
+        return self.samples == 0 and self.counts is None
 
     def add(self, p: PassResult) -> None:
-        """Add one pass's first hits (its ``rows`` must be set)."""
+        """Add one pass's first hits (its ``rows`` must be set; an adaptive pass's untraced pixels ``NO_HIT``)."""
         assert p.rows is not None and p.albedo is not None and p.normal is not None
         self.coverage.add(sample_ids(p.rows, self.instances.id, n_trees=self.n_trees, no_hit=NO_HIT))
         self.alpha += p.alpha
         self.albedo += p.albedo
         self.normal += p.normal
-        self.samples += p.spp
+        counts = getattr(p, "counts", None)
+        if counts is None:
+            self.samples += p.spp
+            return
+        self.coverage.total += counts - p.spp  # the pixels this pass did not trace took no samples
+        self.counts = counts.astype(np.float64) if self.counts is None else self.counts + counts
 
     def image(self, a: np.ndarray, channels: int) -> np.ndarray:
         """A per-pixel sum as its mean image, (H, W) or (H, W, channels), float32."""
         shape = (self.height, self.width) if channels == 1 else (self.height, self.width, channels)
-        return (a / max(self.samples, 1)).reshape(shape).astype(np.float32)
+        if self.counts is None:
+            return (a / max(self.samples, 1)).reshape(shape).astype(np.float32)
+        n = np.maximum(self.counts + self.samples, 1.0)
+        return (a / (n if channels == 1 else n[:, None])).reshape(shape).astype(np.float32)
+
+
+class Beauty:
+    """The running beauty of a frame: Σ L / Σ samples, or — with adaptive passes (per-pixel counts) — the mean
+    over the sub-frames of each sub-frame's per-pixel mean (the module docstring, step 3)."""
+
+    def __init__(self, pixels: int):
+        self.rgb = np.zeros((pixels, 3))
+        self.samples = 0
+        self.counts: np.ndarray | None = None  # the sub-frame's per-pixel samples (adaptive)
+        self.means = np.zeros((pixels, 3))  # Σ of the finished sub-frames' per-pixel means (adaptive)
+        self.subframes = 0
+
+    def add(self, p: PassResult) -> None:
+        """Add one pass's sums."""
+        self.rgb += p.rgb
+        counts = getattr(p, "counts", None)
+        if counts is None:
+            self.samples += p.spp
+        else:
+            self.counts = counts.astype(np.float64) if self.counts is None else self.counts + counts
+
+    def _sub_mean(self) -> np.ndarray:
+        assert self.counts is not None
+        return self.rgb / np.maximum(self.counts, 1.0)[:, None]
+
+    def end_subframe(self) -> None:
+        """Close an adaptive sub-frame (no-op otherwise): fold its mean in, start the next from zero."""
+        if self.counts is None:
+            return
+        self.means += self._sub_mean()
+        self.subframes += 1
+        self.rgb[:] = 0.0
+        self.counts = None
+
+    def image(self) -> np.ndarray:
+        """The mean so far, (H·W, 3) float64."""
+        if self.subframes == 0 and self.counts is None:
+            return self.rgb / self.samples
+        if self.counts is None:
+            return self.means / self.subframes
+        return (self.means + self._sub_mean()) / (self.subframes + 1)
 
 
 def render_frame(backend: Backend, frame: float, on_pass: PassCallback | None = None) -> FrameImage:
@@ -148,24 +208,24 @@ def render_frame(backend: Backend, frame: float, on_pass: PassCallback | None = 
     order = sorted(range(len(times)), key=lambda k: (-abs(times[k] - frame), k))  # the centre last
     spp_sub = max(1, math.ceil(backend.spp / len(times)))
     total = len(times) * len(backend.passes(spp_sub))
-    rgb = np.zeros((h * w, 3))
-    samples = done = 0
+    beauty = Beauty(h * w)
+    done = 0
     hits = FirstHits(scene, h, w)
     seed = frame_seed(config, frame)
     for k in order:
         backend.pose(levels, times[k] / cam.fps)
         t0 = time.perf_counter()
         for p in backend.samples(times[k], spp_sub, seed + 101 * k):
-            rgb += p.rgb
-            samples += p.spp
+            beauty.add(p)
             done += 1
             if p.rows is not None:
                 hits.add(p)
             if on_pass is not None:
-                on_pass((rgb / samples).reshape(h, w, 3).astype(np.float32), done, total)
+                on_pass(beauty.image().reshape(h, w, 3).astype(np.float32), done, total)
+        beauty.end_subframe()
         backend.render_seconds += time.perf_counter() - t0
     t0 = time.perf_counter()
-    if hits.samples == 0:
+    if hits.empty:
         for p in backend.first_hits(frame, levels):
             hits.add(p)
     layers = backend.layers(frame, levels)
@@ -175,14 +235,14 @@ def render_frame(backend: Backend, frame: float, on_pass: PassCallback | None = 
         backend.lod_counts[name] = backend.lod_counts.get(name, 0) + c
     alpha = hits.image(hits.alpha, 1)
     albedo, normal = hits.image(hits.albedo, 3), hits.image(hits.normal, 3)
-    beauty = backend.post((rgb / samples).reshape(h, w, 3).astype(np.float32), alpha, layers, frame)
+    rgb = backend.post(beauty.image().reshape(h, w, 3).astype(np.float32), alpha, layers, frame)
     denoised = False
     if backend.preview or config.render.denoise:
-        d = denoise(beauty, albedo, normal)
+        d = denoise(rgb, albedo, normal)
         if d is not None:
-            beauty, denoised = d, True
+            rgb, denoised = d, True
     return FrameImage(
-        rgb=beauty,
+        rgb=rgb,
         alpha=alpha,
         depth=layers["depth"],
         id=layers["id"],

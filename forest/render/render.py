@@ -25,7 +25,7 @@ import numpy as np
 
 from ..config import Config
 from ..errors import ParameterError
-from ..frames import frame_path, parse_frames
+from ..frames import frame_path, parse_frames, still_path
 from ..scene import Scene
 from .frame import FrameRenderer, FrameSize
 from .jit_frame import PathFrameRenderer
@@ -203,7 +203,7 @@ def render_scene(
 
     ``frames``: None for a still at frame 1, a list of frame numbers or a spec
     like ``"1-120"``; with frames ``output`` is a pattern
-    (``out/frame_####.exr``).  ``progress(fraction, message)`` is called as
+    (``out/frame_####.exr``); a still written to a pattern is named as its frame 1.  ``progress(fraction, message)`` is called as
     passes finish, ``on_pass(frame, image so far, passes done, passes in the
     frame)`` with the frame's running image, ``announce(variant, reason)``
     once the variant is chosen.  ``reuse``: a dict the caller keeps between
@@ -219,8 +219,8 @@ def render_scene(
     frame_list = [1] if frames is None else [int(f) for f in frames]
     if not frame_list:
         raise ParameterError("frames", "no frames to render")
-    if still:
-        targets = [output_paths(output)]
+    if still:  # a still to a pattern (f.%04d.exr) is frame 1 named by it
+        targets = [output_paths(still_path(str(output)))]
     else:
         targets = [output_paths(frame_path(str(output), f)) for f in frame_list]
         if len({t[0] for t in targets}) != len(targets):
@@ -291,6 +291,8 @@ def render_scene(
             "forest:haze_height": float(rc.haze_height),
             "forest:sky": sky.kind if (sky := scene.lights.sky) is not None else "none",
         }
+        if "samples_traced" in stats:  # mean samples per pixel traced (fewer than spp where adaptive sampling stopped)
+            attrs["forest:samples_traced"] = float(stats["samples_traced"])  # type: ignore[arg-type]
         if scene.lod.mode != "distances":  # which rule chose the levels (forest:lod_distances says it for that one)
             attrs["forest:lod_rule"] = scene.lod.describe()
         written += write_frame(

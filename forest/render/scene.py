@@ -73,7 +73,7 @@ def sensor_dict(
     rfilter: str = "box",
     sampler: str = "independent",
 ) -> dict[str, Any]:
-    """A ``perspective`` sensor at ``frame`` of the config's camera path.
+    """A ``perspective`` sensor (``thinlens`` with ``[camera] f_stop``) at ``frame`` of the config's camera path.
 
     The camera-to-world matrix comes from :func:`forest.camera.look_at_matrix`
     of the interpolated position/target (:func:`forest.camera.camera_at`).
@@ -89,8 +89,14 @@ def sensor_dict(
     rc = config.render
     state = camera_at(cam, frame)
     m = look_at_matrix(state.position, state.target, state.up)
+    # Depth of field: Mitsuba's thin lens, aperture radius r = f / (2N) m, in focus z_f m along the view axis.
+    lens = (
+        {"type": "thinlens", "aperture_radius": float(state.lens_radius), "focus_distance": float(state.focus_distance)}
+        if state.depth_of_field
+        else {"type": "perspective"}
+    )
     return {
-        "type": "perspective",
+        **lens,
         "fov": float(state.fov),
         "fov_axis": "x",
         "near_clip": float(cam.near),
@@ -263,6 +269,13 @@ def emitter_dicts(config: Config, variant: str, *, disc_sun: bool = False) -> di
 
     mi = mitsuba(variant)
     lights = resolve_lights(config).require(config.path)
+    if lights.clouds is not None:
+        import warnings
+
+        from ..errors import ForestWarning
+
+        warnings.warn(f"[lights.clouds]: not rendered in {variant} (Mitsuba's own integrator has no cloud layer; "
+                      "forest_path renders it): the sky is clear", ForestWarning, stacklevel=2)  # fmt: skip
     sky = lights.sky
     if sky is not None and sky.kind == "sunsky":
         assert sky.sun is not None  # resolve_lights always points a sun-sky at a sun

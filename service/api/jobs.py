@@ -81,7 +81,7 @@ def submit(
                 {"Location": f"/jobs/{existing['id']}", "Idempotent-Replayed": "true"},
             )
     try:
-        prep = prepare(req, svc.datadir, svc.config.limits, svc.caps)
+        prep = prepare(req, svc.datadir, svc.config.limits, svc.caps, local=svc.config.executor == "local")
     except RequestError as e:
         raise HTTPException(e.status, str(e)) from None
     try:

@@ -92,6 +92,30 @@ def _encoded(fn: Callable[[Path], None], suffix: str, tmp: Path) -> bytes:
     return data
 
 
+def _huge_png(width: int, height: int, rows: int = 4) -> bytes:
+    """A few hundred bytes of PNG whose header declares ``width``×``height`` RGBA (only ``rows`` rows follow).
+
+    A small upload that decodes to gigabytes: it must be refused from its header, before any decode.
+    """
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    z = zlib.compressobj(9)
+    idat = b"".join(z.compress(b"\0" * (1 + 4 * width)) for _ in range(rows)) + z.flush()
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 6, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
+
+
+#: A binary PLY whose header claims two billion vertices, followed by 64 bytes.
+HUGE_PLY = (
+    b"ply\nformat binary_little_endian 1.0\nelement vertex 2000000000\nproperty float x\nproperty float y\n"
+    b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n" + b"\0" * 64
+)
+
+
 def _obj(vertices, faces) -> str:
     lines = [f"v {x} {y} {z}" for x, y, z in vertices]
     lines += ["f " + " ".join(str(i + 1) for i in f) for f in faces]
@@ -865,6 +889,50 @@ def cases(tmp: Path) -> list[Case]:
                     species="".join(f'[[species]]\nmodel = "broadleaf@{i}"\npercent = 0.01\n' for i in range(10_000))
                 )
             },
+        ),
+        # -- unbounded work from a small file (issue 28) ---------------------------------------------
+        L(
+            "colour_map_huge_dimensions_small_file",
+            "input",
+            SCATTER,
+            ["maps.colour", "colour.png"],
+            {"scene.toml": scene('[maps]\ncolour = "colour.png"\n'), "colour.png": _huge_png(16384, 16000)},
+        ),
+        L(
+            "mesh_claims_billions_of_vertices",
+            "input",
+            SCATTER,
+            ["species[0].model", "tree.ply", "cannot read mesh"],
+            {"scene.toml": scene(species='[[species]]\nmodel = "tree.ply"\npercent = 100\n'), "tree.ply": HUGE_PLY},
+        ),
+        L(
+            "seeded_species_not_built_over_the_generation_limit",
+            "species",
+            SCATTER,
+            ["scene.toml", "species[16].model", "not built yet"],
+            {  # 17 species × 4 individuals: 68 variants no library has built, over the 64 one run may generate
+                "scene.toml": scene(
+                    species="".join(
+                        f'[[species]]\nmodel = "broadleaf@{90_000 + 10 * i}"\npercent = 1\n' for i in range(17)
+                    )
+                )
+            },
+        ),
+        L(
+            "generation_allowance_not_a_number",
+            "option",
+            SCATTER,
+            ["FOREST_ALLOW_GENERATE"],
+            {"scene.toml": scene()},
+            {"FOREST_ALLOW_GENERATE": "lots"},
+        ),
+        L(
+            "render_within_the_size_limits_over_memory",
+            "memory",
+            RENDER,
+            ["render.width/render.height", "4096x2160", "fits"],
+            {"scene.toml": scene().replace("width = 48\nheight = 27", "width = 4096\nheight = 2160")},
+            {"FOREST_MEMORY_GB": "1"},
         ),
         L(
             "terrain_size_astronomical",

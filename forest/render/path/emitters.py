@@ -395,8 +395,30 @@ class EmitterLight:
         return dr.select(active, self.emitter.pdf_direction(it, ds, active), 0.0)
 
 
+class CloudedLights(list):  # type: ignore[type-arg]
+    """The light objects of a sky with a cloud layer: a list of lights that also carries :attr:`clouds`
+    (a :class:`~.clouds.CloudLayer`), which :class:`LightSet` lays over their radiance."""
+
+    clouds: Any = None
+
+
 def make_lights(mi: Any, sun: SunLight | None, sky: SkyLight | None) -> list[Any]:
-    """The light objects for a sun and sky description (see the module docstring)."""
+    """The light objects for a sun and sky description (see the module docstring).
+
+    A sky with clouds (:attr:`SkyLight.clouds`) gives a :class:`CloudedLights`; without, a plain list.
+    """
+    lights = _make_lights(mi, sun, sky)
+    clouds = getattr(sky, "clouds", None) if sky is not None else None
+    if clouds is None or float(clouds.cover) <= 0.0:
+        return lights
+    from .clouds import CloudLayer
+
+    out = CloudedLights(lights)
+    out.clouds = CloudLayer(mi, clouds)
+    return out
+
+
+def _make_lights(mi: Any, sun: SunLight | None, sky: SkyLight | None) -> list[Any]:
     lights: list[Any] = []
     if sky is not None and sky.kind == "sunsky":
         assert sun is not None
@@ -443,6 +465,8 @@ class LightSet:
                 pick = np.maximum(pick, MIN_PICK)
                 pick /= pick.sum()
         self.pick = [float(p) for p in pick]
+        #: The cloud layer laid over the lights' radiance (:mod:`.clouds`), or None.
+        self.clouds = getattr(lights, "clouds", None)
 
     def sun(self) -> SunTerm | None:
         """(direction toward the sun, scale → RGB irradiance, current scale) of the sun, or None."""
@@ -452,9 +476,36 @@ class LightSet:
                 return (tuple(float(v) for v in direction), light.irradiance, s)
         return None
 
-    def eval(self, d: Any, active: Any) -> Any:
-        """Radiance arriving from direction ``d`` (a ray that left the scene), all lights summed."""
+    def _clouded(self, d: Any, active: Any, origin: Any) -> tuple[Any, Any]:
+        """(sky, sun) radiance toward ``d`` from ``origin`` through the cloud layer (:meth:`.CloudLayer.apply`)."""
         mi = self.mi
+        sky, sun = mi.Color3f(0.0), mi.Color3f(0.0)
+        ambient = mi.Color3f(0.0)
+        sun_term = None
+        for light, s in zip(self.lights, self.scales):
+            value = light.eval(s, d, active)
+            direction = getattr(light, "direction", None)
+            if direction is None:
+                sky += value
+                ambient += mi.Color3f(*[float(v) for v in light.mean_radiance]) * s
+            else:
+                sun += value
+                if sun_term is None:
+                    sun_term = (mi.Vector3f(*[float(v) for v in direction]), light.irradiance(s))
+        o = mi.Point3f(0.0) if origin is None else origin
+        assert self.clouds is not None
+        return self.clouds.apply(o, d, active, sky, sun, sun_term, ambient)
+
+    def eval(self, d: Any, active: Any, origin: Any = None) -> Any:
+        """Radiance arriving from direction ``d`` (a ray that left the scene), all lights summed.
+
+        With a cloud layer the radiance also depends on the ray's ``origin`` (equation (1) of
+        :mod:`.clouds`; the world origin when None); without one ``origin`` is not used.
+        """
+        mi = self.mi
+        if self.clouds is not None:
+            sky, sun = self._clouded(d, active, origin)
+            return sun + sky
         total = mi.Color3f(0.0)
         for light, s in zip(self.lights, self.scales):
             total += light.eval(s, d, active)
@@ -465,13 +516,17 @@ class LightSet:
         """The light groups of these lights, in order of first appearance (:func:`light_group`)."""
         return list(dict.fromkeys(light_group(light) for light in self.lights))
 
-    def eval_groups(self, d: Any, active: Any) -> tuple[Any, dict[str, Any]]:
+    def eval_groups(self, d: Any, active: Any, origin: Any = None) -> tuple[Any, dict[str, Any]]:
         """:meth:`eval` and its split by light group: (Σ_k L_k(d), {group g: Σ_{k ∈ g} L_k(d)}).
 
         The total is summed in the same order and with the same operations as :meth:`eval`, so it is
-        bit for bit the same value; each light is evaluated once.
+        bit for bit the same value; each light is evaluated once.  With clouds the sun's group takes the
+        sun's radiance through the layer and the cloud's sunlit radiance, the sky's the rest.
         """
         mi = self.mi
+        if self.clouds is not None:
+            sky, sun = self._clouded(d, active, origin)
+            return sun + sky, {g: (sun if g == "sun" else sky) for g in self.groups}
         total = mi.Color3f(0.0)
         parts: dict[str, Any] = {}
         for light, s in zip(self.lights, self.scales):

@@ -39,12 +39,14 @@ from typing import Any
 import numpy as np
 
 from ...errors import ForestError
+from ...progress import scaled
 from ...runtime import mitsuba
 from .emitters import LightSet, make_lights, sky_mean_radiance
 from .geometry import ForestGeometry, FrameStats, PartArrays, TraversalScene, available_bytes, memory_plan
 from .haze import HazeInputs, HazeModel
 from .inputs import PathCamera, PathInputs
 from .integrator import LAYER_ALPHA, NO_HIT, PathKernel, integrator_class
+from .lens import thin_lens_rays
 from .materials import MaterialArrays, MaterialStore, world_map_texture
 
 #: Largest number of paths (pixels × samples) traced in one pass on the CPU (``llvm_ad_rgb``).
@@ -183,7 +185,11 @@ class PathImage:
 class PathScene:
     """A forest ready to render with the forest path tracer in a JIT variant (see the module docstring)."""
 
-    def __init__(self, inputs: PathInputs, variant: str = "llvm_ad_rgb"):
+    def __init__(
+        self, inputs: PathInputs, variant: str = "llvm_ad_rgb", progress: Callable[[float, str], None] | None = None
+    ):
+        """Build the scene's buffers, materials and lights and load its first pose; ``progress(fraction, message)``
+        follows the build (the terrain, then :class:`TraversalScene`'s steps), ending short of 1 (the caller's)."""
         if variant not in JIT_VARIANTS:
             raise ForestError(f"--variant: the forest path tracer runs in {' or '.join(JIT_VARIANTS)}, not {variant}")
         inputs.validate()
@@ -192,6 +198,8 @@ class PathScene:
         self.mi = mi = mitsuba(variant)
         self.inputs = inputs
         self.materials = MaterialStore()
+        if progress is not None:
+            progress(0.0, "geometry: terrain and surfaces")
         self.geometry = ForestGeometry(inputs, self.materials)
         self.extent = inputs.grid_extent()
         self.lights = make_lights(mi, inputs.sun, inputs.sky)
@@ -221,15 +229,21 @@ class PathScene:
         self._mats_count = 0
         self._sensors: dict[bytes, Any] = {}
         self.load_seconds = 0.0
-        self.pose(inputs.levels, inputs.matrices)
+        self.pose(inputs.levels, inputs.matrices, progress=None if progress is None else scaled(progress, 0.05, 0.98))
 
     # -- scene state ----------------------------------------------------------------------
     def activate(self) -> None:
         """Make this scene's variant Mitsuba's current one (``mi.Float`` etc. follow the current variant)."""
         mitsuba(self.variant)
 
-    def pose(self, levels: np.ndarray | None = None, matrices: np.ndarray | None = None) -> None:
-        """Rebuild the traversal scene for new levels of detail and/or tree transforms."""
+    def pose(
+        self,
+        levels: np.ndarray | None = None,
+        matrices: np.ndarray | None = None,
+        progress: Callable[[float, str], None] | None = None,
+    ) -> None:
+        """Rebuild the traversal scene for new levels of detail and/or tree transforms (``progress``: its steps,
+        as :class:`TraversalScene` reports them, then the part and material arrays)."""
         self.activate()
         levels = self.inputs.levels if levels is None else np.asarray(levels)
         matrices = self.inputs.matrices if matrices is None else np.asarray(matrices)
@@ -239,7 +253,11 @@ class PathScene:
         self.traversal = None  # free the previous scene before building the next
         self.check_memory(levels)
         t0 = time.perf_counter()
-        self.traversal = TraversalScene(self.mi, self.geometry, levels, matrices)
+        self.traversal = TraversalScene(
+            self.mi, self.geometry, levels, matrices, None if progress is None else scaled(progress, 0.0, 0.95)
+        )
+        if progress is not None:
+            progress(0.95, "part buffers and materials")
         if self._parts is None or self._parts.count != len(self.geometry.parts.triangles):
             self._parts = PartArrays(self.mi, self.geometry.parts)
         if self._mats is None or self._mats_count != len(self.materials):
@@ -346,8 +364,9 @@ class PathScene:
         return self._sensors[key]
 
     # -- sampling -------------------------------------------------------------------------
-    def _camera_rays(self, camera: PathCamera, spp: int, seed: int) -> tuple[Any, Any, int]:
-        """(sampler, rays, spp actually used) for one pass: lanes pixel-major, ``spp`` consecutive per pixel."""
+    def _camera_rays(self, camera: PathCamera, spp: int, seed: int, pixels: Any = None) -> tuple[Any, Any, int]:
+        """(sampler, rays, spp actually used) for one pass: lanes pixel-major, ``spp`` consecutive per pixel;
+        ``pixels`` (UInt32 row-major indices) traces only those pixels (adaptive sampling), in that order."""
         import drjit as dr
 
         mi = self.mi
@@ -357,16 +376,18 @@ class PathScene:
         # and a stratified sampler degenerates to independent sampling.
         sampler.set_samples_per_wavefront(spp)
         w, h = int(camera.width), int(camera.height)
-        n = w * h * spp
+        n = (w * h if pixels is None else dr.width(pixels)) * spp
         # An opaque seed: one compiled kernel serves every pass and render (a literal would recompile).
         sampler.seed(dr.opaque(mi.UInt32, seed & 0xFFFFFFFF), n)
         idx = dr.arange(mi.UInt32, n)
-        pixel = idx // spp
+        pixel = idx // spp if pixels is None else dr.gather(mi.UInt32, pixels, idx // spp)
         x = mi.Float(pixel % w)
         y = mi.Float(pixel // w)
         u = sampler.next_2d()
         pos = mi.Point2f((x + u.x) / w, (y + u.y) / h)
         ray, _ = self.sensor(camera).sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
+        if camera.lens_radius > 0.0:  # depth of field: its own sampler dimension, drawn only then (.lens)
+            ray = thin_lens_rays(mi, camera, ray, sampler.next_2d())
         return sampler, ray, spp
 
     def passes(

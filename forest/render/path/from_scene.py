@@ -43,6 +43,8 @@ def path_camera(config: Config, frame: float = 1.0, width: int | None = None, he
         height=int(height or rc.height),
         near=float(cam.near),
         far=float(cam.far),
+        lens_radius=float(state.lens_radius),
+        focus_distance=float(state.focus_distance or 1.0),
     )
 
 
@@ -78,6 +80,14 @@ def path_lights(lights: Lights) -> tuple[SunLight | None, SkyLight | None]:
     if k.kind == "envmap":
         return disc, SkyLight("envmap", envmap=k.envmap, scale=float(k.intensity))
     return disc, SkyLight("constant", radiance=tuple(k.radiance.tolist()))
+
+
+def path_lights_clouded(lights: Lights) -> tuple[SunLight | None, SkyLight | None]:
+    """:func:`path_lights` with ``[lights.clouds]`` on the sky (:attr:`SkyLight.clouds`)."""
+    sun, sky = path_lights(lights)
+    if sky is not None and lights.clouds is not None:
+        sky = replace(sky, clouds=lights.clouds)
+    return sun, sky
 
 
 def haze_inputs(config: Config, terrain: Terrain) -> HazeInputs | None:
@@ -140,7 +150,7 @@ def path_inputs(
     t = frame / config.camera.fps if time_s is None else time_s
     matrices = tree_matrices(instances, t, config.wind)
     look = ground_look(scene)
-    sun, sky = path_lights(scene.lights.require(config.path))
+    sun, sky = path_lights_clouded(scene.lights.require(config.path))
     species, individuals = scene_species(scene)
     return PathInputs(
         instances=instances,

@@ -54,11 +54,14 @@ import numpy as np
 from ...errors import ForestError
 from ...library.mesh import read_ply
 from ...memory import available_bytes as available_bytes  # MemAvailable and this process's cgroup limits
+from ...progress import ProgressFn, scaled
 from .inputs import Material, PathInputs
 from .materials import MaterialStore
 
 #: Trees transformed per block when flattening (bounds the float64 temporaries).
 FLATTEN_BLOCK = 131_072
+#: Trees between two progress reports while a traversal scene's instances are written.
+REPORT_TREES = 10_000
 #: Resident memory of one Mitsuba instance in llvm_ad_rgb (``bench/bench_forest_path.py``: 15.7 KB).
 INSTANCE_BYTES = 16 * 1024
 #: Resident memory per merged triangle: world-space vertices and faces in Mitsuba plus Embree's BVH.
@@ -211,12 +214,24 @@ class ForestGeometry:
         self.prototypes[key] = proto
         return proto
 
-    def tree_prototypes(self, levels: np.ndarray) -> tuple[np.ndarray, list[Prototype]]:
-        """Per tree the index into the returned list of prototypes (created on first use)."""
+    def tree_prototypes(
+        self, levels: np.ndarray, progress: ProgressFn | None = None
+    ) -> tuple[np.ndarray, list[Prototype]]:
+        """Per tree the index into the returned list of prototypes (created on first use).
+
+        ``progress(fraction, message)`` after each prototype (``geometry: 2/6 prototypes (species 2/3, level 0)``):
+        reading a species' meshes is the slow part of a first build."""
         levels = np.asarray(levels, dtype=np.int64)
         keys = np.stack([self.species_index, self.individual, levels], axis=1) if self.n_trees else np.zeros((0, 3))
         uniq, inverse = np.unique(keys, axis=0, return_inverse=True) if self.n_trees else (np.zeros((0, 3)), [])
-        protos = [self.prototype(int(a), int(b), int(c)) for a, b, c in uniq.tolist()]
+        protos = []
+        n, species = len(uniq), len(self._species)
+        for i, (a, b, c) in enumerate(uniq.tolist()):
+            protos.append(self.prototype(int(a), int(b), int(c)))
+            if progress is not None:
+                progress(
+                    (i + 1) / n, f"geometry: {i + 1}/{n} prototypes (species {int(a) + 1}/{species}, level {int(c)})"
+                )
         return np.asarray(inverse, dtype=np.int64).ravel(), protos
 
 
@@ -275,15 +290,28 @@ class FrameStats:
 
 
 class TraversalScene:
-    """The Mitsuba scene of one pose (levels + matrices) and the tables that map its hits to forest's buffers."""
+    """The Mitsuba scene of one pose (levels + matrices) and the tables that map its hits to forest's buffers.
 
-    def __init__(self, mi: Any, geometry: ForestGeometry, levels: np.ndarray, matrices: np.ndarray):
+    ``progress(fraction, message)`` follows the build: the prototypes' meshes (to 0.2), the trees written as
+    instances or merged meshes (to 0.6, every :data:`REPORT_TREES` trees), then Mitsuba's ``load_dict`` — one
+    call, reported before and after (0.6 and 0.95) — and the hit tables."""
+
+    def __init__(
+        self,
+        mi: Any,
+        geometry: ForestGeometry,
+        levels: np.ndarray,
+        matrices: np.ndarray,
+        progress: ProgressFn | None = None,
+    ):
         import drjit as dr
 
+        report = scaled(progress, 0.0, 1.0)
         t0 = time.perf_counter()
         n = geometry.n_trees
         mats = np.ascontiguousarray(matrices, dtype=np.float64).reshape(n, 4, 4)
-        proto_of_tree, protos = geometry.tree_prototypes(levels)
+        proto_of_tree, protos = geometry.tree_prototypes(levels, None if progress is None else scaled(progress, 0, 0.2))
+        placed = 0  # trees written so far
         parts = geometry.parts
         stats = FrameStats(trees=n)
         counts = np.bincount(np.asarray(levels, np.int64), minlength=4) if n else np.zeros(4, np.int64)
@@ -319,6 +347,8 @@ class TraversalScene:
                     flat_meta[name] = (p, flat_offset)
                     flat_rows.append(rows.astype(np.uint32))
                     flat_offset += len(rows)
+                placed += len(rows)
+                report(min(0.6, 0.2 + 0.4 * placed / n), f"instances {placed:,}/{n:,} (merged far trees)")
                 continue
             sg = f"sg_{pi_}"
             group: dict[str, Any] = {"type": "shapegroup"}
@@ -329,8 +359,12 @@ class TraversalScene:
             entries[sg] = group
             stats.shapegroups += 1
             ref = {"type": "ref", "id": sg}
-            for r in rows.tolist():
-                entries[f"tree_{r}"] = {"type": "instance", "shapegroup": ref, "to_world": T(M4(mats[r]))}
+            for b in range(0, len(rows), REPORT_TREES):
+                block = rows[b : b + REPORT_TREES]
+                for r in block.tolist():
+                    entries[f"tree_{r}"] = {"type": "instance", "shapegroup": ref, "to_world": T(M4(mats[r]))}
+                placed += len(block)
+                report(min(0.6, 0.2 + 0.4 * placed / n), f"instances {placed:,}/{n:,}")
             stats.instances += len(rows)
             stats.instanced_triangles += len(rows) * proto.triangles
         for k, p in enumerate(geometry.world_parts):
@@ -339,11 +373,14 @@ class TraversalScene:
             top_parts[name] = p
         if len(entries) == 1:
             raise ForestError("path inputs: nothing to render (no trees, terrain or surfaces)")
+        report(0.6, f"Mitsuba scene: loading {len(entries) - 1:,} shapes and instances")
+        t_load = time.perf_counter()
         try:
             self.scene = mi.load_dict(entries, parallel=True)
         except Exception as e:
             raise ForestError(f"cannot build the Mitsuba scene: {str(e).splitlines()[0]}") from None
         del entries
+        report(0.95, f"Mitsuba scene loaded in {time.perf_counter() - t_load:.1f} s; hit tables")
         # Registry-id tables.
         shapes = self.scene.shapes()
         reg = np.asarray(dr.reinterpret_array(mi.UInt32, self.scene.shapes_dr()), dtype=np.int64)

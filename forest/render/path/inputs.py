@@ -32,7 +32,11 @@ FLATTEN_MAX_TRIANGLES = 64
 
 @dataclass(frozen=True)
 class PathCamera:
-    """A pinhole camera: ``to_world`` camera→world 4×4 (looks along +Z, +Y up, +X left), horizontal ``fov``."""
+    """A camera: ``to_world`` camera→world 4×4 (looks along +Z, +Y up, +X left), horizontal ``fov``.
+
+    A pinhole, or with ``lens_radius`` r > 0 (metres) a thin lens focused at ``focus_distance`` metres
+    along the view axis (:func:`~forest.render.path.lens.thin_lens_rays`).
+    """
 
     to_world: np.ndarray
     fov: float
@@ -40,6 +44,8 @@ class PathCamera:
     height: int
     near: float = 0.5
     far: float = 100_000.0
+    lens_radius: float = 0.0
+    focus_distance: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -92,6 +98,8 @@ class SkyLight:
     zenith: Sequence[float] = (0.35, 0.35, 0.35)
     horizon: Sequence[float] = (0.35, 0.35, 0.35)
     horizon_exponent: float = 1.0
+    #: A cloud layer over this sky (:class:`forest.lights.Clouds`; see :mod:`.clouds`), or None.
+    clouds: Any = None
 
 
 @dataclass(frozen=True)

@@ -382,7 +382,9 @@ class PathKernel:
                     sh = shading(mi, self.mats, S["vmat"], S["vuv"], S["vp"], self.grid, self.extent,
                                  self.terrain_map, s_done)  # fmt: skip
                     f_l, _ = bsdf_eval(sh, S["vns"], S["vdl"])
-                    Lr_dir = dr.select(s_done, S["vβ"] * f_l * lights.eval(S["vdl"], s_done) * (S["vw"] * vis), 0.0)
+                    Lr_dir = dr.select(
+                        s_done, S["vβ"] * f_l * lights.eval(S["vdl"], s_done, S["vp"]) * (S["vw"] * vis), 0.0
+                    )
                 L = dr.select(s_done, S["L"] - dr.detach(Lr_dir), S["L"])
                 with dr.resume_grad():
                     f_o, _ = bsdf_eval(sh, S["vns"], S["vwo"])
@@ -410,12 +412,12 @@ class PathKernel:
             mis = dr.select(S["prev_delta"], 1.0, mis_weight(S["prev_pdf"], lights.pdf(d, escaped)))
             with dr.resume_grad(when=not primal):
                 if lgroups:
-                    sky, parts = lights.eval_groups(d, escaped)
+                    sky, parts = lights.eval_groups(d, escaped, o)
                     Le = S["β"] * mis * sky
                     for g in lgroups:
                         S[f"G:{g}"] = S[f"G:{g}"] + S["β"] * mis * parts[g]
                 else:
-                    Le = S["β"] * mis * lights.eval(d, escaped)
+                    Le = S["β"] * mis * lights.eval(d, escaped, o)
             if aux:
                 seen = escaped & (S["depth"] == 0)
                 S["albedo"] = dr.select(seen, dr.clip(dr.detach(Le), 0.0, 1.0), S["albedo"])
@@ -475,12 +477,12 @@ class PathKernel:
             nee &= (pdf_l > 0.0) & (dr.max(f_l) > 0.0)
             w_l = mis_weight(pdf_l, pdf_b) / dr.maximum(pdf_l, 1e-30)
             if lgroups:
-                Ll, parts = lights.eval_groups(dl, nee)
+                Ll, parts = lights.eval_groups(dl, nee, sp.p)
                 S["C"] = dr.select(nee, S["β"] * f_l * Ll * w_l, S["C"])
                 for g in lgroups:
                     S[f"C:{g}"] = dr.select(nee, S["β"] * f_l * parts[g] * w_l, S[f"C:{g}"])
             else:
-                S["C"] = dr.select(nee, S["β"] * f_l * lights.eval(dl, nee) * w_l, S["C"])
+                S["C"] = dr.select(nee, S["β"] * f_l * lights.eval(dl, nee, sp.p) * w_l, S["C"])
             u_lobe = S["sampler"].next_1d()
             u_bsdf = S["sampler"].next_2d()
             wo, weight, pdf_o = bsdf_sample(mi, shd, mi.Frame3f(ns), u_lobe, u_bsdf)

@@ -1,0 +1,214 @@
+"""A procedural cloud layer in forest_path's sky: cumulus seen from below, their silver linings and shadows.
+
+**Geometry.**  The clouds lie on the horizontal plane y = h (``altitude``).  A ray from o along
+the unit direction ω (ω_y > 0, o_y < h) crosses it at distance
+
+    t = (h − o_y) / ω_y,      x_c = (o_x + t ω_x,  o_z + t ω_z)                      (1)
+
+so the sky seen from a point depends on where that point is: camera rays see the layer from the
+camera, and a shading point's sun ray crosses it above that point — the clouds' shadows move over
+the ground as ``wind`` slides the layer.
+
+**Shape.**  An fBm (fractional Brownian motion) of value noise, the sum of 5 octaves
+n(x) = Σ_i a^i v(2^i R^i x / S + c_i) / Σ_i a^i with gain a = 0.5, a rotation R between octaves and
+S = ``scale`` (Perlin 1985; Perlin 2002, "Improving noise", for the quintic fade
+6u⁵ − 15u⁴ + 10u³; Ebert, Musgrave, Peachey, Perlin & Worley, *Texturing & Modeling: A
+Procedural Approach*, 3rd ed. 2003, ch. 4 and 16 for fBm clouds).  v is the value noise of a
+lattice of integer hashes (a xorshift–multiply mixer), interpolated with the fade: cheap,
+deterministic and the same on every device.  The layer covers a fraction ``cover`` of the sky: the
+noise is thresholded at its (1 − cover) quantile n₀ (measured once on a 256×256 grid), and
+
+    τ(x) = D · smoothstep(0, w, n(x) − n₀) · (1 + 2 (n(x) − n₀)/(1 − n₀))                 (2)
+
+is the optical thickness (D = ``density``, w = ``softness``: the width of the edge in noise units).
+
+**Radiance.**  What a ray sees of the sky through the layer is
+
+    L = T·(L_sky + L_sun) + (1 − T)·L_cloud,     T = exp(−τ f(t))                       (3)
+
+with f(t) = exp(−t / (30 h)) a fade with distance: toward the horizon the layer thins into the haze
+(and its aliasing with it).  The cloud's own radiance is single-scattered sunlight plus ambient:
+
+    L_cloud = E_sun [ p_HG(ω·s; g) e^(−τ/2) + (ρ/π) e^(−τ_s) / (1 + τ/4) ] + k_a · L̄_sky         (4)
+
+E_sun the sun's irradiance facing it (RGB), s the unit vector toward it, p_HG the Henyey–Greenstein
+phase function (Henyey & Greenstein 1941) with g = 0.6: the forward peak through the thin edges of a
+cloud next to the sun is its silver lining, and e^(−τ/2) closes it in a thick core.  The second term
+is the sunlit cloud seen from below, with albedo ρ = 0.9, darkened by the cloud's own depth through
+1/(1 + τ/4) and by a cheap self-shadow e^(−τ_s), τ_s = τ(x_c + (H/s_y)·s_xz) the thickness found by
+stepping once toward the sun by the layer's thickness H = scale/4 (Schneider & Vos 2015, "The
+real-time volumetric cloudscapes of Horizon Zero Dawn", for beer-law self-shadowing).
+L̄_sky is the sky's mean radiance over the upper hemisphere, k_a = 0.8.
+
+**Unbiased light sampling.**  (3) is the radiance of every light that leaves the scene —
+camera, bounce and next-event rays alike (:class:`~.emitters.LightSet` evaluates it for all of them
+from the ray's origin).  forest_path's light-sampling densities do not depend on the clouds
+(cosine-weighted for the constant and gradient skies, Mitsuba's clear-sky density for ``sunsky`` and
+``envmap``, the cone for the sun), and both strategies evaluate the same L, so the MIS estimate stays
+unbiased: clouds over the sun cast shadows (T on the sun's radiance), clouds in the sky light the
+ground by their own radiance.  The haze (:mod:`.haze`) keeps the clear sky's colour.
+
+Cost: a few dozen arithmetic operations and 20 hashes per sky evaluation; the sky is evaluated once
+per escaped ray and once per light sample — in the measurements of ``docs/rendering.md``, a few per
+cent of a frame.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+#: Octaves of the fBm, their gain, and the Henyey–Greenstein g of the silver lining.
+OCTAVES = 5
+GAIN = 0.5
+PHASE_G = 0.6
+#: Single-scattering albedo of the sunlit cloud seen from below, and the ambient share of the sky's mean.
+ALBEDO = 0.9
+AMBIENT = 0.8
+#: Two-stream diffusion constant (3/4)(1 − g_c) of a cloud slab, g_c ≈ 0.8 for cloud droplets.
+DIFFUSION = 0.15
+#: Distance fade f(t) = exp(−t / (FADE · altitude)).
+FADE = 30.0
+#: Thickness of the layer as a fraction of ``scale`` (the self-shadow's step toward the sun).
+THICKNESS = 0.25
+#: Grid on which the noise's (1 − cover) quantile is measured (side, and its span in units of ``scale``).
+QUANTILE_GRID = 256
+QUANTILE_SPAN = 64.0
+#: Directions this close to the horizon (ω_y) see no cloud.
+MIN_MU = 1e-3
+
+
+def _hash(mi: Any, ix: Any, iy: Any, seed: int) -> Any:
+    """A uniform float in [0, 1) from integer lattice coordinates and a seed (xorshift–multiply mixer)."""
+    import drjit as dr
+
+    u = mi.UInt32
+    h = dr.reinterpret_array(u, ix) * u(0x8DA6B343) ^ dr.reinterpret_array(u, iy) * u(0xD8163841)
+    h = h ^ u((seed * 0x9E3779B9) & 0xFFFFFFFF)
+    h = (h ^ (h >> 16)) * u(0x7FEB352D)
+    h = (h ^ (h >> 15)) * u(0x846CA68B)
+    h = h ^ (h >> 16)
+    return mi.Float(h >> 8) * (1.0 / 16777216.0)
+
+
+def _fade(t: Any) -> Any:
+    """Perlin's (2002) quintic fade 6t⁵ − 15t⁴ + 10t³."""
+    import drjit as dr
+
+    return t * t * t * dr.fma(t, dr.fma(t, 6.0, -15.0), 10.0)
+
+
+def value_noise(mi: Any, x: Any, y: Any, seed: int) -> Any:
+    """2-D value noise in [0, 1): lattice hashes at the four corners, blended by the quintic fade."""
+    import drjit as dr
+
+    fx, fy = dr.floor(x), dr.floor(y)
+    ix, iy = mi.Int32(fx), mi.Int32(fy)
+    ux, uy = _fade(x - fx), _fade(y - fy)
+    a = _hash(mi, ix, iy, seed)
+    b = _hash(mi, ix + 1, iy, seed)
+    c = _hash(mi, ix, iy + 1, seed)
+    d = _hash(mi, ix + 1, iy + 1, seed)
+    return dr.lerp(dr.lerp(a, b, ux), dr.lerp(c, d, ux), uy)
+
+
+def fbm(mi: Any, x: Any, y: Any, seed: int) -> Any:
+    """fBm of :func:`value_noise`, normalised to [0, 1): octaves rotated by ≈ 36.9° and shifted."""
+    amp, norm = 1.0, 0.0
+    total: Any = 0.0
+    for i in range(OCTAVES):
+        total = total + value_noise(mi, x, y, seed + 1013 * i) * amp
+        norm += amp
+        amp *= GAIN
+        x, y = 1.6 * x - 1.2 * y + 17.31, 1.2 * x + 1.6 * y - 9.71  # 2 × rotation (0.8, −0.6; 0.6, 0.8)
+    return total * (1.0 / norm)
+
+
+def henyey_greenstein(mu: Any, g: float) -> Any:
+    """p_HG(μ; g) = (1 − g²) / (4π (1 + g² − 2gμ)^(3/2)), per steradian."""
+    import drjit as dr
+
+    k = 1.0 + g * g - 2.0 * g * mu
+    return (1.0 - g * g) / (4.0 * math.pi) * dr.rsqrt(k * k * k)
+
+
+class CloudLayer:
+    """The cloud layer of a :class:`forest.lights.Clouds` description, evaluated in drjit (module docstring)."""
+
+    def __init__(self, mi: Any, clouds: Any):
+        self.mi = mi
+        self.cover = float(clouds.cover)
+        self.altitude = float(clouds.altitude)
+        self.scale = float(clouds.scale)
+        self.seed = int(clouds.seed) & 0x7FFFFFFF
+        self.density = float(clouds.density)
+        self.softness = float(clouds.softness)
+        self.wind = (float(clouds.wind[0]), float(clouds.wind[1]))
+        self.threshold = self._quantile(1.0 - self.cover)
+
+    def _quantile(self, q: float) -> float:
+        """The noise's q-quantile, measured on a fixed grid (deterministic)."""
+        import drjit as dr
+
+        mi = self.mi
+        g = (np.arange(QUANTILE_GRID, dtype=np.float32) + 0.5) * np.float32(QUANTILE_SPAN / QUANTILE_GRID)
+        gx, gy = (a.ravel() for a in np.meshgrid(g, g))
+        with dr.suspend_grad():
+            n = np.asarray(fbm(mi, mi.Float(gx), mi.Float(gy), self.seed), np.float64)
+        return float(np.quantile(n, min(max(q, 0.0), 1.0)))
+
+    def thickness(self, x: Any, z: Any) -> Any:
+        """Optical thickness τ at layer coordinates (x, z) in metres, equation (2)."""
+        import drjit as dr
+
+        inv = 1.0 / self.scale
+        n = fbm(self.mi, (x - self.wind[0]) * inv, (z - self.wind[1]) * inv, self.seed)
+        excess = n - self.threshold
+        edge = dr.clip(excess * (1.0 / self.softness), 0.0, 1.0)
+        body = 1.0 + 2.0 * dr.maximum(excess, 0.0) * (1.0 / max(1.0 - self.threshold, 1e-3))
+        return self.density * edge * edge * (3.0 - 2.0 * edge) * body
+
+    def crossing(self, o: Any, d: Any, active: Any) -> tuple[Any, Any, Any, Any]:
+        """Where a ray crosses the layer, equation (1): (x, z, t, whether it does)."""
+        import drjit as dr
+
+        up = active & (d.y > MIN_MU) & (o.y < self.altitude)
+        t = dr.select(up, (self.altitude - o.y) / dr.maximum(d.y, MIN_MU), 0.0)
+        return dr.fma(d.x, t, o.x), dr.fma(d.z, t, o.z), t, up
+
+    def transmittance(self, o: Any, d: Any, active: Any) -> tuple[Any, Any, Any, Any]:
+        """(T, τ, x, z) of the layer along the ray (o, d): T = exp(−τ f(t)), 1 where it misses the layer."""
+        import drjit as dr
+
+        x, z, t, up = self.crossing(o, d, active)
+        tau = dr.select(up, self.thickness(x, z) * dr.exp(t * (-1.0 / (FADE * self.altitude))), 0.0)
+        return dr.exp(-tau), tau, x, z
+
+    def apply(
+        self, o: Any, d: Any, active: Any, sky: Any, sun: Any, sun_term: tuple[Any, Any] | None, ambient: Any
+    ) -> tuple[Any, Any]:
+        """The clouded (sky, sun) radiances toward ``d`` from ``o``, equations (3)–(4).
+
+        ``sky`` and ``sun`` are the clear sky's and the sun's radiance toward d; ``sun_term`` is (unit
+        vector toward the sun as a Vector3f, its RGB irradiance E_sun) or None; ``ambient`` the sky's
+        mean radiance (RGB).  The cloud's sunlit radiance joins the sun's share and its ambient the sky's,
+        so light groups still add up to the total.
+        """
+        import drjit as dr
+
+        mi = self.mi
+        T, tau, x, z = self.transmittance(o, d, active)
+        veil = 1.0 - T
+        sky_out = dr.fma(sky, T, veil * AMBIENT * ambient)
+        if sun_term is None:
+            return sky_out, sun * T
+        s, e_sun = sun_term
+        mu = dr.dot(d, s)
+        hop = THICKNESS * self.scale / dr.maximum(s.y, 0.05)
+        tau_s = self.thickness(dr.fma(s.x, hop, x), dr.fma(s.z, hop, z))
+        lit = henyey_greenstein(mu, PHASE_G) * dr.exp(-0.5 * tau)
+        lit += (ALBEDO / math.pi) / dr.fma(DIFFUSION, tau + tau_s, 1.0)
+        lit = dr.select(s.y > 0.0, lit, 0.0)
+        return sky_out, dr.fma(sun, T, mi.Color3f(e_sun) * (veil * lit))

@@ -1,0 +1,172 @@
+"""The cloud layer of forest_path's sky: off by default, deterministic, lit by the sun, shadows, config."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from test_forest_path import VARIANT, look, quad, surfaces_only
+from test_render_scene import TOP_DOWN
+
+from forest.config import parse_config
+from forest.errors import ConfigError, ForestWarning
+from forest.lights import Clouds, resolve_lights, sun_vector
+from forest.render.path import Material, PathCamera, PathScene, SkyLight, SunLight, Surface
+
+SUN = SunLight(sun_vector(35.0, 180.0), (3.0, 2.85, 2.64))
+GROUND = Surface(quad(0.0, 5000.0), Material("surface", (0.3, 0.3, 0.3)))
+#: Looking up and north (−Z) from 20 m: the sky fills the frame.
+SKYWARD = PathCamera(look([0.0, 20.0, 0.0], [0.0, 320.0, -400.0]), 70.0, 48, 27)
+
+
+def render(clouds: Clouds | None, *, camera: PathCamera = SKYWARD, kind: str = "constant", spp: int = 2) -> np.ndarray:
+    sky = SkyLight(kind, radiance=(0.2, 0.3, 0.5), clouds=clouds)
+    return PathScene(surfaces_only([GROUND], camera, sun=SUN, sky=sky, spp=spp), VARIANT).render(seed=3).rgb
+
+
+@pytest.fixture(scope="module")
+def clear() -> np.ndarray:
+    return render(None)
+
+
+def test_no_clouds_and_no_cover_render_the_same_bytes(clear):
+    """Clouds off is the clear sky; ``cover = 0`` is the same as off, byte for byte."""
+    assert np.array_equal(render(Clouds(cover=0.0)), clear)
+
+
+def test_more_cover_means_a_more_varied_sky_nearer_the_cloud_colour(clear):
+    """The sky's pixels vary more with clouds, and their colour moves from the blue sky toward grey-white."""
+    some, more = render(Clouds(cover=0.3, seed=5)), render(Clouds(cover=0.7, seed=5))
+    lum = [float(np.std(img.mean(axis=2))) for img in (clear, some, more)]
+    assert lum[0] < lum[1] and lum[0] < lum[2]
+    blue = [float(np.mean(img[..., 2] / np.maximum(img.sum(axis=2), 1e-6))) for img in (clear, some, more)]
+    assert blue[0] > blue[1] > blue[2]  # the sky's blue share falls as clouds cover it
+
+
+def test_same_seed_same_clouds_another_seed_other_clouds():
+    a = render(Clouds(cover=0.5, seed=1))
+    assert np.array_equal(a, render(Clouds(cover=0.5, seed=1)))
+    b = render(Clouds(cover=0.5, seed=2))
+    assert float(np.abs(a - b).mean()) > 0.01
+
+
+def test_wind_slides_the_layer():
+    assert not np.array_equal(render(Clouds(cover=0.5)), render(Clouds(cover=0.5, wind=(300.0, 0.0))))
+
+
+def test_the_sun_side_of_a_cloud_is_brighter_than_the_far_side():
+    """Cloudy directions near the sun (silver lining, forward Henyey–Greenstein scattering) outshine cloudy
+    directions facing away from it, at the same elevation."""
+    import drjit as dr
+
+    from forest.render.path.emitters import LightSet, make_lights
+
+    scene = PathScene(surfaces_only([GROUND], SKYWARD, sun=SUN, sky=SkyLight("constant", clouds=Clouds(0.6))), VARIANT)
+    mi = scene.mi
+    lights = make_lights(mi, SUN, scene.inputs.sky)
+    ls = LightSet(mi, lights, scene.params)
+    s = np.asarray(SUN.direction, np.float64)
+    az0 = np.degrees(np.arctan2(s[0], s[2]))
+    rng = np.random.default_rng(0)
+    out = {}
+    for name, centre in (("near", az0), ("far", az0 + 180.0)):
+        az = np.radians(centre + rng.uniform(-15, 15, 4000))
+        el = np.radians(rng.uniform(25, 45, 4000))
+        d = np.stack([np.sin(az) * np.cos(el), np.sin(el), np.cos(az) * np.cos(el)], 1).astype(np.float32)
+        dv = mi.Vector3f(*[mi.Float(d[:, k]) for k in range(3)])
+        o = mi.Point3f(0.0, 20.0, 0.0)
+        far_from_disc = np.degrees(np.arccos(np.clip(d @ s, -1, 1))) > 3.0
+        with dr.suspend_grad():
+            L = np.asarray(ls.eval(dv, mi.Bool(True), o)).reshape(-1, 3).mean(axis=1)
+            T = np.asarray(ls.clouds.transmittance(o, dv, mi.Bool(True))[0])
+        out[name] = L[(T < 0.2) & far_from_disc].mean()
+    assert out["near"] > 1.25 * out["far"]  # measured 1.39
+
+
+def test_clouds_shade_the_ground():
+    """Seen from above, the ground under a sun in an overcast-ish layer is darker, and patchy (cloud shadows)."""
+    down = PathCamera(look([0.0, 600.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 90.0, 32, 32)
+    clear = render(None, camera=down, spp=4)
+    shaded = render(Clouds(cover=0.6, scale=300.0, altitude=1000.0), camera=down, spp=4)
+    assert shaded.mean() < 0.9 * clear.mean()
+    assert shaded.mean(axis=2).std() > 1.5 * clear.mean(axis=2).std()
+
+
+def test_sunsky_with_clouds_renders_finite():
+    img = render(Clouds(cover=0.5), kind="sunsky")
+    assert np.isfinite(img).all() and img.min() >= 0.0
+
+
+def config(body: str):
+    sky = "sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }"
+    return parse_config(TOP_DOWN.replace(sky, body))
+
+
+def test_clouds_are_off_by_default_and_read_from_the_config():
+    sky = "sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }"
+    assert resolve_lights(config(sky)).clouds is None
+    c = resolve_lights(config(sky + "\nclouds = { cover = 0.3, altitude = 1500.0, seed = 7, wind = [5.0, 1.0] }"))
+    assert c.clouds == Clouds(cover=0.3, altitude=1500.0, seed=7, wind=(5.0, 1.0))
+    assert resolve_lights(config(sky + "\nclouds = { cover = 0.0 }")).clouds is None
+    # [lights] with only clouds keeps the default daylight
+    only = resolve_lights(config("clouds = { cover = 0.5 }"))
+    assert only.sunsky and only.clouds is not None
+
+
+@pytest.mark.parametrize(
+    "body, message",
+    [
+        ("clouds = { cover = 1.5 }", "lights.clouds.cover: must be <= 1"),
+        ("clouds = { altitude = 0.0 }", "lights.clouds.altitude: must be > 0"),
+        ("clouds = { scale = -800.0 }", "lights.clouds.scale: must be > 0"),
+        ("clouds = { softness = 0.0 }", "lights.clouds.softness: must be > 0"),
+        ("clouds = { seed = 1.5 }", "lights.clouds.seed"),
+        ("clouds = { wind = [1.0] }", "lights.clouds.wind"),
+        ("clouds = { colour = 1 }", "lights.clouds.colour: unknown key"),
+    ],
+)
+def test_bad_cloud_values_are_refused_in_one_line(body, message):
+    sky = "sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }"
+    with pytest.raises(ConfigError) as e:
+        config(sky + "\n" + body)
+    assert message in str(e.value) and "\n" not in str(e.value)
+
+
+def test_clouds_without_a_sky_are_refused():
+    with pytest.raises(ConfigError, match=r"lights.clouds: a cloud layer needs a sky"):
+        config("sun = { elevation = 40.0 }\nclouds = { cover = 0.5 }")
+
+
+def test_scalar_rgb_warns_that_it_renders_a_clear_sky():
+    from forest.render.scene import emitter_dicts
+
+    cfg = config("sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }\nclouds = { cover = 0.5 }")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        emitter_dicts(cfg, "scalar_rgb")
+    lines = [str(w.message) for w in caught if issubclass(w.category, ForestWarning)]
+    assert len(lines) == 1 and "scalar_rgb" in lines[0] and "\n" not in lines[0]
+
+
+def test_light_groups_split_the_clouded_sky_and_add_up_to_it():
+    """The sun's group takes the sun through the layer and the cloud's sunlit light, the sky's the rest."""
+    import drjit as dr
+
+    from forest.render.path.emitters import LightSet, make_lights
+
+    sky = SkyLight("constant", radiance=(0.2, 0.3, 0.5), clouds=Clouds(0.5))
+    scene = PathScene(surfaces_only([GROUND], SKYWARD, sun=SUN, sky=sky), VARIANT)
+    mi = scene.mi
+    ls = LightSet(mi, make_lights(mi, SUN, sky), scene.params)
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(2000, 3)).astype(np.float32)
+    d[:, 1] = np.abs(d[:, 1])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    dv = mi.Vector3f(*[mi.Float(d[:, k]) for k in range(3)])
+    with dr.suspend_grad():
+        total, parts = ls.eval_groups(dv, mi.Bool(True), mi.Point3f(0.0, 5.0, 0.0))
+        alone = ls.eval(dv, mi.Bool(True), mi.Point3f(0.0, 5.0, 0.0))
+    assert set(parts) == {"sun", "sky"}
+    assert np.array_equal(np.asarray(total), np.asarray(alone))
+    np.testing.assert_allclose(np.asarray(parts["sun"] + parts["sky"]), np.asarray(total), rtol=1e-6)
