@@ -43,6 +43,12 @@ centre:
   "A theoretical analysis of the frequency of gaps in plant stands",
   Agricultural Meteorology 8: 25–38), so c = 0.63 where crowns cover the
   ground once over.
+* ``relief`` — the height in metres above the lowest ground within ``[ground] relief_radius``
+  metres, h − min_{|y − x| ≤ r} h(y) (a square window of the texel grid; a local form of the
+  "height above the nearest drainage", Rennó et al. 2008, Remote Sens. Environ. 112: 3469–3481):
+  on a valley's floor it is the floor's fall over r (the lowest ground lies downstream), small
+  against the sides' rise, so ``relief = [0, 3]`` finds a river's bed along a falling valley where
+  no one altitude window does;
 * ``map`` — a grey image (map convention, bilinear), or 1 − grey with ``invert``.
 
 Edges are broken up by noise: each variable is offset by ``noise · n(x) · w``
@@ -51,6 +57,16 @@ unit-variance Gaussian field of correlation length ``noise_scale`` metres (two
 octaves of spectrally filtered noise, :func:`forest.library.textures.periodic_noise`),
 seeded by the scene's seed and the rule's index.  Same config, same trees ⇒
 the same grid, bit for bit.
+
+**Water.**  Rules of the material ``water`` (:data:`~forest.config.schema.WATER_MATERIAL`) paint
+its colour like any other, and also a water coverage W ∈ [0, 1] per texel, composited the same way:
+
+    W ← (1 − α_r)·W + α_r·[material_r = water]
+
+so W is the share of the texel's albedo that came from water layers (None when no rule paints
+water, and then nothing changes anywhere).  forest_path shades that share as a Fresnel mirror
+over the painted colour (:mod:`forest.render.path.materials`, :func:`~forest.render.path.materials.water_lobe`);
+the other renderers and the exports keep the painted colour alone.
 
 Built-in materials and their sources: :data:`forest.config.schema.GROUND_MATERIALS`.
 """
@@ -64,7 +80,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import Config
-from .config.schema import GroundConfig, GroundRule
+from .config.schema import WATER_MATERIAL, GroundConfig, GroundRule
 from .errors import ConfigError, ForestError
 from .instances import InstanceSet
 from .library import Species
@@ -73,9 +89,15 @@ from .terrain import Terrain
 
 TAG = 0x6A0D
 #: Default ramp width of a ``[lo, hi]`` window's edges, per variable (altitude: a share of the height range).
-RAMP = {"slope": 6.0, "altitude": 0.05, "moisture": 0.1, "canopy": 0.15}
+RAMP = {"slope": 6.0, "altitude": 0.05, "moisture": 0.1, "canopy": 0.15, "relief": 1.0}
 #: Where each variable's range ends: a window edge at or beyond these is no edge.
-RANGE = {"slope": (0.0, 90.0), "altitude": (-np.inf, np.inf), "moisture": (0.0, 1.0), "canopy": (0.0, 1.0)}
+RANGE = {
+    "slope": (0.0, 90.0),
+    "altitude": (-np.inf, np.inf),
+    "moisture": (0.0, 1.0),
+    "canopy": (0.0, 1.0),
+    "relief": (0.0, np.inf),
+}
 MESH_RESOLUTION = 512
 NOISE_TEXELS = 6  # texels per correlation length of the edge noise's finer octave (see edge_noise)  # mesh terrains: heights come from ray casts, so the grid is capped at this side
 
@@ -103,13 +125,25 @@ class TerrainAlbedo:
     ``detail`` (h, w, 3) float32 has mean 1 per channel and repeats every
     ``detail_tile_m`` metres along X and Z from the world origin (texel (i, j)
     of a tile covers ``x/tile ∈ [j, j+1]/w``, ``z/tile ∈ [i, i+1]/h`` modulo 1);
-    None (and a tile of 0) without detail.
+    None (and a tile of 0) without detail.  ``water`` (H, W) float32 is the water coverage W
+    over the same texels (module docstring), None where no rule paints water.
     """
 
     rgb: np.ndarray
     extent: tuple[float, float, float, float]  # xmin, zmin, xmax, zmax
     detail: np.ndarray | None = None
     detail_tile_m: float = 0.0
+    water: np.ndarray | None = None
+
+    def water_at(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Water coverage W at world (x, z): the ``water`` grid bilinear, clamped at the edges (0 without water)."""
+        x = np.asarray(x, np.float64)
+        if self.water is None:
+            return np.zeros(x.shape, np.float32)
+        xmin, zmin, xmax, zmax = self.extent
+        u = (x - xmin) / max(xmax - xmin, 1e-12)
+        v = (np.asarray(z, np.float64) - zmin) / max(zmax - zmin, 1e-12)
+        return np.asarray(sample_bilinear(self.water, u, v), np.float32)
 
     def at(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
         """Albedo at world (x, z): the grid bilinear (clamped at the edges) × the detail bilinear (wrapped)."""
@@ -223,6 +257,17 @@ def terrain_slope(height: np.ndarray, extent: tuple[float, float, float, float])
     return np.degrees(np.arctan(np.hypot(gx, gz)))
 
 
+def terrain_relief(height: np.ndarray, extent: tuple[float, float, float, float], radius_m: float) -> np.ndarray:
+    """Height above the lowest ground within ``radius_m`` (module docstring): h − min filter of h (edges clamped)."""
+    from scipy.ndimage import minimum_filter
+
+    xmin, zmin, xmax, zmax = extent
+    h, w = height.shape
+    ri = max(1, round(radius_m / max((zmax - zmin) / h, 1e-12)))
+    rj = max(1, round(radius_m / max((xmax - xmin) / w, 1e-12)))
+    return height - minimum_filter(height, size=(2 * ri + 1, 2 * rj + 1), mode="nearest")
+
+
 def canopy_cover(
     instances: InstanceSet,
     crown_radius: np.ndarray,
@@ -285,8 +330,9 @@ def paint_rules(
     instances: InstanceSet,
     species: Sequence[Species],
     ground: GroundConfig,
-) -> np.ndarray:
-    """The ``[ground]`` layer stack (module docstring) as an ``(H, W, 3)`` float32 albedo grid."""
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The ``[ground]`` layer stack (module docstring): an ``(H, W, 3)`` float32 albedo grid and the
+    ``(H, W)`` float32 water coverage (None when no rule paints water)."""
     extent = terrain.extent
     resolution = ground.resolution if terrain.grid_shape is not None else min(ground.resolution, MESH_RESOLUTION)
     shape = grid_shape(extent, resolution)
@@ -295,11 +341,14 @@ def paint_rules(
     rules = [GroundRule.model_validate(r) for r in DEFAULT_RULES] if ground.rules is None else list(ground.rules)
     rgb = np.empty((*shape, 3), np.float64)
     rgb[:] = palette[ground.base]
+    water = np.zeros(shape, np.float64) if any(r.material == WATER_MATERIAL for r in rules) else None
+    if ground.base == WATER_MATERIAL:
+        water = np.ones(shape, np.float64)
     if not rules:
-        return rgb.astype(np.float32)
+        return rgb.astype(np.float32), None if water is None else water.astype(np.float32)
     height = terrain.height_at(x.ravel(), z.ravel()).reshape(shape)
     hmin, hmax = terrain.height_range
-    units = {"slope": 1.0, "altitude": max(hmax - hmin, 1.0), "moisture": 1.0, "canopy": 1.0}
+    units = {"slope": 1.0, "altitude": max(hmax - hmin, 1.0), "moisture": 1.0, "canopy": 1.0, "relief": 1.0}
     cache: dict[str, np.ndarray] = {}
 
     def variable(name: str) -> np.ndarray:
@@ -308,6 +357,8 @@ def paint_rules(
                 cache[name] = height
             elif name == "slope":
                 cache[name] = terrain_slope(height, extent)
+            elif name == "relief":
+                cache[name] = terrain_relief(height, extent, ground.relief_radius)
             elif name == "moisture":
                 if config.maps.moisture is not None:
                     img = read_grey(config.maps.moisture, config, "maps.moisture")
@@ -324,7 +375,7 @@ def paint_rules(
         where = "ground.rules" if ground.rules is None else f"ground.rules[{r}]"
         alpha = np.full(shape, rule.opacity, np.float64)
         noise = edge_noise(shape, extent, rule.noise_scale, config.seed, r) * rule.noise if rule.noise > 0 else None
-        for name in ("slope", "altitude", "moisture", "canopy"):
+        for name in ("slope", "altitude", "moisture", "canopy", "relief"):
             window = getattr(rule, name)
             if window is None:
                 continue
@@ -341,7 +392,9 @@ def paint_rules(
             alpha *= 1.0 - weight if rule.invert else weight
         c = np.asarray(palette[rule.material], np.float64)
         rgb += alpha[..., None] * (c - rgb)
-    return rgb.astype(np.float32)
+        if water is not None:
+            water += alpha * ((1.0 if rule.material == WATER_MATERIAL else 0.0) - water)
+    return rgb.astype(np.float32), None if water is None else np.clip(water, 0.0, 1.0).astype(np.float32)
 
 
 def read_terrain_texture(config: Config) -> np.ndarray | None:
@@ -366,10 +419,11 @@ def terrain_albedo(
     detail, tile = detail_texture(ground)
     rc = config.render
     texture = read_terrain_texture(config)
+    water = None
     if texture is not None:
         rgb, detail, tile = texture, None, 0.0  # a painted ground texture is used as it is
     elif "terrain_colour" in rc.model_fields_set:
         rgb = np.asarray(rc.terrain_colour, np.float32).reshape(1, 1, 3)
     else:
-        rgb = paint_rules(config, terrain, instances, species, ground)
-    return TerrainAlbedo(np.ascontiguousarray(rgb, dtype=np.float32), terrain.extent, detail, tile)
+        rgb, water = paint_rules(config, terrain, instances, species, ground)
+    return TerrainAlbedo(np.ascontiguousarray(rgb, dtype=np.float32), terrain.extent, detail, tile, water)

@@ -53,7 +53,7 @@ def run_forest(*args: str, cwd: Path | None = None, timeout: float = 600) -> sub
 
 @pytest.fixture
 def flat_scene(tmp_path):
-    """A 100 m flat terrain with one species: returns a function(extra_toml) -> config path."""
+    """A 100 m flat terrain with one species, canopy structure off: returns a function(extra_toml) -> config path."""
 
     def make(extra: str = "", count: int = 2000, species: str | None = None) -> Path:
         sp = (
@@ -73,6 +73,8 @@ def flat_scene(tmp_path):
             flat = {{ size = 100.0 }}
             [scatter]
             count = {count}
+            clumping = {{ strength = 0.0, clearings = 0.0 }}
+            emergents = {{ fraction = 0.0 }}
         """
             + textwrap.dedent(sp)
             + textwrap.dedent(extra),

@@ -465,6 +465,7 @@ def test_render_says_what_it_will_do_before_it_starts(tmp_path):
         flat = { size = 60.0 }
         [scatter]
         count = 12
+        clumping = { strength = 0.0, clearings = 0.0 }  # every candidate stays: the count is known
         [[species]]
         model = "fern"
         percent = 100

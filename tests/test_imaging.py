@@ -379,6 +379,23 @@ def test_denoise_without_oidn_returns_none(monkeypatch):
     assert denoise(np.ones((4, 4, 3), np.float32)) is None
 
 
+def test_denoise_rule_true_false_preview_and_auto(monkeypatch):
+    """``[render] denoise``: true always, false never, --preview always; "auto" only at spp ≤ AUTO_MAX_SPP and only
+    with pyoidn installed (silently off without it, the reason says so)."""
+    import sys
+
+    from forest.imaging.denoise import AUTO_MAX_SPP, denoise_rule
+
+    assert denoise_rule(False, 1) == (False, "")
+    assert denoise_rule(True, 10_000) == (True, "denoise = true")
+    assert denoise_rule(False, 10_000, preview=True) == (True, "preview")
+    assert denoise_rule("auto", AUTO_MAX_SPP + 1) == (False, f"auto: {AUTO_MAX_SPP + 1} spp > {AUTO_MAX_SPP}")
+    if oidn_available():
+        assert denoise_rule("auto", AUTO_MAX_SPP) == (True, f"auto: {AUTO_MAX_SPP} spp ≤ {AUTO_MAX_SPP}")
+    monkeypatch.setitem(sys.modules, "pyoidn", None)
+    assert denoise_rule("auto", 1) == (False, "auto: Open Image Denoise (pyoidn) not installed")
+
+
 @pytest.mark.skipif(not oidn_available(), reason="Open Image Denoise (pyoidn) is not installed")
 def test_albedo_and_normal_buffers_keep_texture_the_denoiser_would_smear():
     h, w = 96, 96

@@ -56,6 +56,8 @@ partition = "part.png"
 "#00ff00" = "far"
 [scatter]
 count = 6000
+clumping = { strength = 0.0, clearings = 0.0 }  # the streams as they were before canopy structure
+emergents = { fraction = 0.0 }
 min_distance = 1.5
 align_to_normal = 0.3
 method = "METHOD"

@@ -184,6 +184,7 @@ seed = 4
 flat = {{ size = 400.0 }}
 [scatter]
 count = {count}
+clumping = {{ strength = 0.0, clearings = 0.0 }}
 [[species]]
 model = "shrub"
 percent = 100
@@ -330,27 +331,57 @@ def test_the_summary_gives_the_gpus_peak_memory_in_cuda_only():
 
 def test_render_denoise_cleans_a_final_frame_and_stays_deterministic(scene):
     """``[render] denoise = true``: the frame is denoised (header ``forest:denoised``), closer to a 64-spp render than
-    the same samples left noisy, and the same bytes on a second run."""
+    the same samples left noisy, and the same bytes on a second run; ``"auto"`` denoises a 2-spp frame the same
+    way (with Open Image Denoise installed) and leaves a 64-spp one alone."""
+    from forest.imaging import oidn_available
 
-    def frame(name: str, render: str, spp: int) -> np.ndarray:
+    def frame(name: str, render: str, spp: int, denoised: bool) -> np.ndarray:
         cfg = scene / f"{name}.toml"
         cfg.write_text(SCENE.format(render=render).replace("width = 32\nheight = 24", "width = 64\nheight = 48"))
         r = run("render", cfg, "--instances", scene / "trees.npz", "-o", scene / f"{name}.exr", "--spp", spp)
         assert r.returncode == 0, r.stderr
         inp = oiio.ImageInput.open(str(scene / f"{name}.exr"))
         px = np.asarray(inp.read_image(0, 0, 0, 3, "float"))
-        denoised = inp.spec().getattribute("forest:denoised")
+        assert bool(inp.spec().getattribute("forest:denoised")) == denoised
         inp.close()
-        assert bool(denoised) == ("denoise = true" in render)
         return px
 
-    ref = frame("ref", "", 64)
-    noisy = frame("noisy", "", 2)
-    clean = frame("clean", "denoise = true", 2)
+    ref = frame("ref", 'denoise = "auto"', 64, False)  # 64 spp > AUTO_MAX_SPP
+    noisy = frame("noisy", "denoise = false", 2, False)
+    clean = frame("clean", "denoise = true", 2, True)
     assert np.abs(clean - ref).mean() < 0.7 * np.abs(noisy - ref).mean()
-    again = frame("clean2", "denoise = true", 2)
+    again = frame("clean2", "denoise = true", 2, True)
     assert np.array_equal(clean, again)
     assert (scene / "clean.exr").read_bytes() != (scene / "noisy.exr").read_bytes()
+    auto = frame("auto", 'denoise = "auto"', 2, oidn_available())
+    assert np.array_equal(auto, clean if oidn_available() else noisy)
+
+
+def test_render_denoise_auto_without_open_image_denoise_is_silently_off(scene, monkeypatch):
+    """``"auto"`` asks for nothing before work: without pyoidn the frame stays noisy, and the summary
+    line says why; a value other than true, false or "auto" is refused naming the field."""
+    import sys
+
+    from forest.config import ConfigError, load_config
+    from forest.render import render_scene
+    from forest.render.scene import check_render_inputs
+    from forest.scene import load_scene
+
+    (scene / "dn_default.toml").write_text(SCENE.format(render=""))
+    cfg = scene / "auto.toml"
+    cfg.write_text(SCENE.format(render='denoise = "auto"'))
+    config = load_config(cfg)
+    assert config.render.denoise == "auto" and load_config(scene / "dn_default.toml").render.denoise is False
+    monkeypatch.setitem(sys.modules, "pyoidn", None)  # as if the 'denoise' extra were not installed
+    check_render_inputs(config)
+    res = render_scene(load_scene(config, scene / "trees.npz"), output=scene / "auto.exr", variant="llvm_ad_rgb")
+    assert not res.denoised
+    assert res.summary().endswith("; not denoised (auto: Open Image Denoise (pyoidn) not installed)")
+    bad = scene / "bad.toml"
+    bad.write_text(SCENE.format(render='denoise = "sometimes"'))
+    with pytest.raises(ConfigError) as e:
+        load_config(bad)
+    assert e.value.field == "render.denoise"
 
 
 def test_render_denoise_without_open_image_denoise_is_refused_before_work(scene, monkeypatch):

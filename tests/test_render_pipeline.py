@@ -214,6 +214,7 @@ class TerrainAlbedo:
     extent: tuple
     detail: np.ndarray | None
     detail_tile_m: float
+    water: np.ndarray | None = None
 
 
 @pytest.mark.parametrize("variant", VARIANTS)

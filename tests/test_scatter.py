@@ -45,6 +45,7 @@ def test_density_is_uniform_per_area_on_a_stretched_mesh(tmp_path):
         mesh = "{mesh.name}"
         [scatter]
         count = 40000
+        clumping = {{ strength = 0.0, clearings = 0.0 }}  # even sampling: no stands or clearings
         [[species]]
         model = "broadleaf"
         percent = 100
@@ -138,6 +139,7 @@ def test_presence_density_and_altitude_maps(tmp_path):
         density = "density.png"
         [scatter]
         count = 40000
+        clumping = { strength = 0.0, clearings = 0.0 }  # even sampling: no stands or clearings
         [[species]]
         model = "broadleaf"
         percent = 100
@@ -433,6 +435,7 @@ def test_species_limited_to_partitions(tmp_path):
         "#00ff00" = "background"
         [scatter]
         count = 4000
+        clumping = { strength = 0.0, clearings = 0.0 }  # even sampling: no stands or clearings
         [[species]]
         model = "broadleaf"
         percent = 50

@@ -276,6 +276,25 @@ class PartitionsConfig(Section):
 # ---------------------------------------------------------------------------
 
 
+class Clumping(Section):
+    """Stand-scale structure (:mod:`forest.scatter.canopy`): denser stands, thinner edges and clearings."""
+
+    scale: Positive = Field(50.0, description="Wavelength of the stand noise, metres (stands and clearings ~ this).")
+    strength: Unit = Field(0.5, description="0 even … 1: how much the thinnest stands are thinned (density 1 - s).")
+    clearings: Annotated[float, Field(ge=0.0, le=0.9, allow_inf_nan=False)] = Field(
+        0.07, description="Share of the terrain's area left as clearings with soft edges (0.07 = 7 %)."
+    )
+
+
+class Emergents(Section):
+    """A tail of tall trees above the canopy: a share of trees scaled by a factor drawn uniformly in ``scale``."""
+
+    fraction: Unit = Field(0.025, description="Share of trees that are emergents.")
+    scale: tuple[Positive, Positive] = Field((1.3, 1.6), description="Extra scale factor range [min, max].")
+
+    _pairs = field_validator("scale")(_ordered_pair)
+
+
 class ScatterConfig(Section):
     """Candidate sites over the terrain and how trees are kept: by percentages (random) or by growth (ecosystem)."""
 
@@ -286,6 +305,12 @@ class ScatterConfig(Section):
     align_to_normal: Unit = Field(0.0, description="0 upright … 1 along the terrain normal.")
     method: Literal["random", "ecosystem"] = Field(
         "random", description="'random': percentages; 'ecosystem': growth, competition and self-thinning."
+    )
+    clumping: Clumping = Field(
+        default_factory=Clumping, description="Stands and clearings; strength = 0 and clearings = 0 turn it off."
+    )
+    emergents: Emergents = Field(
+        default_factory=Emergents, description="Tall trees above the canopy; fraction = 0: off."
     )
 
 
@@ -299,10 +324,10 @@ class ColourJitter(Section):
     """Per-tree colour variation: a hue rotation and a lightness scale in OkLCh, uniform in ± the given amounts."""
 
     hue: Annotated[float, Field(ge=0.0, le=180.0, allow_inf_nan=False)] = Field(
-        4.0, description="Largest hue rotation, degrees of OkLCh hue."
+        11.0, description="Largest hue rotation, degrees of OkLCh hue."
     )
     value: Annotated[float, Field(ge=0.0, le=0.9, allow_inf_nan=False)] = Field(
-        0.08, description="Largest relative change of Oklab lightness L (0.08 = ±8 %)."
+        0.18, description="Largest relative change of Oklab lightness L (0.18 = ±18 %)."
     )
 
 
@@ -362,12 +387,19 @@ class SpeciesConfig(Section):
         "library species, 1 for a mesh).",
     )
     colour_jitter: ColourJitter = Field(default_factory=ColourJitter, description="Per-tree hue and value variation.")
+    dead: Unit = Field(
+        0.0,
+        description="Share of trees standing dead (snags: the tree without its leaves; e.g. 0.02); forest's "
+        "renderers draw them, the exports draw the living tree.",
+    )
 
     _pairs = field_validator("scale", "altitude", "moisture")(_ordered_pair)
 
     @model_validator(mode="after")
     def _slopes(self) -> SpeciesConfig:
         check_slopes(self.slope_min, self.slope_max)
+        if self.dead > 0 and self.individual_count > MAX_INDIVIDUALS // 2:
+            raise fail(f"needs individuals <= {MAX_INDIVIDUALS // 2} (snags take the upper half), or dead = 0", "dead")
         return self
 
     @property
@@ -408,7 +440,14 @@ GROUND_MATERIALS: dict[str, tuple[float, float, float]] = {
     "wet": (0.075, 0.062, 0.048),  # wet soil, mud, riverbed
     "sand": (0.400, 0.330, 0.240),  # dry quartz sand
     "snow": (0.850, 0.870, 0.900),  # fresh snow
+    # Open water: the bed seen through it, ρ_bed ⊙ exp(−2 σ_a d) (Beer–Lambert down and up), ρ_bed = (0.10, 0.09,
+    # 0.07) wet gravel, d = 0.5 m, σ_a = (0.40, 0.20, 0.45)/m: pure water (Pope & Fry 1997, Appl. Opt. 36: 8710)
+    # plus yellow substance (Bricaud et al. 1981, Limnol. Oceanogr. 26: 43).  forest_path adds the surface's
+    # Fresnel mirror over it (``[ground]`` rules of this material); other renderers show this colour only.
+    "water": (0.067, 0.074, 0.045),
 }
+#: The ground material that forest_path renders as a water surface (a rule painting it marks water).
+WATER_MATERIAL = "water"
 MATERIAL_NAME = r"^[A-Za-z][A-Za-z0-9_-]{0,63}$"
 
 
@@ -437,6 +476,9 @@ class GroundRule(Section):
         None, description="Soil moisture window in [0, 1]: [maps] moisture, else low and flat ground is wet."
     )
     canopy: Window | None = Field(None, description="Tree crown cover window in [0, 1] (0 open ground, 1 closed).")
+    relief: Window | None = Field(
+        None, description="Height above the lowest ground within [ground] relief_radius, metres (valley floors: 0)."
+    )
     map: InputFile | None = Field(None, description="Grey weight image over the extent (map convention).")
     invert: Bool = Field(False, description="Use 1 − the map's grey level.")
     opacity: Unit = Field(1.0, description="Strength of the layer.")
@@ -451,7 +493,7 @@ class GroundConfig(Section):
         default_factory=dict,
         description=(
             "Name → linear RGB albedo; adds to or overrides the built-in grass, dry_grass, soil, litter, rock, "
-            "wet, sand and snow."
+            "wet, sand, snow and water (forest_path: a Fresnel mirror over this colour)."
         ),
     )
     base: Annotated[Str, Field(min_length=1)] = Field("soil", description="The material under every rule.")
@@ -464,6 +506,10 @@ class GroundConfig(Section):
     detail_tile: NonNegative = Field(4.0, description="Metres per repeat of the detail texture (0: no detail).")
     detail_strength: Annotated[float, Field(ge=0.0, le=2.0, allow_inf_nan=False)] = Field(
         1.0, description="Contrast of the detail texture (0 flat, 1 as drawn)."
+    )
+    relief_radius: Positive = Field(30.0, description="Metres around a point that rules' relief looks for the floor.")
+    water_ripple: Annotated[float, Field(ge=0.0, le=20.0, allow_inf_nan=False)] = Field(
+        2.0, description="Ripples on water (rules of material water): RMS tilt of its mirror, degrees (0 flat)."
     )
 
     @model_validator(mode="after")
@@ -885,6 +931,15 @@ def _exposure(value: Any) -> float:
         raise fail(e.message) from None
 
 
+def _denoise(value: Any) -> bool | str:
+    """``[render] denoise``: true, false or "auto" (:func:`forest.imaging.denoise.denoise_rule`)."""
+    if isinstance(value, bool):
+        return value
+    if value == "auto":
+        return "auto"
+    raise fail(f'must be true, false or "auto", got {value!r}')
+
+
 #: The comp AOVs ``[render] aovs`` may name (see docs/rendering.md, *Comp AOVs*). None is written by default:
 #: N, P and albedo cost no render time (they come with the beauty's samples and the pixel-centre layers pass)
 #: but double the EXR's size, which a farm writing thousands of frames pays for on every one; ask for them.
@@ -899,6 +954,20 @@ def _aovs(value: list[str]) -> list[str]:
     return sorted(set(value), key=AOV_NAMES.index)
 
 
+class ValleyFog(Section):
+    """``[render] valley_fog``: a fog that pools in low ground (forest.render.path.haze): extinction ``density``
+    up to ``top``, thinning by e every ``falloff`` metres above it."""
+
+    density: Positive = Field(description="Extinction per metre inside the fog (0.01: 390 m visibility).")
+    top: Annotated[float, Field(ge=-100_000.0, le=100_000.0, allow_inf_nan=False)] = Field(
+        20.0, description="Height of the fog's top, metres above the terrain's lowest point (or absolute)."
+    )
+    falloff: Annotated[float, Field(gt=0.0, le=100_000.0, allow_inf_nan=False)] = Field(
+        15.0, description="Above the top the fog thins by e every this many metres."
+    )
+    absolute: Bool = Field(False, description="top is an absolute height (world Y), not above the lowest point.")
+
+
 class RenderConfig(Section):
     """The image (size, samples, variant), light paths, aerial haze, the ground's look and the PNG's view transform."""
 
@@ -911,8 +980,16 @@ class RenderConfig(Section):
     max_depth: Annotated[Int, Field(ge=1, le=64)] = Field(6, description="Longest light path, in bounces + 1.")
     subframes: Annotated[Int, Field(ge=1, le=64)] = Field(5, description="Sub-frames averaged for motion blur.")
     haze: NonNegative = Field(0.0, description="Aerial perspective: extinction per metre at the ground.")
+    visibility: Annotated[float, Field(gt=0.0, le=10_000.0, allow_inf_nan=False)] | None = Field(
+        None,
+        description="Aerial perspective as a visibility, km (Koschmieder: haze = 3.912 / V per km); "
+        "instead of haze, not with it.",
+    )
     haze_height: Annotated[float, Field(gt=0.0, le=100_000.0, allow_inf_nan=False)] = Field(
-        600.0, description="Aerial perspective: height over which the haze thins by e (scale height), metres."
+        150.0, description="Aerial perspective: height over which the haze thins by e (scale height), metres."
+    )
+    valley_fog: ValleyFog | None = Field(
+        None, description="A fog that pools in low ground: { density, top, falloff, absolute } (default none)."
     )
     haze_colour: RGB | None = Field(
         None, description="Radiance the haze tends to away from the sun (default: the sky's mean radiance)."
@@ -933,10 +1010,11 @@ class RenderConfig(Section):
     alpha_shadows: Bool = Field(
         True, description="scalar_rgb: shadow rays see through leaf-card alpha (forest_path always does)."
     )
-    denoise: Bool = Field(
+    denoise: Annotated[Any, AfterValidator(_denoise)] = Field(
         False,
         description="Denoise every frame with Open Image Denoise, guided by the first-hit albedo and normal "
-        "(--preview always does); needs the 'denoise' extra (pyoidn).",
+        "(--preview always does): true (needs the 'denoise' extra, pyoidn), false, or \"auto\": when pyoidn is "
+        "installed and spp <= 16, where it measurably pays (docs/rendering.md, Denoising).",
     )
     view: Annotated[str, AfterValidator(_view)] = Field(
         "agx",
@@ -966,6 +1044,14 @@ class RenderConfig(Section):
         description="Adaptive sampling: samples every pixel takes before it may stop, and per pass after "
         "(default max(16, spp/8), at most spp).",
     )
+
+    @model_validator(mode="after")
+    def _visibility(self) -> RenderConfig:
+        if self.visibility is not None:
+            if "haze" in self.model_fields_set:
+                raise fail("give haze or visibility, not both", "visibility")
+            self.haze = 3.912 / (1000.0 * self.visibility)  # Koschmieder (forest.render.path.haze)
+        return self
 
     @model_validator(mode="after")
     def _adaptive(self) -> RenderConfig:

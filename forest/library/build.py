@@ -61,10 +61,19 @@ def write_json(path: Path, data: dict) -> None:
 
 
 def part_entry(
-    kind: str, file: str, mesh: MeshData, colour, texture: str | None, tinted: bool, translucency: float
+    kind: str,
+    file: str,
+    mesh: MeshData,
+    colour,
+    texture: str | None,
+    tinted: bool,
+    translucency: float,
+    sheen: tuple[float, float] | None = None,
 ) -> dict:
-    """The metadata entry of one part: kind, file, colour (6 decimals), texture, tinted, translucency, size."""
-    return {
+    """The metadata entry of one part: kind, file, colour (6 decimals), texture, tinted, translucency, size;
+    a leaf's ``sheen`` (s, α) adds ``sheen`` and ``roughness`` (its cuticle lobe)."""
+    extra = {} if sheen is None else {"sheen": float(sheen[0]), "roughness": float(sheen[1])}
+    return extra | {
         "kind": kind,
         "file": file,
         "colour": [round(float(c), 6) for c in colour],
@@ -158,6 +167,7 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
     )
     leaf_colour, bark_colour = tree["leaf_colour"], tree["bark_colour"]
     transl = tree["translucency"]
+    sheen = (float(tree["leaf_sheen"]), float(tree["leaf_roughness"]))
     lods = []
     high_meshes: list[tuple[MeshData, np.ndarray, np.ndarray | None]] = []
     coverage = shading = None
@@ -189,7 +199,7 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
             write_ply(out / f"{lod}_leaf.ply", leaves)
             tex = "cluster.png" if clustered else "leaf.png"
             entry = lod_entry(
-                lod, parts + [part_entry("leaf", f"{lod}_leaf.ply", leaves, leaf_colour, tex, True, transl)]
+                lod, parts + [part_entry("leaf", f"{lod}_leaf.ply", leaves, leaf_colour, tex, True, transl, sheen)]
             )
             if coverage is None or not clustered or step == COVER_STEPS:
                 break
@@ -219,7 +229,7 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
     )
     write_texture(out / "far.png", atlas)
     write_ply(out / "far_cards.ply", far)
-    lods.append(lod_entry("far", [part_entry("leaf", "far_cards.ply", far, scale, "far.png", True, transl)]))
+    lods.append(lod_entry("far", [part_entry("leaf", "far_cards.ply", far, scale, "far.png", True, transl, sheen)]))
     meta = {
         "name": name,
         "source": "generated",

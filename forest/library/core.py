@@ -42,7 +42,8 @@ class Part:
     """One material's mesh within a level of detail.
 
     ``kind`` is ``"leaf"`` (two-sided, alpha from ``texture``'s alpha channel,
-    ``translucency`` share of diffuse transmission), ``"bark"`` (diffuse) or
+    ``translucency`` share of diffuse transmission, ``sheen`` and ``roughness`` its cuticle's
+    rough specular lobe), ``"bark"`` (diffuse) or
     ``"surface"`` (an imported material, diffuse).  Reflectance is
     ``colour × texture.rgb`` (texture sRGB-decoded; 1 without a texture),
     multiplied by the colour map's tint where ``tinted``.
@@ -56,6 +57,8 @@ class Part:
     translucency: float
     triangles: int
     bounds: np.ndarray
+    sheen: float = 0.0  # leaves: weight s of the cuticle's rough specular lobe (0: Lambertian)
+    roughness: float = 0.0  # its GGX α
 
     def load(self) -> MeshData:
         """Read the part's PLY into numpy arrays."""
@@ -135,6 +138,8 @@ def _species_from_meta(lib: Library, meta: dict, folder: Path, description: str 
                 translucency=float(p["translucency"]),
                 triangles=int(p["triangles"]),
                 bounds=np.array(p["bounds"], dtype=np.float64),
+                sheen=float(p.get("sheen", 0.0)),
+                roughness=float(p.get("roughness", 0.0)),
             )
             for p in L["parts"]
         )

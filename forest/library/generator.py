@@ -126,6 +126,10 @@ TREE_DEFAULTS: dict[str, Any] = {
     "bark_colour": [0.12, 0.08, 0.05],
     "bark_texture": "furrowed",
     "translucency": 0.3,
+    # The leaf cuticle's rough specular lobe (forest.render.path.materials): weight s and GGX α; a broadleaf's
+    # waxy cuticle after Bousquet et al. (2005), Remote Sens. Environ. 98: 201-211.
+    "leaf_sheen": 0.7,
+    "leaf_roughness": 0.35,
     "leaf_face_up": 0.5,
     "leaf_segments": 1,
     "leaf_bend": 0.0,
@@ -249,6 +253,10 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
             raise ConfigError(where, f"tree.{key}", f"must be three numbers in [0, 1], got {v!r}")
     if not (0 <= tree["translucency"] <= 1):
         raise ConfigError(where, "tree.translucency", f"must be in [0, 1], got {tree['translucency']!r}")
+    for key, lo in (("leaf_sheen", 0.0), ("leaf_roughness", 0.02)):
+        v = tree[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (lo <= v <= 1):
+            raise ConfigError(where, f"tree.{key}", f"must be a number in [{lo}, 1], got {v!r}")
     if not isinstance(tree["leaf_segments"], int) or not 1 <= tree["leaf_segments"] <= 16:
         raise ConfigError(
             where, "tree.leaf_segments", f"must be a whole number in [1, 16], got {tree['leaf_segments']!r}"

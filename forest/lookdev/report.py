@@ -127,6 +127,7 @@ def fitted_data(
     rd = data.setdefault("render", {})
     sigma = look.get("haze", start.haze)
     if start.has_haze and (sigma > 0 or config.render.haze > 0):
+        rd.pop("visibility", None)  # the fitted haze replaces a visibility (the two are exclusive)
         rd["haze"] = _r(sigma)
         rd["haze_colour"] = _rgb(g * haze_colour(start, lt))
     gt = ground_tint(look)

@@ -32,7 +32,6 @@ is far below the noise it leaves.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -42,18 +41,6 @@ from .path.frame import PassResult
 LUMA = (0.2126, 0.7152, 0.0722)
 #: ε of the relative error, in the beauty's radiance units: far below any lit pixel, so it only guards black.
 EPSILON = 1.0e-3
-
-
-@dataclass
-class AdaptivePass(PassResult):
-    """A pass that traced only some pixels: the sums are per pixel of the whole image (0 where not traced).
-
-    ``counts`` (H·W,) is each pixel's samples in this pass (``spp`` where traced, 0 elsewhere);
-    ``lum2`` (H·W,) the sum of its samples' squared luminance ΣY².
-    """
-
-    counts: np.ndarray | None = None
-    lum2: np.ndarray | None = None
 
 
 def default_min_spp(spp: int) -> int:
@@ -106,8 +93,9 @@ class Convergence:
         self.count = np.zeros(n)
         self.active = np.ones(n, bool)
 
-    def add(self, p: AdaptivePass) -> None:
-        """Add one pass's sums (ΣL gives ΣY, being linear)."""
+    def add(self, p: PassResult) -> None:
+        """Add one adaptive pass's sums (:meth:`~forest.render.path.PathScene.sample_pass` with ``pixels`` and
+        ``luma`` = :data:`LUMA`: its ``counts`` and ``lum2``); ΣL gives ΣY, being linear."""
         assert p.counts is not None and p.lum2 is not None
         self.sum_y += p.rgb @ np.asarray(LUMA)
         self.sum_y2 += p.lum2

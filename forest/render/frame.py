@@ -56,7 +56,6 @@ from .loop import PassCallback, frame_seed, render_frame
 from .materials import MaterialBuilder
 from .output import FrameImage
 from .path import PathScene
-from .path.aovs import frame_aovs
 from .path.frame import PassResult
 from .path.from_scene import path_camera, path_inputs
 from .post import apply_haze
@@ -249,7 +248,7 @@ class FrameRenderer:
     def post(self, rgb: np.ndarray, alpha: np.ndarray, layers: dict[str, np.ndarray], frame: float) -> np.ndarray:
         """Aerial perspective after the fact (:func:`forest.render.post.apply_haze`), along each pixel's camera
         ray, split between its geometry and its sky by the coverage."""
-        if self._path is None or self.config.render.haze <= 0:
+        if self._path is None or (self.config.render.haze <= 0 and self.config.render.valley_fog is None):
             return rgb
         camera = path_camera(self.config, frame, self.width, self.height)
         return apply_haze(rgb, alpha, layers["depth"], camera, self.config, self._path)
@@ -262,15 +261,5 @@ class FrameRenderer:
     def frame(self, frame: float, on_pass: PassCallback | None = None) -> FrameImage:
         """Render one frame (:func:`forest.render.loop.render_frame`); ``on_pass(image so far, passes done,
         passes in the frame)`` is called after every sample pass with the running mean of the frame's samples;
-        the comp AOVs of ``[render] aovs`` (all but the light groups) are attached to the image."""
-        image = render_frame(self, frame, on_pass)
-        image.aovs = frame_aovs(
-            self.aovs,
-            config=self.config,
-            instances=self.instances,
-            frame=frame,
-            normal=image.normal,
-            albedo=image.albedo,
-            layers=self._layers,
-        )
-        return image
+        the comp AOVs of ``[render] aovs`` (all but the light groups) come attached to the image."""
+        return render_frame(self, frame, on_pass)

@@ -24,6 +24,26 @@ if TYPE_CHECKING:
     from ..scene import Scene
 
 
+_SHEEN_WARNED = False
+
+
+def _warn_sheen_once() -> None:
+    """scalar_rgb renders leaves without their cuticle sheen: say so once per process."""
+    global _SHEEN_WARNED
+    if not _SHEEN_WARNED:
+        import warnings
+
+        from ..errors import ForestWarning
+
+        _SHEEN_WARNED = True
+        warnings.warn(
+            "scalar_rgb renders leaves without their cuticle sheen (leaf_sheen); forest_path "
+            "(llvm_ad_rgb, cuda_ad_rgb) renders it",
+            ForestWarning,
+            stacklevel=3,
+        )
+
+
 @dataclass
 class ForestGraph:
     """A forest as scene-dict entries plus what it cost."""
@@ -75,6 +95,8 @@ class ForestBuilder:
             bool(getattr(part, "tinted", False)),
             round(float(getattr(part, "translucency", 0.0) or 0.0), 6),
         )
+        if part.kind == "leaf" and float(getattr(part, "sheen", 0.0) or 0.0) > 0:
+            _warn_sheen_once()
         if key not in self._bsdf_ids:
             bid = f"bsdf_{len(self._bsdf_ids)}"
             self._bsdf_ids[key] = bid

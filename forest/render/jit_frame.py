@@ -34,15 +34,14 @@ import numpy as np
 from ..runtime import mitsuba
 from ..scene import Scene
 from ..wind import tree_matrices
-from .adaptive import LUMA, AdaptivePass, Convergence, chunks, default_min_spp, rounds_passes, schedule
+from .adaptive import LUMA, Convergence, chunks, default_min_spp, rounds_passes, schedule
 from .frame import FrameSize
 from .loop import PassCallback, frame_seed, render_frame
 from .output import FrameImage
 from .path import PathScene
-from .path.aovs import GroupSums, frame_aovs
-from .path.frame import PassResult, mi_bool, mi_float, pass_seed, pixel_sums, split_passes
+from .path.aovs import GroupSums
+from .path.frame import PassResult, pass_seed, split_passes
 from .path.from_scene import path_camera, path_inputs
-from .path.integrator import NO_HIT
 
 
 def _no_progress(_fraction: float, _step: str) -> None:
@@ -63,8 +62,7 @@ class PixelGroupSums(GroupSums):
         """Add one adaptive pass's group sums and its per-pixel counts."""
         for g, v in (p.groups or {}).items():
             self.sums[g] += v
-        counts = getattr(p, "counts", None)
-        self.counts += p.spp if counts is None else counts
+        self.counts += p.spp if p.counts is None else p.counts
 
     def end_subframe(self) -> None:
         """Fold the sub-frame's per-pixel means into the frame's and start the next sub-frame."""
@@ -119,7 +117,6 @@ class PathFrameRenderer:
         self._pose_key = self._key(inputs.levels, 1.0 / config.camera.fps)
         self.aovs = tuple(config.render.aovs)
         self._groups: GroupSums | None = None  # the light groups of the frame being rendered
-        self._layers: dict[str, np.ndarray] = {}
         rc = config.render
         self.noise_threshold = float(rc.noise_threshold)
         self.min_spp = default_min_spp(self.spp) if rc.min_spp is None else min(int(rc.min_spp), self.spp)
@@ -212,7 +209,16 @@ class PathFrameRenderer:
                     if len(pixels) == 0:
                         break
                 for part in chunks(pixels, s, self.path.max_lanes):
-                    p = self._adaptive_pass(kernel, camera, part, s, pass_seed(seed, k), groups is not None)
+                    p = self.path.sample_pass(
+                        kernel,
+                        camera,
+                        s,
+                        pass_seed(seed, k),
+                        pixels=part,
+                        aux=True,
+                        groups=groups is not None,
+                        luma=LUMA,
+                    )
                     k += 1
                     conv.add(p)
                     if groups is not None:
@@ -223,45 +229,6 @@ class PathFrameRenderer:
         if isinstance(groups, PixelGroupSums):
             groups.end_subframe()
 
-    def _adaptive_pass(
-        self, kernel: Any, camera: Any, part: np.ndarray, spp: int, seed: int, groups: bool
-    ) -> AdaptivePass:
-        """One pass of ``spp`` samples through each pixel of ``part`` (row-major indices), as whole-image sums."""
-        import drjit as dr
-
-        mi = self.path.mi
-        m, n = len(part), self.width * self.height
-        sampler, ray, used = self.path._camera_rays(camera, spp, seed, pixels=mi.UInt32(part.astype(np.uint32)))
-        out = kernel.sample(dr.ADMode.Primal, sampler, ray, None, None, mi_bool(mi, True), aux=True, groups=groups)
-        L, covered = out[0], mi_float(mi, out[1])
-        extra = dict(out[3])
-        split = extra.pop("groups", {})
-        y = L[0] * LUMA[0] + L[1] * LUMA[1] + L[2] * LUMA[2]
-        dr.eval(L, covered, y, *extra.values(), *split.values())  # one kernel for all outputs
-
-        def full(a: np.ndarray) -> np.ndarray:
-            z = np.zeros((n, *a.shape[1:]), a.dtype)
-            z[part] = a
-            return z
-
-        rows = np.full((n, used), NO_HIT, np.uint32)
-        rows[part] = np.asarray(extra["row"], np.uint32).reshape(m, used)
-        counts = np.zeros(n)
-        counts[part] = used
-        result = AdaptivePass(
-            spp=used,
-            rgb=full(pixel_sums(mi, L, used, m)),
-            alpha=full(pixel_sums(mi, covered, used, m)),
-            rows=rows,
-            albedo=full(pixel_sums(mi, extra["albedo"], used, m)),
-            normal=full(pixel_sums(mi, extra["normal"], used, m)),
-            counts=counts,
-            lum2=full(pixel_sums(mi, y * y, used, m)),
-        )
-        if split:
-            result.groups = {g: full(pixel_sums(mi, v, used, m)) for g, v in split.items()}
-        return result
-
     def first_hits(self, frame: float, levels: np.ndarray) -> Iterator[PassResult]:
         """First hits at the frame's centre (the loop needs none: :meth:`samples` carries them)."""
         self._pose(levels, frame / self.config.camera.fps)
@@ -271,8 +238,7 @@ class PathFrameRenderer:
     def layers(self, frame: float, levels: np.ndarray) -> dict[str, np.ndarray]:
         """Depth, id and species through the pixel centres at the frame's centre pose."""
         self._pose(levels, frame / self.config.camera.fps)
-        self._layers = self.path.layers(path_camera(self.config, frame, self.width, self.height))
-        return self._layers
+        return self.path.layers(path_camera(self.config, frame, self.width, self.height))
 
     def post(
         self,
@@ -291,20 +257,11 @@ class PathFrameRenderer:
 
     def frame(self, frame: float, on_pass: PassCallback | None = None) -> FrameImage:
         """Render one frame (:func:`forest.render.loop.render_frame`); ``on_pass`` sees the running mean after
-        every pass; its comp AOVs (``[render] aovs``) are attached to the image."""
+        every pass; its comp AOVs (``[render] aovs``, light groups included) come attached to the image."""
         sums = PixelGroupSums if self.noise_threshold > 0.0 else GroupSums
         self._groups = sums(self.width * self.height) if "lightgroups" in self.aovs else None
         self.samples_traced = 0.0
-        image = render_frame(self, frame, on_pass)
-        image.aovs = frame_aovs(
-            self.aovs,
-            config=self.config,
-            instances=self.instances,
-            frame=frame,
-            normal=image.normal,
-            albedo=image.albedo,
-            layers=self._layers,
-            groups=self._groups,
-        )
-        self._groups = None
-        return image
+        try:
+            return render_frame(self, frame, on_pass, self._groups)
+        finally:
+            self._groups = None

@@ -28,9 +28,13 @@ only poses its scene and traces.  Per frame f (time t = f / fps seconds):
    the backend traces them (forest_path), else from a pass of their own
    (:meth:`Backend.first_hits`); one ray through each pixel centre gives
    ``depth``, ``id`` and ``species`` (:meth:`Backend.layers`);
-5. :meth:`Backend.post` finishes the beauty (``scalar_rgb``'s haze), and
-   ``--preview`` denoises it guided by the albedo and normal
-   (:func:`forest.imaging.denoise`).
+5. :meth:`Backend.post` finishes the beauty (``scalar_rgb``'s haze), and Open Image Denoise cleans it,
+   guided by the albedo and normal (:func:`forest.imaging.denoise`), where ``[render] denoise`` says so
+   (:func:`forest.imaging.denoise.denoise_rule`: ``--preview``, ``true``, or ``"auto"`` at spp ≤
+   :data:`~forest.imaging.denoise.AUTO_MAX_SPP`);
+6. the comp AOVs of ``[render] aovs`` (:func:`forest.render.path.aovs.frame_aovs`) are attached: N and
+   albedo from the first hits, P and motion from the pixel-centre layers, the light groups from the
+   backend's sums of the beauty's passes (forest_path only).
 """
 
 from __future__ import annotations
@@ -44,9 +48,11 @@ import numpy as np
 
 from ..camera import camera_at, subframe_times
 from ..imaging import denoise
+from ..imaging.denoise import denoise_rule
 from ..scene import Scene
 from .coverage import SampleCoverage, frame_mattes, sample_ids
 from .output import FrameImage
+from .path.aovs import GroupSums, frame_aovs
 from .path.frame import PassResult
 from .path.integrator import NO_HIT
 
@@ -140,7 +146,7 @@ class FirstHits:
         self.alpha += p.alpha
         self.albedo += p.albedo
         self.normal += p.normal
-        counts = getattr(p, "counts", None)
+        counts = p.counts
         if counts is None:
             self.samples += p.spp
             return
@@ -170,7 +176,7 @@ class Beauty:
     def add(self, p: PassResult) -> None:
         """Add one pass's sums."""
         self.rgb += p.rgb
-        counts = getattr(p, "counts", None)
+        counts = p.counts
         if counts is None:
             self.samples += p.spp
         else:
@@ -198,8 +204,11 @@ class Beauty:
         return (self.means + self._sub_mean()) / (self.subframes + 1)
 
 
-def render_frame(backend: Backend, frame: float, on_pass: PassCallback | None = None) -> FrameImage:
-    """Render one frame with ``backend`` by the recipe of the module docstring."""
+def render_frame(
+    backend: Backend, frame: float, on_pass: PassCallback | None = None, groups: GroupSums | None = None
+) -> FrameImage:
+    """Render one frame with ``backend`` by the recipe of the module docstring; ``groups``: the light-group sums
+    the backend's passes fill (None: no light groups)."""
     scene = backend.scene
     config, cam = scene.config, scene.config.camera
     w, h = backend.width, backend.height
@@ -237,7 +246,7 @@ def render_frame(backend: Backend, frame: float, on_pass: PassCallback | None = 
     albedo, normal = hits.image(hits.albedo, 3), hits.image(hits.normal, 3)
     rgb = backend.post(beauty.image().reshape(h, w, 3).astype(np.float32), alpha, layers, frame)
     denoised = False
-    if backend.preview or config.render.denoise:
+    if denoise_rule(config.render.denoise, backend.spp, preview=backend.preview)[0]:
         d = denoise(rgb, albedo, normal)
         if d is not None:
             rgb, denoised = d, True
@@ -253,4 +262,14 @@ def render_frame(backend: Backend, frame: float, on_pass: PassCallback | None = 
         albedo=albedo,
         normal=normal,
         denoised=denoised,
+        aovs=frame_aovs(
+            config.render.aovs,
+            config=config,
+            instances=scene.instances,
+            frame=frame,
+            normal=normal,
+            albedo=albedo,
+            layers=layers,
+            groups=groups,
+        ),
     )

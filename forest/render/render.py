@@ -26,6 +26,7 @@ import numpy as np
 from ..config import Config
 from ..errors import ParameterError
 from ..frames import frame_path, parse_frames, still_path
+from ..imaging.denoise import denoise_rule
 from ..scene import Scene
 from .frame import FrameRenderer, FrameSize
 from .jit_frame import PathFrameRenderer
@@ -65,9 +66,11 @@ class RenderResult:
     leaf_model: str = ""
     lod_rule: str = ""  # the rule that chose the levels (:meth:`forest.lod.LodPlan.describe`)
     gpu_peak_gb: float | None = None  # cuda_ad_rgb: drjit's peak device memory (its allocator's watermark)
+    denoise_rule: str = ""  # why the frames were (not) denoised (:func:`forest.imaging.denoise.denoise_rule`)
 
     def summary(self) -> str:
-        """One line: trees, instanced and unique triangles, times, peak memory, and the levels and their rule."""
+        """One line: trees, instanced and unique triangles, times, peak memory, the levels and their rule, and
+        whether ``[render] denoise`` denoised the frames and why (``"auto"`` says so when it stayed off)."""
         frames = f"{len(self.frames)} frames" if len(self.frames) > 1 else "1 frame"
         lod = ""
         if self.lod_counts:
@@ -80,6 +83,7 @@ class RenderResult:
             f"render {self.render_seconds:.1f} s, peak {self.peak_memory_gb:.2f} GB"
             + (f" (GPU {self.gpu_peak_gb:.2f} GB)" if self.gpu_peak_gb is not None else "")
             + lod
+            + (f"; {'' if self.denoised else 'not '}denoised ({self.denoise_rule})" if self.denoise_rule else "")
         )
 
 
@@ -328,5 +332,6 @@ def render_scene(
         lod_counts=r.lod_counts,
         lod_rule=scene.lod.describe(),
         denoised=denoised,
+        denoise_rule="" if preview else denoise_rule(config.render.denoise, size.spp)[1],
         leaf_model=r.leaf_model,
     )

@@ -164,7 +164,7 @@ def check_render_inputs(config: Config) -> None:
     if sky is not None and sky.kind == "envmap":
         _envmap(config, "scalar_rgb")
     read_terrain_texture(config)
-    if config.render.denoise:
+    if config.render.denoise is True:  # "auto" turns itself off without pyoidn
         try:
             import pyoidn  # noqa: F401 - only whether it is there
         except ImportError:
@@ -431,6 +431,13 @@ def terrain_reflectance(
 
     grid = np.asarray(albedo.rgb, np.float32)
     extent = tuple(float(v) for v in albedo.extent)
+    if albedo.water is not None:  # water is forest_path's (forest.ground); here the ground keeps its painted colour
+        import warnings
+
+        from ..errors import ForestWarning
+
+        warnings.warn(f"[ground] water: not rendered in {variant} (Mitsuba's own integrator has no water surface; "
+                      "forest_path renders it): the water shows its colour", ForestWarning, stacklevel=2)  # fmt: skip
     if tint is not None and not np.all(np.asarray(tint) == 1.0):
         grid = (grid * np.asarray(tint, np.float32).reshape(3)).astype(np.float32)
     if grid.shape[0] * grid.shape[1] == 1:

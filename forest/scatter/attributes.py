@@ -6,10 +6,12 @@ For a tree drawn as candidate i of species k:
   it is > 0 (street-aligned buildings);
 * scale = lo_k + (hi_k − lo_k)·s with the species' ``scale = [lo, hi]`` and
   s = ξ_scale[i] uniform, or the survival rule's size in [0, 1] (the
-  ecosystem's r / R);
+  ecosystem's r / R), times an emergent's factor where ``[scatter]
+  emergents`` selects the tree (:func:`forest.scatter.canopy.emergent_factors`);
 * wind phase 2π·ξ_phase[i];
 * individual ⌊n_k·ξ_individual[i]⌋ with n_k the species' ``individuals``
-  (:attr:`forest.config.schema.SpeciesConfig.individual_count`);
+  (:attr:`forest.config.schema.SpeciesConfig.individual_count`), plus n_k for a
+  snag (ξ_dead[i] < the species' ``dead``, :mod:`forest.scatter.canopy`);
 * tint: the colour map's tint (mean 1, :func:`forest.maps.colour_tint_grid`)
   at the tree's stored (float32) position, bilinear in linear light, with the
   tree's hue/value jitter (:func:`forest.tint.tree_tints`) — the same
@@ -36,6 +38,7 @@ from ..maps import MapSet
 from ..terrain import Terrain
 from ..tint import TintParams
 from .candidates import Candidates
+from .canopy import emergent_factors
 
 
 def snap_yaw(yaw: np.ndarray, step_deg: np.ndarray) -> np.ndarray:
@@ -61,8 +64,12 @@ def tree_attributes(
     rng: dict[str, np.random.Generator],
     meta: dict[str, Any],
     tints: TintParams,
+    dead: np.ndarray | None = None,
 ) -> InstanceSet:
-    """The InstanceSet of the surviving candidates ``trees`` (rows in candidate order = sorted ids)."""
+    """The InstanceSet of the surviving candidates ``trees`` (rows in candidate order = sorted ids).
+
+    ``dead`` (per species, default none) is each species' share of snags.
+    """
     species = config.species
     n = config.scatter.count
     sel = trees.index
@@ -70,21 +77,27 @@ def tree_attributes(
     yaw = rng["yaw"].random(n)[sel] * (2 * np.pi)
     scale_xi = rng["scale"].random(n)[sel]
     phase = rng["phase"].random(n)[sel] * (2 * np.pi)
-    individual = draw_individuals(
-        rng["individual"].random(n)[sel], np.array([sp.individual_count for sp in species])[k]
-    )
+    n_ind = np.array([sp.individual_count for sp in species])[k]
+    individual = draw_individuals(rng["individual"].random(n)[sel], n_ind)
+    if dead is not None and (dead > 0).any():
+        snags = rng["dead"].random(n)[sel] < dead[k]
+        individual = np.where(snags, individual + n_ind, individual).astype(np.uint8)
     position = trees.position.astype(np.float32)
     s = scale_xi if size is None else size
     yaw = snap_yaw(yaw, np.array([sp.yaw_step for sp in species])[k])
     lo = np.array([sp.scale[0] for sp in species])[k]
     hi = np.array([sp.scale[1] for sp in species])[k]
+    scale = lo + (hi - lo) * s
+    emergents = config.scatter.emergents
+    if emergents.fraction > 0:
+        scale = scale * emergent_factors(emergents, rng["emergent"].random((2, n))[:, sel])
     align = np.array([config.scatter.align_to_normal if sp.align is None else sp.align for sp in species])[k]
     return InstanceSet(
         id=sel.astype(np.uint64),
         position=position,
         rotation=yaw_tilt_quaternion(yaw, trees.normal, align),
         yaw=yaw,
-        scale=lo + (hi - lo) * s,
+        scale=scale,
         species=k,
         tint=tints.tints(maps.tint_at(position[:, 0], position[:, 2], terrain.extent), k, sel),
         partition=maps.partition_at(trees.u, trees.v),

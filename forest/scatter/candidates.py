@@ -11,7 +11,8 @@ meets these rules in order; the first that fails rejects it:
 stage           a candidate at map coordinates (u, v) is rejected when
 ==============  ===============================================================
 presence        the presence map's nearest pixel is below the threshold
-density         its uniform draw ξ_d ≥ the density map's bilinear value
+density         its uniform draw ξ_d ≥ the density map's bilinear value times the
+                stand factor of ``[scatter] clumping`` (:mod:`forest.scatter.canopy`)
 empty ground    its species draw ξ_s·100 falls past Σ percent (unclaimed ground)
 partition       its species lists ``partitions`` and the region under it is not one
 slope           the terrain slope θ = arccos(n_y) is outside [slope_min, slope_max]
@@ -38,10 +39,11 @@ import numpy as np
 from ..config import Config, SpeciesConfig
 from ..maps import MapSet
 from ..terrain import Terrain
+from .canopy import clumping_density, clumping_on
 
 #: One stream per quantity, in this order for good: a new quantity is appended at the end, so the
 #: streams before it (and every existing tree's position, yaw, scale, phase) stay as they were.
-STREAMS = ("position", "density", "species", "yaw", "scale", "phase", "individual")
+STREAMS = ("position", "density", "species", "yaw", "scale", "phase", "individual", "emergent", "dead")
 TAG = 0x5CA77E2
 SHARED_STAGES = ("presence", "density", "empty ground", "partition", "slope", "altitude")
 SPECIES_STAGES = ("partition", "slope", "altitude")  # stages reported per species
@@ -175,9 +177,16 @@ def candidates(
     keep = maps.present(mu, mv)
     fate[~keep] = code["presence"]
     d_xi = rng["density"].random(n)
-    if maps.density is not None:
+    clump = config.scatter.clumping
+    if maps.density is not None or clumping_on(clump):
         live = np.flatnonzero(keep)
-        thinned = live[~density_keeps(maps, mu[live], mv[live], d_xi[live])]
+        if clumping_on(clump):
+            rho = clumping_density(clump, terrain.extent, config.seed, position[live, 0], position[live, 2])
+            if maps.density is not None:
+                rho = rho * maps.density_at(mu[live], mv[live])
+            thinned = live[~(d_xi[live] < rho)]
+        else:
+            thinned = live[~density_keeps(maps, mu[live], mv[live], d_xi[live])]
         fate[thinned] = code["density"]
         keep[thinned] = False
 

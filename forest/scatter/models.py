@@ -19,6 +19,7 @@ from ..config.schema import GroundCoverConfig, SpeciesConfig
 from ..errors import ConfigError, ForestError
 from ..library import Library, Species
 from ..library.individuals import individual_seed
+from .canopy import has_leaves, snag
 
 
 def model_settings(config: Config) -> list[SpeciesConfig | GroundCoverConfig]:
@@ -84,9 +85,17 @@ def model_individuals(
 def resolve_individuals(
     config: Config, library: Library, species: tuple[Species, ...]
 ) -> tuple[tuple[Species, ...], ...]:
-    """Per species index, its individuals (element 0 is ``species[s]``); see :func:`model_individuals`."""
+    """Per species index, its individuals (element 0 is ``species[s]``); see :func:`model_individuals`.
+
+    A ``[[species]]`` with ``dead`` > 0 and leaf parts has its n individuals followed by their n
+    snags (:func:`forest.scatter.canopy.snag`): a snag's ``individual`` is n + k.
+    """
     settings = model_settings(config)
-    return tuple(
-        model_individuals(library, s.model, species[i], s.individual_count, model_field(config, i), config)
-        for i, s in enumerate(settings)
-    )
+    out = []
+    for i, s in enumerate(settings):
+        ind = model_individuals(library, s.model, species[i], s.individual_count, model_field(config, i), config)
+        if getattr(s, "dead", 0.0) > 0 and has_leaves(species[i]):
+            alive = tuple(ind[k % len(ind)] for k in range(s.individual_count))  # as many as scatter drew from
+            ind = alive + tuple(snag(sp) for sp in alive)
+        out.append(ind)
+    return tuple(out)

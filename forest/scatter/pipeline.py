@@ -10,7 +10,9 @@
    ``ecosystem`` (growth, competition, self-thinning, then ``min_distance``
    thinning with the strongest plants first);
 3. :func:`~forest.scatter.attributes.tree_attributes` — yaw, scale, phase,
-   individual, tint, partition and orientation of the survivors;
+   individual, tint, partition and orientation of the survivors (with the
+   emergents and snags of :mod:`forest.scatter.canopy`; its stands and
+   clearings thin candidates in step 1's density stage);
 4. :func:`~forest.scatter.ground_cover.scatter_ground_cover` — the
    ``[[ground_cover]]`` plants near the camera path, appended as rows of
    their own species (:mod:`forest.scatter.models`);
@@ -38,6 +40,7 @@ from ..terrain import Terrain, load_terrain
 from ..tint import tint_params
 from .attributes import tree_attributes
 from .candidates import SHARED_STAGES, SPECIES_STAGES, Progress, candidates, no_progress, random_streams
+from .canopy import dead_fractions
 from .ecosystem import ecosystem_rule
 from .ground_cover import CoverResult, scatter_ground_cover
 from .models import model_settings, resolve_models, scatter_models
@@ -69,7 +72,9 @@ def scatter(
         from ..library import open_library
 
         library = open_library()
-    tints = tint_params(model_settings(config), resolve_models(config, library), config.seed)
+    models = resolve_models(config, library)
+    tints = tint_params(model_settings(config), models, config.seed)
+    dead = dead_fractions([sp.dead for sp in config.species], models)
     step(0.15, "maps")
     maps = MapSet(config)
     inputs = input_hashes(config)
@@ -93,7 +98,7 @@ def scatter(
         meta["ground_cover"] = digest
     alive = survival.alive
     trees = cand if alive.all() else cand.subset(alive)
-    inst = tree_attributes(trees, survival.size, config, terrain, maps, rng, meta, tints)
+    inst = tree_attributes(trees, survival.size, config, terrain, maps, rng, meta, tints, dead)
     names = list(inst.species_names)
     rejected, by_species = tally(fate, species_draw, stages, SPECIES_STAGES + survival.stages, names)
     counts = inst.counts()

@@ -159,7 +159,9 @@ class PassResult:
 
     ``rows`` (H·W, spp) is the row of the surface each sample's camera ray met
     first (a tree row < N, the identity row N for world-space parts) or
-    :data:`~forest.render.path.integrator.NO_HIT`.
+    :data:`~forest.render.path.integrator.NO_HIT`.  A pass that traced only some pixels (adaptive sampling,
+    :meth:`PathScene.sample_pass` with ``pixels``) has ``counts``: its sums are still per pixel of the whole
+    image, 0 where it traced nothing.
     """
 
     spp: int
@@ -170,6 +172,8 @@ class PassResult:
     normal: np.ndarray | None = None  # (H·W, 3) summed
     segments: np.ndarray | None = None  # (H·W, spp) uint32: ray segments each path traced (beauty passes only)
     groups: dict[str, np.ndarray] | None = None  # light group → (H·W, 3) summed; Σ groups = rgb (``groups=True``)
+    counts: np.ndarray | None = None  # (H·W,) samples per pixel when only some pixels were traced (adaptive), else None
+    lum2: np.ndarray | None = None  # (H·W,) Σ of the samples' squared luminance Y² (adaptive sampling's error)
 
 
 @dataclass
@@ -218,7 +222,7 @@ class PathScene:
                 haze = replace(haze, colour=tuple(float(c) for c in sky_mean_radiance(self.lights)))
             self.haze = haze
             self.params.update(HazeModel.initial_params(mi, haze))
-        tc = np.asarray(inputs.terrain_colour, dtype=np.float32)
+        tc = inputs.terrain_map_array()  # RGB, and the water coverage as a fourth channel where there is water
         terrain_extent = inputs.terrain_extent or self.extent
         self.terrain_map = (
             (world_map_texture(mi, tc), tuple(float(v) for v in terrain_extent)) if tc.ndim == 3 else None
@@ -320,7 +324,7 @@ class PathScene:
         if self.haze is not None:
             # A haze of density 0 costs nothing unless its parameters are being differentiated.
             attached = any(dr.grad_enabled(self.params[k]) for k in HazeModel.PARAMS)
-            if attached or float(np.asarray(self.params["haze_density"]).ravel()[0]) > 0.0:
+            if attached or self.haze.fog is not None or float(np.asarray(self.params["haze_density"]).ravel()[0]) > 0.0:
                 haze = HazeModel(mi, self.haze, self.params, lights.sun())
         return PathKernel(
             mi,
@@ -334,6 +338,7 @@ class PathScene:
             max_depth=int(self.inputs.max_depth if max_depth is None else max_depth),
             rr_depth=int(self.inputs.rr_depth),
             haze=haze,
+            water_ripple=None if self.inputs.terrain_water is None else float(self.inputs.water_ripple),
         )
 
     def integrator(self, *, max_depth: int | None = None) -> Any:
@@ -403,7 +408,7 @@ class PathScene:
         """Render the beauty pass by pass (primal only): one :class:`PassResult` per sample pass.
 
         Pass k traces ``split_passes(...)[k]`` samples per pixel seeded with
-        :func:`pass_seed` (seed, k), so the passes of a render are the same
+        :func:`pass_seed` (seed, k) (:meth:`sample_pass`), so the passes of a render are the same
         whether they are consumed one by one or summed by :meth:`render`.
         ``aux`` also returns each sample's first hit (row), albedo and normal; ``groups`` (with ``aux``)
         the beauty split by light group (:meth:`PathKernel.sample`): ``rgb`` = Σ ``groups`` per pixel up to
@@ -418,29 +423,74 @@ class PathScene:
         kernel = self.kernel(max_depth=max_depth)
         with dr.suspend_grad():
             for k, n in enumerate(split_passes(w, h, spp, self.max_lanes)):
-                sampler, ray, used = self._camera_rays(camera, n, pass_seed(seed, k))
-                out = kernel.sample(
-                    dr.ADMode.Primal, sampler, ray, None, None, mi_bool(self.mi, True), aux=aux, groups=groups
-                )
-                L, covered = out[0], mi_float(self.mi, out[1])
-                extra = dict(out[3]) if aux else {}
-                split = extra.pop("groups", {})
-                dr.eval(L, covered, *extra.values(), *split.values())  # one kernel for all outputs
-                # Per-pixel sums on the device: only pixels, not samples, cross to the host (ids excepted).
-                result = PassResult(
-                    spp=used,
-                    rgb=pixel_sums(self.mi, L, used, h * w),
-                    alpha=pixel_sums(self.mi, covered, used, h * w),
-                )
-                if aux:
-                    result.rows = np.asarray(extra["row"], np.uint32).reshape(h * w, used)
-                    result.albedo = pixel_sums(self.mi, extra["albedo"], used, h * w)
-                    result.normal = pixel_sums(self.mi, extra["normal"], used, h * w)
-                    result.segments = np.asarray(extra["segments"], np.uint32).reshape(h * w, used)
-                if split:
-                    result.groups = {g: pixel_sums(self.mi, v, used, h * w) for g, v in split.items()}
-                del sampler, ray, out, L, covered, extra, split
-                yield result
+                yield self.sample_pass(kernel, camera, n, pass_seed(seed, k), aux=aux, groups=groups)
+
+    def sample_pass(
+        self,
+        kernel: PathKernel,
+        camera: PathCamera,
+        spp: int,
+        seed: int,
+        *,
+        pixels: np.ndarray | None = None,
+        aux: bool = False,
+        groups: bool = False,
+        luma: tuple[float, float, float] | None = None,
+    ) -> PassResult:
+        """One sample pass of ``kernel``: ``spp`` samples through every pixel, or only through ``pixels``
+        (row-major indices, adaptive sampling), seeded ``seed``; call it under ``dr.suspend_grad()``.
+
+        The sums are per pixel of the whole image either way: with ``pixels`` the untraced pixels' sums are 0,
+        their ``rows`` :data:`NO_HIT`, and ``counts`` holds each pixel's samples (``spp`` used where traced,
+        0 elsewhere).  ``luma`` = (w_R, w_G, w_B) also sums each sample's squared luminance
+        Y² = (w_R R + w_G G + w_B B)² into ``lum2`` (the second moment of adaptive sampling's error estimate).
+        ``aux`` and ``groups`` as in :meth:`passes`.
+        """
+        import drjit as dr
+
+        mi = self.mi
+        n = int(camera.width) * int(camera.height)
+        m = n if pixels is None else len(pixels)
+        lanes = None if pixels is None else mi.UInt32(np.asarray(pixels, np.uint32))
+        sampler, ray, used = self._camera_rays(camera, spp, seed, pixels=lanes)
+        out = kernel.sample(dr.ADMode.Primal, sampler, ray, None, None, mi_bool(mi, True), aux=aux, groups=groups)
+        L, covered = out[0], mi_float(mi, out[1])
+        extra = dict(out[3]) if aux else {}
+        split = extra.pop("groups", {})
+        moments = [] if luma is None else [L[0] * luma[0] + L[1] * luma[1] + L[2] * luma[2]]
+        dr.eval(L, covered, *moments, *extra.values(), *split.values())  # one kernel for all outputs
+
+        # Per-pixel sums on the device: only pixels, not samples, cross to the host (ids excepted).
+        def sums(value: Any) -> np.ndarray:
+            a = pixel_sums(mi, value, used, m)
+            if pixels is None:
+                return a
+            full = np.zeros((n, *a.shape[1:]), a.dtype)
+            full[pixels] = a
+            return full
+
+        def per_sample(value: Any, fill: int) -> np.ndarray:
+            a = np.asarray(value, np.uint32).reshape(m, used)
+            if pixels is None:
+                return a
+            full = np.full((n, used), fill, np.uint32)
+            full[pixels] = a
+            return full
+
+        result = PassResult(spp=used, rgb=sums(L), alpha=sums(covered))
+        if aux:
+            result.rows = per_sample(extra["row"], NO_HIT)
+            result.albedo = sums(extra["albedo"])
+            result.normal = sums(extra["normal"])
+            result.segments = per_sample(extra["segments"], 0)
+        if split:
+            result.groups = {g: sums(v) for g, v in split.items()}
+        if moments:
+            result.lum2 = sums(moments[0] * moments[0])
+        if pixels is not None:
+            result.counts = np.zeros(n)
+            result.counts[pixels] = used
+        return result
 
     def render(
         self,

@@ -22,7 +22,7 @@ from ...scene import Scene
 from ...skirt import skirt_radius
 from ...wind import tree_matrices
 from .ground import ground_look
-from .haze import HazeInputs
+from .haze import FogLayer, HazeInputs
 from .inputs import PathCamera, PathInputs, SkyLight, SunLight
 
 if TYPE_CHECKING:
@@ -91,15 +91,21 @@ def path_lights_clouded(lights: Lights) -> tuple[SunLight | None, SkyLight | Non
 
 
 def haze_inputs(config: Config, terrain: Terrain) -> HazeInputs | None:
-    """``[render] haze`` & co as :class:`HazeInputs` (None when ``haze`` is 0): the ground is the terrain's
+    """``[render] haze`` & co as :class:`HazeInputs` (None when ``haze`` is 0 and no ``valley_fog``): the ground is the terrain's
     lowest point; a camera ray that leaves the scene is hazed up to the end of the ground (the skirt's
     radius, else the far clip)."""
     rc = config.render
-    if rc.haze <= 0:
+    if rc.haze <= 0 and rc.valley_fog is None:
         return None
     far = float(config.camera.far)
     distance = skirt_radius(terrain.extent, far) if rc.horizon_ground else far
+    vf = rc.valley_fog
+    fog = None
+    if vf is not None:
+        top = float(vf.top) + (0.0 if vf.absolute else float(terrain.height_range[0]))
+        fog = FogLayer(density=float(vf.density), top=top, falloff=float(vf.falloff))
     return HazeInputs(
+        fog=fog,
         density=float(rc.haze),
         height=float(rc.haze_height),
         colour=None if rc.haze_colour is None else tuple(float(c) for c in rc.haze_colour),
@@ -177,6 +183,8 @@ def path_inputs(
         leaf_tint=scene.leaf_tint if config.lookdev.leaf_tint else None,
         lod_setting={"pixels": "pixels", "off": "auto"}.get(scene.lod.mode, "distances"),
         ground_tint=tuple(float(x) for x in scene.ground_tint),
+        terrain_water=look.water,
+        water_ripple=float(config.model.ground.water_ripple),
     )
 
 

@@ -8,6 +8,11 @@ horizon_ground`` the grid is padded to fade to its mean colour on the skirt
 (:func:`forest.skirt.fade_beyond_edge`).  The fitted ``ground_tint`` is not
 folded in here: forest_path applies it as a parameter, which look-dev
 differentiates.
+
+The water coverage W (``TerrainAlbedo.water``, None without water rules) rides
+along on the same texels; past the terrain's edge it fades to 0 with the same
+smoothstep as the colour (W(d) = (1 − s(d/P))·W_edge), so a river that reaches
+the edge ends on the skirt instead of running to the horizon.
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ class GroundLook:
     extent: tuple[float, float, float, float]
     detail: np.ndarray | Path | None = None
     detail_tile: float = 1.0
+    water: np.ndarray | None = None  # (H, W) water coverage over ``extent``, or None
 
 
 def ground_look(scene: Scene) -> GroundLook:
@@ -45,12 +51,31 @@ def ground_look(scene: Scene) -> GroundLook:
     grid = np.asarray(albedo.rgb, np.float32)
     xmin, zmin, xmax, zmax = (float(v) for v in albedo.extent)
     extent = (xmin, zmin, xmax, zmax)
+    water = None if albedo.water is None else np.asarray(albedo.water, np.float32)
     if scene.config.render.horizon_ground:
-        grid, extent = fade_beyond_edge(grid, extent)
+        faded, extent = fade_beyond_edge(grid, extent)
+        if water is not None:
+            water = fade_to_zero(water, faded.shape[:2])
+        grid = faded
     tile = float(albedo.detail_tile_m or 0.0)
     if albedo.detail is None or tile <= 0:
-        return GroundLook(grid, extent)
-    return GroundLook(grid, extent, albedo.detail, tile)
+        return GroundLook(grid, extent, water=water)
+    return GroundLook(grid, extent, albedo.detail, tile, water)
+
+
+def fade_to_zero(water: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """The (H, W) coverage padded to ``shape`` (P texels more on every side, as
+    :func:`forest.skirt.fade_beyond_edge` pads the colour), fading from the clamped edge to 0."""
+    h, w = water.shape
+    p = (int(shape[0]) - h) // 2
+    if p <= 0:
+        return water
+    padded = np.pad(water, p, mode="edge")
+    rows, cols = np.arange(h + 2 * p), np.arange(w + 2 * p)
+    dr = np.maximum(np.maximum(p - rows, rows - (h + p - 1)), 0)
+    dc = np.maximum(np.maximum(p - cols, cols - (w + p - 1)), 0)
+    t = np.clip(np.maximum(dr[:, None], dc[None, :]) / p, 0.0, 1.0)
+    return ((1.0 - t * t * (3.0 - 2.0 * t)) * padded).astype(np.float32)
 
 
 def detail_rgb(detail: np.ndarray | Path | str) -> np.ndarray:

@@ -44,6 +44,46 @@ Shadow rays and bounce rays that reach the sky are not hazed — sun and sky are
 defined as the light arriving at the ground — which keeps next-event
 estimation and BSDF sampling estimating the same integral.
 
+Visibility.  ``[render] visibility`` V (km) sets σ₀ by Koschmieder's law
+(Koschmieder 1924; WMO meteorological optical range at a 2 % contrast threshold):
+a black object at distance V keeps 2 % contrast against the horizon sky,
+e^(−σ₀ V) = 0.02, so
+
+    σ₀ = −ln(0.02) / V = 3.912 / V                                    (:func:`density_from_visibility`)
+
+Clear air is V ≈ 20–50 km, light haze 10–20 km, haze 4–10 km, mist 1–2 km.
+
+The sky through the haze.  A camera ray that escapes runs up to ``sky_distance``
+(≥ 30 km with the ground skirt), so toward an elevation θ above the horizon it
+crosses the whole column: τ_sky(θ) ≈ σ₀ H / sin θ (the ``ℓ → ∞`` limit of τ(ℓ)
+above, the camera near the ground).  At the zenith τ = σ₀ H = 3.912 H / V: the
+optical depth of the column grows with H, and (1 − T) of the sky's own colour is
+replaced by C, the sky's *mean* — a greyer, brighter blue.  The sky model (Hosek–Wilkie,
+turbidity) already contains the real atmosphere's aerosol, so the haze here
+stands only for the air in and near the scene: a shallow layer.  The default
+H = 150 m keeps the demo's sky (looking up 25°, from 95 m) at 93 % of its clear HSV saturation at V = 12 km
+(600 m, the former default: 61 %; hue unchanged, 215°; measured in ``bench/bench_atmosphere.py``,
+``tests/test_atmosphere.py``).  The price: the haze thins faster with height, so a
+camera high above the valley sees less of it — a level ray at height h meets
+σ₀·e^(−h/H); give a larger ``haze_height`` for a deep haze layer (a sky that greys).
+
+Valley fog (optional, ``[render] valley_fog``).  A second layer that pools in
+low ground: constant extinction ρ up to a height y_t (the fog's ``top``) and
+exponential above it with its own scale height F (the ``falloff``):
+
+    σ_f(y) = ρ · min(1, exp(−(y − y_t) / F))
+
+Its optical depth along the segment is in closed form (:func:`fog_depth_np`): the
+part of the segment below y_t (length ℓ_b, from the crossing s_c = (y_t − o_y)/d_y)
+contributes ρ·ℓ_b, and the part above (length ℓ_a, lowest point y_lo) the
+exponential integral taken upward from its lowest point,
+
+    τ_f = ρ · (ℓ_b + ℓ_a · e^(−(y_lo − y_t)/F) · φ(ℓ_a·|d_y| / F)),
+
+which is stable for any height (φ's argument is ≥ 0).  The fog scatters the
+same light as the haze (J above; one phase function and source for both), so the
+two media add: T = exp(−τ − τ_f) and L_in = (1 − T)·J stay exact.
+
 The same formulas in numpy (:func:`transmittance_np`, :func:`source_np`) serve
 the ``scalar_rgb`` renderer's post-process, so both renderers share one model.
 """
@@ -64,6 +104,39 @@ if TYPE_CHECKING:
 SERIES_BELOW = 1e-3
 #: Largest −x passed to exp in φ (beyond it the segment is opaque anyway).
 MAX_NEG_EXPONENT = 60.0
+#: −ln(0.02): Koschmieder's constant (a 2 % contrast threshold), σ₀ = KOSCHMIEDER / V.
+KOSCHMIEDER = 3.912
+
+
+def density_from_visibility(visibility_km: float) -> float:
+    """σ₀ (1/m) of a meteorological visibility V (km): σ₀ = 3.912 / (1000 V) (Koschmieder 1924)."""
+    return KOSCHMIEDER / (1000.0 * float(visibility_km))
+
+
+def visibility_from_density(density: float) -> float:
+    """V (km) of a ground extinction σ₀ (1/m): V = 3.912 / (1000 σ₀); infinite for σ₀ = 0."""
+    return math.inf if density <= 0.0 else KOSCHMIEDER / (1000.0 * float(density))
+
+
+@dataclass(frozen=True)
+class FogLayer:
+    """A valley fog (see the module docstring): extinction ``density`` ρ (1/m) up to the absolute height
+    ``top`` y_t (m), thinning by e every ``falloff`` F (m) above it."""
+
+    density: float
+    top: float
+    falloff: float = 15.0
+
+    def validate(self) -> None:
+        """Raise ``ForestError`` unless ρ > 0, F > 0 and y_t finite."""
+        from ...errors import ForestError
+
+        if not (math.isfinite(self.density) and self.density > 0.0):
+            raise ForestError(f"path inputs: valley fog density must be > 0, got {self.density}")
+        if not (math.isfinite(self.falloff) and self.falloff > 0.0):
+            raise ForestError(f"path inputs: valley fog falloff must be > 0, got {self.falloff}")
+        if not math.isfinite(self.top):
+            raise ForestError(f"path inputs: valley fog top must be finite, got {self.top}")
 
 
 @dataclass(frozen=True)
@@ -73,15 +146,16 @@ class HazeInputs:
     ``density`` σ₀ (1/m at ``ground``), ``height`` H (m), ``colour`` C (RGB
     radiance; None: the sky's mean radiance over the upper hemisphere),
     ``anisotropy`` g ∈ (−1, 1), ``ground`` y₀ (m), ``sky_distance`` (m): how
-    far a camera ray that leaves the scene is hazed.
+    far a camera ray that leaves the scene is hazed; ``fog`` the valley fog (None: none).
     """
 
     density: float
-    height: float = 600.0
+    height: float = 150.0
     colour: tuple[float, ...] | None = None  # three values (checked)
     anisotropy: float = 0.7
     ground: float = 0.0
     sky_distance: float = 20_000.0
+    fog: FogLayer | None = None
 
     def validate(self) -> None:
         """Raise ``ForestError`` unless density ≥ 0, height > 0, g ∈ (−1, 1) and the colour a non-negative RGB."""
@@ -95,6 +169,8 @@ class HazeInputs:
             raise ForestError(f"path inputs: haze anisotropy must be in (−1, 1), got {self.anisotropy}")
         if self.colour is not None and (len(tuple(self.colour)) != 3 or min(self.colour) < 0.0):
             raise ForestError(f"path inputs: haze colour must be a non-negative RGB triple, got {self.colour}")
+        if self.fog is not None:
+            self.fog.validate()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -118,7 +194,26 @@ def transmittance_np(
     sigma = haze.density * np.exp(-(oy - haze.ground) / haze.height)
     ell = np.asarray(length, np.float64)
     tau = sigma * ell * phi_np(ell * np.asarray(direction_y, np.float64) / haze.height)
+    if haze.fog is not None:
+        tau = tau + fog_depth_np(oy, direction_y, ell, haze.fog)
     return np.exp(-tau)
+
+
+def fog_depth_np(
+    origin_y: npt.ArrayLike, direction_y: npt.ArrayLike, length: npt.ArrayLike, fog: FogLayer
+) -> np.ndarray:
+    """τ_f of the valley fog along segments (module docstring): ρ·(ℓ_b + ℓ_a·e^(−(y_lo − y_t)/F)·φ(ℓ_a|d_y|/F))."""
+    oy = np.asarray(origin_y, np.float64)
+    dy = np.asarray(direction_y, np.float64)
+    ell = np.asarray(length, np.float64)
+    flat = np.abs(dy) < 1e-12
+    sc = np.clip((fog.top - oy) / np.where(flat, 1.0, dy), 0.0, ell)  # the crossing of y = y_t, clamped
+    below = np.where(flat, np.where(oy < fog.top, ell, 0.0), np.where(dy > 0.0, sc, ell - sc))
+    above = ell - below
+    y_lo = np.where(flat, oy, oy + sc * dy)  # the lowest point of the part above y_t
+    rise = np.maximum(y_lo - fog.top, 0.0) / fog.falloff
+    part = above * np.exp(-rise) * phi_np(above * np.abs(dy) / fog.falloff)
+    return fog.density * (below + part)
 
 
 def hg_np(mu: npt.ArrayLike, g: float) -> np.ndarray:
@@ -168,6 +263,7 @@ class HazeModel:
         self.colour = params["haze_colour"]
         self.g = params["haze_anisotropy"]
         self.sun = sun
+        self.fog = haze.fog
 
     @staticmethod
     def initial_params(mi: Any, haze: HazeInputs) -> dict[str, Any]:
@@ -189,7 +285,27 @@ class HazeModel:
         small = dr.abs(x) < SERIES_BELOW
         xs = dr.select(small, 1.0, dr.maximum(x, -MAX_NEG_EXPONENT))
         phi = dr.select(small, 1.0 - x * 0.5 + x * x * (1.0 / 6.0), (1.0 - dr.exp(-xs)) / xs)
-        return dr.exp(-sigma * length * phi)
+        if self.fog is None:
+            return dr.exp(-sigma * length * phi)
+        return dr.exp(-(sigma * length * phi + self.fog_depth(o.y, d.y, length)))
+
+    def fog_depth(self, oy: Any, dy: Any, length: Any) -> Any:
+        """τ_f of the valley fog along the segments (the drjit twin of :func:`fog_depth_np`)."""
+        import drjit as dr
+
+        fog = self.fog
+        assert fog is not None
+        flat = dr.abs(dy) < 1e-12
+        sc = dr.clip((fog.top - oy) / dr.select(flat, 1.0, dy), 0.0, length)
+        below = dr.select(flat, dr.select(oy < fog.top, length, 0.0), dr.select(dy > 0.0, sc, length - sc))
+        above = length - below
+        y_lo = dr.select(flat, oy, oy + sc * dy)
+        rise = dr.maximum(y_lo - fog.top, 0.0) * (1.0 / fog.falloff)
+        x = above * dr.abs(dy) * (1.0 / fog.falloff)
+        small = x < SERIES_BELOW
+        xs = dr.select(small, 1.0, x)
+        phi = dr.select(small, 1.0 - x * 0.5 + x * x * (1.0 / 6.0), (1.0 - dr.exp(-xs)) / xs)
+        return fog.density * (below + above * dr.exp(-rise) * phi)
 
     def source(self, d: Any) -> Any:
         """J(d) (Color3f): the ambient colour plus the sun through the Henyey–Greenstein phase function."""

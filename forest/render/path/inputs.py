@@ -118,6 +118,8 @@ class Material:
     texture: Path | np.ndarray | None = None
     tinted: bool = False
     translucency: float = 0.0
+    sheen: float = 0.0  # leaves: weight of the cuticle's rough specular lobe (see .materials)
+    roughness: float = 0.0  # its GGX α
 
 
 @dataclass(frozen=True)
@@ -153,6 +155,10 @@ class PathInputs:
     multiplies the albedo of the leaf parts of each species index (default ones)
     and ``ground_tint`` (RGB) the terrain's; both start the ``leaf_tint`` and
     ``ground_tint`` parameters of :class:`~forest.render.path.PathScene`.
+    ``terrain_water`` (H, W) in [0, 1], on the texels of an (H, W, 3) ``terrain_colour``,
+    is the water coverage W of :mod:`forest.ground`: that share of the terrain is a
+    Fresnel mirror (tilted by ripples of ``water_ripple`` degrees RMS) over the map's colour
+    (:func:`~forest.render.path.materials.water_lobe`); None for no water.
     """
 
     instances: Any
@@ -185,6 +191,16 @@ class PathInputs:
     lod_setting: str = "distances"
     leaf_tint: np.ndarray | None = None
     ground_tint: Sequence[float] = (1.0, 1.0, 1.0)
+    terrain_water: np.ndarray | None = None
+    water_ripple: float = 2.0
+
+    def terrain_map_array(self) -> np.ndarray:
+        """``terrain_colour`` as float32, with ``terrain_water`` as a fourth channel where there is water."""
+        tc = np.asarray(self.terrain_colour, dtype=np.float32)
+        if self.terrain_water is None or tc.ndim != 3:
+            return tc
+        w = np.asarray(self.terrain_water, np.float32)[..., None]
+        return np.ascontiguousarray(np.concatenate([tc, w], axis=2))
 
     def tints(self) -> tuple[np.ndarray, np.ndarray]:
         """(leaf tint (S, 3), ground tint (3,)) as float64 arrays, ones where not given."""
@@ -261,5 +277,14 @@ class PathInputs:
             raise ForestError("path inputs: no light (neither sun nor sky)")
         if self.haze is not None:
             self.haze.validate()
+        if self.terrain_water is not None:
+            w = np.asarray(self.terrain_water, dtype=np.float64)
+            if tc.ndim != 3 or w.shape != tc.shape[:2] or not np.isfinite(w).all() or w.min() < 0 or w.max() > 1:
+                raise ForestError(
+                    f"path inputs: terrain_water must be an (H, W) array in [0, 1] on terrain_colour's texels "
+                    f"{tc.shape[:2] if tc.ndim == 3 else '(no map)'}, got shape {w.shape}"
+                )
+            if not (0.0 <= float(self.water_ripple) <= 20.0):
+                raise ForestError(f"path inputs: water_ripple must be in [0, 20] degrees, got {self.water_ripple}")
         if self.terrain_detail is not None and not float(self.terrain_detail_tile) > 0.0:
             raise ForestError(f"path inputs: terrain_detail_tile must be > 0 m, got {self.terrain_detail_tile}")

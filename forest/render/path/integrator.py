@@ -12,8 +12,12 @@ direction ωi, throughput β and BSDF f:
   with w_l = p_L² / (p_L² + p_b²), where V ∈ [0, 1] is the product of
   (1 − α) over the cut-out surfaces the shadow ray crosses (0 at an opaque one:
   alpha-cut leaves cast partial shadows, deterministically);
-* **continuation** — ωo ~ p_b (the BSDF's lobes, :mod:`.materials`),
-  β ← β · f|cos θo| / p_b; from depth ``rr_depth`` on, Russian roulette keeps the
+* **continuation** — ωo ~ p_b (the BSDF's lobes, :mod:`.materials`; a leaf's cuticle
+  lobe is sampled too, and p_b is then the lobes' mixture density),
+  β ← β · f|cos θo| / p_b (a water mirror, :func:`.materials.water_lobe`, is a delta lobe:
+  picked with probability p, β ← β · W·F / p, no light sampling on it, and the ray that
+  leaves the scene after it takes the sky with weight 1, as after Mitsuba's ``dielectric``);
+  from depth ``rr_depth`` on, Russian roulette keeps the
   path with probability q = min(max β, 0.95) and divides β by q.
 
 * **aerial perspective** — each camera or bounce segment of length ℓ that ends
@@ -59,10 +63,11 @@ which ``cuda_ad_rgb`` provides as well.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 from .geometry import Hit, PartArrays, TraversalScene, hit_uv, resolve, surface
-from .materials import MaterialArrays, bsdf_eval, bsdf_sample, shading
+from .materials import MaterialArrays, bsdf_eval, bsdf_sample, shading, water_coverage, water_lobe
 
 if TYPE_CHECKING:
     from .emitters import LightSet
@@ -121,6 +126,7 @@ class PathKernel:
         max_depth: int,
         rr_depth: int,
         haze: HazeModel | None = None,
+        water_ripple: float | None = None,
     ):
         self.mi = mi
         self.haze = haze
@@ -133,6 +139,8 @@ class PathKernel:
         self.lights = lights
         self.max_depth = int(max_depth)
         self.rr_depth = int(rr_depth)
+        #: Water on the terrain (its coverage the terrain map's fourth channel): ripple tilt in degrees, else None.
+        self.water_ripple = None if water_ripple is None or terrain_map is None else float(water_ripple)
 
     # -- rays -------------------------------------------------------------------------
     def offset(self, p: Any, ng: Any, d: Any) -> Any:
@@ -337,6 +345,11 @@ class PathKernel:
                 vp=mi.Point3f(0.0), vuv=mi.Point2f(0.0), vmat=mi.UInt32(0), vns=mi.Vector3f(zeros3),
                 vwo=mi.Vector3f(zeros3), vdl=mi.Vector3f(zeros3), vβ=mi.Color3f(0.0), vw=mi.Float(0.0),
             )  # fmt: skip
+            if self.mats.has_sheen:  # the leaf cuticle lobe also needs the direction towards the viewer
+                state["vwi"] = mi.Vector3f(zeros3)
+        water = self.water_ripple is not None
+        if water and not primal:  # the pending vertex's water: its diffuse factor 1 − W·F, a mirror sample
+            state.update(vkeep=mi.Float(1.0), vspec=mi.Bool(False))
         keys = list(state)
         i_active, i_segments = keys.index("active"), keys.index("segments")
         guard = segment_cap(self.max_depth) + 1  # a hard stop no path reaches (see segment_cap)
@@ -381,14 +394,17 @@ class PathKernel:
                 with dr.resume_grad():
                     sh = shading(mi, self.mats, S["vmat"], S["vuv"], S["vp"], self.grid, self.extent,
                                  self.terrain_map, s_done)  # fmt: skip
-                    f_l, _ = bsdf_eval(sh, S["vns"], S["vdl"])
+                    if water:
+                        sh = replace(sh, reflect=sh.reflect * S["vkeep"])
+                    f_l, _ = bsdf_eval(sh, S["vns"], S["vdl"], S.get("vwi"))
                     Lr_dir = dr.select(
                         s_done, S["vβ"] * f_l * lights.eval(S["vdl"], s_done, S["vp"]) * (S["vw"] * vis), 0.0
                     )
                 L = dr.select(s_done, S["L"] - dr.detach(Lr_dir), S["L"])
                 with dr.resume_grad():
-                    f_o, _ = bsdf_eval(sh, S["vns"], S["vwo"])
-                    Lr_ind = L * dr.select(s_done & S["cont"], dr.relative_grad(f_o), 0.0)
+                    f_o, _ = bsdf_eval(sh, S["vns"], S["vwo"], S.get("vwi"))
+                    along = S["cont"] & ~S["vspec"] if water else S["cont"]  # a mirror sample has no gradient
+                    Lr_ind = L * dr.select(s_done & along, dr.relative_grad(f_o), 0.0)
                     differentiate(S, Lr_dir + Lr_ind)
                 S["L"] = L
             S["shadowing"] = S["shadowing"] & ~s_done
@@ -462,6 +478,11 @@ class PathKernel:
             ns = dr.select(flip, -sp.n_sh, sp.n_sh)
             with dr.resume_grad(when=not primal):
                 sh = shading(mi, self.mats, sp.material, sp.uv, sp.p, self.grid, self.extent, self.terrain_map, vertex)
+                if water:  # a Fresnel mirror over the diffuse ground where the terrain is water
+                    assert self.terrain_map is not None and self.water_ripple is not None
+                    w = water_coverage(mi, self.mats, sp.material, sp.p, self.terrain_map, vertex)
+                    wl = water_lobe(mi, sh, w, sp.p, wi, ng, self.water_ripple)
+                    sh = wl.shading
             depth = S["depth"]
             if aux:
                 first = depth == 0
@@ -473,7 +494,7 @@ class PathKernel:
             u_dir = S["sampler"].next_2d(nee)
             dl, pdf_l = lights.sample_direction(u_pick, u_dir, nee)
             shd = sh.detached()
-            f_l, pdf_b = bsdf_eval(shd, ns, dl)
+            f_l, pdf_b = bsdf_eval(shd, ns, dl, wi)
             nee &= (pdf_l > 0.0) & (dr.max(f_l) > 0.0)
             w_l = mis_weight(pdf_l, pdf_b) / dr.maximum(pdf_l, 1e-30)
             if lgroups:
@@ -485,7 +506,15 @@ class PathKernel:
                 S["C"] = dr.select(nee, S["β"] * f_l * lights.eval(dl, nee, sp.p) * w_l, S["C"])
             u_lobe = S["sampler"].next_1d()
             u_bsdf = S["sampler"].next_2d()
-            wo, weight, pdf_o = bsdf_sample(mi, shd, mi.Frame3f(ns), u_lobe, u_bsdf)
+            spec = mi.Bool(False)
+            if water:  # the mirror with probability p (a delta lobe), else the diffuse part with u_lobe − p
+                spec = u_lobe < wl.p
+                u_lobe = dr.select(spec, 0.0, u_lobe - wl.p)
+            wo, weight, pdf_o = bsdf_sample(mi, shd, mi.Frame3f(ns), u_lobe, u_bsdf, wi)
+            if water:
+                wo = dr.select(spec, wl.wo, wo)
+                weight = dr.select(spec, mi.Color3f(wl.weight), weight)
+                pdf_o = dr.select(spec, 1.0, pdf_o)
             cont = (depth + 1 < self.max_depth) & (pdf_o > 0.0)
             β_vertex = S["β"]
             β = S["β"] * dr.select(cont, weight, 0.0)
@@ -499,12 +528,17 @@ class PathKernel:
             if not primal:
                 # No shadow ray pending: this vertex's path derivative can be taken now.
                 with dr.resume_grad():
-                    f_o, _ = bsdf_eval(sh, ns, wo)
-                    Lr_ind = S["L"] * dr.select(~nee & cont, dr.relative_grad(f_o), 0.0)
+                    f_o, _ = bsdf_eval(sh, ns, wo, wi)
+                    Lr_ind = S["L"] * dr.select(~nee & cont & ~spec, dr.relative_grad(f_o), 0.0)
                     differentiate(S, Lr_ind)
                 for k, v in (("vp", sp.p), ("vuv", sp.uv), ("vmat", sp.material), ("vns", ns),
                              ("vwo", wo), ("vdl", dl), ("vβ", β_vertex), ("vw", w_l)):  # fmt: skip
                     S[k] = dr.select(nee, v, S[k])
+                if "vwi" in S:
+                    S["vwi"] = dr.select(nee, wi, S["vwi"])
+                if water:
+                    S["vkeep"] = dr.select(nee, wl.keep, S["vkeep"])
+                    S["vspec"] = dr.select(nee, spec, S["vspec"])
             S["β"] = β
             S["cont"] = cont
             S["eo"] = dr.select(cont, self.offset(sp.p, ng, wo), S["eo"])
@@ -517,7 +551,7 @@ class PathKernel:
             S["vis"] = dr.select(nee, 1.0, S["vis"])
             S["sskips"] = dr.select(nee, 0, S["sskips"])
             S["prev_pdf"] = pdf_o
-            S["prev_delta"] = mi.Bool(False)
+            S["prev_delta"] = spec if water else mi.Bool(False)
             S["depth"] = depth + 1
             S["active"] = cont | nee
             return tuple(S[k] for k in keys)

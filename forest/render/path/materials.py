@@ -21,6 +21,33 @@ BSDFs, both two-sided, in a frame whose normal n faces the incoming direction ω
   probability p = R̄ / (R̄ + T̄) (channel means), then a cosine-weighted
   direction, so pdf = p·|cos θo|/π (or (1 − p)·|cos θo|/π).
 
+Leaf cuticle sheen (a leaf of ``sheen`` s > 0 and ``roughness`` α): the wax cuticle reflects
+specularly as a rough dielectric of refractive index n ≈ 1.5 (Jacquemoud & Ustin 2019, *Leaf
+Optical Properties*, §3: n ≈ 1.45–1.5), white and strongest at grazing angles (Bousquet et al.
+2005, "Leaf BRDF measurements and model for specular and diffuse components differentiation",
+Remote Sens. Environ. 98: 201–211).  With h = (ωi + ωo)/‖ωi + ωo‖ and μ = cos θ:
+
+    f(ωi, ωo) = s·F(ωi·h)·D(h)·G₂(ωi, ωo) / (4 μi μo)        (ωo on ωi's side only)
+              + (1 − s·E(μi)) · (R/π on ωi's side, T/π on the other)
+
+* D: GGX / Trowbridge–Reitz, D(h) = α² / (π ((n·h)²(α² − 1) + 1)²) (Walter et al. 2007,
+  "Microfacet models for refraction through rough surfaces", EGSR);
+* G₂ = 1 / (1 + Λ(ωi) + Λ(ωo)), Λ(ω) = (√(1 + α² tan²θ) − 1)/2, Smith's height-correlated
+  masking–shadowing (Heitz 2014, JCGT 3(2));
+* F: Schlick's approximation F = F₀ + (1 − F₀)(1 − ωi·h)⁵ with F₀ = ((n − 1)/(n + 1))² = 0.04;
+* E(μi) = ∫ F·D·G₂/(4 μi) dωo, the lobe's directional albedo for s = 1 (tabulated per material
+  at 33 values of μi by :func:`sheen_albedo_table`, linearly interpolated).  Scaling the diffuse
+  lobes by 1 − s·E(μi) keeps the directional albedo s·E + (1 − s·E)·(R + T) ≤ 1 for
+  s ∈ [0, 1] and R + T ≤ 1: the energy the cuticle reflects is taken from what enters the leaf.
+
+Sampling is a one-sample mixture: the specular lobe with probability
+p_s = s·E / (s·E + (1 − s·E)·mean(R + T)), its half-vector drawn from GGX's distribution of
+visible normals (Heitz 2018, "Sampling the GGX distribution of visible normals", JCGT 7(4)),
+pdf_s(ωo) = G₁(ωi)·D(h)/(4 μi); else the diffuse lobes as above.  The pdf returned (and used by
+MIS) is the mixture's, p_s·pdf_s + (1 − p_s)·pdf_d, and the weight f·μo/pdf (Veach 1997 §9.2.2),
+so a narrow lobe lit by the sun is found by both light sampling and BSDF sampling.  Materials
+with s = 0 everywhere trace exactly the code without the lobe.
+
 Opacity is the texture's alpha α.  All textures of a scene share one RGBA
 atlas (one lookup instead of one masked lookup per texture, see
 ``bench/bench_forest_path.py``): each tile is padded with a two-texel border
@@ -46,6 +73,12 @@ from .inputs import Material
 
 KIND_SURFACE = 0
 KIND_LEAF = 1
+#: Specular reflectance of the leaf cuticle at normal incidence, ((n − 1)/(n + 1))² for n = 1.5.
+CUTICLE_F0 = 0.04
+#: Smallest GGX roughness α accepted (a near-mirror lobe cannot be tabulated or sampled stably).
+ROUGHNESS_MIN = 0.02
+#: Values of μi = cos θi (0 … 1, evenly spaced) of the per-material directional-albedo table E(μi).
+SHEEN_TABLE_SIZE = 33
 #: Border (texels) around each atlas tile, filled with the tile's wrapped-around texels.
 ATLAS_PAD = 2
 ATLAS_MAX_WIDTH = 4096
@@ -66,6 +99,77 @@ def texture_rgba(path: str) -> np.ndarray:
         rgb = srgb_to_linear(rgb)
     alpha = img[..., 3:4] if c == 4 else (img[..., 1:2] if c == 2 else np.ones(img.shape[:2] + (1,), np.float32))
     return np.ascontiguousarray(np.concatenate([rgb, alpha], axis=2), dtype=np.float32)
+
+
+def leaf_sheen(m: Any) -> tuple[float, float]:
+    """(s, α) of a leaf material or library part: its ``sheen`` and ``roughness`` (0, 0 without a sheen).
+
+    A value out of range is refused on one line (``ForestError``): s ∈ [0, 1], α ∈ [0.02, 1].
+    """
+    sheen = float(getattr(m, "sheen", 0.0) or 0.0)
+    rough = float(getattr(m, "roughness", 0.0) or 0.0)
+    if not 0.0 <= sheen <= 1.0:  # also refuses NaN
+        raise ForestError(f"leaf sheen must be in [0, 1], got {sheen}")
+    if sheen == 0.0:
+        return 0.0, 0.0
+    if not ROUGHNESS_MIN <= rough <= 1.0:
+        raise ForestError(f"leaf roughness must be in [{ROUGHNESS_MIN}, 1], got {rough}")
+    return round(sheen, 6), round(rough, 6)
+
+
+def _ggx_lambda(alpha: Any, mu: Any, sqrt: Any) -> Any:
+    """Smith's Λ(ω) = (√(1 + α² tan²θ) − 1)/2 for GGX, from μ = cos θ (numpy or drjit)."""
+    mu2 = mu * mu
+    return 0.5 * (sqrt(1.0 + alpha * alpha * (1.0 - mu2) / (mu2 + 1e-12)) - 1.0)
+
+
+def sheen_albedo_table(alpha: float, n: int = SHEEN_TABLE_SIZE, grid: int = 96) -> np.ndarray:
+    """E(μi) = ∫ F(ωi·h) D(h) G₂(ωi, ωo) / (4 μi) dωo at μi = k/(n − 1), k = 0 … n − 1 (float32).
+
+    The integral is the expectation of F·G₂/G₁(ωi) over GGX's visible normals (Heitz 2018), taken
+    on a deterministic ``grid`` × ``grid`` midpoint rule of the visible-normal warp (μi = 0 is
+    evaluated at μi = 10⁻³): a pure function of α, so renders stay byte-reproducible.
+    """
+    mus = np.maximum(np.linspace(0.0, 1.0, n), 1e-3)
+    u = (np.arange(grid) + 0.5) / grid
+    u1, u2 = (a.ravel() for a in np.meshgrid(u, u, indexing="ij"))
+    out = np.zeros(n, np.float64)
+    for k, mu in enumerate(mus):
+        wi = np.array([np.sqrt(max(0.0, 1.0 - mu * mu)), 0.0, mu])
+        m = _vndf_numpy(wi, alpha, u1, u2)
+        cos_im = m @ wi
+        wo = 2.0 * cos_im[:, None] * m - wi
+        mu_o = wo[:, 2]
+        f = CUTICLE_F0 + (1.0 - CUTICLE_F0) * np.clip(1.0 - cos_im, 0.0, 1.0) ** 5
+        lam_i = _ggx_lambda(alpha, mu, np.sqrt)
+        lam_o = _ggx_lambda(alpha, np.maximum(mu_o, 1e-9), np.sqrt)
+        g2_over_g1 = (1.0 + lam_i) / (1.0 + lam_i + lam_o)
+        out[k] = float(np.mean(np.where(mu_o > 0.0, f * g2_over_g1, 0.0)))
+    return out.astype(np.float32)
+
+
+def _vndf_numpy(wi: np.ndarray, alpha: float, u1: np.ndarray, u2: np.ndarray) -> np.ndarray:
+    """Heitz (2018)'s visible-normal sampling of GGX in numpy (local frame, z the normal): (K, 3) normals."""
+    vh = np.array([alpha * wi[0], alpha * wi[1], wi[2]])
+    vh /= np.linalg.norm(vh)
+    lensq = vh[0] ** 2 + vh[1] ** 2
+    t1 = np.array([-vh[1], vh[0], 0.0]) / np.sqrt(lensq) if lensq > 0 else np.array([1.0, 0.0, 0.0])
+    t2 = np.cross(vh, t1)
+    r = np.sqrt(u1)
+    phi = 2.0 * np.pi * u2
+    p1 = r * np.cos(phi)
+    p2 = r * np.sin(phi)
+    s = 0.5 * (1.0 + vh[2])
+    p2 = (1.0 - s) * np.sqrt(np.maximum(0.0, 1.0 - p1 * p1)) + s * p2
+    p3 = np.sqrt(np.maximum(0.0, 1.0 - p1 * p1 - p2 * p2))
+    nh = p1[:, None] * t1 + p2[:, None] * t2 + p3[:, None] * vh
+    m = np.stack([alpha * nh[:, 0], alpha * nh[:, 1], np.maximum(1e-6, nh[:, 2])], axis=1)
+    return m / np.linalg.norm(m, axis=1, keepdims=True)
+
+
+@lru_cache(maxsize=256)
+def _sheen_table_cached(alpha: float) -> np.ndarray:
+    return sheen_albedo_table(alpha)
 
 
 @dataclass
@@ -124,6 +228,8 @@ class MaterialTable:
     terrain_map: np.ndarray  # (M,) bool: multiplied by the terrain colour map
     atlas: Atlas
     tint_row: np.ndarray  # (M,) int32: row of the tint table (a species' leaves, the terrain) or −1
+    sheen: np.ndarray | None = None  # (M,) float32: cuticle specular weight s (leaves; 0 none)
+    roughness: np.ndarray | None = None  # (M,) float32: its GGX α
 
 
 class MaterialStore:
@@ -150,6 +256,7 @@ class MaterialStore:
         tau = float(getattr(m, "translucency", 0.0) or 0.0) if kind == KIND_LEAF else 0.0
         if not 0.0 <= tau <= 1.0:
             raise ForestError(f"material translucency must be in [0, 1], got {tau}")
+        sheen, rough = leaf_sheen(m) if kind == KIND_LEAF else (0.0, 0.0)
         colour = tuple(round(float(c), 7) for c in m.colour)
         if len(colour) != 3:
             raise ForestError(f"material colour must be RGB, got {m.colour!r}")
@@ -161,6 +268,8 @@ class MaterialStore:
             tau,
             terrain_map,
             int(tint_row),
+            sheen,
+            rough,
         )
         if key not in self._index:
             t = -1
@@ -169,7 +278,7 @@ class MaterialStore:
                     self._textures.append(str(tex))
                 t = self._textures.index(str(tex))
             self._index[key] = len(self._rows)
-            self._rows.append((kind, colour, tau, t, key[3], terrain_map, int(tint_row)))
+            self._rows.append((kind, colour, tau, t, key[3], terrain_map, int(tint_row), sheen, rough))
         return self._index[key]
 
     def _array_key(self, a: np.ndarray) -> str:
@@ -194,7 +303,7 @@ class MaterialStore:
     def table(self) -> MaterialTable:
         """The stored materials as a :class:`MaterialTable` with one texture atlas (empty: one grey surface)."""
         atlas = pack_atlas([self._arrays[p] if p in self._arrays else texture_rgba(p) for p in self._textures])
-        rows = self._rows or [(KIND_SURFACE, (0.5, 0.5, 0.5), 0.0, -1, False, False, -1)]
+        rows = self._rows or [(KIND_SURFACE, (0.5, 0.5, 0.5), 0.0, -1, False, False, -1, 0.0, 0.0)]
         tex = np.array([r[3] for r in rows], np.int32)
         cut = np.array([t >= 0 and not atlas.opaque[t] for t in tex.tolist()], bool)
         return MaterialTable(
@@ -207,6 +316,8 @@ class MaterialStore:
             terrain_map=np.array([r[5] for r in rows], bool),
             atlas=atlas,
             tint_row=np.array([r[6] for r in rows], np.int32),
+            sheen=np.array([r[7] for r in rows], np.float32),
+            roughness=np.array([r[8] for r in rows], np.float32),
         )
 
 
@@ -245,6 +356,10 @@ class MaterialArrays:
     has_cutouts: bool
     has_textures: bool
     tint_row: np.ndarray | None = None  # (M,) int32, numpy: the tint table row of each material, −1 none
+    has_sheen: bool = False  # some leaf has a cuticle lobe (s > 0); else the lobe is not traced at all
+    sheen: Any = None  # Float (M,): s
+    roughness: Any = None  # Float (M,): α
+    sheen_albedo: Any = None  # Float (M·SHEEN_TABLE_SIZE,): E(μi) of each material's lobe (s = 1)
 
     @classmethod
     def build(cls, mi: Any, table: MaterialTable) -> MaterialArrays:
@@ -259,6 +374,21 @@ class MaterialArrays:
             wrap_mode=dr.WrapMode.Clamp,
         )
         rects = table.atlas.rects if len(table.atlas.rects) else np.zeros((1, 4), np.float32)
+        sheen = table.sheen if table.sheen is not None else np.zeros(len(table.kind), np.float32)
+        rough = table.roughness if table.roughness is not None else np.zeros(len(table.kind), np.float32)
+        has_sheen = bool((sheen > 0).any())
+        extra: dict[str, Any] = {}
+        if has_sheen:
+            albedo = np.zeros((len(sheen), SHEEN_TABLE_SIZE), np.float32)
+            for i, (s_i, a_i) in enumerate(zip(sheen.tolist(), rough.tolist())):
+                if s_i > 0:
+                    albedo[i] = _sheen_table_cached(float(a_i))
+            extra = dict(
+                has_sheen=True,
+                sheen=mi.Float(sheen.astype(np.float32)),
+                roughness=mi.Float(np.maximum(rough, ROUGHNESS_MIN).astype(np.float32)),
+                sheen_albedo=mi.Float(albedo.ravel()),
+            )
         return cls(
             kind=mi.UInt32(table.kind),
             colour=mi.Float(table.colour.ravel()),
@@ -272,6 +402,7 @@ class MaterialArrays:
             has_cutouts=bool(table.cutout.any()),
             has_textures=bool((table.texture >= 0).any()),
             tint_row=table.tint_row.copy(),
+            **extra,
         )
 
     def tinted_colours(self, mi: Any, table: Any) -> MaterialArrays:
@@ -316,17 +447,33 @@ class MaterialArrays:
 
 @dataclass
 class Shading:
-    """What a BSDF needs at a hit: the albedo split into reflection and transmission, and the sampling split."""
+    """What a BSDF needs at a hit: the albedo split into reflection and transmission, and the sampling split.
+
+    With a cuticle lobe (:attr:`MaterialArrays.has_sheen`): its weight s, roughness α, the hit's
+    material and the table of E(μi) (see the module docstring); ``sheen`` is None otherwise.
+    """
 
     reflect: Any  # Color3f R (albedo a for surfaces)
     transmit: Any  # Color3f T (0 for surfaces)
     p_reflect: Any  # Float: probability of sampling the reflection lobe
+    sheen: Any = None  # Float s (0 off leaves), or None: no lobe anywhere
+    alpha: Any = None  # Float GGX α
+    material: Any = None  # UInt32: the material (row of ``albedo_table``)
+    albedo_table: Any = None  # Float (M·SHEEN_TABLE_SIZE,): E(μi) per material
 
     def detached(self) -> Shading:
         """The same shading with gradients cut (``dr.detach`` of each field)."""
         import drjit as dr
 
-        return Shading(dr.detach(self.reflect), dr.detach(self.transmit), dr.detach(self.p_reflect))
+        return Shading(
+            dr.detach(self.reflect),
+            dr.detach(self.transmit),
+            dr.detach(self.p_reflect),
+            self.sheen,
+            self.alpha,
+            self.material,
+            self.albedo_table,
+        )
 
 
 def shading(
@@ -374,11 +521,82 @@ def shading(
     mr = dr.detach(R[0] + R[1] + R[2])
     mt = dr.detach(T[0] + T[1] + T[2])
     p_r = dr.select(leaf & (mr + mt > 0), mr / dr.maximum(mr + mt, 1e-12), 1.0)
-    return Shading(reflect=R, transmit=T, p_reflect=p_r)
+    if not mats.has_sheen:
+        return Shading(reflect=R, transmit=T, p_reflect=p_r)
+    return Shading(
+        reflect=R,
+        transmit=T,
+        p_reflect=p_r,
+        sheen=dr.gather(mi.Float, mats.sheen, material, active),
+        alpha=dr.gather(mi.Float, mats.roughness, material, active),
+        material=mi.UInt32(material),
+        albedo_table=mats.sheen_albedo,
+    )
 
 
-def bsdf_eval(sh: Shading, n: Any, wo: Any) -> tuple[Any, Any]:
-    """(f·|cos θo|, pdf) of direction ``wo`` (world) with shading normal ``n`` (already facing ωi)."""
+def _sheen_terms(sh: Shading, n: Any, wi: Any) -> tuple[Any, Any, Any]:
+    """(μi, s·E(μi), p_s): the lobe's albedo at this incidence and its sampling probability."""
+    import drjit as dr
+
+    mu_i = dr.clip(dr.dot(n, wi), 1e-4, 1.0)
+    last = SHEEN_TABLE_SIZE - 1
+    x = mu_i * last
+    k = dr.minimum(dr.floor(x), last - 1)
+    t = x - k
+    base = sh.material * SHEEN_TABLE_SIZE + type(sh.material)(k)
+    e0 = dr.gather(type(mu_i), sh.albedo_table, base)
+    e1 = dr.gather(type(mu_i), sh.albedo_table, base + 1)
+    se = sh.sheen * dr.lerp(e0, e1, t)
+    a = dr.detach(sh.reflect + sh.transmit)
+    abar = (a[0] + a[1] + a[2]) * (1.0 / 3.0) * (1.0 - se)
+    p_s = dr.select(se > 0.0, se / dr.maximum(se + abar, 1e-12), 0.0)
+    return mu_i, se, p_s
+
+
+def _ggx_reflection(sh: Shading, n: Any, wi: Any, wo: Any, mu_i: Any) -> tuple[Any, Any]:
+    """(s·F·D·G₂/(4 μi), pdf of the visible-normal sample G₁·D/(4 μi)) for ωo on ωi's side, else (0, 0)."""
+    import drjit as dr
+
+    mu_o = dr.dot(n, wo)
+    h = dr.normalize(wi + wo)
+    nh = dr.dot(n, h)
+    ih = dr.clip(dr.dot(wi, h), 0.0, 1.0)
+    a2 = dr.square(sh.alpha)
+    d = a2 / (dr.pi * dr.square(dr.fma(dr.square(nh), a2 - 1.0, 1.0)))
+    lam_i = _ggx_lambda(sh.alpha, mu_i, dr.sqrt)
+    lam_o = _ggx_lambda(sh.alpha, dr.maximum(mu_o, 1e-6), dr.sqrt)
+    f = CUTICLE_F0 + (1.0 - CUTICLE_F0) * dr.power(1.0 - ih, 5.0)
+    quarter = 0.25 / mu_i
+    ok = (mu_o > 0.0) & (nh > 0.0) & (sh.sheen > 0.0)
+    value = dr.select(ok, sh.sheen * f * d * quarter / (1.0 + lam_i + lam_o), 0.0)
+    pdf = dr.select(ok, d * quarter / (1.0 + lam_i), 0.0)
+    return value, pdf
+
+
+def _vndf_sample(mi: Any, wi: Any, alpha: Any, u: Any) -> Any:
+    """A GGX micro-normal from the distribution of normals visible from ``wi`` (local frame; Heitz 2018)."""
+    import drjit as dr
+
+    vh = dr.normalize(mi.Vector3f(alpha * wi.x, alpha * wi.y, wi.z))
+    lensq = dr.square(vh.x) + dr.square(vh.y)
+    inv = dr.rsqrt(dr.maximum(lensq, 1e-20))
+    t1 = dr.select(lensq > 0.0, mi.Vector3f(-vh.y * inv, vh.x * inv, 0.0), mi.Vector3f(1.0, 0.0, 0.0))
+    t2 = dr.cross(vh, t1)
+    r = dr.sqrt(u.x)
+    sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * u.y)
+    p1 = r * cos_phi
+    s = 0.5 * (1.0 + vh.z)
+    p2 = (1.0 - s) * dr.safe_sqrt(1.0 - dr.square(p1)) + s * (r * sin_phi)
+    p3 = dr.safe_sqrt(1.0 - dr.square(p1) - dr.square(p2))
+    nh = t1 * p1 + t2 * p2 + vh * p3
+    return dr.normalize(mi.Vector3f(alpha * nh.x, alpha * nh.y, dr.maximum(nh.z, 1e-6)))
+
+
+def bsdf_eval(sh: Shading, n: Any, wo: Any, wi: Any = None) -> tuple[Any, Any]:
+    """(f·|cos θo|, pdf) of direction ``wo`` (world) with shading normal ``n`` (already facing ωi).
+
+    ``wi`` (world, towards the viewer) is needed only by the cuticle lobe (``sh.sheen`` not None).
+    """
     import drjit as dr
 
     cos_o = dr.dot(n, wo)
@@ -386,16 +604,43 @@ def bsdf_eval(sh: Shading, n: Any, wo: Any) -> tuple[Any, Any]:
     c = dr.abs(cos_o) * dr.inv_pi
     value = dr.select(same, sh.reflect, sh.transmit) * c
     pdf = dr.select(same, sh.p_reflect, 1.0 - sh.p_reflect) * c
-    return value, pdf
+    if sh.sheen is None:
+        return value, pdf
+    if wi is None:
+        raise ValueError("bsdf_eval: a shading with a cuticle lobe needs wi")
+    mu_i, se, p_s = _sheen_terms(sh, n, wi)
+    spec, pdf_s = _ggx_reflection(sh, n, wi, wo, mu_i)
+    return value * (1.0 - se) + spec, dr.lerp(pdf, pdf_s, p_s)
 
 
-def bsdf_sample(mi: Any, sh: Shading, frame: Any, u1: Any, u2: Any) -> tuple[Any, Any, Any]:
-    """Sample ωo: (direction (world), weight f·|cos|/pdf, pdf).  ``frame``'s normal faces ωi."""
+def bsdf_sample(mi: Any, sh: Shading, frame: Any, u1: Any, u2: Any, wi: Any = None) -> tuple[Any, Any, Any]:
+    """Sample ωo: (direction (world), weight f·|cos|/pdf, pdf).  ``frame``'s normal faces ωi.
+
+    With a cuticle lobe (``wi`` given, world), ``u1`` first picks the specular lobe with probability
+    p_s and is then rescaled to pick reflection or transmission; pdf and weight are the mixture's.
+    """
     import drjit as dr
 
+    if sh.sheen is not None:
+        if wi is None:
+            raise ValueError("bsdf_sample: a shading with a cuticle lobe needs wi")
+        _, _, p_s = _sheen_terms(sh, frame.n, wi)
+        spec = u1 < p_s
+        u1 = dr.select(spec, u1, (u1 - p_s) / dr.maximum(1.0 - p_s, 1e-12))
     reflect = u1 < sh.p_reflect
     local = mi.warp.square_to_cosine_hemisphere(u2)
     local = mi.Vector3f(local.x, local.y, dr.select(reflect, local.z, -local.z))
+    if sh.sheen is not None:
+        wi_l = frame.to_local(wi)
+        wi_l = mi.Vector3f(wi_l.x, wi_l.y, dr.maximum(wi_l.z, 1e-4))
+        m = _vndf_sample(mi, wi_l, sh.alpha, u2)
+        local = dr.select(spec, 2.0 * dr.dot(wi_l, m) * m - wi_l, local)
+        wo = frame.to_world(local)
+        value, pdf = bsdf_eval(sh, frame.n, wo, wi)
+        # A micro-normal that reflects ωi below the leaf gives no sample (its probability is lost, not moved).
+        ok = (pdf > 0.0) & ~(spec & (local.z <= 0.0))
+        weight = dr.select(ok, value / dr.maximum(pdf, 1e-30), 0.0)
+        return wo, weight, dr.select(ok, pdf, 0.0)
     wo = frame.to_world(local)
     cos_pdf = dr.abs(local.z) * dr.inv_pi
     p_lobe = dr.select(reflect, sh.p_reflect, 1.0 - sh.p_reflect)
@@ -403,3 +648,104 @@ def bsdf_sample(mi: Any, sh: Shading, frame: Any, u1: Any, u2: Any) -> tuple[Any
     weight = dr.select(reflect, sh.reflect, sh.transmit) / dr.maximum(p_lobe, 1e-12)
     weight = dr.select(pdf > 0.0, weight, 0.0)
     return wo, weight, pdf
+
+
+# -- water: the ground's Fresnel mirror (rules of material ``water``, forest.ground) ------------------------
+
+#: Refractive index of water in the visible band (1.333 at 589 nm, 20 °C; Hale & Querry 1973, Appl. Opt. 12: 555).
+WATER_IOR = 1.33
+#: The ripples' plane waves: (wavelength in metres, direction in degrees from +X towards +Z, phase in radians).
+RIPPLE_WAVES = ((0.53, 161.0, 0.3), (0.91, 17.0, 2.1), (1.7, 71.0, 4.4), (3.1, 133.0, 1.2))
+
+
+@dataclass
+class WaterLobe:
+    """A terrain hit's water surface: the diffuse part and the mirror (see :func:`water_lobe`)."""
+
+    shading: Shading  # the diffuse part: R·(1 − W·F), and p_reflect = 1 − p for water lanes
+    p: Any  # Float: probability of sampling the mirror (0 off water)
+    weight: Any  # Float: W·F / p, the mirror sample's weight (grey)
+    wo: Any  # Vector3f: the mirror direction (world)
+    keep: Any  # Float: 1 − W·F, the factor on the diffuse part (path replay re-applies it)
+
+
+def water_coverage(
+    mi: Any, mats: MaterialArrays, material: Any, p: Any, terrain_map: tuple[Any, Sequence[float]], active: Any
+) -> Any:
+    """The water coverage W ∈ [0, 1] at a hit: the terrain map's fourth channel at its world X/Z (0 off the terrain)."""
+    import drjit as dr
+
+    tmap, (txmin, tzmin, txmax, tzmax) = terrain_map
+    tpos = mi.Point2f((p.x - txmin) * (1.0 / (txmax - txmin)), (p.z - tzmin) * (1.0 / (tzmax - tzmin)))
+    mapped = dr.gather(mi.Bool, mats.terrain_map, material, active) & active
+    t = tmap.eval(tpos, active=mapped)
+    return dr.select(mapped, dr.clip(t[3], 0.0, 1.0), 0.0)
+
+
+def ripple_normal(mi: Any, p: Any, ripple_deg: float) -> Any:
+    """The water's normal at world ``p``: level (+Y) tilted by ripples, a sum of :data:`RIPPLE_WAVES`.
+
+    h(x, z) = Σ_k A_k sin(2π d_k·(x, z)/λ_k + φ_k) with every wave of the same slope amplitude
+    s = tan(ripple)·√(2/K), so that E|∇h|² = K s²/2 = tan² ripple (the RMS tilt asked); the normal is
+    (−∂h/∂x, 1, −∂h/∂z) normalised.  A fixed function of position: deterministic and free of noise
+    textures (a cheap stand-in for a wave spectrum; Tessendorf 2001, "Simulating ocean water").
+    """
+    import drjit as dr
+
+    if ripple_deg <= 0.0:
+        return mi.Vector3f(0.0, 1.0, 0.0)
+    s = float(np.tan(np.radians(ripple_deg)) * np.sqrt(2.0 / len(RIPPLE_WAVES)))
+    gx = mi.Float(0.0)
+    gz = mi.Float(0.0)
+    for wavelength, direction, phase in RIPPLE_WAVES:
+        k = 2.0 * np.pi / wavelength
+        dx, dz = float(np.cos(np.radians(direction))), float(np.sin(np.radians(direction)))
+        c = dr.cos(dr.fma(p.x, k * dx, dr.fma(p.z, k * dz, phase))) * s
+        gx = dr.fma(c, dx, gx)
+        gz = dr.fma(c, dz, gz)
+    return dr.normalize(mi.Vector3f(-gx, 1.0, -gz))
+
+
+def water_lobe(mi: Any, sh: Shading, water: Any, p: Any, wi: Any, ng: Any, ripple_deg: float) -> WaterLobe:
+    """The water at a terrain hit of coverage W = ``water``: a delta mirror over the (dimmed) diffuse ground.
+
+    With n_w the water's normal (:func:`ripple_normal`, level when the rippled mirror would leave below
+    the geometric normal ``ng``, which faces ωi), μ = ωi·n_w and F(μ) the exact Fresnel reflectance of
+    a smooth dielectric of n = :data:`WATER_IOR` (unpolarised; Born & Wolf §1.5; F(1) = 0.020), the
+    vertex's BSDF is the mixture
+
+        f(ωi, ωo) = W·F(μ)·δ(ωo − r)/|ωo·n_w| + (1 − W·F(μ))·R/π,    r = 2μ n_w − ωi,
+
+    R the painted albedo (for water, the bed seen through it: :data:`forest.config.schema.GROUND_MATERIALS`'s
+    ``water``, its Beer–Lambert tint included).  The share 1 − F that enters the water reaches the bed and
+    comes back as that diffuse colour; keeping the whole diffuse term under 1 − W·F is exact where W is 0
+    or 1 and conserves energy between (W·F + (1 − W·F)·R ≤ 1).  Sampling: the mirror with probability
+    p = W·F / (W·F + (1 − W·F)·mean R), weight W·F/p, no light sampling on it (a delta lobe, as
+    Mitsuba's ``dielectric``: the sun's glint comes from the reflected ray meeting the sun); else the
+    diffuse part with pdf (1 − p)·cos/π, which is also the pdf next-event estimation weighs against.
+    Lanes with W = 0 are left exactly as they were.
+    """
+    import dataclasses
+
+    import drjit as dr
+
+    up = mi.Vector3f(0.0, 1.0, 0.0)
+    n_r = ripple_normal(mi, p, ripple_deg)
+    mu_r = dr.dot(wi, n_r)
+    r_r = dr.fma(n_r, 2.0 * mu_r, -wi)
+    mu_f = wi.y
+    r_f = mi.Vector3f(-wi.x, wi.y, -wi.z)
+    rippled = (mu_r > 0.0) & (dr.dot(r_r, ng) > 0.0)
+    mu = dr.select(rippled, mu_r, mu_f)
+    wo = dr.select(rippled, r_r, r_f)
+    on = (water > 0.0) & (mu > 0.0) & (dr.dot(wo, ng) > 0.0) & (dr.dot(wo, up) > 0.0)
+    f_r = mi.fresnel(dr.clip(mu, 1e-6, 1.0), WATER_IOR)[0]
+    s = dr.select(on, water * f_r, 0.0)
+    keep = 1.0 - s
+    diffuse = sh.reflect * keep
+    d = dr.detach(diffuse)
+    abar = (d[0] + d[1] + d[2]) * (1.0 / 3.0)
+    p_m = dr.select(on, s / dr.maximum(s + abar, 1e-12), 0.0)
+    weight = dr.select(on, s + abar, 0.0)
+    shading_d = dataclasses.replace(sh, reflect=diffuse, p_reflect=dr.select(on, 1.0 - p_m, sh.p_reflect))
+    return WaterLobe(shading_d, p_m, weight, wo, dr.detach(keep))

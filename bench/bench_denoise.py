@@ -1,0 +1,189 @@
+"""Denoising (``[render] denoise``): error against a reference at 8–64 spp, plain and denoised, and time.
+
+    .venv/bin/python bench/bench_denoise.py                                   # demo and meadow, 320x180
+    .venv/bin/python bench/bench_denoise.py --configs configs/demo.toml --spp 8,16 --crops out/crops
+
+For each scene (its still at frame 1 without motion blur, forest_path in ``llvm_ad_rgb``) a reference
+of ``--ref-spp`` samples is rendered first with another seed, not denoised; then each spp once plain.
+The denoised image of a run is Open Image Denoise over the same samples, guided by the frame's first-hit
+albedo and normal — what ``[render] denoise = true`` writes (checked: the setting's own frame at the first
+spp is the same bytes), so its time is the plain run's plus the denoiser's.  Errors:
+
+* relative RMSE of the scene-linear RGB, rRMSE = √(mean over pixels and channels of (I − R)² / (R + 0.01)²).
+  The reference's own noise adds to every run's squared error alike (its seed is independent of the
+  run's): its share is estimated from the plain run at the largest spp n as e_n² · (n/ref)/(1 + n/ref)
+  (the variance of a mean falls as 1/spp) and taken out, err = √(rRMSE² − that);
+* mean CIEDE2000 ΔE₀₀ (Sharma, Wu & Dalal 2005) of the display PNGs — the 8-bit sRGB codes through the
+  config's view transform and exposure, decoded and taken to CIELAB (D65) with colour-science — against
+  the reference's PNG (raw: the reference's noise not removed).
+
+Ratios: denoised / plain error at equal spp, and the spp at which plain reaches the denoised 16-spp error,
+from err = c/√spp fitted through the plain runs (rRMSE) and by log-log interpolation (ΔE₀₀).  ``--crops``
+writes the reference, plain and denoised PNGs of a foliage crop (4× nearest) for an eye check.
+Seconds are CPU seconds (user + system, every thread) of the frame, the steadier measure on a shared machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_adaptive import cpu, load, rrmse
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def display(cfg, rgb: np.ndarray) -> np.ndarray:
+    """The 8-bit PNG codes of scene-linear ``rgb`` (the config's view and exposure)."""
+    from forest.imaging.view import quantise, to_display
+
+    return quantise(to_display(rgb, cfg.render.view, cfg.render.exposure))
+
+
+def lab(codes: np.ndarray) -> np.ndarray:
+    """8-bit sRGB codes → CIELAB (D65)."""
+    import colour
+
+    return colour.XYZ_to_Lab(colour.sRGB_to_XYZ(codes.astype(np.float64) / 255.0))
+
+
+def render(r, cfg, spp: int, denoise: bool = False):
+    """(frame image, CPU seconds) of one frame at ``spp`` with ``[render] denoise`` = ``denoise``."""
+    object.__setattr__(cfg.render, "denoise", denoise)
+    r.spp = spp
+    c0 = cpu()
+    out = r.frame(1.0)
+    return out, cpu() - c0
+
+
+def interp_spp(spps: list[int], errs: list[float], target: float) -> float:
+    """The spp at which the log-log line through (spp, err) reaches ``target`` (extrapolated at the ends)."""
+    if len(spps) < 2:
+        return math.nan
+    x, y = np.log(np.asarray(spps, float)), np.log(np.asarray(errs, float))
+    order = np.argsort(-y)  # err falls as spp grows
+    x, y = x[order], y[order]
+    i = int(np.clip(np.searchsorted(-y, -math.log(target)), 1, len(x) - 1))
+    t = (math.log(target) - y[i - 1]) / (y[i] - y[i - 1])
+    return float(math.exp(x[i - 1] + t * (x[i] - x[i - 1])))
+
+
+def bench_scene(config: Path, width: int, height: int, spps: list[int], ref_spp: int, crops: Path | None) -> None:
+    from forest.imaging import denoise
+    from forest.render.frame import FrameSize
+    from forest.render.render import make_renderer
+
+    t0 = time.perf_counter()
+    cfg, scene = load(config, width, height, None, [])
+    r = make_renderer(scene, "llvm_ad_rgb", FrameSize(width, height, ref_spp, 1))
+    print(f"\n{config.name} {width}x{height}: {len(scene.instances):,} trees, load {time.perf_counter() - t0:.1f} s")
+    seed = int(cfg.render.seed)
+    object.__setattr__(cfg.render, "seed", seed + 1)  # the reference's noise independent of the runs'
+    ref, t_ref = render(r, cfg, ref_spp)
+    object.__setattr__(cfg.render, "seed", seed)
+    ref_rgb = np.asarray(ref.rgb, np.float64)
+    ref_png = display(cfg, ref.rgb)
+    ref_lab = lab(ref_png)
+    print(f"reference {ref_spp} spp: {t_ref:.1f} CPU-s")
+    window = foliage_window(ref.albedo)
+    if crops is not None:
+        crop_pngs(crops / config.stem, window, {"reference": ref_png})
+    import colour
+
+    rows = []
+    for i, spp in enumerate(spps):
+        out, t = render(r, cfg, spp)
+        c0 = cpu()
+        d = denoise(out.rgb, out.albedo, out.normal)
+        t_d = cpu() - c0
+        assert d is not None, "Open Image Denoise (pyoidn) is not installed"
+        if i == 0:  # the setting's own frame is the same image
+            on, _ = render(r, cfg, spp, denoise=True)
+            assert on.denoised and np.array_equal(on.rgb, d), "[render] denoise = true differs from denoise()"
+        png_p, png_d = display(cfg, out.rgb), display(cfg, d)
+        de_p = float(np.mean(colour.delta_E(lab(png_p), ref_lab, method="CIE 2000")))
+        de_d = float(np.mean(colour.delta_E(lab(png_d), ref_lab, method="CIE 2000")))
+        rows.append((spp, t, t_d, rrmse(np.asarray(out.rgb, np.float64), ref_rgb), rrmse(d, ref_rgb), de_p, de_d))
+        if crops is not None:
+            crop_pngs(crops / config.stem, window, {f"{spp:03d}_plain": png_p, f"{spp:03d}_denoised": png_d})
+    n, e_n = rows[-1][0], rows[-1][3]
+    floor2 = e_n**2 * (n / ref_spp) / (1.0 + n / ref_spp)  # the reference's own noise, squared
+
+    def corr(e: float) -> float:
+        return math.sqrt(max(e * e - floor2, 0.0))
+
+    print(f"reference noise (rRMSE, estimated from the {n}-spp run): {math.sqrt(floor2):.4f}, taken out below")
+    print(
+        f"{'spp':>4} | {'plain CPU-s':>11} {'+denoise':>9} | {'rRMSE plain':>11} {'denoised':>9} {'ratio':>6} | "
+        f"{'ΔE00 plain':>10} {'denoised':>9} {'ratio':>6}"
+    )
+    for spp, t, t_d, ep, ed, dp, dd in rows:
+        print(
+            f"{spp:4d} | {t:11.2f} {t_d:9.2f} | {corr(ep):11.4f} {corr(ed):9.4f} {corr(ed) / corr(ep):6.2f} | "
+            f"{dp:10.3f} {dd:9.3f} {dd / dp:6.2f}"
+        )
+    c = math.exp(sum(math.log(corr(ep) * math.sqrt(s)) for s, _, _, ep, _, _, _ in rows) / len(rows))
+    d16 = next((row for row in rows if row[0] == 16), rows[0])
+    e_d16 = corr(d16[4])
+    spp_rr = (c / e_d16) ** 2 if e_d16 > 0 else math.inf
+    spp_de = interp_spp([row[0] for row in rows], [row[5] for row in rows], d16[6])
+    print(
+        f"plain reaches the denoised {d16[0]}-spp error at ≈ {spp_rr:.0f} spp by rRMSE (fit err = {c:.3f}/√spp), "
+        f"≈ {spp_de:.0f} spp by ΔE00 (log-log through the plain runs); denoising costs "
+        f"{np.mean([row[2] for row in rows]):.2f} CPU-s a frame"
+    )
+
+
+def foliage_window(albedo: np.ndarray, h: int = 54, w: int = 96) -> tuple[int, int]:
+    """(y, x) of the ``w``×``h`` window with the most albedo detail (summed gradient; a coarse search)."""
+    a = np.asarray(albedo, np.float64).mean(axis=2)
+    g = np.abs(np.diff(a, axis=0))[:, :-1] + np.abs(np.diff(a, axis=1))[:-1, :]
+    best, at = -1.0, (0, 0)
+    for y in range(0, max(1, g.shape[0] - h), 9):
+        for x in range(0, max(1, g.shape[1] - w), 16):
+            s = float(g[y : y + h, x : x + w].sum())
+            if s > best:
+                best, at = s, (y, x)
+    return at
+
+
+def crop_pngs(folder: Path, window: tuple[int, int], images: dict[str, np.ndarray]) -> None:
+    """The 96×54 crop at ``window`` of each display image, 4× nearest, as ``<name>.png``."""
+    from forest.images import write_encoded_image
+
+    folder.mkdir(parents=True, exist_ok=True)
+    (y, x), h, w = window, 54, 96
+    for name, img in images.items():
+        c = np.repeat(np.repeat(img[y : y + h, x : x + w], 4, axis=0), 4, axis=1)
+        write_encoded_image(folder / f"{name}.png", c)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--configs", default="configs/demo.toml,configs/meadow.toml")
+    ap.add_argument("--size", default="320x180")
+    ap.add_argument("--spp", default="8,16,32,64")
+    ap.add_argument("--ref-spp", type=int, default=256)
+    ap.add_argument("--crops", type=Path, default=None, help="folder for foliage crops (plain, denoised, reference)")
+    args = ap.parse_args()
+    from forest.imaging import oidn_available
+
+    if not oidn_available():
+        sys.exit("bench_denoise: needs Open Image Denoise (pip install pyoidn)")
+    width, height = (int(v) for v in args.size.split("x"))
+    spps = [int(s) for s in args.spp.split(",")]
+    t0 = time.perf_counter()
+    for c in args.configs.split(","):
+        path = Path(c) if Path(c).is_absolute() else ROOT / c
+        bench_scene(path, width, height, spps, args.ref_spp, args.crops)
+    print(f"\nwall {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
