@@ -125,3 +125,36 @@ def fake_gpu(monkeypatch, tmp_path):
 
     monkeypatch.setattr(selfcheck, "launch", launch)
     return state
+
+
+#: A scene that scatters and renders in a second (scalar_rgb, 32×18, 1 spp): the CLI tests' subject.
+TINY_SCENE = """
+seed = 11
+[terrain]
+procedural = { size = 80.0, height = 6.0, resolution = 17 }
+[scatter]
+count = 12
+[[species]]
+model = "shrub"
+percent = 100
+scale = [2.0, 3.0]
+[camera]
+position = [0.0, 30.0, -60.0]
+target = [0.0, 0.0, 0.0]
+[render]
+width = 32
+height = 18
+spp = 1
+variant = "scalar_rgb"
+"""
+
+
+def run(argv) -> int:
+    """Run ``forest argv`` in this process; its exit status."""
+    import pytest
+
+    from forest.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in argv])
+    return e.value.code or 0

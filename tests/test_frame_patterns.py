@@ -4,38 +4,17 @@ from __future__ import annotations
 
 import fileseq
 import pytest
+from conftest import TINY_SCENE, run
 
 from forest.cli import main
 from forest.errors import ParameterError
 from forest.frames import MAX_FRAMES, frame_path, parse_frames, still_path
 
-SCENE = """
-seed = 11
-[terrain]
-procedural = { size = 80.0, height = 6.0, resolution = 17 }
-[scatter]
-count = 12
-[[species]]
-model = "shrub"
-percent = 100
-scale = [2.0, 3.0]
-[camera]
-position = [0.0, 30.0, -60.0]
-target = [0.0, 0.0, 0.0]
-keys = [ { frame = 1, position = [0.0, 30.0, -60.0], target = [0.0, 0.0, 0.0] },
-         { frame = 9, position = [20.0, 25.0, -50.0], target = [0.0, 0.0, 0.0] } ]
-[render]
-width = 32
-height = 18
-spp = 1
-variant = "scalar_rgb"
-"""
-
-
-def run(argv) -> int:
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in argv])
-    return e.value.code or 0
+SCENE = TINY_SCENE.replace(
+    "[render]",
+    "keys = [ { frame = 1, position = [0.0, 30.0, -60.0], target = [0.0, 0.0, 0.0] },\n"
+    "         { frame = 9, position = [20.0, 25.0, -50.0], target = [0.0, 0.0, 0.0] } ]\n[render]",
+)
 
 
 @pytest.fixture(scope="module")

@@ -7,36 +7,12 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 import pytest
+from conftest import TINY_SCENE, run
 
-from forest.cli import main
 from forest.commands.wedge import split_wedge, wedge_output
 from forest.errors import ParameterError
 
-SCENE = """
-seed = 11
-[terrain]
-procedural = { size = 80.0, height = 6.0, resolution = 17 }
-[scatter]
-count = 12
-[[species]]
-model = "shrub"
-percent = 100
-scale = [2.0, 3.0]
-[camera]
-position = [0.0, 30.0, -60.0]
-target = [0.0, 0.0, 0.0]
-[render]
-width = 32
-height = 18
-spp = 1
-variant = "scalar_rgb"
-"""
-
-
-def run(argv) -> int:
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in argv])
-    return e.value.code or 0
+SCENE = TINY_SCENE
 
 
 def read(path: Path) -> tuple[np.ndarray, dict]:
