@@ -6,11 +6,10 @@
 "Before" is the demo with canopy structure off and the old per-tree colour jitter
 (hue ±4°, value ±8 %); "after" is the demo as configured (the defaults of
 :mod:`forest.scatter.canopy` and the stronger jitter).  Each render is made with
-``forest render`` (its default renderer) at 480×270, 16 spp.  Note (measured Nov 2026): both
-Mitsuba renderers, forest_path and ``scalar_rgb``, colour foliage by the colour map at each hit's
-world position and do not read the InstanceSet's per-tree ``tint`` column (the RIB, USD, Blender
-and points exports do), so the per-tree colour jitter cannot show in these figures until they do;
-a render with a ±90° hue jitter measures the same as one with ±4°.  Foliage pixels are those
+``forest render`` (its default renderer) at 480×270, 16 spp.  Both Mitsuba renderers show each
+tree's own colour, the InstanceSet's ``tint`` column (forest_path exactly, as the map looked up at
+each hit times the tree's jitter; scalar_rgb with the jitter quantised to a few bins per species);
+before November 2026 they ignored the column and a ±90° hue jitter measured the same as ±4°.  Foliage pixels are those
 whose EXR ``species`` layer names a tree (≥ 0); the statistics are read from the sRGB
 PNG (8 bit), as a photograph would be.  The shipped reference photographs
 (``tests/fixtures/photos``, each with a painted region mask; canopy = ``#00ff00``)

@@ -124,7 +124,7 @@ def original_loop(config, terrain, maps, n: int, seed: int = 0) -> int:
         k = int(np.searchsorted(pct, rng.random() * 100, side="right"))
         if k >= len(pct) or slope > config.species[k].slope_max:
             continue
-        maps.tint_at(uu, vv)
+        maps.tint_at(np.array([x]), np.array([z]), terrain.extent)
         maps.partition_at(uu, vv)
         _ = (x, y, z, rng.random() * 2 * math.pi)
         kept += 1

@@ -33,7 +33,11 @@ jitter (:mod:`forest.tint`).  Scatter writes the column with the same function
 and the Scene recomputes it for a set that scatter made (it records its
 inputs), so a repainted map, a new jitter or a recalibrated leaf colour is
 applied without scattering again — placement comes from the InstanceSet,
-colour from the config.  Sets made elsewhere keep their tints.
+colour from the config.  Sets made elsewhere keep their tints.  The renderers
+look the map up where a ray hits a tree and multiply it by
+``scene.tree_jitter()``, t_i ⊘ m(x_i) (forest_path per tree; scalar_rgb
+quantised to a few bins per species, :mod:`forest.render.instancing`), so a
+tree renders in the colour every exporter writes for it.
 
 **Individuals.**  ``scene.individuals[s]`` are the different trees of species
 index s (element 0 is ``scene.species[s]``; the recipe grown with seed + k,
@@ -48,7 +52,9 @@ tint the ground.  It is the only place the ground is resolved: the scalar
 renderer (:func:`forest.render.scene.terrain_reflectance`), forest_path
 (:mod:`forest.render.path.ground`) and the exporters
 (:func:`forest.export.common.terrain_texture`) read it, with the fitted
-``ground_tint``; none reads ``[render] terrain_texture`` again.
+``ground_tint``; none reads ``[render] terrain_texture`` again.  It carries the
+far landscape's albedo that the ground skirt fades to (canopy and ground mixed
+by the crowns' cover, :mod:`forest.skirt`; a :class:`forest.skirt.HorizonAlbedo`).
 
 **Lights.**  ``scene.lights`` (:class:`forest.lights.Lights`) is the sun and
 sky by one rule for every backend.
@@ -89,6 +95,7 @@ from .lod import LodPlan, lod_plan
 from .maps import colour_at, colour_tint_grid, read_colour_map
 from .preflight import check_species
 from .scatter.models import model_settings, resolve_individuals, resolve_models, scatter_models
+from .skirt import horizon_albedo
 from .terrain import Terrain, load_terrain
 from .tint import TintParams, tint_params
 
@@ -176,6 +183,28 @@ class Scene:
         table = self.leaf_tint.astype(np.float32)
         return (tint * table[np.asarray(self.instances.species, np.int64)]).astype(np.float32)
 
+    def tree_jitter(self) -> np.ndarray | None:
+        """(N, 3) float32: each tree's tint beyond the colour map, j_i = t_i ⊘ m(x_i); None when every j_i is 1.
+
+        A renderer that looks the colour map up where a ray hits a tree (forest_path, so
+        that look-dev's gradients reach the map) multiplies that lookup by j_i to show
+        the tree's colour t_i: the per-tree hue/value jitter, or the tint a set made
+        elsewhere carries.  Where the map is (near) black at a tree, j_i = 1."""
+        inst = self.instances
+        if not len(inst):
+            return None
+        tint = np.asarray(inst.tint, np.float64).reshape(-1, 3)
+        if self.colour is None:
+            jitter = tint
+        else:
+            pos = np.asarray(inst.position, np.float64)
+            m = np.asarray(self.colour.at(pos[:, 0], pos[:, 2]), np.float64)
+            ok = m > 1e-4
+            jitter = np.where(ok, tint / np.where(ok, m, 1.0), 1.0)
+        if np.all(np.abs(jitter - 1.0) < 1e-6):
+            return None
+        return jitter.astype(np.float32)
+
     def with_config(self, config: Config) -> Scene:
         """The same trees and terrain with another config's look (lights, camera, render, colour map, jitter, ground).
 
@@ -196,7 +225,8 @@ class Scene:
         if _ground_inputs(config) != _ground_inputs(old):
             ground = terrain_albedo(config, self.terrain, inst, self.species)
         lod = lod_plan(config, self.species)
-        return dataclasses.replace(self, config=config, colour=colour, instances=inst, terrain_albedo=ground, lod=lod)
+        scene = dataclasses.replace(self, config=config, colour=colour, instances=inst, terrain_albedo=ground, lod=lod)
+        return dataclasses.replace(scene, terrain_albedo=horizon_albedo(scene))  # its trees' far look (forest.skirt)
 
 
 def _ground_inputs(config: Config) -> tuple[object, ...]:
@@ -343,4 +373,5 @@ def load_scene(
     ground = terrain_albedo(config, terrain, inst, species)
     lod = lod_plan(config, species)
     step(1.0, "scene")
-    return Scene(config, terrain, inst, colour, library, species, lod, ground, individuals)
+    scene = Scene(config, terrain, inst, colour, library, species, lod, ground, individuals)
+    return dataclasses.replace(scene, terrain_albedo=horizon_albedo(scene))  # its trees' far look (forest.skirt)

@@ -19,16 +19,75 @@ hundreds of metres up the ring lies a fraction of a pixel below the horizon.
 
 **Fade.**  With the skirt, the ground's albedo grid (the Scene's
 ``terrain_albedo``, :mod:`forest.ground`) is padded so that past the terrain's
-edge it fades to its mean colour (:func:`fade_beyond_edge`): clamped lookups
-would otherwise repeat every border texel outward as a stripe running to the
-horizon.  Both renderers use these; the exporters write the terrain alone.
+edge it fades to one colour, the far landscape's albedo ρ_far
+(:func:`fade_beyond_edge`): clamped lookups would otherwise repeat every
+border texel outward as a stripe running to the horizon.  Both renderers use
+these; the exporters write the terrain alone.
+
+**The far landscape.**  Seen from afar, a wooded landscape has the colour of
+its canopy where crowns cover the ground and of the ground in the gaps, not of
+the soil under the trees (fading to the ground grid's mean drew a brown bare
+band at the horizon beyond a forest).  So the skirt fades to the terrain's own
+landscape averaged over its extent (:func:`far_albedo`):
+
+    ρ_far = ⟨(1 − c)·ρ_g⟩ + ⟨c⟩·ρ_c  =  ρ̄_g + ⟨c·(ρ_c − ρ_g)⟩
+
+with ⟨·⟩ the mean over the terrain, ρ_g the ground's albedo grid, and c the
+crowns' cover of the ground, the Boolean-model cover of
+:func:`forest.ground.canopy_cover` (c = 1 − exp(−D), D the crowns' area per
+ground area around a point, Nilson 1971), on a grid of
+:data:`COVER_RESOLUTION` texels along the longer side (ρ_g bilinear at its
+texel centres in the second form; ρ̄_g is the mean of the whole grid, so a
+terrain without trees keeps exactly the former fade to its mean).  Trees
+count, ground cover (``[[ground_cover]]``, under or between them) does not.
+
+ρ_c is the canopy's reflectance: the crowns' mean foliage albedo ω, weighted
+by crown area π(s_i·R_s)² (R_s the half width of species s's highest level,
+s_i the tree's scale), each tree's ω_i its species' tinted colour (the
+leaves' albedo, :func:`forest.tint.leaf_colour`; a species without tinted
+parts, a building, its parts' mean colour) — the species' own colours, not the
+colour map's tint, the trees' jitter or a fitted leaf tint: look-dev fits those
+while the skirt stays as the Scene made it, so a skirt that followed them would
+disagree with the fit (a fitted sky pulled to make up for a skirt painted with the
+start's map), and the map's tint has mean 1 under the default normalisation —
+turned into the reflectance of a deep canopy by the two-stream
+result for a semi-infinite medium of isotropic scatterers (the diffusive
+reflectance of Hapke 1981, "Bidirectional reflectance spectroscopy 1. Theory",
+J. Geophys. Res. 86: 3039–3054; Kubelka–Munk's R∞):
+
+    ρ_c = (1 − γ) / (1 + γ),    γ = √(1 − ω)
+
+A crown is not a flat leaf: light that enters it is scattered many times and
+partly absorbed, and its self-shadowing is in that reflectance too, so a
+canopy of leaves of albedo 0.17 (green) reflects about 0.047, close to what
+forest_path draws for the demo's forest seen from afar without haze.  A flat
+skirt painted with the leaves' own albedo shone 3–4× brighter than that forest.
+
+ρ_far is a property of the ground (in the grid's units, before the fitted
+``ground_tint``, which multiplies the whole grid, skirt included, in both
+renderers).  The Scene computes it once (:func:`horizon_albedo`; its
+``terrain_albedo`` is then a :class:`HorizonAlbedo`), and both renderers take
+it from there (:func:`far_colour`); an albedo built without a Scene fades to
+its mean.  Deterministic: no random numbers, only sums over the trees and the
+grid.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+from .ground import TerrainAlbedo, canopy_cover, crown_radii, grid_shape, texel_centres
+from .maps import sample_bilinear
+from .tint import leaf_colour
+
+if TYPE_CHECKING:
+    from .instances import InstanceSet
+    from .library import Species
+    from .scene import Scene
 
 #: Smallest radius of the skirt, metres.
 MIN_SKIRT_RADIUS = 30_000.0
@@ -112,29 +171,45 @@ def skirt_mesh(terrain, radius: float) -> Skirt | None:
 #: :data:`FADE_MAX_TEXELS`).
 FADE_SHARE = 0.125
 FADE_MAX_TEXELS = 128
+#: Texels a side a one-colour grid is repeated to before it fades to another colour.
+ONE_COLOUR_TEXELS = 16
 
 
-def fade_beyond_edge(rgb: np.ndarray, extent) -> tuple[np.ndarray, tuple[float, float, float, float]]:
-    """An (H, W, 3) albedo grid padded so that the ground past the terrain's edge fades to its mean colour.
+def fade_beyond_edge(
+    rgb: np.ndarray, extent, far: np.ndarray | Sequence[float] | None = None
+) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+    """An (H, W, 3) albedo grid padded so that the ground past the terrain's edge fades to ``far``.
+
+    ``far`` is the far landscape's albedo ρ_far (:func:`far_colour`; the module
+    docstring); None fades to the grid's mean colour ρ̄.
 
     A grid looked up with edge clamping repeats its border texels outward, so
     on the skirt every border texel becomes a stripe running to the horizon
     (toward the vanishing point).  This adds P = ⌈FADE_SHARE · max(H, W)⌉
     texels (≤ FADE_MAX_TEXELS) on every side, of the same size as the grid's,
-    whose colour blends from the clamped border texel to the grid's mean ρ̄:
+    whose colour blends from the clamped border texel to ρ_far:
 
-        ρ(d) = (1 − s(d/P))·ρ_edge + s(d/P)·ρ̄,    s(t) = t²(3 − 2t)
+        ρ(d) = (1 − s(d/P))·ρ_edge + s(d/P)·ρ_far,    s(t) = t²(3 − 2t)
 
-    with d the distance in texels past the edge; the outermost ring is ρ̄, so
+    with d the distance in texels past the edge; the outermost ring is ρ_far, so
     everything beyond it is one colour.  The grid inside is untouched, and
     the extent grows by P texels on every side.  Returns the grid and its
-    extent (xmin, zmin, xmax, zmax).
+    extent (xmin, zmin, xmax, zmax).  A one-texel grid (one material) is
+    returned as it is when ρ_far is its colour, else first repeated to
+    :data:`ONE_COLOUR_TEXELS` texels a side, so that it fades over the same
+    share of the terrain's width as any grid (a texel the terrain's size would
+    blend the fade into the terrain itself).
     """
     rgb = np.asarray(rgb, np.float32)
     h, w = rgb.shape[:2]
     xmin, zmin, xmax, zmax = (float(v) for v in extent)
+    mean = ground_mean(rgb)
+    target = mean if far is None else np.asarray(far, np.float32).reshape(mean.shape)
     if h * w <= 1:
-        return rgb, (xmin, zmin, xmax, zmax)
+        if np.array_equal(target, mean):
+            return rgb, (xmin, zmin, xmax, zmax)
+        h = w = ONE_COLOUR_TEXELS
+        rgb = np.ascontiguousarray(np.broadcast_to(rgb.reshape(1, 1, -1), (h, w, rgb.shape[-1])))
     p = int(min(FADE_MAX_TEXELS, max(2, np.ceil(FADE_SHARE * max(h, w)))))
     padded = np.pad(rgb, ((p, p), (p, p), (0, 0)), mode="edge")
     rows = np.arange(h + 2 * p)
@@ -143,7 +218,96 @@ def fade_beyond_edge(rgb: np.ndarray, extent) -> tuple[np.ndarray, tuple[float, 
     dc = np.maximum(np.maximum(p - cols, cols - (w + p - 1)), 0)
     t = np.clip(np.maximum(dr[:, None], dc[None, :]) / p, 0.0, 1.0)
     s = (t * t * (3.0 - 2.0 * t))[..., None]
-    mean = rgb.reshape(-1, rgb.shape[2]).mean(axis=0)
-    out = ((1.0 - s) * padded + s * mean).astype(np.float32)
+    out = ((1.0 - s) * padded + s * target).astype(np.float32)
     dx, dz = (xmax - xmin) / w, (zmax - zmin) / h
     return out, (xmin - p * dx, zmin - p * dz, xmax + p * dx, zmax + p * dz)
+
+
+#: Texels along the terrain's longer side of the canopy-cover grid that :func:`far_albedo` averages over.
+COVER_RESOLUTION = 256
+
+
+def canopy_reflectance(omega: np.ndarray | Sequence[float]) -> np.ndarray:
+    """ρ_c = (1 − γ)/(1 + γ), γ = √(1 − ω): the reflectance of a deep canopy of foliage albedo ω (module docstring)."""
+    gamma = np.sqrt(1.0 - np.clip(np.asarray(omega, np.float64), 0.0, 1.0))
+    return np.asarray((1.0 - gamma) / (1.0 + gamma), np.float64)
+
+
+def crown_colours(species: Sequence[Species]) -> np.ndarray:
+    """(S, 3) float64: the colour each species' tint multiplies (:func:`forest.tint.leaf_colour`), or for a species
+    without tinted parts the mean colour of its highest level's parts (grey without parts)."""
+    out = np.empty((len(species), 3), np.float64)
+    for k, sp in enumerate(species):
+        parts = sp.lods[0].parts if sp.lods else ()
+        if any(p.tinted for p in parts) or not parts:
+            out[k] = leaf_colour(sp)
+        else:
+            out[k] = np.mean([np.asarray(p.colour, np.float64) for p in parts], axis=0)
+    return out
+
+
+def far_albedo(
+    ground: np.ndarray,
+    extent: Sequence[float],
+    instances: InstanceSet,
+    species: Sequence[Species],
+    tree_species: int,
+    tints: np.ndarray,
+) -> np.ndarray:
+    """ρ_far (3,) float64 = ρ̄_g + ⟨c·(ρ_c − ρ_g)⟩: the far landscape's albedo (module docstring).
+
+    ``ground``: the (H, W, 3) albedo grid over ``extent`` (map convention); ``instances``
+    with ``species`` per species index, of which the first ``tree_species`` are trees
+    (``[[species]]``; the rest ground cover); ``tints`` (N, 3): each row's colour factor
+    (``scene.tree_tints()``).
+    """
+    rgb = np.asarray(ground, np.float32)
+    mean = np.asarray(ground_mean(rgb), np.float64)
+    sp = np.asarray(instances.species, np.int64)
+    trees = np.flatnonzero(sp < tree_species)
+    if len(trees) == 0:
+        return mean
+    ext = (float(extent[0]), float(extent[1]), float(extent[2]), float(extent[3]))
+    radii = crown_radii(species)
+    area = np.pi * (radii[sp[trees]] * np.asarray(instances.scale, np.float64)[trees]) ** 2
+    if not area.sum() > 0.0:
+        return mean
+    omega = crown_colours(species)[sp[trees]] * np.asarray(tints, np.float64)[trees]
+    canopy = canopy_reflectance(area @ omega / area.sum())
+    shape = grid_shape(ext, COVER_RESOLUTION)
+    cover = canopy_cover(instances, radii, tree_species, ext, shape).reshape(-1, 1)
+    x, z = texel_centres(ext, shape)
+    u = (x.ravel() - ext[0]) / max(ext[2] - ext[0], 1e-12)
+    v = (z.ravel() - ext[1]) / max(ext[3] - ext[1], 1e-12)
+    under = np.asarray(sample_bilinear(rgb, u, v), np.float64).reshape(-1, rgb.shape[-1])
+    return np.asarray(mean + (cover * (canopy - under)).mean(axis=0), np.float64)
+
+
+@dataclass(frozen=True)
+class HorizonAlbedo(TerrainAlbedo):
+    """The Scene's ground albedo with ``far``, the (3,) albedo ρ_far its skirt fades to (:func:`far_albedo`)."""
+
+    far: tuple[float, float, float] | None = None
+
+
+def horizon_albedo(scene: Scene) -> HorizonAlbedo:
+    """The Scene's ``terrain_albedo`` with its far landscape's albedo (:func:`far_albedo` of its trees)."""
+    albedo = scene.terrain_albedo
+    ones = np.ones((len(scene.instances), 3))  # the species' own colours (module docstring)
+    far = far_albedo(albedo.rgb, albedo.extent, scene.instances, scene.species, len(scene.config.species), ones)
+    rgb = (float(far[0]), float(far[1]), float(far[2]))
+    if isinstance(albedo, HorizonAlbedo):
+        return replace(albedo, far=rgb)
+    return HorizonAlbedo(albedo.rgb, albedo.extent, albedo.detail, albedo.detail_tile_m, albedo.water, far=rgb)
+
+
+def far_colour(albedo: TerrainAlbedo) -> np.ndarray:
+    """(3,) float32: the albedo the skirt fades to — ρ_far of a :class:`HorizonAlbedo`, else the grid's mean."""
+    far = getattr(albedo, "far", None)
+    return ground_mean(albedo.rgb) if far is None else np.asarray(far, np.float32).reshape(3)
+
+
+def ground_mean(rgb: np.ndarray) -> np.ndarray:
+    """(C,) float32: the mean colour ρ̄ of an (H, W, C) albedo grid, summed in float32 as the fade always did."""
+    a = np.asarray(rgb, np.float32)
+    return np.asarray(a.reshape(-1, a.shape[-1]).mean(axis=0), np.float32)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from pathlib import Path
 
@@ -156,7 +157,11 @@ def test_colour_map_tints_each_tree_where_it_stands(tmp_path, library, variant):
     # direct light only; a black ground (the ground is one untinted material) adds nothing to the edge pixels
     cfg = make_config(tmp_path, maps='colour = "colour.png"', render="max_depth = 2", ground="[0.0, 0.0, 0.0]")
     pos = [[x, 0.0, z] for x in (-30.0, -10.0, 10.0, 30.0) for z in (-30.0, -15.0, 15.0, 30.0)]
+    # A set made elsewhere keeps its tints (forest.scene); these trees carry the map's tint where they stand,
+    # as a scattered set does, and every renderer shows it by looking the map up at each hit.
     inst = trees(pos)
+    scene = load_scene(cfg, inst, library=library)
+    inst = dataclasses.replace(inst, tint=scene.colour.at(inst.position[:, 0], inst.position[:, 2]))
     render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "t.exr", variant=variant)
     out = read_exr(tmp_path / "t.exr")
     z_of_id = dict(zip(inst.id.astype(int).tolist(), inst.position[:, 2].tolist()))

@@ -19,7 +19,10 @@ are Mitsuba's native ``principledthin`` with ``base_color`` a and
 only); leaves with τ = 0, bark and surfaces are two-sided ``diffuse``.  A
 tinted textured part takes the map × c × mean(detail over the card) — the
 texture's alpha still cuts the card; its detail modulation is averaged.
-Opacity is the texture's alpha (``mask``).
+Opacity is the texture's alpha (``mask``).  A tinted part's c includes the
+species' fitted leaf tint and, per shapegroup, a colour-jitter bin's factor
+(:mod:`forest.render.instancing`); an untextured part's constant albedo is
+clamped to 1 (Mitsuba refuses an RGB reflectance above 1).
 """
 
 from __future__ import annotations
@@ -97,7 +100,9 @@ class MaterialBuilder:
             return colour_grid_texture(self.grid * scale, self.extent, self.height_range, self.variant)
         if detail is not None:
             return _bitmap(mi, detail * c)
-        return {"type": "rgb", "value": [float(x) for x in c]}
+        # A constant reflectance above 1 (a light part × a tree's colour jitter or leaf tint) is refused by
+        # Mitsuba's RGB reflectance spectrum: clamp it (a no-op for every colour that loaded before).
+        return {"type": "rgb", "value": [min(float(x), 1.0) for x in c]}
 
     def _opacity(self, texture: Path | None) -> dict[str, Any] | None:
         if texture is None:

@@ -423,11 +423,12 @@ def terrain_reflectance(
     tileable detail texture, of mean 1, is left out here — the scalar renderer
     runs no Python texture plugin per sample (:mod:`forest.render.materials`).
     ``tint``: the Scene's fitted ``ground_tint`` (RGB), or None.  ``fade``: the
-    grid fades to its mean colour past the terrain's edge
-    (:func:`forest.skirt.fade_beyond_edge`; for the skirt that carries the
-    ground to the horizon).
+    grid fades past the terrain's edge to the far landscape's albedo the Scene
+    computed (:func:`forest.skirt.far_colour`, :func:`forest.skirt.fade_beyond_edge`;
+    for the skirt that carries the ground to the horizon), times the tint like
+    the grid — the rule forest_path uses too (:mod:`forest.render.path.ground`).
     """
-    from ..skirt import fade_beyond_edge
+    from ..skirt import fade_beyond_edge, far_colour
 
     grid = np.asarray(albedo.rgb, np.float32)
     extent = tuple(float(v) for v in albedo.extent)
@@ -438,12 +439,14 @@ def terrain_reflectance(
 
         warnings.warn(f"[ground] water: not rendered in {variant} (Mitsuba's own integrator has no water surface; "
                       "forest_path renders it): the water shows its colour", ForestWarning, stacklevel=2)  # fmt: skip
+    far = far_colour(albedo)
     if tint is not None and not np.all(np.asarray(tint) == 1.0):
         grid = (grid * np.asarray(tint, np.float32).reshape(3)).astype(np.float32)
-    if grid.shape[0] * grid.shape[1] == 1:
-        return _rgb(grid[0, 0])  # one material: a constant, no texture lookup per hit
+        far = (far * np.asarray(tint, np.float32).reshape(3)).astype(np.float32)
     if fade:
-        grid, extent = fade_beyond_edge(grid, extent)
+        grid, extent = fade_beyond_edge(grid, extent, far)
+    if grid.shape[0] * grid.shape[1] == 1:
+        return _rgb(grid[0, 0])  # one material (and the same far away): a constant, no texture lookup per hit
     return colour_grid_texture(grid, extent, terrain.height_range, variant)
 
 

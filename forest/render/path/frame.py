@@ -213,6 +213,12 @@ class PathScene:
         leaf, ground = inputs.tints()
         self.params["leaf_tint"] = mi.Float(leaf.astype(np.float32).ravel())
         self.params["ground_tint"] = mi.Color3f(*[float(x) for x in ground])
+        #: Each row's colour jitter (the trees', then 1 for the identity row), or None: see ``.materials``.
+        self.row_tint = None
+        if inputs.tree_tint is not None:
+            rows = np.ones((self.geometry.n_trees + 1, 3), np.float32)
+            rows[:-1] = np.asarray(inputs.tree_tint, np.float32)
+            self.row_tint = mi.Float(rows.ravel())
         if inputs.colour_grid is not None:
             self.params["colour_grid"] = mi.TensorXf(np.ascontiguousarray(inputs.colour_grid, dtype=np.float32))
         self.haze: HazeInputs | None = None
@@ -339,6 +345,7 @@ class PathScene:
             rr_depth=int(self.inputs.rr_depth),
             haze=haze,
             water_ripple=None if self.inputs.terrain_water is None else float(self.inputs.water_ripple),
+            row_tint=self.row_tint,
         )
 
     def integrator(self, *, max_depth: int | None = None) -> Any:

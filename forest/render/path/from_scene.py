@@ -185,6 +185,7 @@ def path_inputs(
         ground_tint=tuple(float(x) for x in scene.ground_tint),
         terrain_water=look.water,
         water_ripple=float(config.model.ground.water_ripple),
+        tree_tint=scene.tree_jitter(),
     )
 
 

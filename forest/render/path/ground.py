@@ -4,10 +4,12 @@ The ground is resolved once, on the Scene (``scene.terrain_albedo``,
 :mod:`forest.ground`: ``[render] terrain_texture``, else ``terrain_colour``,
 else the ``[ground]`` rules); this module only lays it out as
 :class:`~forest.render.path.PathInputs` wants it.  With ``[render]
-horizon_ground`` the grid is padded to fade to its mean colour on the skirt
-(:func:`forest.skirt.fade_beyond_edge`).  The fitted ``ground_tint`` is not
+horizon_ground`` the grid is padded to fade on the skirt to the far
+landscape's albedo that the Scene computed — its canopy and ground mixed by the
+crowns' cover (:func:`forest.skirt.far_colour`, :func:`forest.skirt.fade_beyond_edge`),
+the same rule as the scalar renderer's.  The fitted ``ground_tint`` is not
 folded in here: forest_path applies it as a parameter, which look-dev
-differentiates.
+differentiates (on the skirt too, as the scalar renderer multiplies it).
 
 The water coverage W (``TerrainAlbedo.water``, None without water rules) rides
 along on the same texels; past the terrain's edge it fades to 0 with the same
@@ -23,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ...skirt import fade_beyond_edge
+from ...skirt import fade_beyond_edge, far_colour
 
 if TYPE_CHECKING:
     from ...scene import Scene
@@ -53,7 +55,7 @@ def ground_look(scene: Scene) -> GroundLook:
     extent = (xmin, zmin, xmax, zmax)
     water = None if albedo.water is None else np.asarray(albedo.water, np.float32)
     if scene.config.render.horizon_ground:
-        faded, extent = fade_beyond_edge(grid, extent)
+        faded, extent = fade_beyond_edge(grid, extent, far_colour(albedo))
         if water is not None:
             water = fade_to_zero(water, faded.shape[:2])
         grid = faded

@@ -159,6 +159,8 @@ class PathInputs:
     is the water coverage W of :mod:`forest.ground`: that share of the terrain is a
     Fresnel mirror (tilted by ripples of ``water_ripple`` degrees RMS) over the map's colour
     (:func:`~forest.render.path.materials.water_lobe`); None for no water.
+    ``tree_tint`` (N, 3) multiplies the tinted parts of each tree besides the colour
+    grid: its colour beyond the map (:meth:`forest.scene.Scene.tree_jitter`), None for 1.
     """
 
     instances: Any
@@ -193,6 +195,7 @@ class PathInputs:
     ground_tint: Sequence[float] = (1.0, 1.0, 1.0)
     terrain_water: np.ndarray | None = None
     water_ripple: float = 2.0
+    tree_tint: np.ndarray | None = None
 
     def terrain_map_array(self) -> np.ndarray:
         """``terrain_colour`` as float32, with ``terrain_water`` as a fourth channel where there is water."""
@@ -249,6 +252,13 @@ class PathInputs:
                 f"path inputs: leaf_tint must be ({len(self.species)}, 3), one RGB per species, "
                 f"got {np.shape(self.leaf_tint)}"
             )
+        if self.tree_tint is not None:
+            tt = np.asarray(self.tree_tint)
+            if tt.shape != (len(self.instances), 3) or not np.all(np.isfinite(tt)) or np.any(tt < 0):
+                raise ForestError(
+                    f"path inputs: tree_tint must be finite, non-negative and ({len(self.instances)}, 3), "
+                    f"one RGB per tree, got shape {tt.shape}"
+                )
         leaf, ground = self.tints()
         if not (np.isfinite(leaf).all() and np.isfinite(ground).all()) or leaf.min() < 0 or ground.min() < 0:
             raise ForestError("path inputs: leaf_tint and ground_tint must be finite and non-negative")

@@ -127,8 +127,11 @@ class PathKernel:
         rr_depth: int,
         haze: HazeModel | None = None,
         water_ripple: float | None = None,
+        row_tint: Any = None,
     ):
         self.mi = mi
+        #: Each row's colour jitter j_r (Float, 3 per row, the identity row last; see .materials), or None.
+        self.row_tint = row_tint
         self.haze = haze
         self.scene = scene
         self.parts = parts
@@ -242,7 +245,9 @@ class PathKernel:
         seed = dr.reinterpret_array(mi.UInt32, sampler.next_1d())
         rng = mi.PCG32(size=n, initstate=mi.UInt64(seed), initseq=mi.UInt64(dr.arange(mi.UInt32, n)))
         valid, _, row, p, _, n_sh, uv, material, _ = self.trace(ray.o, ray.d, ray.maxt, rng, active)
-        sh = shading(mi, self.mats, material, uv, p, self.grid, self.extent, self.terrain_map, valid)
+        sh = shading(
+            mi, self.mats, material, uv, p, self.grid, self.extent, self.terrain_map, valid, row, self.row_tint
+        )
         normal = dr.select(dr.dot(n_sh, ray.d) > 0.0, -n_sh, n_sh)
         albedo = dr.select(valid, sh.reflect + sh.transmit, 0.0)
         return dr.select(valid, row, NO_HIT), albedo, dr.select(valid, normal, 0.0)
@@ -347,6 +352,8 @@ class PathKernel:
             )  # fmt: skip
             if self.mats.has_sheen:  # the leaf cuticle lobe also needs the direction towards the viewer
                 state["vwi"] = mi.Vector3f(zeros3)
+            if self.row_tint is not None:  # and the tree's colour jitter its row
+                state["vrow"] = mi.UInt32(0)
         water = self.water_ripple is not None
         if water and not primal:  # the pending vertex's water: its diffuse factor 1 − W·F, a mirror sample
             state.update(vkeep=mi.Float(1.0), vspec=mi.Bool(False))
@@ -393,7 +400,7 @@ class PathKernel:
             else:
                 with dr.resume_grad():
                     sh = shading(mi, self.mats, S["vmat"], S["vuv"], S["vp"], self.grid, self.extent,
-                                 self.terrain_map, s_done)  # fmt: skip
+                                 self.terrain_map, s_done, S.get("vrow"), self.row_tint)  # fmt: skip
                     if water:
                         sh = replace(sh, reflect=sh.reflect * S["vkeep"])
                     f_l, _ = bsdf_eval(sh, S["vns"], S["vdl"], S.get("vwi"))
@@ -477,7 +484,10 @@ class PathKernel:
             ng = dr.select(flip, -sp.n_geo, sp.n_geo)
             ns = dr.select(flip, -sp.n_sh, sp.n_sh)
             with dr.resume_grad(when=not primal):
-                sh = shading(mi, self.mats, sp.material, sp.uv, sp.p, self.grid, self.extent, self.terrain_map, vertex)
+                sh = shading(
+                    mi, self.mats, sp.material, sp.uv, sp.p, self.grid, self.extent, self.terrain_map, vertex,
+                    h_row, self.row_tint,
+                )  # fmt: skip
                 if water:  # a Fresnel mirror over the diffuse ground where the terrain is water
                     assert self.terrain_map is not None and self.water_ripple is not None
                     w = water_coverage(mi, self.mats, sp.material, sp.p, self.terrain_map, vertex)
@@ -536,6 +546,8 @@ class PathKernel:
                     S[k] = dr.select(nee, v, S[k])
                 if "vwi" in S:
                     S["vwi"] = dr.select(nee, wi, S["vwi"])
+                if "vrow" in S:
+                    S["vrow"] = dr.select(nee, h_row, S["vrow"])
                 if water:
                     S["vkeep"] = dr.select(nee, wl.keep, S["vkeep"])
                     S["vspec"] = dr.select(nee, spec, S["vspec"])

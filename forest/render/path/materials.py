@@ -3,9 +3,11 @@
 Albedo of a hit x with texture coordinates (u, v) on a part with material m
 (the library's model, ``forest.render.materials``):
 
-    a(x) = c_m · detail_m(u, v) · G(x)^[m tinted] · A(x)^[m terrain map]
+    a(x) = c_m · detail_m(u, v) · (G(x) ⊙ j_r)^[m tinted] · A(x)^[m terrain map]
 
-with c_m the part's linear colour (times the tint of its row in the ``leaf_tint`` /
+with j_r the tint of the hit's tree r beyond the colour map (its hue/value jitter,
+:meth:`forest.scene.Scene.tree_jitter`; 1 for world-space parts and without jitter),
+c_m the part's linear colour (times the tint of its row in the ``leaf_tint`` /
 ``ground_tint`` parameters: a species' leaves, the terrain; see :meth:`MaterialArrays.tinted_colours`), detail_m the RGB of its texture (a linear
 detail factor, 1 without a texture), G the colour grid and A a terrain colour
 map, both looked up at x's world X/Z with bilinear interpolation between texel
@@ -486,12 +488,15 @@ def shading(
     extent: Sequence[float],
     terrain_map: tuple[Any, Sequence[float]] | None,
     active: Any,
+    row: Any = None,
+    row_tint: Any = None,
 ) -> Shading:
     """R, T and the lobe probability at a hit (see the module docstring).
 
     ``grid`` is a ``Texture2f`` over ``extent`` (xmin, zmin, xmax, zmax) or None;
     ``terrain_map`` a (``Texture2f``, its own extent) pair or None.  Gradients flow
-    from ``grid``'s tensor into R and T.
+    from ``grid``'s tensor into R and T.  ``row_tint`` (Float, 3 per row, or None) is
+    each row's jitter j_r, gathered at the hit's ``row`` for tinted materials.
     """
     import drjit as dr
 
@@ -508,6 +513,9 @@ def shading(
         tinted = dr.gather(mi.Bool, mats.tinted, material, active) & active
         g = grid.eval(pos, active=tinted)
         a = dr.select(tinted, a * mi.Color3f(g[0], g[1], g[2]), a)
+    if row_tint is not None and row is not None:
+        jittered = dr.gather(mi.Bool, mats.tinted, material, active) & active
+        a = dr.select(jittered, a * dr.gather(mi.Color3f, row_tint, row, jittered), a)
     if terrain_map is not None:
         tmap, (txmin, tzmin, txmax, tzmax) = terrain_map
         tpos = mi.Point2f((p.x - txmin) * (1.0 / (txmax - txmin)), (p.z - tzmin) * (1.0 / (tzmax - tzmin)))
