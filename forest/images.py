@@ -22,7 +22,8 @@ MAX_IMAGE_BYTES = 512 * 1024 * 1024
 MAX_IMAGE_PIXELS = 16384 * 16384
 #: Largest decoded image (float32, every channel) a read may allocate: width × height × channels × 4 bytes,
 #: checked from the header before decoding.  A small file can hold a huge image (a 1 MB PNG of
-#: 16384×16000 RGBA decodes to 4 GiB); the job service reads uploads with a far smaller limit.
+#: 16384×16000 RGBA decodes to 4 GiB); the job service reads uploads with a far smaller limit, and every
+#: read refuses, from the header too, an image whose decoded size is more than the process's memory room.
 MAX_DECODED_BYTES = MAX_IMAGE_PIXELS * 4 * 4
 LINEAR_FORMATS = (".exr", ".hdr", ".pfm")
 
@@ -43,6 +44,22 @@ def _first_line(*texts: str) -> str:
             if line and line != "PNG library error":
                 return line
     return ""
+
+
+def _memory_short(decoded: int) -> str:
+    """Where ``decoded`` bytes do not fit the memory this process may still allocate
+    (:func:`forest.preflight.memory_room`: ``$FOREST_MEMORY_GB``, else the available memory and every cgroup
+    limit): ``36.0 MiB decoded, more than the 12.0 MiB of memory available`` (with the cgroup limit that binds);
+    else ``""`` (it fits, or the room cannot be read)."""
+    from .preflight import format_bytes, memory_room
+
+    room = memory_room()
+    if room is None or decoded <= room.bytes:
+        return ""
+    text = f"{format_bytes(decoded)} decoded, more than the {format_bytes(room.bytes)} of memory available"
+    if room.cgroup is not None:
+        text += f" (cgroup limit of {format_bytes(room.cgroup.limit)} on {room.cgroup.path})"
+    return text
 
 
 def read_image(
@@ -66,7 +83,10 @@ def read_image(
     ``unassociated``, RGBA colour comes back as stored (straight alpha) instead
     of OpenImageIO's default of multiplying it by alpha on read.  ``max_pixels``
     and ``max_decoded_bytes`` (:data:`MAX_DECODED_BYTES`) are checked from the
-    file's header, before anything is decoded.
+    file's header, before anything is decoded, and so is the memory: an image
+    whose decoded size is more than this process may still allocate
+    (:func:`forest.preflight.memory_room`, cgroup limits included) is refused
+    naming both sizes, rather than decoded until the kernel kills the process.
     """
     from .runtime import captured_stderr
 
@@ -108,6 +128,13 @@ def read_image(
                 raise ForestError(
                     f"{path}: {what} is {spec.width}x{spec.height} with {spec.nchannels} channels, "
                     f"{decoded / 2**20:.0f} MiB decoded, over the {max_decoded_bytes / 2**20:.0f} MiB limit"
+                )
+            short = _memory_short(decoded)
+            if short:
+                inp.close()
+                del inp
+                raise ForestError(
+                    f"{path}: {what} is {spec.width}x{spec.height} with {spec.nchannels} channels, {short}"
                 )
             data = inp.read_image(0, 0, 0, spec.nchannels, "float")
             error = inp.geterror()

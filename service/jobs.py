@@ -36,6 +36,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from forest.config import MAX_CONFIG_BYTES
+from forest.errors import ConfigError
 
 from .assets import AssetError, DataDir, asset_kind, collect_assets, link_into
 from .models import Kind, MatchSpec, Resources, TaskSpec, Variant
@@ -60,7 +61,8 @@ class Limits:
     #: Refuse at submission a render whose image alone needs more memory than the workers have room for.
     check_memory: bool = True
     #: The room (bytes) a render task has; None: this machine's (``forest.preflight.memory_room``: available
-    #: memory and cgroup limits, read at each submission), where the local workers run.
+    #: memory and cgroup limits, read at each submission), where the local workers run.  A worker checks the
+    #: render again once its trees are known, against the smaller of this and its own room.
     worker_memory_bytes: int | None = None
 
 
@@ -271,7 +273,7 @@ def _library_error(
 
     Files are named as the request names them (``sky.exr``), never by their place in the job folder.
     """
-    from forest.errors import ConfigError, ParameterError
+    from forest.errors import ParameterError
 
     if isinstance(e, ParameterError):
         line = f"{field_name(e.field or '', kind)}: {e.message}"
@@ -374,6 +376,7 @@ def prepare(
             "preview": s.preview,
             "quick_look": s.quick_look,
             "inputs": inputs,
+            "memory_bytes": limits.worker_memory_bytes if limits.check_memory else None,
             "resources": Resources(cpus=s.cpus, gpus=s.gpus if s.gpus is not None else _gpus(s.variant or configured)),
         }
         frames: list[int] | None = None
@@ -525,7 +528,6 @@ def _check_memory(
     if kind not in ("render", "flythrough"):
         return
     from forest import preflight
-    from forest.errors import ConfigError
     from forest.render.render import frame_size
 
     found = preflight.memory_room() if room is None else room
@@ -536,10 +538,18 @@ def _check_memory(
     try:
         preflight.check_render_memory(config, estimate, available=found)
     except ConfigError as e:
+        raise RequestError(memory_line(e, overrides)) from None
+
+
+def memory_line(e: ConfigError, overrides: dict[str, Any]) -> str:
+    """A :func:`forest.preflight.check_render_memory` refusal (a ``ConfigError``) in the request's words: the
+    settings that gave the size (``settings.width``) or the trees (``settings.count``), else the config's field
+    (``config: render.width/render.height``) — at submission and in a worker alike."""
+    if e.field == "render.width/render.height":
         given = [SETTING_OF[f] for f in ("render.width", "render.height") if f in overrides]
-        if not given or e.field != "render.width/render.height":
-            raise
-        raise RequestError(f"{'/'.join(given)}: {e.message}") from None
+        if given:
+            return f"{'/'.join(given)}: {e.message}"
+    return f"{_field(e.field, overrides)}: {e.message}" if e.field else str(e.message)
 
 
 class _Names:

@@ -70,6 +70,11 @@ class TaskSpec(_Frozen):
     resources: Resources = Field(default_factory=Resources)
     inputs: dict[str, str] = Field(default_factory=dict, description="Job-relative input path -> SHA-256.")
     skip_frames: tuple[int, ...] = Field((), description="Frames whose outputs the service already holds.")
+    memory_bytes: int | None = Field(
+        default=None,
+        description="The room (bytes) the service says its workers have (Limits.worker_memory_bytes); a worker "
+        "checks a render against the smaller of it and its own room (None: its own alone).",
+    )
 
     @property
     def scene_key(self) -> str:

@@ -9,6 +9,9 @@ to write, where the inputs are, the worker's scene cache, how to report) and ret
 Frame tasks (stills and fly-throughs) render frame by frame with
 ``forest.render.render_scene(frames=[f], reuse=…, on_pass=…)``:
 
+* once the scene is loaded, the whole render's memory is checked as ``forest render`` checks
+  it (:func:`_check_memory`: the trees and the level-of-detail plan known, against this
+  worker's room); a render that will not fit fails with the CLI's one line, before any output;
 * a frame whose EXR and PNG are already in the job folder (or that the service says it
   holds, ``spec.skip_frames``) is not rendered again: it is reported ``resumed``;
 * after every sample pass the image so far is published as the task's preview
@@ -259,6 +262,7 @@ def _render(spec: TaskSpec, ctx: TaskContext) -> TaskResult:
         return TaskResult(outputs=sorted(set(outputs)), resumed_frames=on_disk, preview=_last(thumbs))
 
     scene = _load(spec, ctx)
+    _check_memory(spec, ctx, scene, todo)
     preview_rel = f"preview/task-{spec.index}.png"
     clock = _Clock(len(todo))
     if still and spec.quick_look and spec.variant in (None, "scalar_rgb"):
@@ -345,6 +349,57 @@ def _render(spec: TaskSpec, ctx: TaskContext) -> TaskResult:
         trees=len(scene.instances),
         resumed_frames=on_disk,
     )
+
+
+def _check_memory(spec: TaskSpec, ctx: TaskContext, scene: LoadedScene, frames: list[int]) -> None:
+    """Refuse the render before it starts when it will not fit, as ``forest render`` does once its scene is loaded.
+
+    The CLI's estimate with the trees known (:func:`forest.preflight.render_estimate`: the frame's size, the
+    trees, the species' triangles and, in the JIT variants, the trees the level-of-detail plan merges at the far
+    level in ``frames``, :func:`forest.render.path.from_scene.far_plan`) against the smaller of this worker's
+    room (:func:`forest.preflight.memory_room`: available memory and its cgroups' limits) and the room the
+    service states (``spec.memory_bytes``).  Too big: a one-line :class:`~forest.errors.ForestError` in the
+    request's words (:func:`forest.service.jobs.memory_line`), rather than a worker killed for memory; else the
+    estimate goes to the task's log.
+    """
+    from forest import preflight
+    from forest.errors import ConfigError, ForestError
+    from forest.memory import Room
+    from forest.render import choose_variant
+    from forest.render.render import frame_size
+
+    from .jobs import memory_line
+
+    room = preflight.memory_room()
+    if spec.memory_bytes is not None and (room is None or spec.memory_bytes < room.bytes):
+        room = Room(spec.memory_bytes)
+    if room is None:
+        return
+    cfg, trees = scene.config, len(scene.instances)
+    size = frame_size(cfg, preview=spec.preview)
+    variant, _reason = choose_variant(trees, spec.variant, cfg.render.variant)
+    far_trees, far_triangles = None, 0
+    if not variant.startswith("scalar"):
+        from forest.render.path.from_scene import far_plan
+
+        far_trees, far_triangles = far_plan(scene.scene, [float(f) for f in frames])
+    estimate = preflight.render_estimate(
+        size.width,
+        size.height,
+        size.spp,
+        trees,
+        variant,
+        frames=len(frames),
+        subframes=size.subframes,
+        triangles=sum(lod.triangles for sp in scene.scene.species for lod in sp.lods),
+        far_trees=far_trees,
+        far_triangles=far_triangles,
+    )
+    try:
+        preflight.check_render_memory(cfg, estimate, available=room)
+    except ConfigError as e:
+        raise ForestError(memory_line(e, spec.overrides)) from None
+    ctx.log(f"render: {estimate.line(room)}")
 
 
 def _quick_look(spec: TaskSpec, ctx: TaskContext, scene: LoadedScene, rel: str) -> None:

@@ -49,7 +49,11 @@ def test_flags_default_to_the_service_defaults():
     assert (low.max_upload_bytes, low.max_spp, low.max_trees) == (2**19, 4, 10)
 
 
-def test_a_lower_limit_refuses_what_the_default_accepts(tmp_path):
+def test_a_lower_limit_refuses_what_the_default_accepts(tmp_path, monkeypatch):
+    from forest import preflight
+    from forest.memory import Room
+
+    monkeypatch.setattr(preflight, "memory_room", lambda: Room(6 * 2**30))  # this machine's room, as read now
     job = {"kind": "render", "config": tiny_config(), "settings": {"width": 200, "height": 100}}
     frames = {"kind": "flythrough", "config": tiny_config(), "settings": {"frames": "1-8"}}
     upload = png(64, 64)
@@ -67,6 +71,9 @@ def test_a_lower_limit_refuses_what_the_default_accepts(tmp_path):
             "max_iterations": 2000,
             "max_upload_bytes": 64 * 2**20,
             "max_config_bytes": 2**20,
+            "max_decoded_bytes": 512 * 2**20,
+            "max_check_memory_bytes": (768 + 3 * 512) * 2**20,
+            "worker_memory_bytes": 6 * 2**30,
         }
     low = service_limits(max_side=128, max_frames=4, max_upload_mb=len(upload) / 2 / 2**20)
     with idle_server(tmp_path / "low", low) as srv:
@@ -83,6 +90,21 @@ def test_a_lower_limit_refuses_what_the_default_accepts(tmp_path):
         assert (limits["max_width"], limits["max_height"], limits["max_frames"]) == (128, 128, 4)
         assert limits["max_upload_bytes"] == low.max_upload_bytes < len(upload)
         assert httpx.get(srv.url + "/jobs").json()["counts"]["total"] == 0  # refused jobs left nothing
+
+
+def test_health_shows_the_decode_budget_and_the_memory_rooms(tmp_path):
+    """/health shows an upload's decode budget, the address space its check runs in, and the room a render is
+    checked against at submission: the stated one, or none where submission does not check."""
+    from forest.service.assets import check_memory_limit
+
+    limits = Limits(max_decoded_bytes=64 * 2**20, worker_memory_bytes=3 * 2**30)
+    with idle_server(tmp_path / "stated", limits) as srv:
+        shown = httpx.get(srv.url + "/health").json()["limits"]
+    assert shown["max_decoded_bytes"] == 64 * 2**20
+    assert shown["max_check_memory_bytes"] == check_memory_limit(64 * 2**20) == (768 + 3 * 64) * 2**20
+    assert shown["worker_memory_bytes"] == 3 * 2**30
+    with idle_server(tmp_path / "off", Limits(check_memory=False, worker_memory_bytes=3 * 2**30)) as srv:
+        assert httpx.get(srv.url + "/health").json()["limits"]["worker_memory_bytes"] is None
 
 
 def _log_lines(path: Path) -> list[str]:
@@ -160,6 +182,10 @@ def test_the_page_takes_its_limits_from_the_api(tmp_path):
             while maxes() != ["300", "300", "16", "5000"]:
                 assert time.monotonic() < deadline, maxes()
                 time.sleep(0.05)
+            title = driver.execute_script("return document.querySelector('#asset-files').title")
+            assert (
+                title == "at most 64 MiB a file on this server; an image at most 512 MiB decoded (checked in 2304 MiB)"
+            )
         finally:
             driver.quit()
 

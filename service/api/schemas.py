@@ -132,7 +132,8 @@ class Example(BaseModel):
 
 
 class LimitsView(BaseModel):
-    """What one job may ask of this service (``forest serve --max-…``); over a limit a job is refused."""
+    """What one job may ask of this service (``forest serve --max-…``), an upload's decode budget and the memory
+    its checks use; over a limit a job or an upload is refused."""
 
     max_width: int = Field(..., description="Widest image, pixels (settings.width, render.width).")
     max_height: int = Field(..., description="Tallest image, pixels (settings.height, render.height).")
@@ -143,6 +144,21 @@ class LimitsView(BaseModel):
     max_iterations: int = Field(..., description="Most look-dev iterations in a match job.")
     max_upload_bytes: int = Field(..., description="Largest upload (PUT /assets), bytes.")
     max_config_bytes: int = Field(..., description="Largest config text, bytes.")
+    max_decoded_bytes: int = Field(
+        ...,
+        description="Largest uploaded image once decoded (width × height × channels × 4 bytes), checked from its "
+        "header before anything is decoded.",
+    )
+    max_check_memory_bytes: int = Field(
+        ..., description="Address space (RLIMIT_AS) of the child process that checks one upload, bytes."
+    )
+    worker_memory_bytes: int | None = Field(
+        ...,
+        description="The memory room (bytes) a render job is checked against at submission, from its image alone: "
+        "the one the service was given, else with local workers this machine's available memory and cgroup "
+        "limits, read now; null: not checked at submission. Each worker checks the render again once its trees "
+        "are known, against the smaller of this and its own room.",
+    )
 
 
 class Health(BaseModel):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends
 
+from ..assets import check_memory_limit
 from ..store import JOB_STATES
 from .deps import Service, service
 from .schemas import Example, Health, LimitsView, WorkerList
@@ -14,7 +15,8 @@ router = APIRouter()
 @router.get("/health", response_model=Health, summary="Liveness and queue counts")
 def health(svc: Service = Depends(service)) -> dict:
     """``ok`` with the executor, worker count, jobs per state, the capabilities, the limits on what a job may ask
-    for (``forest serve --max-…``; the page's inputs follow them) and the open event streams."""
+    for (``forest serve --max-…``; the page's inputs follow them) with an upload's decode budget and the memory
+    its checks use, and the open event streams."""
     counts = svc.db.counts()
     counts["total"] = sum(counts[s] for s in JOB_STATES)
     return {
@@ -30,9 +32,34 @@ def health(svc: Service = Depends(service)) -> dict:
 
 
 def limits_view(svc: Service) -> dict:
-    """The service's limits as :class:`~.schemas.LimitsView` shows them."""
+    """The service's limits as :class:`~.schemas.LimitsView` shows them: the :class:`~..jobs.Limits` fields, the
+    upload check's address space (:func:`~..assets.check_memory_limit`) and the render memory room that
+    submission checks against (:func:`worker_room`)."""
     limits = svc.config.limits
-    return {name: getattr(limits, name) for name in LimitsView.model_fields}
+    shown = {name: getattr(limits, name) for name in LimitsView.model_fields if hasattr(limits, name)}
+    shown["max_check_memory_bytes"] = check_memory_limit(limits.max_decoded_bytes)
+    shown["worker_memory_bytes"] = worker_room(svc)
+    return shown
+
+
+def worker_room(svc: Service) -> int | None:
+    """The bytes a render job's image must fit at submission, as :func:`~..jobs.prepare` reads them: the stated
+    ``Limits.worker_memory_bytes``, else for local workers this machine's room
+    (:func:`forest.preflight.available_memory`); None where submission does not check (or the room is unknown)."""
+    from forest import preflight
+    from forest.errors import ForestError
+
+    limits = svc.config.limits
+    if not limits.check_memory:
+        return None
+    if limits.worker_memory_bytes is not None:
+        return limits.worker_memory_bytes
+    if svc.config.executor != "local":
+        return None
+    try:
+        return preflight.available_memory()
+    except ForestError:  # a bad $FOREST_MEMORY_GB: submission says so, /health stays up
+        return None
 
 
 @router.get("/workers", response_model=WorkerList, summary="Worker slots and what each runs")

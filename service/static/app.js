@@ -114,6 +114,11 @@ function applyLimits(l) {
   set("#spp", l.max_spp);
   set("#count", l.max_trees);
   set("#iterations", l.max_iterations);
+  // Uploads: the file size, the decode budget of an image and the memory its check may use.
+  const mib = n => `${(n / 2 ** 20).toFixed(0)} MiB`;
+  const files = `at most ${mib(l.max_upload_bytes)} a file on this server; an image at most ` +
+    `${mib(l.max_decoded_bytes)} decoded (checked in ${mib(l.max_check_memory_bytes)})`;
+  for (const sel of ["#folder-files", "#asset-files"]) $(sel).title = files;
 }
 
 async function upload(entries) {
@@ -245,7 +250,9 @@ function rendersWith(w) {
 async function refreshWorkers() {
   try {
     const h = await api("GET", "/health");
-    $("#health").textContent = `${h.executor} executor · ${h.workers} worker(s)`;
+    const room = h.limits && h.limits.worker_memory_bytes;
+    $("#health").textContent = `${h.executor} executor · ${h.workers} worker(s)` +
+      (room ? ` · ${(room / 2 ** 30).toFixed(1)} GiB for a render` : "");
     applyLimits(h.limits);
     for (const opt of $("#kind").options) opt.disabled = !h.capabilities[opt.value];
     const { workers } = await api("GET", "/workers");
