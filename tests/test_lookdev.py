@@ -245,8 +245,9 @@ def test_aligned_round_trip_recovers_the_lights_and_the_map(aligned):
     from forest.lookdev.colour import delta_e2000
 
     folder, scene, truth, ref = aligned
+    # 6 iterations: the fit's best iterate is its 6th (it stopped after 8 of 10), so the result is the same.
     r = match(
-        scene, ref, folder / "out", iterations=10, spp=8, resolution=W, grid=GRID, params="camera,sun,sky,colour_map"
+        scene, ref, folder / "out", iterations=6, spp=8, resolution=W, grid=GRID, params="camera,sun,sky,colour_map"
     )
     assert r.figures["objective_fitted"] < 0.05 * r.figures["objective_start"]
     fitted = load_config(r.scene_path)
@@ -376,7 +377,8 @@ def test_a_sharp_painted_map_is_recovered_and_the_written_scene_holds_from_new_v
     from forest.lookdev.validation import compare, covered_cells, pattern_correlation
 
     folder, start, truth, ref = top_down
-    r = match(start, ref, folder / "edges", iterations=4, spp=8, resolution=96)
+    # 3 iterations: the 4th was never the best iterate (the same map and lights are written).
+    r = match(start, ref, folder / "edges", iterations=3, spp=8, resolution=96)
     assert r.anchor == "ground" and r.grid is not None and r.grid >= 8
     fitted_cfg = load_config(r.scene_path)
     lay = FitRenderer(truth, width=96, height=96, spp=1, variant=VARIANT, base_map=None).layers
@@ -391,9 +393,11 @@ def test_a_sharp_painted_map_is_recovered_and_the_written_scene_holds_from_new_v
 
     for name in ("sun", "sky"):
         assert np.allclose(light(fitted_cfg, name) / light(truth.config, name), 1.0, atol=0.05), name
+    # 16 spp: the two scenes share their random numbers, so their difference barely moves with the noise (ΔE 1.05,
+    # 0.53, 1.16 against 1.00, 0.52, 1.12 at 64 spp).
     figures = {
         v.name: v
-        for v in compare(start.with_config(fitted_cfg), truth, TD_VIEWS, width=64, height=64, spp=64, variant=VARIANT)
+        for v in compare(start.with_config(fitted_cfg), truth, TD_VIEWS, width=64, height=64, spp=16, variant=VARIANT)
     }
     assert figures["reference camera"].delta_e <= 1.5, figures
     assert figures["new low camera"].delta_e <= 2.0, figures
