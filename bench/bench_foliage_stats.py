@@ -2,6 +2,8 @@
 
     .venv/bin/python bench/bench_foliage_stats.py                       # render the demo before | after
     .venv/bin/python bench/bench_foliage_stats.py --images a.exr b.exr  # or read renders (EXR + PNG beside)
+    .venv/bin/python bench/bench_foliage_stats.py --gallery DIR          # every *.exr + PNG in DIR (the gallery's
+                                                                         # full frames: bench_gallery.py --keep DIR)
 
 "Before" is the demo with canopy structure off and the old per-tree colour jitter
 (hue ±4°, value ±8 %); "after" is the demo as configured (the defaults of
@@ -147,7 +149,18 @@ def main() -> None:
     ap.add_argument("--images", nargs=2, type=Path, metavar=("BEFORE_EXR", "AFTER_EXR"))
     ap.add_argument("--size", nargs=2, type=int, default=(480, 270))
     ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--gallery", type=Path, metavar="DIR", help="measure every EXR (+ PNG beside) in DIR instead")
     args = ap.parse_args()
+    if args.gallery:
+        for exr in sorted(args.gallery.glob("*.exr")):
+            px, tree = render_foliage(exr)
+            if len(px) < 500:
+                print(f"{exr.stem:34s} {len(px)} foliage pixels: too few to measure")
+                continue
+            print(line(exr.stem, stats(px)))
+            print(line(f"  {exr.stem}, crown means", stats(crown_means(px, tree))))
+        photo_lines()
+        return
     with tempfile.TemporaryDirectory() as tmp:
         if args.images:
             before, after = args.images
@@ -164,6 +177,11 @@ def main() -> None:
     keys = ("hue_5_95", "hue_circ_std", "luma_1_99")
     print("after / before, pixels: " + "  ".join(f"{k} {a[k] / b[k]:.2f}" for k in keys))
     print("after / before, crowns: " + "  ".join(f"{k} {ca[k] / cb[k]:.2f}" for k in keys))
+    photo_lines()
+
+
+def photo_lines() -> None:
+    """Print the statistics of every shipped photograph with a painted mask, and their median."""
     photos = sorted(p for p in PHOTOS.glob("*.jpg") if p.with_name(p.stem + "_mask.png").exists())
     rows = []
     for p in photos:
