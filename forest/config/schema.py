@@ -528,6 +528,18 @@ class GroundConfig(Section):
         return {**GROUND_MATERIALS, **{k: (float(v[0]), float(v[1]), float(v[2])) for k, v in self.materials.items()}}
 
 
+class CoverClumping(Section):
+    """Patches of one ``[[ground_cover]]`` (:mod:`forest.scatter.ground_cover`): density ×(1 + s(2U − 1)), same mean."""
+
+    strength: Unit = Field(
+        0.0, description="0 even … 1: density varies from (1 - s) to (1 + s) times `density` between patches."
+    )
+    scale: Positive = Field(6.0, description="Wavelength of the patch noise, metres (patches ~ half this across).")
+    size: Annotated[float, Field(ge=0.0, le=0.9, allow_inf_nan=False)] = Field(
+        0.0, description="Plants in the densest patches (1 + size) times larger, in the thinnest (1 - size) times."
+    )
+
+
 class GroundCoverConfig(Section):
     """One ``[[ground_cover]]``: small plants (grass, fern clumps) scattered near the camera path at a density."""
 
@@ -556,6 +568,15 @@ class GroundCoverConfig(Section):
         None, description=f"Different plants drawn (default {DEFAULT_INDIVIDUALS} for a library species, 1 for a mesh)."
     )
     colour_jitter: ColourJitter = Field(default_factory=ColourJitter, description="Per-plant hue and value variation.")
+    clumping: CoverClumping = Field(
+        default_factory=CoverClumping,
+        description="Patches: the density varies over a noise field with the mean kept; strength = 0 turns it off.",
+    )
+    edge: Annotated[float, Field(gt=0.0, le=10000.0, allow_inf_nan=False)] | None = Field(
+        None,
+        description="Metres: grow only this close to the edge of [maps] presence, on both sides "
+        "(a shrub mantle; with presence = true only the inner side).",
+    )
 
     _pairs = field_validator("scale", "altitude")(_ordered_pair)
 

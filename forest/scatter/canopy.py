@@ -139,14 +139,18 @@ class StandField:
         return (top + (c + (e - c) * fx - top) * fz).astype(np.float64)
 
 
-def stand_field(extent: Sequence[float], scale: float, seed: int) -> StandField:
-    """The area-ranked fBm stand field over ``extent`` = (xmin, zmin, xmax, zmax) at wavelength ``scale`` metres."""
+def stand_field(extent: Sequence[float], scale: float, seed: int, stream: Sequence[int] = ()) -> StandField:
+    """The area-ranked fBm stand field over ``extent`` = (xmin, zmin, xmax, zmax) at wavelength ``scale`` metres.
+
+    The lattice is seeded by ``SeedSequence([seed, CLUMP_TAG, *stream])``: the trees' stands use no
+    ``stream``; another user of the field (ground cover's patches) passes its own so its noise is independent.
+    """
     xmin, zmin, xmax, zmax = (float(e) for e in extent)
     side = max(xmax - xmin, zmax - zmin, 1e-9)
     step = max(scale / 8.0, side / MAX_GRID)
     x = xmin + step * np.arange(int(np.ceil((xmax - xmin) / step)) + 1)
     z = zmin + step * np.arange(int(np.ceil((zmax - zmin) / step)) + 1)
-    keys = np.random.SeedSequence([seed, CLUMP_TAG]).generate_state(OCTAVES, np.uint64)
+    keys = np.random.SeedSequence([seed, CLUMP_TAG, *stream]).generate_state(OCTAVES, np.uint64)
     f = np.zeros((len(z), len(x)))
     for o in range(OCTAVES):
         k = 2.0**o / scale

@@ -21,9 +21,39 @@ camera can see a small plant: within ``max_distance`` of its path.
   cover ends; then outside ``[maps] presence`` (with ``presence = true``),
   outside the slope window [``slope_min``, ``slope_max``] or the
   ``altitude`` window.
+* **Patches** (``clumping = {strength, scale, size}``; off at the default
+  strength 0).  A meadow is not an even lawn: its grasses grow in patches.
+  The stand field of :mod:`forest.scatter.canopy` — fBm value noise at
+  wavelength λ = ``scale``, replaced by its area rank U ∈ [0, 1] over the
+  region's X/Z bounding box, seeded by ``SeedSequence([seed, CLUMP_TAG, TAG,
+  j])`` so each entry has its own patches, independent of the trees' stands —
+  sets the density
+
+      ρ(x) = density · (1 + s(2U(x) − 1)),   s = ``strength``,
+
+  from (1 − s) to (1 + s) times ``density``, with mean ``density`` because U is
+  uniform over the area.  To draw it, (1 + s) times as many candidates are
+  placed and each is kept with the extra probability (1 + s(2U − 1))/(1 + s)
+  (thinning a Poisson process, Lewis & Shedler 1979).  With ``size`` = z a
+  plant's scale is multiplied by 1 + z(2U − 1): tall lush patches, short
+  sparse ones.  With s = 0 nothing is drawn or changed (the same plants as
+  without the option, byte for byte).
+* **Edge band** (``edge`` = W metres; off by default): only plants within W of
+  the edge of the presence map (the contour where it crosses
+  ``[maps] presence_threshold``) are kept, on both sides of it — a shrub mantle
+  that softens the wall of trunks at a forest edge.  The distance δ to the edge
+  is a signed Euclidean distance transform of the thresholded map (to the
+  nearest pixel of the other kind, less half a pixel, bilinear between pixel
+  centres; exact to about half a map pixel) and plants are kept where
+  ξ_fade < 1 − s((δ − W/2)/(W/2)) (s the smoothstep): the full density up to
+  W/2 from the edge, none beyond W.  ``presence = true`` keeps only the
+  band's inner side.  It needs ``[maps] presence``.
 * **Attributes** — yaw, scale in ``scale``, wind phase, individual, tilt by
   ``align`` towards the terrain normal, tint (:mod:`forest.tint`) and
   partition, as trees get them (:mod:`forest.scatter.attributes`).
+
+The rules, the patches and the edge band multiply into one keep probability
+tested against the ``fade`` stream's one uniform per candidate.
 
 Random numbers: one generator per quantity of :data:`STREAMS` spawned from
 ``SeedSequence([seed, TAG, j])``, one value per candidate, so entries are
@@ -40,6 +70,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
 from ..camera import camera_at
@@ -47,11 +78,12 @@ from ..config import Config
 from ..config.schema import MAX_TREES, CameraConfig, GroundCoverConfig
 from ..errors import ConfigError
 from ..instances import COLUMNS, yaw_tilt_quaternion
-from ..maps import MapSet
+from ..maps import MapSet, sample_bilinear
 from ..terrain import Terrain
 from ..tint import TintParams
 from .attributes import draw_individuals
 from .candidates import SLOPE_TOLERANCE, outside, slope_degrees
+from .canopy import smoothstep, stand_field
 
 TAG = 0x6C0BE4
 STREAMS = ("position", "yaw", "scale", "phase", "individual", "fade")
@@ -122,7 +154,8 @@ def scatter_cover(
     tree = cKDTree(points)
     faces = region_faces(terrain, tree, cover.max_distance, spacing)
     area = float(terrain.face_areas[faces].sum()) if len(faces) else 0.0
-    n = int(round(cover.density * area))
+    s = cover.clumping.strength
+    n = int(round(cover.density * area * (1.0 + s)))  # (1 + s) candidates per plant for the patches (docstring)
     if n > MAX_TREES:
         raise ConfigError(
             config.path,
@@ -140,7 +173,15 @@ def scatter_cover(
     normal = terrain.normals_at(faces[face], bary)
     u, v = terrain.to_uv(position[:, 0], position[:, 2])
     d, _ = tree.query(position)
-    keep = rng["fade"].random(n) < fade(d, cover.max_distance)
+    p = fade(d, cover.max_distance)
+    rank = None
+    if s > 0 or cover.clumping.size > 0:
+        rank = patch_rank(cover, j, config.seed, terrain, faces, position)
+    if rank is not None and s > 0:
+        p = p * patch_keep(rank, s)
+    if cover.edge is not None:
+        p = p * edge_keep(presence_edge_distance(maps, config, j, u, v, terrain.extent), cover.edge)
+    keep = rng["fade"].random(n) < p
     if cover.presence:
         keep &= maps.present(u, v)
     slope_lo, slope_hi = np.full(n, cover.slope_min), np.full(n, cover.slope_max)
@@ -161,7 +202,7 @@ def scatter_cover(
         "position": pos32,
         "rotation": yaw_tilt_quaternion(yaw, normal[sel], np.full(len(sel), cover.align)),
         "yaw": yaw,
-        "scale": lo + (hi - lo) * scale,
+        "scale": (lo + (hi - lo) * scale) * (1.0 if rank is None else patch_size(rank[sel], cover.clumping.size)),
         "species": k,
         "tint": tints.tints(maps.tint_at(pos32[:, 0], pos32[:, 2], terrain.extent), k, ids),
         "partition": maps.partition_at(u[sel], v[sel]),
@@ -170,6 +211,56 @@ def scatter_cover(
         "individual": individual,
     }
     return CoverResult(name, n, {c: np.asarray(a, dtype=COLUMNS[c][0]) for c, a in columns.items()})
+
+
+def patch_rank(
+    cover: GroundCoverConfig, j: int, seed: int, terrain: Terrain, faces: np.ndarray, position: np.ndarray
+) -> np.ndarray:
+    """The patch field's area rank U at ``position`` (module docstring): entry ``j``'s own stand field over the region."""
+    v = terrain.vertices[np.unique(terrain.faces[faces])]
+    extent = (v[:, 0].min(), v[:, 2].min(), v[:, 0].max(), v[:, 2].max())
+    field = stand_field(extent, cover.clumping.scale, seed, (TAG, j))
+    return field.at(position[:, 0], position[:, 2])
+
+
+def patch_keep(rank: np.ndarray, strength: float) -> np.ndarray:
+    """Extra keep probability (1 + s(2U − 1))/(1 + s) of a candidate at patch rank U (of (1 + s)× as many)."""
+    return (1.0 + strength * (2.0 * rank - 1.0)) / (1.0 + strength)
+
+
+def patch_size(rank: np.ndarray, size: float) -> np.ndarray:
+    """Scale factor 1 + z(2U − 1) of a plant at patch rank U for ``clumping.size`` z."""
+    return 1.0 + size * (2.0 * np.asarray(rank, np.float64) - 1.0)
+
+
+def presence_edge_distance(
+    maps: MapSet, config: Config, j: int, u: np.ndarray, v: np.ndarray, extent: tuple[float, float, float, float]
+) -> np.ndarray:
+    """Distance, metres, from map points (u, v) to the presence map's edge (its threshold contour), either side.
+
+    The thresholded map's signed Euclidean distance transform (pixel sizes along X and Z from
+    ``extent``), less half a pixel so that it is 0 on the edge between two pixel centres,
+    bilinear between pixel centres; ∞ everywhere when the map has no edge (all present).
+    """
+    if maps.presence is None:
+        raise ConfigError(config.path, f"ground_cover[{j}].edge", "needs [maps] presence: the band follows its edge")
+    inside = maps.presence >= maps.presence_threshold
+    if inside.all():
+        return np.full(len(u), np.inf)
+    h, w = inside.shape
+    dx, dz = (extent[2] - extent[0]) / w, (extent[3] - extent[1]) / h
+    half = 0.25 * (dx + dz)
+    signed = np.where(
+        inside,
+        distance_transform_edt(inside, sampling=(dz, dx)) - half,
+        -(distance_transform_edt(~inside, sampling=(dz, dx)) - half),
+    )
+    return np.abs(sample_bilinear(signed, u, v))
+
+
+def edge_keep(distance: np.ndarray, width: float) -> np.ndarray:
+    """Keep probability in the edge band: 1 up to ``width``/2 from the edge, smoothly 0 at ``width`` and beyond."""
+    return 1.0 - smoothstep(0.5 * width, width, distance)
 
 
 def fade(d: np.ndarray, reach: float) -> np.ndarray:
