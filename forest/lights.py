@@ -24,7 +24,20 @@ had their own test).  Here:
   have no Hosek–Wilkie model, write :attr:`Lights.sun` as a distant light and the
   sky as a dome (:meth:`Sky.dome`).
 * A ``constant`` sky has radiance ``radiance × colour``; an ``envmap`` sky is
-  the latitude–longitude image (+Y up) times ``scale``.
+  the latitude–longitude image (+Y up) times ``scale``; an ``hdri`` sky is an
+  ``envmap`` sky whose image ships with forest (:mod:`forest.hdri`).
+* **The sun of a map** (``map_sun``, on by default for an ``hdri``): the sun is
+  found in the image, taken out of it (its pixels refilled with the surrounding
+  sky's level) and becomes :attr:`Lights.sun` — a disc sun in its direction with
+  the irradiance and colour it had in the map, times ``scale``
+  (:func:`forest.hdri.split_sun`; :attr:`Sky.envmap` is then the processed
+  image, cached on disk, and :attr:`Sky.source` the original).  A path tracer
+  samples a half-degree disc far better than a few very bright texels (no
+  fireflies), and the sharp shadows agree with the map.  A ``[lights.sun]``
+  given in the config wins: it lights the scene, and the map's sun is still
+  taken out (otherwise two suns would light it).  Done here, once, so every
+  backend — forest_path, ``scalar_rgb`` and the exporters' dome lights — sees
+  the same map and sun.
 
 * ``[lights.clouds]`` lays a procedural cloud layer over the sky (:class:`Clouds`;
   forest_path only — Mitsuba's own integrator in ``scalar_rgb`` has no such sky and
@@ -43,7 +56,7 @@ from typing import Literal
 
 import numpy as np
 
-from .errors import ConfigError
+from .errors import ConfigError, ForestError
 
 RGB = tuple[float, float, float]
 
@@ -92,7 +105,9 @@ class Sky:
     ``sunsky`` (Hosek–Wilkie, pointed at and normalised to ``sun``, times ``intensity``).
 
     ``intensity`` is the constant sky's ``radiance``, the environment map's ``scale`` or the sun-sky's
-    ``scale``; ``colour`` is the constant sky's (white otherwise).
+    ``scale``; ``colour`` is the constant sky's (white otherwise).  For an environment map whose sun was
+    taken out (``map_sun``), ``envmap`` is the processed image, ``source`` the original one and
+    ``map_sun`` the sun found in it (irradiance × ``scale``), whether or not it lights the scene.
     """
 
     kind: Literal["constant", "envmap", "sunsky"]
@@ -102,6 +117,8 @@ class Sky:
     turbidity: float = 3.0
     albedo: float = 0.15
     sun: Sun | None = None
+    source: Path | None = None
+    map_sun: Sun | None = None
 
     @property
     def radiance(self) -> np.ndarray:
@@ -166,6 +183,25 @@ def _sun(cfg) -> Sun:
     return Sun(float(cfg.elevation), float(cfg.azimuth), float(cfg.irradiance), (r, g, b))
 
 
+def _envmap_sky(config, k) -> Sky:
+    """An ``envmap`` or ``hdri`` sky, its sun taken out of the map when ``map_sun`` says so (module docstring)."""
+    from .hdri import sky_path, split_sun
+
+    path = sky_path(k.hdri) if k.hdri is not None else Path(k.envmap)
+    scale = float(k.scale)
+    if not k.splits_sun:
+        return Sky("envmap", scale, envmap=path)
+    try:
+        split = split_sun(path)
+    except (ForestError, OSError) as e:
+        field = "lights.sky.hdri" if k.hdri is not None else "lights.sky.envmap"
+        raise ConfigError(config.path, field, getattr(e, "message", None) or str(e)) from None
+    map_sun = None
+    if split.elevation is not None and split.azimuth is not None:
+        map_sun = Sun(split.elevation, split.azimuth, split.irradiance * scale, split.colour)
+    return Sky("envmap", scale, envmap=split.path, source=path, map_sun=map_sun)
+
+
 def resolve_lights(config) -> Lights:
     """``config.lights`` as :class:`Lights`, by the rules of the module docstring."""
     cfg = config.lights
@@ -178,7 +214,9 @@ def resolve_lights(config) -> Lights:
             ss = k.sunsky
             sky = Sky("sunsky", float(ss.scale), turbidity=float(ss.turbidity), albedo=float(ss.albedo), sun=sun)
         elif k.kind == "envmap":
-            sky = Sky("envmap", float(k.scale), envmap=Path(k.envmap))
+            sky = _envmap_sky(config, k)
+            if sun is None:  # no [lights.sun]: the map's own sun lights the scene
+                sun = sky.map_sun
         else:
             r, g, b = (float(c) for c in k.colour)
             sky = Sky("constant", float(k.radiance), (r, g, b))

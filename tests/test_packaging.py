@@ -54,6 +54,10 @@ def test_wheel_installs_into_a_fresh_venv_and_renders_the_packaged_demo(tmp_path
     assert Path(where).is_relative_to(venv) and not Path(where).is_relative_to(ROOT)
     listed = json.loads(run([forest, "library", "list", "--json"], cwd=work, env=env).stdout)
     assert {"broadleaf", "conifer", "palm", "house"} <= {r["name"] for r in listed}
+    # The shipped HDRI skies (library/skies) and their licence come with the wheel.
+    skies = "from forest.hdri import SKIES, sky_path; print(all(sky_path(n).is_file() for n in SKIES))"
+    assert run([py, "-c", skies], cwd=work, env=env).stdout.strip() == "True"
+    assert (Path(where).parent / "library_files" / "skies" / "LICENSE-blender-studiolights.txt").is_file()
     config = run([forest, "examples", "copy", "demo", work / "demo"], cwd=work, env=env).stdout.strip()
     assert Path(config) == work / "demo" / "demo.toml" and (work / "demo" / "maps" / "height.png").is_file()
     out = work / "out" / "demo.exr"

@@ -851,19 +851,40 @@ class SunskyConfig(Section):
     scale: NonNegative = 1.0
 
 
+def _hdri(value: Any) -> str:
+    from ..hdri import SKIES
+
+    if value not in SKIES:
+        raise fail(f"unknown sky {value!r}; the shipped skies are {', '.join(SKIES)}")
+    return str(value)
+
+
 class SkyConfig(Section):
-    """A constant sky (``radiance`` × ``colour``), an ``envmap``, or ``sunsky``."""
+    """A constant sky (``radiance`` × ``colour``), an ``envmap``, a shipped ``hdri``, or ``sunsky``.
+
+    An ``hdri`` is an environment map shipped with forest (``library/skies``).  With ``map_sun`` (the
+    default for ``hdri``) the sun is found in the map, taken out of it and lights the scene as forest's
+    disc sun in its direction, with its irradiance and colour (× ``scale``); a [lights.sun] wins over it.
+    """
 
     radiance: NonNegative = Field(0.35, description="Constant sky: radiance.")
     colour: RGB = Field((0.6, 0.75, 1.0), description="Constant sky: linear RGB.")
     envmap: InputFile | None = Field(None, description="Latitude–longitude environment map (+Y up), EXR/HDR.")
+    hdri: Annotated[Str, AfterValidator(_hdri)] | None = Field(
+        None, description="A sky shipped with forest, by name: sunrise or sunset (library/skies)."
+    )
+    map_sun: Bool | None = Field(
+        None,
+        description="Environment map: find the sun in the map, take it out and light the scene with a disc sun "
+        "matching it (default: true for hdri, false for envmap).",
+    )
     scale: NonNegative = Field(1.0, description="Environment map: scale.")
     sunsky: SunskyConfig | None = None
 
     @model_validator(mode="after")
     def _one_kind(self) -> SkyConfig:
-        if self.envmap is not None and self.sunsky is not None:
-            raise fail("give envmap or sunsky, not both")
+        if sum(k is not None for k in (self.envmap, self.hdri, self.sunsky)) > 1:
+            raise fail("give one of envmap, hdri or sunsky")
         given = self.model_fields_set
         if self.kind != "constant":
             for key in ("radiance", "colour"):
@@ -871,12 +892,20 @@ class SkyConfig(Section):
                     raise fail("applies to a constant sky only", key)
         if self.kind != "envmap" and "scale" in given:
             raise fail("applies to an environment map only (sunsky has its own scale)", "scale")
+        if self.kind != "envmap" and "map_sun" in given:
+            raise fail("applies to an environment map (envmap or hdri) only", "map_sun")
         return self
 
     @property
+    def splits_sun(self) -> bool:
+        """Whether the map's sun is taken out and lights the scene as the disc sun (``map_sun``, by default
+        for an ``hdri``)."""
+        return self.kind == "envmap" and (self.map_sun if self.map_sun is not None else self.hdri is not None)
+
+    @property
     def kind(self) -> str:
-        """``"constant"``, ``"envmap"`` or ``"sunsky"``."""
-        if self.envmap is not None:
+        """``"constant"``, ``"envmap"`` (a file or a shipped ``hdri``) or ``"sunsky"``."""
+        if self.envmap is not None or self.hdri is not None:
             return "envmap"
         if self.sunsky is not None:
             return "sunsky"
