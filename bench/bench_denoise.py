@@ -5,9 +5,12 @@
 
 For each scene (its still at frame 1 without motion blur, forest_path in ``llvm_ad_rgb``) a reference
 of ``--ref-spp`` samples is rendered first with another seed, not denoised; then each spp once plain.
-The denoised image of a run is Open Image Denoise over the same samples, guided by the frame's first-hit
-albedo and normal — what ``[render] denoise = true`` writes (checked: the setting's own frame at the first
-spp is the same bytes), so its time is the plain run's plus the denoiser's.  Errors:
+Each run is denoised by Open Image Denoise over the same samples, guided by the frame's first-hit albedo
+and normal, in two modes (:data:`MODES`, their order alternating from spp to spp, the machine being
+shared): ``guides`` hands OIDN the noisy guides as they are — what ``[render] denoise = true`` writes
+(checked: the setting's own frame at the first spp is the same bytes), so its time is the plain run's plus
+the denoiser's — and ``prefiltered`` denoises each guide first by a filter of its own and the beauty then
+with ``cleanAux`` (``denoise(..., prefilter=True)``, OIDN's recommendation for noisy guides).  Errors:
 
 * relative RMSE of the scene-linear RGB, rRMSE = √(mean over pixels and channels of (I − R)² / (R + 0.01)²).
   The reference's own noise adds to every run's squared error alike (its seed is independent of the
@@ -19,7 +22,8 @@ spp is the same bytes), so its time is the plain run's plus the denoiser's.  Err
 
 Ratios: denoised / plain error at equal spp, and the spp at which plain reaches the denoised 16-spp error,
 from err = c/√spp fitted through the plain runs (rRMSE) and by log-log interpolation (ΔE₀₀).  ``--crops``
-writes the reference, plain and denoised PNGs of a foliage crop (4× nearest) for an eye check.
+writes the reference, plain and both denoised PNGs of a foliage crop (4× nearest) for an eye check, with
+the albedo guide as traced and prefiltered.
 Seconds are CPU seconds (user + system, every thread) of the frame, the steadier measure on a shared machine.
 """
 
@@ -74,8 +78,13 @@ def interp_spp(spps: list[int], errs: list[float], target: float) -> float:
     return float(math.exp(x[i - 1] + t * (x[i] - x[i - 1])))
 
 
+#: The denoising modes compared, by name: keyword arguments of :func:`forest.imaging.denoise` besides the images.
+MODES: dict[str, dict[str, bool]] = {"guides": {"prefilter": False}, "prefiltered": {"prefilter": True}}
+
+
 def bench_scene(config: Path, width: int, height: int, spps: list[int], ref_spp: int, crops: Path | None) -> None:
     from forest.imaging import denoise
+    from forest.imaging.denoise import prefilter_guide
     from forest.render.frame import FrameSize
     from forest.render.render import make_renderer
 
@@ -93,26 +102,34 @@ def bench_scene(config: Path, width: int, height: int, spps: list[int], ref_spp:
     print(f"reference {ref_spp} spp: {t_ref:.1f} CPU-s")
     window = foliage_window(ref.albedo)
     if crops is not None:
-        crop_pngs(crops / config.stem, window, {"reference": ref_png})
+        crop_pngs(crops / config.stem, window, {"reference": ref_png, "reference_albedo": guide_png(ref.albedo)})
     import colour
 
-    rows = []
+    def delta_e(png: np.ndarray) -> float:
+        return float(np.mean(colour.delta_E(lab(png), ref_lab, method="CIE 2000")))
+
+    names = list(MODES)
+    rows = []  # (spp, plain CPU-s, plain rRMSE, plain ΔE, {mode: (CPU-s, rRMSE, ΔE)})
     for i, spp in enumerate(spps):
         out, t = render(r, cfg, spp)
-        c0 = cpu()
-        d = denoise(out.rgb, out.albedo, out.normal)
-        t_d = cpu() - c0
-        assert d is not None, "Open Image Denoise (pyoidn) is not installed"
-        if i == 0:  # the setting's own frame is the same image
-            on, _ = render(r, cfg, spp, denoise=True)
-            assert on.denoised and np.array_equal(on.rgb, d), "[render] denoise = true differs from denoise()"
-        png_p, png_d = display(cfg, out.rgb), display(cfg, d)
-        de_p = float(np.mean(colour.delta_E(lab(png_p), ref_lab, method="CIE 2000")))
-        de_d = float(np.mean(colour.delta_E(lab(png_d), ref_lab, method="CIE 2000")))
-        rows.append((spp, t, t_d, rrmse(np.asarray(out.rgb, np.float64), ref_rgb), rrmse(d, ref_rgb), de_p, de_d))
+        per: dict[str, tuple[float, float, float]] = {}
+        pngs = {f"{spp:03d}_plain": display(cfg, out.rgb), f"{spp:03d}_albedo_noisy": guide_png(out.albedo)}
+        for name in names if i % 2 == 0 else names[::-1]:  # alternate the order: the machine is shared
+            c0 = cpu()
+            d = denoise(out.rgb, out.albedo, out.normal, **MODES[name])
+            t_d = cpu() - c0
+            assert d is not None, "Open Image Denoise (pyoidn) is not installed"
+            png = display(cfg, d)
+            per[name] = (t_d, rrmse(d, ref_rgb), delta_e(png))
+            pngs[f"{spp:03d}_{name}"] = png
+            if i == 0 and name == "guides":  # the setting's own frame is the same image
+                on, _ = render(r, cfg, spp, denoise=True)
+                assert on.denoised and np.array_equal(on.rgb, d), "[render] denoise = true differs from denoise()"
+        pngs[f"{spp:03d}_albedo_prefiltered"] = guide_png(prefilter_guide("albedo", out.albedo))
+        rows.append((spp, t, rrmse(np.asarray(out.rgb, np.float64), ref_rgb), delta_e(pngs[f"{spp:03d}_plain"]), per))
         if crops is not None:
-            crop_pngs(crops / config.stem, window, {f"{spp:03d}_plain": png_p, f"{spp:03d}_denoised": png_d})
-    n, e_n = rows[-1][0], rows[-1][3]
+            crop_pngs(crops / config.stem, window, pngs)
+    n, e_n = rows[-1][0], rows[-1][2]
     floor2 = e_n**2 * (n / ref_spp) / (1.0 + n / ref_spp)  # the reference's own noise, squared
 
     def corr(e: float) -> float:
@@ -120,24 +137,40 @@ def bench_scene(config: Path, width: int, height: int, spps: list[int], ref_spp:
 
     print(f"reference noise (rRMSE, estimated from the {n}-spp run): {math.sqrt(floor2):.4f}, taken out below")
     print(
-        f"{'spp':>4} | {'plain CPU-s':>11} {'+denoise':>9} | {'rRMSE plain':>11} {'denoised':>9} {'ratio':>6} | "
-        f"{'ΔE00 plain':>10} {'denoised':>9} {'ratio':>6}"
+        f"{'spp':>4} | {'plain CPU-s':>11} "
+        + " ".join(f"{'+' + m:>12}" for m in names)
+        + f" | {'rRMSE plain':>11} "
+        + " ".join(f"{m:>12} {'ratio':>5}" for m in names)
+        + f" | {'ΔE00 plain':>10} "
+        + " ".join(f"{m:>12} {'ratio':>5}" for m in names)
     )
-    for spp, t, t_d, ep, ed, dp, dd in rows:
+    for spp, t, ep, dp, per in rows:
         print(
-            f"{spp:4d} | {t:11.2f} {t_d:9.2f} | {corr(ep):11.4f} {corr(ed):9.4f} {corr(ed) / corr(ep):6.2f} | "
-            f"{dp:10.3f} {dd:9.3f} {dd / dp:6.2f}"
+            f"{spp:4d} | {t:11.2f} "
+            + " ".join(f"{per[m][0]:12.2f}" for m in names)
+            + f" | {corr(ep):11.4f} "
+            + " ".join(f"{corr(per[m][1]):12.4f} {corr(per[m][1]) / corr(ep):5.2f}" for m in names)
+            + f" | {dp:10.3f} "
+            + " ".join(f"{per[m][2]:12.3f} {per[m][2] / dp:5.2f}" for m in names)
         )
-    c = math.exp(sum(math.log(corr(ep) * math.sqrt(s)) for s, _, _, ep, _, _, _ in rows) / len(rows))
+    c = math.exp(sum(math.log(corr(ep) * math.sqrt(s)) for s, _, ep, _, _ in rows) / len(rows))
     d16 = next((row for row in rows if row[0] == 16), rows[0])
-    e_d16 = corr(d16[4])
-    spp_rr = (c / e_d16) ** 2 if e_d16 > 0 else math.inf
-    spp_de = interp_spp([row[0] for row in rows], [row[5] for row in rows], d16[6])
-    print(
-        f"plain reaches the denoised {d16[0]}-spp error at ≈ {spp_rr:.0f} spp by rRMSE (fit err = {c:.3f}/√spp), "
-        f"≈ {spp_de:.0f} spp by ΔE00 (log-log through the plain runs); denoising costs "
-        f"{np.mean([row[2] for row in rows]):.2f} CPU-s a frame"
-    )
+    for m in names:
+        e_d16 = corr(d16[4][m][1])
+        spp_rr = (c / e_d16) ** 2 if e_d16 > 0 else math.inf
+        spp_de = interp_spp([row[0] for row in rows], [row[3] for row in rows], d16[4][m][2])
+        print(
+            f"{m}: plain reaches the denoised {d16[0]}-spp error at ≈ {spp_rr:.0f} spp by rRMSE (fit err = "
+            f"{c:.3f}/√spp), ≈ {spp_de:.0f} spp by ΔE00 (log-log through the plain runs); denoising costs "
+            f"{np.mean([row[4][m][0] for row in rows]):.2f} CPU-s a frame"
+        )
+
+
+def guide_png(albedo: np.ndarray) -> np.ndarray:
+    """8-bit codes of an albedo guide (sRGB-encoded, as a texture is seen)."""
+    a = np.clip(np.asarray(albedo, np.float64)[..., :3], 0.0, 1.0)
+    s = np.where(a <= 0.0031308, 12.92 * a, 1.055 * a ** (1 / 2.4) - 0.055)
+    return np.round(s * 255.0).astype(np.uint8)
 
 
 def foliage_window(albedo: np.ndarray, h: int = 54, w: int = 96) -> tuple[int, int]:
