@@ -1,6 +1,6 @@
 """The gallery beside photographs: each example's render next to a real photograph of the same kind of view.
 
-    .venv/bin/python bench/bench_contact_sheet.py                 # docs/images/contact_sheet.png
+    .venv/bin/python bench/bench_contact_sheet.py                 # docs/images/contact_sheet.jpg
     .venv/bin/python bench/bench_contact_sheet.py -o /tmp/sheet.png --height 240
 
 Each row is one example scene's gallery image (``docs/images/<scene>.png``, what
@@ -70,7 +70,7 @@ def stats(img: np.ndarray) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("-o", "--output", type=Path, default=IMAGES / "contact_sheet.png")
+    ap.add_argument("-o", "--output", type=Path, default=IMAGES / "contact_sheet.jpg")
     ap.add_argument("--height", type=int, default=200, help="row height in pixels")
     args = ap.parse_args()
     rows = []
@@ -85,7 +85,9 @@ def main() -> None:
     sheet = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=1.0) for r in rows]
     gap = np.ones((PAD, width, 3), np.float32)
     out = np.concatenate([x for r in sheet for x in (r, gap)][:-1], axis=0)
-    buf = oiio.ImageBuf(oiio.ImageSpec(out.shape[1], out.shape[0], 3, oiio.UINT8))
+    spec = oiio.ImageSpec(out.shape[1], out.shape[0], 3, oiio.UINT8)
+    spec.attribute("compression", "jpeg:88")  # a JPEG keeps the repository small; ignored for a PNG
+    buf = oiio.ImageBuf(spec)
     buf.set_pixels(oiio.ROI(), np.ascontiguousarray(out, np.float32))
     args.output.parent.mkdir(parents=True, exist_ok=True)
     if not buf.write(str(args.output)):
