@@ -82,13 +82,18 @@ import os
 import re
 import stat
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from . import memory
 from .errors import ConfigError, ForestError, ParameterError
 from .memory import Room
+
+if TYPE_CHECKING:
+    from .render.frame import FrameSize
+    from .scene import Scene
 
 GiB = 1 << 30
 
@@ -624,6 +629,30 @@ def render_estimate(
         measured=measured,
         far_trees=far_trees,
         far_triangles=int(far_triangles),
+    )
+
+
+def scene_render_estimate(scene: Scene, variant: str, frames: Sequence[float], size: FrameSize) -> RenderEstimate:
+    """:func:`render_estimate` of a loaded Scene: its trees and their triangles at ``size``, and in the JIT
+    variants the trees merged at the far level for ``frames`` (:func:`forest.render.path.from_scene.far_plan`).
+
+    The one post-load check of ``forest render`` and of the service's workers, so both see the same figures."""
+    far_trees, far_triangles = None, 0
+    if not variant.startswith("scalar"):
+        from .render.path.from_scene import far_plan
+
+        far_trees, far_triangles = far_plan(scene, [float(f) for f in frames])
+    return render_estimate(
+        size.width,
+        size.height,
+        size.spp,
+        len(scene.instances),
+        variant,
+        frames=len(frames),
+        subframes=size.subframes,
+        triangles=sum(lod.triangles for sp in scene.species for lod in sp.lods),
+        far_trees=far_trees,
+        far_triangles=far_triangles,
     )
 
 

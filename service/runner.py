@@ -378,23 +378,7 @@ def _check_memory(spec: TaskSpec, ctx: TaskContext, scene: LoadedScene, frames: 
     cfg, trees = scene.config, len(scene.instances)
     size = frame_size(cfg, preview=spec.preview)
     variant, _reason = choose_variant(trees, spec.variant, cfg.render.variant)
-    far_trees, far_triangles = None, 0
-    if not variant.startswith("scalar"):
-        from forest.render.path.from_scene import far_plan
-
-        far_trees, far_triangles = far_plan(scene.scene, [float(f) for f in frames])
-    estimate = preflight.render_estimate(
-        size.width,
-        size.height,
-        size.spp,
-        trees,
-        variant,
-        frames=len(frames),
-        subframes=size.subframes,
-        triangles=sum(lod.triangles for sp in scene.scene.species for lod in sp.lods),
-        far_trees=far_trees,
-        far_triangles=far_triangles,
-    )
+    estimate = preflight.scene_render_estimate(scene.scene, variant, [float(f) for f in frames], size)
     try:
         preflight.check_render_memory(cfg, estimate, available=room)
     except ConfigError as e:

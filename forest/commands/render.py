@@ -187,23 +187,7 @@ def run_render(plan: RenderPlan, *, quiet: bool = False) -> Any:
         if gpu_check_pending():
             typer.echo(f"variant: checking the GPU (once per GPU and driver, at most {TIME_LIMIT_S:g} s)", err=True)
     chosen, reason = choose_variant(trees, variant, cfg.render.variant)
-    far_trees, far_triangles = None, 0
-    if not chosen.startswith("scalar"):
-        from ..render.path.from_scene import far_plan
-
-        far_trees, far_triangles = far_plan(scene, [float(f) for f in frame_list])
-    estimate = preflight.render_estimate(
-        size.width,
-        size.height,
-        size.spp,
-        trees,
-        chosen,
-        frames=len(frame_list),
-        subframes=size.subframes,
-        triangles=sum(lod.triangles for sp in scene.species for lod in sp.lods),
-        far_trees=far_trees,
-        far_triangles=far_triangles,
-    )
+    estimate = preflight.scene_render_estimate(scene, chosen, [float(f) for f in frame_list], size)
     room = preflight.memory_room()  # with the cgroup limit that binds, named in the lines below
     preflight.check_render_memory(cfg, estimate, available=room, flags=plan.size_from_flags)
     if not quiet:
