@@ -134,6 +134,9 @@ class TerrainAlbedo:
     detail: np.ndarray | None = None
     detail_tile_m: float = 0.0
     water: np.ndarray | None = None
+    #: The far landscape's albedo ρ_far (3,) that the ground skirt fades to (:func:`forest.skirt.horizon_albedo`
+    #: sets it on the Scene's albedo); None: the grid's mean.
+    far: tuple[float, float, float] | None = None
 
     def water_at(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
         """Water coverage W at world (x, z): the ``water`` grid bilinear, clamped at the edges (0 without water)."""

@@ -54,7 +54,7 @@ renderer (:func:`forest.render.scene.terrain_reflectance`), forest_path
 (:func:`forest.export.common.terrain_texture`) read it, with the fitted
 ``ground_tint``; none reads ``[render] terrain_texture`` again.  It carries the
 far landscape's albedo that the ground skirt fades to (canopy and ground mixed
-by the crowns' cover, :mod:`forest.skirt`; a :class:`forest.skirt.HorizonAlbedo`).
+by the crowns' cover, :mod:`forest.skirt`; ``terrain_albedo.far``).
 
 **Lights.**  ``scene.lights`` (:class:`forest.lights.Lights`) is the sun and
 sky by one rule for every backend.

@@ -65,8 +65,8 @@ skirt painted with the leaves' own albedo shone 3–4× brighter than that fores
 
 ρ_far is a property of the ground (in the grid's units, before the fitted
 ``ground_tint``, which multiplies the whole grid, skirt included, in both
-renderers).  The Scene computes it once (:func:`horizon_albedo`; its
-``terrain_albedo`` is then a :class:`HorizonAlbedo`), and both renderers take
+renderers).  The Scene computes it once (:func:`horizon_albedo`: its
+``terrain_albedo``'s ``far``), and both renderers take
 it from there (:func:`far_colour`); an albedo built without a Scene fades to
 its mean.  Deterministic: no random numbers, only sums over the trees and the
 grid.
@@ -283,27 +283,17 @@ def far_albedo(
     return np.asarray(mean + (cover * (canopy - under)).mean(axis=0), np.float64)
 
 
-@dataclass(frozen=True)
-class HorizonAlbedo(TerrainAlbedo):
-    """The Scene's ground albedo with ``far``, the (3,) albedo ρ_far its skirt fades to (:func:`far_albedo`)."""
-
-    far: tuple[float, float, float] | None = None
-
-
-def horizon_albedo(scene: Scene) -> HorizonAlbedo:
-    """The Scene's ``terrain_albedo`` with its far landscape's albedo (:func:`far_albedo` of its trees)."""
+def horizon_albedo(scene: Scene) -> TerrainAlbedo:
+    """The Scene's ``terrain_albedo`` with ``far``, its far landscape's albedo (:func:`far_albedo` of its trees)."""
     albedo = scene.terrain_albedo
     ones = np.ones((len(scene.instances), 3))  # the species' own colours (module docstring)
     far = far_albedo(albedo.rgb, albedo.extent, scene.instances, scene.species, len(scene.config.species), ones)
-    rgb = (float(far[0]), float(far[1]), float(far[2]))
-    if isinstance(albedo, HorizonAlbedo):
-        return replace(albedo, far=rgb)
-    return HorizonAlbedo(albedo.rgb, albedo.extent, albedo.detail, albedo.detail_tile_m, albedo.water, far=rgb)
+    return replace(albedo, far=(float(far[0]), float(far[1]), float(far[2])))
 
 
 def far_colour(albedo: TerrainAlbedo) -> np.ndarray:
-    """(3,) float32: the albedo the skirt fades to — ρ_far of a :class:`HorizonAlbedo`, else the grid's mean."""
-    far = getattr(albedo, "far", None)
+    """(3,) float32: the albedo the skirt fades to — the albedo's ``far`` (ρ_far), else the grid's mean."""
+    far = getattr(albedo, "far", None)  # an albedo-like object without the field: its mean
     return ground_mean(albedo.rgb) if far is None else np.asarray(far, np.float32).reshape(3)
 
 

@@ -18,7 +18,6 @@ from forest.render.path.ground import ground_look
 from forest.scene import load_scene
 from forest.skirt import (
     COVER_RESOLUTION,
-    HorizonAlbedo,
     canopy_reflectance,
     fade_beyond_edge,
     far_albedo,
@@ -145,7 +144,7 @@ def test_a_bare_terrain_keeps_the_grounds_mean(tmp_path, library):
     grid = rng.uniform(0.02, 0.5, (24, 40, 3)).astype(np.float32)
     empty = InstanceSet.empty(species_names=["tree"])
     far = far_albedo(grid, EXTENT, empty, (library.resolve("tree"),), 1, empty.tint)
-    horizon = HorizonAlbedo(grid, EXTENT, far=(float(far[0]), float(far[1]), float(far[2])))
+    horizon = TerrainAlbedo(grid, EXTENT, far=(float(far[0]), float(far[1]), float(far[2])))
     np.testing.assert_array_equal(far_colour(horizon), far_colour(TerrainAlbedo(grid, EXTENT)))
     old, old_ext = fade_beyond_edge(grid, EXTENT)
     new, new_ext = fade_beyond_edge(grid, EXTENT, far_colour(horizon))
@@ -158,7 +157,7 @@ def test_a_bare_terrain_keeps_the_grounds_mean(tmp_path, library):
 
     cfg = forest_config(tmp_path)
     scene = load_scene(cfg, trees(np.zeros((0, 3)), names=("tree",)), library=library)
-    assert isinstance(scene.terrain_albedo, HorizonAlbedo)
+    assert scene.terrain_albedo.far is not None
     np.testing.assert_array_equal(far_colour(scene.terrain_albedo), np.asarray(SOIL, np.float32))
 
 
@@ -214,7 +213,7 @@ def test_the_scene_carries_the_far_albedo_to_both_renderers(tmp_path, library):
     inst = trees(lattice(4.0), names=("tree",))
     scene = load_scene(cfg, inst, library=library)
     albedo = scene.terrain_albedo
-    assert isinstance(albedo, HorizonAlbedo)
+    assert albedo.far is not None
     sp = scene.species
     ones = np.ones((len(scene.instances), 3))  # the species' own colours, not what look-dev fits
     expected = far_albedo(albedo.rgb, albedo.extent, scene.instances, sp, 1, ones)
