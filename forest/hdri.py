@@ -229,7 +229,7 @@ class SplitMap:
     colour: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
 
-_memo: dict[tuple[str, int, int, str], SplitMap] = {}
+_memo: dict[tuple[str, int, int, str, float, bool], SplitMap] = {}
 
 
 def _read_header(path: Path) -> dict[str, object]:
@@ -259,27 +259,55 @@ def _from_header(path: Path, source: Path, attrs: dict[str, object]) -> SplitMap
         return None
 
 
-def split_sun(source: str | Path) -> SplitMap:
-    """Map ``source`` with its sun taken out (:func:`find_sun`), written to the cache once and memoised.
+def rotate(rgb: np.ndarray, degrees: float) -> np.ndarray:
+    """The lat-long map turned about +Y by ``degrees``: every azimuth in it grows by that much.
 
-    A map without a sun comes back as itself (``path == source``, no sun).  Unreadable maps raise
-    :class:`ForestError` (:func:`forest.images.read_image`).
+    A column's azimuth is 180° − φ (φ its longitude, equation (1), azimuth = atan2(d_x, d_z)), so the
+    turned map at column j is the map at φ_j + Δ, Δ = ``degrees``: a cyclic shift of s = Δ·W/360
+    columns, linear between the two whole shifts around it (energy and rows kept)."""
+    img = np.asarray(rgb)
+    shift = (float(degrees) % 360.0) * img.shape[1] / 360.0
+    k = int(math.floor(shift))
+    f = shift - k
+    out = np.roll(img, -k, axis=1)
+    if f > 0.0:
+        out = (1.0 - f) * out + f * np.roll(img, -k - 1, axis=1)
+    return np.asarray(out, img.dtype)
+
+
+def split_sun(source: str | Path, *, rotation: float = 0.0, take_sun: bool = True) -> SplitMap:
+    """Map ``source`` turned by ``rotation`` degrees (:func:`rotate`) with its sun taken out (:func:`find_sun`;
+    kept with ``take_sun`` false), written to the cache once and memoised.
+
+    A map left as it was (no turn, no sun) comes back as itself (``path == source``, no sun).  Unreadable
+    maps raise :class:`ForestError` (:func:`forest.images.read_image`).
     """
     from .images import read_image, write_image
 
     source = Path(source)
     st = source.stat()
     folder = cache_folder()
-    key = (str(source.resolve()), st.st_size, st.st_mtime_ns, str(folder))
+    rotation = float(rotation) % 360.0
+    key = (str(source.resolve()), st.st_size, st.st_mtime_ns, str(folder), rotation, bool(take_sun))
     if key in _memo and _memo[key].path.is_file():
         return _memo[key]
-    digest = hashlib.sha256(VERSION.encode() + b"\0" + source.read_bytes()).hexdigest()[:24]
+    salt = VERSION.encode() + (b"" if rotation == 0.0 and take_sun else repr((rotation, take_sun)).encode())
+    digest = hashlib.sha256(salt + b"\0" + source.read_bytes()).hexdigest()[:24]
     out = folder / f"{source.stem}-{digest}.exr"
-    result = _from_header(out, source, _read_header(out)) if out.is_file() else None
+    result = None
+    if out.is_file():
+        result = _from_header(out, source, _read_header(out)) if take_sun else SplitMap(out, source)
     if result is None:
-        sun, filled = find_sun(read_image(source, what="environment map"))
-        if sun is None:
+        img = read_image(source, what="environment map")
+        if rotation != 0.0:
+            img = rotate(img, rotation)
+        sun, filled = find_sun(img) if take_sun else (None, img)
+        if sun is None and rotation == 0.0:
             result = SplitMap(source, source)
+        elif sun is None:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            write_image(out, np.clip(filled, 0.0, HALF_MAX), attributes={"forest:source": source.name})
+            result = SplitMap(out, source)
         else:
             attrs = {
                 "forest:sun_elevation": sun.elevation,

@@ -188,11 +188,11 @@ def _envmap_sky(config, k) -> Sky:
     from .hdri import sky_path, split_sun
 
     path = sky_path(k.hdri) if k.hdri is not None else Path(k.envmap)
-    scale = float(k.scale)
-    if not k.splits_sun:
+    scale, rotation = float(k.scale), float(k.rotation)
+    if not k.splits_sun and rotation == 0.0:
         return Sky("envmap", scale, envmap=path)
     try:
-        split = split_sun(path)
+        split = split_sun(path, rotation=rotation, take_sun=k.splits_sun)
     except (ForestError, OSError) as e:
         field = "lights.sky.hdri" if k.hdri is not None else "lights.sky.envmap"
         raise ConfigError(config.path, field, getattr(e, "message", None) or str(e)) from None

@@ -125,12 +125,36 @@ def test_lights_take_the_sun_from_the_map_unless_the_config_gives_one():
     assert kept.sun is None and kept.sky is not None and kept.sky.envmap == hdri.sky_path("sunset")
 
 
+def test_a_turned_map_turns_its_sun(tmp_path):
+    """``rotation`` Δ: the sun found in the turned map is at azimuth + Δ (within a degree, across the seam too),
+    at the same elevation and irradiance; a turn with the sun kept writes a turned copy and no sun."""
+    img, _, _ = synthetic_map(30.0, 200.0)
+    src = write_image(tmp_path / "clear.exr", img)
+    plain = hdri.split_sun(src)
+    for turn in (45.0, -120.0, 172.5):
+        t = hdri.split_sun(src, rotation=turn)
+        assert t.azimuth is not None and plain.azimuth is not None and t.path != plain.path
+        assert (t.azimuth - plain.azimuth - turn + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=1.0)
+        assert t.elevation == pytest.approx(plain.elevation, abs=0.2)
+        assert t.irradiance == pytest.approx(plain.irradiance, rel=0.02)
+    kept = hdri.split_sun(src, rotation=90.0, take_sun=False)
+    assert kept.elevation is None and kept.path != src
+    turned = read_image(kept.path)
+    assert turned.shape == img.shape and float(turned.max()) > 1000.0  # the sun is still in it
+    np.testing.assert_allclose(turned.sum(axis=(0, 1)), read_image(src).sum(axis=(0, 1)), rtol=2e-3)  # energy kept
+    lights = resolve_lights(parse_config(FLAT + '[lights]\nsky = { hdri = "sunrise", rotation = 90.0 }\n'))
+    base = resolve_lights(parse_config(FLAT + '[lights]\nsky = { hdri = "sunrise" }\n'))
+    assert lights.sun is not None and base.sun is not None
+    assert (lights.sun.azimuth - base.sun.azimuth - 90.0 + 180.0) % 360.0 - 180.0 == pytest.approx(0.0, abs=1.0)
+
+
 @pytest.mark.parametrize(
     ("sky", "field", "message"),
     [
         ('{ hdri = "moon" }', "lights.sky.hdri", "unknown sky 'moon'"),
         ('{ hdri = "sunrise", sunsky = {} }', "lights.sky", "give one of envmap, hdri or sunsky"),
         ("{ map_sun = true }", "lights.sky.map_sun", "environment map"),
+        ("{ sunsky = {}, rotation = 90.0 }", "lights.sky.rotation", "environment map"),
     ],
 )
 def test_bad_hdri_settings_are_one_line(sky, field, message):

@@ -879,6 +879,11 @@ class SkyConfig(Section):
         "matching it (default: true for hdri, false for envmap).",
     )
     scale: NonNegative = Field(1.0, description="Environment map: scale.")
+    rotation: Annotated[float, Field(ge=-360.0, le=360.0, allow_inf_nan=False)] = Field(
+        0.0,
+        description="Environment map: turn it about the vertical, degrees; every azimuth in it (its sun's too) "
+        "grows by this much.",
+    )
     sunsky: SunskyConfig | None = None
 
     @model_validator(mode="after")
@@ -892,6 +897,8 @@ class SkyConfig(Section):
                     raise fail("applies to a constant sky only", key)
         if self.kind != "envmap" and "scale" in given:
             raise fail("applies to an environment map only (sunsky has its own scale)", "scale")
+        if self.kind != "envmap" and "rotation" in given:
+            raise fail("applies to an environment map (envmap or hdri) only", "rotation")
         if self.kind != "envmap" and "map_sun" in given:
             raise fail("applies to an environment map (envmap or hdri) only", "map_sun")
         return self
