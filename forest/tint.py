@@ -78,6 +78,12 @@ def _oklab_matrices() -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(oklab.MATRIX_1_XYZ_TO_LMS) @ rgb_to_xyz, np.asarray(oklab.MATRIX_2_LMS_TO_LAB)
 
 
+def oklab(rgb: np.ndarray) -> np.ndarray:
+    """Linear sRGB rows (N, 3) → Oklab (N, 3): Lab = M₂ · ∛(M₁ · XYZ) (:func:`jitter_colours`'s matrices)."""
+    to_lms, to_lab = _oklab_matrices()
+    return _rows(to_lab, np.cbrt(_rows(to_lms, np.asarray(rgb, np.float64).reshape(-1, 3))))
+
+
 def jitter_colours(rgb: np.ndarray, hue_deg: np.ndarray, value: np.ndarray) -> np.ndarray:
     """Rotate OkLCh hue by ``hue_deg`` and scale Oklab lightness by ``1 + value``, row-wise: linear sRGB in and out.
 
@@ -87,7 +93,7 @@ def jitter_colours(rgb: np.ndarray, hue_deg: np.ndarray, value: np.ndarray) -> n
     general per-call machinery.  Results outside the gamut are clipped at 0.
     """
     to_lms, to_lab = _oklab_matrices()
-    lab = _rows(to_lab, np.cbrt(_rows(to_lms, np.asarray(rgb, np.float64))))
+    lab = oklab(rgb)
     h = np.radians(np.asarray(hue_deg, np.float64))
     c, s = np.cos(h), np.sin(h)
     a, b = lab[:, 1].copy(), lab[:, 2].copy()

@@ -43,7 +43,7 @@ import numpy as np
 from ..errors import ForestError
 from ..lod import LOD_NAMES
 from ..runtime import mitsuba
-from ..tint import leaf_colour
+from ..tint import leaf_colour, oklab
 from .materials import MaterialBuilder
 
 if TYPE_CHECKING:
@@ -96,14 +96,6 @@ def _equal_counts(values: np.ndarray, ids: np.ndarray, n_bins: int) -> np.ndarra
     return (rank * n_bins) // max(len(values), 1)
 
 
-def _oklab(rgb: np.ndarray) -> np.ndarray:
-    """Linear sRGB (N, 3) → Oklab (N, 3), colour-science (sRGB primaries, D65)."""
-    import colour
-
-    xyz = colour.RGB_to_XYZ(np.maximum(rgb, 0.0), colour.models.RGB_COLOURSPACE_sRGB, apply_cctf_decoding=False)
-    return np.asarray(colour.XYZ_to_Oklab(xyz), np.float64).reshape(-1, 3)
-
-
 def jitter_bin_count(triangles: int) -> int:
     """Colour-jitter bins of a prototype of ``triangles`` triangles: ⌊:data:`JITTER_TRIANGLES` / triangles⌋ in
     [1, :data:`JITTER_BINS`], so that its bins' copies hold at most max(triangles, JITTER_TRIANGLES) triangles.
@@ -148,7 +140,7 @@ class JitterBins:
             rows = np.flatnonzero(self.species == s)
             if not len(rows) or not np.all(np.isfinite(c)) or np.all(np.abs(self.jitter[rows] - 1.0) < 1e-6):
                 continue
-            lab = _oklab(c[None, :] * self.jitter[rows])
+            lab = oklab(np.maximum(c[None, :] * self.jitter[rows], 0.0))
             mean_ab = lab[:, 1:].mean(axis=0)
             norm = float(np.hypot(mean_ab[0], mean_ab[1]))
             self.lightness[rows] = lab[:, 0]
