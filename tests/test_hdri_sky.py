@@ -10,6 +10,7 @@ from test_forest_path import pixel_direction
 from test_render import make_config, trees
 
 from forest import hdri
+from forest.cli import main
 from forest.config import parse_config
 from forest.errors import ConfigError
 from forest.images import read_image, write_image
@@ -155,12 +156,32 @@ def test_a_turned_map_turns_its_sun(tmp_path):
         ('{ hdri = "sunrise", sunsky = {} }', "lights.sky", "give one of envmap, hdri or sunsky"),
         ("{ map_sun = true }", "lights.sky.map_sun", "environment map"),
         ("{ sunsky = {}, rotation = 90.0 }", "lights.sky.rotation", "environment map"),
+        (
+            '{ hdri = "sunset" }\nclouds = { cover = 0.4 }',
+            "lights.clouds",
+            r"not over an environment map \(lights\.sky\.hdri\)",
+        ),
     ],
 )
 def test_bad_hdri_settings_are_one_line(sky, field, message):
     with pytest.raises(ConfigError, match=message) as e:
         parse_config(FLAT + f"[lights]\nsky = {sky}\n")
     assert e.value.field == field
+
+
+def test_clouds_over_a_users_envmap_are_refused_through_the_cli(tmp_path, capsys):
+    """A user's map with a cloud layer: one line naming the file and field, exit 2, nothing written."""
+    cfg = tmp_path / "scene.toml"
+    cfg.write_text(FLAT + '[lights]\nsky = { envmap = "sky.exr" }\nclouds = { cover = 0.3 }\n')
+    out = tmp_path / "out.exr"
+    write_image(tmp_path / "sky.exr", np.ones((8, 16, 3), np.float32))
+    with pytest.raises(SystemExit) as e:
+        main(["render", str(cfg), "-o", str(out)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2, err
+    assert "scene.toml" in err and "lights.clouds" in err and "(lights.sky.envmap)" in err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["scene.toml", "sky.exr"]
 
 
 @pytest.fixture(scope="module")

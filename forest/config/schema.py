@@ -960,6 +960,13 @@ class LightsConfig(Section):
     def _clouds_need_a_sky(self) -> LightsConfig:
         if self.clouds is not None and self.sky is None:
             raise fail("a cloud layer needs a sky ([lights.sky])", "clouds")
+        if self.clouds is not None and self.sky is not None and (self.sky.envmap or self.sky.hdri):
+            which = "hdri" if self.sky.hdri else "envmap"
+            raise fail(
+                f"a cloud layer draws over forest's own sky (sunsky or constant), not over an environment map "
+                f"(lights.sky.{which}), whose photographed sky has its own clouds; remove one of them",
+                "clouds",
+            )
         return self
 
 
