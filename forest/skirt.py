@@ -17,6 +17,24 @@ stripes to the horizon); its faces wind upward.  R (:func:`skirt_radius`) reache
 or at least :data:`MIN_SKIRT_RADIUS` metres (and 20 terrain widths): from
 hundreds of metres up the ring lies a fraction of a pixel below the horizon.
 
+**Hills** (``[render] horizon_hills``, off by default).  A level plane to the
+horizon reads as a sea or a salt flat beyond a forest; real country rises in
+hills whose silhouettes, hazed by distance, layer toward the horizon.  With
+:class:`Hills` (height A, scale L, seed) the long band becomes
+:data:`HILL_RINGS` rings at radii geometric from the ramp's end r₀ to R,
+r_j = r₀ (R / r₀)^(j/M), and every ring vertex rises by
+
+    y += A · s(min(d / L, 1)) · h(x / L, z / L),    d = r_j − r₀,   s(t) = t²(3 − 2t)
+
+above the plane's profile, h a fractional Brownian motion of value noise
+(:data:`HILL_OCTAVES` octaves, lacunarity 2, gain ½; Perlin 1985, "An image
+synthesizer", SIGGRAPH; Ebert et al., *Texturing & Modeling: A Procedural
+Approach*, 3rd ed. 2003, ch. 16), rescaled to [0, 1] and squared so that
+hills stand out of broad lowlands.  The weight s(d/L) keeps the ground level
+with the terrain's edge and lets the hills rise over one scale L past it, so
+they never wall in the scene; normals are the area-weighted face normals.
+Without hills the skirt is the two bands above, unchanged.
+
 **Fade.**  With the skirt, the ground's albedo grid (the Scene's
 ``terrain_albedo``, :mod:`forest.ground`) is padded so that past the terrain's
 edge it fades to one colour, the far landscape's albedo ρ_far
@@ -85,6 +103,7 @@ from .maps import sample_bilinear
 from .tint import leaf_colour
 
 if TYPE_CHECKING:
+    from .config import Config
     from .instances import InstanceSet
     from .library import Species
     from .scene import Scene
@@ -95,6 +114,69 @@ MIN_SKIRT_RADIUS = 30_000.0
 SKIRT_WIDTHS = 20.0
 #: Width of the skirt's first band, as a fraction of the terrain's width: its normal turns up over it.
 SKIRT_RAMP = 0.03
+#: Rings of the skirt's long band when it carries hills (geometric in radius from the ramp's end to R).
+HILL_RINGS = 64
+#: Octaves of the hills' fractional Brownian motion.
+HILL_OCTAVES = 5
+#: Purpose tag of the hills' noise (a constant per purpose, CONTRIBUTING's seeding rule).
+HILL_TAG = 0x4849_4C4C
+
+
+@dataclass(frozen=True)
+class Hills:
+    """Hills on the skirt (module docstring): ``height`` A (metres, the highest), ``scale`` L (metres, the size of
+    a hill and the distance over which they rise past the terrain's edge), ``seed`` (their pattern)."""
+
+    height: float
+    scale: float
+    seed: int = 0
+
+
+def hill_field(x: np.ndarray, z: np.ndarray, hills: Hills) -> np.ndarray:
+    """h(x/L, z/L) ∈ [0, 1] at world points (x, z): value-noise fBm rescaled to [0, 1], then squared."""
+    from .scatter.canopy import lattice
+
+    key = np.uint64((int(hills.seed) * 0x9E3779B97F4A7C15 + HILL_TAG) % 2**64)
+    u = np.asarray(x, np.float64) / float(hills.scale)
+    v = np.asarray(z, np.float64) / float(hills.scale)
+    total = np.zeros(np.shape(u))
+    amplitude, norm = 1.0, 0.0
+    for octave in range(HILL_OCTAVES):
+        f = 2.0**octave
+        # Each octave offset by an irrational shift so that lattice points of the octaves do not line up.
+        pu, pv = u * f + 0.618 * octave, v * f + 0.414 * octave
+        iu, iv = np.floor(pu), np.floor(pv)
+        fu, fv = pu - iu, pv - iv
+        su, sv = fu * fu * (3.0 - 2.0 * fu), fv * fv * (3.0 - 2.0 * fv)
+        k = np.uint64((int(key) + octave * 0xBF58476D1CE4E5B9) % 2**64)
+        a, b = lattice(iu, iv, k), lattice(iu + 1, iv, k)
+        c, d = lattice(iu, iv + 1, k), lattice(iu + 1, iv + 1, k)
+        total += amplitude * ((a + (b - a) * su) * (1.0 - sv) + (c + (d - c) * su) * sv)
+        norm += amplitude
+        amplitude *= 0.5
+    # fBm of value noise concentrates around ½: stretch its central range to [0, 1] before squaring.
+    h = np.clip((total / norm - 0.25) / 0.5, 0.0, 1.0)
+    return h * h
+
+
+def _vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals, facing +Y."""
+    p0, p1, p2 = (verts[faces[:, i]] for i in range(3))
+    fn = np.cross(p1 - p0, p2 - p0)
+    n = np.zeros_like(verts)
+    for i in range(3):
+        np.add.at(n, faces[:, i], fn)
+    n[n[:, 1] < 0] *= -1.0
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.where(length > 0, n / np.maximum(length, 1e-30), np.array([0.0, 1.0, 0.0]))
+
+
+def hills(config: Config) -> Hills | None:
+    """The config's ``[render] horizon_hills`` as :class:`Hills` (None when unset or 0 m high)."""
+    h = config.render.horizon_hills
+    if h is None or float(h.height) <= 0.0:
+        return None
+    return Hills(float(h.height), float(h.scale), int(h.seed))
 
 
 def skirt_radius(extent, far: float) -> float:
@@ -123,11 +205,12 @@ class Skirt:
     uv: np.ndarray | None = None
 
 
-def skirt_mesh(terrain, radius: float) -> Skirt | None:
+def skirt_mesh(terrain, radius: float, hills: Hills | None = None) -> Skirt | None:
     """The skirt around ``terrain`` (see the module docstring); None for a terrain without a boundary.
 
     Two bands per boundary edge: a short one (:data:`SKIRT_RAMP` of the terrain's width, level with the edge)
-    over which the shading normal turns from the terrain's to +Y, then the long one out to ``radius``.
+    over which the shading normal turns from the terrain's to +Y, then the long one out to ``radius`` — with
+    ``hills``, :data:`HILL_RINGS` rings carrying them.
     """
     v = np.asarray(terrain.vertices, np.float64)
     edges = boundary_edges(terrain.faces)
@@ -149,6 +232,8 @@ def skirt_mesh(terrain, radius: float) -> Skirt | None:
     k = len(used)
     local = np.searchsorted(used, edges)  # boundary vertex → 0..k-1
     a, b = local[:, 0], local[:, 1]
+    if hills is not None and hills.height > 0:
+        return _hilly_skirt(terrain, hills, (inner, mid, outer), c, unit, (a, b))
     faces = np.concatenate(
         [
             np.stack([a, b, b + k], 1),
@@ -164,6 +249,46 @@ def skirt_mesh(terrain, radius: float) -> Skirt | None:
     faces[down] = faces[down][:, [0, 2, 1]]
     up = np.tile([0.0, 1.0, 0.0], (2 * k, 1))
     normals = np.concatenate([np.asarray(terrain.vertex_normals, np.float64)[used], up])
+    return Skirt(verts.astype(np.float32), faces.astype(np.uint32), normals.astype(np.float32))
+
+
+def _hilly_skirt(
+    terrain,
+    hills: Hills,
+    ring_points: tuple[np.ndarray, np.ndarray, np.ndarray],
+    c: np.ndarray,
+    unit: np.ndarray,
+    edge: tuple[np.ndarray, np.ndarray],
+) -> Skirt:
+    """The skirt with hills (module docstring): the boundary, the ramp's ring, then :data:`HILL_RINGS` rings
+    out to the outer ring's radius; ``edge`` the boundary edges as (a, b) indices into the boundary ring."""
+    inner, mid, outer = ring_points
+    k = len(inner)
+    a, b = edge
+    r0 = np.linalg.norm(mid[:, [0, 2]] - c, axis=1)
+    r_end = float(np.linalg.norm(outer[0, [0, 2]] - c))
+    m = HILL_RINGS
+    t = np.arange(1, m + 1, dtype=np.float64) / m
+    radius = r0[None, :] * (r_end / r0[None, :]) ** t[:, None]  # (M, k)
+    rings = np.empty((m, k, 3))
+    rings[:, :, 0] = c[0] + unit[None, :, 0] * radius
+    rings[:, :, 2] = c[1] + unit[None, :, 1] * radius
+    level = (radius - r0[None, :]) / np.maximum(r_end - r0[None, :], 1e-9)
+    rings[:, :, 1] = mid[None, :, 1] + (outer[0, 1] - mid[None, :, 1]) * level
+    w = np.clip((radius - r0[None, :]) / float(hills.scale), 0.0, 1.0)
+    rings[:, :, 1] += float(hills.height) * w * w * (3.0 - 2.0 * w) * hill_field(rings[:, :, 0], rings[:, :, 2], hills)
+    verts = np.concatenate([inner, mid, rings.reshape(-1, 3)])
+    bands = [np.stack([a, b, b + k], 1), np.stack([a, b + k, a + k], 1)]
+    for j in range(1, m + 1):  # ring j−1 (the mid ring for j = 1) to ring j
+        lo, hi = j * k, (j + 1) * k
+        bands += [np.stack([a + lo, b + lo, b + hi], 1), np.stack([a + lo, b + hi, a + hi], 1)]
+    faces = np.concatenate(bands)
+    p0, p1, p2 = (verts[faces[:, i]] for i in range(3))
+    down = np.cross(p1 - p0, p2 - p0)[:, 1] < 0
+    faces[down] = faces[down][:, [0, 2, 1]]
+    normals = _vertex_normals(verts, faces)
+    normals[:k] = np.asarray(terrain.vertex_normals, np.float64)[np.unique(boundary_edges(terrain.faces))]
+    normals[k : 2 * k] = (0.0, 1.0, 0.0)
     return Skirt(verts.astype(np.float32), faces.astype(np.uint32), normals.astype(np.float32))
 
 

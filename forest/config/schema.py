@@ -1032,6 +1032,18 @@ class ValleyFog(Section):
     absolute: Bool = Field(False, description="top is an absolute height (world Y), not above the lowest point.")
 
 
+class HorizonHillsConfig(Section):
+    """Hills on the ground past the terrain's edge (``[render] horizon_hills``; :mod:`forest.skirt`, "Hills")."""
+
+    height: Annotated[float, Field(ge=0.0, le=5000.0, allow_inf_nan=False)] = Field(
+        150.0, description="Height of the highest hills above the far ground, metres (0: none)."
+    )
+    scale: Annotated[float, Field(ge=10.0, le=1.0e5, allow_inf_nan=False)] = Field(
+        1500.0, description="Size of a hill, metres; the hills rise over this distance past the terrain's edge."
+    )
+    seed: Annotated[int, Strict(), Field(ge=0, le=2**31 - 1)] = Field(0, description="Pattern of the hills.")
+
+
 class RenderConfig(Section):
     """The image (size, samples, variant), light paths, aerial haze, the ground's look and the PNG's view transform."""
 
@@ -1069,6 +1081,11 @@ class RenderConfig(Section):
     )
     horizon_ground: Bool = Field(
         True, description="The ground runs on past the terrain's edge to the horizon (a skirt at its edge height)."
+    )
+    horizon_hills: HorizonHillsConfig | None = Field(
+        None,
+        description="Hills on that ground (height, scale, seed, metres): hazed silhouettes toward the horizon "
+        "instead of a level plain; off by default. Drawn by forest's renderers; the exports write the terrain alone.",
     )
     seed: Annotated[Int, Field(ge=0)] = Field(0, description="Sampler seed.")
     alpha_shadows: Bool = Field(
@@ -1115,6 +1132,14 @@ class RenderConfig(Section):
             if "haze" in self.model_fields_set:
                 raise fail("give haze or visibility, not both", "visibility")
             self.haze = 3.912 / (1000.0 * self.visibility)  # Koschmieder (forest.render.path.haze)
+        return self
+
+    @model_validator(mode="after")
+    def _hills_need_the_ground(self) -> RenderConfig:
+        if self.horizon_hills is not None and not self.horizon_ground:
+            raise fail(
+                "hills stand on the ground past the terrain's edge: needs horizon_ground = true", "horizon_hills"
+            )
         return self
 
     @model_validator(mode="after")

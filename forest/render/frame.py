@@ -49,7 +49,7 @@ import numpy as np
 from ..errors import ForestError
 from ..runtime import mitsuba
 from ..scene import Scene
-from ..skirt import skirt_radius
+from ..skirt import hills, skirt_radius
 from ..wind import tree_matrices
 from .instancing import ForestBuilder, ForestGraph
 from .loop import PassCallback, frame_seed, render_frame
@@ -103,7 +103,7 @@ class FrameRenderer:
         self.forest = ForestBuilder(scene, self.materials)
         skirt = skirt_radius(self.terrain.extent, float(config.camera.far)) if rc.horizon_ground else 0.0
         self.terrain_obj = terrain_dict(
-            scene.terrain_albedo, self.terrain, variant, skirt=skirt, tint=scene.ground_tint
+            scene.terrain_albedo, self.terrain, variant, skirt=skirt, hills=hills(config), tint=scene.ground_tint
         )
         self.emitters = emitter_dicts(config, variant, disc_sun=True)
         # Mitsuba 3.9.1's ``path`` tests shadow rays against whole leaf cards (alpha ignored);

@@ -29,6 +29,7 @@ from ..runtime import captured_stderr, mitsuba
 if TYPE_CHECKING:
     from ..config import Config
     from ..ground import TerrainAlbedo
+    from ..skirt import Hills
     from ..terrain import Terrain
 
 #: Height margin (metres) added above and below the terrain's height range for the
@@ -367,11 +368,18 @@ def colour_grid_texture(
 
 
 def terrain_mesh(
-    terrain: Terrain, variant: str, bsdf: dict[str, Any] | None = None, name: str = "terrain", *, skirt: float = 0.0
+    terrain: Terrain,
+    variant: str,
+    bsdf: dict[str, Any] | None = None,
+    name: str = "terrain",
+    *,
+    skirt: float = 0.0,
+    hills: Hills | None = None,
 ) -> Any:
     """The terrain as a Mitsuba ``Mesh`` object (positions, faces, smooth normals, uv) with ``bsdf``.
 
-    ``skirt`` > 0 adds the ground that carries it to that radius (:func:`forest.skirt.skirt_mesh`).
+    ``skirt`` > 0 adds the ground that carries it to that radius (:func:`forest.skirt.skirt_mesh`), with
+    ``hills`` on it (None: a level plain).
     """
     mi = mitsuba(variant)
     v = np.asarray(terrain.vertices, dtype=np.float32)
@@ -381,7 +389,7 @@ def terrain_mesh(
     if skirt > 0:
         from ..skirt import skirt_mesh
 
-        sk = skirt_mesh(terrain, skirt)
+        sk = skirt_mesh(terrain, skirt, hills)
         if sk is not None:
             xmin, zmin, xmax, zmax = terrain.extent
             sk_uv = np.stack(
@@ -451,15 +459,21 @@ def terrain_reflectance(
 
 
 def terrain_dict(
-    albedo: TerrainAlbedo, terrain: Terrain, variant: str, *, skirt: float = 0.0, tint: npt.ArrayLike | None = None
+    albedo: TerrainAlbedo,
+    terrain: Terrain,
+    variant: str,
+    *,
+    skirt: float = 0.0,
+    hills: Hills | None = None,
+    tint: npt.ArrayLike | None = None,
 ) -> Any:
     """The terrain as a scene child: a ``Mesh`` object with a diffuse BSDF.
 
     The returned object goes into a scene dict like any shape dict
     (``scene["terrain"] = terrain_dict(...)``).  Reflectance: see
     :func:`terrain_reflectance` (``albedo``: the Scene's ``terrain_albedo``;
-    ``tint``: the Scene's ``ground_tint``); ``skirt``: see :func:`terrain_mesh`.
+    ``tint``: the Scene's ``ground_tint``); ``skirt``, ``hills``: see :func:`terrain_mesh`.
     """
     reflectance = terrain_reflectance(albedo, terrain, variant, fade=skirt > 0, tint=tint)
     bsdf = {"type": "diffuse", "reflectance": reflectance}
-    return terrain_mesh(terrain, variant, bsdf, skirt=skirt)
+    return terrain_mesh(terrain, variant, bsdf, skirt=skirt, hills=hills)

@@ -19,7 +19,7 @@ import numpy as np
 from ...camera import camera_at, look_at_matrix
 from ...lights import Lights
 from ...scene import Scene
-from ...skirt import skirt_radius
+from ...skirt import hills, skirt_radius
 from ...wind import tree_matrices
 from .ground import ground_look
 from .haze import FogLayer, HazeInputs
@@ -176,6 +176,7 @@ def path_inputs(
         terrain_detail=look.detail,
         terrain_detail_tile=look.detail_tile,
         skirt_radius=skirt_radius(scene.terrain.extent, float(config.camera.far)) if rc.horizon_ground else 0.0,
+        skirt_hills=hills(config),
         haze=haze_inputs(config, scene.terrain),
         max_depth=int(rc.max_depth),
         spp=int(spp or rc.spp),

@@ -181,7 +181,7 @@ class ForestGeometry:
             if float(inputs.skirt_radius) > 0.0:
                 from ...skirt import skirt_mesh
 
-                sk = skirt_mesh(t, float(inputs.skirt_radius))
+                sk = skirt_mesh(t, float(inputs.skirt_radius), inputs.skirt_hills)
                 if sk is not None:
                     mesh = _Mesh(sk.vertices, sk.faces, sk.normals, world_uv(sk.vertices))
                     self.world_parts.append(self.parts.add(mesh, mat))

@@ -145,7 +145,8 @@ class PathInputs:
     where ``terrain_tinted`` and by ``terrain_detail`` (a tileable RGB texture
     of mean 1, an array or an image path) repeated every
     ``terrain_detail_tile`` metres of world X/Z.  ``skirt_radius`` > 0 carries
-    the terrain to the horizon (:func:`forest.skirt.skirt_mesh`);
+    the terrain to the horizon (:func:`forest.skirt.skirt_mesh`), with ``skirt_hills``
+    (:class:`forest.skirt.Hills`, None for a level plain) on it;
     ``haze`` is the aerial perspective (:mod:`.haze`), None for none.  Russian
     roulette starts at path vertex ``rr_depth`` (0 = the first surface): on
     the demo forest 1 gave the noise of 2 in 64 % of the time, 0 another 44 %
@@ -179,6 +180,7 @@ class PathInputs:
     terrain_detail: Any = None
     terrain_detail_tile: float = 1.0
     skirt_radius: float = 0.0
+    skirt_hills: Any = None
     haze: HazeInputs | None = None
     surfaces: Sequence[Surface] = ()
     individuals: np.ndarray | None = None
