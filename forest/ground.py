@@ -65,8 +65,9 @@ its colour like any other, and also a water coverage W ∈ [0, 1] per texel, com
 
 so W is the share of the texel's albedo that came from water layers (None when no rule paints
 water, and then nothing changes anywhere).  forest_path shades that share as a Fresnel mirror
-over the painted colour (:mod:`forest.render.path.materials`, :func:`~forest.render.path.materials.water_lobe`);
-the other renderers and the exports keep the painted colour alone.
+over the painted colour (:mod:`forest.render.path.materials`, :func:`~forest.render.path.materials.water_lobe`),
+without the detail texture on that share (the bed under water shows no soil grain); the other
+renderers and the exports keep the painted colour alone.
 
 Built-in materials and their sources: :data:`forest.config.schema.GROUND_MATERIALS`.
 """

@@ -38,8 +38,11 @@ def look(position, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
     return look_at_matrix(position, target, up)
 
 
-def water_inputs(camera, sky, *, water=1.0, surfaces=(), ripple=0.0, spp=64, max_depth=2) -> PathInputs:
-    """A flat 400 m terrain of albedo ``BED`` whose water coverage is ``water`` everywhere (None: no water)."""
+def water_inputs(
+    camera, sky, *, water=1.0, surfaces=(), ripple=0.0, spp=64, max_depth=2, detail=None, tile=1.0
+) -> PathInputs:
+    """A flat 400 m terrain of albedo ``BED`` whose water coverage is ``water`` everywhere (None: no water),
+    with an optional ground ``detail`` texture repeated every ``tile`` metres."""
     from forest.instances import InstanceSet
 
     colour = np.tile(np.asarray(BED, np.float32), (4, 4, 1))
@@ -59,6 +62,8 @@ def water_inputs(camera, sky, *, water=1.0, surfaces=(), ripple=0.0, spp=64, max
         spp=spp,
         terrain_water=None if water is None else np.full((4, 4), water, np.float32),
         water_ripple=ripple,
+        terrain_detail=detail,
+        terrain_detail_tile=tile,
     )
 
 
@@ -90,6 +95,28 @@ def test_water_is_dark_at_normal_incidence():
     f0 = fresnel(1.0)
     assert abs(f0 - 0.0201) < 2e-4
     np.testing.assert_allclose(img, f0 + (1.0 - f0) * np.asarray(BED), rtol=0.02)
+
+
+def test_water_shows_no_ground_detail():
+    """The ground's detail texture (soil grain) is drawn on dry ground and fades with the water's coverage
+    W: a checker of 0.4 / 1.6 stripes the ground without water and at W = ½ halves its contrast, while full
+    water is the flat F(1)·L + (1 − F(1))·R·L of an undetailed bed."""
+    camera = PathCamera(look([0.0, 10.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 5.0, 16, 16)
+    sky = SkyLight("constant", radiance=(1.0, 1.0, 1.0))
+    checker = np.where((np.arange(2)[:, None] + np.arange(2)[None, :]) % 2 == 0, 0.4, 1.6)
+    detail = np.repeat(checker[..., None], 3, axis=2).astype(np.float32)
+
+    def render(water):
+        inputs = water_inputs(camera, sky, water=water, spp=64, detail=detail, tile=0.6)
+        return PathScene(inputs, VARIANT).render(seed=1).rgb.reshape(16, 16, 3)
+
+    dry, half, wet = render(0.0), render(0.5), render(1.0)
+    f0 = fresnel(1.0)
+    np.testing.assert_allclose(wet.reshape(-1, 3).mean(axis=0), f0 + (1.0 - f0) * np.asarray(BED), rtol=0.02)
+    spread = [float(np.std(im[..., 1]) / np.mean(im[..., 1])) for im in (dry, half, wet)]
+    assert spread[0] > 0.1
+    assert 0.35 * spread[0] < spread[1] < 0.65 * spread[0]
+    assert spread[2] < 0.03
 
 
 def test_a_box_on_the_water_is_mirrored_below_the_waterline():

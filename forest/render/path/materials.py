@@ -15,6 +15,13 @@ centres placed at pixel centres and clamped at the edges — the same lookup as
 the ``gridvolume`` texture of the scalar renderer.  G is a ``dr.Texture2f`` over a
 tensor that may carry gradients, so images differentiate with respect to it.
 
+Water: where the terrain map carries a water coverage W (its fourth channel, :mod:`forest.ground`),
+the detail fades with it, detail_m → (1 − W)·detail_m + W.  The ground's detail texture is the grain
+of a soil surface (pebbles, litter) at metre scale; under water the bed is blurred by the rippled
+surface's refraction and veiled by the water column's scattering, and the painted water colour is
+already that bed seen through the water, so the water's share shows no grain (the scalar renderer,
+which draws no detail at all, agrees).
+
 BSDFs, both two-sided, in a frame whose normal n faces the incoming direction ωi:
 
 * surface (bark, terrain, buildings): Lambertian, f = a/π for ωo on ωi's side;
@@ -502,26 +509,40 @@ def shading(
 
     colour = dr.gather(mi.Color3f, mats.colour, material, active)
     a = mi.Color3f(colour)
+    # With water on the terrain map (its fourth channel) ``plain`` follows a without the detail, so that
+    # the water's share W of a hit can drop it (module docstring, "Water"); lanes with W = 0 keep a's bits.
+    water_map = terrain_map is not None and len(terrain_map[0].shape) == 3 and terrain_map[0].shape[2] > 3
+    plain = detail = None
     if mats.has_textures:
         tex = dr.gather(mi.Int32, mats.texture, material, active)
         textured = active & (tex >= 0)
         texel = mats.atlas.eval(mats.tile_uv(mi, tex, uv, textured), active=textured)
+        if water_map:
+            plain = mi.Color3f(a)
+            detail = dr.select(textured, mi.Color3f(texel[0], texel[1], texel[2]), mi.Color3f(1.0))
         a = dr.select(textured, a * mi.Color3f(texel[0], texel[1], texel[2]), a)
     xmin, zmin, xmax, zmax = extent
     pos = mi.Point2f((p.x - xmin) * (1.0 / (xmax - xmin)), (p.z - zmin) * (1.0 / (zmax - zmin)))
     if grid is not None:
         tinted = dr.gather(mi.Bool, mats.tinted, material, active) & active
-        g = grid.eval(pos, active=tinted)
-        a = dr.select(tinted, a * mi.Color3f(g[0], g[1], g[2]), a)
+        g = mi.Color3f(*grid.eval(pos, active=tinted)[:3])
+        a = dr.select(tinted, a * g, a)
+        plain = None if plain is None else dr.select(tinted, plain * g, plain)
     if row_tint is not None and row is not None:
         jittered = dr.gather(mi.Bool, mats.tinted, material, active) & active
-        a = dr.select(jittered, a * dr.gather(mi.Color3f, row_tint, row, jittered), a)
+        j = dr.gather(mi.Color3f, row_tint, row, jittered)
+        a = dr.select(jittered, a * j, a)
+        plain = None if plain is None else dr.select(jittered, plain * j, plain)
     if terrain_map is not None:
         tmap, (txmin, tzmin, txmax, tzmax) = terrain_map
         tpos = mi.Point2f((p.x - txmin) * (1.0 / (txmax - txmin)), (p.z - tzmin) * (1.0 / (tzmax - tzmin)))
         mapped = dr.gather(mi.Bool, mats.terrain_map, material, active) & active
         t = tmap.eval(tpos, active=mapped)
         a = dr.select(mapped, a * mi.Color3f(t[0], t[1], t[2]), a)
+        if plain is not None and detail is not None:
+            w = dr.select(mapped, dr.clip(t[3], 0.0, 1.0), 0.0)
+            wet = dr.select(mapped, plain * mi.Color3f(t[0], t[1], t[2]), plain) * dr.fma(1.0 - detail, w, detail)
+            a = dr.select(w > 0.0, wet, a)  # (1 − W)·detail + W in place of the detail
     leaf = dr.gather(mi.UInt32, mats.kind, material, active) == KIND_LEAF
     tau = dr.gather(mi.Float, mats.tau, material, active)
     R = a * (1.0 - tau)
