@@ -34,7 +34,11 @@ Per stem (all angles in degrees, as in the paper):
   ``leaf_rotate = 180`` with a small variation puts leaflets in two ranks, a
   pinnate frond, lifted into a V by ``leaf_lift``).  The card's width axis
   ``ŵ ⟂ d̂`` blends the horizontal ``d̂ × Ŷ`` (weight ``leaf_face_up``) with a
-  random roll and is signed so the face normal ``ŵ × d̂`` points up.
+  random roll and is signed so the face normal ``ŵ × d̂`` points up.  A card's width
+  is ``leaf_scale·leaf_scale_x`` times ``1 ± leaf_scale_var`` (with the length) and
+  ``1 ± leaf_scale_x_var`` (alone); a share ``leaf_mirror`` of the cards is mirrored
+  across (``ŵ → −ŵ``: an asymmetric texture, such as the two ``blade`` blades, shows
+  both ways round; the renderers still see the face up).
 * **The individual** — the seed also draws, once per tree: height
   ``scale ± scale_var``, a crown width factor ``1 ± crown_var`` on the limbs'
   lengths, an offset ``± angle_var`` on every down angle, the crown base
@@ -115,6 +119,8 @@ TREE_DEFAULTS: dict[str, Any] = {
     "leaf_scale": 0.15,
     "leaf_scale_x": 0.6,
     "leaf_scale_var": 0.15,
+    "leaf_scale_x_var": 0.0,
+    "leaf_mirror": 0.0,
     "leaf_down_angle": 50.0,
     "leaf_down_angle_var": 15.0,
     "leaf_rotate": 137.5,
@@ -239,7 +245,7 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
         v = tree[key]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not (0 <= v <= 180):
             raise ConfigError(where, f"tree.{key}", f"must be a number in [0, 180], got {v!r}")
-    for key in ("crown_var", "base_size_var"):
+    for key in ("crown_var", "base_size_var", "leaf_scale_x_var", "leaf_mirror"):
         v = tree[key]
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not (0 <= v <= 0.9):
             raise ConfigError(where, f"tree.{key}", f"must be a number in [0, 0.9], got {v!r}")
@@ -477,5 +483,11 @@ def grow(recipe: dict, seed: int) -> Skeleton:
     width_axis = np.where(face[:, 1:2] < 0, -width_axis, width_axis)
     size = tree["leaf_scale"] * (1.0 + tree["leaf_scale_var"] * rng.uniform(-1, 1, len(t)))
     lsize = np.stack([size, size * tree["leaf_scale_x"]], axis=1)
+    if tree["leaf_scale_x_var"] or tree["leaf_mirror"]:
+        # Their own stream, so recipes without them keep every leaf they had.
+        vary = rng_for(98)
+        lsize[:, 1] *= 1.0 + tree["leaf_scale_x_var"] * vary.uniform(-1, 1, len(t))
+        mirror = vary.random(len(t)) < tree["leaf_mirror"]
+        width_axis = np.where(mirror[:, None], -width_axis, width_axis)
     base = pos + ldir * prad[:, None]
     return Skeleton(levels, base, ldir, width_axis, lsize, recipe)

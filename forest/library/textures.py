@@ -18,6 +18,7 @@ flips the image vertically still sees the same leaf.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -46,7 +47,8 @@ def leaf_rgba(shape: str, n: int = SIZE) -> np.ndarray:
       (a Gielis-like superellipse), with a midrib and pinnate veins at ±40°.
     * ``needle`` — a fan of 16 needles radiating from the card's centre.
     * ``frond`` — a narrow leaflet, ``w(t) = 0.45·sin(πt)``.
-    * ``blade`` — three grass blades, each ``w = 0.12·sin(πt)^0.5``.
+    * ``blade`` — two grass blades of one tiller, unlike in length, width, lean and
+      curvature (:data:`BLADES`, :func:`_blades`).
     * ``fern`` — a pinna: central rachis with alternating lobes.
     """
     x, t = _grid(n)
@@ -75,11 +77,7 @@ def leaf_rgba(shape: str, n: int = SIZE) -> np.ndarray:
         alpha = _smooth_mask(ax - w, n)
         detail = 0.9 - 0.2 * np.exp(-((x / 0.04) ** 2)) + 0.1 * (ax / np.maximum(w, 1e-3)).clip(0, 1)
     elif shape == "blade":
-        alpha = np.zeros_like(x)
-        for c, s in ((-0.55, 0.9), (0.0, 1.0), (0.55, 0.85)):
-            w = 0.12 * np.sin(np.pi * np.clip(t / s, 0, 1)) ** 0.5 * (t < s)
-            alpha = np.maximum(alpha, _smooth_mask(np.abs(x - c) - w, n))
-        detail = 0.85 + 0.15 * t
+        alpha, detail = _blades(x, t, n)
     elif shape == "fern":
         rachis = _smooth_mask(ax - 0.03, n)
         # Lobes: ellipses centred on the rachis every 1/7 of the length, alternating sides.
@@ -99,13 +97,53 @@ def leaf_rgba(shape: str, n: int = SIZE) -> np.ndarray:
     else:
         raise ValueError(f"unknown leaf shape {shape!r}")
     rgba = np.empty((n, n, 4), dtype=np.float32)
-    rgba[..., :3] = np.clip(detail, 0.0, 1.0)[..., None]
+    rgba[..., :3] = np.clip(detail, 0.0, 1.0)[..., None] if detail.ndim == 2 else np.clip(detail, 0.0, 1.0)
     rgba[..., 3] = np.clip(alpha, 0.0, 1.0)
-    # A faint warm/cool shift across the blade keeps the detail from looking flat grey.
-    rgba[..., 0] *= 0.97 + 0.03 * t
-    rgba[..., 2] *= 0.97 + 0.03 * (1.0 - t)
+    if shape != "blade":
+        # A faint warm/cool shift across the leaf keeps the detail from looking flat grey.
+        rgba[..., 0] *= 0.97 + 0.03 * t
+        rgba[..., 2] *= 0.97 + 0.03 * (1.0 - t)
     rgba[..., :3] = unit_mean(rgba[..., :3], rgba[..., 3] >= 0.5)
     return rgba
+
+
+#: The two blades of the ``blade`` card, in the card's ``x ∈ (−1, 1)``, ``t ∈ (0, 1)``: the
+#: centreline ``x = base + lean·t + curve·t²`` up to the blade's length, its half-width
+#: ``width`` and a per-channel tone (a second, younger blade a touch bluer-green).
+BLADES: tuple[dict[str, Any], ...] = (
+    {"base": -0.08, "lean": -0.34, "curve": 0.06, "length": 1.0, "width": 0.19, "tone": (1.0, 1.0, 1.0)},
+    {"base": 0.10, "lean": 0.62, "curve": -0.22, "length": 0.74, "width": 0.15, "tone": (0.94, 0.98, 1.0)},
+)
+
+
+def _blades(x: np.ndarray, t: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Alpha ``(n, n)`` and RGB detail ``(n, n, 3)`` of the ``blade`` card: the blades of :data:`BLADES`.
+
+    A grass blade is nearly parallel-sided and tapers to a point over its last third:
+    half-width ``w(t) = width·(0.8 + 0.2·min(1, t/0.08))·√(1 − (t/L)³)`` for ``t < L``
+    (narrower at the ligule).  The blades diverge from a common tiller at the
+    card's foot with different leans and curvatures, so a card reads as one or two blades
+    rather than a regular clump.  Detail (each blade its ``tone``): faint parallel veins
+    (−4 %) and darker margins (−6 %, the blade's fold), uniform along the blade (green to the tip).
+    """
+    alpha = np.zeros_like(x)
+    rgb = np.ones(x.shape + (3,))
+    for b in BLADES:
+        length = b["length"]
+        centre = b["base"] + b["lean"] * t + b["curve"] * t**2
+        # Horizontal distance to the centreline, corrected to the normal distance for the blade's slope.
+        slope = (b["lean"] + 2.0 * b["curve"] * t) / 2.0  # dx/dt in card units (x spans 2)
+        d = np.abs(x - centre) / np.sqrt(1.0 + slope**2)
+        taper = np.sqrt(np.clip(1.0 - (t / length) ** 3, 0.0, 1.0))
+        w = b["width"] * (0.8 + 0.2 * np.clip(t / 0.08, 0.0, 1.0)) * taper
+        a = _smooth_mask(d - w, n) * (t < length)
+        rel = np.clip(d / np.maximum(w, 1e-3), 0.0, 1.0)
+        veins = np.cos(rel * np.pi * 3.5) ** 8
+        shade = (1.0 - 0.04 * veins - 0.06 * rel**4)[..., None] * np.asarray(b["tone"])
+        over = a > alpha
+        rgb = np.where(over[..., None], shade, rgb)
+        alpha = np.maximum(alpha, a)
+    return alpha, rgb
 
 
 def unit_mean(rgb: np.ndarray, mask: np.ndarray, passes: int = 4) -> np.ndarray:
