@@ -9,8 +9,10 @@ One scatter is saved (``forest scatter``) and both sides render it: forest with
 instancing of the same trees, meshes, camera, sun, sky and bounces; see
 docs/exports.md), rendered by ``blender -b`` with ``samples`` = spp, adaptive
 sampling and denoising off, the given seed and 2 threads, to a linear EXR.
-The export instances one level of detail per species, so the scene has no
-``[lod]``: every tree at its highest level on both sides.  The ground is one
+The export instances one level of detail per species, so the scene turns
+forest's automatic level of detail off (``[lod] auto = false``): every tree at
+its highest level on both sides (without it, since levels of detail became
+automatic, forest rendered most of the 2 000 trees at their low and far levels).  The ground is one
 colour without a skirt (the export has neither skirt nor ``[ground]``).
 
 Each side renders twice, seeds 1 and 2, alternating (forest, Cycles, forest,
@@ -79,6 +81,8 @@ scale = [0.9, 1.4]
 position = [0.0, 90.0, {camz}]
 target = [0.0, 20.0, 0.0]
 fov = 55.0
+[lod]
+auto = false
 [lights]
 sun = {{ elevation = 35.0, azimuth = 140.0, irradiance = 3.2, colour = [1.0, 0.93, 0.82] }}
 sky = {{ radiance = 0.45, colour = [0.55, 0.7, 1.0] }}
