@@ -715,7 +715,9 @@ def check_render_memory(
         each = (need(64, 36) - fixed) / estimate.trees
         can = int(max(0, room - fixed) / each) if each > 0 else 0
         kept = f"about {can:,} trees fit" if can > 0 else "no trees fit"
-        message = what + f"; even a small image does not fit: {kept} (render fewer trees, or a smaller saved InstanceSet)"
+        message = (
+            what + f"; even a small image does not fit: {kept} (render fewer trees, or a smaller saved InstanceSet)"
+        )
         if _kind(estimate.variant) == "jit":
             if config.lod.mode == "pixels":
                 message += "; or raise [lod] pixels (the last is the far level's) so more trees merge at the far level"
@@ -723,7 +725,10 @@ def check_render_memory(
                 message += "; or bring [lod] distances closer so more trees merge at the far level"
         raise ConfigError(config.path, "scatter.count", message)
     if fits is None:
-        message = what + "; even a small image does not fit: render fewer trees (scatter.count, or a smaller saved InstanceSet)"
+        message = (
+            what
+            + "; even a small image does not fit: render fewer trees (scatter.count, or a smaller saved InstanceSet)"
+        )
     else:
         message = what + f"; {fits[0]}x{fits[1]} fits"
     field = "--width/--height" if flags else "render.width/render.height"

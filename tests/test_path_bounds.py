@@ -77,6 +77,10 @@ def test_optix_style_instanced_hits_resolve_like_embrees():
     optix.shape_index = mi.UInt32(np.zeros_like(inst))
     got = resolve(mi, trav, path._parts, optix, mi.Bool(True))
     np.testing.assert_array_equal(np.asarray(got.valid), np.asarray(embree.valid), "valid")
-    hit = np.asarray(embree.valid).astype(bool)  # a ray that leaves the scene (the sky) carries no row, part or triangle
+    hit = np.asarray(embree.valid).astype(
+        bool
+    )  # a ray that leaves the scene (the sky) carries no row, part or triangle
     for field in ("row", "part", "tri"):
-        np.testing.assert_array_equal(np.asarray(getattr(got, field))[hit], np.asarray(getattr(embree, field))[hit], field)
+        np.testing.assert_array_equal(
+            np.asarray(getattr(got, field))[hit], np.asarray(getattr(embree, field))[hit], field
+        )

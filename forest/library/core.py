@@ -328,11 +328,13 @@ class Library:
         kind = raw.get("kind", "tree")
         if kind == "building":  # procedural buildings (forest.library.buildings)
             from .buildings import generate, recipe_hash, validate_recipe
+        elif kind == "rock":  # procedural rocks (forest.library.rocks)
+            from .rocks import generate, recipe_hash, validate_recipe
         elif kind == "tree":
             from .build import generate, recipe_hash
             from .generator import validate_recipe
         else:
-            raise ConfigError(where / e["recipe"], "kind", f"must be tree or building, got {kind!r}")
+            raise ConfigError(where / e["recipe"], "kind", f"must be tree, building or rock, got {kind!r}")
         recipe = validate_recipe(raw, str(where / e["recipe"]))
         h = recipe_hash(recipe, seed)
         label = name if seed == manifest_seed else f"{name}@{seed}"
