@@ -51,6 +51,40 @@ def run_forest(*args: str, cwd: Path | None = None, timeout: float = 600) -> sub
     return subprocess.run(cmd + [str(a) for a in args], cwd=cwd, capture_output=True, text=True, timeout=timeout)
 
 
+def seed_library_cache(root: Path, names, individuals: int = 1) -> list[str]:
+    """Copy existing builds of the shipped species ``names`` (individuals ``0 … individuals − 1`` of each) into
+    ``root/cache`` (a user library over the shipped presets, or a copy of the shipped library) where they match the
+    current recipes; returns the labels copied.
+
+    A build is looked up by its recipe hash (``cache/<name>[@seed]-<hash>``) in the user library that
+    ``scripts/setup.sh`` builds and the suite's other tests use, then beside the checkout's ``library/``: a library
+    seeded this way resolves exactly the species it would have built.  A build that is missing or stale is not
+    copied and is built on first use as before.  For tests whose subject is not the build itself (building one
+    individual takes seconds).
+    """
+    import shutil
+
+    from forest.errors import ForestError
+    from forest.library import open_library
+    from forest.library.individuals import individual
+
+    sources = [open_library(), open_library(ROOT / "library")]
+    copied = []
+    for name in names:
+        for k in range(individuals):
+            for lib in sources:
+                try:
+                    sp = individual(lib, name, k, build=False)
+                except ForestError:
+                    continue
+                dest = Path(root) / "cache" / sp.folder.name
+                if not dest.exists():
+                    shutil.copytree(sp.folder, dest)
+                copied.append(sp.folder.name)
+                break
+    return copied
+
+
 @pytest.fixture
 def flat_scene(tmp_path):
     """A 100 m flat terrain with one species, canopy structure off: returns a function(extra_toml) -> config path."""

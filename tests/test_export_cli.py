@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import seed_library_cache
 from pxr import Usd, UsdGeom, UsdShade
 
 from forest.cli import main
@@ -144,10 +145,13 @@ height = 24
 
 @pytest.fixture(scope="module")
 def real_library(tmp_path_factory):
-    """A private copy of the shipped library (recipes only), built on first use."""
+    """A private copy of the shipped library (recipes), its broadleaf and shrub (the 4 individuals a scene draws
+    from) seeded with existing builds of the same recipes (``seed_library_cache``: the export is the subject here,
+    not the build; a species whose build is missing or stale is built on first use)."""
     root = tmp_path_factory.mktemp("library")
     shutil.copy(ROOT / "library" / "manifest.toml", root / "manifest.toml")
     shutil.copytree(ROOT / "library" / "presets", root / "presets")
+    seed_library_cache(root, ("broadleaf", "shrub"), individuals=4)
     return root
 
 
