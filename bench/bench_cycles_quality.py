@@ -78,6 +78,24 @@ reduced ladder (``--ref-spp 64 --forest-spp 8,16,32 --denoise-spp 4,8,16 --adapt
   samples): its gain is OIDN's, which at 2–4 spp is worth ~4–6× the samples on this frame (raw rRMSE), where
   forest's denoiser is worth ~1.5–2×; forest's adaptive mode (threshold 0.1) did not beat plain at
   equal error except by extrapolation.
+
+**Why Cycles' denoiser seems to gain more** (controlled runs on the 2 000-tree frame, one at a time,
+each renderer against its own 128-spp reference with the reference's noise taken out; gain = the plain
+spp reaching the same rRMSE ÷ the spp denoised; plain error fitted as c/√spp): at 2/4/8/16 spp forest's
+denoised frames gain 4.9×/3.2×/2.3×/1.8×, Cycles' 6.5–7.1×/4.4–4.7×/3.3×/2.6× — a steady ~1.45×, not
+the 3× the ladder above suggests.  Not the cause: forest's OIDN call (forest's ``denoise()`` on Cycles'
+beauty and guides gains as Cycles' own OIDN does: 7.1×/4.7×/3.3×/2.6×), the input scale (×10, ×0.1:
+identical), the guides (forest's guides on Cycles' beauty gain as Cycles' do; either beauty gains about as
+much with no guides at all), spatially correlated noise (neighbour error correlation −0.008 forest, 0.003
+Cycles) or fireflies (top 1 % of pixels: 22 % / 27 % of the squared error).  The cause is the pixel
+filter: Cycles' Blackman–Harris 1.5 px renders a softer frame (forest's 1-pixel-box reference has 41 %
+more pixel-scale detail, mean relative Laplacian 0.78 against 0.56), and a denoiser scored against its
+own renderer's reference pays more for blurring a sharper one; forest sampled through the same
+Blackman–Harris filter (an experiment, not shipped) gains 7.5×/4.9×/3.5×/2.8×.  So for time to a clean
+frame both renderers should use the same filter (``--cycles-filter box`` in bench_cycles.py) or be scored
+against one filtered target.  A real lever left: clean guides — forest's guides from a 16-spp pass with
+OIDN's ``cleanAux`` raise the gain at 2/4/8 spp from 5.1×/3.2×/2.3× to 6.2×/3.9×/2.8× (20–25 % fewer
+samples), worth it only if a first-hit guide pass costs well under 20 % of the beauty.
 """
 
 from __future__ import annotations
