@@ -2,6 +2,8 @@
 
     .venv/bin/python bench/bench_denoise.py                                   # demo and meadow, 320x180
     .venv/bin/python bench/bench_denoise.py --configs configs/demo.toml --spp 8,16 --crops out/crops
+    .venv/bin/python bench/bench_denoise.py --clean-guides --configs cycles --spp 2,4,8,16 --ref-spp 128 --repeat 2
+    .venv/bin/python bench/bench_denoise.py --clean-guides --configs configs/demo.toml --size 800x450 --spp 12 --ref-spp 0
 
 For each scene (its still at frame 1 without motion blur, forest_path in ``llvm_ad_rgb``) a reference
 of ``--ref-spp`` samples is rendered first with another seed, not denoised; then each spp once plain.
@@ -25,6 +27,17 @@ from err = c/√spp fitted through the plain runs (rRMSE) and by log-log interpo
 writes the reference, plain and both denoised PNGs of a foliage crop (4× nearest) for an eye check, with
 the albedo guide as traced and prefiltered.
 Seconds are CPU seconds (user + system, every thread) of the frame, the steadier measure on a shared machine.
+
+``--clean-guides``: would clean guides pay?  A first-hit-only guide pass (:func:`clean_guides`: camera rays →
+the first hit's albedo, leaf cards' alpha passed as the beauty passes it, and shading normal; no lighting,
+bounces or shadow rays) at G = max(``--guide-spp``, spp) samples per pixel, seeded apart from the beauty, then
+OIDN with ``cleanAux``.  Printed per spp: the beauty's frame CPU-s (plain, the cheapest of ``--repeat``) beside
+the guide pass's, then (``--ref-spp`` > 0) rRMSE plain / old (the beauty's own guides, ``cleanAux`` off: what
+``[render] denoise`` does) / new (clean guides), the gain of each (the plain spp of equal error, err = c/√spp,
+÷ spp) and the beauty time that the new gain saves (1 − gain_old/gain_new of the frame: an upper bound, the
+frame's fixed costs do not shrink) against the guide pass's time.  ``--configs cycles`` is
+``bench_cycles.SCENE`` (``--trees``, max_depth 3).  Measured (shared 2-core machine, another test suite
+running): the pass costs more than it saves at every spp — the numbers are in docs/rendering.md "Denoising".
 """
 
 from __future__ import annotations
@@ -32,6 +45,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -166,6 +180,153 @@ def bench_scene(config: Path, width: int, height: int, spps: list[int], ref_spp:
         )
 
 
+def cycles_scene(tmp: Path, count: int, width: int, height: int, spp: int, depth: int, seed: int) -> Path:
+    """``bench_cycles.SCENE`` (``count`` trees, sun and sky) written as a config under ``tmp``."""
+    from bench_cycles import SCENE
+
+    size = float(np.sqrt(count / 130_000.0) * 4000.0)
+    path = tmp / f"cycles_{count}.toml"
+    path.write_text(
+        SCENE.format(
+            size=size, count=count, camz=-0.5 * size, width=width, height=height, spp=spp, depth=depth, seed=seed
+        )
+    )
+    return path
+
+
+#: The clean-guide pass's seeds: its samples independent of the beauty's (np.random.SeedSequence([seed, TAG, pass])).
+GUIDE_SEED_TAG = 0x4755_4944  # "GUID"
+
+
+def guide_kernel(kernel, sampler, ray, active):
+    """The denoiser's guides of each camera ray as the beauty's first vertex defines them, and nothing else.
+
+    (albedo, shading normal facing the camera) with the conventions of ``PathKernel.sample``'s ``aux``:
+    the albedo R + T of the surface met first (cut-out texels passed stochastically, as the beauty's rays
+    pass them; a water hit's diffuse part 1 − W·F(μ), as the beauty's vertex has it), or where the ray
+    leaves the scene the sky's radiance through the haze clipped to [0, 1].  No lighting, no bounce, no
+    shadow ray: one traversal (plus the skipped texels) and one shading lookup per lane.
+    """
+    import drjit as dr
+
+    from forest.render.path.materials import shading, water_coverage, water_lobe
+
+    mi = kernel.mi
+    n = dr.width(ray.d)
+    seed = dr.reinterpret_array(mi.UInt32, sampler.next_1d())
+    rng = mi.PCG32(size=n, initstate=mi.UInt64(seed), initseq=mi.UInt64(dr.arange(mi.UInt32, n)))
+    o, d = mi.Point3f(ray.o), mi.Vector3f(ray.d)
+    valid, _, row, p, n_geo, n_sh, uv, material, _ = kernel.trace(o, d, ray.maxt, rng, active)
+    wi = -d
+    flip = dr.dot(n_sh, wi) < 0.0
+    ns = dr.select(flip, -n_sh, n_sh)
+    k = kernel
+    sh = shading(mi, k.mats, material, uv, p, k.grid, k.extent, k.terrain_map, valid, row, k.row_tint)
+    if k.water_ripple is not None:
+        w = water_coverage(mi, k.mats, material, p, k.terrain_map, valid)
+        sh = water_lobe(mi, sh, w, p, wi, dr.select(flip, -n_geo, n_geo), k.water_ripple).shading
+    sky = k.lights.eval(d, active & ~valid, o)
+    if k.haze is not None:
+        sky = sky * k.haze.transmittance(o, d, dr.minimum(ray.maxt, k.haze.sky_distance))
+    albedo = dr.select(valid, sh.reflect + sh.transmit, dr.clip(sky, 0.0, 1.0))
+    return albedo, dr.select(valid, ns, 0.0)
+
+
+def clean_guides(path, camera, spp: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(albedo, normal) (H, W, 3) float32 of a ``PathScene``: the mean over ``spp`` camera samples per pixel of
+    :func:`guide_kernel`, a pass of its own seeded from ``seed`` and :data:`GUIDE_SEED_TAG` (the normal not
+    renormalised, as the beauty's guide)."""
+    import drjit as dr
+
+    from forest.render.path.frame import mi_bool, pixel_sums, split_passes
+
+    w, h = int(camera.width), int(camera.height)
+    kernel = path.kernel()
+    albedo, normal, total = np.zeros((h * w, 3)), np.zeros((h * w, 3)), 0
+    with dr.suspend_grad():
+        for k, n in enumerate(split_passes(w, h, int(spp), path.max_lanes)):
+            s = int(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, GUIDE_SEED_TAG, k]).generate_state(1)[0])
+            sampler, ray, used = path._camera_rays(camera, n, s)
+            alb, nrm = guide_kernel(kernel, sampler, ray, mi_bool(path.mi, True))
+            dr.eval(alb, nrm)
+            albedo += pixel_sums(path.mi, alb, used, h * w)
+            normal += pixel_sums(path.mi, nrm, used, h * w)
+            total += used
+    return tuple((a / total).reshape(h, w, 3).astype(np.float32) for a in (albedo, normal))  # type: ignore[return-value]
+
+
+def bench_clean_guides(
+    config: Path, width: int, height: int, spps: list[int], ref_spp: int, guide_min: int, repeat: int
+) -> None:
+    """The clean-guide pass (:func:`clean_guides` at G = max(``guide_min``, spp), OIDN with ``cleanAux``): its
+    CPU seconds beside the beauty's, and — with ``ref_spp`` > 0 — the error of plain, old (the beauty's own
+    guides) and new (clean guides) denoising, with the plain spp each is worth (err = c/√spp)."""
+    from forest.imaging import denoise
+    from forest.render.frame import FrameSize
+    from forest.render.path.from_scene import path_camera
+    from forest.render.render import make_renderer
+
+    t0 = time.perf_counter()
+    cfg, scene = load(config, width, height, None, [])
+    r = make_renderer(scene, "llvm_ad_rgb", FrameSize(width, height, max(spps), 1))
+    seed = int(cfg.render.seed)
+    print(
+        f"\n{config.name} {width}x{height}: {len(scene.instances):,} trees, max_depth {cfg.render.max_depth}, "
+        f"load {time.perf_counter() - t0:.1f} s"
+    )
+    camera = path_camera(cfg, 1.0, width, height)
+
+    def guides(g: int) -> tuple[np.ndarray, np.ndarray, float]:
+        c0 = cpu()
+        a, n = clean_guides(r.path, camera, g, seed)
+        return a, n, cpu() - c0
+
+    render(r, cfg, min(spps))  # compile the kernels before timing anything
+    guides(guide_min)
+    rows = []  # (spp, G, beauty CPU-s, guide CPU-s, out, clean albedo, clean normal)
+    for spp in spps:
+        g = max(guide_min, spp)
+        t_b, t_g = math.inf, math.inf
+        for _ in range(repeat):  # the cheapest of ``repeat``, alternating (the machine is shared)
+            out, t = render(r, cfg, spp)
+            t_b = min(t_b, t)
+            alb, nrm, t = guides(g)
+            t_g = min(t_g, t)
+        rows.append((spp, g, t_b, t_g, out, alb, nrm))
+    print(f"{'spp':>4} {'G':>3} | {'beauty CPU-s':>12} {'guide CPU-s':>11} {'guide/beauty':>12} | break-even gain")
+    for spp, g, t_b, t_g, *_ in rows:
+        print(f"{spp:4d} {g:3d} | {t_b:12.2f} {t_g:11.2f} {t_g / t_b:12.2f} | {t_g / t_b * 100:5.0f} % of the beauty")
+    if ref_spp <= 0:
+        return
+    object.__setattr__(cfg.render, "seed", seed + 1)  # the reference's noise independent of the runs'
+    ref, t_ref = render(r, cfg, ref_spp)
+    object.__setattr__(cfg.render, "seed", seed)
+    ref_rgb = np.asarray(ref.rgb, np.float64)
+    print(f"reference {ref_spp} spp: {t_ref:.1f} CPU-s")
+    errs = []  # (spp, plain, old, new)
+    for spp, _g, _tb, _tg, out, alb, nrm in rows:
+        old = denoise(out.rgb, out.albedo, out.normal)
+        new = denoise(out.rgb, alb, nrm, clean_aux=True)
+        assert old is not None and new is not None, "Open Image Denoise (pyoidn) is not installed"
+        errs.append((spp, *(rrmse(np.asarray(x, np.float64), ref_rgb) for x in (out.rgb, old, new))))
+    n, e_n = errs[-1][0], errs[-1][1]
+    floor2 = e_n**2 * (n / ref_spp) / (1.0 + n / ref_spp)  # the reference's own noise, squared
+
+    def corr(e: float) -> float:
+        return math.sqrt(max(e * e - floor2, 0.0))
+
+    c = math.exp(sum(math.log(corr(e) * math.sqrt(s)) for s, e, _, _ in errs) / len(errs))
+    print(f"reference noise (rRMSE): {math.sqrt(floor2):.4f}, taken out; plain fit err = {c:.3f}/√spp")
+    print(f"{'spp':>4} | {'rRMSE plain':>11} {'old':>7} {'new':>7} | {'gain old':>8} {'new':>6} | samples saved")
+    for (spp, ep, eo, en), (_, g, t_b, t_g, *_) in zip(errs, rows, strict=True):
+        go, gn = (c / corr(eo)) ** 2 / spp, (c / corr(en)) ** 2 / spp
+        print(
+            f"{spp:4d} | {corr(ep):11.4f} {corr(eo):7.4f} {corr(en):7.4f} | {go:7.2f}x {gn:5.2f}x | "
+            f"{(1 - go / gn) * 100:4.0f} % of the beauty ({(1 - go / gn) * t_b:.2f} CPU-s) vs the {g}-spp guide "
+            f"pass {t_g:.2f} CPU-s"
+        )
+
+
 def guide_png(albedo: np.ndarray) -> np.ndarray:
     """8-bit codes of an albedo guide (sRGB-encoded, as a texture is seen)."""
     a = np.clip(np.asarray(albedo, np.float64)[..., :3], 0.0, 1.0)
@@ -204,6 +365,15 @@ def main() -> None:
     ap.add_argument("--spp", default="8,16,32,64")
     ap.add_argument("--ref-spp", type=int, default=256)
     ap.add_argument("--crops", type=Path, default=None, help="folder for foliage crops (plain, denoised, reference)")
+    ap.add_argument(
+        "--clean-guides",
+        action="store_true",
+        help="the clean-guide pass instead: its cost beside the beauty's, and the gain (old vs new denoising); "
+        "--configs may name 'cycles' (bench_cycles.SCENE, --trees trees, max_depth 3)",
+    )
+    ap.add_argument("--trees", type=int, default=2000)
+    ap.add_argument("--guide-spp", type=int, default=16, help="G = max(this, spp) guide samples per pixel")
+    ap.add_argument("--repeat", type=int, default=1, help="timed runs per spp (the cheapest is kept)")
     args = ap.parse_args()
     from forest.imaging import oidn_available
 
@@ -212,9 +382,15 @@ def main() -> None:
     width, height = (int(v) for v in args.size.split("x"))
     spps = [int(s) for s in args.spp.split(",")]
     t0 = time.perf_counter()
-    for c in args.configs.split(","):
-        path = Path(c) if Path(c).is_absolute() else ROOT / c
-        bench_scene(path, width, height, spps, args.ref_spp, args.crops)
+    with tempfile.TemporaryDirectory(prefix="forest-bench-denoise-") as tmp:
+        for c in args.configs.split(","):
+            path = Path(c) if Path(c).is_absolute() else ROOT / c
+            if c == "cycles":
+                path = cycles_scene(Path(tmp), args.trees, width, height, max(spps), 3, 5)
+            if args.clean_guides:
+                bench_clean_guides(path, width, height, spps, args.ref_spp, args.guide_spp, args.repeat)
+            else:
+                bench_scene(path, width, height, spps, args.ref_spp, args.crops)
     print(f"\nwall {time.perf_counter() - t0:.0f} s")
 
 
