@@ -119,6 +119,7 @@ class Sky:
     sun: Sun | None = None
     source: Path | None = None
     map_sun: Sun | None = None
+    background: Literal["map", "sunsky"] = "map"
 
     @property
     def radiance(self) -> np.ndarray:
@@ -190,7 +191,7 @@ def _envmap_sky(config, k) -> Sky:
     path = sky_path(k.hdri) if k.hdri is not None else Path(k.envmap)
     scale, rotation = float(k.scale), float(k.rotation)
     if not k.splits_sun and rotation == 0.0:
-        return Sky("envmap", scale, envmap=path)
+        return Sky("envmap", scale, envmap=path, background=k.background)
     try:
         split = split_sun(path, rotation=rotation, take_sun=k.splits_sun)
     except (ForestError, OSError) as e:
@@ -199,7 +200,7 @@ def _envmap_sky(config, k) -> Sky:
     map_sun = None
     if split.elevation is not None and split.azimuth is not None:
         map_sun = Sun(split.elevation, split.azimuth, split.irradiance * scale, split.colour)
-    return Sky("envmap", scale, envmap=split.path, source=path, map_sun=map_sun)
+    return Sky("envmap", scale, envmap=split.path, source=path, map_sun=map_sun, background=k.background)
 
 
 def resolve_lights(config) -> Lights:

@@ -221,3 +221,52 @@ def test_forest_path_renders_a_shipped_sky_with_shadows_away_from_its_sun(tmp_pa
     shadow, lit = strip & (along < -8) & (along > -28), strip & (along > 8) & (along < 28)
     assert shadow.sum() >= 4 and lit.sum() >= 4
     assert y[shadow].mean() < 0.6 * y[lit].mean()  # about 0.35: the box hides the low sun
+
+
+def test_a_sunsky_background_hides_the_map_from_the_camera_but_not_from_the_light(tmp_path, library):
+    """A map whose lower sky is a red band (a photographed horizon) over a blue sky, seen level from 2 m:
+    with background = "map" the rows just above the horizon are red; with "sunsky" they are the sky model's
+    (blue over red, at the map's mean brightness within 5 %), while the lit ground below the horizon — every
+    path that leaves the scene after a bounce — is the same to the last bit."""
+    from forest.render.path import PathScene
+    from forest.render.path.emitters import luminance
+    from forest.render.path.from_scene import path_inputs
+    from forest.scene import load_scene
+
+    h, w = 64, 128
+    elevation = (0.5 - (np.arange(h) + 0.5) / h) * 180.0  # latitude-longitude rows, +Y up
+    img = np.empty((h, w, 3), np.float32)
+    img[:] = (0.3, 0.5, 1.0)
+    img[(elevation > 0) & (elevation < 20)] = (1.2, 0.2, 0.1)  # the "photographed" horizon
+    img[elevation <= 0] = (0.2, 0.2, 0.2)
+    write_image(tmp_path / "sky.exr", img)
+    camera = "position = [0.0, 2.0, -40.0]\ntarget = [0.0, 4.0, 100.0]\nfov = 50.0\n"
+    seen = {}
+    for background in ("map", "sunsky"):
+        cfg = make_config(tmp_path, camera=camera, replace_camera=True, ground="[0.5, 0.5, 0.5]")
+        sky = {"envmap": str(tmp_path / "sky.exr"), "background": background}
+        cfg = cfg.with_overrides({"lights": {"sky": sky, "sun": {"elevation": 30.0, "azimuth": 180.0}}})
+        scene = load_scene(cfg, trees([[0.0, 0.0, 30.0]]), library=library)
+        inputs = path_inputs(scene, width=40, height=40, spp=4)
+        path = PathScene(inputs, "llvm_ad_rgb")
+        seen[background] = (path.render().rgb, path)
+    (plain, _), (hidden, path) = seen["map"], seen["sunsky"]
+    band = slice(8, 17)  # a few degrees above the horizon (row 20)
+    assert plain[band, :, 0].mean() > 2.0 * plain[band, :, 2].mean()  # the red band
+    assert hidden[band, :, 2].mean() > hidden[band, :, 0].mean()  # the model's sky: bluer than red
+    np.testing.assert_array_equal(hidden[26:], plain[26:])  # the ground: lit by the map alike
+    backdrop = path.backdrop
+    assert backdrop is not None
+    # The map's mean radiance over the upper hemisphere, per channel: rows weighted by their solid angle.
+    up = elevation > 0
+    weight = np.cos(np.radians(elevation[up]))
+    mean_map = (img[up].mean(axis=1) * weight[:, None]).sum(axis=0) / weight.sum()
+    light = next(x for x in path.lights if getattr(x, "direction", None) is None)
+    np.testing.assert_allclose(light.mean_radiance, mean_map, rtol=0.03)  # each channel its own (not mixed)
+    assert backdrop.k * luminance(backdrop.light.mean_radiance) == pytest.approx(luminance(mean_map), rel=0.03)
+
+
+def test_background_applies_to_an_environment_map_only():
+    with pytest.raises(ConfigError, match="environment map") as e:
+        parse_config(FLAT + '[lights]\nsky = { sunsky = {}, background = "sunsky" }\n')
+    assert e.value.field == "lights.sky.background"

@@ -884,6 +884,12 @@ class SkyConfig(Section):
         description="Environment map: turn it about the vertical, degrees; every azimuth in it (its sun's too) "
         "grows by this much.",
     )
+    background: Literal["map", "sunsky"] = Field(
+        "map",
+        description="Environment map: what the camera sees where it sees the sky — the map itself, or (sunsky) "
+        "forest's physical sky for the map's sun at the map's mean brightness, while the map still lights the "
+        "scene (a photographed horizon no longer shows behind the terrain; forest_path only).",
+    )
     sunsky: SunskyConfig | None = None
 
     @model_validator(mode="after")
@@ -901,6 +907,8 @@ class SkyConfig(Section):
             raise fail("applies to an environment map (envmap or hdri) only", "rotation")
         if self.kind != "envmap" and "map_sun" in given:
             raise fail("applies to an environment map (envmap or hdri) only", "map_sun")
+        if self.kind != "envmap" and "background" in given:
+            raise fail("applies to an environment map (envmap or hdri) only", "background")
         return self
 
     @property

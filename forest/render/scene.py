@@ -278,6 +278,14 @@ def emitter_dicts(config: Config, variant: str, *, disc_sun: bool = False) -> di
         warnings.warn(f"[lights.clouds]: not rendered in {variant} (Mitsuba's own integrator has no cloud layer; "
                       "forest_path renders it): the sky is clear", ForestWarning, stacklevel=2)  # fmt: skip
     sky = lights.sky
+    if sky is not None and sky.kind == "envmap" and sky.background != "map":
+        import warnings
+
+        from ..errors import ForestWarning
+
+        warnings.warn(f"[lights.sky] background = {sky.background!r}: not rendered in {variant} (Mitsuba's own "
+                      "integrator cannot show camera rays another sky; forest_path renders it): the camera sees "
+                      "the map", ForestWarning, stacklevel=2)  # fmt: skip
     if sky is not None and sky.kind == "sunsky":
         assert sky.sun is not None  # resolve_lights always points a sun-sky at a sun
         d = sky.sun.direction

@@ -339,7 +339,9 @@ class EmitterLight:
         probes = fibonacci_hemisphere(SKY_PROBES)
         d = mi.Vector3f(*[mi.Float(probes[:, k].astype(np.float32)) for k in range(3)])
         with dr.suspend_grad():
-            value = np.asarray(self._eval_unit(d, mi.Bool(True)), dtype=np.float64).reshape(-1, 3)
+            # A Color3f of N lanes is (3, N) as an array: one row per probe after the transpose (a plain
+            # reshape to (N, 3) would mix the channels of neighbouring probes into grey).
+            value = np.asarray(self._eval_unit(d, mi.Bool(True)), dtype=np.float64).reshape(3, -1).T
         # E on an upward plane ≈ 2π · mean(ℓ cos θ) over the hemisphere (uniform probes).
         self.unit_irradiance_up = (2.0 * math.pi * value * probes[:, 1:2]).mean(axis=0)
         self.unit_power = luminance(self.unit_irradiance_up)
@@ -447,12 +449,57 @@ def _make_lights(mi: Any, sun: SunLight | None, sky: SkyLight | None) -> list[An
     return lights
 
 
-class LightSet:
-    """The lights of a render with their current scales and pick probabilities."""
+#: Turbidity and ground albedo of the sky model a backdrop shows (:class:`Backdrop`): a clear day.
+BACKDROP_TURBIDITY = 3.0
+BACKDROP_ALBEDO = 0.15
 
-    def __init__(self, mi: Any, lights: list[Any], params: dict[str, Any]):
+
+class Backdrop:
+    """What camera rays that leave the scene see in place of an environment map (``[lights.sky] background =
+    "sunsky"``): Mitsuba's sky model without its sun (forest's disc sun still draws the sun) for the
+    direction ``s`` of the scene's sun, times k so that its mean radiance over the upper hemisphere has the
+    map's luminance,
+
+        L_b(ω) = k · ℓ_model(ω; s),    k = Y(ℓ̄_map) / Y(ℓ̄_model),
+
+    ℓ̄ the means over uniform hemisphere probes and Y the Rec. 709 luminance.  Only what the camera sees
+    changes: every bounce and shadow ray is still lit by the map.  A constant (it carries no gradients):
+    look-dev fits the lights, not the backdrop.
+    """
+
+    def __init__(self, mi: Any, direction: npt.ArrayLike, map_mean: npt.ArrayLike):
+        d = np.asarray(direction, np.float64)
+        d = d / np.linalg.norm(d)
+        if d[1] < 0.02:  # the model needs a sun above the horizon: keep its azimuth, raise it a little
+            d = np.array([d[0], 0.02, d[2]]) / np.linalg.norm([d[0], 0.02, d[2]])
+        em = mi.load_dict(sunsky_dict(mi, d, BACKDROP_TURBIDITY, BACKDROP_ALBEDO, sun_scale=0.0, sky_scale=1.0))
+        self.mi = mi
+        self.light = EmitterLight(mi, em, "sky_scale", [1.0, 1.0, 1.0])
+        model = luminance(self.light.mean_radiance)
+        self.k = luminance(map_mean) / model if model > 0.0 else 0.0
+
+    def eval(self, d: Any, active: Any) -> Any:
+        """L_b(d) (RGB)."""
+        return self.light.eval(self.mi.Color3f(self.k), d, active)
+
+
+def make_backdrop(mi: Any, sun: SunLight | None, sky: SkyLight | None, lights: list[Any]) -> Backdrop | None:
+    """The :class:`Backdrop` of an ``envmap`` sky with ``background = "sunsky"`` (None otherwise); the sun's
+    direction from ``sun`` (the map's found sun or [lights.sun]), straight up without one."""
+    if sky is None or sky.kind != "envmap" or getattr(sky, "background", "map") != "sunsky":
+        return None
+    direction = (0.0, 1.0, 0.0) if sun is None else sun.direction
+    return Backdrop(mi, direction, sky_mean_radiance(lights))
+
+
+class LightSet:
+    """The lights of a render with their current scales and pick probabilities; ``backdrop`` (a
+    :class:`Backdrop` or None) is what camera rays that leave the scene see instead of the sky."""
+
+    def __init__(self, mi: Any, lights: list[Any], params: dict[str, Any], backdrop: Backdrop | None = None):
         self.mi = mi
         self.lights = lights
+        self.backdrop = backdrop
         self.scales = [params[light.param] for light in lights]
         # Picks follow the lights' *initial* values: fixed while parameters change (an optimiser's
         # steps, finite differences), so the estimate stays a smooth function of the light scales.
@@ -535,6 +582,20 @@ class LightSet:
             g = light_group(light)
             parts[g] = value if g not in parts else parts[g] + value
         return total, parts
+
+    def eval_backdrop(self, d: Any, active: Any) -> tuple[Any, dict[str, Any]]:
+        """What a camera ray toward ``d`` sees with a :attr:`backdrop`: (L_b(d) + the suns' radiance, split
+        by light group: the backdrop in ``sky``, the suns in ``sun``), so the sun's disc stays in the frame."""
+        mi = self.mi
+        assert self.backdrop is not None
+        total = self.backdrop.eval(d, active)
+        parts: dict[str, Any] = {"sky": total}
+        for light, s in zip(self.lights, self.scales):
+            if getattr(light, "direction", None) is not None:
+                value = light.eval(s, d, active)
+                total = total + value
+                parts["sun"] = value if "sun" not in parts else parts["sun"] + value
+        return total, {g: parts.get(g, mi.Color3f(0.0)) for g in self.groups}
 
     def pdf(self, d: Any, active: Any) -> Any:
         """Light-sampling density p_L(d) = Σ P_k p_k(d) (solid angle)."""

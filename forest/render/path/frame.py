@@ -41,7 +41,7 @@ import numpy as np
 from ...errors import ForestError
 from ...progress import scaled
 from ...runtime import mitsuba
-from .emitters import LightSet, make_lights, sky_mean_radiance
+from .emitters import LightSet, make_backdrop, make_lights, sky_mean_radiance
 from .geometry import ForestGeometry, FrameStats, PartArrays, TraversalScene, available_bytes, memory_plan
 from .haze import HazeInputs, HazeModel
 from .inputs import PathCamera, PathInputs
@@ -207,6 +207,7 @@ class PathScene:
         self.geometry = ForestGeometry(inputs, self.materials)
         self.extent = inputs.grid_extent()
         self.lights = make_lights(mi, inputs.sun, inputs.sky)
+        self.backdrop = make_backdrop(mi, inputs.sun, inputs.sky, self.lights)
         self.params: dict[str, Any] = {}
         for light in self.lights:
             self.params[light.param] = mi.Color3f(*[float(x) for x in light.initial])
@@ -325,7 +326,7 @@ class PathScene:
         g = self.params["ground_tint"]
         table = dr.concat([self.params["leaf_tint"], g.x, g.y, g.z])
         mats = self._mats.tinted_colours(mi, table)
-        lights = LightSet(mi, self.lights, self.params)
+        lights = LightSet(mi, self.lights, self.params, self.backdrop)
         haze = None
         if self.haze is not None:
             # A haze of density 0 costs nothing unless its parameters are being differentiated.

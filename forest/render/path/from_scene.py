@@ -78,7 +78,7 @@ def path_lights(lights: Lights) -> tuple[SunLight | None, SkyLight | None]:
     if k is None:
         return disc, None
     if k.kind == "envmap":
-        return disc, SkyLight("envmap", envmap=k.envmap, scale=float(k.intensity))
+        return disc, SkyLight("envmap", envmap=k.envmap, scale=float(k.intensity), background=k.background)
     return disc, SkyLight("constant", radiance=tuple(k.radiance.tolist()))
 
 

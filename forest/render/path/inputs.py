@@ -68,7 +68,9 @@ class SkyLight:
     """The sky dome.
 
     * ``constant`` — ``radiance`` (RGB) in every direction;
-    * ``envmap`` — a latitude–longitude image (``envmap``; +Y up), times ``scale``;
+    * ``envmap`` — a latitude–longitude image (``envmap``; +Y up), times ``scale``; with
+      ``background = "sunsky"`` camera rays that leave the scene see Mitsuba's sky model for
+      :attr:`PathInputs.sun` instead, scaled to the map's mean radiance (the map still lights);
     * ``sunsky`` — Mitsuba's Hosek–Wilkie sky and its sun (``turbidity``, ``albedo``),
       the sky times ``scale`` and its sun times ``sun_scale``, pointed at
       :attr:`PathInputs.sun`'s direction.  Mitsuba's model is Z-up; the renderer
@@ -95,6 +97,7 @@ class SkyLight:
     albedo: float = 0.15
     sun_scale: float = 1.0
     sun_irradiance: float | None = None
+    background: str = "map"
     zenith: Sequence[float] = (0.35, 0.35, 0.35)
     horizon: Sequence[float] = (0.35, 0.35, 0.35)
     horizon_exponent: float = 1.0
