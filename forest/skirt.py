@@ -99,6 +99,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .ground import TerrainAlbedo, canopy_cover, crown_radii, grid_shape, texel_centres
+from .library.mesh import vertex_normals
 from .maps import sample_bilinear
 from .tint import leaf_colour
 
@@ -157,18 +158,6 @@ def hill_field(x: np.ndarray, z: np.ndarray, hills: Hills) -> np.ndarray:
     # fBm of value noise concentrates around ½: stretch its central range to [0, 1] before squaring.
     h = np.clip((total / norm - 0.25) / 0.5, 0.0, 1.0)
     return h * h
-
-
-def _vertex_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted vertex normals, facing +Y."""
-    p0, p1, p2 = (verts[faces[:, i]] for i in range(3))
-    fn = np.cross(p1 - p0, p2 - p0)
-    n = np.zeros_like(verts)
-    for i in range(3):
-        np.add.at(n, faces[:, i], fn)
-    n[n[:, 1] < 0] *= -1.0
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.where(length > 0, n / np.maximum(length, 1e-30), np.array([0.0, 1.0, 0.0]))
 
 
 def hills(config: Config) -> Hills | None:
@@ -286,7 +275,7 @@ def _hilly_skirt(
     p0, p1, p2 = (verts[faces[:, i]] for i in range(3))
     down = np.cross(p1 - p0, p2 - p0)[:, 1] < 0
     faces[down] = faces[down][:, [0, 2, 1]]
-    normals = _vertex_normals(verts, faces)
+    normals = vertex_normals(verts, faces)  # area-weighted; every face winds upward, so they face +Y
     normals[:k] = np.asarray(terrain.vertex_normals, np.float64)[np.unique(boundary_edges(terrain.faces))]
     normals[k : 2 * k] = (0.0, 1.0, 0.0)
     return Skirt(verts.astype(np.float32), faces.astype(np.uint32), normals.astype(np.float32))
