@@ -57,7 +57,7 @@ def run(cmd: list[str], timeout: float, env: dict[str, str] | None = None) -> tu
     try:
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
     except subprocess.TimeoutExpired as e:
-        out = (e.stdout or b"").decode() if isinstance(e.stdout, bytes) else (e.stdout or "")
+        out = "".join(x.decode() if isinstance(x, bytes) else x for x in (e.stdout or "", e.stderr or ""))
         return "TIMEOUT", time.perf_counter() - t0, out
     status = "ok" if r.returncode == 0 else f"failed ({r.returncode})"
     return status, time.perf_counter() - t0, r.stdout + r.stderr
@@ -109,6 +109,8 @@ def worker_probe(variant: str, out: Path, width: int, height: int, spp: int, max
     path = PathScene(inputs, variant)
     t_load = time.perf_counter() - t0
     dr.set_flag(dr.JitFlag.KernelHistory, True)
+    if os.environ.get("FOREST_JIT_LOG"):  # every launch, its size, ops and compile/cache status, on stderr
+        dr.set_log_level(dr.LogLevel.Info)
     passes, segs, rgb = [], [], []
     t1 = time.perf_counter()
     for p in path.passes(spp=spp, aux=True, max_depth=max_depth):

@@ -41,6 +41,7 @@ import numpy as np
 from ...errors import ForestError
 from ...progress import scaled
 from ...runtime import mitsuba
+from .arrays import owned
 from .emitters import LightSet, make_backdrop, make_lights, sky_mean_radiance
 from .geometry import ForestGeometry, FrameStats, PartArrays, TraversalScene, available_bytes, memory_plan
 from .haze import HazeInputs, HazeModel
@@ -212,16 +213,16 @@ class PathScene:
         for light in self.lights:
             self.params[light.param] = mi.Color3f(*[float(x) for x in light.initial])
         leaf, ground = inputs.tints()
-        self.params["leaf_tint"] = mi.Float(leaf.astype(np.float32).ravel())
+        self.params["leaf_tint"] = owned(mi.Float, leaf.astype(np.float32).ravel())
         self.params["ground_tint"] = mi.Color3f(*[float(x) for x in ground])
         #: Each row's colour jitter (the trees', then 1 for the identity row), or None: see ``.materials``.
         self.row_tint = None
         if inputs.tree_tint is not None:
             rows = np.ones((self.geometry.n_trees + 1, 3), np.float32)
             rows[:-1] = np.asarray(inputs.tree_tint, np.float32)
-            self.row_tint = mi.Float(rows.ravel())
+            self.row_tint = owned(mi.Float, rows.ravel())
         if inputs.colour_grid is not None:
-            self.params["colour_grid"] = mi.TensorXf(np.ascontiguousarray(inputs.colour_grid, dtype=np.float32))
+            self.params["colour_grid"] = owned(mi.TensorXf, np.asarray(inputs.colour_grid, dtype=np.float32))
         self.haze: HazeInputs | None = None
         if inputs.haze is not None:
             haze = inputs.haze

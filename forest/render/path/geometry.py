@@ -55,6 +55,7 @@ from ...errors import ForestError
 from ...library.mesh import read_ply
 from ...memory import available_bytes as available_bytes  # MemAvailable and this process's cgroup limits
 from ...progress import ProgressFn, scaled
+from .arrays import owned
 from .inputs import Material, PathInputs
 from .materials import MaterialStore
 
@@ -407,16 +408,16 @@ class TraversalScene:
         nrm = np.zeros((n + 1, 3, 3), np.float32)
         nrm[:n] = normal_matrices(mats) if n else nrm[:n]
         nrm[n] = np.eye(3)
-        self.reg_row = mi.UInt32(reg_row)
-        self.reg_part = mi.UInt32(reg_part)
-        self.reg_flat = mi.Int32(reg_flat)
-        self.reg_local = mi.UInt32(reg_local)
+        self.reg_row = owned(mi.UInt32, reg_row)
+        self.reg_part = owned(mi.UInt32, reg_part)
+        self.reg_flat = owned(mi.Int32, reg_flat)
+        self.reg_local = owned(mi.UInt32, reg_local)
         #: part -> registry id of its mesh in a shapegroup (what OptiX reports as ``pi.shape``)
         self.part_mesh_reg = {p: int(r) for (_, _, p), r in zip(members, member_reg)}
-        self.flat_rows = mi.UInt32(rows_all)
-        self.first_part = mi.UInt32(first_part)
-        self.row_matrix = mi.Float(mat3.ravel())
-        self.row_normal = mi.Float(nrm.ravel())
+        self.flat_rows = owned(mi.UInt32, rows_all)
+        self.first_part = owned(mi.UInt32, first_part)
+        self.row_matrix = owned(mi.Float, mat3.ravel())
+        self.row_normal = owned(mi.Float, nrm.ravel())
         self.n_trees = n
         stats.load_seconds = time.perf_counter() - t0
         self.stats = stats
@@ -427,13 +428,13 @@ class PartArrays:
 
     def __init__(self, mi: Any, parts: PartBuffers):
         self.count = len(parts.triangles)
-        self.vertices = mi.Float(np.concatenate(parts.vertices).ravel()) if parts.vertices else mi.Float(0)
-        self.normals = mi.Float(np.concatenate(parts.normals).ravel()) if parts.normals else mi.Float(0)
-        self.uv = mi.Float(np.concatenate(parts.uv).ravel()) if parts.uv else mi.Float(0)
-        self.faces = mi.UInt32(np.concatenate(parts.faces).ravel()) if parts.faces else mi.UInt32(0)
-        self.face_offset = mi.UInt32(np.asarray(parts.face_offset, np.uint32))
-        self.triangles = mi.UInt32(np.maximum(np.asarray(parts.triangles, np.uint32), 1))
-        self.material = mi.UInt32(np.asarray(parts.material, np.uint32))
+        self.vertices = owned(mi.Float, np.concatenate(parts.vertices).ravel()) if parts.vertices else mi.Float(0)
+        self.normals = owned(mi.Float, np.concatenate(parts.normals).ravel()) if parts.normals else mi.Float(0)
+        self.uv = owned(mi.Float, np.concatenate(parts.uv).ravel()) if parts.uv else mi.Float(0)
+        self.faces = owned(mi.UInt32, np.concatenate(parts.faces).ravel()) if parts.faces else mi.UInt32(0)
+        self.face_offset = owned(mi.UInt32, np.asarray(parts.face_offset, np.uint32))
+        self.triangles = owned(mi.UInt32, np.maximum(np.asarray(parts.triangles, np.uint32), 1))
+        self.material = owned(mi.UInt32, np.asarray(parts.material, np.uint32))
 
 
 @dataclass

@@ -78,6 +78,7 @@ import numpy as np
 
 from ...errors import ForestError
 from ...images import read_image, srgb_to_linear
+from .arrays import owned
 from .inputs import Material
 
 KIND_SURFACE = 0
@@ -339,7 +340,7 @@ def world_map_texture(mi: Any, data: Any, *, differentiable: bool = False) -> An
     """
     import drjit as dr
 
-    t = data if isinstance(data, mi.TensorXf) else mi.TensorXf(np.ascontiguousarray(data, dtype=np.float32))
+    t = data if isinstance(data, mi.TensorXf) else owned(mi.TensorXf, np.asarray(data, dtype=np.float32))
     return mi.Texture2f(
         t,
         use_accel=not differentiable,
@@ -376,7 +377,7 @@ class MaterialArrays:
         import drjit as dr
 
         atlas = mi.Texture2f(
-            mi.TensorXf(table.atlas.image),
+            owned(mi.TensorXf, table.atlas.image),
             use_accel=True,
             migrate=False,
             filter_mode=dr.FilterMode.Linear,
@@ -394,19 +395,19 @@ class MaterialArrays:
                     albedo[i] = _sheen_table_cached(float(a_i))
             extra = dict(
                 has_sheen=True,
-                sheen=mi.Float(sheen.astype(np.float32)),
-                roughness=mi.Float(np.maximum(rough, ROUGHNESS_MIN).astype(np.float32)),
-                sheen_albedo=mi.Float(albedo.ravel()),
+                sheen=owned(mi.Float, sheen.astype(np.float32)),
+                roughness=owned(mi.Float, np.maximum(rough, ROUGHNESS_MIN).astype(np.float32)),
+                sheen_albedo=owned(mi.Float, albedo.ravel()),
             )
         return cls(
-            kind=mi.UInt32(table.kind),
-            colour=mi.Float(table.colour.ravel()),
-            tau=mi.Float(table.tau),
-            texture=mi.Int32(table.texture),
+            kind=owned(mi.UInt32, table.kind),
+            colour=owned(mi.Float, table.colour.ravel()),
+            tau=owned(mi.Float, table.tau),
+            texture=owned(mi.Int32, table.texture),
             cutout=mi.Bool(table.cutout),
             tinted=mi.Bool(table.tinted),
             terrain_map=mi.Bool(table.terrain_map),
-            rects=mi.Float(rects.ravel().astype(np.float32)),
+            rects=owned(mi.Float, rects.ravel().astype(np.float32)),
             atlas=atlas,
             has_cutouts=bool(table.cutout.any()),
             has_textures=bool((table.texture >= 0).any()),

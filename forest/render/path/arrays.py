@@ -1,0 +1,38 @@
+"""numpy tables as drjit arrays in memory drjit owns, so one scene compiles to one kernel.
+
+In ``llvm_ad_rgb``, constructing ``mi.Float(a)`` from a numpy array maps ``a``'s
+buffer without a copy (drjit 1.5: the drjit array aliases the numpy memory) and
+flags it *unaligned* unless its address is a multiple of 64 bytes; ``dr.copy``
+keeps the flag.  A gather of 2, 4 or 8 consecutive values
+(``dr.gather(mi.Vector4f, …)``, a texture's texels) from an aligned source
+compiles to one packet load, from an unaligned one to separate loads — so the
+path kernel's code, and with it drjit's kernel hash, depended on where numpy's
+allocator (16-byte aligned) happened to place each table.  The same scene
+compiled a new kernel on most runs (0.7–1.6 s each) and drjit's on-disk kernel
+cache rarely hit.  :func:`owned` evaluates the table into a buffer drjit
+allocates (aligned), which also ends the aliasing: a later change to the numpy
+array no longer reaches the renderer.  In ``cuda_ad_rgb`` the constructor
+already copies to the device, and nothing more is done.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+def owned(cls: Any, data: Any) -> Any:
+    """``data`` (array-like) as a ``cls`` array (``mi.Float``, ``mi.UInt32``, ``mi.TensorXf``, …) drjit owns."""
+    import drjit as dr
+
+    a = np.ascontiguousarray(data)
+    arr = cls(a)
+    if dr.backend_v(arr) != dr.JitBackend.LLVM or a.size == 0:
+        return arr
+    flat = arr.array if dr.is_tensor_v(arr) else arr
+    idx = dr.arange(dr.uint32_array_t(type(flat)), dr.width(flat))
+    copy = dr.empty(type(flat), dr.width(flat))
+    dr.scatter(copy, flat, idx)
+    dr.eval(copy)
+    return cls(copy, a.shape) if dr.is_tensor_v(arr) else copy
