@@ -12,7 +12,7 @@ from test_render import TOP_DOWN_CAMERA, read_exr, trees
 from forest.config import parse_config
 from forest.images import read_exr_channels, read_image
 from forest.imaging import extract_matte, to_display
-from forest.imaging.cryptomatte import NONE, rank_coverage
+from forest.imaging.cryptomatte import NONE, TreeTable, rank_coverage
 from forest.render import render_scene
 from forest.render.coverage import TERRAIN, SampleCoverage, sample_ids
 from forest.scene import load_scene
@@ -135,6 +135,50 @@ def test_sample_coverage_is_the_ranking_filter():
     ref = rank_coverage(samples.reshape(h, w, -1), ranks=6)
     np.testing.assert_array_equal(ours.ids, ref.ids)
     np.testing.assert_allclose(ours.coverage, ref.coverage, atol=1e-6)
+
+
+def slot_reference(samples: np.ndarray, slots: int) -> tuple[list[dict[int, int]], np.ndarray]:
+    """The slot rule sample by sample: a sample adds 1 to its id's slot, else takes a free slot, else is dropped."""
+    kept: list[dict[int, int]] = [dict() for _ in range(len(samples))]
+    for p, row in enumerate(samples):
+        for x in row.tolist():
+            if x != NONE and (x in kept[p] or len(kept[p]) < slots):
+                kept[p][x] = kept[p].get(x, 0) + 1
+    return kept, np.full(len(samples), samples.shape[1], float)
+
+
+def test_sample_coverage_keeps_the_first_ids_met_when_a_pixel_sees_more_than_its_slots():
+    """Pixels that meet up to 20 ids over 6 passes (4 slots): the slots hold the first 4 ids met, in sample
+    order across passes, with their counts; the ranking sorts them (most samples, then smaller id), and the
+    species ranking merges the kept trees' species."""
+    rng = np.random.default_rng(11)
+    h, w, passes, per, slots = 5, 8, 6, 4, 4
+    samples = rng.choice([NONE, *range(20)], size=(h * w, passes * per))
+    samples[:6] = 5  # pixels that meet one tree only
+    samples[6:9] = NONE  # and pixels that meet nothing
+    acc = SampleCoverage(h, w, slots=slots)
+    for k in range(passes):
+        acc.add(samples[:, k * per : (k + 1) * per])
+    kept, total = slot_reference(samples, slots)
+    ranking = acc.ranking(3)
+    for p in range(h * w):
+        order = sorted(kept[p].items(), key=lambda kv: (-kv[1], kv[0]))[:3]
+        ids = [k for k, _ in order] + [NONE] * (3 - len(order))
+        cov = [c / total[p] for _, c in order] + [0.0] * (3 - len(order))
+        np.testing.assert_array_equal(ranking.ids.reshape(-1, 3)[p], ids)
+        np.testing.assert_allclose(ranking.coverage.reshape(-1, 3)[p], cov, rtol=1e-6)
+    species = np.arange(20) % 3
+    table = TreeTable(np.arange(20), species, ["a", "b", "c"])
+    by_species = acc.species_ranking(table, ranks=3)
+    for p in range(h * w):
+        merged: dict[int, int] = {}
+        for k, c in kept[p].items():
+            merged[int(species[k])] = merged.get(int(species[k]), 0) + c
+        order = sorted(merged.items(), key=lambda kv: (-kv[1], kv[0]))[:3]
+        ids = [k for k, _ in order] + [NONE] * (3 - len(order))
+        cov = [c / total[p] for _, c in order] + [0.0] * (3 - len(order))
+        np.testing.assert_array_equal(by_species.ids.reshape(-1, 3)[p], ids)
+        np.testing.assert_allclose(by_species.coverage.reshape(-1, 3)[p], cov, rtol=1e-6)
 
 
 def test_sample_ids_map_rows_to_tree_ids():

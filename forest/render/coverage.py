@@ -66,54 +66,109 @@ class SampleCoverage:
         """Add samples: ``ids`` (H·W, S) or (H, W, S) integer sample ids, one column per sample.
 
         Samples are taken in order, each as the module docstring says.  Most samples of a
-        pixel meet the object already in its first slot: those are counted for the whole pass
-        at once, and only the others are compared with every slot, sample by sample.
+        pixel meet the object already in its first slot, and most others one in another slot:
+        both are counted for the whole pass at once; only samples that meet an id their pixel
+        has no slot for yet are taken sample by sample.
         """
         a = np.asarray(ids, np.int64).reshape(self.height * self.width, -1)
         self.total += a.shape[1]
+        # A pixel with no slot yet gives its first slot to its first sample that met something, count 0
+        # (the sample itself is then counted below with the others equal to it): what taking samples in
+        # order does, since slots fill from the first, without visiting every pixel of a frame's first pass.
+        fresh = np.nonzero(self.ids[:, 0] == NONE)[0]
+        if len(fresh):
+            met = a[fresh] != NONE
+            has = met.any(axis=1)
+            self.ids[fresh[has], 0] = a[fresh[has], met[has].argmax(axis=1)]
         first = self.ids[:, 0]
         same = (a == first[:, None]) & (first != NONE)[:, None]
         self.count[:, 0] += same.sum(axis=1)
-        others = ~same & (a != NONE)
-        for s in range(a.shape[1]):
-            (pix,) = np.nonzero(others[:, s])
-            if len(pix) == 0:
-                continue
-            x = a[pix, s]
-            slots = self.ids[pix]
-            match = slots == x[:, None]
+        # Samples that met an id one of their pixel's slots already holds: counted all at once.
+        pix, col = np.nonzero(~same & (a != NONE))
+        x = a[pix, col]
+        match = self.ids[pix] == x[:, None]
+        found = match.any(axis=1)
+        np.add.at(self.count, (pix[found], match[found].argmax(axis=1)), 1.0)
+        # The rest met an id their pixel has no slot for: sample by sample, in order, as new slots fill.
+        pix, col, x = pix[~found], col[~found], x[~found]
+        for s in np.unique(col).tolist():
+            sel = col == s
+            p, xs = pix[sel], x[sel]
+            slots = self.ids[p]
+            match = slots == xs[:, None]
             found = match.any(axis=1)
-            self.count[pix[found], match[found].argmax(axis=1)] += 1.0
+            self.count[p[found], match[found].argmax(axis=1)] += 1.0  # a slot an earlier sample of this pass made
             new = ~found
             if new.any():
                 empty = slots[new] == NONE
                 room = empty.any(axis=1)
-                take = pix[new][room]
+                take = p[new][room]
                 where = empty[room].argmax(axis=1)
-                self.ids[take, where] = x[new][room]
+                self.ids[take, where] = xs[new][room]
                 self.count[take, where] = 1.0
 
+    def _mixed(self) -> np.ndarray:
+        """Pixels with samples on two or more slots (the only ones whose ranking needs a sort)."""
+        return np.nonzero(np.count_nonzero(self.count, axis=1) >= 2)[0]
+
     def ranking(self, ranks: int = RANKS) -> Ranking:
-        """The ``ranks`` ids with the most samples per pixel, their coverage = samples / all the pixel's samples."""
-        order = np.lexsort((self.ids, -self.count), axis=1)[:, :ranks]  # most samples first, ties: smaller id
-        ids = np.take_along_axis(self.ids, order, axis=1)
-        cov = np.take_along_axis(self.count, order, axis=1) / np.maximum(self.total, 1.0)[:, None]
-        ids = np.where(cov > 0, ids, NONE)
+        """The ``ranks`` ids with the most samples per pixel, their coverage = samples / all the pixel's samples.
+
+        Most pixels met one object: their first rank is that slot's; only pixels with samples on two or
+        more slots are sorted (most samples first, ties: smaller id).
+        """
+        n = len(self.ids)
+        k = min(ranks, self.slots)
+        norm = np.maximum(self.total, 1.0)
+        slot = self.count.argmax(axis=1)[:, None]
+        ids = np.full((n, k), NONE, np.int64)
+        cov = np.zeros((n, k), np.float32)  # each value computed in float64, rounded once on assignment
+        if k:
+            c = np.take_along_axis(self.count, slot, axis=1)[:, 0]
+            cov[:, 0] = c / norm
+            ids[:, 0] = np.where(c > 0, np.take_along_axis(self.ids, slot, axis=1)[:, 0], NONE)
+        mixed = self._mixed()
+        if len(mixed):
+            m_ids, m_count = self.ids[mixed], self.count[mixed]
+            order = np.lexsort((m_ids, -m_count), axis=1)[:, :k]
+            m_cov = np.take_along_axis(m_count, order, axis=1) / norm[mixed, None]
+            cov[mixed] = m_cov
+            ids[mixed] = np.where(m_cov > 0, np.take_along_axis(m_ids, order, axis=1), NONE)
         if ids.shape[1] < ranks:
             pad = ranks - ids.shape[1]
             ids = np.pad(ids, ((0, 0), (0, pad)), constant_values=NONE)
             cov = np.pad(cov, ((0, 0), (0, pad)))
         shape = (self.height, self.width, ranks)
-        return Ranking(ids=ids.reshape(shape), coverage=cov.astype(np.float32).reshape(shape))
+        return Ranking(ids=ids.reshape(shape), coverage=cov.reshape(shape))
 
     def species_ranking(self, table: TreeTable, ranks: int = RANKS) -> Ranking:
-        """The same samples ranked by species: each slot's count goes to its tree's species."""
-        species = table.species_of(self.ids)
+        """The same samples ranked by species: each slot's count goes to its tree's species.
+
+        A pixel whose samples met one slot ranks that slot's species first with coverage
+        samples / all its samples; pixels with two or more slots merge equal species and sort
+        (:func:`~forest.imaging.cryptomatte.rank_coverage`).
+        """
+        n = len(self.ids)
         missed = np.maximum(self.total - self.count.sum(axis=1), 0.0)
-        ids = np.concatenate([species, np.full((len(species), 1), NONE, np.int64)], axis=1)
-        weights = np.concatenate([self.count, missed[:, None]], axis=1)
-        shape = (self.height, self.width, ids.shape[1])
-        return rank_coverage(ids.reshape(shape), weights.reshape(shape), ranks=ranks)
+        weight_total = self.count.sum(axis=1) + missed
+        ids = np.full((n, ranks), NONE, np.int64)
+        cov = np.zeros((n, ranks), np.float32)
+        if ranks:
+            slot = self.count.argmax(axis=1)
+            c = self.count[np.arange(n), slot]
+            met = c > 0
+            ids[met, 0] = table.species_of(self.ids[met, slot[met]])
+            cov[:, 0] = np.where(met, c / np.where(weight_total > 0, weight_total, 1.0), 0.0)
+        mixed = self._mixed()
+        if len(mixed):
+            species = table.species_of(self.ids[mixed])
+            sid = np.concatenate([species, np.full((len(mixed), 1), NONE, np.int64)], axis=1)
+            w = np.concatenate([self.count[mixed], missed[mixed, None]], axis=1)
+            r = rank_coverage(sid[:, None, :], w[:, None, :], ranks=ranks, rows_per_chunk=65536)
+            ids[mixed] = r.ids[:, 0, :]
+            cov[mixed] = r.coverage[:, 0, :]
+        shape = (self.height, self.width, ranks)
+        return Ranking(ids=ids.reshape(shape), coverage=cov.reshape(shape))
 
 
 def tree_table(instances: InstanceSet, species_names: Sequence[str]) -> TreeTable:
