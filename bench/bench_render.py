@@ -31,6 +31,10 @@ Cases (each measurement runs in its own process so peak memory is its own):
   2 idle cores.  With ``--original-size``/``--scale`` smaller, a second run at
   a quarter of the samples splits fixed and per-sample cost and the full
   frame is extrapolated (printed as such).
+* ``default`` — the case study with default settings (no ``[lod]``: automatic levels of
+  detail; the default ``max_depth``) through ``forest render``, its level counts and peak
+  memory, against the same frame with ``original``'s hand-tuned settings in the same run
+  (target ≤ 180 s on 2 cores at 1920×1080, 64 spp).
 * ``lod`` — automatic level of detail (the default: no ``[lod]``) against every
   tree at its highest level (the old default) on the case study's scene
   (130 000 trees, broadleaf/conifer, 1920×1080): trees per level and the
@@ -86,6 +90,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import shutil
 import subprocess
@@ -135,7 +140,10 @@ def peak_gb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
 
 
-def write_scene(folder: Path, *, count: int, width: int, height: int, spp: int, lod: str, depth: int = 3) -> Path:
+def write_scene(
+    folder: Path, *, count: int, width: int, height: int, spp: int, lod: str | None, depth: int | None = 3
+) -> Path:
+    """The case-study scene; ``lod`` None leaves ``[lod]`` out and ``depth`` None ``max_depth`` (the defaults)."""
     size = float(np.sqrt(count / 130_000.0) * 4000.0)  # ~8 trees per 1000 m², like the original
     text = SCENE.format(
         size=size,
@@ -148,6 +156,10 @@ def write_scene(folder: Path, *, count: int, width: int, height: int, spp: int, 
         depth=depth,
         lod=lod,
     )
+    if depth is None:
+        text = text.replace("max_depth = None\n", "")
+    if lod is None:
+        text = text.replace("[lod]\nNone\n", "")
     path = folder / "bench.toml"
     path.write_text(text)
     return path
@@ -344,6 +356,33 @@ def case_original(
         f"render original: EXTRAPOLATED (not measured) to {count:,} trees, 1920x1080 64 spp: about {full_cpu:.0f} "
         f"CPU-s ≈ {full_cpu / 2:.0f} s on 2 idle cores (target ≤ 180 s); the film's memory at 1920x1080 is not "
         "in the peak above"
+    )
+
+
+def case_default(tmp: Path, scale: float, variant: str) -> None:
+    """The case study with **default settings** (no ``[lod]``: automatic levels; the default ``max_depth``) through
+    ``forest render``, against the same frame with the hand-tuned settings of ``original`` (``[lod] distances``,
+    ``max_depth`` 3) in the same run."""
+    count = max(100, int(130_000 * scale))
+    w, h = (1920, 1080) if scale >= 1 else (max(64, int(1920 * scale**0.5)), max(36, int(1080 * scale**0.5)))
+    runs = {}
+    for name, lod, depth in (
+        ("default settings", None, None),
+        ("hand-tuned ([lod] distances, max_depth 3)", "distances = [150.0, 600.0, 1800.0]", 3),
+    ):
+        sub = tmp / name.split()[0]
+        sub.mkdir(parents=True, exist_ok=True)
+        cfg = write_scene(sub, count=count, width=w, height=h, spp=64, lod=lod, depth=depth)
+        r = runs[name] = run_worker("cli", config=cfg, out=sub, variant=variant)
+        print(
+            f"render default: {name}: {count:,} trees requested, {w}x{h} 64 spp, {variant}: {r['wall_s']:.0f} s wall "
+            f"end to end, {r['cpu_s']:.0f} CPU-s, peak {r['peak_gb']:.2f} GB — target ≤ 180 s on 2 cores"
+        )
+        print(f"render default: {r['summary']}")
+    d, t = runs.values()
+    print(
+        f"render default: default / hand-tuned = {d['wall_s'] / t['wall_s']:.2f}x wall, "
+        f"{d['cpu_s'] / t['cpu_s']:.2f}x CPU; load average {os.getloadavg()[0]:.1f} at end"
     )
 
 
@@ -684,7 +723,7 @@ def case_jit_memory(scale: float) -> None:
 
 
 WORKERS = {"render": worker_render, "memory": worker_memory, "frame": worker_frame, "cli": worker_cli}
-CASES = ("scale", "look", "jit_memory", "original", "lod", "million", "flatten", "blender")
+CASES = ("scale", "look", "jit_memory", "original", "default", "lod", "million", "flatten", "blender")
 
 
 def main() -> None:
@@ -729,6 +768,8 @@ def main() -> None:
                 case_jit_memory(args.scale)
             elif c == "original":
                 case_original(sub, args.scale, args.variant, args.max_depth, size, args.original_spp)
+            elif c == "default":
+                case_default(sub, args.scale, args.variant)
             elif c == "lod":
                 case_lod(sub, args.scale)
             elif c == "million":
