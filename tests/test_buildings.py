@@ -211,7 +211,9 @@ def test_preview_cli_list_and_seeds(building_lib, capsys, tmp_path):
             return int(e.code or 0)
         return 0
 
-    assert run(["library", "list", "--json", "--library", str(building_lib)]) == 0
+    assert run(["library", "build", *TYPES, "--quiet", "--no-previews", "--library", str(building_lib)]) == 0
+    capsys.readouterr()
+    assert run(["library", "list", "--json", "--library", str(building_lib)]) == 0  # lists; builds nothing
     rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)}
     assert set(TYPES) <= set(rows)  # its own copies, over the shipped presets
     assert all(rows[t]["preview"].startswith(str(building_lib)) for t in TYPES)

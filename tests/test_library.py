@@ -746,3 +746,24 @@ def test_library_add_warns_of_missing_materials_and_textures(tmp_path, capsys):
     shutil.copy(FIXTURES / "leaf.png", work / "leaf.png")
     assert run_cli(["library", "add", str(work / "cards.obj"), "--name", "c", "--library", lib, "-q"]) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+def test_list_shows_unbuilt_species_without_building_them(tmp_lib, capsys):
+    """``forest library list`` lists what is there: in an empty user library every shipped preset is
+    "not built" and nothing is built by listing; after ``library build shrub`` the shrub is listed built."""
+    import json
+
+    folder = str(tmp_lib.root)
+    assert run_cli(["library", "list", "--json", "--library", folder]) == 0
+    rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)}
+    assert set(PRESETS) <= set(rows)
+    assert not any(rows[n]["built"] for n in PRESETS) and rows["shrub"]["lods"] == {}
+    assert not tmp_lib.cache.is_dir() or not any(tmp_lib.cache.iterdir())  # listing built nothing
+    assert run_cli(["library", "list", "--library", folder]) == 0  # the table says so too
+    assert "not built" in capsys.readouterr().out
+    assert run_cli(["library", "build", "shrub", "--quiet", "--no-previews", "--library", folder]) == 0
+    capsys.readouterr()
+    assert run_cli(["library", "list", "--json", "--library", folder]) == 0
+    rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)}
+    assert rows["shrub"]["built"] and rows["shrub"]["lods"]["high"] > rows["shrub"]["lods"]["far"] > 0
+    assert not rows["conifer"]["built"]

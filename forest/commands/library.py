@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import typer
 
@@ -32,17 +32,31 @@ def register(app: typer.Typer) -> None:
         ),
         as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table."),
     ):
-        """Show every species: source, levels of detail with triangle counts, bounds, preview path."""
+        """Show every species: source, levels of detail with triangle counts, bounds, preview path.
+
+        Lists what is there without building: a generated species whose recipe has no build yet
+        is shown as not built (``forest library build`` builds it).
+        """
         from ..library import open_library
+        from ..library.core import NotBuilt
 
         lib = open_library(library)
-        rows = []
+        rows: list[dict[str, Any]] = []
+        built = {}
         for name in lib.names():
-            sp = lib.get(name)
+            try:
+                sp = built[name] = lib.get(name, build=False)
+            except NotBuilt:
+                e = lib.entry(name)
+                rows.append({"name": name, "source": str(e.get("source", "generated")), "built": False, "lods": {},
+                             "bounds": None, "preview": None, "preview_built": False,
+                             "description": str(e.get("description", ""))})  # fmt: skip
+                continue
             rows.append(
                 {
                     "name": sp.name,
                     "source": sp.source,
+                    "built": True,
                     "lods": {l.name: l.triangles for l in sp.lods},
                     "bounds": sp.bounds.tolist(),
                     "preview": str(sp.preview_path),
@@ -61,13 +75,17 @@ def register(app: typer.Typer) -> None:
         t = Table(title=f"tree library: {lib.root}")
         for col in ("name", "source", "high", "medium", "low", "far", "size (x × y × z)", "preview"):
             t.add_column(col, justify="right" if col in ("high", "medium", "low", "far") else "left")
-        for r, name in zip(rows, lib.names()):
-            sp = lib.get(name)
+        for r in rows:
+            if not r["built"]:
+                t.add_row(
+                    r["name"], r["source"], "–", "–", "–", "–", "not built", "`forest library build " + r["name"] + "`"
+                )
+                continue
             t.add_row(
                 r["name"],
                 r["source"],
                 *(f"{r['lods'].get(k, 0):,}" for k in ("high", "medium", "low", "far")),
-                _fmt_bounds(sp.bounds),
+                _fmt_bounds(built[r["name"]].bounds),
                 r["preview"] + ("" if r["preview_built"] else " (not rendered)"),
             )
         Console(width=200).print(t)

@@ -37,6 +37,10 @@ MANIFEST = "manifest.toml"
 NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]{0,63}$")
 
 
+class NotBuilt(ForestError):
+    """A generated species asked for with ``build=False`` has no complete build of its current recipe."""
+
+
 @dataclass(frozen=True)
 class Part:
     """One material's mesh within a level of detail.
@@ -342,7 +346,7 @@ class Library:
         meta = _load_meta(folder)
         if meta is None:
             if not build:
-                raise ForestError(f"species {label!r} is not built; run `forest library build`")
+                raise NotBuilt(f"species {label!r} is not built; run `forest library build`")
             self.cache.mkdir(parents=True, exist_ok=True)
             tmp = Path(tempfile.mkdtemp(prefix=f".{label}.", suffix=".tmp", dir=self.cache))
             try:
