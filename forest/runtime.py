@@ -1,8 +1,11 @@
 """Mitsuba / drjit runtime set-up: LLVM discovery, the GPU, variant selection, third-party stderr.
 
-drjit 1.5's CPU backend needs LLVM 19 (LLVM 14–16 crash with
-``Cannot select: fminimum``).  :func:`ensure_llvm` finds ``libLLVM-19.so`` and
-names it in ``DRJIT_LIBLLVM_PATH`` before mitsuba is imported;
+drjit 1.5's CPU backend needs LLVM 17 or newer (LLVM 14–16 crash with
+``Cannot select: fminimum``); forest is set up and tested with LLVM 19, and
+LLVM 17 rendered forest_path's demo probe to the same image as the GPU (an
+H100 machine whose image had LLVM 16 and 17).  :func:`ensure_llvm` finds
+``libLLVM-19.so`` (else 18, else 17) and names it in ``DRJIT_LIBLLVM_PATH``
+before mitsuba is imported;
 :func:`mitsuba` imports mitsuba with a variant set.  :func:`cuda_available` and
 :func:`gpu_info` say whether there is a GPU and which, without starting CUDA
 (whether forest_path renders correctly on it is :mod:`forest.render.selfcheck`'s
@@ -33,18 +36,27 @@ from .errors import ForestError, ParameterError
 
 VARIANTS = ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
 
-_LLVM_CANDIDATES = (
-    "/usr/lib/x86_64-linux-gnu/libLLVM-19.so",
-    "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1",
-    "/usr/lib/llvm-19/lib/libLLVM-19.so",
-    "/usr/lib/llvm-19/lib/libLLVM.so.1",
-    "/usr/lib/aarch64-linux-gnu/libLLVM-19.so",
-    "/usr/local/lib/libLLVM-19.so",
-)
+#: LLVM versions drjit's CPU backend is given, best first (14–16 crash: see the module docstring).
+LLVM_VERSIONS = (19, 18, 17)
+
+
+def _llvm_candidates(version: int) -> tuple[str, ...]:
+    v = int(version)
+    return (
+        f"/usr/lib/x86_64-linux-gnu/libLLVM-{v}.so",
+        f"/usr/lib/x86_64-linux-gnu/libLLVM.so.{v}.1",
+        f"/usr/lib/llvm-{v}/lib/libLLVM-{v}.so",
+        f"/usr/lib/llvm-{v}/lib/libLLVM.so.1",
+        f"/usr/lib/aarch64-linux-gnu/libLLVM-{v}.so",
+        f"/usr/local/lib/libLLVM-{v}.so",
+    )
+
+
+_LLVM_CANDIDATES = tuple(p for v in LLVM_VERSIONS for p in _llvm_candidates(v))
 
 
 def find_llvm() -> str | None:
-    """Return the path of an LLVM 19 shared library, or None."""
+    """Return the path of an LLVM shared library for drjit (19, else 18, else 17), or None."""
     env = os.environ.get("DRJIT_LIBLLVM_PATH")
     if env and Path(env).is_file():
         return env
@@ -60,11 +72,11 @@ def find_llvm() -> str | None:
 
 
 def ensure_llvm() -> str:
-    """Point drjit at LLVM 19; raise a clear error if it is not installed."""
+    """Point drjit at LLVM 19 (else 18, else 17); raise a clear error if none is installed."""
     path = find_llvm()
     if path is None:
         raise ForestError(
-            "LLVM 19 not found: install the Debian package libllvm19 (scripts/setup.sh does) "
+            "LLVM 19 not found (nor 18 or 17): install the Debian package libllvm19 (scripts/setup.sh does) "
             "or set DRJIT_LIBLLVM_PATH to libLLVM-19.so"
         )
     os.environ["DRJIT_LIBLLVM_PATH"] = path

@@ -11,6 +11,7 @@ import functools
 import importlib.metadata
 import json
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -327,3 +328,20 @@ def test_gpu_info_reads_nvidia_smi_of_the_visible_gpu(monkeypatch, tmp_path):
 )
 def test_the_driver_version_without_nvidia_smi(text):
     assert runtime.proc_driver_version(text) in ("550.54.15", "580.159.04")
+
+
+def test_llvm_is_looked_up_newest_first_and_never_a_crashing_version(tmp_path, monkeypatch):
+    """drjit 1.5 crashes on LLVM 14-16 (fminimum); 19 is preferred, then 18, then 17 (rendered the GPU's image)."""
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    monkeypatch.setattr(sys, "prefix", str(tmp_path))  # no set-up stamp
+    versions = [int(re.search(r"(?:LLVM-|llvm-|\.so\.)(\d+)", p).group(1)) for p in runtime._LLVM_CANDIDATES]
+    assert versions == sorted(versions, reverse=True) and min(versions) == 17
+    fake = {v: tmp_path / f"libLLVM-{v}.so" for v in (19, 17, 16)}
+    monkeypatch.setattr(runtime, "_LLVM_CANDIDATES", tuple(str(fake[v]) for v in (19, 17)))
+    assert runtime.find_llvm() is None
+    fake[16].touch()  # a crashing version is never picked up
+    assert runtime.find_llvm() is None
+    fake[17].touch()
+    assert runtime.find_llvm() == str(fake[17])
+    fake[19].touch()
+    assert runtime.find_llvm() == str(fake[19])
