@@ -486,7 +486,7 @@ class Backdrop:
 def make_backdrop(mi: Any, sun: SunLight | None, sky: SkyLight | None, lights: list[Any]) -> Backdrop | None:
     """The :class:`Backdrop` of an ``envmap`` sky with ``background = "sunsky"`` (None otherwise); the sun's
     direction from ``sun`` (the map's found sun or [lights.sun]), straight up without one."""
-    if sky is None or sky.kind != "envmap" or getattr(sky, "background", "map") != "sunsky":
+    if sky is None or sky.kind != "envmap" or sky.background != "sunsky":
         return None
     direction = (0.0, 1.0, 0.0) if sun is None else sun.direction
     return Backdrop(mi, direction, sky_mean_radiance(lights))
@@ -543,47 +543,61 @@ class LightSet:
         assert self.clouds is not None
         return self.clouds.apply(o, d, active, sky, sun, sun_term, ambient)
 
-    def eval(self, d: Any, active: Any, origin: Any = None) -> Any:
+    def eval(self, d: Any, active: Any, origin: Any = None, camera: Any = None) -> Any:
         """Radiance arriving from direction ``d`` (a ray that left the scene), all lights summed.
 
         With a cloud layer the radiance also depends on the ray's ``origin`` (equation (1) of
-        :mod:`.clouds`; the world origin when None); without one ``origin`` is not used.
+        :mod:`.clouds`; the world origin when None); without one ``origin`` is not used.  Lanes in
+        ``camera`` (camera rays) see the :attr:`backdrop` instead where there is one.
         """
         mi = self.mi
         if self.clouds is not None:
             sky, sun = self._clouded(d, active, origin)
-            return sun + sky
-        total = mi.Color3f(0.0)
-        for light, s in zip(self.lights, self.scales):
-            total += light.eval(s, d, active)
-        return total
+            total = sun + sky
+        else:
+            total = mi.Color3f(0.0)
+            for light, s in zip(self.lights, self.scales):
+                total += light.eval(s, d, active)
+        if camera is None or self.backdrop is None:
+            return total
+        import drjit as dr
+
+        return dr.select(camera, self._backdrop(d, camera)[0], total)
 
     @property
     def groups(self) -> list[str]:
         """The light groups of these lights, in order of first appearance (:func:`light_group`)."""
         return list(dict.fromkeys(light_group(light) for light in self.lights))
 
-    def eval_groups(self, d: Any, active: Any, origin: Any = None) -> tuple[Any, dict[str, Any]]:
+    def eval_groups(self, d: Any, active: Any, origin: Any = None, camera: Any = None) -> tuple[Any, dict[str, Any]]:
         """:meth:`eval` and its split by light group: (Σ_k L_k(d), {group g: Σ_{k ∈ g} L_k(d)}).
 
         The total is summed in the same order and with the same operations as :meth:`eval`, so it is
         bit for bit the same value; each light is evaluated once.  With clouds the sun's group takes the
-        sun's radiance through the layer and the cloud's sunlit radiance, the sky's the rest.
+        sun's radiance through the layer and the cloud's sunlit radiance, the sky's the rest.  Lanes in
+        ``camera`` see the :attr:`backdrop` (in ``sky``) and the suns (in ``sun``) where there is one.
         """
         mi = self.mi
+        parts: dict[str, Any] = {}
         if self.clouds is not None:
             sky, sun = self._clouded(d, active, origin)
-            return sun + sky, {g: (sun if g == "sun" else sky) for g in self.groups}
-        total = mi.Color3f(0.0)
-        parts: dict[str, Any] = {}
-        for light, s in zip(self.lights, self.scales):
-            value = light.eval(s, d, active)
-            total += value
-            g = light_group(light)
-            parts[g] = value if g not in parts else parts[g] + value
-        return total, parts
+            total = sun + sky
+            parts = {g: (sun if g == "sun" else sky) for g in self.groups}
+        else:
+            total = mi.Color3f(0.0)
+            for light, s in zip(self.lights, self.scales):
+                value = light.eval(s, d, active)
+                total += value
+                g = light_group(light)
+                parts[g] = value if g not in parts else parts[g] + value
+        if camera is None or self.backdrop is None:
+            return total, parts
+        import drjit as dr
 
-    def eval_backdrop(self, d: Any, active: Any) -> tuple[Any, dict[str, Any]]:
+        seen, seen_parts = self._backdrop(d, camera)
+        return dr.select(camera, seen, total), {g: dr.select(camera, seen_parts[g], parts[g]) for g in parts}
+
+    def _backdrop(self, d: Any, active: Any) -> tuple[Any, dict[str, Any]]:
         """What a camera ray toward ``d`` sees with a :attr:`backdrop`: (L_b(d) + the suns' radiance, split
         by light group: the backdrop in ``sky``, the suns in ``sun``), so the sun's disc stays in the frame."""
         mi = self.mi

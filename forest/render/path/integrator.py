@@ -433,25 +433,17 @@ class PathKernel:
             S["covered"] = S["covered"] | (vertex & (S["depth"] == 0))
             # Light from where the ray left the scene, weighed against light sampling (power heuristic).
             mis = dr.select(S["prev_delta"], 1.0, mis_weight(S["prev_pdf"], lights.pdf(d, escaped)))
-            # With a backdrop (an environment map that lights but is not seen) a camera ray sees it instead.
-            cam = escaped & (S["depth"] == 0) if lights.backdrop is not None else None
+            # A camera ray that leaves sees the backdrop where an environment map lights but is not seen.
+            seen = escaped & (S["depth"] == 0)
             with dr.resume_grad(when=not primal):
                 if lgroups:
-                    sky, parts = lights.eval_groups(d, escaped, o)
-                    if cam is not None:
-                        seen_sky, seen_parts = lights.eval_backdrop(d, cam)
-                        sky = dr.select(cam, seen_sky, sky)
-                        parts = {g: dr.select(cam, seen_parts[g], parts[g]) for g in parts}
+                    sky, parts = lights.eval_groups(d, escaped, o, camera=seen)
                     Le = S["β"] * mis * sky
                     for g in lgroups:
                         S[f"G:{g}"] = S[f"G:{g}"] + S["β"] * mis * parts[g]
                 else:
-                    value = lights.eval(d, escaped, o)
-                    if cam is not None:
-                        value = dr.select(cam, lights.eval_backdrop(d, cam)[0], value)
-                    Le = S["β"] * mis * value
+                    Le = S["β"] * mis * lights.eval(d, escaped, o, camera=seen)
             if aux:
-                seen = escaped & (S["depth"] == 0)
                 S["albedo"] = dr.select(seen, dr.clip(dr.detach(Le), 0.0, 1.0), S["albedo"])
             if primal:
                 S["L"] = S["L"] + Le
