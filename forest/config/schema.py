@@ -1188,6 +1188,13 @@ class LodConfig(Section):
         description="Without distances: choose each tree's level by its projected size (pixels); "
         "false turns level of detail off, every tree at its highest level.",
     )
+    solid_cards: Literal["medium", "low", "off"] = Field(
+        "low",
+        description="The level from which the forest renderer draws cut-out leaf cards as opaque cards of the "
+        "same covered area (each triangle shrunk to its alpha coverage): no ray restarts past their gaps, the same "
+        'picture where a card is about a pixel. "low" (the default; 1.7x faster on the 130 000-tree case '
+        'study), "medium" (faster still, coarser needles on the nearest medium trees) or "off".',
+    )
 
     @field_validator("distances")
     @classmethod
@@ -1217,6 +1224,11 @@ class LodConfig(Section):
         if self.distances is not None:
             return "distances"
         return "pixels" if self.auto else "off"
+
+    @property
+    def solid_from(self) -> int | None:
+        """The first level (1 medium, 2 low) drawn with solid cards, None when ``solid_cards = "off"``."""
+        return {"medium": 1, "low": 2}.get(self.solid_cards)
 
     @property
     def enabled(self) -> bool:

@@ -299,6 +299,8 @@ def render_scene(
             attrs["forest:samples_traced"] = float(stats["samples_traced"])  # type: ignore[arg-type]
         if scene.lod.mode != "distances":  # which rule chose the levels (forest:lod_distances says it for that one)
             attrs["forest:lod_rule"] = scene.lod.describe()
+        if not chosen.startswith("scalar"):  # forest_path draws cut-out leaf cards solid from this level on
+            attrs["forest:solid_cards"] = config.lod.solid_cards
         written += write_frame(
             exr,
             png,
@@ -330,7 +332,12 @@ def render_scene(
         peak_memory_gb=peak_memory_gb(),
         gpu_peak_gb=gpu_peak_gb(chosen),
         lod_counts=r.lod_counts,
-        lod_rule=scene.lod.describe(),
+        lod_rule=scene.lod.describe()
+        + (
+            ""
+            if chosen.startswith("scalar") or config.lod.solid_cards == "off"
+            else f"; solid cards from {config.lod.solid_cards}"
+        ),
         denoised=denoised,
         denoise_rule="" if preview else denoise_rule(config.render.denoise, size.spp)[1],
         leaf_model=r.leaf_model,

@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -139,6 +140,7 @@ class ForestGeometry:
         self.parts = PartBuffers()
         self.materials = materials
         self.flatten_triangles = int(inputs.flatten_triangles)
+        self.solid_from = inputs.solid_from
         self.prototypes: dict[tuple[int, int, int], Prototype] = {}
         self._species = [_species_list(e) for e in inputs.species]
         inst = inputs.instances
@@ -207,6 +209,8 @@ class ForestGeometry:
                 continue
             # The leaf tint multiplies the parts the colour map tints (a species' foliage), as every exporter does.
             row = s if getattr(part, "tinted", False) else -1
+            if self.solid_from is not None and level >= self.solid_from:
+                mesh, part = solid_part(mesh, part)
             ids.append(self.parts.add(mesh, self.materials.add(part, tint_row=row)))
         if not ids:
             raise ForestError(f"species {getattr(sp, 'name', s)!r} level {lod.name} has no triangles")
@@ -234,6 +238,49 @@ class ForestGeometry:
                     (i + 1) / n, f"geometry: {i + 1}/{n} prototypes (species {int(a) + 1}/{species}, level {int(c)})"
                 )
         return np.asarray(inverse, dtype=np.int64).ravel(), protos
+
+
+def _modulation_texture(tex: str | np.ndarray) -> np.ndarray | None:
+    """The RGBA of texture ``tex`` when it is a cut-out modulation (:func:`.solid.modulation`), else None."""
+    from .solid import modulation
+
+    if isinstance(tex, np.ndarray):
+        rgba = np.asarray(tex, np.float32)
+        return rgba if rgba.ndim == 3 and rgba.shape[2] == 4 and modulation(rgba) else None
+    return _modulation_file(tex)
+
+
+@lru_cache(maxsize=64)
+def _modulation_file(path: str) -> np.ndarray | None:
+    from .materials import texture_rgba
+    from .solid import modulation
+
+    rgba = texture_rgba(path)
+    return rgba if modulation(rgba) else None
+
+
+def solid_part(mesh: Any, part: Any) -> tuple[Any, Any]:
+    """``mesh`` and ``part`` drawn with solid cards (:mod:`.solid`) when ``part`` is a leaf with a cut-out texture."""
+    from .solid import solid_cards
+
+    tex = getattr(part, "texture", None)
+    if getattr(part, "kind", "surface") != "leaf" or tex is None or getattr(mesh, "uv", None) is None:
+        return mesh, part
+    rgba = _modulation_texture(tex if isinstance(tex, np.ndarray) else str(tex))
+    if rgba is None:
+        return mesh, part
+    sm = solid_cards(mesh.vertices, mesh.faces, mesh.uv, getattr(mesh, "normals", None), rgba)
+    colour = tuple(float(c) * float(k) for c, k in zip(part.colour, sm.rgb))
+    material = Material(
+        "leaf",
+        colour,
+        None,
+        bool(getattr(part, "tinted", False)),
+        float(getattr(part, "translucency", 0.0) or 0.0),
+        float(getattr(part, "sheen", 0.0) or 0.0),
+        float(getattr(part, "roughness", 0.0) or 0.0),
+    )
+    return _Mesh(sm.vertices, sm.faces, sm.normals, sm.uv), material
 
 
 @dataclass

@@ -1,0 +1,148 @@
+"""Solid cards (forest_path): cut-out leaf cards drawn as opaque cards of the same covered area.
+
+The references are closed forms (a card whose texture covers a known share of it) and the cut-out
+render of the same scene, which the solid one must match in coverage and colour while tracing fewer
+ray segments.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from test_forest_path import forest_set, look
+
+from forest.config import ForestError, parse_config
+from forest.render.path import PathCamera, PathInputs, PathScene, SunLight
+from forest.render.path.solid import barycentric_pattern, bilinear_repeat, modulation, solid_cards
+
+from render_fixtures import BoxLibrary
+
+VARIANT = "llvm_ad_rgb"
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory):
+    return BoxLibrary(tmp_path_factory.mktemp("solidlib"))
+
+
+def card_quad():
+    """A 10×10 m quad at y = 5 (two triangles, uv over [0, 1]²) as the test library's card species draws it."""
+    v = np.array([[-5, 5, -5], [5, 5, -5], [5, 5, 5], [-5, 5, 5]], np.float32)
+    f = np.array([[0, 2, 1], [0, 3, 2]], np.uint32)
+    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
+    return v, f, uv
+
+
+def triangle_area(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    c = v[f]
+    return 0.5 * np.linalg.norm(np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), axis=1)
+
+
+def inside(p: np.ndarray, tri: np.ndarray) -> bool:
+    """Whether point p lies in triangle ``tri`` (3, 3) (barycentric coordinates all ≥ 0, with slack)."""
+    a, b, c = tri
+    m = np.stack([b - a, c - a], axis=1)
+    uv, *_ = np.linalg.lstsq(m, p - a, rcond=None)
+    return bool(uv.min() >= -1e-5 and uv.sum() <= 1 + 1e-5)
+
+
+def test_the_barycentric_pattern_covers_the_triangle_evenly():
+    b = barycentric_pattern(8)
+    assert b.shape == (64, 3)
+    np.testing.assert_allclose(b.sum(axis=1), 1.0)
+    assert b.min() > 0.0  # strictly inside: cell centres
+    np.testing.assert_allclose(b.mean(axis=0), 1 / 3, atol=0.01)  # its centroid is the triangle's
+
+
+def test_bilinear_lookup_repeats_and_interpolates_between_texel_centres():
+    img = np.zeros((2, 2, 1), np.float32)
+    img[0, 1, 0] = 1.0  # top row, right texel
+    assert bilinear_repeat(img, np.array([0.75, 0.25]))[0] == pytest.approx(1.0)  # its centre
+    assert bilinear_repeat(img, np.array([0.5, 0.25]))[0] == pytest.approx(0.5)  # half-way to its left neighbour
+    assert bilinear_repeat(img, np.array([1.75, -0.75]))[0] == pytest.approx(1.0)  # repeats like the atlas
+
+
+def test_a_half_covered_card_keeps_half_its_area_inside_itself_on_the_covered_side():
+    v, f, uv = card_quad()
+    rgba = np.ones((16, 16, 4), np.float32)
+    rgba[..., :3] = (0.5, 0.6, 0.7)
+    rgba[:, :8, 3] = 0.0  # alpha 0 where u < ½ (x < 0)
+    sm = solid_cards(v, f, uv, None, rgba)
+    area_in, area_out = triangle_area(v, f).sum(), triangle_area(sm.vertices, sm.faces).sum()
+    assert sm.coverage == pytest.approx(0.5, abs=0.02)
+    assert area_out == pytest.approx(area_in * sm.coverage, rel=1e-5)  # the covered area, exactly
+    np.testing.assert_allclose(sm.rgb, (0.5, 0.6, 0.7), atol=1e-5)  # the covered texels' colour
+    for k, tri in enumerate(sm.vertices.reshape(-1, 3, 3)):
+        assert all(inside(p, v[f[k]]) for p in tri)  # each sheet stays within its card triangle
+        assert tri[:, 0].mean() > v[f[k]][:, 0].mean()  # ... and moves towards the covered half (+X)
+    np.testing.assert_allclose(sm.vertices[:, 1], 5.0)  # in the card's plane
+
+
+def test_a_fully_transparent_card_leaves_no_triangles():
+    v, f, uv = card_quad()
+    rgba = np.ones((4, 4, 4), np.float32)
+    rgba[..., 3] = 0.0
+    sm = solid_cards(v, f, uv, None, rgba)
+    assert len(sm.faces) == 0 and sm.coverage == 0.0
+
+
+def test_only_plain_modulation_textures_are_drawn_solid():
+    white = np.ones((8, 8, 4), np.float32)
+    white[:, :4, 3] = 0.0
+    assert modulation(white)  # a leaf cluster: white where covered, cut out elsewhere
+    opaque = np.ones((8, 8, 4), np.float32)
+    assert not modulation(opaque)  # nothing to cut out
+    impostor = white.copy()
+    impostor[:4, 4:, :3] = (0.35, 0.2, 0.1)  # bark below leaves: one colour per card would lose it
+    impostor[4:, 4:, :3] = (0.1, 0.4, 0.1)
+    assert not modulation(impostor)
+
+
+def test_solid_cards_render_the_cut_out_cards_coverage_and_colour_with_fewer_segments(library):
+    """A field of the test library's half cut-out cards seen from above under a sun: drawn solid they cover
+    the same share of the frame with the same colour, and paths no longer restart past their gaps."""
+    rng = np.random.default_rng(4)
+    n = 80
+    pos = np.zeros((n, 3), np.float32)
+    pos[:, [0, 2]] = rng.uniform(-25.0, 25.0, size=(n, 2))
+    pos[:, 1] = rng.uniform(0.0, 6.0, size=n)  # stacked at different heights: rays pass several gaps
+    inst = forest_set(pos, np.ones(n, np.int64))
+    camera = PathCamera(look([0.0, 120.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 30.0, 48, 48)
+    base = PathInputs(
+        instances=inst,
+        species=[library.resolve("box"), library.resolve("card")],
+        levels=np.zeros(n, np.int64),
+        matrices=inst.matrices(),
+        camera=camera,
+        sun=SunLight((0.3, 1.0, 0.2), (1.0, 1.0, 1.0)),
+        spp=32,
+        max_depth=3,
+    )
+    out = {}
+    for name, solid_from in (("cut", None), ("solid", 0)):  # the card species has one level: 0
+        scene = PathScene(replace(base, solid_from=solid_from), VARIANT)
+        passes = list(scene.passes(spp=32, seed=1, aux=True))
+        spp = sum(p.spp for p in passes)
+        rgb = sum(p.rgb for p in passes) / spp
+        alpha = sum(p.alpha for p in passes) / spp
+        segments = np.mean([p.segments.mean() for p in passes])
+        out[name] = (rgb, alpha, segments, scene.stats)
+    (rgb_c, a_c, seg_c, st_c), (rgb_s, a_s, seg_s, st_s) = out["cut"], out["solid"]
+    assert st_s.instanced_triangles == st_c.instanced_triangles  # the same triangles, shrunk
+    assert 0.15 < a_c.mean() < 0.85  # the frame is partly cards, partly the sky through their gaps
+    assert a_s.mean() == pytest.approx(a_c.mean(), rel=0.05)  # the same coverage
+    np.testing.assert_allclose(rgb_s.mean(axis=0), rgb_c.mean(axis=0), rtol=0.05)  # and colour
+    assert seg_s < 0.8 * seg_c  # without the restarts past cut-out texels
+
+
+MINIMAL = '[terrain]\nflat = {}\n[[species]]\nmodel = "broadleaf"\npercent = 50\n'
+
+
+def test_the_setting_reads_from_lod_and_refuses_unknown_levels():
+    assert parse_config(MINIMAL).lod.solid_from == 2  # the default: from the low level
+    assert parse_config(MINIMAL + '[lod]\nsolid_cards = "medium"\n').lod.solid_from == 1
+    assert parse_config(MINIMAL + '[lod]\nsolid_cards = "off"\n').lod.solid_from is None
+    with pytest.raises(ForestError, match=r"solid_cards"):
+        parse_config(MINIMAL + '[lod]\nsolid_cards = "far"\n')
