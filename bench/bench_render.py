@@ -360,8 +360,8 @@ def case_original(
 
 
 def case_default(tmp: Path, scale: float, variant: str) -> None:
-    """The case study with **default settings** (no ``[lod]``: automatic levels and solid cards from the low
-    level; the default ``max_depth``) through ``forest render``, against the same frame without solid cards (the
+    """The case study with **default settings** (no ``[lod]``: automatic levels and solid cards on trees up to
+    80 pixels tall; the default ``max_depth``) through ``forest render``, against the same frame without solid cards (the
     previous default) and with the hand-tuned settings of ``original`` (``[lod] distances``, ``max_depth`` 3) in
     the same run; the pictures of the first two are compared (mean and 16×16-block luminance differences)."""
     count = max(100, int(130_000 * scale))
@@ -369,7 +369,7 @@ def case_default(tmp: Path, scale: float, variant: str) -> None:
     runs = {}
     for name, lod, depth in (
         ("default settings", None, None),
-        ('without solid cards (the previous default: [lod] solid_cards = "off")', 'solid_cards = "off"', None),
+        ("without solid cards (the previous default: [lod] solid_pixels = 0)", "solid_pixels = 0", None),
         ("hand-tuned ([lod] distances, max_depth 3)", "distances = [150.0, 600.0, 1800.0]", 3),
     ):
         sub = tmp / name.split()[0]

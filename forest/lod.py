@@ -106,6 +106,7 @@ class LodPlan:
     width: int = 0
     fov: float = 40.0
     impostor: tuple[bool, ...] = ()  # per species index: its last level is the far crossed-card impostor
+    solid_pixels: float = 0.0  # forest_path's solid cards on trees at most this many pixels tall (0: none)
 
     @property
     def mode(self) -> str:
@@ -160,6 +161,27 @@ class LodPlan:
             out = np.minimum(out, cap)
         return out
 
+    def solid(
+        self,
+        position: np.ndarray,
+        species: np.ndarray,
+        camera: np.ndarray,
+        scale: np.ndarray | None = None,
+        fov: float | None = None,
+    ) -> np.ndarray:
+        """Per tree, whether forest_path draws its cut-out leaf cards solid: its projected height
+        p = σ·H_s·f/r is at most ``solid_pixels`` (``[lod] solid_pixels``; any rule, any level)."""
+        position = np.asarray(position, dtype=np.float64)
+        if self.solid_pixels <= 0.0 or len(position) == 0 or not self.heights:
+            return np.zeros(len(position), dtype=bool)
+        r = np.linalg.norm(position - np.asarray(camera, dtype=np.float64)[None, :], axis=1)
+        h = np.asarray(self.heights, dtype=np.float64)[np.asarray(species, dtype=np.int64)]
+        if scale is not None:
+            h = h * np.asarray(scale, dtype=np.float64)
+        p = projected_pixels(h, r, self.width, self.fov if fov is None else fov)
+        out: np.ndarray = p <= self.solid_pixels
+        return out
+
     def bands(self, species: int, fov: float | None = None) -> list[Band]:
         """The distance bands of one species (scale 1), consecutive bands of the same level merged."""
         edges = [0.0, *self.boundaries(species, fov), math.inf]
@@ -178,12 +200,9 @@ def lod_plan(config: Config, species: Sequence[Species]) -> LodPlan:
     """The :class:`LodPlan` of a config's ``[lod]`` for the resolved species (per species index of the InstanceSet)."""
     lod = config.lod
     n_lods = tuple(len(sp.lods) for sp in species)
+    heights = tuple(float(np.asarray(sp.lods[0].bounds)[1, 1] - np.asarray(sp.lods[0].bounds)[0, 1]) for sp in species)
+    width, fov, solid = int(config.render.width), float(config.camera.fov), float(lod.solid_pixels)
     if lod.mode == "pixels":
-        heights = tuple(
-            float(np.asarray(sp.lods[0].bounds)[1, 1] - np.asarray(sp.lods[0].bounds)[0, 1]) for sp in species
-        )
         impostor = tuple(len(sp.lods) > 1 and sp.lods[-1].name == "far" for sp in species)
-        return LodPlan(
-            (), n_lods, lod.thresholds, heights, int(config.render.width), float(config.camera.fov), impostor
-        )
-    return LodPlan(lod.bands, n_lods)
+        return LodPlan((), n_lods, lod.thresholds, heights, width, fov, impostor, solid)
+    return LodPlan(lod.bands, n_lods, heights=heights, width=width, fov=fov, solid_pixels=solid)

@@ -158,6 +158,13 @@ class Scene:
         cam = self.camera_at(frame)
         return self.lod.levels(inst.position, inst.species, cam.position, inst.scale, float(cam.fov))
 
+    def solid_cards(self, frame: float) -> np.ndarray:
+        """Per tree, whether forest_path draws its cut-out leaf cards solid from the camera at ``frame``: its
+        projected height at most ``[lod] solid_pixels`` (:meth:`forest.lod.LodPlan.solid`)."""
+        inst = self.instances
+        cam = self.camera_at(frame)
+        return self.lod.solid(inst.position, inst.species, cam.position, inst.scale, float(cam.fov))
+
     @property
     def lights(self) -> Lights:
         """The sun and sky, resolved once by one rule for every backend (:mod:`forest.lights`)."""

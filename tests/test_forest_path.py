@@ -119,8 +119,11 @@ def mitsuba_layers(scene, frame: float = 1.0) -> dict:
 def test_layers_match_mitsubas_own_intersections(tmp_path, library, flatten):
     """Instanced (flatten 0) or merged (10 000) trees: forest_path's id/species/depth layers agree with
     Mitsuba's own scalar_rgb surface interactions on the scene its integrators render."""
+    # Cut-out cards as Mitsuba draws them: solid cards (small trees) would be other surfaces to compare.
     cfg = make_config(
-        tmp_path, extra="[lod]\ndistances = [221.0, 222.0, 223.0]\n" + CARD, render="horizon_ground = false"
+        tmp_path,
+        extra="[lod]\ndistances = [221.0, 222.0, 223.0]\nsolid_pixels = 0\n" + CARD,
+        render="horizon_ground = false",
     )
     pos = [[-20.0, 0.0, -20.0], [20.0, 0.0, -20.0], [-20.0, 0.0, 20.0], [20.0, 0.0, 22.0], [0.0, 0.0, 0.0]]
     inst = forest_set(pos, [0, 0, 0, 0, 1], scale=2.0)

@@ -139,7 +139,34 @@ def test_manual_distances_ignore_scale_and_species_size(tmp_path, lib):
     np.testing.assert_array_equal(scene.levels(1.0), want)
     assert scene.levels(1.0)[:8].tolist() == [0, 0, 1, 1, 2, 2, 3, 3]
     assert scene.lod.describe() == "distances 40, 120, 300 m"
-    assert scene.lod == LodPlan((40.0, 120.0, 300.0), (4, 2))  # the manual plan as before: no sizes, no image
+    plan = scene.lod  # manual: the distances decide the levels; sizes and the image only the solid cards
+    assert (plan.distances, plan.n_lods, plan.pixels, plan.solid_pixels) == ((40.0, 120.0, 300.0), (4, 2), (), 80.0)
+    assert plan.levels(scene.instances.position, species, cam, scale).tolist() == scene.levels(1.0).tolist()
+
+
+def test_solid_cards_go_to_the_trees_of_at_most_solid_pixels_whatever_their_level(tmp_path, lib):
+    """Trees of both species at 150 m scaled to 0.1 % above and below 80 px (the default) and 30 px (set): solid
+    iff p = σ·H·f/r ≤ solid_pixels, under the automatic rule and under manual distances alike; 0 turns it off."""
+    w, h_px = 1280, 720
+    probe = make_config(tmp_path).with_overrides({"render.width": w, "render.height": h_px})
+    f = (w / 2) / math.tan(math.radians(probe.camera.fov) / 2)
+    scale, species, want = [], [], []
+    for s, name in enumerate(("oak", "pine")):
+        H = height(lib, name)
+        for p in (300.0, 80.0 * 1.001, 80.0 / 1.001, 30.0 * 1.001, 30.0 / 1.001, 5.0):
+            scale.append(p * R / (H * f))
+            species.append(s)
+            want.append(p)
+    want = np.asarray(want)
+    for lod, limit in (
+        ("", 80.0),
+        ("\n[lod]\nsolid_pixels = 30.0\n", 30.0),
+        ("\n[lod]\ndistances = [40.0, 120.0, 300.0]\n", 80.0),
+        ("\n[lod]\nsolid_pixels = 0\n", 0.0),
+    ):
+        scene = scene_of(tmp_path, lib, lod, np.full(len(scale), R), scale, species, width=w)
+        got = scene.solid_cards(1.0)
+        np.testing.assert_array_equal(got, (want <= limit) if limit > 0 else np.zeros(len(want), bool))
 
 
 def test_lod_off_puts_every_tree_at_its_highest_level(tmp_path, lib):

@@ -121,8 +121,8 @@ def test_solid_cards_render_the_cut_out_cards_coverage_and_colour_with_fewer_seg
         max_depth=3,
     )
     out = {}
-    for name, solid_from in (("cut", None), ("solid", 0)):  # the card species has one level: 0
-        scene = PathScene(replace(base, solid_from=solid_from), VARIANT)
+    for name, solid in (("cut", None), ("solid", np.ones(n, bool))):
+        scene = PathScene(replace(base, solid=solid), VARIANT)
         passes = list(scene.passes(spp=32, seed=1, aux=True))
         spp = sum(p.spp for p in passes)
         rgb = sum(p.rgb for p in passes) / spp
@@ -140,9 +140,32 @@ def test_solid_cards_render_the_cut_out_cards_coverage_and_colour_with_fewer_seg
 MINIMAL = '[terrain]\nflat = {}\n[[species]]\nmodel = "broadleaf"\npercent = 50\n'
 
 
-def test_the_setting_reads_from_lod_and_refuses_unknown_levels():
-    assert parse_config(MINIMAL).lod.solid_from == 2  # the default: from the low level
-    assert parse_config(MINIMAL + '[lod]\nsolid_cards = "medium"\n').lod.solid_from == 1
-    assert parse_config(MINIMAL + '[lod]\nsolid_cards = "off"\n').lod.solid_from is None
-    with pytest.raises(ForestError, match=r"solid_cards"):
-        parse_config(MINIMAL + '[lod]\nsolid_cards = "far"\n')
+def test_the_setting_reads_from_lod_and_refuses_negative_sizes():
+    assert parse_config(MINIMAL).lod.solid_pixels == 80.0  # the default: trees up to 80 px tall
+    assert parse_config(MINIMAL + "[lod]\nsolid_pixels = 0\n").lod.solid_pixels == 0.0  # off
+    with pytest.raises(ForestError, match=r"solid_pixels"):
+        parse_config(MINIMAL + "[lod]\nsolid_pixels = -5.0\n")
+
+
+def test_a_scene_rebuilt_with_other_solid_flags_draws_them(library):
+    """PathScene.pose takes per-tree solid flags (a new frame's): the same trees as cut cards or as sheets."""
+    inst = forest_set([[0.0, 0.0, 0.0], [12.0, 0.0, 0.0]], [1, 1])
+    camera = PathCamera(look([0.0, 100.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 30.0, 16, 16)
+    inputs = PathInputs(
+        instances=inst,
+        species=[library.resolve("box"), library.resolve("card")],
+        levels=np.zeros(2, np.int64),
+        matrices=inst.matrices(),
+        camera=camera,
+    )
+    scene = PathScene(inputs, VARIANT)
+    cut = scene.geometry.parts.n_faces
+    scene.pose(solid=np.array([False, True]))
+    keys = sorted(scene.geometry.prototypes)
+    assert keys == [(1, 0, 0, 0), (1, 0, 0, 1)]  # one prototype each way
+    assert scene.geometry.parts.n_faces == cut + 2  # the solid card's two sheets added
+    with pytest.raises(ForestError, match="solid"):
+        scene.pose(solid=np.array([True]))
+    # A level with nothing to draw solid (the box: no texture) shares its cut-out prototype, parts and all.
+    box = scene.geometry.prototype(0, 0, 0, False)
+    assert scene.geometry.prototype(0, 0, 0, True) is box

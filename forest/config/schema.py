@@ -1188,12 +1188,12 @@ class LodConfig(Section):
         description="Without distances: choose each tree's level by its projected size (pixels); "
         "false turns level of detail off, every tree at its highest level.",
     )
-    solid_cards: Literal["medium", "low", "off"] = Field(
-        "low",
-        description="The level from which the forest renderer draws cut-out leaf cards as opaque cards of the "
-        "same covered area (each triangle shrunk to its alpha coverage): no ray restarts past their gaps, the same "
-        'picture where a card is about a pixel. "low" (the default; 1.7x faster on the 130 000-tree case '
-        'study), "medium" (faster still, coarser needles on the nearest medium trees) or "off".',
+    solid_pixels: NonNegative = Field(
+        80.0,
+        description="The forest renderer draws the cut-out leaf cards of a tree at most this many pixels tall "
+        "(its projected height, as the automatic rule measures it) as opaque cards of the same covered area, each "
+        "triangle shrunk to its alpha coverage: no ray restarts past their gaps, the same picture where a card is "
+        "about a pixel (1.5x faster on the 130 000-tree case study). 0 keeps every card cut out.",
     )
 
     @field_validator("distances")
@@ -1224,11 +1224,6 @@ class LodConfig(Section):
         if self.distances is not None:
             return "distances"
         return "pixels" if self.auto else "off"
-
-    @property
-    def solid_from(self) -> int | None:
-        """The first level (1 medium, 2 low) drawn with solid cards, None when ``solid_cards = "off"``."""
-        return {"medium": 1, "low": 2}.get(self.solid_cards)
 
     @property
     def enabled(self) -> bool:

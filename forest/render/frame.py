@@ -209,7 +209,7 @@ class FrameRenderer:
         if self._path is None:
             inputs = path_inputs(self.scene, width=self.width, height=self.height, spp=1)
             inputs.haze = None  # applied here after the beauty
-            inputs.solid_from = None  # the mattes of Mitsuba's beauty, whose cards keep their cut-outs
+            inputs.solid = None  # the mattes of Mitsuba's beauty, whose cards keep their cut-outs
             self._path = PathScene(inputs, "llvm_ad_rgb")
             self._path_key = (
                 inputs.levels.tobytes(),

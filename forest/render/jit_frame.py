@@ -114,6 +114,7 @@ class PathFrameRenderer:
         report(0.25, f"Mitsuba scene of {len(self.instances):,} trees, {len(scene.species)} species")
         self.path = PathScene(inputs, variant, progress=lambda f, m: report(0.25 + 0.75 * f, m))
         report(1.0, "scene built")
+        self._solid = inputs.solid  # the solid-card flags of the frame being rendered (Scene.solid_cards)
         self._pose_key = self._key(inputs.levels, 1.0 / config.camera.fps)
         self.aovs = tuple(config.render.aovs)
         self._groups: GroupSums | None = None  # the light groups of the frame being rendered
@@ -155,16 +156,21 @@ class PathFrameRenderer:
             return rounds_passes(self.width, self.height, spp, min(self.min_spp, spp), self.path.max_lanes)
         return split_passes(self.width, self.height, spp, self.path.max_lanes)
 
-    def _key(self, levels: np.ndarray, time_s: float) -> tuple[bytes, float | None]:
+    def _key(self, levels: np.ndarray, time_s: float) -> tuple[bytes, bytes, float | None]:
         wind = self.config.wind
-        return (np.asarray(levels).tobytes(), round(time_s, 9) if wind.strength > 0 else None)
+        solid = b"" if self._solid is None else np.packbits(self._solid).tobytes()
+        return (np.asarray(levels).tobytes(), solid, round(time_s, 9) if wind.strength > 0 else None)
+
+    def _at_frame(self, frame: float) -> None:
+        """Take the solid-card flags of the camera at ``frame`` (each frame's, as its levels of detail are)."""
+        self._solid = self.scene.solid_cards(frame) if len(self.instances) else None
 
     def _pose(self, levels: np.ndarray, time_s: float) -> None:
         key = self._key(levels, time_s)
         if key == self._pose_key:
             return
         t0 = time.perf_counter()
-        self.path.pose(levels, tree_matrices(self.instances, time_s, self.config.wind))
+        self.path.pose(levels, tree_matrices(self.instances, time_s, self.config.wind), solid=self._solid)
         self._pose_key = key
         self.load_seconds += time.perf_counter() - t0
         st = self.path.stats
@@ -231,12 +237,14 @@ class PathFrameRenderer:
 
     def first_hits(self, frame: float, levels: np.ndarray) -> Iterator[PassResult]:
         """First hits at the frame's centre (the loop needs none: :meth:`samples` carries them)."""
+        self._at_frame(frame)
         self._pose(levels, frame / self.config.camera.fps)
         camera = path_camera(self.config, frame, self.width, self.height)
         yield from self.path.first_hits(camera, spp=self.spp, seed=frame_seed(self.config, frame))
 
     def layers(self, frame: float, levels: np.ndarray) -> dict[str, np.ndarray]:
         """Depth, id and species through the pixel centres at the frame's centre pose."""
+        self._at_frame(frame)
         self._pose(levels, frame / self.config.camera.fps)
         return self.path.layers(path_camera(self.config, frame, self.width, self.height))
 
@@ -261,6 +269,7 @@ class PathFrameRenderer:
         sums = PixelGroupSums if self.noise_threshold > 0.0 else GroupSums
         self._groups = sums(self.width * self.height) if "lightgroups" in self.aovs else None
         self.samples_traced = 0.0
+        self._at_frame(frame)
         try:
             return render_frame(self, frame, on_pass, self._groups)
         finally:

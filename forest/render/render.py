@@ -299,8 +299,8 @@ def render_scene(
             attrs["forest:samples_traced"] = float(stats["samples_traced"])  # type: ignore[arg-type]
         if scene.lod.mode != "distances":  # which rule chose the levels (forest:lod_distances says it for that one)
             attrs["forest:lod_rule"] = scene.lod.describe()
-        if not chosen.startswith("scalar"):  # forest_path draws cut-out leaf cards solid from this level on
-            attrs["forest:solid_cards"] = config.lod.solid_cards
+        if not chosen.startswith("scalar"):  # forest_path draws cut-out leaf cards solid on trees this small
+            attrs["forest:solid_pixels"] = float(config.lod.solid_pixels)
         written += write_frame(
             exr,
             png,
@@ -335,8 +335,8 @@ def render_scene(
         lod_rule=scene.lod.describe()
         + (
             ""
-            if chosen.startswith("scalar") or config.lod.solid_cards == "off"
-            else f"; solid cards from {config.lod.solid_cards}"
+            if chosen.startswith("scalar") or not config.lod.solid_pixels
+            else f"; solid cards ≤ {config.lod.solid_pixels:g} px"
         ),
         denoised=denoised,
         denoise_rule="" if preview else denoise_rule(config.render.denoise, size.spp)[1],

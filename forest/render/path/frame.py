@@ -253,20 +253,25 @@ class PathScene:
         levels: np.ndarray | None = None,
         matrices: np.ndarray | None = None,
         progress: Callable[[float, str], None] | None = None,
+        solid: np.ndarray | None = None,
     ) -> None:
-        """Rebuild the traversal scene for new levels of detail and/or tree transforms (``progress``: its steps,
-        as :class:`TraversalScene` reports them, then the part and material arrays)."""
+        """Rebuild the traversal scene for new levels of detail, tree transforms and/or solid cards (``solid``
+        (N,) bool, the trees whose cut-out leaf cards are drawn solid; None: the inputs'); ``progress``: its
+        steps, as :class:`TraversalScene` reports them, then the part and material arrays."""
         self.activate()
+        solid = self.inputs.solid if solid is None else np.asarray(solid, bool)
         levels = self.inputs.levels if levels is None else np.asarray(levels)
         matrices = self.inputs.matrices if matrices is None else np.asarray(matrices)
         n = self.geometry.n_trees
         if levels.shape != (n,) or matrices.shape != (n, 4, 4):
             raise ForestError(f"path scene: pose needs {n} levels and ({n}, 4, 4) matrices")
         self.traversal = None  # free the previous scene before building the next
-        self.check_memory(levels)
+        if solid is not None and solid.shape != (n,):
+            raise ForestError(f"path scene: pose needs {n} solid-card flags")
+        self.check_memory(levels, solid)
         t0 = time.perf_counter()
         self.traversal = TraversalScene(
-            self.mi, self.geometry, levels, matrices, None if progress is None else scaled(progress, 0.0, 0.95)
+            self.mi, self.geometry, levels, matrices, None if progress is None else scaled(progress, 0.0, 0.95), solid
         )
         if progress is not None:
             progress(0.95, "part buffers and materials")
@@ -278,11 +283,11 @@ class PathScene:
         self.levels = np.asarray(levels)
         self.load_seconds += time.perf_counter() - t0
 
-    def check_memory(self, levels: np.ndarray) -> None:
+    def check_memory(self, levels: np.ndarray, solid: np.ndarray | None = None) -> None:
         """Fail before loading when the instance records alone would not fit in memory (llvm only)."""
         if self.variant != "llvm_ad_rgb":
             return
-        instances, flat, need = memory_plan(self.geometry, np.asarray(levels))
+        instances, flat, need = memory_plan(self.geometry, np.asarray(levels), solid)
         have = available_bytes()  # the machine's and this process's cgroups' room (forest.memory)
         camera = self.inputs.camera
         headroom = memory_headroom(camera.width, camera.height, self.inputs.spp)

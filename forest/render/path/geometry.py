@@ -70,9 +70,9 @@ INSTANCE_BYTES = 16 * 1024
 FLAT_TRIANGLE_BYTES = 128
 
 
-def memory_plan(geometry: ForestGeometry, levels: np.ndarray) -> tuple[int, int, int]:
+def memory_plan(geometry: ForestGeometry, levels: np.ndarray, solid: np.ndarray | None = None) -> tuple[int, int, int]:
     """(instances, merged triangles, estimated bytes) of the traversal scene for a level-of-detail plan."""
-    proto_of_tree, protos = geometry.tree_prototypes(levels)
+    proto_of_tree, protos = geometry.tree_prototypes(levels, solid=solid)
     counts = np.bincount(proto_of_tree, minlength=len(protos)) if len(proto_of_tree) else np.zeros(len(protos), int)
     instances = int(sum(int(c) for c, p in zip(counts, protos) if not p.flatten))
     flat = int(sum(int(c) * p.triangles for c, p in zip(counts, protos) if p.flatten))
@@ -140,8 +140,8 @@ class ForestGeometry:
         self.parts = PartBuffers()
         self.materials = materials
         self.flatten_triangles = int(inputs.flatten_triangles)
-        self.solid_from = inputs.solid_from
-        self.prototypes: dict[tuple[int, int, int], Prototype] = {}
+        self.solid = None if inputs.solid is None else np.asarray(inputs.solid, bool)
+        self.prototypes: dict[tuple[int, int, int, int], Prototype] = {}
         self._species = [_species_list(e) for e in inputs.species]
         inst = inputs.instances
         self.n_trees = len(inst)
@@ -191,9 +191,10 @@ class ForestGeometry:
         for srf in inputs.surfaces:
             self.world_parts.append(self.parts.add(srf.mesh, materials.add(srf.material)))
 
-    def prototype(self, s: int, k: int, level: int) -> Prototype:
-        """The prototype of species ``s``, individual ``k``, level ``level`` (clamped to its last LOD)."""
-        key = (s, k, level)
+    def prototype(self, s: int, k: int, level: int, solid: bool = False) -> Prototype:
+        """The prototype of species ``s``, individual ``k``, level ``level`` (clamped to its last LOD), its
+        cut-out leaf cards drawn solid (:mod:`.solid`) when ``solid``."""
+        key = (s, k, level, int(solid))
         if key in self.prototypes:
             return self.prototypes[key]
         lst = self._species[s]
@@ -202,6 +203,10 @@ class ForestGeometry:
         if not lods:
             raise ForestError(f"species {getattr(sp, 'name', s)!r} has no levels of detail")
         lod = lods[min(level, len(lods) - 1)]
+        if solid and not any(_solidifiable(part) for part in lod.parts):
+            proto = self.prototype(s, k, level, False)  # nothing to draw solid: the cut-out prototype is the same
+            self.prototypes[key] = proto
+            return proto
         ids = []
         for part in lod.parts:
             mesh = part.load() if hasattr(part, "load") else read_ply(part.path)
@@ -209,7 +214,7 @@ class ForestGeometry:
                 continue
             # The leaf tint multiplies the parts the colour map tints (a species' foliage), as every exporter does.
             row = s if getattr(part, "tinted", False) else -1
-            if self.solid_from is not None and level >= self.solid_from:
+            if solid:
                 mesh, part = solid_part(mesh, part)
             ids.append(self.parts.add(mesh, self.materials.add(part, tint_row=row)))
         if not ids:
@@ -220,19 +225,23 @@ class ForestGeometry:
         return proto
 
     def tree_prototypes(
-        self, levels: np.ndarray, progress: ProgressFn | None = None
+        self, levels: np.ndarray, progress: ProgressFn | None = None, *, solid: np.ndarray | None = None
     ) -> tuple[np.ndarray, list[Prototype]]:
-        """Per tree the index into the returned list of prototypes (created on first use).
+        """Per tree the index into the returned list of prototypes (created on first use); ``solid`` (N,) bool:
+        the trees whose cut-out leaf cards are drawn solid (None: the inputs' ``solid``).
 
         ``progress(fraction, message)`` after each prototype (``geometry: 2/6 prototypes (species 2/3, level 0)``):
         reading a species' meshes is the slow part of a first build."""
         levels = np.asarray(levels, dtype=np.int64)
-        keys = np.stack([self.species_index, self.individual, levels], axis=1) if self.n_trees else np.zeros((0, 3))
-        uniq, inverse = np.unique(keys, axis=0, return_inverse=True) if self.n_trees else (np.zeros((0, 3)), [])
+        solid = self.solid if solid is None else np.asarray(solid, bool)
+        flag = np.zeros(self.n_trees, np.int64) if solid is None else solid.astype(np.int64)
+        cols = [self.species_index, self.individual, levels, flag]
+        keys = np.stack(cols, axis=1) if self.n_trees else np.zeros((0, 4))
+        uniq, inverse = np.unique(keys, axis=0, return_inverse=True) if self.n_trees else (np.zeros((0, 4)), [])
         protos = []
         n, species = len(uniq), len(self._species)
-        for i, (a, b, c) in enumerate(uniq.tolist()):
-            protos.append(self.prototype(int(a), int(b), int(c)))
+        for i, (a, b, c, d) in enumerate(uniq.tolist()):
+            protos.append(self.prototype(int(a), int(b), int(c), bool(d)))
             if progress is not None:
                 progress(
                     (i + 1) / n, f"geometry: {i + 1}/{n} prototypes (species {int(a) + 1}/{species}, level {int(c)})"
@@ -259,16 +268,23 @@ def _modulation_file(path: str) -> np.ndarray | None:
     return rgba if modulation(rgba) else None
 
 
+def _solidifiable(part: Any) -> bool:
+    """Whether ``part`` is a leaf whose texture is a cut-out modulation (what :func:`solid_part` redraws)."""
+    tex = getattr(part, "texture", None)
+    if getattr(part, "kind", "surface") != "leaf" or tex is None:
+        return False
+    return _modulation_texture(tex if isinstance(tex, np.ndarray) else str(tex)) is not None
+
+
 def solid_part(mesh: Any, part: Any) -> tuple[Any, Any]:
     """``mesh`` and ``part`` drawn with solid cards (:mod:`.solid`) when ``part`` is a leaf with a cut-out texture."""
     from .solid import solid_cards
 
-    tex = getattr(part, "texture", None)
-    if getattr(part, "kind", "surface") != "leaf" or tex is None or getattr(mesh, "uv", None) is None:
+    if not _solidifiable(part) or getattr(mesh, "uv", None) is None:
         return mesh, part
+    tex = part.texture
     rgba = _modulation_texture(tex if isinstance(tex, np.ndarray) else str(tex))
-    if rgba is None:
-        return mesh, part
+    assert rgba is not None
     sm = solid_cards(mesh.vertices, mesh.faces, mesh.uv, getattr(mesh, "normals", None), rgba)
     colour = tuple(float(c) * float(k) for c, k in zip(part.colour, sm.rgb))
     material = Material(
@@ -351,6 +367,7 @@ class TraversalScene:
         levels: np.ndarray,
         matrices: np.ndarray,
         progress: ProgressFn | None = None,
+        solid: np.ndarray | None = None,
     ):
         import drjit as dr
 
@@ -358,7 +375,9 @@ class TraversalScene:
         t0 = time.perf_counter()
         n = geometry.n_trees
         mats = np.ascontiguousarray(matrices, dtype=np.float64).reshape(n, 4, 4)
-        proto_of_tree, protos = geometry.tree_prototypes(levels, None if progress is None else scaled(progress, 0, 0.2))
+        proto_of_tree, protos = geometry.tree_prototypes(
+            levels, None if progress is None else scaled(progress, 0, 0.2), solid=solid
+        )
         placed = 0  # trees written so far
         parts = geometry.parts
         stats = FrameStats(trees=n)

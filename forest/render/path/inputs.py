@@ -155,9 +155,9 @@ class PathInputs:
     the demo forest 1 gave the noise of 2 in 64 % of the time, 0 another 44 %
     less time for 16 % more noise.  Prototypes
     of at most ``flatten_triangles`` triangles are merged into world-space
-    meshes instead of instanced (see :mod:`.geometry`); from level ``solid_from`` on
-    (None: never) cut-out leaf cards are drawn as opaque cards of the same coverage
-    (:mod:`.solid`).  ``leaf_tint`` (S, 3)
+    meshes instead of instanced (see :mod:`.geometry`); the trees set in ``solid``
+    (N,) bool (None: none) draw their cut-out leaf cards as opaque cards of the same
+    coverage (:mod:`.solid`).  ``leaf_tint`` (S, 3)
     multiplies the albedo of the leaf parts of each species index (default ones)
     and ``ground_tint`` (RGB) the terrain's; both start the ``leaf_tint`` and
     ``ground_tint`` parameters of :class:`~forest.render.path.PathScene`.
@@ -195,7 +195,7 @@ class PathInputs:
     seed: int = 0
     sampler: str = "multijitter"
     flatten_triangles: int = FLATTEN_MAX_TRIANGLES
-    solid_from: int | None = None
+    solid: np.ndarray | None = None
     #: The ``[lod]`` setting that decides how many trees are instanced (named when they do not fit in memory):
     #: ``distances`` (manual), ``pixels`` (automatic) or ``auto`` (level of detail off).
     lod_setting: str = "distances"
