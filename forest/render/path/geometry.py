@@ -121,9 +121,9 @@ class PartBuffers:
 
 @dataclass
 class Prototype:
-    """One (species, individual, level of detail): its parts and whether its trees are flattened."""
+    """One (species, individual, level of detail, solid cards): its parts and whether its trees are flattened."""
 
-    key: tuple[int, int, int]
+    key: tuple[int, int, int, int]  # species, individual, level, solid cards (0/1)
     parts: tuple[int, ...]
     triangles: int
     flatten: bool

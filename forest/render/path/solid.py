@@ -77,8 +77,8 @@ def barycentric_pattern(n: int = SAMPLES) -> np.ndarray:
     ((i + ⅔)/n, (j + ⅔)/n), i + j ≤ n − 2: equal areas, every point strictly
     inside, and their mean the triangle's centroid (the midpoint rule on each cell).
     """
-    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
-    i, j = i.ravel(), j.ravel()
+    gi, gj = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    i, j = gi.ravel(), gj.ravel()
     up, down = i + j <= n - 1, i + j <= n - 2
     u = np.concatenate([(i[up] + 1 / 3) / n, (i[down] + 2 / 3) / n])
     v = np.concatenate([(j[up] + 1 / 3) / n, (j[down] + 2 / 3) / n])
