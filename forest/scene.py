@@ -160,10 +160,15 @@ class Scene:
 
     def solid_cards(self, frame: float) -> np.ndarray:
         """Per tree, whether forest_path draws its cut-out leaf cards solid from the camera at ``frame``: its
-        projected height at most ``[lod] solid_pixels`` (:meth:`forest.lod.LodPlan.solid`)."""
+        projected height at most ``[lod] solid_pixels`` (:meth:`forest.lod.LodPlan.solid`) and its level
+        below the highest."""
         inst = self.instances
         cam = self.camera_at(frame)
-        return self.lod.solid(inst.position, inst.species, cam.position, inst.scale, float(cam.fov))
+        solid = self.lod.solid(inst.position, inst.species, cam.position, inst.scale, float(cam.fov))
+        # Not at the highest level: its cards are the full model's single leaves (52 000 on the broadleaf), which
+        # take seconds to redraw per individual, and a small tree stays there only when [lod] asks for detail.
+        out: np.ndarray = solid & (self.levels(frame) >= 1)
+        return out
 
     @property
     def lights(self) -> Lights:

@@ -146,7 +146,8 @@ def test_manual_distances_ignore_scale_and_species_size(tmp_path, lib):
 
 def test_solid_cards_go_to_the_trees_of_at_most_solid_pixels_whatever_their_level(tmp_path, lib):
     """Trees of both species at 150 m scaled to 0.1 % above and below 80 px (the default) and 30 px (set): solid
-    iff p = σ·H·f/r ≤ solid_pixels, under the automatic rule and under manual distances alike; 0 turns it off."""
+    iff p = σ·H·f/r ≤ solid_pixels, under the automatic rule and under manual distances alike; 0 turns it off; a
+    tree at its highest level never is."""
     w, h_px = 1280, 720
     probe = make_config(tmp_path).with_overrides({"render.width": w, "render.height": h_px})
     f = (w / 2) / math.tan(math.radians(probe.camera.fov) / 2)
@@ -167,6 +168,9 @@ def test_solid_cards_go_to_the_trees_of_at_most_solid_pixels_whatever_their_leve
         scene = scene_of(tmp_path, lib, lod, np.full(len(scale), R), scale, species, width=w)
         got = scene.solid_cards(1.0)
         np.testing.assert_array_equal(got, (want <= limit) if limit > 0 else np.zeros(len(want), bool))
+    # At the highest level (here: level of detail off) the cards are the full model's leaves: never solid.
+    scene = scene_of(tmp_path, lib, "\n[lod]\nauto = false\n", np.full(len(scale), R), scale, species, width=w)
+    assert not scene.solid_cards(1.0).any()
 
 
 def test_lod_off_puts_every_tree_at_its_highest_level(tmp_path, lib):

@@ -1191,7 +1191,7 @@ class LodConfig(Section):
     solid_pixels: NonNegative = Field(
         80.0,
         description="The forest renderer draws the cut-out leaf cards of a tree at most this many pixels tall "
-        "(its projected height, as the automatic rule measures it) as opaque cards of the same covered area, each "
+        "(its projected height, as the automatic rule measures it) and below its highest level as opaque cards of the same covered area, each "
         "triangle shrunk to its alpha coverage: no ray restarts past their gaps, the same picture where a card is "
         "about a pixel (1.5x faster on the 130 000-tree case study). 0 keeps every card cut out.",
     )

@@ -268,6 +268,11 @@ def _modulation_file(path: str) -> np.ndarray | None:
     return rgba if modulation(rgba) else None
 
 
+#: Solid meshes already made in this process, by (mesh file, texture file): scenes rebuilt for other
+#: views (look-dev's renders, a service's jobs) reuse them.
+_SOLID_MESHES: dict[tuple[str, str], Any] = {}
+
+
 def _solidifiable(part: Any) -> bool:
     """Whether ``part`` is a leaf whose texture is a cut-out modulation (what :func:`solid_part` redraws)."""
     tex = getattr(part, "texture", None)
@@ -285,7 +290,13 @@ def solid_part(mesh: Any, part: Any) -> tuple[Any, Any]:
     tex = part.texture
     rgba = _modulation_texture(tex if isinstance(tex, np.ndarray) else str(tex))
     assert rgba is not None
-    sm = solid_cards(mesh.vertices, mesh.faces, mesh.uv, getattr(mesh, "normals", None), rgba)
+    path = getattr(part, "path", None)
+    key = None if path is None or isinstance(tex, np.ndarray) else (str(path), str(tex))
+    sm = _SOLID_MESHES.get(key) if key is not None else None
+    if sm is None:
+        sm = solid_cards(mesh.vertices, mesh.faces, mesh.uv, getattr(mesh, "normals", None), rgba)
+        if key is not None:
+            _SOLID_MESHES[key] = sm
     colour = tuple(float(c) * float(k) for c, k in zip(part.colour, sm.rgb))
     material = Material(
         "leaf",
