@@ -158,16 +158,17 @@ class Scene:
         cam = self.camera_at(frame)
         return self.lod.levels(inst.position, inst.species, cam.position, inst.scale, float(cam.fov))
 
-    def solid_cards(self, frame: float) -> np.ndarray:
+    def solid_cards(self, frame: float, levels: np.ndarray | None = None) -> np.ndarray:
         """Per tree, whether forest_path draws its cut-out leaf cards solid from the camera at ``frame``: its
         projected height at most ``[lod] solid_pixels`` (:meth:`forest.lod.LodPlan.solid`) and its level
-        below the highest."""
+        (``levels``, default :meth:`levels` at ``frame``) below the highest."""
         inst = self.instances
         cam = self.camera_at(frame)
         solid = self.lod.solid(inst.position, inst.species, cam.position, inst.scale, float(cam.fov))
         # Not at the highest level: its cards are the full model's single leaves (52 000 on the broadleaf), which
         # take seconds to redraw per individual, and a small tree stays there only when [lod] asks for detail.
-        out: np.ndarray = solid & (self.levels(frame) >= 1)
+        level = self.levels(frame) if levels is None else np.asarray(levels)
+        out: np.ndarray = solid & (level >= 1)
         return out
 
     @property

@@ -114,7 +114,8 @@ class PathFrameRenderer:
         report(0.25, f"Mitsuba scene of {len(self.instances):,} trees, {len(scene.species)} species")
         self.path = PathScene(inputs, variant, progress=lambda f, m: report(0.25 + 0.75 * f, m))
         report(1.0, "scene built")
-        self._solid = inputs.solid  # the solid-card flags of the frame being rendered (Scene.solid_cards)
+        self._frame = 1.0  # the frame being rendered, whose camera decides the solid cards (Scene.solid_cards)
+        self._solid = inputs.solid  # the trees drawn with solid cards in the loaded pose
         self._pose_key = self._key(inputs.levels, 1.0 / config.camera.fps)
         self.aovs = tuple(config.render.aovs)
         self._groups: GroupSums | None = None  # the light groups of the frame being rendered
@@ -161,11 +162,8 @@ class PathFrameRenderer:
         solid = b"" if self._solid is None else np.packbits(self._solid).tobytes()
         return (np.asarray(levels).tobytes(), solid, round(time_s, 9) if wind.strength > 0 else None)
 
-    def _at_frame(self, frame: float) -> None:
-        """Take the solid-card flags of the camera at ``frame`` (each frame's, as its levels of detail are)."""
-        self._solid = self.scene.solid_cards(frame) if len(self.instances) else None
-
     def _pose(self, levels: np.ndarray, time_s: float) -> None:
+        self._solid = self.scene.solid_cards(self._frame, levels) if len(self.instances) else None
         key = self._key(levels, time_s)
         if key == self._pose_key:
             return
@@ -237,14 +235,14 @@ class PathFrameRenderer:
 
     def first_hits(self, frame: float, levels: np.ndarray) -> Iterator[PassResult]:
         """First hits at the frame's centre (the loop needs none: :meth:`samples` carries them)."""
-        self._at_frame(frame)
+        self._frame = frame
         self._pose(levels, frame / self.config.camera.fps)
         camera = path_camera(self.config, frame, self.width, self.height)
         yield from self.path.first_hits(camera, spp=self.spp, seed=frame_seed(self.config, frame))
 
     def layers(self, frame: float, levels: np.ndarray) -> dict[str, np.ndarray]:
         """Depth, id and species through the pixel centres at the frame's centre pose."""
-        self._at_frame(frame)
+        self._frame = frame
         self._pose(levels, frame / self.config.camera.fps)
         return self.path.layers(path_camera(self.config, frame, self.width, self.height))
 
@@ -269,7 +267,7 @@ class PathFrameRenderer:
         sums = PixelGroupSums if self.noise_threshold > 0.0 else GroupSums
         self._groups = sums(self.width * self.height) if "lightgroups" in self.aovs else None
         self.samples_traced = 0.0
-        self._at_frame(frame)
+        self._frame = frame
         try:
             return render_frame(self, frame, on_pass, self._groups)
         finally:

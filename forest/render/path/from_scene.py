@@ -183,7 +183,7 @@ def path_inputs(
         seed=int(rc.seed),
         leaf_tint=scene.leaf_tint if config.lookdev.leaf_tint else None,
         lod_setting={"pixels": "pixels", "off": "auto"}.get(scene.lod.mode, "distances"),
-        solid=scene.solid_cards(frame) if len(instances) else None,
+        solid=scene.solid_cards(frame, levels) if len(instances) else None,
         ground_tint=tuple(float(x) for x in scene.ground_tint),
         terrain_water=look.water,
         water_ripple=float(config.model.ground.water_ripple),

@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -59,6 +58,7 @@ from ...progress import ProgressFn, scaled
 from .arrays import owned
 from .inputs import Material, PathInputs
 from .materials import MaterialStore
+from .solid import can_draw_solid, solid_part
 
 #: Trees transformed per block when flattening (bounds the float64 temporaries).
 FLATTEN_BLOCK = 131_072
@@ -203,7 +203,7 @@ class ForestGeometry:
         if not lods:
             raise ForestError(f"species {getattr(sp, 'name', s)!r} has no levels of detail")
         lod = lods[min(level, len(lods) - 1)]
-        if solid and not any(_solidifiable(part) for part in lod.parts):
+        if solid and not any(can_draw_solid(part) for part in lod.parts):
             proto = self.prototype(s, k, level, False)  # nothing to draw solid: the cut-out prototype is the same
             self.prototypes[key] = proto
             return proto
@@ -247,67 +247,6 @@ class ForestGeometry:
                     (i + 1) / n, f"geometry: {i + 1}/{n} prototypes (species {int(a) + 1}/{species}, level {int(c)})"
                 )
         return np.asarray(inverse, dtype=np.int64).ravel(), protos
-
-
-def _modulation_texture(tex: str | np.ndarray) -> np.ndarray | None:
-    """The RGBA of texture ``tex`` when it is a cut-out modulation (:func:`.solid.modulation`), else None."""
-    from .solid import modulation
-
-    if isinstance(tex, np.ndarray):
-        rgba = np.asarray(tex, np.float32)
-        return rgba if rgba.ndim == 3 and rgba.shape[2] == 4 and modulation(rgba) else None
-    return _modulation_file(tex)
-
-
-@lru_cache(maxsize=64)
-def _modulation_file(path: str) -> np.ndarray | None:
-    from .materials import texture_rgba
-    from .solid import modulation
-
-    rgba = texture_rgba(path)
-    return rgba if modulation(rgba) else None
-
-
-#: Solid meshes already made in this process, by (mesh file, texture file): scenes rebuilt for other
-#: views (look-dev's renders, a service's jobs) reuse them.
-_SOLID_MESHES: dict[tuple[str, str], Any] = {}
-
-
-def _solidifiable(part: Any) -> bool:
-    """Whether ``part`` is a leaf whose texture is a cut-out modulation (what :func:`solid_part` redraws)."""
-    tex = getattr(part, "texture", None)
-    if getattr(part, "kind", "surface") != "leaf" or tex is None:
-        return False
-    return _modulation_texture(tex if isinstance(tex, np.ndarray) else str(tex)) is not None
-
-
-def solid_part(mesh: Any, part: Any) -> tuple[Any, Any]:
-    """``mesh`` and ``part`` drawn with solid cards (:mod:`.solid`) when ``part`` is a leaf with a cut-out texture."""
-    from .solid import solid_cards
-
-    if not _solidifiable(part) or getattr(mesh, "uv", None) is None:
-        return mesh, part
-    tex = part.texture
-    rgba = _modulation_texture(tex if isinstance(tex, np.ndarray) else str(tex))
-    assert rgba is not None
-    path = getattr(part, "path", None)
-    key = None if path is None or isinstance(tex, np.ndarray) else (str(path), str(tex))
-    sm = _SOLID_MESHES.get(key) if key is not None else None
-    if sm is None:
-        sm = solid_cards(mesh.vertices, mesh.faces, mesh.uv, getattr(mesh, "normals", None), rgba)
-        if key is not None:
-            _SOLID_MESHES[key] = sm
-    colour = tuple(float(c) * float(k) for c, k in zip(part.colour, sm.rgb))
-    material = Material(
-        "leaf",
-        colour,
-        None,
-        bool(getattr(part, "tinted", False)),
-        float(getattr(part, "translucency", 0.0) or 0.0),
-        float(getattr(part, "sheen", 0.0) or 0.0),
-        float(getattr(part, "roughness", 0.0) or 0.0),
-    )
-    return _Mesh(sm.vertices, sm.faces, sm.normals, sm.uv), material
 
 
 @dataclass

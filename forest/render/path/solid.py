@@ -23,15 +23,22 @@ This is the stochastic-transparency-to-geometry step of level-of-detail foliage
 (the low level is already a thinned set of cluster cards whose area preserves the
 high level's, see ``forest.library.lod``); what it changes is where within a card
 the covered texels lie, below a pixel at the levels it is used for.  The
-integrals are estimated with the midpoint rule on 64 equal cells of each triangle and bilinear texture lookups that repeat like the renderer's, so the
-result is deterministic.
+integrals are estimated with the midpoint rule on 64 equal cells of each triangle
+and bilinear texture lookups that repeat like the renderer's, so the result is
+deterministic.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
+from typing import Any
 
 import numpy as np
+
+from ...library.mesh import read_ply
+from .inputs import Material
+from .materials import texture_rgba
 
 #: Samples per triangle side of the barycentric pattern (SAMPLES² samples in all).
 SAMPLES = 8
@@ -139,3 +146,60 @@ def solid_cards(
         rgb=np.asarray(rgb, np.float32),
         coverage=float((cover * area).sum() / max(area.sum(), 1e-12)),
     )
+
+
+def modulation_rgba(tex: Any) -> np.ndarray | None:
+    """The RGBA of texture ``tex`` (an image path or an (h, w, 4) array) when it is a cut-out modulation
+    (:func:`modulation`), else None."""
+    if tex is None:
+        return None
+    if isinstance(tex, np.ndarray):
+        rgba = np.asarray(tex, np.float32)
+        return rgba if rgba.ndim == 3 and rgba.shape[2] == 4 and modulation(rgba) else None
+    return _modulation_file(str(tex))
+
+
+@lru_cache(maxsize=64)
+def _modulation_file(path: str) -> np.ndarray | None:
+    rgba = texture_rgba(path)
+    return rgba if modulation(rgba) else None
+
+
+def can_draw_solid(part: Any) -> bool:
+    """Whether ``part`` (a library ``Part`` or a :class:`~.inputs.Material`) is a leaf with a cut-out modulation."""
+    return getattr(part, "kind", "surface") == "leaf" and modulation_rgba(getattr(part, "texture", None)) is not None
+
+
+@lru_cache(maxsize=128)
+def _solid_file(mesh_path: str, texture_path: str) -> SolidMesh:
+    """:func:`solid_cards` of a part's mesh file and texture file, kept for the scenes rebuilt in this process
+    (other views of look-dev, a service's jobs)."""
+    mesh = read_ply(mesh_path)
+    rgba = _modulation_file(texture_path)
+    assert rgba is not None
+    return solid_cards(mesh.vertices, mesh.faces, mesh.uv, mesh.normals, rgba)
+
+
+def solid_part(mesh: Any, part: Any) -> tuple[Any, Any]:
+    """``mesh`` and ``part`` drawn with solid cards: the :class:`SolidMesh` and a textureless leaf
+    :class:`~.inputs.Material` of colour c_m × the texture's mean RGB; both unchanged unless ``part`` is a leaf
+    with a cut-out modulation texture and ``mesh`` has uv."""
+    tex = getattr(part, "texture", None)
+    rgba = modulation_rgba(tex) if getattr(part, "kind", "surface") == "leaf" else None
+    if rgba is None or getattr(mesh, "uv", None) is None:
+        return mesh, part
+    path = getattr(part, "path", None)
+    if path is not None and not isinstance(tex, np.ndarray):
+        sm = _solid_file(str(path), str(tex))
+    else:
+        sm = solid_cards(mesh.vertices, mesh.faces, mesh.uv, getattr(mesh, "normals", None), rgba)
+    material = Material(
+        "leaf",
+        tuple(float(c) * float(k) for c, k in zip(part.colour, sm.rgb)),
+        None,
+        bool(getattr(part, "tinted", False)),
+        float(getattr(part, "translucency", 0.0) or 0.0),
+        float(getattr(part, "sheen", 0.0) or 0.0),
+        float(getattr(part, "roughness", 0.0) or 0.0),
+    )
+    return sm, material
