@@ -261,6 +261,7 @@ class FrameRenderer:
 
     def frame(self, frame: float, on_pass: PassCallback | None = None) -> FrameImage:
         """Render one frame (:func:`forest.render.loop.render_frame`); ``on_pass(image so far, passes done,
-        passes in the frame)`` is called after every sample pass with the running mean of the frame's samples;
+        passes in the frame)`` is called after every sample pass; calling its first argument gives the running
+        mean of the frame's samples;
         the comp AOVs of ``[render] aovs`` (all but the light groups) come attached to the image."""
         return render_frame(self, frame, on_pass)

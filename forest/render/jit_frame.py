@@ -262,8 +262,8 @@ class PathFrameRenderer:
         return dict(self.path.stats.lod_counts)
 
     def frame(self, frame: float, on_pass: PassCallback | None = None) -> FrameImage:
-        """Render one frame (:func:`forest.render.loop.render_frame`); ``on_pass`` sees the running mean after
-        every pass; its comp AOVs (``[render] aovs``, light groups included) come attached to the image."""
+        """Render one frame (:func:`forest.render.loop.render_frame`); ``on_pass`` is called after every pass (its
+        first argument gives the running mean); its comp AOVs (``[render] aovs``, light groups included) come attached to the image."""
         sums = PixelGroupSums if self.noise_threshold > 0.0 else GroupSums
         self._groups = sums(self.width * self.height) if "lightgroups" in self.aovs else None
         self.samples_traced = 0.0

@@ -254,11 +254,11 @@ def render_scene(
 
     for fi, (f, (exr, png)) in enumerate(zip(frame_list, targets)):
 
-        def passed(img: np.ndarray, done: int, n: int, fi: int = fi, f: int = f) -> None:
+        def passed(img: Callable[[], np.ndarray], done: int, n: int, fi: int = fi, f: int = f) -> None:
             which = "" if still else f"frame {f} ({fi + 1}/{len(frame_list)}), "
             progress(built + (1.0 - built) * (fi * per_frame + done) / total, f"{which}pass {done}/{n}")
             if on_pass is not None:
-                on_pass(f, img, done, n)
+                on_pass(f, img(), done, n)
 
         out = r.frame(float(f), passed)
         denoised |= out.denoised

@@ -108,9 +108,16 @@ def max_lanes(variant: str) -> int:
 def pixel_sums(mi: Any, value: Any, spp: int, pixels: int) -> np.ndarray:
     """Per-pixel sums of a per-lane value (lanes pixel-major, ``spp`` consecutive per pixel), summed on the device.
 
-    ``value`` is a Float or a 3-vector; returns (pixels,) or (pixels, 3) float64.  A component that
-    drjit holds as one broadcast literal is widened first (a block sum of a literal is the literal).
+    ``value`` is a Float or a 3-vector; returns (pixels,) or (pixels, 3) float32, the device's sums as they
+    are (a view of its memory: the caller adds them into float64).  A component that drjit holds as one
+    broadcast literal is widened first (a block sum of a literal is the literal).
     """
+    return _host_sums(_device_sums(mi, value, spp, pixels))
+
+
+def _device_sums(mi: Any, value: Any, spp: int, pixels: int) -> tuple[Any, int]:
+    """:func:`pixel_sums` up to the device: (a Float of the sums, components), a 3-vector interleaved
+    (x₀ y₀ z₀ x₁ …) by ``dr.ravel`` so the host takes it as one (pixels, 3) block; not yet evaluated."""
     import drjit as dr
 
     n = pixels * spp
@@ -121,9 +128,18 @@ def pixel_sums(mi: Any, value: Any, spp: int, pixels: int) -> np.ndarray:
         if dr.width(c) == 1 and n > 1:
             c = c + dr.zeros(mi.Float, n)  # a broadcast literal, widened to one value per lane
         sums.append(dr.block_sum(c, spp) if spp > 1 else c)
-    dr.eval(*sums)
-    out = np.stack([np.asarray(x, np.float64) for x in sums], axis=1)
-    return out[:, 0] if len(comps) == 1 else out
+    if len(sums) == 1:
+        return sums[0], 1
+    return dr.ravel(mi.Vector3f(*sums)), 3
+
+
+def _host_sums(sums: tuple[Any, int]) -> np.ndarray:
+    """Evaluated device sums (:func:`_device_sums`) as a (pixels,) or (pixels, 3) float32 view of the device's
+    memory.  Not copied to float64 here: a fresh 48 MB array per pass of a 1080p frame cost 0.1 s in page
+    faults alone, where the caller's running float64 sums take a float32 addend at the same precision."""
+    value, comps = sums
+    a = np.asarray(value)
+    return a if comps == 1 else a.reshape(-1, comps)
 
 
 def split_passes(width: int, height: int, spp: int, max_lanes: int | None = None) -> list[int]:
@@ -166,8 +182,8 @@ class PassResult:
     """
 
     spp: int
-    rgb: np.ndarray  # (H·W, 3) float64, summed
-    alpha: np.ndarray  # (H·W,) float64, samples whose camera ray hit a surface
+    rgb: np.ndarray  # (H·W, 3) summed (float32 from the device: add it into float64)
+    alpha: np.ndarray  # (H·W,) samples whose camera ray hit a surface
     rows: np.ndarray | None = None  # (H·W, spp) uint32
     albedo: np.ndarray | None = None  # (H·W, 3) summed
     normal: np.ndarray | None = None  # (H·W, 3) summed
@@ -435,9 +451,17 @@ class PathScene:
         seed = int(self.inputs.seed if seed is None else seed)
         w, h = int(camera.width), int(camera.height)
         kernel = self.kernel(max_depth=max_depth)
+        # Pass k runs on the device while the caller adds up pass k − 1 (dr.eval returns once the kernel is
+        # queued; reading a pass's sums waits for it), so the host's share of a pass costs no wall time.
         with dr.suspend_grad():
+            collect: Callable[[], PassResult] | None = None
             for k, n in enumerate(split_passes(w, h, spp, self.max_lanes)):
-                yield self.sample_pass(kernel, camera, n, pass_seed(seed, k), aux=aux, groups=groups)
+                done = None if collect is None else collect()
+                collect = self.launch_pass(kernel, camera, n, pass_seed(seed, k), aux=aux, groups=groups)
+                if done is not None:
+                    yield done
+            if collect is not None:
+                yield collect()
 
     def sample_pass(
         self,
@@ -460,6 +484,22 @@ class PathScene:
         Y² = (w_R R + w_G G + w_B B)² into ``lum2`` (the second moment of adaptive sampling's error estimate).
         ``aux`` and ``groups`` as in :meth:`passes`.
         """
+        return self.launch_pass(kernel, camera, spp, seed, pixels=pixels, aux=aux, groups=groups, luma=luma)()
+
+    def launch_pass(
+        self,
+        kernel: PathKernel,
+        camera: PathCamera,
+        spp: int,
+        seed: int,
+        *,
+        pixels: np.ndarray | None = None,
+        aux: bool = False,
+        groups: bool = False,
+        luma: tuple[float, float, float] | None = None,
+    ) -> Callable[[], PassResult]:
+        """:meth:`sample_pass` in two steps: queue the pass's kernels on the device and return at once; the
+        returned function waits for them and gives the :class:`PassResult`."""
         import drjit as dr
 
         mi = self.mi
@@ -475,8 +515,17 @@ class PathScene:
         dr.eval(L, covered, *moments, *extra.values(), *split.values())  # one kernel for all outputs
 
         # Per-pixel sums on the device: only pixels, not samples, cross to the host (ids excepted).
-        def sums(value: Any) -> np.ndarray:
-            a = pixel_sums(mi, value, used, m)
+        device = {"rgb": _device_sums(mi, L, used, m), "alpha": _device_sums(mi, covered, used, m)}
+        if aux:
+            device["albedo"] = _device_sums(mi, extra["albedo"], used, m)
+            device["normal"] = _device_sums(mi, extra["normal"], used, m)
+        if moments:
+            device["lum2"] = _device_sums(mi, moments[0] * moments[0], used, m)
+        device_groups = {g: _device_sums(mi, v, used, m) for g, v in split.items()}
+        dr.eval(*(v for v, _ in (*device.values(), *device_groups.values())))
+
+        def sums(value: tuple[Any, int]) -> np.ndarray:
+            a = _host_sums(value)
             if pixels is None:
                 return a
             full = np.zeros((n, *a.shape[1:]), a.dtype)
@@ -491,20 +540,23 @@ class PathScene:
             full[pixels] = a
             return full
 
-        result = PassResult(spp=used, rgb=sums(L), alpha=sums(covered))
-        if aux:
-            result.rows = per_sample(extra["row"], NO_HIT)
-            result.albedo = sums(extra["albedo"])
-            result.normal = sums(extra["normal"])
-            result.segments = per_sample(extra["segments"], 0)
-        if split:
-            result.groups = {g: sums(v) for g, v in split.items()}
-        if moments:
-            result.lum2 = sums(moments[0] * moments[0])
-        if pixels is not None:
-            result.counts = np.zeros(n)
-            result.counts[pixels] = used
-        return result
+        def collect() -> PassResult:
+            result = PassResult(spp=used, rgb=sums(device["rgb"]), alpha=sums(device["alpha"]))
+            if aux:
+                result.rows = per_sample(extra["row"], NO_HIT)
+                result.albedo = sums(device["albedo"])
+                result.normal = sums(device["normal"])
+                result.segments = per_sample(extra["segments"], 0)
+            if device_groups:
+                result.groups = {g: sums(v) for g, v in device_groups.items()}
+            if moments:
+                result.lum2 = sums(device["lum2"])
+            if pixels is not None:
+                result.counts = np.zeros(n)
+                result.counts[pixels] = used
+            return result
+
+        return collect
 
     def render(
         self,
