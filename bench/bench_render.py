@@ -35,6 +35,12 @@ Cases (each measurement runs in its own process so peak memory is its own):
   detail; the default ``max_depth``) through ``forest render``, its level counts and peak
   memory, against the same frame with ``original``'s hand-tuned settings in the same run
   (target ≤ 180 s on 2 cores at 1920×1080, 64 spp).
+* ``passes`` — the beauty's sample passes of the ``default`` case's frame (1920×1080, one sample per pixel
+  a pass), each added into the frame's running sums by the frame loop's own ``Beauty`` and ``FirstHits``:
+  queued as ``PathScene.passes`` does (pass k on the device while the host adds pass k − 1, sums handed over
+  as float32 views) against the previous way, one pass at a time (wait, copy every sum to float64 channel by
+  channel and stack them, add, make the running image for the progress callback); alternating, the same
+  seeds, the sums compared.
 * ``lod`` — automatic level of detail (the default: no ``[lod]``) against every
   tree at its highest level (the old default) on the case study's scene
   (130 000 trees, broadleaf/conifer, 1920×1080): trees per level and the
@@ -401,6 +407,74 @@ def case_default(tmp: Path, scale: float, variant: str) -> None:
     )
 
 
+def case_passes(tmp: Path, scale: float, n_passes: int = 6) -> None:
+    """See the module docstring (``passes``)."""
+    cfg_path = write_scene(tmp, count=max(100, int(130_000 * scale)), width=1920, height=1080, spp=n_passes,
+                           lod=None, depth=None)  # fmt: skip
+    run = run_worker("passes", config=cfg_path, out=tmp, passes=n_passes)
+    q, o = run["queued"], run["one at a time"]
+    print(
+        f"render passes: {run['trees']:,} trees, 1920x1080, {n_passes} passes of 1 spp each way, alternating, "
+        f"load average {load_average()}"
+    )
+    print(
+        f"render passes: queued {min(q):.2f} s per pass (runs {', '.join(f'{v:.2f}' for v in q)}) | one at a time "
+        f"{min(o):.2f} s ({', '.join(f'{v:.2f}' for v in o)}) | queued / one at a time {min(q) / min(o):.2f}x; "
+        f"sums identical: {run['identical']}"
+    )
+
+
+def worker_passes(args) -> dict:
+    """Both ways of ``case_passes`` in one process, alternating, twice: seconds per pass of each run."""
+    import drjit as dr
+
+    from forest.config import load_config
+    from forest.render.loop import Beauty, FirstHits
+    from forest.render.path.frame import PathScene, pass_seed
+    from forest.render.path.from_scene import path_inputs
+    from forest.scatter import scatter
+    from forest.scene import load_scene
+
+    cfg = load_config(args.config)
+    inst, _ = scatter(cfg)
+    scene = load_scene(cfg, inst)
+    inputs = path_inputs(scene, width=1920, height=1080, spp=int(args.passes))
+    path = PathScene(inputs)
+    camera, n, h, w = inputs.camera, int(args.passes), 1080, 1920
+    path.render(spp=1, seed=99)  # compile the kernel once, outside the timings
+
+    def queued() -> np.ndarray:
+        beauty, hits = Beauty(h * w), FirstHits(scene, h, w)
+        for p in path.passes(camera, spp=n, seed=1, aux=True):
+            beauty.add(p)
+            hits.add(p)
+        return beauty.rgb
+
+    def one_at_a_time() -> np.ndarray:
+        beauty, hits = Beauty(h * w), FirstHits(scene, h, w)
+        kernel = path.kernel()
+        with dr.suspend_grad():
+            for k in range(n):
+                p = path.sample_pass(kernel, camera, 1, pass_seed(1, k), aux=True)
+                for name in ("rgb", "alpha", "albedo", "normal"):  # pixel_sums' float64 copies: per channel, stacked
+                    a = getattr(p, name)
+                    cols = [np.asarray(a[:, i], np.float64) for i in range(3)] if a.ndim == 2 else None
+                    setattr(p, name, np.stack(cols, axis=1) if cols else np.asarray(a, np.float64))
+                beauty.add(p)
+                hits.add(p)
+                beauty.image().reshape(h, w, 3).astype(np.float32)  # the running image, made every pass
+        return beauty.rgb
+
+    times: dict[str, list[float]] = {"queued": [], "one at a time": []}
+    sums = {}
+    for _ in range(2):
+        for name, fn in (("queued", queued), ("one at a time", one_at_a_time)):
+            t0 = time.perf_counter()
+            sums[name] = fn()
+            times[name].append((time.perf_counter() - t0) / n)
+    return {"trees": len(inst), **times, "identical": bool(np.array_equal(sums["queued"], sums["one at a time"]))}
+
+
 def _beauty(path: Path) -> np.ndarray:
     """The RGB beauty of a written EXR (its first three channels)."""
     import OpenImageIO as oiio
@@ -744,8 +818,14 @@ def case_jit_memory(scale: float) -> None:
             print("render jit_memory: " + line.split(": ", 1)[1])
 
 
-WORKERS = {"render": worker_render, "memory": worker_memory, "frame": worker_frame, "cli": worker_cli}
-CASES = ("scale", "look", "jit_memory", "original", "default", "lod", "million", "flatten", "blender")
+WORKERS = {
+    "render": worker_render,
+    "memory": worker_memory,
+    "frame": worker_frame,
+    "cli": worker_cli,
+    "passes": worker_passes,
+}
+CASES = ("scale", "look", "jit_memory", "original", "default", "passes", "lod", "million", "flatten", "blender")
 
 
 def main() -> None:
@@ -771,6 +851,7 @@ def main() -> None:
     ap.add_argument("--feature", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--save", default="", help=argparse.SUPPRESS)
     ap.add_argument("--lod-index", type=int, default=1, help=argparse.SUPPRESS)
+    ap.add_argument("--passes", type=int, default=6, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:
         print(json.dumps(WORKERS[args.worker](args)))
@@ -792,6 +873,8 @@ def main() -> None:
                 case_original(sub, args.scale, args.variant, args.max_depth, size, args.original_spp)
             elif c == "default":
                 case_default(sub, args.scale, args.variant)
+            elif c == "passes":
+                case_passes(sub, args.scale)
             elif c == "lod":
                 case_lod(sub, args.scale)
             elif c == "million":

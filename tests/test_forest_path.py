@@ -564,6 +564,63 @@ def test_same_inputs_and_seed_give_identical_images(ad_scene, library):
     assert c.rgb.mean() == pytest.approx(a.rgb.mean(), rel=0.05)
 
 
+def test_queued_passes_are_the_passes_taken_one_at_a_time(ad_scene):
+    """``passes`` queues pass k on the device before it hands back pass k − 1: each pass's sums and per-sample
+    first hits equal those of ``sample_pass`` taken alone with the same seed, and stay so after the later passes
+    ran (the sums are float32 views of the device's memory, which those views keep alive)."""
+    import drjit as dr
+
+    from forest.render.path.frame import pass_seed, split_passes
+
+    cap = ad_scene.max_lanes
+    try:
+        ad_scene.max_lanes = 24 * 18 * 2  # two samples per pixel per pass
+        queued = list(ad_scene.passes(spp=6, seed=5, aux=True))
+        kernel = ad_scene.kernel()
+        camera = ad_scene.inputs.camera
+        with dr.suspend_grad():
+            plan = split_passes(24, 18, 6, ad_scene.max_lanes)
+            alone = [ad_scene.sample_pass(kernel, camera, n, pass_seed(5, k), aux=True) for k, n in enumerate(plan)]
+    finally:
+        ad_scene.max_lanes = cap
+    assert [p.spp for p in queued] == [2, 2, 2] == [p.spp for p in alone]
+    for q, a in zip(queued, alone):
+        for name in ("rgb", "alpha", "rows", "albedo", "normal", "segments"):
+            assert np.array_equal(getattr(q, name), getattr(a, name)), name
+        assert q.rgb.dtype == np.float32 and q.rgb.shape == (24 * 18, 3) and q.alpha.shape == (24 * 18,)
+    # The passes differ (their own seeds), and the render sums them in float64 to the same image as before.
+    assert not np.array_equal(queued[0].rgb, queued[1].rgb)
+    total = sum(p.rgb.astype(np.float64) for p in queued) / 6
+    cap = ad_scene.max_lanes
+    try:
+        ad_scene.max_lanes = 24 * 18 * 2
+        image = ad_scene.render(spp=6, seed=5)
+    finally:
+        ad_scene.max_lanes = cap
+    assert np.array_equal(image.rgb, total.reshape(18, 24, 3).astype(np.float32))
+
+
+def test_on_pass_sees_the_running_image_when_it_asks(tmp_path, library):
+    """``render_scene(on_pass=…)`` gets each pass's running mean (made only for such a callback): the last one
+    is the written beauty, and the passes count up to the frame's."""
+    cfg = make_config(tmp_path, extra=CARD).with_overrides({"render.width": 32, "render.height": 24, "render.spp": 8})
+    seen: list[tuple[int, np.ndarray, int, int]] = []
+    scene = load_scene(cfg, forest_set([[0.0, 0.0, 0.0], [6.0, 0.0, 4.0]], [0, 0]), library=library)
+    out = tmp_path / "frame.exr"
+    import forest.render.path.frame as path_frame
+
+    cap = path_frame.MAX_LANES
+    try:
+        path_frame.MAX_LANES = 32 * 24 * 2  # four passes of two samples
+        render_scene(scene, output=out, variant=VARIANT, on_pass=lambda *a: seen.append(a))
+    finally:
+        path_frame.MAX_LANES = cap
+    assert [(f, done, n) for f, _, done, n in seen] == [(1, k, 4) for k in (1, 2, 3, 4)]
+    assert all(img.shape == (24, 32, 3) and img.dtype == np.float32 for _, img, _, _ in seen)
+    assert not np.array_equal(seen[0][1], seen[-1][1])
+    np.testing.assert_array_equal(seen[-1][1], read_exr(out)["rgb"])
+
+
 def test_a_rounded_sample_count_is_taken_and_reported(ad_scene):
     """multijitter rounds 34 samples to its 5 × 7 grid: the render takes 35 and says so."""
     import mitsuba as mi

@@ -17,6 +17,9 @@ and the sampler is no better than ``independent`` — on a 2 000-tree frame at
 render seed by ``np.random.SeedSequence([seed, SEED_TAG, pass])``.  Samples
 are summed per pixel in numpy (float64, fixed order) rather than splatted
 with atomics, so the same inputs and seed give the same image bit for bit.
+:meth:`PathScene.passes` queues pass k on the device before it hands back
+pass k − 1, so the caller's host work on one pass runs beside the next
+pass's kernel.
 
 Parameters (``PathScene.params``, drjit values the caller may change or
 differentiate between renders): ``colour_grid`` (TensorXf (H, W, 3)),
