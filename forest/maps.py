@@ -145,6 +145,31 @@ class MapSet:
             return np.ones(len(u), dtype=bool)
         return sample_nearest(self.presence, u, v) >= self.presence_threshold
 
+    def edge_distance(self, u, v, extent: tuple[float, float, float, float]) -> np.ndarray:
+        """Signed distance, metres, from map points (u, v) to the presence map's edge (its threshold contour):
+        positive where trees may grow, negative outside; +∞ everywhere without a map or without an edge.
+
+        The thresholded map's Euclidean distance transforms (pixel sizes along X and Z from ``extent``),
+        less half a pixel so that it is 0 on the edge between two pixel centres, bilinear between pixel
+        centres.
+        """
+        from scipy.ndimage import distance_transform_edt
+
+        if self.presence is None:
+            return np.full(len(u), np.inf)
+        inside = self.presence >= self.presence_threshold
+        if inside.all():
+            return np.full(len(u), np.inf)
+        h, w = inside.shape
+        dx, dz = (extent[2] - extent[0]) / w, (extent[3] - extent[1]) / h
+        half = 0.25 * (dx + dz)
+        signed = np.where(
+            inside,
+            distance_transform_edt(inside, sampling=(dz, dx)) - half,
+            -(distance_transform_edt(~inside, sampling=(dz, dx)) - half),
+        )
+        return sample_bilinear(signed, u, v)
+
     def density_at(self, u, v) -> np.ndarray:
         """The density map at (u, v), bilinear and clipped to [0, 1] (1 without a map)."""
         if self.density is None:

@@ -177,3 +177,42 @@ def test_bad_dead_fails_in_one_line(tmp_path):
     r = run_forest("scatter", cfg, "-o", tmp_path / "out.npz", "-q")
     err = r.stderr.strip()
     assert r.returncode == 2 and len(err.splitlines()) == 1 and "species[0].dead" in err, err
+
+
+# -- edge taper ------------------------------------------------------------------------------------
+
+
+def _half_plane_scene(tmp_path, taper: str, name: str = "scene.toml"):
+    """Trees only where x ≥ 0 (a presence map whose right half is white): the edge is the line x = 0."""
+    from conftest import write_png
+
+    write_png(tmp_path / "presence.png", np.repeat((np.arange(64) >= 32)[None, :], 64, axis=0).astype(float))
+    text = _scene(tmp_path, OFF + taper, count=20000, name=name).read_text()
+    return write_scene(tmp_path, text + '\n[maps]\npresence = "presence.png"\n', name=name)
+
+
+def test_edge_taper_scales_trees_by_their_distance_to_the_edge(tmp_path, library):
+    """A straight edge at x = 0: a tree x metres inside is a + (1 − a)·smoothstep(0, W, x) times its size without
+    the taper (the analytic distance, not the map's distance transform); the same trees, nothing else changed."""
+    plain, _ = scatter(load_config(_half_plane_scene(tmp_path, "", name="plain.toml")))
+    taper, _ = scatter(load_config(_half_plane_scene(tmp_path, "edge_taper = { width = 20.0, scale = 0.4 }")))
+    assert np.array_equal(plain.id, taper.id) and np.array_equal(plain.position, taper.position)
+    x = plain.position[:, 0].astype(np.float64)
+    assert x.min() >= -1e-3 and (x < 20.0).sum() > 500
+    t = np.clip(x / 20.0, 0.0, 1.0)
+    expected = 0.4 + 0.6 * t * t * (3.0 - 2.0 * t)
+    np.testing.assert_allclose(taper.scale / plain.scale, expected, atol=2e-4)
+    assert np.array_equal(taper.scale[x >= 20.0], plain.scale[x >= 20.0])
+    # The edge's envelope: trees within 2 m of it are under half the size of those 30 m in.
+    assert taper.scale[x < 2.0].mean() < 0.5 * taper.scale[x > 30.0].mean()
+
+
+def test_edge_taper_needs_a_presence_map(tmp_path):
+    cfg = _scene(tmp_path, "edge_taper = { width = 20.0 }", count=10)
+    r = run_forest("scatter", cfg, "-o", tmp_path / "out.npz", "-q")
+    err = r.stderr.strip()
+    assert r.returncode == 2 and len(err.splitlines()) == 1 and "scatter.edge_taper" in err, err
+    assert "presence" in err and not (tmp_path / "out.npz").exists()
+    bad = _scene(tmp_path, "edge_taper = { scale = 0.0 }", count=10, name="bad.toml")
+    r = run_forest("scatter", bad, "-o", tmp_path / "out.npz", "-q")
+    assert r.returncode == 2 and "scatter.edge_taper.scale" in r.stderr.strip(), r.stderr

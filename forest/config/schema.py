@@ -295,6 +295,17 @@ class Emergents(Section):
     _pairs = field_validator("scale")(_ordered_pair)
 
 
+class EdgeTaper(Section):
+    """Trees smaller along the edge of the presence map, stepping up to the canopy (:mod:`forest.scatter.canopy`)."""
+
+    width: Annotated[float, Field(gt=0.0, le=10000.0, allow_inf_nan=False)] = Field(
+        20.0, description="Metres inside the presence map's edge at which trees reach their full size."
+    )
+    scale: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = Field(
+        0.5, description="Scale factor of a tree on the edge (and outside it), rising smoothly to 1 at width."
+    )
+
+
 class ScatterConfig(Section):
     """Candidate sites over the terrain and how trees are kept: by percentages (random) or by growth (ecosystem)."""
 
@@ -311,6 +322,11 @@ class ScatterConfig(Section):
     )
     emergents: Emergents = Field(
         default_factory=Emergents, description="Tall trees above the canopy; fraction = 0: off."
+    )
+    edge_taper: EdgeTaper | None = Field(
+        None,
+        description="Smaller trees along the edge of [maps] presence, a forest mantle stepping up to the canopy "
+        "(off by default).",
     )
 
 

@@ -7,7 +7,8 @@ For a tree drawn as candidate i of species k:
 * scale = lo_k + (hi_k − lo_k)·s with the species' ``scale = [lo, hi]`` and
   s = ξ_scale[i] uniform, or the survival rule's size in [0, 1] (the
   ecosystem's r / R), times an emergent's factor where ``[scatter]
-  emergents`` selects the tree (:func:`forest.scatter.canopy.emergent_factors`);
+  emergents`` selects the tree (:func:`forest.scatter.canopy.emergent_factors`), times the edge taper's
+  factor where ``[scatter] edge_taper`` is set (:func:`forest.scatter.canopy.edge_taper_factors`);
 * wind phase 2π·ξ_phase[i];
 * individual ⌊n_k·ξ_individual[i]⌋ with n_k the species' ``individuals``
   (:attr:`forest.config.schema.SpeciesConfig.individual_count`), plus n_k for a
@@ -38,7 +39,7 @@ from ..maps import MapSet
 from ..terrain import Terrain
 from ..tint import TintParams
 from .candidates import Candidates
-from .canopy import emergent_factors
+from .canopy import edge_taper_factors, emergent_factors
 
 
 def snap_yaw(yaw: np.ndarray, step_deg: np.ndarray) -> np.ndarray:
@@ -91,6 +92,9 @@ def tree_attributes(
     emergents = config.scatter.emergents
     if emergents.fraction > 0:
         scale = scale * emergent_factors(emergents, rng["emergent"].random((2, n))[:, sel])
+    taper = config.scatter.edge_taper
+    if taper is not None:
+        scale = scale * edge_taper_factors(taper, maps.edge_distance(trees.u, trees.v, terrain.extent))
     align = np.array([config.scatter.align_to_normal if sp.align is None else sp.align for sp in species])[k]
     return InstanceSet(
         id=sel.astype(np.uint64),

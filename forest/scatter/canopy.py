@@ -5,7 +5,7 @@ different density with gaps between them (natural disturbance, windthrow,
 clearings; Watt 1947, "Pattern and process in the plant community", J. Ecol.
 35: 1–22), a few emergents stand above the main canopy, and a few percent of
 the stems are dead (snags; 1–5 % of standing stems in managed and natural
-temperate forest, Vuidot et al. 2011, Biol. Conserv. 144: 441–450).  Three
+temperate forest, Vuidot et al. 2011, Biol. Conserv. 144: 441–450).  Four
 seeded, vectorised additions give the scatter that structure:
 
 **Stands and clearings** (``[scatter] clumping = {scale, strength, clearings}``).
@@ -43,6 +43,22 @@ range exactly).  Draws come from the ``emergent`` candidate stream
 (:data:`forest.scatter.candidates.STREAMS`): ξ₁ < φ selects, a + (b − a)·ξ₂
 is the factor.
 
+**Edge taper** (``[scatter] edge_taper = {width, scale}``, off by default).
+A forest edge is not a wall of full-grown trees: along it the canopy steps
+down through smaller trees and shrubs (the edge's mantle; edge influence on
+structure reaches tens of metres into a stand, Harper et al. 2005, "Edge
+influence on forest structure and composition in fragmented landscapes",
+Conserv. Biol. 19: 768–782).  Each tree's scale is multiplied by
+
+    g(d) = a + (1 − a) · smoothstep(0, W, d)
+
+with d the signed distance from the tree to the presence map's edge
+(positive inside, :meth:`forest.maps.MapSet.edge_distance`), W = ``width``
+and a = ``scale``: a tree on the edge (or outside it, where a soft presence
+map let it grow) is a times its drawn size, one W inside is full size.  The
+draws are not touched, so each tree keeps its own place in the species'
+range and the taper only lowers the edge's envelope.
+
 **Snags** (``[[species]] dead``).  A share of each leafy species' trees is
 drawn from the ``dead`` stream; such a tree's ``individual`` is n + k, n the
 species' individual count and k its individual, and the Scene's individuals
@@ -66,7 +82,7 @@ import numpy as np
 from ..tint import splitmix64
 
 if TYPE_CHECKING:
-    from ..config.schema import Clumping, Emergents
+    from ..config.schema import Clumping, EdgeTaper, Emergents
     from ..library import Species
 
 _T = TypeVar("_T")
@@ -184,6 +200,13 @@ def emergent_factors(e: Emergents, xi: np.ndarray) -> np.ndarray:
     """Scale factors from uniforms ``xi`` (2, N): a + (b − a)·ξ₂ where ξ₁ < fraction, else 1."""
     lo, hi = e.scale
     return np.where(xi[0] < e.fraction, lo + (hi - lo) * xi[1], 1.0)
+
+
+def edge_taper_factors(taper: EdgeTaper, distance: np.ndarray) -> np.ndarray:
+    """Scale factors g(d) = a + (1 − a)·smoothstep(0, W, d) at signed distances ``d`` (metres, positive inside)
+    from the presence map's edge: ``taper.scale`` on and outside the edge, 1 from ``taper.width`` inside."""
+    a = float(taper.scale)
+    return a + (1.0 - a) * smoothstep(0.0, float(taper.width), np.asarray(distance, np.float64))
 
 
 def has_leaves(species: Species) -> bool:

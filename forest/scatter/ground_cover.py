@@ -70,7 +70,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
 from ..camera import camera_at
@@ -78,7 +77,7 @@ from ..config import Config
 from ..config.schema import MAX_TREES, CameraConfig, GroundCoverConfig
 from ..errors import ConfigError
 from ..instances import COLUMNS, yaw_tilt_quaternion
-from ..maps import MapSet, sample_bilinear
+from ..maps import MapSet
 from ..terrain import Terrain
 from ..tint import TintParams
 from .attributes import draw_individuals
@@ -236,26 +235,11 @@ def patch_size(rank: np.ndarray, size: float) -> np.ndarray:
 def presence_edge_distance(
     maps: MapSet, config: Config, j: int, u: np.ndarray, v: np.ndarray, extent: tuple[float, float, float, float]
 ) -> np.ndarray:
-    """Distance, metres, from map points (u, v) to the presence map's edge (its threshold contour), either side.
-
-    The thresholded map's signed Euclidean distance transform (pixel sizes along X and Z from
-    ``extent``), less half a pixel so that it is 0 on the edge between two pixel centres,
-    bilinear between pixel centres; ∞ everywhere when the map has no edge (all present).
-    """
+    """Distance, metres, from map points (u, v) to the presence map's edge (its threshold contour), either side
+    (:meth:`forest.maps.MapSet.edge_distance`, unsigned); ∞ everywhere when the map has no edge (all present)."""
     if maps.presence is None:
         raise ConfigError(config.path, f"ground_cover[{j}].edge", "needs [maps] presence: the band follows its edge")
-    inside = maps.presence >= maps.presence_threshold
-    if inside.all():
-        return np.full(len(u), np.inf)
-    h, w = inside.shape
-    dx, dz = (extent[2] - extent[0]) / w, (extent[3] - extent[1]) / h
-    half = 0.25 * (dx + dz)
-    signed = np.where(
-        inside,
-        distance_transform_edt(inside, sampling=(dz, dx)) - half,
-        -(distance_transform_edt(~inside, sampling=(dz, dx)) - half),
-    )
-    return np.abs(sample_bilinear(signed, u, v))
+    return np.abs(maps.edge_distance(u, v, extent))
 
 
 def edge_keep(distance: np.ndarray, width: float) -> np.ndarray:

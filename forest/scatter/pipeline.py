@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import Config
+from ..errors import ConfigError
 from ..instances import COLUMNS, InstanceSet
 from ..library import Library
 from ..maps import MapSet
@@ -62,6 +63,8 @@ def scatter(
     ``library`` (default :func:`forest.library.open_library`) gives each species'
     leaf colour, about which the tints are jittered.
     """
+    if config.scatter.edge_taper is not None and config.maps.presence is None:
+        raise ConfigError(config.path, "scatter.edge_taper", "needs [maps] presence: the taper follows its edge")
     t0 = time.perf_counter()
     step = progress or no_progress
     rule = RULES[config.scatter.method]
