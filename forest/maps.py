@@ -21,6 +21,7 @@ import numpy as np
 from .config import Config, Partition
 from .errors import ForestError
 from .images import read_image, read_map_grey, read_map_rgb
+from .parallel import rowwise
 
 
 def pixel_coords(u: np.ndarray, v: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -38,7 +39,13 @@ def sample_nearest(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def sample_bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Bilinear lookup with clamp-to-edge; ``img`` (H, W) or (H, W, C)."""
+    """Bilinear lookup with clamp-to-edge; ``img`` (H, W) or (H, W, C).  Split over the cores for many points
+    (:func:`forest.parallel.rowwise`)."""
+    u, v = np.atleast_1d(np.asarray(u)), np.atleast_1d(np.asarray(v))
+    return rowwise(lambda uu, vv: _bilinear(img, uu, vv), u, v)
+
+
+def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     h, w = img.shape[:2]
     r, c = pixel_coords(u, v, img.shape)
     r = np.clip(r, 0.0, h - 1.0)

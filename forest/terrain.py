@@ -27,6 +27,7 @@ import numpy as np
 
 from .config import TerrainConfig
 from .errors import ForestError
+from .parallel import rowwise
 
 MAX_MESH_BYTES = 1024 * 1024 * 1024
 MAX_GRID = 4097
@@ -132,6 +133,10 @@ class Terrain:
         """
         if len(self.faces) == 0 or self.area <= 0:
             raise ForestError("terrain has no area")
+        self._guide  # noqa: B018  (built once here, not by several threads at once)
+        return rowwise(self._sample_rows, np.asarray(u_face), np.asarray(u1), np.asarray(u2))
+
+    def _sample_rows(self, u_face: np.ndarray, u1: np.ndarray, u2: np.ndarray):
         face = self.pick_faces(u_face)
         su = np.sqrt(u1)
         b = np.empty((len(face), 3))
@@ -144,7 +149,11 @@ class Terrain:
         return pos, face, b
 
     def normals_at(self, face: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Interpolated (smooth) unit normals at barycentric points."""
+        """Interpolated (smooth) unit normals at barycentric points (split over the cores for many)."""
+        self.vertex_normals  # noqa: B018  (built once here, not by several threads at once)
+        return rowwise(self._normal_rows, np.asarray(face), np.asarray(b))
+
+    def _normal_rows(self, face: np.ndarray, b: np.ndarray) -> np.ndarray:
         f = self.faces[face]
         vn = self.vertex_normals
         nrm = vn[f[:, 0]] * b[:, :1] + vn[f[:, 1]] * b[:, 1:2] + vn[f[:, 2]] * b[:, 2:]

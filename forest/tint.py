@@ -36,6 +36,8 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from .parallel import rowwise
+
 if TYPE_CHECKING:
     from .config.schema import ColourJitter
     from .library import Species
@@ -144,7 +146,8 @@ def tree_tints(
         return tint
     xi = 2.0 * tree_uniforms(np.asarray(ids)[rows], seed, JITTER_TAG, 2) - 1.0
     c = np.maximum(np.asarray(base, dtype=np.float64)[k[rows]], 1e-6)
-    out = jitter_colours(c * tint[rows], hue[k[rows]] * xi[:, 0], value[k[rows]] * xi[:, 1])
+    _oklab_matrices()  # colour-science imported here once, not by several threads at once
+    out = rowwise(jitter_colours, c * tint[rows], hue[k[rows]] * xi[:, 0], value[k[rows]] * xi[:, 1])
     tint[rows] = (out / c).astype(np.float32)
     return tint
 

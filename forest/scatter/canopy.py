@@ -79,6 +79,7 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
+from ..parallel import rowwise
 from ..tint import splitmix64
 
 if TYPE_CHECKING:
@@ -193,7 +194,8 @@ def clumping_on(c: Clumping) -> bool:
 
 def clumping_density(c: Clumping, extent: Sequence[float], seed: int, x: np.ndarray, z: np.ndarray) -> np.ndarray:
     """The stand factor p(x) at world points (x, z) for ``[scatter] clumping`` ``c`` and the scene's seed."""
-    return stand_keep(stand_field(extent, c.scale, seed).at(x, z), c.strength, c.clearings)
+    field = stand_field(extent, c.scale, seed)
+    return rowwise(lambda xs, zs: stand_keep(field.at(xs, zs), c.strength, c.clearings), np.asarray(x), np.asarray(z))
 
 
 def emergent_factors(e: Emergents, xi: np.ndarray) -> np.ndarray:
