@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
@@ -24,6 +25,7 @@ import numpy as np
 
 #: Fewest rows worth splitting.
 MIN_ROWS = 100_000
+_PREFIX = "forest-rows"
 
 
 def workers() -> int:
@@ -37,7 +39,7 @@ def workers() -> int:
 
 @lru_cache(maxsize=1)
 def _pool() -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(max_workers=workers(), thread_name_prefix="forest-rows")
+    return ThreadPoolExecutor(max_workers=workers(), thread_name_prefix=_PREFIX)
 
 
 def rowwise(fn: Callable[..., Any], *arrays: np.ndarray, min_rows: int | None = None) -> Any:
@@ -45,9 +47,11 @@ def rowwise(fn: Callable[..., Any], *arrays: np.ndarray, min_rows: int | None = 
 
     Every array has the same number of rows N (axis 0); ``fn`` returns an array of N rows or a
     tuple of them, row i depending only on the inputs' row i.  One call when N < ``min_rows``
-    (default :data:`MIN_ROWS`) or on one core.
+    (default :data:`MIN_ROWS`), on one core, or when called from one of the blocks (nested).
     """
     n = len(arrays[0])
+    if threading.current_thread().name.startswith(_PREFIX):
+        return fn(*arrays)  # already on a block: a nested split would wait on its own pool
     k = min(workers(), max(1, n // max(1, MIN_ROWS if min_rows is None else min_rows)))
     if k <= 1:
         return fn(*arrays)

@@ -31,6 +31,9 @@ def test_rowwise_gives_the_bits_of_one_call(monkeypatch, n_workers):
     seen = []
     rowwise(lambda x: seen.append(len(x)) or x, b, min_rows=20_000)
     assert seen == [10_007]
+    # Nested: a block that splits again runs its part in place (no wait on its own pool).
+    nested = rowwise(lambda x: rowwise(lambda y: y + 1.0, x, min_rows=10), b, min_rows=100)
+    assert np.array_equal(nested, b + 1.0)
     parallel._pool.cache_clear()
 
 
