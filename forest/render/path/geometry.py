@@ -235,9 +235,15 @@ class ForestGeometry:
         levels = np.asarray(levels, dtype=np.int64)
         solid = self.solid if solid is None else np.asarray(solid, bool)
         flag = np.zeros(self.n_trees, np.int64) if solid is None else solid.astype(np.int64)
-        cols = [self.species_index, self.individual, levels, flag]
-        keys = np.stack(cols, axis=1) if self.n_trees else np.zeros((0, 4))
-        uniq, inverse = np.unique(keys, axis=0, return_inverse=True) if self.n_trees else (np.zeros((0, 4)), [])
+        cols = [np.asarray(c, np.int64) for c in (self.species_index, self.individual, levels, flag)]
+        if self.n_trees:
+            # One integer per (species, individual, level, solid), in the rows' lexicographic order: np.unique of
+            # a 1-D key takes milliseconds where np.unique(axis=0) of the rows took 0.6 s at 100 000 trees.
+            dims = tuple(int(c.max()) + 1 for c in cols)
+            codes, inverse = np.unique(np.ravel_multi_index(cols, dims), return_inverse=True)
+            uniq = np.stack(np.unravel_index(codes, dims), axis=1)
+        else:
+            uniq, inverse = np.zeros((0, 4), np.int64), np.zeros(0, np.int64)
         protos = []
         n, species = len(uniq), len(self._species)
         for i, (a, b, c, d) in enumerate(uniq.tolist()):
