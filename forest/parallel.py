@@ -42,6 +42,11 @@ def _pool() -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=workers(), thread_name_prefix=_PREFIX)
 
 
+# A forked child has none of its parent's threads: it makes its own pool on first use.
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_pool.cache_clear)
+
+
 def rowwise(fn: Callable[..., Any], *arrays: np.ndarray, min_rows: int | None = None) -> Any:
     """``fn(*arrays)`` computed on blocks of rows in threads and concatenated along axis 0.
 

@@ -65,3 +65,21 @@ def test_scatter_is_the_same_on_one_core_and_on_several(tmp_path, monkeypatch):
         out.append((tmp_path / f"w{n}.npz").read_bytes())
     parallel._pool.cache_clear()
     assert len(inst) > 30_000 and out[0] == out[1]
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs fork")
+def test_a_forked_child_makes_its_own_pool(monkeypatch):
+    """A child forked after the pool started splits work again (its parent's threads are not in it)."""
+    import os
+
+    monkeypatch.setattr(parallel, "workers", lambda: 2)
+    parallel._pool.cache_clear()
+    b = np.arange(1000.0)
+    assert np.array_equal(rowwise(lambda x: x * 3.0, b, min_rows=100), b * 3.0)  # the parent's pool exists now
+    pid = os.fork()
+    if pid == 0:  # the child: exit 0 only if the split work comes back
+        ok = np.array_equal(rowwise(lambda x: x * 3.0, b, min_rows=100), b * 3.0)
+        os._exit(0 if ok else 1)
+    _, status = os.waitpid(pid, 0)
+    parallel._pool.cache_clear()
+    assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
