@@ -46,8 +46,8 @@ temporary file that is removed at once.
   Mitsuba 3.9.1, rounded up: M₀ ≈ 0.27 GB (a few trees, a small image);
   scalar_rgb ≈ 183 B per pixel (256² → 1024²); forest_path ≈ 770 B per
   pixel (its beauty, alpha, albedo, normal and per-sample id accumulators:
-  130 000 trees at 480×270 and 960×540, 64 spp, 1.48 → 1.76 GiB) and ≈ 1.6 B
-  per lane; per tree ≈ 4.6 KB in scalar_rgb between 100 000 and
+  130 000 trees at 480×270 and 960×540, 64 spp, 1.48 → 1.76 GiB) and ≈ 72 B
+  per lane (one queued pass's outputs, :data:`BYTES_PER_LANE`); per tree ≈ 4.6 KB in scalar_rgb between 100 000 and
   1 000 000 instances (bench/RESULTS.md, "render million": 4.83 GB); in
   llvm_ad_rgb 14.0–15.8 KB per instance (``bench/bench_render.py --case
   jit_memory``; :data:`BYTES_PER_INSTANCE` rounds it up to the 16 KB
@@ -109,7 +109,11 @@ BYTES_PER_INSTANCE = 16 * 1024
 BYTES_PER_FLAT_TRIANGLE = 128
 BYTES_PER_ROW = 1000
 BYTES_PER_PIXEL = {"scalar": 200, "jit": 800}
-BYTES_PER_LANE = 2
+#: Bytes per lane of a pass: one pass's per-sample outputs (radiance, coverage, first-hit row, segments, albedo,
+#: normal: 48 B) and its per-pixel sums (36 B at one sample per pixel) stay alive while the next pass runs
+#: (``PathScene.passes`` queues pass k before pass k − 1 is added): the case study at 1920×1080 peaked
+#: 0.14 GiB higher (2.81 → 2.95 GiB) once passes were queued, ≈ 70 B per lane of its 2²¹-lane passes.
+BYTES_PER_LANE = 72
 #: Rays one JIT sample pass traces at most: forest_path's ``forest.render.path.frame.MAX_LANES`` (kept equal by
 #: tests/test_structure.py; not imported, so the pre-flight check loads no renderer).
 JIT_LANES = 1 << 21
