@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..imaging.cryptomatte import NONE, Cryptomatte, Ranking, TreeTable, encode, rank_coverage
+from ..parallel import rowwise
 
 if TYPE_CHECKING:
     from ..instances import InstanceSet
@@ -107,37 +108,14 @@ class SampleCoverage:
                 self.ids[take, where] = xs[new][room]
                 self.count[take, where] = 1.0
 
-    def _mixed(self) -> np.ndarray:
-        """Pixels with samples on two or more slots (the only ones whose ranking needs a sort)."""
-        return np.nonzero(np.count_nonzero(self.count, axis=1) >= 2)[0]
-
     def ranking(self, ranks: int = RANKS) -> Ranking:
         """The ``ranks`` ids with the most samples per pixel, their coverage = samples / all the pixel's samples.
 
         Most pixels met one object: their first rank is that slot's; only pixels with samples on two or
-        more slots are sorted (most samples first, ties: smaller id).
+        more slots are sorted (most samples first, ties: smaller id).  Pixels are ranked on blocks in
+        threads (:func:`forest.parallel.rowwise`; each pixel alone, so the result is the same).
         """
-        n = len(self.ids)
-        k = min(ranks, self.slots)
-        norm = np.maximum(self.total, 1.0)
-        slot = self.count.argmax(axis=1)[:, None]
-        ids = np.full((n, k), NONE, np.int64)
-        cov = np.zeros((n, k), np.float32)  # each value computed in float64, rounded once on assignment
-        if k:
-            c = np.take_along_axis(self.count, slot, axis=1)[:, 0]
-            cov[:, 0] = c / norm
-            ids[:, 0] = np.where(c > 0, np.take_along_axis(self.ids, slot, axis=1)[:, 0], NONE)
-        mixed = self._mixed()
-        if len(mixed):
-            m_ids, m_count = self.ids[mixed], self.count[mixed]
-            order = np.lexsort((m_ids, -m_count), axis=1)[:, :k]
-            m_cov = np.take_along_axis(m_count, order, axis=1) / norm[mixed, None]
-            cov[mixed] = m_cov
-            ids[mixed] = np.where(m_cov > 0, np.take_along_axis(m_ids, order, axis=1), NONE)
-        if ids.shape[1] < ranks:
-            pad = ranks - ids.shape[1]
-            ids = np.pad(ids, ((0, 0), (0, pad)), constant_values=NONE)
-            cov = np.pad(cov, ((0, 0), (0, pad)))
+        ids, cov = rowwise(lambda i, c, t: _rank_pixels(i, c, t, ranks), self.ids, self.count, self.total)
         shape = (self.height, self.width, ranks)
         return Ranking(ids=ids.reshape(shape), coverage=cov.reshape(shape))
 
@@ -146,29 +124,72 @@ class SampleCoverage:
 
         A pixel whose samples met one slot ranks that slot's species first with coverage
         samples / all its samples; pixels with two or more slots merge equal species and sort
-        (:func:`~forest.imaging.cryptomatte.rank_coverage`).
+        (:func:`~forest.imaging.cryptomatte.rank_coverage`); on blocks of pixels in threads, as :meth:`ranking`.
         """
-        n = len(self.ids)
-        missed = np.maximum(self.total - self.count.sum(axis=1), 0.0)
-        weight_total = self.count.sum(axis=1) + missed
-        ids = np.full((n, ranks), NONE, np.int64)
-        cov = np.zeros((n, ranks), np.float32)
-        if ranks:
-            slot = self.count.argmax(axis=1)
-            c = self.count[np.arange(n), slot]
-            met = c > 0
-            ids[met, 0] = table.species_of(self.ids[met, slot[met]])
-            cov[:, 0] = np.where(met, c / np.where(weight_total > 0, weight_total, 1.0), 0.0)
-        mixed = self._mixed()
-        if len(mixed):
-            species = table.species_of(self.ids[mixed])
-            sid = np.concatenate([species, np.full((len(mixed), 1), NONE, np.int64)], axis=1)
-            w = np.concatenate([self.count[mixed], missed[mixed, None]], axis=1)
-            r = rank_coverage(sid[:, None, :], w[:, None, :], ranks=ranks, rows_per_chunk=65536)
-            ids[mixed] = r.ids[:, 0, :]
-            cov[mixed] = r.coverage[:, 0, :]
+        ids, cov = rowwise(
+            lambda i, c, t: _rank_species_pixels(i, c, t, table, ranks), self.ids, self.count, self.total
+        )
         shape = (self.height, self.width, ranks)
         return Ranking(ids=ids.reshape(shape), coverage=cov.reshape(shape))
+
+
+def _mixed(count: np.ndarray) -> np.ndarray:
+    """Pixels with samples on two or more slots (the only ones whose ranking needs a sort)."""
+    return np.nonzero(np.count_nonzero(count, axis=1) >= 2)[0]
+
+
+def _rank_pixels(
+    slot_ids: np.ndarray, count: np.ndarray, total: np.ndarray, ranks: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`SampleCoverage.ranking` of some pixels' slots: (ids (n, ranks), coverage (n, ranks) float32)."""
+    n = len(slot_ids)
+    k = min(ranks, slot_ids.shape[1])
+    norm = np.maximum(total, 1.0)
+    slot = count.argmax(axis=1)[:, None]
+    ids = np.full((n, k), NONE, np.int64)
+    cov = np.zeros((n, k), np.float32)  # each value computed in float64, rounded once on assignment
+    if k:
+        c = np.take_along_axis(count, slot, axis=1)[:, 0]
+        cov[:, 0] = c / norm
+        ids[:, 0] = np.where(c > 0, np.take_along_axis(slot_ids, slot, axis=1)[:, 0], NONE)
+    mixed = _mixed(count)
+    if len(mixed):
+        m_ids, m_count = slot_ids[mixed], count[mixed]
+        order = np.lexsort((m_ids, -m_count), axis=1)[:, :k]
+        m_cov = np.take_along_axis(m_count, order, axis=1) / norm[mixed, None]
+        cov[mixed] = m_cov
+        ids[mixed] = np.where(m_cov > 0, np.take_along_axis(m_ids, order, axis=1), NONE)
+    if ids.shape[1] < ranks:
+        pad = ranks - ids.shape[1]
+        ids = np.pad(ids, ((0, 0), (0, pad)), constant_values=NONE)
+        cov = np.pad(cov, ((0, 0), (0, pad)))
+    return ids, cov
+
+
+def _rank_species_pixels(
+    slot_ids: np.ndarray, count: np.ndarray, total: np.ndarray, table: TreeTable, ranks: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`SampleCoverage.species_ranking` of some pixels' slots: (ids, coverage), each (n, ranks)."""
+    n = len(slot_ids)
+    missed = np.maximum(total - count.sum(axis=1), 0.0)
+    weight_total = count.sum(axis=1) + missed
+    ids = np.full((n, ranks), NONE, np.int64)
+    cov = np.zeros((n, ranks), np.float32)
+    if ranks:
+        slot = count.argmax(axis=1)
+        c = count[np.arange(n), slot]
+        met = c > 0
+        ids[met, 0] = table.species_of(slot_ids[met, slot[met]])
+        cov[:, 0] = np.where(met, c / np.where(weight_total > 0, weight_total, 1.0), 0.0)
+    mixed = _mixed(count)
+    if len(mixed):
+        species = table.species_of(slot_ids[mixed])
+        sid = np.concatenate([species, np.full((len(mixed), 1), NONE, np.int64)], axis=1)
+        w = np.concatenate([count[mixed], missed[mixed, None]], axis=1)
+        r = rank_coverage(sid[:, None, :], w[:, None, :], ranks=ranks, rows_per_chunk=65536)
+        ids[mixed] = r.ids[:, 0, :]
+        cov[mixed] = r.coverage[:, 0, :]
+    return ids, cov
 
 
 def tree_table(instances: InstanceSet, species_names: Sequence[str]) -> TreeTable:
