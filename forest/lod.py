@@ -55,6 +55,12 @@ LOD_NAMES = ("high", "medium", "low", "far")
 STEEP_VIEW = 40.0
 
 
+def camera_distance(position: np.ndarray, camera: np.ndarray) -> np.ndarray:
+    """|p − c| per tree: the distance from each position (N, 3) to the camera position (3,), metres."""
+    r: np.ndarray = np.linalg.norm(np.asarray(position, np.float64) - np.asarray(camera, np.float64)[None, :], axis=1)
+    return r
+
+
 def lod_levels(
     position: np.ndarray, camera: np.ndarray, distances: tuple[float, ...] | list[float], n_lods: np.ndarray
 ) -> np.ndarray:
@@ -63,7 +69,7 @@ def lod_levels(
     n_lods = np.asarray(n_lods)
     if len(distances) == 0 or len(position) == 0:
         return np.zeros(len(position), dtype=np.int64)
-    r = np.linalg.norm(position - np.asarray(camera, dtype=np.float64)[None, :], axis=1)
+    r = camera_distance(position, camera)
     k = np.searchsorted(np.asarray(distances, dtype=np.float64), r, side="right")
     out: np.ndarray = np.minimum(k, n_lods - 1).astype(np.int64)
     return out
@@ -147,7 +153,7 @@ class LodPlan:
         position = np.asarray(position, dtype=np.float64)
         if len(position) == 0:
             return np.zeros(0, dtype=np.int64)
-        r = np.linalg.norm(position - np.asarray(camera, dtype=np.float64)[None, :], axis=1)
+        r = camera_distance(position, camera)
         if scale is not None:
             r = r / np.asarray(scale, dtype=np.float64)
         edges = np.array([self.boundaries(s, fov) for s in range(len(self.n_lods))], dtype=np.float64)
@@ -174,7 +180,7 @@ class LodPlan:
         position = np.asarray(position, dtype=np.float64)
         if self.solid_pixels <= 0.0 or len(position) == 0 or not self.heights:
             return np.zeros(len(position), dtype=bool)
-        r = np.linalg.norm(position - np.asarray(camera, dtype=np.float64)[None, :], axis=1)
+        r = camera_distance(position, camera)
         h = np.asarray(self.heights, dtype=np.float64)[np.asarray(species, dtype=np.int64)]
         if scale is not None:
             h = h * np.asarray(scale, dtype=np.float64)

@@ -111,6 +111,7 @@ class MapSet:
         m = config.maps
         self.config = config
         self.presence_threshold = m.presence_threshold
+        self._edge_grids: dict[tuple[float, ...], np.ndarray | None] = {}  # extent → signed edge distance per pixel
         where = f"{config.path}: maps" if config.path else "maps"
 
         def load(fn, key, path, **kw):
@@ -160,22 +161,29 @@ class MapSet:
         less half a pixel so that it is 0 on the edge between two pixel centres, bilinear between pixel
         centres.
         """
+        signed = self._edge_grid(tuple(float(e) for e in extent))
+        return np.full(len(u), np.inf) if signed is None else sample_bilinear(signed, u, v)
+
+    def _edge_grid(self, extent: tuple[float, ...]) -> np.ndarray | None:
+        """The signed distance per map pixel for :meth:`edge_distance` (None: no map or no edge), computed once
+        per extent: the trees' edge taper and every ground cover's edge band read the same grid."""
         from scipy.ndimage import distance_transform_edt
 
-        if self.presence is None:
-            return np.full(len(u), np.inf)
-        inside = self.presence >= self.presence_threshold
-        if inside.all():
-            return np.full(len(u), np.inf)
-        h, w = inside.shape
-        dx, dz = (extent[2] - extent[0]) / w, (extent[3] - extent[1]) / h
-        half = 0.25 * (dx + dz)
-        signed = np.where(
-            inside,
-            distance_transform_edt(inside, sampling=(dz, dx)) - half,
-            -(distance_transform_edt(~inside, sampling=(dz, dx)) - half),
-        )
-        return sample_bilinear(signed, u, v)
+        if extent in self._edge_grids:
+            return self._edge_grids[extent]
+        signed = None
+        inside = None if self.presence is None else self.presence >= self.presence_threshold
+        if inside is not None and not inside.all():
+            h, w = inside.shape
+            dx, dz = (extent[2] - extent[0]) / w, (extent[3] - extent[1]) / h
+            half = 0.25 * (dx + dz)
+            signed = np.where(
+                inside,
+                distance_transform_edt(inside, sampling=(dz, dx)) - half,
+                -(distance_transform_edt(~inside, sampling=(dz, dx)) - half),
+            )
+        self._edge_grids[extent] = signed
+        return signed
 
     def density_at(self, u, v) -> np.ndarray:
         """The density map at (u, v), bilinear and clipped to [0, 1] (1 without a map)."""
