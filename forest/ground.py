@@ -138,6 +138,10 @@ class TerrainAlbedo:
     #: The far landscape's albedo ρ_far (3,) that the ground skirt fades to (:func:`forest.skirt.horizon_albedo`
     #: sets it on the Scene's albedo); None: the grid's mean.
     far: tuple[float, float, float] | None = None
+    #: The far landscape's canopy reflectance ρ_c and the crowns' mean cover ⟨c⟩ behind ``far`` (None and 0
+    #: without trees): the woods and open ground of the skirt's mosaic (:mod:`forest.far_cover`).
+    far_canopy: tuple[float, float, float] | None = None
+    far_cover: float = 0.0
 
     def water_at(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
         """Water coverage W at world (x, z): the ``water`` grid bilinear, clamped at the edges (0 without water)."""

@@ -362,15 +362,24 @@ def crown_colours(species: Sequence[Species]) -> np.ndarray:
     return out
 
 
-def far_albedo(
+@dataclass(frozen=True)
+class Landscape:
+    """The far landscape (module docstring): ``far`` ρ_far, ``canopy`` ρ_c (None without trees) and ``cover`` ⟨c⟩."""
+
+    far: np.ndarray
+    canopy: np.ndarray | None = None
+    cover: float = 0.0
+
+
+def landscape(
     ground: np.ndarray,
     extent: Sequence[float],
     instances: InstanceSet,
     species: Sequence[Species],
     tree_species: int,
     tints: np.ndarray,
-) -> np.ndarray:
-    """ρ_far (3,) float64 = ρ̄_g + ⟨c·(ρ_c − ρ_g)⟩: the far landscape's albedo (module docstring).
+) -> Landscape:
+    """The far landscape of a terrain: ρ_far = ρ̄_g + ⟨c·(ρ_c − ρ_g)⟩, its canopy's ρ_c and mean cover ⟨c⟩.
 
     ``ground``: the (H, W, 3) albedo grid over ``extent`` (map convention); ``instances``
     with ``species`` per species index, of which the first ``tree_species`` are trees
@@ -382,12 +391,12 @@ def far_albedo(
     sp = np.asarray(instances.species, np.int64)
     trees = np.flatnonzero(sp < tree_species)
     if len(trees) == 0:
-        return mean
+        return Landscape(mean)
     ext = (float(extent[0]), float(extent[1]), float(extent[2]), float(extent[3]))
     radii = crown_radii(species)
     area = np.pi * (radii[sp[trees]] * np.asarray(instances.scale, np.float64)[trees]) ** 2
     if not area.sum() > 0.0:
-        return mean
+        return Landscape(mean)
     omega = crown_colours(species)[sp[trees]] * np.asarray(tints, np.float64)[trees]
     canopy = canopy_reflectance(area @ omega / area.sum())
     shape = grid_shape(ext, COVER_RESOLUTION)
@@ -396,15 +405,31 @@ def far_albedo(
     u = (x.ravel() - ext[0]) / max(ext[2] - ext[0], 1e-12)
     v = (z.ravel() - ext[1]) / max(ext[3] - ext[1], 1e-12)
     under = np.asarray(sample_bilinear(rgb, u, v), np.float64).reshape(-1, rgb.shape[-1])
-    return np.asarray(mean + (cover * (canopy - under)).mean(axis=0), np.float64)
+    far = np.asarray(mean + (cover * (canopy - under)).mean(axis=0), np.float64)
+    return Landscape(far, np.asarray(canopy, np.float64), float(cover.mean()))
+
+
+def far_albedo(
+    ground: np.ndarray,
+    extent: Sequence[float],
+    instances: InstanceSet,
+    species: Sequence[Species],
+    tree_species: int,
+    tints: np.ndarray,
+) -> np.ndarray:
+    """ρ_far (3,) float64 = ρ̄_g + ⟨c·(ρ_c − ρ_g)⟩: the far landscape's albedo (:func:`landscape`'s ``far``)."""
+    return landscape(ground, extent, instances, species, tree_species, tints).far
 
 
 def horizon_albedo(scene: Scene) -> TerrainAlbedo:
-    """The Scene's ``terrain_albedo`` with ``far``, its far landscape's albedo (:func:`far_albedo` of its trees)."""
+    """The Scene's ``terrain_albedo`` with ``far``, its far landscape's albedo, and the canopy's reflectance and
+    mean cover behind it (``far_canopy``, ``far_cover``: :func:`landscape` of its trees; :mod:`forest.far_cover`)."""
     albedo = scene.terrain_albedo
     ones = np.ones((len(scene.instances), 3))  # the species' own colours (module docstring)
-    far = far_albedo(albedo.rgb, albedo.extent, scene.instances, scene.species, len(scene.config.species), ones)
-    return replace(albedo, far=(float(far[0]), float(far[1]), float(far[2])))
+    land = landscape(albedo.rgb, albedo.extent, scene.instances, scene.species, len(scene.config.species), ones)
+    canopy = None if land.canopy is None else (float(land.canopy[0]), float(land.canopy[1]), float(land.canopy[2]))
+    far = (float(land.far[0]), float(land.far[1]), float(land.far[2]))
+    return replace(albedo, far=far, far_canopy=canopy, far_cover=float(land.cover))
 
 
 def far_colour(albedo: TerrainAlbedo) -> np.ndarray:

@@ -1066,6 +1066,11 @@ class HorizonHillsConfig(Section):
         1500.0, description="Size of a hill, metres; the hills rise over this distance past the terrain's edge."
     )
     seed: Annotated[int, Strict(), Field(ge=0, le=2**31 - 1)] = Field(0, description="Pattern of the hills.")
+    woods: Bool = Field(
+        True,
+        description="forest_path: woods and open ground in patches on that far ground, in the terrain's own "
+        "canopy cover and colours (false: one colour).",
+    )
 
 
 class RenderConfig(Section):

@@ -51,7 +51,7 @@ from .haze import HazeInputs, HazeModel
 from .inputs import PathCamera, PathInputs
 from .integrator import LAYER_ALPHA, NO_HIT, PathKernel, integrator_class
 from .lens import thin_lens_rays
-from .materials import MaterialArrays, MaterialStore, world_map_texture
+from .materials import FarCoverArrays, MaterialArrays, MaterialStore, TerrainMap, world_map_texture
 
 #: Largest number of paths (pixels × samples) traced in one pass on the CPU (``llvm_ad_rgb``).
 MAX_LANES = 1 << 21
@@ -251,8 +251,11 @@ class PathScene:
             self.params.update(HazeModel.initial_params(mi, haze))
         tc = inputs.terrain_map_array()  # RGB, and the water coverage as a fourth channel where there is water
         terrain_extent = inputs.terrain_extent or self.extent
+        far = None if inputs.far_cover is None else FarCoverArrays.build(mi, inputs.far_cover)
         self.terrain_map = (
-            (world_map_texture(mi, tc), tuple(float(v) for v in terrain_extent)) if tc.ndim == 3 else None
+            TerrainMap(world_map_texture(mi, tc), tuple(float(v) for v in terrain_extent), far)
+            if tc.ndim == 3
+            else None
         )
         self.traversal: TraversalScene | None = None
         self._parts: PartArrays | None = None

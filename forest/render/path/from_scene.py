@@ -21,12 +21,13 @@ from ...lights import Lights
 from ...scene import Scene
 from ...skirt import hills, skirt_radius
 from ...wind import tree_matrices
-from .ground import ground_look
+from .ground import GroundLook, ground_look
 from .haze import FogLayer, HazeInputs
 from .inputs import PathCamera, PathInputs, SkyLight, SunLight
 
 if TYPE_CHECKING:
     from ...config import Config
+    from ...far_cover import FarCover
     from ...library.core import Species
     from ...terrain import Terrain
 
@@ -188,7 +189,25 @@ def path_inputs(
         terrain_water=look.water,
         water_ripple=float(config.model.ground.water_ripple),
         tree_tint=scene.tree_jitter(),
+        far_cover=far_mosaic(scene, look),
     )
+
+
+def far_mosaic(scene: Scene, look: GroundLook) -> FarCover | None:
+    """The woods and open ground on the skirt's hills (:mod:`forest.far_cover`), or None: without hills, with
+    ``woods = false``, without a colour map on the ground, or without trees."""
+    from ...far_cover import far_cover
+
+    rc = scene.config.render
+    albedo = scene.terrain_albedo
+    h = rc.horizon_hills
+    if not rc.horizon_ground or h is None or not h.woods or np.ndim(look.colour) != 3:
+        return None
+    if albedo.far is None or albedo.far_canopy is None:
+        return None
+    core, padded = albedo.extent, look.extent
+    ramp = min(core[0] - padded[0], core[1] - padded[1], padded[2] - core[2], padded[3] - core[3])
+    return far_cover(albedo.far, albedo.far_canopy, albedo.far_cover, core, ramp, int(h.seed))
 
 
 def far_plan(scene: Scene, frames: list[float] | None = None, flatten_triangles: int | None = None) -> tuple[int, int]:

@@ -167,6 +167,8 @@ class PathInputs:
     (:func:`~forest.render.path.materials.water_lobe`); None for no water.
     ``tree_tint`` (N, 3) multiplies the tinted parts of each tree besides the colour
     grid: its colour beyond the map (:meth:`forest.scene.Scene.tree_jitter`), None for 1.
+    ``far_cover`` (:class:`forest.far_cover.FarCover`) draws woods and open ground on the skirt past an
+    (H, W, 3) ``terrain_colour``'s terrain; None keeps it one colour.
     """
 
     instances: Any
@@ -204,6 +206,7 @@ class PathInputs:
     terrain_water: np.ndarray | None = None
     water_ripple: float = 2.0
     tree_tint: np.ndarray | None = None
+    far_cover: Any = None
 
     def terrain_map_array(self) -> np.ndarray:
         """``terrain_colour`` as float32, with ``terrain_water`` as a fourth channel where there is water."""

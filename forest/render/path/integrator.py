@@ -62,12 +62,12 @@ which ``cuda_ad_rgb`` provides as well.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 from .geometry import Hit, PartArrays, TraversalScene, hit_uv, resolve, surface
-from .materials import MaterialArrays, bsdf_eval, bsdf_sample, shading, water_coverage, water_lobe
+from .materials import MaterialArrays, TerrainMap, bsdf_eval, bsdf_sample, shading, water_coverage, water_lobe
 
 if TYPE_CHECKING:
     from .emitters import LightSet
@@ -120,7 +120,7 @@ class PathKernel:
         mats: MaterialArrays,
         *,
         grid: Any,
-        terrain_map: tuple[Any, Sequence[float]] | None,
+        terrain_map: TerrainMap | None,
         extent: Iterable[float],
         lights: LightSet,
         max_depth: int,

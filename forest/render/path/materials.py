@@ -72,7 +72,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -331,6 +331,56 @@ class MaterialStore:
         )
 
 
+class FarCoverArrays(NamedTuple):
+    """The far landscape's mosaic of woods and open ground (:mod:`forest.far_cover`) as drjit values.
+
+    ``texture``: the periodic tile's weights (1 − C, C·g), wrapped; ``open``, ``canopy``: ρ_o/ρ_far and
+    ρ_c/ρ_far; ``extent`` the terrain's; ``ramp`` P metres; ``tile_m`` the tile's side."""
+
+    texture: Any
+    open: Any
+    canopy: Any
+    extent: tuple[float, float, float, float]
+    ramp: float
+    tile_m: float
+
+    @classmethod
+    def build(cls, mi: Any, far: Any) -> FarCoverArrays:
+        """From a :class:`forest.far_cover.FarCover`."""
+        import drjit as dr
+
+        tex = mi.Texture2f(
+            owned(mi.TensorXf, np.asarray(far.tile, np.float32)),
+            use_accel=True,
+            migrate=False,
+            filter_mode=dr.FilterMode.Linear,
+            wrap_mode=dr.WrapMode.Repeat,
+        )
+        return cls(tex, mi.Color3f(*far.open), mi.Color3f(*far.canopy), tuple(far.extent), float(far.ramp),
+                   float(far.tile_m))  # fmt: skip
+
+    def factor(self, mi: Any, p: Any, active: Any) -> Any:
+        """m' (Color3f) at world ``p``: the mosaic's factor on the skirt's albedo, 1 on the terrain."""
+        import drjit as dr
+
+        inv = 1.0 / self.tile_m
+        w = self.texture.eval(mi.Point2f(p.x * inv, p.z * inv), active=active)
+        m = self.open * w[0] + self.canopy * w[1]
+        xmin, zmin, xmax, zmax = self.extent
+        d = dr.maximum(dr.maximum(xmin - p.x, p.x - xmax), dr.maximum(zmin - p.z, p.z - zmax))
+        t = dr.clip(d * (1.0 / self.ramp), 0.0, 1.0)
+        return dr.fma(t * t * (3.0 - 2.0 * t), m - 1.0, 1.0)
+
+
+class TerrainMap(NamedTuple):
+    """The terrain map: a ``Texture2f`` (RGB, and the water coverage as a fourth channel where there is water)
+    over ``extent``, and the far landscape's mosaic on the skirt (None: one colour)."""
+
+    texture: Any
+    extent: Sequence[float]
+    far: FarCoverArrays | None = None
+
+
 def world_map_texture(mi: Any, data: Any, *, differentiable: bool = False) -> Any:
     """A bilinear, edge-clamped ``Texture2f`` over an (H, W, 3) map (numpy array or ``TensorXf``).
 
@@ -494,7 +544,7 @@ def shading(
     p: Any,
     grid: Any,
     extent: Sequence[float],
-    terrain_map: tuple[Any, Sequence[float]] | None,
+    terrain_map: TerrainMap | None,
     active: Any,
     row: Any = None,
     row_tint: Any = None,
@@ -502,7 +552,7 @@ def shading(
     """R, T and the lobe probability at a hit (see the module docstring).
 
     ``grid`` is a ``Texture2f`` over ``extent`` (xmin, zmin, xmax, zmax) or None;
-    ``terrain_map`` a (``Texture2f``, its own extent) pair or None.  Gradients flow
+    ``terrain_map`` a :class:`TerrainMap` or None.  Gradients flow
     from ``grid``'s tensor into R and T.  ``row_tint`` (Float, 3 per row, or None) is
     each row's jitter j_r, gathered at the hit's ``row`` for tinted materials.
     """
@@ -535,14 +585,17 @@ def shading(
         a = dr.select(jittered, a * j, a)
         plain = None if plain is None else dr.select(jittered, plain * j, plain)
     if terrain_map is not None:
-        tmap, (txmin, tzmin, txmax, tzmax) = terrain_map
+        tmap, (txmin, tzmin, txmax, tzmax) = terrain_map.texture, terrain_map.extent
         tpos = mi.Point2f((p.x - txmin) * (1.0 / (txmax - txmin)), (p.z - tzmin) * (1.0 / (tzmax - tzmin)))
         mapped = dr.gather(mi.Bool, mats.terrain_map, material, active) & active
         t = tmap.eval(tpos, active=mapped)
-        a = dr.select(mapped, a * mi.Color3f(t[0], t[1], t[2]), a)
+        ground = mi.Color3f(t[0], t[1], t[2])
+        if terrain_map.far is not None:  # woods and open ground on the skirt (forest.far_cover)
+            ground = ground * terrain_map.far.factor(mi, p, mapped)
+        a = dr.select(mapped, a * ground, a)
         if plain is not None and detail is not None:
             w = dr.select(mapped, dr.clip(t[3], 0.0, 1.0), 0.0)
-            wet = dr.select(mapped, plain * mi.Color3f(t[0], t[1], t[2]), plain) * dr.fma(1.0 - detail, w, detail)
+            wet = dr.select(mapped, plain * ground, plain) * dr.fma(1.0 - detail, w, detail)
             a = dr.select(w > 0.0, wet, a)  # (1 − W)·detail + W in place of the detail
     leaf = dr.gather(mi.UInt32, mats.kind, material, active) == KIND_LEAF
     tau = dr.gather(mi.Float, mats.tau, material, active)
@@ -699,13 +752,11 @@ class WaterLobe:
     keep: Any  # Float: 1 − W·F, the factor on the diffuse part (path replay re-applies it)
 
 
-def water_coverage(
-    mi: Any, mats: MaterialArrays, material: Any, p: Any, terrain_map: tuple[Any, Sequence[float]], active: Any
-) -> Any:
+def water_coverage(mi: Any, mats: MaterialArrays, material: Any, p: Any, terrain_map: TerrainMap, active: Any) -> Any:
     """The water coverage W ∈ [0, 1] at a hit: the terrain map's fourth channel at its world X/Z (0 off the terrain)."""
     import drjit as dr
 
-    tmap, (txmin, tzmin, txmax, tzmax) = terrain_map
+    tmap, (txmin, tzmin, txmax, tzmax) = terrain_map.texture, terrain_map.extent
     tpos = mi.Point2f((p.x - txmin) * (1.0 / (txmax - txmin)), (p.z - tzmin) * (1.0 / (tzmax - tzmin)))
     mapped = dr.gather(mi.Bool, mats.terrain_map, material, active) & active
     t = tmap.eval(tpos, active=mapped)

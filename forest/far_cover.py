@@ -1,0 +1,196 @@
+"""Woods and open ground on the far landscape: the skirt's land cover in patches.
+
+:mod:`forest.skirt` paints the ground past the terrain's edge one colour, the
+far landscape's albedo
+
+    ρ_far = (1 − c̄)·ρ_o + c̄·ρ_c
+
+with c̄ the crowns' mean cover of the terrain, ρ_c the canopy's reflectance
+and ρ_o = ⟨(1 − c)·ρ_g⟩ / (1 − c̄) the open ground's (the ground grid
+weighted by the gaps between crowns; :func:`forest.skirt.landscape`).  Seen
+from a few hundred metres up, hills painted that mean are smooth green humps:
+a real wooded landscape is a mosaic of woods and fields, and inside the woods
+the crowns and their shadows give the canopy a grain (Forman, *Land Mosaics:
+The Ecology of Landscapes and Regions*, 1995, ch. 1: patches, corridors and
+matrix; the canopy grain of a forest seen from afar is what Li and Strahler
+1992, "Geometric-optical bidirectional reflectance modeling of the discrete
+crown vegetation canopy", IEEE TGRS 30(2): 276–292, model as sunlit and
+shaded crown and ground).
+
+So the skirt's albedo is the same rule with a cover that varies across the
+land, C(x, z) ∈ [0, 1], and a canopy grain g(x, z) of mean 1:
+
+    ρ(x, z) = (1 − C)·ρ_o + C·g·ρ_c,    ⟨C⟩ = c̄,  ⟨C·g⟩ = c̄
+
+whose mean over the land is ρ_far exactly: the far landscape keeps the colour
+the Scene computed, and a terrain without trees (c̄ = 0) or under a closed
+canopy (c̄ ≈ 1) stays one colour.  C is a soft threshold of a fractional
+Brownian motion of value noise (:data:`STAND_M`-metre stands down to
+:data:`GRAIN_M`-metre crowns, lacunarity 2, gain ½; Perlin 1985, Ebert et al.
+2003, ch. 16 as :mod:`forest.skirt`'s hills), C = s((f − t)/2ε + ½) with s
+the smoothstep and t found by bisection so that ⟨C⟩ = c̄; g = 1 + a·(h − ⟨h⟩)
+is a value noise h of :data:`GRAIN_M`-metre cells (a = :data:`GRAIN`), rescaled so that
+⟨C·g⟩ = c̄.
+
+The pattern is one periodic tile of :data:`TILE_M` metres on
+:data:`TEXELS` × :data:`TEXELS` texels (:func:`cover_tile`), looked up by world
+X/Z with wrapping, and stored as the two weights (1 − C, C·g), so that the
+renderer's factor on ρ_far is
+
+    m(x, z) = (1 − C)·ρ_o/ρ_far + C·g·ρ_c/ρ_far
+
+It fades in past the terrain's edge over the same distance as the albedo grid
+fades to ρ_far (:func:`forest.skirt.fade_beyond_edge`), so the terrain and its
+padded edge keep their own albedo:
+
+    m' = 1 + s(d / P)·(m − 1),    d = the Chebyshev distance past the extent
+
+forest_path draws it (``[render] horizon_hills``' ``woods``, on by default
+with hills); the scalar renderer keeps the one colour ρ_far, as it keeps the
+ground without its detail texture.  Deterministic: the tile depends only on
+c̄ (rounded to 10⁻⁶) and the hills' seed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+#: Side of the periodic tile, metres (larger than a hill, so its repeats do not line up with them).
+TILE_M = 4096.0
+#: Texels along a side of the tile (4 m each).
+TEXELS = 1024
+#: Size of the largest patches of woods and open ground (the noise's lowest octave), metres.
+STAND_M = 384.0
+#: Size of the finest cover detail and of the canopy grain's cells, metres.
+GRAIN_M = 24.0
+#: Half-width ε of the soft threshold, in units of the fBm's value: the width of a wood's edge.
+EDGE = 0.035
+#: Standard deviation a of the canopy grain g (crowns against their shadows).
+GRAIN = 0.4
+#: Below this cover, or above 1 minus it, the land is one colour (no mosaic to draw).
+MIN_CONTRAST = 1e-3
+#: Purpose tag of the cover's noise (CONTRIBUTING's seeding rule: a constant per purpose).
+COVER_TAG = 0x574F_4F44
+
+
+def _periodic_noise(n: int, cells: int, key: np.uint64, shift: float) -> np.ndarray:
+    """(n, n) value noise with ``cells`` lattice cells across, periodic over the tile (indices modulo ``cells``)."""
+    from .scatter.canopy import fade, lattice
+
+    x = (np.arange(n, dtype=np.float64) + 0.5) * (cells / n) + shift
+    i0 = np.floor(x).astype(np.int64)
+    f = fade(x - i0)
+    g = np.arange(cells, dtype=np.int64)
+    table = lattice(g[None, :], g[:, None], key)  # (cells, cells), row = z
+    a0, a1 = i0 % cells, (i0 + 1) % cells
+    top = table[a0[:, None], a0[None, :]] + (table[a0[:, None], a1[None, :]] - table[a0[:, None], a0[None, :]]) * f
+    bot = table[a1[:, None], a0[None, :]] + (table[a1[:, None], a1[None, :]] - table[a1[:, None], a0[None, :]]) * f
+    return top + (bot - top) * f[:, None]
+
+
+def _fbm(n: int, first_cells: int, octaves: int, key: np.uint64) -> np.ndarray:
+    """Periodic fBm (lacunarity 2, gain ½) normalised to amplitude sum 1."""
+    total = np.zeros((n, n))
+    amplitude, norm = 1.0, 0.0
+    for octave in range(octaves):
+        k = np.uint64((int(key) + octave * 0xBF58476D1CE4E5B9) % 2**64)
+        total += amplitude * _periodic_noise(n, first_cells * 2**octave, k, 0.37 * octave)
+        norm += amplitude
+        amplitude *= 0.5
+    return total / norm
+
+
+def _soft_cover(f: np.ndarray, t: float) -> np.ndarray:
+    """C = s((f − t)/2ε + ½), s the smoothstep: 0 below t − ε, 1 above t + ε."""
+    u = np.clip((f - t) / (2.0 * EDGE) + 0.5, 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+@lru_cache(maxsize=4)
+def cover_tile(cover: float, seed: int) -> np.ndarray:
+    """(:data:`TEXELS`, :data:`TEXELS`, 2) float32: the weights (1 − C, C·g) of one tile, ⟨C⟩ = ⟨C·g⟩ = ``cover``.
+
+    Row i covers z/TILE_M ∈ [i, i+1]/TEXELS and column j x/TILE_M ∈ [j, j+1]/TEXELS, modulo 1 (module docstring).
+    """
+    c = float(np.clip(cover, 0.0, 1.0))
+    key = np.uint64((int(seed) * 0x9E3779B97F4A7C15 + COVER_TAG) % 2**64)
+    first = max(1, round(TILE_M / STAND_M))
+    octaves = max(1, round(np.log2(STAND_M / GRAIN_M)) + 1)
+    f = _fbm(TEXELS, first, octaves, key)
+    lo, hi = float(f.min()) - EDGE, float(f.max()) + EDGE  # ⟨C⟩ falls from 1 at lo to 0 at hi
+    sample = f[::4, ::4]  # the threshold from every 16th texel; the exact mean by the rescaling below
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if _soft_cover(sample, mid).mean() > c:
+            lo = mid
+        else:
+            hi = mid
+    cov = _soft_cover(f, 0.5 * (lo + hi))
+    m = float(cov.mean())  # the exact mean: scale the woods down, or the gaps, so that C stays in [0, 1]
+    cov = cov * (c / m) if m > c else 1.0 - (1.0 - cov) * ((1.0 - c) / max(1.0 - m, 1e-12))
+    cells = max(1, round(TILE_M / GRAIN_M))
+    h = _periodic_noise(TEXELS, cells, np.uint64((int(key) ^ 0xD1B54A32D192ED03) % 2**64), 0.0)
+    g = 1.0 + GRAIN * (h - h.mean()) / max(float(h.std()), 1e-12)
+    g = np.maximum(g, 0.05)
+    woods = cov * g
+    woods *= float(cov.mean()) / max(float(woods.mean()), 1e-12)  # ⟨C·g⟩ = ⟨C⟩
+    return np.ascontiguousarray(np.stack([1.0 - cov, woods], axis=-1).astype(np.float32))
+
+
+@dataclass(frozen=True)
+class FarCover:
+    """What forest_path needs to draw the mosaic (module docstring).
+
+    ``tile``: :func:`cover_tile`'s weights; ``open`` and ``canopy``: ρ_o/ρ_far and
+    ρ_c/ρ_far (3,) each; ``extent``: the terrain's (xmin, zmin, xmax, zmax);
+    ``ramp``: P, metres past it over which the mosaic fades in; ``tile_m``: the tile's side.
+    """
+
+    tile: np.ndarray
+    open: tuple[float, float, float]
+    canopy: tuple[float, float, float]
+    extent: tuple[float, float, float, float]
+    ramp: float
+    tile_m: float = TILE_M
+
+    def factor(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """m' (…, 3) at world (x, z): the factor on the skirt's albedo (module docstring), on the host."""
+        from .ground import wrapped_bilinear
+
+        x = np.asarray(x, np.float64)
+        z = np.asarray(z, np.float64)
+        w = wrapped_bilinear(self.tile, x.ravel() / self.tile_m, z.ravel() / self.tile_m).reshape(*x.shape, 2)
+        m = w[..., :1] * np.asarray(self.open) + w[..., 1:2] * np.asarray(self.canopy)
+        xmin, zmin, xmax, zmax = self.extent
+        d = np.maximum(np.maximum(xmin - x, x - xmax), np.maximum(zmin - z, z - zmax))
+        t = np.clip(d / self.ramp, 0.0, 1.0)[..., None]
+        return 1.0 + t * t * (3.0 - 2.0 * t) * (m - 1.0)
+
+
+def far_cover(
+    far: np.ndarray | tuple[float, float, float],
+    canopy: np.ndarray | tuple[float, float, float],
+    cover: float,
+    extent: tuple[float, float, float, float],
+    ramp: float,
+    seed: int,
+) -> FarCover | None:
+    """The :class:`FarCover` of a far landscape ρ_far = (1 − c̄)·ρ_o + c̄·ρ_c (``far``, ``canopy``, ``cover`` c̄);
+    None where there is no mosaic to draw (c̄ within :data:`MIN_CONTRAST` of 0 or 1, or ρ_far black)."""
+    rho_far = np.asarray(far, np.float64).reshape(3)
+    rho_c = np.asarray(canopy, np.float64).reshape(3)
+    c = float(cover)
+    if not (MIN_CONTRAST < c < 1.0 - MIN_CONTRAST) or not np.all(rho_far > 0.0):
+        return None
+    rho_o = np.maximum((rho_far - c * rho_c) / (1.0 - c), 0.0)
+    tile = cover_tile(round(c, 6), int(seed))
+    return FarCover(
+        tile,
+        tuple(float(v) for v in rho_o / rho_far),  # type: ignore[arg-type]
+        tuple(float(v) for v in rho_c / rho_far),  # type: ignore[arg-type]
+        tuple(float(v) for v in extent),  # type: ignore[arg-type]
+        max(float(ramp), 1e-6),
+    )
