@@ -46,7 +46,7 @@ these; the exporters write the terrain alone.
 its canopy where crowns cover the ground and of the ground in the gaps, not of
 the soil under the trees (fading to the ground grid's mean drew a brown bare
 band at the horizon beyond a forest).  So the skirt fades to the terrain's own
-landscape averaged over its extent (:func:`far_albedo`):
+landscape averaged over its extent (:func:`landscape`):
 
     ρ_far = ⟨(1 − c)·ρ_g⟩ + ⟨c⟩·ρ_c  =  ρ̄_g + ⟨c·(ρ_c − ρ_g)⟩
 
@@ -339,7 +339,7 @@ def fade_beyond_edge(
     return out, (xmin - p * dx, zmin - p * dz, xmax + p * dx, zmax + p * dz)
 
 
-#: Texels along the terrain's longer side of the canopy-cover grid that :func:`far_albedo` averages over.
+#: Texels along the terrain's longer side of the canopy-cover grid that :func:`landscape` averages over.
 COVER_RESOLUTION = 256
 
 
@@ -407,18 +407,6 @@ def landscape(
     under = np.asarray(sample_bilinear(rgb, u, v), np.float64).reshape(-1, rgb.shape[-1])
     far = np.asarray(mean + (cover * (canopy - under)).mean(axis=0), np.float64)
     return Landscape(far, np.asarray(canopy, np.float64), float(cover.mean()))
-
-
-def far_albedo(
-    ground: np.ndarray,
-    extent: Sequence[float],
-    instances: InstanceSet,
-    species: Sequence[Species],
-    tree_species: int,
-    tints: np.ndarray,
-) -> np.ndarray:
-    """ρ_far (3,) float64 = ρ̄_g + ⟨c·(ρ_c − ρ_g)⟩: the far landscape's albedo (:func:`landscape`'s ``far``)."""
-    return landscape(ground, extent, instances, species, tree_species, tints).far
 
 
 def horizon_albedo(scene: Scene) -> TerrainAlbedo:

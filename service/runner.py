@@ -164,12 +164,16 @@ def _fit(rgb: np.ndarray, longest: int) -> np.ndarray:
 
 def _publish(ctx: TaskContext, rel: str, rgb: np.ndarray, longest: int, config: Any) -> str:
     """Write a scene-linear image at ``rel`` in the job folder (atomically) as the final PNG will look: through the
-    config's view transform and exposure (``[render] view``, ``exposure``; :func:`forest.imaging.write_display`)."""
+    config's view transform, exposure and look (``[render] view``, ``exposure``, ``look``; :func:`forest.imaging.write_display`)."""
     from forest.imaging import write_display
 
     r = config.render
     write_display(
-        ctx.job_dir / rel, _fit(np.asarray(rgb, np.float32)[..., :3], longest), view=r.view, exposure=float(r.exposure)
+        ctx.job_dir / rel,
+        _fit(np.asarray(rgb, np.float32)[..., :3], longest),
+        view=r.view,
+        exposure=float(r.exposure),
+        look=r.look,
     )
     return rel
 

@@ -98,6 +98,62 @@ def test_agx_takes_over_exposed_colour_to_white_instead_of_a_pure_primary():
     assert mid[0] > 0.45 and mid[1:].max() < 0.05  # a mid-tone red stays red
 
 
+@pytest.mark.parametrize("look", sorted(curves.AGX_LOOKS))
+def test_ocio_grades_each_look_as_the_asc_cdl_on_the_agx_log_encoding(look):
+    x = (RNG.random((4096, 3)) * 3.0) ** 4 * 0.3
+    assert to_display(x, "agx", look=look) == pytest.approx(curves.agx(x, look), abs=2.5e-4)
+    # The CDL is the ASC's: clamp(x·S + O)^P, saturation about the Rec.709 luma (by hand for one value).
+    s, o, p, sat = curves.AGX_LOOKS[look]
+    v = np.array([0.7, 0.5, 0.2])
+    sop = np.clip(v * s + o, 0.0, 1.0) ** p
+    luma = 0.2126 * sop[0] + 0.7152 * sop[1] + 0.0722 * sop[2]
+    assert curves.asc_cdl(v, s, o, p, sat) == pytest.approx(np.clip(luma + sat * (sop - luma), 0.0, 1.0), abs=1e-12)
+
+
+def _chroma(rgb: np.ndarray) -> np.ndarray:
+    return (rgb.max(axis=-1) - rgb.min(axis=-1)) / np.maximum(rgb.max(axis=-1), 1e-9)
+
+
+def test_punchy_keeps_a_bright_blue_sky_blue_and_every_look_keeps_grey_grey():
+    """A clear sky two stops over grey (linear (0.37, 0.52, 0.66), as measured in the demo's render) goes pale
+    in the agx view; the punchy look gives it back its chroma and darkens the mid-tones; the contrast looks
+    spread or squeeze a dark and a bright grey about the middle; no look tints a grey."""
+    sky = np.array([[0.37, 0.52, 0.66]], np.float32)
+    plain, punchy = to_display(sky, "agx")[0], to_display(sky, "agx", look="punchy")[0]
+    std = to_display(sky, "standard")[0]
+    assert _chroma(plain) < 0.7 * _chroma(std)  # the view's inset and shoulder take the sky's chroma …
+    assert _chroma(punchy) > 1.5 * _chroma(plain)  # … and punchy gives much of it back
+    grey = np.full((1, 3), 0.18, np.float32)
+    assert to_display(grey, "agx", look="punchy")[0, 0] < to_display(grey, "agx")[0, 0] - 0.1
+    ev = np.linspace(-8, 6, 60)
+    greys = np.repeat((0.18 * np.exp2(ev))[:, None], 3, axis=1).astype(np.float32)
+    spread = {}
+    for look in ("none", *curves.AGX_LOOKS):
+        out = to_display(greys, "agx", look=look)
+        assert np.ptp(out, axis=1).max() < 1e-4, look  # grey stays grey
+        assert np.all(np.diff(out[:, 0]) >= -1e-6), look
+        spread[look] = float(out[30, 0] - out[20, 0])  # about −1 and +1 stop either side of grey
+    assert spread["very_high_contrast"] > spread["high_contrast"] > spread["medium_high_contrast"] > spread["none"]
+    assert spread["none"] > spread["medium_low_contrast"] > spread["low_contrast"] > spread["very_low_contrast"]
+
+
+def test_a_look_needs_the_agx_view_and_a_known_name():
+    from forest.config import parse_config
+    from forest.imaging.view import check_look
+
+    assert check_look("Punchy") == "punchy" and check_look("none", "filmic") == "none"
+    with pytest.raises(ConfigError, match=r"render\.look: unknown look 'golden'"):
+        check_look("golden")
+    with pytest.raises(ConfigError, match=r"render\.look: look 'punchy' grades the agx view; the view is 'filmic'"):
+        to_display(np.zeros((1, 3)), "filmic", look="punchy")
+    base = '[terrain]\nflat = { size = 10.0 }\n[[species]]\nmodel = "broadleaf"\npercent = 100\n[render]\n'
+    assert parse_config(base + 'look = "high_contrast"').render.look == "high_contrast"
+    for bad, message in (('look = "golden"', "unknown look"), ('view = "filmic"\nlook = "punchy"', "grades the agx")):
+        with pytest.raises(ConfigError, match=message) as e:
+            parse_config(base + bad)
+        assert e.value.field == "render.look"
+
+
 def test_view_and_exposure_validation_name_the_field():
     assert check_view("AgX") == "agx"
     assert check_exposure(2) == 2.0

@@ -396,3 +396,33 @@ def test_render_denoise_without_open_image_denoise_is_refused_before_work(scene,
     with pytest.raises(ConfigError) as e:
         check_render_inputs(load_config(cfg))
     assert e.value.field == "render.denoise" and "pyoidn" in str(e.value)
+
+
+def test_a_look_grades_the_png_and_leaves_the_exr_alone(scene):
+    """``--set render.look=punchy``: the same EXR bits, a PNG that is the look of that EXR (darker mid-tones, more
+    chroma) and says so in its header; a look on another view stops before any work with exit 2 and no output."""
+    outs = {}
+    for look in ("none", "punchy"):
+        out = scene / "look" / f"{look}.exr"
+        r = run("render", scene / "scene.toml", "-o", out, "--instances", scene / "trees.npz", "-q",
+                "--set", f"render.look={look}")  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        outs[look] = out
+    from forest.images import read_exr_channels, read_image
+    from forest.imaging import to_display
+
+    a, b = read_exr_channels(outs["none"])[0], read_exr_channels(outs["punchy"])[0]
+    assert all(np.array_equal(a[c], b[c]) for c in ("R", "G", "B", "A"))
+    rgb = np.stack([b[c] for c in "RGB"], axis=-1)
+    png = read_image(outs["punchy"].with_suffix(".png"))[..., :3].astype(np.float64)  # 0..1
+    np.testing.assert_allclose(png, to_display(rgb, "agx", 0.0, "punchy"), atol=1.0 / 255 + 1e-6)
+    plain = read_image(outs["none"].with_suffix(".png"))[..., :3].astype(np.float64)
+    assert png.mean() < plain.mean() - 0.02
+    inp = oiio.ImageInput.open(str(outs["punchy"].with_suffix(".png")))
+    assert inp.spec().get_string_attribute("forest:look") == "punchy"
+    inp.close()
+    bad = scene / "look" / "bad.exr"
+    r = run("render", scene / "scene.toml", "-o", bad, "--instances", scene / "trees.npz",
+            "--set", "render.view=filmic", "--set", "render.look=punchy")  # fmt: skip
+    assert r.returncode == 2 and not bad.exists() and not bad.with_suffix(".png").exists()
+    assert r.stderr.strip().count("\n") == 0 and "render.look" in r.stderr and "grades the agx view" in r.stderr

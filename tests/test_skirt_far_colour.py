@@ -20,8 +20,8 @@ from forest.skirt import (
     COVER_RESOLUTION,
     canopy_reflectance,
     fade_beyond_edge,
-    far_albedo,
     far_colour,
+    landscape,
 )
 
 from render_fixtures import Lod, Part, Species, box_mesh
@@ -90,7 +90,7 @@ def test_the_far_albedo_is_the_cover_weighted_mix_of_canopy_and_ground(library):
     tint = np.ones((n, 3))
     tint[::3] = (1.3, 1.0, 0.7)
     inst = dataclasses.replace(inst, scale=scale.astype(inst.scale.dtype), tint=tint.astype(np.float32))
-    far = far_albedo(ground, EXTENT, inst, (sp, sp), 1, inst.tint)
+    far = landscape(ground, EXTENT, inst, (sp, sp), 1, inst.tint).far
 
     cover = canopy_cover(inst, crown_radii((sp, sp)), 1, EXTENT, grid_shape(EXTENT, COVER_RESOLUTION)).mean()
     area = np.pi * (2.0 * scale) ** 2
@@ -104,13 +104,13 @@ def test_the_far_albedo_is_the_cover_weighted_mix_of_canopy_and_ground(library):
 
     # ground cover (species index ≥ the tree species' count) neither covers nor colours
     moss = dataclasses.replace(inst, species=np.ones(n, inst.species.dtype))
-    bare = far_albedo(ground, EXTENT, moss, (sp, sp), 1, moss.tint)
+    bare = landscape(ground, EXTENT, moss, (sp, sp), 1, moss.tint).far
     np.testing.assert_array_equal(bare, far_colour(TerrainAlbedo(ground, EXTENT)))  # the ground's mean
     half = dataclasses.replace(inst, species=(np.arange(n) % 2).astype(inst.species.dtype))  # odd rows: moss
     only = inst.subset(np.arange(n) % 2 == 0)
     np.testing.assert_allclose(
-        far_albedo(ground, EXTENT, half, (sp, sp), 1, half.tint),
-        far_albedo(ground, EXTENT, only, (sp, sp), 1, only.tint),
+        landscape(ground, EXTENT, half, (sp, sp), 1, half.tint).far,
+        landscape(ground, EXTENT, only, (sp, sp), 1, only.tint).far,
         rtol=1e-6,
     )
 
@@ -126,7 +126,7 @@ def test_the_gaps_show_the_ground_that_is_there():
     ground[:, :16] = SOIL  # x < 0
     ground[:, 16:] = grass
     inst = trees(lattice(3.0, xmax=0.0), names=("tree",))
-    far = far_albedo(ground, EXTENT, inst, (sp,), 1, inst.tint)
+    far = landscape(ground, EXTENT, inst, (sp,), 1, inst.tint).far
     cover = canopy_cover(inst, crown_radii((sp,)), 1, EXTENT, grid_shape(EXTENT, COVER_RESOLUTION))
     c_soil = cover[:, : cover.shape[1] // 2].mean()
     c_grass = cover[:, cover.shape[1] // 2 :].mean()
@@ -143,7 +143,7 @@ def test_a_bare_terrain_keeps_the_grounds_mean(tmp_path, library):
     rng = np.random.default_rng(3)
     grid = rng.uniform(0.02, 0.5, (24, 40, 3)).astype(np.float32)
     empty = InstanceSet.empty(species_names=["tree"])
-    far = far_albedo(grid, EXTENT, empty, (library.resolve("tree"),), 1, empty.tint)
+    far = landscape(grid, EXTENT, empty, (library.resolve("tree"),), 1, empty.tint).far
     horizon = TerrainAlbedo(grid, EXTENT, far=(float(far[0]), float(far[1]), float(far[2])))
     np.testing.assert_array_equal(far_colour(horizon), far_colour(TerrainAlbedo(grid, EXTENT)))
     old, old_ext = fade_beyond_edge(grid, EXTENT)
@@ -216,8 +216,14 @@ def test_the_scene_carries_the_far_albedo_to_both_renderers(tmp_path, library):
     assert albedo.far is not None
     sp = scene.species
     ones = np.ones((len(scene.instances), 3))  # the species' own colours, not what look-dev fits
-    expected = far_albedo(albedo.rgb, albedo.extent, scene.instances, sp, 1, ones)
-    np.testing.assert_allclose(albedo.far, expected)
+    land = landscape(albedo.rgb, albedo.extent, scene.instances, sp, 1, ones)
+    np.testing.assert_allclose(albedo.far, land.far)
+    # … and the canopy and cover behind it (the skirt's woods and open ground, forest.far_cover): the far
+    # albedo splits into them with a non-negative open ground, ρ_far = (1 − c̄)·ρ_o + c̄·ρ_c.
+    assert land.canopy is not None and 0.0 < albedo.far_cover < 1.0 and albedo.far_cover == land.cover
+    np.testing.assert_allclose(albedo.far_canopy, land.canopy)
+    rho_o = (np.asarray(albedo.far) - albedo.far_cover * land.canopy) / (1.0 - albedo.far_cover)
+    assert np.all(rho_o > 0.0)
     assert albedo.far[1] / albedo.far[0] > 1.2 * SOIL[1] / SOIL[0]  # greener than the soil: the canopy
 
     look = ground_look(scene)  # forest_path

@@ -1010,6 +1010,14 @@ def _view(value: Any) -> str:
         raise fail(e.message) from None
 
 
+def _look(value: Any) -> str:
+    from ..imaging.view import LOOKS
+
+    if not isinstance(value, str) or value.strip().lower() not in LOOKS:
+        raise fail(f"unknown look {value!r}; use one of {', '.join(LOOKS)}")
+    return value.strip().lower()
+
+
 def _exposure(value: Any) -> float:
     from ..imaging.view import check_exposure
 
@@ -1133,6 +1141,14 @@ class RenderConfig(Section):
     exposure: Annotated[Any, AfterValidator(_exposure)] = Field(
         0.0, description="Exposure of the PNG, EV (stops), -10 to 10.", json_schema_extra={"type": "number"}
     )
+    look: Annotated[str, AfterValidator(_look)] = Field(
+        "none",
+        description="A grade of the agx view's PNG, one of Blender's AgX looks: none, punchy (deeper, more "
+        "chroma: a bright blue sky stays blue), or very_high / high / medium_high / medium_low / low / "
+        "very_low_contrast (the EXR stays scene-linear).",
+        json_schema_extra={"enum": ["none", "punchy", "very_high_contrast", "high_contrast", "medium_high_contrast",
+                                    "medium_low_contrast", "low_contrast", "very_low_contrast"]},
+    )  # fmt: skip
     working_space: Literal["rec709", "acescg"] = Field(
         "rec709",
         description="Colour space of the EXR's beauty and colour layers: rec709 (linear Rec.709, as rendered) or "
@@ -1161,6 +1177,12 @@ class RenderConfig(Section):
             if "haze" in self.model_fields_set:
                 raise fail("give haze or visibility, not both", "visibility")
             self.haze = 3.912 / (1000.0 * self.visibility)  # Koschmieder (forest.render.path.haze)
+        return self
+
+    @model_validator(mode="after")
+    def _look_on_agx(self) -> RenderConfig:
+        if self.look != "none" and self.view != "agx":
+            raise fail(f'look {self.look!r} grades the agx view; the view is {self.view!r} (use view = "agx")', "look")
         return self
 
     @model_validator(mode="after")

@@ -52,6 +52,20 @@ applying that config reproduces these reference functions.
     +6.5 EV (scene value 16.3), so sun-lit highlights roll off instead of
     clipping.  Neutral greys stay neutral (both matrices preserve white).
 
+**Looks** (``[render] look``, agx only).  Blender's AgX ships looks that grade
+the picture in AgX's log encoding, between steps 2 and 3: an ASC CDL (the
+American Society of Cinematographers' Color Decision List, v1.2, 2009) of slope
+S, offset O, power P and saturation σ,
+
+    x' = clamp(x·S + O)^P,    x'' = clamp(ℓ + σ·(x' − ℓ)),    ℓ = 0.2126 x'_R + 0.7152 x'_G + 0.0722 x'_B
+
+with clamp to [0, 1] and ℓ the Rec.709 luma (:func:`asc_cdl`).  The values are
+Blender's (:data:`AGX_LOOKS`, as its OCIO config and the AgXc project list them):
+``punchy`` (P = 1.35, σ = 1.4) deepens shadows and mid-tones and restores the
+chroma that AgX's inset takes from bright colours (a blue sky two stops over grey
+stays blue instead of going pale), at the cost of about 1.5 stops in the
+mid-tones; the contrast looks scale the log encoding about its middle.
+
 Every function takes and returns float arrays ``(..., 3)``; the EXR stays
 scene-linear: these curves only make display pictures (PNG, previews).
 """
@@ -227,17 +241,44 @@ def agx_sigmoid(x: np.ndarray) -> np.ndarray:
     return np.clip(np.where(x >= x0, above, below), 0.0, 1.0)
 
 
-def agx_display_linear(rgb: np.ndarray) -> np.ndarray:
-    """Steps 1–5 of the AgX view: scene-linear → display-linear (not yet clipped)."""
+AGX_LOOKS: dict[str, tuple[float, float, float, float]] = {
+    "punchy": (1.0, 0.0, 1.35, 1.4),
+    "very_high_contrast": (1.57, -0.114, 1.0, 0.9),
+    "high_contrast": (1.4, -0.08, 1.0, 0.95),
+    "medium_high_contrast": (1.2, -0.04, 1.0, 1.0),
+    "medium_low_contrast": (0.9, 0.02, 1.0, 1.05),
+    "low_contrast": (0.8, 0.04, 1.0, 1.1),
+    "very_low_contrast": (0.7, 0.06, 1.0, 1.15),
+}
+"""Blender's AgX looks as ASC CDL (slope, offset, power, saturation) on the log encoding (module docstring)."""
+
+LUMA_709 = np.array([0.2126, 0.7152, 0.0722])
+"""Rec.709 luma weights, the CDL saturation's (ASC CDL v1.2)."""
+
+
+def asc_cdl(x: np.ndarray, slope: float, offset: float, power: float, saturation: float) -> np.ndarray:
+    """The ASC CDL v1.2 on values in [0, 1]: clamp(x·S + O)^P, then saturation σ about the Rec.709 luma, clamped."""
+    x = np.clip(np.asarray(x, dtype=np.float64) * slope + offset, 0.0, 1.0) ** power
+    luma = (x @ LUMA_709)[..., None]
+    return np.clip(luma + saturation * (x - luma), 0.0, 1.0)
+
+
+def agx_display_linear(rgb: np.ndarray, look: str | None = None) -> np.ndarray:
+    """Steps 1–5 of the AgX view: scene-linear → display-linear (not yet clipped); ``look`` a key of
+    :data:`AGX_LOOKS` graded on the log encoding (None: none)."""
     rgb = np.asarray(rgb, dtype=np.float64)
     inset = rgb @ agx_inset_matrix().T
-    y = agx_sigmoid(log2_encode(inset))
+    x = log2_encode(inset)
+    if look is not None:
+        x = asc_cdl(x, *AGX_LOOKS[look])
+    y = agx_sigmoid(x)
     return np.power(y, AGX_DECODE_GAMMA) @ agx_outset_matrix().T
 
 
-def agx(rgb: np.ndarray) -> np.ndarray:
-    """The ``agx`` view as a reference: scene-linear → sRGB code values in [0, 1]."""
-    return srgb_oetf(agx_display_linear(rgb))
+def agx(rgb: np.ndarray, look: str | None = None) -> np.ndarray:
+    """The ``agx`` view as a reference: scene-linear → sRGB code values in [0, 1] (``look``: see
+    :func:`agx_display_linear`)."""
+    return srgb_oetf(agx_display_linear(rgb, look))
 
 
 REFERENCE = {"agx": agx, "filmic": filmic, "standard": standard}

@@ -19,6 +19,10 @@ Spaces
     EXR's space with ``[render] working_space = "acescg"``; to the reference by the
     Bradford-adapted AP1 → Rec.709 matrix (colour-science).
 
+``AgX Log`` — the AgX view's inset and log2 encoding, where the looks grade:
+``AgX - Punchy`` and the ``AgX - … Contrast`` looks, Blender's, an ASC CDL each
+(:data:`forest.imaging.curves.AGX_LOOKS`).
+
 Views of the display ``sRGB``: ``AgX``, ``Filmic``, ``Standard`` (view transforms
 from the scene reference to display-linear light, see :mod:`forest.imaging.curves`),
 ``ACES 1.0 - SDR Video`` and ``Raw``.  The ACES view is the Academy's ACES 1.x
@@ -55,6 +59,18 @@ ACESCG = "ACEScg"
 """Name of the ACEScg space in the shipped config (aliases ``lin_ap1_scene``, ``lin_ap1``)."""
 ACES_OUTPUT = "ACES-OUTPUT - ACES2065-1_to_CIE-XYZ-D65 - SDR-VIDEO_1.0"
 """OCIO's built-in ACES 1.x output transform (SDR video, Rec.709) behind the ``aces`` view."""
+AGX_LOG = "AgX Log"
+"""The AgX view's log encoding (inset, then the log2 shaper) as a colour space: where the looks grade."""
+LOOK_NAMES = {
+    "punchy": "AgX - Punchy",
+    "very_high_contrast": "AgX - Very High Contrast",
+    "high_contrast": "AgX - High Contrast",
+    "medium_high_contrast": "AgX - Medium High Contrast",
+    "medium_low_contrast": "AgX - Medium Low Contrast",
+    "low_contrast": "AgX - Low Contrast",
+    "very_low_contrast": "AgX - Very Low Contrast",
+}
+"""forest's look keys (``[render] look``, :data:`forest.imaging.curves.AGX_LOOKS`) → the OCIO look names."""
 LUT_SIZE = 4096
 LUT_FILES = {"agx": "agx_sigmoid.spi1d", "filmic": "filmic_hable.spi1d"}
 
@@ -159,10 +175,31 @@ def build_config():
         description="Scene-linear ACES AP1 primaries, ACES white: forest's EXR with working_space = acescg.",
         toReference=OCIO.MatrixTransform(matrix=_matrix44(rgb_matrix("acescg", "rec709"))),
     )
-    for cs in (lin, acescg, raw, display):
-        cfg.addColorSpace(cs)
-
     inset, outset = curves.agx_inset_matrix(), curves.agx_outset_matrix()
+    agx_log = OCIO.ColorSpace(
+        referenceSpace=OCIO.REFERENCE_SPACE_SCENE,
+        name=AGX_LOG,
+        aliases=["agx_log"],
+        family="Log",
+        encoding="log",
+        description="The AgX view's inset and log2 encoding (18% grey -> 0.606): the looks' process space.",
+        fromReference=OCIO.GroupTransform([OCIO.MatrixTransform(matrix=_matrix44(inset)), *_log_shaper(OCIO)]),
+    )
+    for cs in (lin, acescg, agx_log, raw, display):
+        cfg.addColorSpace(cs)
+    for key, name in LOOK_NAMES.items():
+        slope, offset, power, sat = curves.AGX_LOOKS[key]
+        cdl = OCIO.CDLTransform(slope=[slope] * 3, offset=[offset] * 3, power=[power] * 3, sat=sat)
+        cdl.setStyle(OCIO.CDL_ASC)  # the ASC's clamps to [0, 1] (OCIO's default leaves values unclamped)
+        cfg.addLook(
+            OCIO.Look(
+                name=name,
+                processSpace=AGX_LOG,
+                transform=cdl,
+                description=f"Blender's AgX look {name[6:]!r}: ASC CDL on the AgX log encoding (use with the AgX view).",
+            )
+        )
+
     view_transforms = {
         "agx": (
             [

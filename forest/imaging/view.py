@@ -39,6 +39,8 @@ from . import ocio_config as _cfg
 VIEWS = ("agx", "filmic", "standard", "aces")
 """The values ``[render] view`` accepts."""
 DEFAULT_VIEW = "agx"
+LOOKS = ("none", *_cfg.LOOK_NAMES)
+"""The values ``[render] look`` accepts: none, or one of Blender's AgX looks (agx view only)."""
 EXPOSURE_RANGE = (-10.0, 10.0)
 """The exposures (EV) ``[render] exposure`` accepts: ±10 stops covers any sane render
 (beyond it the image is a flat black or white in every view)."""
@@ -73,29 +75,43 @@ def load_ocio_config():
     return OCIO.Config.CreateFromFile(str(CONFIG_PATH))
 
 
+def check_look(
+    look: Any, view: str = DEFAULT_VIEW, *, path: str | Path | None = None, field: str = "render.look"
+) -> str:
+    """``look`` as one of :data:`LOOKS` (case-insensitive) that ``view`` takes (a look other than ``none`` grades
+    the agx view), or :class:`ConfigError` naming ``field``."""
+    if not isinstance(look, str) or look.strip().lower() not in LOOKS:
+        raise ConfigError(path, field, f"unknown look {look!r}; use one of {', '.join(LOOKS)}")
+    look = look.strip().lower()
+    if look != "none" and view != "agx":
+        raise ConfigError(path, field, f'look {look!r} grades the agx view; the view is {view!r} (use view = "agx")')
+    return look
+
+
 @functools.lru_cache(maxsize=32)
-def _processor(view: str, exposure: float):
+def _processor(view: str, exposure: float, look: str = "none"):
     import PyOpenColorIO as OCIO
 
-    group = OCIO.GroupTransform(
-        [
-            OCIO.ExposureContrastTransform(style=OCIO.EXPOSURE_CONTRAST_LINEAR, exposure=exposure),
-            OCIO.DisplayViewTransform(src=_cfg.SCENE_LINEAR, display=_cfg.DISPLAY, view=_cfg.VIEW_NAMES[view]),
-        ]
-    )
-    return load_ocio_config().getProcessor(group).getDefaultCPUProcessor()
+    steps = [OCIO.ExposureContrastTransform(style=OCIO.EXPOSURE_CONTRAST_LINEAR, exposure=exposure)]
+    if look != "none":
+        steps.append(OCIO.LookTransform(src=_cfg.SCENE_LINEAR, dst=_cfg.SCENE_LINEAR, looks=_cfg.LOOK_NAMES[look]))
+    steps.append(OCIO.DisplayViewTransform(src=_cfg.SCENE_LINEAR, display=_cfg.DISPLAY, view=_cfg.VIEW_NAMES[view]))
+    return load_ocio_config().getProcessor(OCIO.GroupTransform(steps)).getDefaultCPUProcessor()
 
 
-def to_display(rgb: np.ndarray, view: str = DEFAULT_VIEW, exposure: float = 0.0) -> np.ndarray:
+def to_display(rgb: np.ndarray, view: str = DEFAULT_VIEW, exposure: float = 0.0, look: str = "none") -> np.ndarray:
     """Scene-linear Rec.709 RGB ``(..., 3|4)`` → sRGB display code values, float32 in [0, 1].
 
     Only the first three channels are transformed (an alpha channel is dropped).
     NaN becomes 0 and +inf the largest float first, so a stray sample never
-    poisons the picture.  Raises :class:`ConfigError` for an unknown ``view``
-    or an ``exposure`` outside :data:`EXPOSURE_RANGE`.
+    poisons the picture.  ``look``: one of :data:`LOOKS`, graded on the agx view's
+    log encoding (:mod:`forest.imaging.curves`, "Looks").  Raises
+    :class:`ConfigError` for an unknown ``view`` or ``look``, a look on another
+    view, or an ``exposure`` outside :data:`EXPOSURE_RANGE`.
     """
     view = check_view(view)
     exposure = check_exposure(exposure)
+    look = check_look(look, view)
     arr = np.asarray(rgb)
     if arr.ndim < 1 or arr.shape[-1] < 3:
         raise ValueError(f"to_display needs (..., 3) RGB, got shape {arr.shape}")
@@ -103,7 +119,7 @@ def to_display(rgb: np.ndarray, view: str = DEFAULT_VIEW, exposure: float = 0.0)
     out = np.ascontiguousarray(out, dtype=np.float32)
     if out.size:
         flat = out.reshape(-1, 3)
-        _processor(view, exposure).applyRGB(flat)
+        _processor(view, exposure, look).applyRGB(flat)
     return np.clip(out, 0.0, 1.0, out=out)
 
 
@@ -124,15 +140,18 @@ def write_display(
     exposure: float = 0.0,
     bits: int = 8,
     attributes: dict | None = None,
+    look: str = "none",
 ) -> Path:
     """Write the view of scene-linear ``rgb`` to a PNG (8 or 16 bit), atomically.
 
-    The header records the view and exposure (``forest:view``, ``forest:exposure``).
+    The header records the view, exposure and look (``forest:view``, ``forest:exposure``, ``forest:look``).
     """
     from ..images import write_encoded_image
 
-    display = to_display(rgb, view, exposure)
+    display = to_display(rgb, view, exposure, look)
     attrs = {"forest:view": check_view(view), "forest:exposure": float(exposure), **(attributes or {})}
+    if look != "none":
+        attrs["forest:look"] = check_look(look, check_view(view))
     return write_encoded_image(path, quantise(display, bits), attributes=attrs)
 
 

@@ -79,6 +79,7 @@ def write_frame(
     exposure: float,
     attributes: dict[str, Any],
     working_space: str = "rec709",
+    look: str = "none",
 ) -> list[Path]:
     """Write ``image`` as its EXR (in ``working_space``) and PNG (see the module docstring); the paths written."""
     h, w = image.rgb.shape[:2]
@@ -87,6 +88,8 @@ def write_frame(
     attrs = {k: header_value(v) for k, v in attributes.items()}
     attrs["forest:view"] = view
     attrs["forest:exposure"] = float(exposure)
+    if look != "none":
+        attrs["forest:look"] = look
     aovs = {
         name: from_rec709(a, working_space) if AOV_CHANNELS.get(name, ("R", "G", "B")) == ("R", "G", "B") else a
         for name, a in image.aovs.items()
@@ -106,7 +109,7 @@ def write_frame(
         working_space=working_space,
     )
     try:
-        write_display(png, image.rgb, view=view, exposure=exposure)
+        write_display(png, image.rgb, view=view, exposure=exposure, look=look)
     except BaseException:
         exr.unlink(missing_ok=True)  # the frame is the pair: no EXR left without its PNG
         raise

@@ -310,6 +310,7 @@ def render_scene(
             far=float(config.camera.far),
             view=rc.view,
             exposure=float(rc.exposure),
+            look=rc.look,
             attributes=attrs,
             working_space=rc.working_space,
         )
