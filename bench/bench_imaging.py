@@ -90,6 +90,9 @@ def main() -> None:
     for view in ("standard", "filmic", "agx"):
         t, _ = best(lambda view=view: to_display(beauty, view, 1.0), n)
         print(f"view: to_display {view:<8} (OCIO)     {t * 1000:7.1f} ms   {t / base:.2f}x")
+    agx, _ = best(lambda: to_display(beauty, "agx", 1.0), n)
+    t, _ = best(lambda: to_display(beauty, "agx", 1.0, "punchy"), n)
+    print(f"look: agx + punchy (OCIO look)        {t * 1000:7.1f} ms   {t / agx:.2f}x the agx view alone")
 
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)

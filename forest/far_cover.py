@@ -137,7 +137,9 @@ def cover_tile(cover: float, seed: int) -> np.ndarray:
     g = np.maximum(g, 0.05)
     woods = cov * g
     woods *= float(cov.mean()) / max(float(woods.mean()), 1e-12)  # ⟨C·g⟩ = ⟨C⟩
-    return np.ascontiguousarray(np.stack([1.0 - cov, woods], axis=-1).astype(np.float32))
+    tile = np.ascontiguousarray(np.stack([1.0 - cov, woods], axis=-1).astype(np.float32))
+    tile.flags.writeable = False  # cached and shared by every FarCover of this cover and seed
+    return tile
 
 
 @dataclass(frozen=True)
