@@ -1011,11 +1011,12 @@ def _view(value: Any) -> str:
 
 
 def _look(value: Any) -> str:
-    from ..imaging.view import LOOKS
+    from ..imaging.view import check_look
 
-    if not isinstance(value, str) or value.strip().lower() not in LOOKS:
-        raise fail(f"unknown look {value!r}; use one of {', '.join(LOOKS)}")
-    return value.strip().lower()
+    try:
+        return check_look(value)  # the name alone; the model checks it against the view
+    except ForestError as e:
+        raise fail(e.message) from None
 
 
 def _exposure(value: Any) -> float:
@@ -1146,9 +1147,7 @@ class RenderConfig(Section):
         description="A grade of the agx view's PNG, one of Blender's AgX looks: none, punchy (deeper, more "
         "chroma: a bright blue sky stays blue), or very_high / high / medium_high / medium_low / low / "
         "very_low_contrast (the EXR stays scene-linear).",
-        json_schema_extra={"enum": ["none", "punchy", "very_high_contrast", "high_contrast", "medium_high_contrast",
-                                    "medium_low_contrast", "low_contrast", "very_low_contrast"]},
-    )  # fmt: skip
+    )
     working_space: Literal["rec709", "acescg"] = Field(
         "rec709",
         description="Colour space of the EXR's beauty and colour layers: rec709 (linear Rec.709, as rendered) or "

@@ -148,10 +148,12 @@ def write_display(
     """
     from ..images import write_encoded_image
 
+    view = check_view(view)
+    look = check_look(look, view)
     display = to_display(rgb, view, exposure, look)
-    attrs = {"forest:view": check_view(view), "forest:exposure": float(exposure), **(attributes or {})}
+    attrs = {"forest:view": view, "forest:exposure": float(exposure), **(attributes or {})}
     if look != "none":
-        attrs["forest:look"] = check_look(look, check_view(view))
+        attrs["forest:look"] = look
     return write_encoded_image(path, quantise(display, bits), attributes=attrs)
 
 
