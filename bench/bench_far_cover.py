@@ -3,11 +3,14 @@
     .venv/bin/python bench/bench_far_cover.py
 
 The demo scene (configs/demo.toml: hills past the terrain, 8 501 trees) at 480x270, 8 spp: the same
-PathScene inputs with the mosaic (the default with ``horizon_hills``) and without it (``woods = false``).
-The two renders alternate (best of 3 each, after one warm-up each that compiles the kernels), so a busy
-machine slows both alike.  Printed: wall and CPU seconds of ``PathScene.render`` with and without, their
-ratio, the mean radiance of each, and how much the mosaic changes the hills (the ratio of the two renders'
-luminance over the pixels whose first hit lies over 100 m past the terrain's edge: its 5-95 % range).
+PathScene inputs with the woods (the default with ``horizon_hills``: the mosaic and the woods' relief), with
+the mosaic alone (the relief's height set to 0) and without either (``woods = false``).  The renders
+alternate (best of 3 each, after one warm-up each that compiles the kernels), so a busy machine slows all
+alike.  Printed: the skirt's triangles and the CPU seconds to build each PathScene (the skirt's mesh is built
+there), wall and CPU seconds of ``PathScene.render``, their ratios to the one colour, the mean radiance of
+each, how much the mosaic changes the hills (the ratio of the renders' luminance over the pixels whose first
+hit lies over 100 m past the terrain's edge: its 5-95 % range), and the share of the frame the relief turns
+from sky to ground.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ def main() -> None:
     from forest.render.path import PathScene
     from forest.render.path.from_scene import path_inputs
     from forest.scene import load_scene
+    from forest.skirt import skirt_mesh
 
     load = os.getloadavg()
     print(f"far cover: load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at start; demo 480x270 8 spp")
@@ -44,36 +48,58 @@ def main() -> None:
     c = scene.terrain_albedo.far_cover
     print(f"far cover: the terrain's canopy cover {c:.3f}; open ground ×{np.mean(inputs.far_cover.open):.2f}, "
           f"woods ×{np.mean(inputs.far_cover.canopy):.2f} of the far albedo (channel means)")  # fmt: skip
-    scenes = {k: PathScene(inputs if k else replace(inputs, far_cover=None), "llvm_ad_rgb") for k in (False, True)}
-    images: dict[bool, object] = {}
-    for k, s in scenes.items():  # warm-up: compile both kernels
-        images[k] = s.render(seed=1)
-    best: dict[bool, tuple[float, float]] = {}
+    fc = inputs.far_cover
+    variants = {
+        "one colour (woods = false)": replace(inputs, far_cover=None),
+        "mosaic, no relief": replace(inputs, far_cover=replace(fc, height=0.0)),
+        "woods (mosaic + relief)": inputs,
+    }
+    names = list(variants)
+    scenes, build = {}, {}
+    for name, inp in variants.items():
+        c0 = cpu_seconds()
+        scenes[name] = PathScene(inp, "llvm_ad_rgb")
+        build[name] = cpu_seconds() - c0
+    skirt = skirt_mesh(scene.terrain, inputs.skirt_radius, inputs.skirt_hills, fc)
+    plain = skirt_mesh(scene.terrain, inputs.skirt_radius, inputs.skirt_hills)
+    assert skirt is not None and plain is not None
+    print(f"far cover: the woods' canopy height {fc.height:.1f} m; skirt {len(plain.faces):,} triangles without the "
+          f"relief, {len(skirt.faces):,} with it")  # fmt: skip
+    images: dict[str, object] = {}
+    for name, s in scenes.items():  # warm-up: compile the kernels
+        images[name] = s.render(seed=1)
+    best: dict[str, tuple[float, float]] = {}
     for _ in range(3):
-        for k, s in scenes.items():
+        for name, s in scenes.items():
             t0, c0 = time.perf_counter(), cpu_seconds()
             s.render(seed=1)
             wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0
-            if k not in best or cpu < best[k][1]:
-                best[k] = (wall, cpu)
+            if name not in best or cpu < best[name][1]:
+                best[name] = (wall, cpu)
     xmin, zmin, xmax, zmax = scene.terrain.extent
-    pos = scenes[True].layers()["position"].astype(np.float64)
+    pos = scenes[names[1]].layers()["position"].astype(np.float64)
     x, z = pos[..., 0], pos[..., 2]
     past = (np.maximum(np.maximum(xmin - x, x - xmax), np.maximum(zmin - z, z - zmax)) > 100.0) & (pos[..., 1] != 0)
     lum = {}
-    for k, img in images.items():
-        rgb = np.asarray(img.rgb, np.float64).reshape(pos.shape)  # type: ignore[attr-defined]
-        lum[k] = (rgb @ np.array([0.2126, 0.7152, 0.0722]))[past]
-    ratio = lum[True] / np.maximum(lum[False], 1e-12)
+    for name in names[:2]:
+        rgb = np.asarray(images[name].rgb, np.float64).reshape(pos.shape)  # type: ignore[attr-defined]
+        lum[name] = (rgb @ np.array([0.2126, 0.7152, 0.0722]))[past]
+    ratio = lum[names[1]] / np.maximum(lum[names[0]], 1e-12)
     lo, hi = np.percentile(ratio, [5, 95])
     print(f"far cover: {past.mean():.1%} of the frame's pixels see ground over 100 m past the terrain's edge")
-    for k, name in ((False, "one colour (woods = false)"), (True, "woods and open ground")):
-        wall, cpu = best[k]
-        mean = float(np.asarray(images[k].rgb).mean())  # type: ignore[attr-defined]
-        print(f"far cover {name:27s}: {wall:6.2f} s wall, {cpu:6.2f} CPU-s, mean {mean:.4f}")
+    base_wall, base_cpu = best[names[0]]
+    for name in names:
+        wall, cpu = best[name]
+        mean = float(np.asarray(images[name].rgb).mean())  # type: ignore[attr-defined]
+        print(f"far cover {name:27s}: build {build[name]:5.2f} CPU-s; render {wall:6.2f} s wall, {cpu:6.2f} CPU-s "
+              f"({cpu / base_cpu:.2f}x CPU, {wall / base_wall:.2f}x wall of the one colour), mean {mean:.4f}")  # fmt: skip
     print(f"far cover: on those pixels the mosaic scales the luminance by {lo:.2f}-{hi:.2f} (5-95 %), "
           f"mean {ratio.mean():.3f} (same seed, hazed)")  # fmt: skip
-    print(f"far cover cost: {best[True][1] / best[False][1]:.2f}x CPU, {best[True][0] / best[False][0]:.2f}x wall")
+    sky = {n: scenes[n].layers()["row"] < 0 for n in names[1:]}
+    print(f"far cover: the relief turns {np.mean(sky[names[1]] & ~sky[names[2]]):.2%} of the frame from sky to "
+          f"ground, {np.mean(~sky[names[1]] & sky[names[2]]):.2%} the other way")  # fmt: skip
+    print(f"far cover cost: woods {best[names[2]][1] / base_cpu:.2f}x CPU, {best[names[2]][0] / base_wall:.2f}x wall; "
+          f"relief alone {best[names[2]][1] / best[names[1]][1]:.2f}x CPU")  # fmt: skip
     load = os.getloadavg()
     print(f"far cover: load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at end")
 

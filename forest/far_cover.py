@@ -45,10 +45,27 @@ padded edge keep their own albedo:
 
     m' = 1 + s(d / P)·(m − 1),    d = the Chebyshev distance past the extent
 
-forest_path draws it (``[render] horizon_hills``' ``woods``, on by default
-with hills); the scalar renderer keeps the one colour ρ_far, as it keeps the
-ground without its detail texture.  Deterministic: the tile depends only on
-c̄ (rounded to 10⁻⁶) and the hills' seed.
+**Relief.**  Seen against the sky, a wooded hill's outline is not a smooth
+curve: the woods stand a canopy's height above the fields, and their top is
+crowns.  So forest_path's skirt rises, where the woods are, by
+
+    Δy(x, z) = s(d / P) · C · H · (1 − a_c + a_c·k(x, z))
+
+with H the canopy's height (:func:`forest.skirt.landscape`: the trees' heights
+weighted by crown area, as ρ_c), a_c = :data:`CROWN_DEPTH` the share of it
+that is crowns, and k a field of domes, one per jittered lattice cell of
+:data:`CROWN_M` metres, k = √(1 − (F₁/r)²)⁺ (F₁ the distance to the nearest
+cell's point, Worley 1996, "A cellular texture basis function", SIGGRAPH;
+r = :data:`CROWN_RADIUS` cells).  The skirt's hill rings are sampled finely
+enough around the camera for these to show on a skyline
+(:func:`forest.skirt.skirt_mesh`), and its vertex normals follow them, so the
+woods' crowns also take light and shade.
+
+forest_path draws both (``[render] horizon_hills``' ``woods``, on by default
+with hills); the scalar renderer keeps the one colour ρ_far and the smooth
+hills, as it keeps the ground without its detail texture.  Deterministic: the
+tile depends only on c̄ (rounded to 10⁻⁶) and the hills' seed, the domes on the
+seed.
 """
 
 from __future__ import annotations
@@ -74,6 +91,14 @@ GRAIN = 0.4
 MIN_CONTRAST = 1e-3
 #: Purpose tag of the cover's noise (CONTRIBUTING's seeding rule: a constant per purpose).
 COVER_TAG = 0x574F_4F44
+#: Spacing of the crowns on the woods' relief (the lattice cell of the domes), metres.
+CROWN_M = 9.0
+#: Radius r of a crown's dome, in cells (wider than half a cell, so neighbouring crowns touch).
+CROWN_RADIUS = 0.75
+#: Share a_c of the canopy's height that is crowns (the relief's dome amplitude).
+CROWN_DEPTH = 0.35
+#: Purpose tag of the crowns' lattice points.
+CROWN_TAG = 0x4352_4F57
 
 
 def _periodic_noise(n: int, cells: int, key: np.uint64, shift: float) -> np.ndarray:
@@ -148,7 +173,8 @@ class FarCover:
 
     ``tile``: :func:`cover_tile`'s weights; ``open`` and ``canopy``: ρ_o/ρ_far and
     ρ_c/ρ_far (3,) each; ``extent``: the terrain's (xmin, zmin, xmax, zmax);
-    ``ramp``: P, metres past it over which the mosaic fades in; ``tile_m``: the tile's side.
+    ``ramp``: P, metres past it over which the mosaic fades in; ``tile_m``: the tile's side;
+    ``height``: H, the canopy's height (metres; 0: no relief); ``seed``: the crowns' pattern.
     """
 
     tile: np.ndarray
@@ -157,6 +183,33 @@ class FarCover:
     extent: tuple[float, float, float, float]
     ramp: float
     tile_m: float = TILE_M
+    height: float = 0.0
+    seed: int = 0
+
+    def _ramp(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """s(d / P): 0 inside the terrain's extent, 1 from P past it."""
+        xmin, zmin, xmax, zmax = self.extent
+        d = np.maximum(np.maximum(xmin - x, x - xmax), np.maximum(zmin - z, z - zmax))
+        t = np.clip(d / self.ramp, 0.0, 1.0)
+        return t * t * (3.0 - 2.0 * t)
+
+    def woods(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """C at world (x, z): the woods' cover of the land (the tile's first weight is 1 − C)."""
+        from .ground import wrapped_bilinear
+
+        x = np.asarray(x, np.float64)
+        z = np.asarray(z, np.float64)
+        w = wrapped_bilinear(self.tile[..., :1], x.ravel() / self.tile_m, z.ravel() / self.tile_m)
+        return (1.0 - w[:, 0]).reshape(x.shape)
+
+    def relief(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Δy at world (x, z), metres: how far the woods stand above the ground there (module docstring)."""
+        x = np.asarray(x, np.float64)
+        z = np.asarray(z, np.float64)
+        if self.height <= 0.0:
+            return np.zeros(x.shape)
+        crowns = 1.0 - CROWN_DEPTH + CROWN_DEPTH * crown_domes(x, z, self.seed)
+        return self._ramp(x, z) * self.woods(x, z) * self.height * crowns
 
     def factor(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
         """m' (…, 3) at world (x, z): the factor on the skirt's albedo (module docstring), on the host."""
@@ -166,10 +219,28 @@ class FarCover:
         z = np.asarray(z, np.float64)
         w = wrapped_bilinear(self.tile, x.ravel() / self.tile_m, z.ravel() / self.tile_m).reshape(*x.shape, 2)
         m = w[..., :1] * np.asarray(self.open) + w[..., 1:2] * np.asarray(self.canopy)
-        xmin, zmin, xmax, zmax = self.extent
-        d = np.maximum(np.maximum(xmin - x, x - xmax), np.maximum(zmin - z, z - zmax))
-        t = np.clip(d / self.ramp, 0.0, 1.0)[..., None]
-        return 1.0 + t * t * (3.0 - 2.0 * t) * (m - 1.0)
+        return 1.0 + self._ramp(x, z)[..., None] * (m - 1.0)
+
+
+def crown_domes(x: np.ndarray, z: np.ndarray, seed: int) -> np.ndarray:
+    """k(x, z) ∈ [0, 1]: one dome √(1 − (F₁/r)²)⁺ per :data:`CROWN_M`-metre cell around a hashed point in it
+    (module docstring, "Relief"); F₁ over the 3 × 3 cells around each point."""
+    from .scatter.canopy import lattice
+
+    key = np.uint64((int(seed) * 0x9E3779B97F4A7C15 + CROWN_TAG) % 2**64)
+    key_z = np.uint64((int(key) ^ 0xD1B54A32D192ED03) % 2**64)
+    u = np.asarray(x, np.float64).ravel() / CROWN_M
+    v = np.asarray(z, np.float64).ravel() / CROWN_M
+    iu, iv = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+    nearest = np.full(u.shape, np.inf)
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            cu, cv = iu + di, iv + dj
+            du = cu + lattice(cu, cv, key) - u
+            dv = cv + lattice(cu, cv, key_z) - v
+            np.minimum(nearest, du * du + dv * dv, out=nearest)
+    k = np.sqrt(np.clip(1.0 - nearest / CROWN_RADIUS**2, 0.0, 1.0))
+    return k.reshape(np.shape(x))
 
 
 def far_cover(
@@ -179,9 +250,11 @@ def far_cover(
     extent: tuple[float, float, float, float],
     ramp: float,
     seed: int,
+    height: float = 0.0,
 ) -> FarCover | None:
-    """The :class:`FarCover` of a far landscape ρ_far = (1 − c̄)·ρ_o + c̄·ρ_c (``far``, ``canopy``, ``cover`` c̄);
-    None where there is no mosaic to draw (c̄ within :data:`MIN_CONTRAST` of 0 or 1, or ρ_far black)."""
+    """The :class:`FarCover` of a far landscape ρ_far = (1 − c̄)·ρ_o + c̄·ρ_c (``far``, ``canopy``, ``cover`` c̄)
+    whose canopy stands ``height`` metres; None where there is no mosaic to draw (c̄ within
+    :data:`MIN_CONTRAST` of 0 or 1, or ρ_far black)."""
     rho_far = np.asarray(far, np.float64).reshape(3)
     rho_c = np.asarray(canopy, np.float64).reshape(3)
     c = float(cover)
@@ -195,4 +268,6 @@ def far_cover(
         tuple(float(v) for v in rho_c / rho_far),  # type: ignore[arg-type]
         tuple(float(v) for v in extent),  # type: ignore[arg-type]
         max(float(ramp), 1e-6),
+        height=max(float(height), 0.0),
+        seed=int(seed),
     )

@@ -142,6 +142,8 @@ class TerrainAlbedo:
     #: without trees): the woods and open ground of the skirt's mosaic (:mod:`forest.far_cover`).
     far_canopy: tuple[float, float, float] | None = None
     far_cover: float = 0.0
+    #: The canopy's height behind ``far_canopy``, metres (0 without trees): the woods' relief on the skirt.
+    far_height: float = 0.0
 
     def water_at(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
         """Water coverage W at world (x, z): the ``water`` grid bilinear, clamped at the edges (0 without water)."""

@@ -33,7 +33,11 @@ Approach*, 3rd ed. 2003, ch. 16), rescaled to [0, 1] and squared so that
 hills stand out of broad lowlands.  The weight s(d/L) keeps the ground level
 with the terrain's edge and lets the hills rise over one scale L past it, so
 they never wall in the scene; normals are the area-weighted face normals.
-Without hills the skirt is the two bands above, unchanged.
+Without hills the skirt is the two bands above, unchanged.  With the woods of
+:mod:`forest.far_cover` (forest_path), the ramp's ring is first cut so that
+neighbouring vertices are at most :data:`RELIEF_STEP` apart seen from the
+centre, every ring carries those columns, and each vertex rises by the woods'
+relief there; the normals stay those of the hills without it.
 
 **Fade.**  With the skirt, the ground's albedo grid (the Scene's
 ``terrain_albedo``, :mod:`forest.ground`) is padded so that past the terrain's
@@ -105,6 +109,7 @@ from .tint import leaf_colour
 
 if TYPE_CHECKING:
     from .config import Config
+    from .far_cover import FarCover
     from .instances import InstanceSet
     from .library import Species
     from .scene import Scene
@@ -119,6 +124,9 @@ SKIRT_RAMP = 0.03
 HILL_RINGS = 64
 #: Octaves of the hills' fractional Brownian motion.
 HILL_OCTAVES = 5
+#: Angle between neighbouring vertices of the hills' rings seen from the terrain's centre where they carry the
+#: woods' relief (:func:`skirt_mesh`), radians: about 8 200 around, 4 m apart at 5 km.
+RELIEF_STEP = 2.0 * np.pi / 8192
 #: Purpose tag of the hills' noise (a constant per purpose, CONTRIBUTING's seeding rule).
 HILL_TAG = 0x4849_4C4C
 
@@ -196,12 +204,14 @@ class Skirt:
     uv: np.ndarray | None = None
 
 
-def skirt_mesh(terrain, radius: float, hills: Hills | None = None) -> Skirt | None:
+def skirt_mesh(terrain, radius: float, hills: Hills | None = None, woods: FarCover | None = None) -> Skirt | None:
     """The skirt around ``terrain`` (see the module docstring); None for a terrain without a boundary.
 
     Two bands per boundary edge: a short one (:data:`SKIRT_RAMP` of the terrain's width, level with the edge)
     over which the shading normal turns from the terrain's to +Y, then the long one out to ``radius`` — with
-    ``hills``, :data:`HILL_RINGS` rings carrying them.
+    ``hills``, :data:`HILL_RINGS` rings carrying them, and with ``woods`` (a
+    :class:`forest.far_cover.FarCover` of a canopy taller than 0) the woods' relief on those rings, sampled
+    every :data:`RELIEF_STEP` radians around the terrain.
     """
     v = np.asarray(terrain.vertices, np.float64)
     edges = boundary_edges(terrain.faces)
@@ -224,7 +234,8 @@ def skirt_mesh(terrain, radius: float, hills: Hills | None = None) -> Skirt | No
     local = np.searchsorted(used, edges)  # boundary vertex → 0..k-1
     a, b = local[:, 0], local[:, 1]
     if hills is not None and hills.height > 0:
-        return _hilly_skirt(terrain, hills, (inner, mid, outer), c, unit, (a, b))
+        relief = woods if woods is not None and woods.height > 0.0 else None
+        return _hilly_skirt(terrain, hills, (inner, mid, outer), c, (a, b), relief)
     faces = np.concatenate(
         [
             np.stack([a, b, b + k], 1),
@@ -243,25 +254,47 @@ def skirt_mesh(terrain, radius: float, hills: Hills | None = None) -> Skirt | No
     return Skirt(verts.astype(np.float32), faces.astype(np.uint32), normals.astype(np.float32))
 
 
+def subdivide_ring(points: np.ndarray, c: np.ndarray, edges: tuple[np.ndarray, np.ndarray], step: float):
+    """The ring ``points`` (k, 3) with every edge (a, b) cut into s equal pieces, s the smallest count that keeps
+    each piece within ``step`` radians seen from ``c``: (points (k + E·(s − 1), 3), chains (E, s + 1)), each
+    edge's vertices from a to b, its new ones after the first k."""
+    a, b = edges
+    k, e = len(points), len(a)
+    ang = np.arctan2(points[:, 2] - c[1], points[:, 0] - c[0])
+    turn = np.abs(np.angle(np.exp(1j * (ang[b] - ang[a]))))
+    s = max(1, int(np.ceil(float(turn.max(initial=0.0)) / step)))
+    t = np.arange(1, s, dtype=np.float64) / s
+    new = points[a][:, None, :] + (points[b] - points[a])[:, None, :] * t[None, :, None]  # (E, s−1, 3)
+    chains = np.empty((e, s + 1), np.int64)
+    chains[:, 0], chains[:, s] = a, b
+    chains[:, 1:s] = k + np.arange(e * (s - 1)).reshape(e, s - 1)
+    return np.concatenate([points, new.reshape(-1, 3)]), chains
+
+
 def _hilly_skirt(
     terrain,
     hills: Hills,
     ring_points: tuple[np.ndarray, np.ndarray, np.ndarray],
     c: np.ndarray,
-    unit: np.ndarray,
     edge: tuple[np.ndarray, np.ndarray],
+    woods: FarCover | None = None,
 ) -> Skirt:
     """The skirt with hills (module docstring): the boundary, the ramp's ring, then :data:`HILL_RINGS` rings
-    out to the outer ring's radius; ``edge`` the boundary edges as (a, b) indices into the boundary ring."""
+    out to the outer ring's radius; ``edge`` the boundary edges as (a, b) indices into the boundary ring; with
+    ``woods``, the ramp's ring and the hills' rings subdivided to :data:`RELIEF_STEP` and raised by its relief."""
     inner, mid, outer = ring_points
     k = len(inner)
     a, b = edge
-    r0 = np.linalg.norm(mid[:, [0, 2]] - c, axis=1)
+    mid, chains = subdivide_ring(mid, c, edge, RELIEF_STEP if woods is not None else np.inf)
+    q, s = len(mid), chains.shape[1] - 1
+    rel = mid[:, [0, 2]] - c
+    r0 = np.maximum(np.linalg.norm(rel, axis=1), 1e-9)
+    unit = rel / r0[:, None]
     r_end = float(np.linalg.norm(outer[0, [0, 2]] - c))
     m = HILL_RINGS
     t = np.arange(1, m + 1, dtype=np.float64) / m
-    radius = r0[None, :] * (r_end / r0[None, :]) ** t[:, None]  # (M, k)
-    rings = np.empty((m, k, 3))
+    radius = r0[None, :] * (r_end / r0[None, :]) ** t[:, None]  # (M, q)
+    rings = np.empty((m, q, 3))
     rings[:, :, 0] = c[0] + unit[None, :, 0] * radius
     rings[:, :, 2] = c[1] + unit[None, :, 1] * radius
     level = (radius - r0[None, :]) / np.maximum(r_end - r0[None, :], 1e-9)
@@ -269,17 +302,25 @@ def _hilly_skirt(
     w = np.clip((radius - r0[None, :]) / float(hills.scale), 0.0, 1.0)
     rings[:, :, 1] += float(hills.height) * w * w * (3.0 - 2.0 * w) * hill_field(rings[:, :, 0], rings[:, :, 2], hills)
     verts = np.concatenate([inner, mid, rings.reshape(-1, 3)])
-    bands = [np.stack([a, b, b + k], 1), np.stack([a, b + k, a + k], 1)]
-    for j in range(1, m + 1):  # ring j−1 (the mid ring for j = 1) to ring j
-        lo, hi = j * k, (j + 1) * k
-        bands += [np.stack([a + lo, b + lo, b + hi], 1), np.stack([a + lo, b + hi, a + hi], 1)]
+    land = verts.copy()  # the hills without the woods: their normals shade the skirt (module docstring)
+    if woods is not None:
+        verts[k + q :, 1] += woods.relief(verts[k + q :, 0], verts[k + q :, 2])
+    # The ramp's band: each boundary edge (a, b) fans to its chain on the ramp's ring, half from a, half from b.
+    half = (s + 1) // 2
+    lo, hi = chains[:, :-1] + k, chains[:, 1:] + k
+    fan_a = np.stack([np.repeat(a[:, None], half, 1), lo[:, :half], hi[:, :half]], -1).reshape(-1, 3)
+    fan_b = np.stack([np.repeat(b[:, None], s - half, 1), lo[:, half:], hi[:, half:]], -1).reshape(-1, 3)
+    bands = [fan_a, fan_b, np.stack([a, chains[:, half] + k, b], 1)]
+    for j in range(1, m + 1):  # ring j−1 (the ramp's ring for j = 1) to ring j, piece by piece along each chain
+        lo, hi = k + (j - 1) * q + chains[:, :-1], k + (j - 1) * q + chains[:, 1:]
+        bands += [np.stack([lo, hi, hi + q], -1).reshape(-1, 3), np.stack([lo, hi + q, lo + q], -1).reshape(-1, 3)]
     faces = np.concatenate(bands)
     p0, p1, p2 = (verts[faces[:, i]] for i in range(3))
     down = np.cross(p1 - p0, p2 - p0)[:, 1] < 0
     faces[down] = faces[down][:, [0, 2, 1]]
-    normals = vertex_normals(verts, faces)  # area-weighted; every face winds upward, so they face +Y
+    normals = vertex_normals(land, faces)  # area-weighted; every face winds upward, so they face +Y
     normals[:k] = np.asarray(terrain.vertex_normals, np.float64)[np.unique(boundary_edges(terrain.faces))]
-    normals[k : 2 * k] = (0.0, 1.0, 0.0)
+    normals[k : k + q] = (0.0, 1.0, 0.0)
     return Skirt(verts.astype(np.float32), faces.astype(np.uint32), normals.astype(np.float32))
 
 
@@ -364,11 +405,13 @@ def crown_colours(species: Sequence[Species]) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Landscape:
-    """The far landscape (module docstring): ``far`` ρ_far, ``canopy`` ρ_c (None without trees) and ``cover`` ⟨c⟩."""
+    """The far landscape (module docstring): ``far`` ρ_far, ``canopy`` ρ_c (None without trees), ``cover`` ⟨c⟩ and
+    ``height``, the canopy's height in metres (the trees' heights weighted by crown area, as ρ_c)."""
 
     far: np.ndarray
     canopy: np.ndarray | None = None
     cover: float = 0.0
+    height: float = 0.0
 
 
 def landscape(
@@ -406,7 +449,15 @@ def landscape(
     v = (z.ravel() - ext[1]) / max(ext[3] - ext[1], 1e-12)
     under = np.asarray(sample_bilinear(rgb, u, v), np.float64).reshape(-1, rgb.shape[-1])
     far = np.asarray(mean + (cover * (canopy - under)).mean(axis=0), np.float64)
-    return Landscape(far, np.asarray(canopy, np.float64), float(cover.mean()))
+    tall = tree_heights(species)[sp[trees]] * np.asarray(instances.scale, np.float64)[trees]
+    height = float(area @ tall / area.sum())
+    return Landscape(far, np.asarray(canopy, np.float64), float(cover.mean()), height)
+
+
+def tree_heights(species: Sequence[Species]) -> np.ndarray:
+    """(S,) metres: the height of each species' highest level at scale 1 (its bounds' Y extent)."""
+    out = [float(np.ptp(np.asarray(sp.lods[0].bounds, np.float64).reshape(2, 3)[:, 1])) for sp in species]
+    return np.asarray(out, np.float64)
 
 
 def horizon_albedo(scene: Scene) -> TerrainAlbedo:
@@ -417,7 +468,7 @@ def horizon_albedo(scene: Scene) -> TerrainAlbedo:
     land = landscape(albedo.rgb, albedo.extent, scene.instances, scene.species, len(scene.config.species), ones)
     canopy = None if land.canopy is None else (float(land.canopy[0]), float(land.canopy[1]), float(land.canopy[2]))
     far = (float(land.far[0]), float(land.far[1]), float(land.far[2]))
-    return replace(albedo, far=far, far_canopy=canopy, far_cover=float(land.cover))
+    return replace(albedo, far=far, far_canopy=canopy, far_cover=float(land.cover), far_height=float(land.height))
 
 
 def far_colour(albedo: TerrainAlbedo) -> np.ndarray:

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from test_render import trees
 
 from forest.config import parse_config
-from forest.far_cover import TEXELS, FarCover, cover_tile, far_cover
+from forest.far_cover import CROWN_DEPTH, CROWN_M, TEXELS, FarCover, cover_tile, crown_domes, far_cover
 from forest.ground import wrapped_bilinear
 from forest.images import read_exr_channels
 from forest.render import render_scene
@@ -85,11 +87,16 @@ percent = 100
 """
 
 
-def test_forest_path_draws_the_mosaic_the_host_computes(tmp_path):
+def test_forest_path_draws_the_mosaic_the_host_computes(tmp_path, monkeypatch):
     """Looking down at the skirt from 40 m (a pixel ≈ 0.7 m, the tile's texels 4 m) where the mosaic has an edge
     between woods and open ground, the first-hit albedo with woods is the one without times the mosaic's factor
     at the pixel's world position, as :class:`FarCover` computes it on the host (the ground's detail texture,
-    the same in both, cancels)."""
+    the same in both, cancels).  The woods' relief is left out here (the same ground in both), and tested
+    below."""
+    import forest.skirt
+
+    skirt_mesh = forest.skirt.skirt_mesh
+    monkeypatch.setattr(forest.skirt, "skirt_mesh", lambda t, r, h=None, woods=None: skirt_mesh(t, r, h))
     library = BoxLibrary(tmp_path / "lib")
     rng = np.random.default_rng(1)
     xz = rng.uniform(-45.0, 45.0, (60, 2))
@@ -125,3 +132,135 @@ def test_forest_path_draws_the_mosaic_the_host_computes(tmp_path):
     # mean position up to the texture's curvature within a pixel.
     rel = np.abs(a_on / a_off / expected - 1.0)
     assert float(np.median(rel)) < 0.005 and float(np.percentile(rel, 99)) < 0.03 and float(rel.max()) < 0.06
+
+
+def test_the_woods_stand_a_canopy_high_with_crowns_on_top():
+    """The relief Δy = s(d/P)·C·H·(1 − a_c + a_c·k): none on the terrain or on open ground; on the woods between
+    (1 − a_c)·H and H, crowns spaced about CROWN_M apart along a line through them."""
+    fc = far_cover((0.05, 0.07, 0.03), (0.03, 0.05, 0.01), 0.6, (-50.0, -50.0, 50.0, 50.0), 10.0, 2, height=20.0)
+    assert fc is not None and fc.height == 20.0
+    k = (np.arange(TEXELS) + 0.5) / TEXELS * fc.tile_m
+    x, z = np.meshgrid(k + 1000.0 * fc.tile_m, k)
+    woods = fc.woods(x, z)
+    relief = fc.relief(x, z)
+    np.testing.assert_allclose(woods, 1.0 - fc.tile[..., 0], atol=1e-6)  # at texel centres: the tile's C
+    open_ground = woods < 0.01
+    assert open_ground.mean() > 0.1 and float(relief[open_ground].max()) <= 0.01 * 20.0  # open ground stays down
+    deep = woods > 1.0 - 1e-6
+    assert float(relief[deep].min()) >= (1.0 - CROWN_DEPTH) * 20.0 - 1e-4 and float(relief[deep].max()) <= 20.0
+    assert float(relief[deep].std()) > 1.0  # crowns, not a flat table
+    assert np.all(fc.relief(np.array([0.0, 49.9]), np.array([0.0, -49.9])) == 0.0)  # on the terrain
+    # Along a 2 km line through the woods (1 m steps) the crowns' tops: one per CROWN_M-ish stretch.
+    row = int(np.argmax(deep.mean(axis=1)))
+    line_x = np.arange(0.0, 2000.0, 1.0) + 1000.0 * fc.tile_m
+    line_z = np.full_like(line_x, k[row])
+    domes = crown_domes(line_x, line_z, 2)
+    tops = int(np.sum((domes[1:-1] > domes[:-2]) & (domes[1:-1] >= domes[2:]) & (domes[1:-1] > 0.3)))
+    assert 2000.0 / (3.0 * CROWN_M) < tops < 2000.0 / (0.5 * CROWN_M)
+    assert np.array_equal(crown_domes(line_x, line_z, 2), domes) and not np.array_equal(
+        crown_domes(line_x, line_z, 3), domes
+    )
+    # No canopy height, no relief.
+    flat = far_cover((0.05, 0.07, 0.03), (0.03, 0.05, 0.01), 0.6, (-50.0, -50.0, 50.0, 50.0), 10.0, 2)
+    assert flat is not None and float(np.abs(flat.relief(x, z)).max()) == 0.0
+
+
+def test_the_wooded_skirt_joins_the_terrain_and_is_fine_enough_for_crowns():
+    """With woods the skirt still closes on the terrain's boundary (its open edges are the terrain's boundary
+    and the outer ring), its rings' neighbours are at most RELIEF_STEP apart seen from the centre, it is the
+    hills plus the relief, and its normals are the hills' (smooth) ones."""
+    from forest.skirt import HILL_RINGS, RELIEF_STEP, Hills, boundary_edges, skirt_mesh
+    from forest.terrain import fbm_heights, grid_terrain
+
+    terrain = grid_terrain(fbm_heights(33, 4, 0.5, 1) * 20.0, (200.0, 200.0))
+    fc = far_cover((0.05, 0.07, 0.03), (0.03, 0.05, 0.01), 0.6, terrain.extent, 20.0, 1, height=25.0)
+    hills = Hills(300.0, 1000.0, 4)
+    plain = skirt_mesh(terrain, 30_000.0, hills)
+    wooded = skirt_mesh(terrain, 30_000.0, hills, fc)
+    assert plain is not None and wooded is not None
+    k = len(np.unique(boundary_edges(terrain.faces)))
+    np.testing.assert_array_equal(wooded.vertices[:k], plain.vertices[:k])  # the terrain's boundary
+    q = (len(wooded.vertices) - k) // (HILL_RINGS + 1)
+    assert len(wooded.vertices) == k + (HILL_RINGS + 1) * q and q > 4 * k
+    # Open edges: the terrain's boundary (same positions) and the outer ring.
+    open_edges = boundary_edges(wooded.faces)
+    assert len(open_edges) == len(boundary_edges(terrain.faces)) + q
+    inner = {tuple(sorted(map(tuple, wooded.vertices[e].tolist()))) for e in open_edges if max(e) < k}
+    terrain_v = np.asarray(terrain.vertices, np.float32)
+    assert inner == {tuple(sorted(map(tuple, terrain_v[e].tolist()))) for e in boundary_edges(terrain.faces)}
+    rings = wooded.vertices[k:].reshape(HILL_RINGS + 1, q, 3).astype(np.float64)
+    ang = np.sort(np.arctan2(rings[5, :, 2], rings[5, :, 0]))
+    gaps = np.diff(np.concatenate([ang, ang[:1] + 2 * np.pi]))
+    assert float(gaps.max()) <= RELIEF_STEP * 1.01
+    # The first k columns of every ring are the plain hills' vertices, raised by the relief there.
+    base = plain.vertices[k:].reshape(HILL_RINGS + 1, k, 3).astype(np.float64)
+    np.testing.assert_allclose(rings[:, :k, [0, 2]], base[:, :, [0, 2]], atol=1e-3)
+    lift = rings[1:, :k, 1] - base[1:, :, 1]
+    np.testing.assert_allclose(lift, fc.relief(base[1:, :, 0], base[1:, :, 2]), atol=2e-2)
+    assert float(lift.max()) > 20.0 and float(lift.min()) > -2e-2
+    # Smooth normals: the crowns tilt the faces, not the shading normal, which stays the hills' own.
+    low = skirt_mesh(terrain, 30_000.0, hills, dataclasses.replace(fc, height=1e-6))  # same rings, no crowns
+    assert low is not None
+    np.testing.assert_array_equal(wooded.normals, low.normals)
+    assert float(np.abs(wooded.vertices[:, 1] - low.vertices[:, 1]).max()) > 20.0
+    f = wooded.faces.astype(np.int64)
+    v = wooded.vertices.astype(np.float64)
+    face_n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    face_up = face_n[:, 1] / np.linalg.norm(face_n, axis=1)
+    assert float(np.percentile(face_up, 5)) < float(np.percentile(wooded.normals[k:, 1], 5)) - 0.1
+
+
+#: The 100 m square seen from 2 m over its south edge at x = 30, looking north just above the horizon (the trees,
+#: west of x = −20, stay out of the frame).
+LEVEL = """
+seed = 3
+[terrain]
+flat = { size = 100.0 }
+[camera]
+position = [30.0, 2.0, -49.0]
+target = [30.0, 2.0, 1000.0]
+fov = 40.0
+[lights]
+sun = { elevation = 40.0, azimuth = 160.0, irradiance = 3.0 }
+sky = { radiance = 1.0, colour = [1.0, 1.0, 1.0] }
+[render]
+width = 64
+height = 32
+spp = 4
+max_depth = 2
+horizon_hills = { height = 100.0, scale = 1500.0, seed = 1 }
+[[species]]
+model = "box"
+percent = 100
+"""
+
+
+def test_forest_path_stands_the_woods_on_the_skyline(tmp_path, monkeypatch):
+    """Looking level over the edge, the woods' relief (18 m boxes: a canopy 18 m high) covers sky that the hills
+    alone leave open, and never uncovers any; the pixels it covers are lit ground."""
+    import forest.skirt
+
+    library = BoxLibrary(tmp_path / "lib")
+    rng = np.random.default_rng(2)
+    xz = np.stack([rng.uniform(-48.0, -20.0, 150), rng.uniform(-48.0, 48.0, 150)], axis=1)
+    positions = np.stack([xz[:, 0], np.zeros(150), xz[:, 1]], axis=1)
+    cfg = parse_config(LEVEL, path=tmp_path / "scene.toml", base_dir=tmp_path)
+    scene = load_scene(cfg, trees(positions, scale=3.0), library=library)
+    fc = path_inputs(scene).far_cover
+    assert fc is not None and abs(fc.height - 18.0) < 1e-9
+    layers = {}
+    skirt_mesh = forest.skirt.skirt_mesh
+    for name in ("hills", "woods"):
+        if name == "hills":
+            monkeypatch.setattr(forest.skirt, "skirt_mesh", lambda t, r, h=None, woods=None: skirt_mesh(t, r, h))
+        else:
+            monkeypatch.setattr(forest.skirt, "skirt_mesh", skirt_mesh)
+        out = tmp_path / f"{name}.exr"
+        render_scene(scene, output=out, variant="llvm_ad_rgb")
+        layers[name] = read_exr_channels(out)[0]
+    upper = slice(2, 16)  # rows above the horizon (row 16)
+    a_hills, a_woods = layers["hills"]["A"][upper], layers["woods"]["A"][upper]
+    assert float(a_woods.mean()) > float(a_hills.mean()) + 0.02
+    gained = (a_woods > 0.99) & (a_hills < 0.01)
+    assert gained.sum() >= 5 and not np.any((a_hills > 0.99) & (a_woods < 0.01))
+    assert float(layers["woods"]["G"][upper][gained].min()) > 0.005

@@ -101,6 +101,10 @@ def test_the_far_albedo_is_the_cover_weighted_mix_of_canopy_and_ground(library):
     d = area.sum() / (50.0 * 100.0)
     assert cover == pytest.approx(0.5 * (1.0 - np.exp(-d)), abs=0.03)
     assert far[1] / far[0] > SOIL[1] / SOIL[0]  # greener than the soil
+    # the canopy's height: the trees' heights (6 m boxes × scale) weighted by crown area, as ρ_c
+    height = landscape(ground, EXTENT, inst, (sp, sp), 1, inst.tint).height
+    assert height == pytest.approx(float(area @ (6.0 * scale) / area.sum()), rel=1e-12)
+    assert 6.0 < height < 9.0
 
     # ground cover (species index ≥ the tree species' count) neither covers nor colours
     moss = dataclasses.replace(inst, species=np.ones(n, inst.species.dtype))

@@ -1078,7 +1078,8 @@ class HorizonHillsConfig(Section):
     woods: Bool = Field(
         True,
         description="forest_path: woods and open ground in patches on that far ground, in the terrain's own "
-        "canopy cover and colours (false: one colour).",
+        "canopy cover, colours and canopy height, the woods' crowns on the skyline (false: one colour, smooth "
+        "hills).",
     )
 
 

@@ -207,7 +207,7 @@ def far_mosaic(scene: Scene, look: GroundLook) -> FarCover | None:
         return None
     core, padded = albedo.extent, look.extent
     ramp = min(core[0] - padded[0], core[1] - padded[1], padded[2] - core[2], padded[3] - core[3])
-    return far_cover(albedo.far, albedo.far_canopy, albedo.far_cover, core, ramp, int(h.seed))
+    return far_cover(albedo.far, albedo.far_canopy, albedo.far_cover, core, ramp, int(h.seed), height=albedo.far_height)
 
 
 def far_plan(scene: Scene, frames: list[float] | None = None, flatten_triangles: int | None = None) -> tuple[int, int]:

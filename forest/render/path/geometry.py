@@ -184,7 +184,7 @@ class ForestGeometry:
             if float(inputs.skirt_radius) > 0.0:
                 from ...skirt import skirt_mesh
 
-                sk = skirt_mesh(t, float(inputs.skirt_radius), inputs.skirt_hills)
+                sk = skirt_mesh(t, float(inputs.skirt_radius), inputs.skirt_hills, inputs.far_cover)
                 if sk is not None:
                     mesh = _Mesh(sk.vertices, sk.faces, sk.normals, world_uv(sk.vertices))
                     self.world_parts.append(self.parts.add(mesh, mat))
