@@ -38,7 +38,7 @@ def main() -> None:
     from forest.render.path import PathScene
     from forest.render.path.from_scene import path_inputs
     from forest.scene import load_scene
-    from forest.skirt import skirt_mesh
+    from forest.skirt import relief_step, skirt_mesh
 
     load = os.getloadavg()
     print(f"far cover: load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at start; demo 480x270 8 spp")
@@ -56,15 +56,19 @@ def main() -> None:
     }
     names = list(variants)
     scenes, build = {}, {}
-    for name, inp in variants.items():
-        c0 = cpu_seconds()
-        scenes[name] = PathScene(inp, "llvm_ad_rgb")
-        build[name] = cpu_seconds() - c0
-    skirt = skirt_mesh(scene.terrain, inputs.skirt_radius, inputs.skirt_hills, fc)
+    for _ in range(2):  # the first round also reads the species' meshes: the better of two, alternating
+        for name, inp in variants.items():
+            scenes.pop(name, None)
+            t0, c0 = time.perf_counter(), cpu_seconds()
+            scenes[name] = PathScene(inp, "llvm_ad_rgb")
+            took = (time.perf_counter() - t0, cpu_seconds() - c0)
+            build[name] = min(build.get(name, took), took)
+    step = relief_step(inputs.camera.fov, inputs.camera.width)
+    skirt = skirt_mesh(scene.terrain, inputs.skirt_radius, inputs.skirt_hills, fc, step)
     plain = skirt_mesh(scene.terrain, inputs.skirt_radius, inputs.skirt_hills)
     assert skirt is not None and plain is not None
     print(f"far cover: the woods' canopy height {fc.height:.1f} m; skirt {len(plain.faces):,} triangles without the "
-          f"relief, {len(skirt.faces):,} with it")  # fmt: skip
+          f"relief, {len(skirt.faces):,} with it (every {np.degrees(step):.3f}° around)")  # fmt: skip
     images: dict[str, object] = {}
     for name, s in scenes.items():  # warm-up: compile the kernels
         images[name] = s.render(seed=1)
@@ -91,7 +95,7 @@ def main() -> None:
     for name in names:
         wall, cpu = best[name]
         mean = float(np.asarray(images[name].rgb).mean())  # type: ignore[attr-defined]
-        print(f"far cover {name:27s}: build {build[name]:5.2f} CPU-s; render {wall:6.2f} s wall, {cpu:6.2f} CPU-s "
+        print(f"far cover {name:27s}: build {build[name][0]:5.2f} s wall, {build[name][1]:5.2f} CPU-s; render {wall:6.2f} s wall, {cpu:6.2f} CPU-s "
               f"({cpu / base_cpu:.2f}x CPU, {wall / base_wall:.2f}x wall of the one colour), mean {mean:.4f}")  # fmt: skip
     print(f"far cover: on those pixels the mosaic scales the luminance by {lo:.2f}-{hi:.2f} (5-95 %), "
           f"mean {ratio.mean():.3f} (same seed, hazed)")  # fmt: skip

@@ -35,8 +35,8 @@ with the terrain's edge and lets the hills rise over one scale L past it, so
 they never wall in the scene; normals are the area-weighted face normals.
 Without hills the skirt is the two bands above, unchanged.  With the woods of
 :mod:`forest.far_cover` (forest_path), the ramp's ring is first cut so that
-neighbouring vertices are at most :data:`RELIEF_STEP` apart seen from the
-centre, every ring carries those columns, and each vertex rises by the woods'
+neighbouring vertices are at most about 1.5 of the camera's pixels apart seen
+from the centre (:func:`relief_step`), every ring carries those columns, and each vertex rises by the woods'
 relief there; the normals stay those of the hills without it.
 
 **Fade.**  With the skirt, the ground's albedo grid (the Scene's
@@ -124,9 +124,13 @@ SKIRT_RAMP = 0.03
 HILL_RINGS = 64
 #: Octaves of the hills' fractional Brownian motion.
 HILL_OCTAVES = 5
-#: Angle between neighbouring vertices of the hills' rings seen from the terrain's centre where they carry the
-#: woods' relief (:func:`skirt_mesh`), radians: about 8 200 around, 4 m apart at 5 km.
+#: Finest angle between neighbouring vertices of the hills' rings seen from the terrain's centre where they carry
+#: the woods' relief (:func:`skirt_mesh`), radians: 8 192 around, 4 m apart at 5 km.
 RELIEF_STEP = 2.0 * np.pi / 8192
+#: Coarsest such angle: 1 024 around.
+RELIEF_STEP_MAX = 2.0 * np.pi / 1024
+#: The relief's angle in pixels of the camera (:func:`relief_step`).
+RELIEF_PIXELS = 1.5
 #: Purpose tag of the hills' noise (a constant per purpose, CONTRIBUTING's seeding rule).
 HILL_TAG = 0x4849_4C4C
 
@@ -204,14 +208,24 @@ class Skirt:
     uv: np.ndarray | None = None
 
 
-def skirt_mesh(terrain, radius: float, hills: Hills | None = None, woods: FarCover | None = None) -> Skirt | None:
+def relief_step(fov: float, width: int) -> float:
+    """The angle (radians) the woods' relief is sampled at around the terrain for a camera of horizontal ``fov``
+    degrees over ``width`` pixels: :data:`RELIEF_PIXELS` pixels, within [:data:`RELIEF_STEP`,
+    :data:`RELIEF_STEP_MAX`] — crowns a pixel or two wide on a skyline seen from the terrain."""
+    pixel = np.radians(float(fov)) / max(int(width), 1)
+    return float(np.clip(RELIEF_PIXELS * pixel, RELIEF_STEP, RELIEF_STEP_MAX))
+
+
+def skirt_mesh(
+    terrain, radius: float, hills: Hills | None = None, woods: FarCover | None = None, step: float = RELIEF_STEP
+) -> Skirt | None:
     """The skirt around ``terrain`` (see the module docstring); None for a terrain without a boundary.
 
     Two bands per boundary edge: a short one (:data:`SKIRT_RAMP` of the terrain's width, level with the edge)
     over which the shading normal turns from the terrain's to +Y, then the long one out to ``radius`` — with
     ``hills``, :data:`HILL_RINGS` rings carrying them, and with ``woods`` (a
     :class:`forest.far_cover.FarCover` of a canopy taller than 0) the woods' relief on those rings, sampled
-    every :data:`RELIEF_STEP` radians around the terrain.
+    every ``step`` radians around the terrain (:func:`relief_step`).
     """
     v = np.asarray(terrain.vertices, np.float64)
     edges = boundary_edges(terrain.faces)
@@ -235,7 +249,7 @@ def skirt_mesh(terrain, radius: float, hills: Hills | None = None, woods: FarCov
     a, b = local[:, 0], local[:, 1]
     if hills is not None and hills.height > 0:
         relief = woods if woods is not None and woods.height > 0.0 else None
-        return _hilly_skirt(terrain, hills, (inner, mid, outer), c, (a, b), relief)
+        return _hilly_skirt(terrain, hills, (inner, mid, outer), c, (a, b), relief, step)
     faces = np.concatenate(
         [
             np.stack([a, b, b + k], 1),
@@ -278,14 +292,15 @@ def _hilly_skirt(
     c: np.ndarray,
     edge: tuple[np.ndarray, np.ndarray],
     woods: FarCover | None = None,
+    step: float = RELIEF_STEP,
 ) -> Skirt:
     """The skirt with hills (module docstring): the boundary, the ramp's ring, then :data:`HILL_RINGS` rings
     out to the outer ring's radius; ``edge`` the boundary edges as (a, b) indices into the boundary ring; with
-    ``woods``, the ramp's ring and the hills' rings subdivided to :data:`RELIEF_STEP` and raised by its relief."""
+    ``woods``, the ramp's ring and the hills' rings subdivided to ``step`` radians and raised by its relief."""
     inner, mid, outer = ring_points
     k = len(inner)
     a, b = edge
-    mid, chains = subdivide_ring(mid, c, edge, RELIEF_STEP if woods is not None else np.inf)
+    mid, chains = subdivide_ring(mid, c, edge, step if woods is not None else np.inf)
     q, s = len(mid), chains.shape[1] - 1
     rel = mid[:, [0, 2]] - c
     r0 = np.maximum(np.linalg.norm(rel, axis=1), 1e-9)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 from test_render import trees
 
 from forest.config import parse_config
@@ -96,7 +97,7 @@ def test_forest_path_draws_the_mosaic_the_host_computes(tmp_path, monkeypatch):
     import forest.skirt
 
     skirt_mesh = forest.skirt.skirt_mesh
-    monkeypatch.setattr(forest.skirt, "skirt_mesh", lambda t, r, h=None, woods=None: skirt_mesh(t, r, h))
+    monkeypatch.setattr(forest.skirt, "skirt_mesh", lambda t, r, h=None, *rest: skirt_mesh(t, r, h))
     library = BoxLibrary(tmp_path / "lib")
     rng = np.random.default_rng(1)
     xz = rng.uniform(-45.0, 45.0, (60, 2))
@@ -169,7 +170,7 @@ def test_the_wooded_skirt_joins_the_terrain_and_is_fine_enough_for_crowns():
     """With woods the skirt still closes on the terrain's boundary (its open edges are the terrain's boundary
     and the outer ring), its rings' neighbours are at most RELIEF_STEP apart seen from the centre, it is the
     hills plus the relief, and its normals are the hills' (smooth) ones."""
-    from forest.skirt import HILL_RINGS, RELIEF_STEP, Hills, boundary_edges, skirt_mesh
+    from forest.skirt import HILL_RINGS, RELIEF_STEP, RELIEF_STEP_MAX, Hills, boundary_edges, relief_step, skirt_mesh
     from forest.terrain import fbm_heights, grid_terrain
 
     terrain = grid_terrain(fbm_heights(33, 4, 0.5, 1) * 20.0, (200.0, 200.0))
@@ -192,6 +193,11 @@ def test_the_wooded_skirt_joins_the_terrain_and_is_fine_enough_for_crowns():
     ang = np.sort(np.arctan2(rings[5, :, 2], rings[5, :, 0]))
     gaps = np.diff(np.concatenate([ang, ang[:1] + 2 * np.pi]))
     assert float(gaps.max()) <= RELIEF_STEP * 1.01
+    # A camera's step: 1.5 pixels, within the finest and coarsest.
+    assert relief_step(50.0, 800) == pytest.approx(1.5 * np.radians(50.0) / 800)
+    assert relief_step(50.0, 8000) == RELIEF_STEP and relief_step(90.0, 64) == RELIEF_STEP_MAX
+    coarse = skirt_mesh(terrain, 30_000.0, hills, fc, relief_step(50.0, 800))
+    assert coarse is not None and len(plain.vertices) < len(coarse.vertices) < len(wooded.vertices)
     # The first k columns of every ring are the plain hills' vertices, raised by the relief there.
     base = plain.vertices[k:].reshape(HILL_RINGS + 1, k, 3).astype(np.float64)
     np.testing.assert_allclose(rings[:, :k, [0, 2]], base[:, :, [0, 2]], atol=1e-3)
@@ -252,7 +258,7 @@ def test_forest_path_stands_the_woods_on_the_skyline(tmp_path, monkeypatch):
     skirt_mesh = forest.skirt.skirt_mesh
     for name in ("hills", "woods"):
         if name == "hills":
-            monkeypatch.setattr(forest.skirt, "skirt_mesh", lambda t, r, h=None, woods=None: skirt_mesh(t, r, h))
+            monkeypatch.setattr(forest.skirt, "skirt_mesh", lambda t, r, h=None, *rest: skirt_mesh(t, r, h))
         else:
             monkeypatch.setattr(forest.skirt, "skirt_mesh", skirt_mesh)
         out = tmp_path / f"{name}.exr"

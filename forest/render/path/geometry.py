@@ -182,9 +182,10 @@ class ForestGeometry:
             mesh = _Mesh(t.vertices, t.faces, t.vertex_normals, world_uv(t.vertices))
             self.world_parts.append(self.parts.add(mesh, mat))
             if float(inputs.skirt_radius) > 0.0:
-                from ...skirt import skirt_mesh
+                from ...skirt import relief_step, skirt_mesh
 
-                sk = skirt_mesh(t, float(inputs.skirt_radius), inputs.skirt_hills, inputs.far_cover)
+                step = relief_step(inputs.camera.fov, inputs.camera.width)
+                sk = skirt_mesh(t, float(inputs.skirt_radius), inputs.skirt_hills, inputs.far_cover, step)
                 if sk is not None:
                     mesh = _Mesh(sk.vertices, sk.faces, sk.normals, world_uv(sk.vertices))
                     self.world_parts.append(self.parts.add(mesh, mat))
