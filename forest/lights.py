@@ -142,7 +142,8 @@ class Clouds:
     """A cloud layer in the sky (:mod:`forest.render.path.clouds`): a fraction ``cover`` of the sky covered,
     on a plane ``altitude`` metres up, clouds about ``scale`` metres across, optical thickness up to about
     3 × ``density``, edges ``softness`` wide (noise units), the pattern from ``seed`` and slid by ``wind``
-    (x, z metres)."""
+    (x, z metres); camera rays see cumulus up to ``height`` metres tall above the plane (None: 0.4 ×
+    ``scale``; 0: the flat layer)."""
 
     cover: float = 0.4
     altitude: float = 2000.0
@@ -151,6 +152,7 @@ class Clouds:
     density: float = 4.0
     softness: float = 0.12
     wind: tuple[float, float] = (0.0, 0.0)
+    height: float | None = None
 
 
 @dataclass(frozen=True)
@@ -232,5 +234,6 @@ def resolve_lights(config) -> Lights:
             float(c.density),
             float(c.softness),
             (float(c.wind[0]), float(c.wind[1])),
+            None if c.height is None else float(c.height),
         )
     return Lights(sun=sun if sun is not None and sun.lit else None, sky=sky, clouds=clouds)

@@ -108,6 +108,8 @@ def test_clouds_are_off_by_default_and_read_from_the_config():
     assert resolve_lights(config(sky)).clouds is None
     c = resolve_lights(config(sky + "\nclouds = { cover = 0.3, altitude = 1500.0, seed = 7, wind = [5.0, 1.0] }"))
     assert c.clouds == Clouds(cover=0.3, altitude=1500.0, seed=7, wind=(5.0, 1.0))
+    tall = resolve_lights(config(sky + "\nclouds = { cover = 0.3, height = 450.0 }")).clouds
+    assert tall is not None and tall.height == 450.0
     assert resolve_lights(config(sky + "\nclouds = { cover = 0.0 }")).clouds is None
     # [lights] with only clouds keeps the default daylight
     only = resolve_lights(config("clouds = { cover = 0.5 }"))
@@ -124,6 +126,7 @@ def test_clouds_are_off_by_default_and_read_from_the_config():
         ("clouds = { seed = 1.5 }", "lights.clouds.seed"),
         ("clouds = { wind = [1.0] }", "lights.clouds.wind"),
         ("clouds = { colour = 1 }", "lights.clouds.colour: unknown key"),
+        ("clouds = { height = -10.0 }", "lights.clouds.height: must be >= 0"),
     ],
 )
 def test_bad_cloud_values_are_refused_in_one_line(body, message):
@@ -170,3 +173,77 @@ def test_light_groups_split_the_clouded_sky_and_add_up_to_it():
     assert set(parts) == {"sun", "sky"}
     assert np.array_equal(np.asarray(total), np.asarray(alone))
     np.testing.assert_allclose(np.asarray(parts["sun"] + parts["sky"]), np.asarray(total), rtol=1e-6)
+
+
+def _light_set(clouds: Clouds):
+    from forest.render.path.emitters import LightSet, make_lights
+
+    sky = SkyLight("constant", radiance=(0.2, 0.3, 0.5), clouds=clouds)
+    scene = PathScene(surfaces_only([GROUND], SKYWARD, sun=SUN, sky=sky), VARIANT)
+    return scene.mi, LightSet(scene.mi, make_lights(scene.mi, SUN, sky), scene.params)
+
+
+def _directions(mi, rng, n: int, lo: float, hi: float):
+    az = rng.uniform(0.0, 2.0 * np.pi, n)
+    el = np.radians(rng.uniform(lo, hi, n))
+    d = np.stack([np.sin(az) * np.cos(el), np.sin(el), np.cos(az) * np.cos(el)], 1).astype(np.float32)
+    return d, mi.Vector3f(*[mi.Float(d[:, k]) for k in range(3)])
+
+
+def test_camera_rays_see_cumulus_standing_on_the_layer():
+    """Toward the horizon a camera ray sees the cumulus' sides, so more of the sky is cloud than the flat layer
+    shows there; straight up it sees cloud only where the flat layer has some (the same footprint); bounce
+    rays and light samples see the flat layer whatever the height, and ``height = 0`` shows it to the camera."""
+    import drjit as dr
+
+    clouds = Clouds(cover=0.35, scale=1500.0, altitude=2000.0, seed=4)
+    mi, ls = _light_set(clouds)
+    layer = ls.clouds
+    assert layer.tall == pytest.approx(600.0)
+    rng = np.random.default_rng(3)
+    o = mi.Point3f(0.0, 80.0, 0.0)
+    with dr.suspend_grad():
+        _, low = _directions(mi, rng, 20000, 2.0, 8.0)
+        flat_T = np.asarray(layer.transmittance(o, low, mi.Bool(True))[0])
+        cum_T = np.asarray(layer.cumulus(o, low, mi.Bool(True))[0])
+        assert float((cum_T < 0.5).mean()) > 1.3 * float((flat_T < 0.5).mean())
+        # Straight up from points spread over 30 km: the same footprint.
+        xz = rng.uniform(-15000.0, 15000.0, (4000, 2)).astype(np.float32)
+        origin = mi.Point3f(mi.Float(xz[:, 0]), 10.0, mi.Float(xz[:, 1]))
+        up = mi.Vector3f(0.0, 1.0, 0.0)
+        _, tau, _, _ = layer.transmittance(origin, up, mi.Bool(True))
+        tau, T_up = np.asarray(tau), np.asarray(layer.cumulus(origin, up, mi.Bool(True))[0])
+        assert np.all(tau[T_up < 0.99] > 0.0)  # no cumulus where the flat layer is clear
+        # where it is thick, a tower (a short one at a cloud's edge may fall between the march's points)
+        assert float((T_up[np.exp(-tau) < 0.5] < 0.9).mean()) > 0.75
+        assert 0.15 < float((T_up < 0.5).mean()) < 0.5
+        # Bounce rays: the flat layer whatever the height; the camera: the flat layer at height 0.
+        _, d = _directions(mi, rng, 4000, 1.0, 89.0)
+        on = mi.Bool(True)
+        cam = mi.Bool(np.ones(4000, bool))
+        _, flat = _light_set(Clouds(cover=0.35, scale=1500.0, altitude=2000.0, seed=4, height=0.0))
+        assert np.array_equal(np.asarray(ls.eval(d, on, o)), np.asarray(flat.eval(d, on, o)))
+        assert np.array_equal(np.asarray(flat.eval(d, on, o, camera=cam)), np.asarray(flat.eval(d, on, o)))
+        assert not np.array_equal(np.asarray(ls.eval(d, on, o, camera=cam)), np.asarray(ls.eval(d, on, o)))
+
+
+def test_a_cumulus_is_sunlit_on_top_and_grey_below():
+    """Camera rays that meet a cumulus high on its dome see it brighter than rays that meet it at its base
+    (the sunlight reaching the front through the cloud, and the sky light a base receives)."""
+    import drjit as dr
+
+    mi, ls = _light_set(Clouds(cover=0.35, scale=1500.0, altitude=2000.0, seed=4))
+    layer = ls.clouds
+    rng = np.random.default_rng(5)
+    o = mi.Point3f(0.0, 80.0, 0.0)
+    d_np, d = _directions(mi, rng, 40000, 2.0, 20.0)
+    s = np.asarray(SUN.direction, np.float64)
+    with dr.suspend_grad():
+        T, front, _ = layer.cumulus(o, d, mi.Bool(True))
+        L = np.asarray(ls.eval(d, mi.Bool(True), o, camera=mi.Bool(np.ones(len(d_np), bool))))
+    L = (L.T if L.shape[0] == 3 else L).reshape(-1, 3).mean(axis=1)
+    eta = (np.asarray(front.y) - layer.altitude) / layer.tall
+    cloudy = (np.asarray(T) < 0.05) & (np.degrees(np.arccos(np.clip(d_np @ s, -1.0, 1.0))) > 30.0)
+    top, base = cloudy & (eta > 0.6), cloudy & (eta < 0.25)
+    assert top.sum() > 100 and base.sum() > 100
+    assert float(L[top].mean()) > 1.15 * float(L[base].mean())

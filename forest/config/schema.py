@@ -961,6 +961,11 @@ class CloudsConfig(Section):
         0.12, description="Width of the clouds' soft edges, in noise units (0.02 crisp – 0.3 wispy)."
     )
     wind: tuple[Metres, Metres] = Field((0.0, 0.0), description="Offset of the layer (x, z), metres.")
+    height: Annotated[float, Field(ge=0.0, le=20_000.0, allow_inf_nan=False)] | None = Field(
+        None,
+        description="Height of the tallest cumulus above the layer, metres, as the camera sees them "
+        "(default 0.4 × scale; 0: a flat layer).",
+    )
 
 
 class LightsConfig(Section):

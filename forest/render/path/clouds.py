@@ -1,4 +1,4 @@
-"""A procedural cloud layer in forest_path's sky: cumulus seen from below, their silver linings and shadows.
+"""A procedural cloud layer in forest_path's sky: cumulus, their silver linings and shadows.
 
 **Geometry.**  The clouds lie on the horizontal plane y = h (``altitude``).  A ray from o along
 the unit direction ω (ω_y > 0, o_y < h) crosses it at distance
@@ -40,6 +40,35 @@ stepping once toward the sun by the layer's thickness H = scale/4 (Schneider & V
 real-time volumetric cloudscapes of Horizon Zero Dawn", for beer-law self-shadowing).
 L̄_sky is the sky's mean radiance over the upper hemisphere, k_a = 0.8.
 
+**Cumulus in height (camera rays).**  A flat layer seen toward the horizon is foreshortened into
+streaks, where real fair-weather cumulus show their sides: flat bases and domed tops stacked toward
+the horizon.  So what a camera ray sees is a height field over the same pattern: a cumulus stands
+on the layer's plane where the flat layer has cloud, as tall as
+
+    y_top(x) − h = H · s(n − n₀; w) · √(clip((n − n₀)/(1 − n₀), 0, 1))                        (5)
+
+(H = ``height``, by default 0.4 × ``scale``; s the edge's smoothstep of (2)), and the ray marches it
+at :data:`MARCH` points between y = h and y = h + H, stratified with one jitter per ray (a hash of
+its direction: deterministic, and decorrelated between a pixel's samples):
+
+    τ_k = σ · o(x_k) · Δt · f(t_k),   σ = 3D / H,   T = Π_k e^(−τ_k)                         (6)
+
+with o ∈ [0, 1] how far x_k lies below the top (a soft top :data:`TOP_EDGE` · H thick), so a
+vertical ray through a full tower meets τ = 3D, the flat layer's core.  The cloud's radiance is
+taken at its front x_f, the mean of the points weighted by what each absorbs, T_k (1 − e^(−τ_k)):
+
+    L_cloud = E_sun [ p_HG(ω·s; g) V + (ρ/π)(m + (1 − m) V) ] + k_a · L̄_sky · (b + (1 − b) η)  (7)
+
+V = e^(−τ_s) the sunlight reaching x_f through the cumulus, τ_s = 0.15 σ Σ o(x_f + ℓ_j s) Δℓ_j at
+the distances ℓ_j = :data:`SUN_STEPS` × H toward the sun (Schneider & Vos 2015's light march), m =
+:data:`MULTIPLE` the light multiple scattering carries into the shade, η ∈ [0, 1] the front's
+height in the cumulus and b = :data:`BASE_AMBIENT` the sky light that reaches a base: sunlit domes
+over grey bases.  Only camera rays see (5)–(7), in a branch a packet without a camera ray that left
+the scene skips; bounce rays and light samples see the flat layer (3)–(4), whose cover is the
+cumulus' footprint, so the ground's light and the cloud shadows are as before and both MIS
+strategies still evaluate the same radiance (a camera ray has no light-sampling alternative).
+``height = 0`` gives camera rays the flat layer too.
+
 **Unbiased light sampling.**  (3) is the radiance of every light that leaves the scene —
 camera, bounce and next-event rays alike (:class:`~.emitters.LightSet` evaluates it for all of them
 from the ray's origin).  forest_path's light-sampling densities do not depend on the clouds
@@ -50,7 +79,8 @@ ground by their own radiance.  The haze (:mod:`.haze`) keeps the clear sky's col
 
 Cost: a few dozen arithmetic operations and 20 hashes per sky evaluation; the sky is evaluated once
 per escaped ray and once per light sample — in the measurements of ``docs/rendering.md``, a few per
-cent of a frame.
+cent of a frame.  The cumulus add :data:`MARCH` + 3 fBm evaluations per camera ray that leaves the
+scene (``bench/bench_clouds.py``).
 """
 
 from __future__ import annotations
@@ -78,6 +108,17 @@ QUANTILE_GRID = 256
 QUANTILE_SPAN = 64.0
 #: Directions this close to the horizon (ω_y) see no cloud.
 MIN_MU = 1e-3
+#: Camera rays: the cumulus' tallest height above the layer's base, as a fraction of ``scale``.
+TOWER = 0.4
+#: Camera rays: samples of the march through the cumulus' height, and toward the sun from their front.
+MARCH = 8
+SUN_STEPS = (0.15, 0.5, 1.2)
+#: Camera rays: the soft edge of a cumulus' top, as a fraction of its tallest height.
+TOP_EDGE = 0.05
+#: Camera rays: the share of the sunlit radiance that multiple scattering carries into a cloud's shade.
+MULTIPLE = 0.15
+#: Camera rays: the share of the sky's ambient light that reaches a cumulus' base (its top takes all of it).
+BASE_AMBIENT = 0.4
 
 
 def _hash(mi: Any, ix: Any, iy: Any, seed: int) -> Any:
@@ -146,6 +187,9 @@ class CloudLayer:
         self.density = float(clouds.density)
         self.softness = float(clouds.softness)
         self.wind = (float(clouds.wind[0]), float(clouds.wind[1]))
+        height = getattr(clouds, "height", None)
+        #: The tallest cumulus above the layer, metres, as camera rays see them (0: the flat layer).
+        self.tall = TOWER * self.scale if height is None else float(height)
         self.threshold = self._quantile(1.0 - self.cover)
 
     def _quantile(self, q: float) -> float:
@@ -170,6 +214,58 @@ class CloudLayer:
         body = 1.0 + 2.0 * dr.maximum(excess, 0.0) * (1.0 / max(1.0 - self.threshold, 1e-3))
         return self.density * edge * edge * (3.0 - 2.0 * edge) * body
 
+    def profile(self, x: Any, z: Any) -> Any:
+        """A cumulus' height at layer coordinates (x, z) as a fraction of its tallest, p ∈ [0, 1], equation (5):
+        0 where the flat layer is clear, rising with the noise past its threshold as a dome (√)."""
+        import drjit as dr
+
+        inv = 1.0 / self.scale
+        n = fbm(self.mi, (x - self.wind[0]) * inv, (z - self.wind[1]) * inv, self.seed)
+        excess = n - self.threshold
+        edge = dr.clip(excess * (1.0 / self.softness), 0.0, 1.0)
+        body = dr.clip(excess * (1.0 / max(1.0 - self.threshold, 1e-3)), 0.0, 1.0)
+        return edge * edge * (3.0 - 2.0 * edge) * dr.sqrt(body)
+
+    def _occupancy(self, x: Any, y: Any, z: Any) -> Any:
+        """How far inside a cumulus the point (x, y, z) is, in [0, 1]: 1 below its top, 0 above, a soft top."""
+        import drjit as dr
+
+        tall = self.tall
+        top = self.profile(x, z) * tall
+        return dr.select(top > 0.0, dr.clip((top - (y - self.altitude)) * (1.0 / (TOP_EDGE * tall)), 0.0, 1.0), 0.0)
+
+    def cumulus(self, o: Any, d: Any, active: Any) -> tuple[Any, Any, Any]:
+        """What a camera ray (o, d) sees of the cumulus, equations (5)–(7): (T, the front point where it meets
+        them as a Point3f, the optical thickness toward the sun from that point)."""
+        import drjit as dr
+
+        mi = self.mi
+        tall = self.tall
+        sigma = 3.0 * self.density / tall  # τ through a full tower, vertically, is the flat layer's 3·D
+        up = active & (d.y > MIN_MU) & (o.y < self.altitude)
+        inv_dy = 1.0 / dr.maximum(d.y, MIN_MU)
+        t0 = (self.altitude - o.y) * inv_dy
+        span = tall * inv_dy
+        # One jitter per ray, hashed from its direction (deterministic; decorrelated across pixel samples).
+        bits: Any = dr.reinterpret_array(mi.Int32, d.x)
+        bits = bits ^ dr.reinterpret_array(mi.Int32, d.z)
+        jitter = _hash(mi, bits, dr.reinterpret_array(mi.Int32, d.y), self.seed ^ 0x5A17)
+        fade = -1.0 / (FADE * self.altitude)
+        T = mi.Float(1.0)
+        weight = mi.Float(0.0)
+        front = mi.Vector3f(0.0)
+        step = span * (1.0 / MARCH)
+        for k in range(MARCH):
+            t = dr.fma(jitter + k, step, t0)
+            p = dr.fma(d, t, o)
+            occ = dr.select(up, self._occupancy(p.x, p.y, p.z), 0.0)
+            absorbed = T * (1.0 - dr.exp(-sigma * occ * step * dr.exp(t * fade)))
+            front = dr.fma(mi.Vector3f(p), absorbed, front)
+            weight += absorbed
+            T = T - absorbed
+        front = mi.Point3f(front / dr.maximum(weight, 1e-12))
+        return T, front, weight
+
     def crossing(self, o: Any, d: Any, active: Any) -> tuple[Any, Any, Any, Any]:
         """Where a ray crosses the layer, equation (1): (x, z, t, whether it does)."""
         import drjit as dr
@@ -186,8 +282,43 @@ class CloudLayer:
         tau = dr.select(up, self.thickness(x, z) * dr.exp(t * (-1.0 / (FADE * self.altitude))), 0.0)
         return dr.exp(-tau), tau, x, z
 
+    def _cumulus_light(self, o: Any, d: Any, active: Any, sky: Any, sun: Any, sun_term: Any, ambient: Any) -> Any:
+        """(sky, sun) radiances toward ``d`` for camera rays, through the cumulus (equations (5)–(7))."""
+        import drjit as dr
+
+        mi = self.mi
+        T, front, _ = self.cumulus(o, d, active)
+        veil = 1.0 - T
+        tall = self.tall
+        height = dr.clip((front.y - self.altitude) * (1.0 / tall), 0.0, 1.0)
+        sky_out = dr.fma(sky, T, veil * AMBIENT * ambient * dr.fma(height, 1.0 - BASE_AMBIENT, BASE_AMBIENT))
+        if sun_term is None:
+            return sky_out, sun * T
+        s, e_sun = sun_term
+        sigma = 3.0 * self.density / tall
+        tau_s = mi.Float(0.0)
+        last = 0.0
+        for f in SUN_STEPS:
+            q = dr.fma(s, f * tall, front)
+            tau_s += self._occupancy(q.x, q.y, q.z) * ((f - last) * tall)
+            last = f
+        tau_s = DIFFUSION * sigma * tau_s
+        mu = dr.dot(d, s)
+        shade = dr.exp(-tau_s)
+        lit = henyey_greenstein(mu, PHASE_G) * shade + (ALBEDO / math.pi) * (MULTIPLE + (1.0 - MULTIPLE) * shade)
+        lit = dr.select(s.y > 0.0, lit, 0.0)
+        return sky_out, dr.fma(sun, T, mi.Color3f(e_sun) * (veil * lit))
+
     def apply(
-        self, o: Any, d: Any, active: Any, sky: Any, sun: Any, sun_term: tuple[Any, Any] | None, ambient: Any
+        self,
+        o: Any,
+        d: Any,
+        active: Any,
+        sky: Any,
+        sun: Any,
+        sun_term: tuple[Any, Any] | None,
+        ambient: Any,
+        camera: Any = None,
     ) -> tuple[Any, Any]:
         """The clouded (sky, sun) radiances toward ``d`` from ``o``, equations (3)–(4).
 
@@ -211,4 +342,14 @@ class CloudLayer:
         lit = henyey_greenstein(mu, PHASE_G) * dr.exp(-0.5 * tau)
         lit += (ALBEDO / math.pi) / dr.fma(DIFFUSION, tau + tau_s, 1.0)
         lit = dr.select(s.y > 0.0, lit, 0.0)
-        return sky_out, dr.fma(sun, T, mi.Color3f(e_sun) * (veil * lit))
+        sky_out, sun_out = sky_out, dr.fma(sun, T, mi.Color3f(e_sun) * (veil * lit))
+        if camera is None or self.tall <= 0.0:
+            return sky_out, sun_out
+        # Camera rays see the cumulus in height, in a branch a packet without camera rays skips.
+        return dr.if_stmt(
+            (o, d, sky, sun, ambient, sky_out, sun_out),
+            camera,
+            lambda *a: self._cumulus_light(a[0], a[1], True, a[2], a[3], sun_term, a[4]),
+            lambda *a: (a[5], a[6]),
+            label="forest_path: cumulus",
+        )

@@ -523,8 +523,9 @@ class LightSet:
                 return (tuple(float(v) for v in direction), light.irradiance, s)
         return None
 
-    def _clouded(self, d: Any, active: Any, origin: Any) -> tuple[Any, Any]:
-        """(sky, sun) radiance toward ``d`` from ``origin`` through the cloud layer (:meth:`.CloudLayer.apply`)."""
+    def _clouded(self, d: Any, active: Any, origin: Any, camera: Any = None) -> tuple[Any, Any]:
+        """(sky, sun) radiance toward ``d`` from ``origin`` through the cloud layer (:meth:`.CloudLayer.apply`);
+        lanes in ``camera`` (camera rays) see the cumulus in height."""
         mi = self.mi
         sky, sun = mi.Color3f(0.0), mi.Color3f(0.0)
         ambient = mi.Color3f(0.0)
@@ -541,7 +542,7 @@ class LightSet:
                     sun_term = (mi.Vector3f(*[float(v) for v in direction]), light.irradiance(s))
         o = mi.Point3f(0.0) if origin is None else origin
         assert self.clouds is not None
-        return self.clouds.apply(o, d, active, sky, sun, sun_term, ambient)
+        return self.clouds.apply(o, d, active, sky, sun, sun_term, ambient, camera)
 
     def eval(self, d: Any, active: Any, origin: Any = None, camera: Any = None) -> Any:
         """Radiance arriving from direction ``d`` (a ray that left the scene), all lights summed.
@@ -552,7 +553,7 @@ class LightSet:
         """
         mi = self.mi
         if self.clouds is not None:
-            sky, sun = self._clouded(d, active, origin)
+            sky, sun = self._clouded(d, active, origin, camera if self.backdrop is None else None)
             total = sun + sky
         else:
             total = mi.Color3f(0.0)
@@ -580,7 +581,7 @@ class LightSet:
         mi = self.mi
         parts: dict[str, Any] = {}
         if self.clouds is not None:
-            sky, sun = self._clouded(d, active, origin)
+            sky, sun = self._clouded(d, active, origin, camera if self.backdrop is None else None)
             total = sun + sky
             parts = {g: (sun if g == "sun" else sky) for g in self.groups}
         else:
