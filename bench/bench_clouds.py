@@ -1,0 +1,99 @@
+"""The cost of the clouds in forest_path (llvm_ad_rgb): none, the flat layer, and cumulus in height.
+
+    .venv/bin/python bench/bench_clouds.py
+
+The demo scene (configs/demo.toml: fair-weather cumulus over far hills, the horizon on the upper third) at
+480x270, 8 spp: the same PathScene inputs without clouds, with the flat layer for every ray
+(``[lights.clouds] height = 0``) and with the default, where camera rays see cumulus in height
+(:mod:`forest.render.path.clouds`, equations (5)-(7)).  The renders alternate (best of 3 each, after one
+warm-up each that compiles the kernels), so a busy machine slows all alike.  Printed: wall and CPU seconds
+of ``PathScene.render``, their ratios to the clear sky and of the cumulus to the flat layer, the mean
+radiance, and the share of the pixels that see the sky which show cloud (transmittance below ½ along the
+pixel centre's ray: the flat layer's, or the cumulus').
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def cpu_seconds() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def cloud_share(scene, camera_rays: bool) -> float:
+    """Share of the pixels whose centre ray leaves the scene that see cloud (T < ½)."""
+    import drjit as dr
+
+    mi = scene.mi
+    layer = getattr(scene.lights, "clouds", None)
+    if layer is None:
+        return 0.0
+    camera = scene.inputs.camera
+    w, h = int(camera.width), int(camera.height)
+    sky = scene.layers()["row"].ravel() < 0
+    with dr.suspend_grad():
+        idx = dr.arange(mi.UInt32, w * h)
+        pos = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
+        ray, _ = scene.sensor(camera).sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
+        on = mi.Bool(True)
+        T = layer.cumulus(ray.o, ray.d, on)[0] if camera_rays else layer.transmittance(ray.o, ray.d, on)[0]
+    return float((np.asarray(T)[sky] < 0.5).mean())
+
+
+def main() -> None:
+    from forest.config import load_config
+    from forest.render.path import PathScene
+    from forest.render.path.from_scene import path_inputs
+    from forest.scene import load_scene
+
+    load = os.getloadavg()
+    print(f"clouds: load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at start; demo 480x270 8 spp")
+    scene = load_scene(load_config(ROOT / "configs" / "demo.toml"))
+    inputs = path_inputs(scene, width=480, height=270, spp=8)
+    clouds = inputs.sky.clouds
+    assert clouds is not None
+    variants = {
+        "clear sky": replace(inputs, sky=replace(inputs.sky, clouds=None)),
+        "flat layer (height = 0)": replace(inputs, sky=replace(inputs.sky, clouds=replace(clouds, height=0.0))),
+        "cumulus (the default)": inputs,
+    }
+    names = list(variants)
+    scenes = {name: PathScene(inp, "llvm_ad_rgb") for name, inp in variants.items()}
+    images = {name: s.render(seed=1) for name, s in scenes.items()}  # warm-up: compile the kernels
+    best: dict[str, tuple[float, float]] = {}
+    for _ in range(3):
+        for name, s in scenes.items():
+            t0, c0 = time.perf_counter(), cpu_seconds()
+            s.render(seed=1)
+            wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0
+            if name not in best or cpu < best[name][1]:
+                best[name] = (wall, cpu)
+    base_wall, base_cpu = best[names[0]]
+    for name in names:
+        wall, cpu = best[name]
+        mean = float(np.asarray(images[name].rgb).mean())  # type: ignore[attr-defined]
+        print(f"clouds {name:24s}: {wall:6.2f} s wall, {cpu:6.2f} CPU-s ({cpu / base_cpu:.2f}x CPU, "
+              f"{wall / base_wall:.2f}x wall of the clear sky), mean {mean:.4f}")  # fmt: skip
+    flat, cumulus = scenes[names[1]], scenes[names[2]]
+    print(f"clouds: of the pixels that see the sky, {cloud_share(flat, False):.1%} show cloud with the flat layer, "
+          f"{cloud_share(cumulus, True):.1%} with the cumulus")  # fmt: skip
+    print(f"clouds cost: cumulus {best[names[2]][1] / best[names[1]][1]:.2f}x CPU of the flat layer, "
+          f"{best[names[2]][1] / base_cpu:.2f}x of the clear sky")  # fmt: skip
+    load = os.getloadavg()
+    print(f"clouds: load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at end")
+
+
+if __name__ == "__main__":
+    main()
