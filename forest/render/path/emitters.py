@@ -523,9 +523,9 @@ class LightSet:
                 return (tuple(float(v) for v in direction), light.irradiance, s)
         return None
 
-    def _clouded(self, d: Any, active: Any, origin: Any, camera: Any = None) -> tuple[Any, Any]:
+    def _clouded(self, d: Any, active: Any, origin: Any, camera: Any = None, jitter: Any = None) -> tuple[Any, Any]:
         """(sky, sun) radiance toward ``d`` from ``origin`` through the cloud layer (:meth:`.CloudLayer.apply`);
-        lanes in ``camera`` (camera rays) see the cumulus in height."""
+        lanes in ``camera`` (camera rays) see the cumulus in height, marched with ``jitter`` (None: hashed)."""
         mi = self.mi
         sky, sun = mi.Color3f(0.0), mi.Color3f(0.0)
         ambient = mi.Color3f(0.0)
@@ -542,18 +542,19 @@ class LightSet:
                     sun_term = (mi.Vector3f(*[float(v) for v in direction]), light.irradiance(s))
         o = mi.Point3f(0.0) if origin is None else origin
         assert self.clouds is not None
-        return self.clouds.apply(o, d, active, sky, sun, sun_term, ambient, camera)
+        return self.clouds.apply(o, d, active, sky, sun, sun_term, ambient, camera, jitter)
 
-    def eval(self, d: Any, active: Any, origin: Any = None, camera: Any = None) -> Any:
+    def eval(self, d: Any, active: Any, origin: Any = None, camera: Any = None, jitter: Any = None) -> Any:
         """Radiance arriving from direction ``d`` (a ray that left the scene), all lights summed.
 
         With a cloud layer the radiance also depends on the ray's ``origin`` (equation (1) of
         :mod:`.clouds`; the world origin when None); without one ``origin`` is not used.  Lanes in
-        ``camera`` (camera rays) see the :attr:`backdrop` instead where there is one.
+        ``camera`` (camera rays) see the :attr:`backdrop` instead where there is one, else the cumulus,
+        marched with ``jitter`` ∈ [0, 1) per lane (the path's own sample; None: hashed from ``d``).
         """
         mi = self.mi
         if self.clouds is not None:
-            sky, sun = self._clouded(d, active, origin, camera if self.backdrop is None else None)
+            sky, sun = self._clouded(d, active, origin, camera if self.backdrop is None else None, jitter)
             total = sun + sky
         else:
             total = mi.Color3f(0.0)
@@ -570,7 +571,9 @@ class LightSet:
         """The light groups of these lights, in order of first appearance (:func:`light_group`)."""
         return list(dict.fromkeys(light_group(light) for light in self.lights))
 
-    def eval_groups(self, d: Any, active: Any, origin: Any = None, camera: Any = None) -> tuple[Any, dict[str, Any]]:
+    def eval_groups(
+        self, d: Any, active: Any, origin: Any = None, camera: Any = None, jitter: Any = None
+    ) -> tuple[Any, dict[str, Any]]:
         """:meth:`eval` and its split by light group: (Σ_k L_k(d), {group g: Σ_{k ∈ g} L_k(d)}).
 
         The total is summed in the same order and with the same operations as :meth:`eval`, so it is
@@ -581,7 +584,7 @@ class LightSet:
         mi = self.mi
         parts: dict[str, Any] = {}
         if self.clouds is not None:
-            sky, sun = self._clouded(d, active, origin, camera if self.backdrop is None else None)
+            sky, sun = self._clouded(d, active, origin, camera if self.backdrop is None else None, jitter)
             total = sun + sky
             parts = {g: (sun if g == "sun" else sky) for g in self.groups}
         else:

@@ -338,6 +338,9 @@ class PathKernel:
             cont=mi.Bool(False),
             segments=mi.UInt32(0),
         )
+        cumulus = lights.clouds is not None and lights.clouds.tall > 0.0
+        if cumulus:  # the march's jitter through the cumulus a camera ray sees: stratified over a pixel's samples
+            state["cjit"] = sampler.next_1d()
         if aux:
             state.update(first=mi.UInt32(NO_HIT), albedo=mi.Color3f(0.0), normal=mi.Vector3f(0.0))
         for g in lgroups:  # radiance gathered per light group, and the pending shadow ray's share of C
@@ -437,12 +440,12 @@ class PathKernel:
             seen = escaped & (S["depth"] == 0)
             with dr.resume_grad(when=not primal):
                 if lgroups:
-                    sky, parts = lights.eval_groups(d, escaped, o, camera=seen)
+                    sky, parts = lights.eval_groups(d, escaped, o, camera=seen, jitter=S.get("cjit"))
                     Le = S["β"] * mis * sky
                     for g in lgroups:
                         S[f"G:{g}"] = S[f"G:{g}"] + S["β"] * mis * parts[g]
                 else:
-                    Le = S["β"] * mis * lights.eval(d, escaped, o, camera=seen)
+                    Le = S["β"] * mis * lights.eval(d, escaped, o, camera=seen, jitter=S.get("cjit"))
             if aux:
                 S["albedo"] = dr.select(seen, dr.clip(dr.detach(Le), 0.0, 1.0), S["albedo"])
             if primal:
