@@ -15,9 +15,7 @@ pixel centre's ray: the flat layer's, or the cumulus').
 from __future__ import annotations
 
 import os
-import resource
 import sys
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -26,10 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-
-def cpu_seconds() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
+from timing import best_of
 
 
 def cloud_share(scene, camera_rays: bool) -> float:
@@ -71,15 +66,7 @@ def main() -> None:
     }
     names = list(variants)
     scenes = {name: PathScene(inp, "llvm_ad_rgb") for name, inp in variants.items()}
-    images = {name: s.render(seed=1) for name, s in scenes.items()}  # warm-up: compile the kernels
-    best: dict[str, tuple[float, float]] = {}
-    for _ in range(3):
-        for name, s in scenes.items():
-            t0, c0 = time.perf_counter(), cpu_seconds()
-            s.render(seed=1)
-            wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0
-            if name not in best or cpu < best[name][1]:
-                best[name] = (wall, cpu)
+    images, best = best_of({name: (lambda s=s: s.render(seed=1)) for name, s in scenes.items()})
     base_wall, base_cpu = best[names[0]]
     for name in names:
         wall, cpu = best[name]

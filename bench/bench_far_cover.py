@@ -16,7 +16,6 @@ from sky to ground.
 from __future__ import annotations
 
 import os
-import resource
 import sys
 import time
 from dataclasses import replace
@@ -27,10 +26,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-
-def cpu_seconds() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
+from timing import best_of, cpu_seconds
 
 
 def main() -> None:
@@ -69,17 +65,7 @@ def main() -> None:
     assert skirt is not None and plain is not None
     print(f"far cover: the woods' canopy height {fc.height:.1f} m; skirt {len(plain.faces):,} triangles without the "
           f"relief, {len(skirt.faces):,} with it (every {np.degrees(step):.3f}° around)")  # fmt: skip
-    images: dict[str, object] = {}
-    for name, s in scenes.items():  # warm-up: compile the kernels
-        images[name] = s.render(seed=1)
-    best: dict[str, tuple[float, float]] = {}
-    for _ in range(3):
-        for name, s in scenes.items():
-            t0, c0 = time.perf_counter(), cpu_seconds()
-            s.render(seed=1)
-            wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0
-            if name not in best or cpu < best[name][1]:
-                best[name] = (wall, cpu)
+    images, best = best_of({name: (lambda s=s: s.render(seed=1)) for name, s in scenes.items()})
     xmin, zmin, xmax, zmax = scene.terrain.extent
     pos = scenes[names[1]].layers()["position"].astype(np.float64)
     x, z = pos[..., 0], pos[..., 2]

@@ -12,9 +12,7 @@ of ``PathScene.render`` with and without water, their ratio, and the mean radian
 from __future__ import annotations
 
 import os
-import resource
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -23,10 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-
-def cpu_seconds() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
+from timing import best_of
 
 
 def scene_inputs(water: bool):
@@ -74,17 +69,8 @@ def main() -> None:
     load = os.getloadavg()
     print(f"water: load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at start; 480x270 64 spp, max_depth 4")
     scenes = {k: PathScene(scene_inputs(k), "llvm_ad_rgb") for k in (False, True)}
-    best: dict[bool, tuple[float, float]] = {}
-    means: dict[bool, float] = {}
-    for k, s in scenes.items():  # warm-up: compile both kernels
-        means[k] = float(s.render(seed=1).rgb.mean())
-    for _ in range(3):
-        for k, s in scenes.items():
-            t0, c0 = time.perf_counter(), cpu_seconds()
-            s.render(seed=1)
-            wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0
-            if k not in best or cpu < best[k][1]:
-                best[k] = (wall, cpu)
+    first, best = best_of({k: (lambda s=s: s.render(seed=1)) for k, s in scenes.items()})
+    means = {k: float(img.rgb.mean()) for k, img in first.items()}
     for k, name in ((False, "without water"), (True, "with water (half the ground)")):
         wall, cpu = best[k]
         print(f"water {name:28s}: {wall:6.2f} s wall, {cpu:6.2f} CPU-s, mean {means[k]:.4f}")
