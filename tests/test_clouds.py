@@ -283,3 +283,30 @@ def test_light_gradients_through_the_cumulus_match_finite_differences():
             finally:
                 scene.params[name] = saved
             assert g[c] == pytest.approx(fd, rel=1e-3, abs=1e-3), (name, c)
+
+
+def test_far_cumulus_fade_toward_the_sky_through_the_air():
+    """Equation (8): the Rayleigh air between the camera and a cloud tens of kilometres away dims it and scatters
+    the sky's light in, so far clouds lie nearer the clear sky's radiance than near ones, and they are redder
+    (blue is scattered out of the cloud's brighter light the most)."""
+    import drjit as dr
+
+    mi, ls = _light_set(Clouds(cover=0.35, scale=1500.0, altitude=2000.0, seed=4))
+    layer = ls.clouds
+    rng = np.random.default_rng(6)
+    o = mi.Point3f(0.0, 80.0, 0.0)
+    d_np, d = _directions(mi, rng, 40000, 1.5, 40.0)
+    with dr.suspend_grad():
+        T, front, _ = layer.cumulus(o, d, mi.Bool(True))
+        L = np.asarray(ls.eval(d, mi.Bool(True), o, camera=mi.Bool(np.ones(len(d_np), bool))))
+    L = (L.T if L.shape[0] == 3 else L).reshape(-1, 3).astype(np.float64)
+    f = np.stack([np.asarray(c, np.float64) for c in (front.x, front.y, front.z)], 1)
+    dist = np.linalg.norm(f - np.array([0.0, 80.0, 0.0]), axis=1)
+    cloudy = np.asarray(T) < 0.05
+    sky = np.array([0.2, 0.3, 0.5])  # the constant sky
+    gap = np.linalg.norm(L - sky, axis=1) / np.linalg.norm(sky)
+    near, far = cloudy & (dist < 8000.0), cloudy & (dist > 30000.0)
+    assert near.sum() > 100 and far.sum() > 100
+    assert float(np.median(gap[far])) < 0.8 * float(np.median(gap[near]))
+    red = L[:, 0] / L[:, 2]
+    assert float(np.median(red[far])) > float(np.median(red[near]))

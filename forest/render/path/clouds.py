@@ -66,7 +66,15 @@ V = e^(−τ_s) the sunlight reaching x_f through the cumulus, τ_s = 0.15 σ Σ
 the distances ℓ_j = :data:`SUN_STEPS` × H toward the sun (Schneider & Vos 2015's light march), m =
 :data:`MULTIPLE` the light multiple scattering carries into the shade, η ∈ [0, 1] the front's
 height in the cumulus and b = :data:`BASE_AMBIENT` the sky light that reaches a base: sunlit domes
-over grey bases.  Only camera rays see (5)–(7), in a branch a packet without a camera ray that left
+over grey bases.  Between the camera and a cloud tens of kilometres away lies air: its Rayleigh
+extinction a = e^(−β_R ρ̄ |x_f − o|) (β_R = :data:`RAYLEIGH` per RGB channel, ρ̄ the air's density at
+the path's mean height, scale height :data:`RAYLEIGH_HEIGHT`) dims the cloud, and the light the air
+scatters in is taken as the clear sky's toward ω:
+
+    L = T·(L_sky + L_sun) + (1 − T)·(a·L_cloud + (1 − a)·L_sky)                               (8)
+
+so far cumulus turn to the sky's blue instead of a cream band at the horizon (at 40 km along a path
+1 km up on average, a = 0.82, 0.62, 0.31).  Only camera rays see (5)–(8), in a branch a packet without a camera ray that left
 the scene skips; bounce rays and light samples see the flat layer (3)–(4), whose cover is the
 cumulus' footprint, so the ground's light and the cloud shadows are as before and both MIS
 strategies still evaluate the same radiance (a camera ray has no light-sampling alternative).
@@ -128,6 +136,11 @@ TOP_EDGE = 0.05
 MULTIPLE = 0.15
 #: Camera rays: the share of the sky's ambient light that reaches a cumulus' base (its top takes all of it).
 BASE_AMBIENT = 0.4
+#: Camera rays: Rayleigh scattering coefficients of air at sea level for red, green and blue (680, 550, 440 nm),
+#: per metre, and the scale height of its density, metres (Bruneton & Neyret 2008, "Precomputed atmospheric
+#: scattering", EGSR).
+RAYLEIGH = (5.8e-6, 13.5e-6, 33.1e-6)
+RAYLEIGH_HEIGHT = 8000.0
 
 
 def _hash(mi: Any, ix: Any, iy: Any, seed: int) -> Any:
@@ -310,7 +323,12 @@ class CloudLayer:
         veil = 1.0 - T
         tall = self.tall
         height = dr.clip((front.y - self.altitude) * (1.0 / tall), 0.0, 1.0)
-        sky_out = dr.fma(sky, T, veil * AMBIENT * ambient * dr.fma(height, 1.0 - BASE_AMBIENT, BASE_AMBIENT))
+        # The air between the camera and the cloud, equation (8): Rayleigh extinction at the path's mean height,
+        # its in-scattered light taken as the clear sky's toward d.
+        density = dr.exp(-0.5 * (o.y + front.y) * (1.0 / RAYLEIGH_HEIGHT))
+        air = dr.exp(mi.Color3f(*[-b for b in RAYLEIGH]) * (dr.norm(front - o) * density))
+        glow = AMBIENT * ambient * dr.fma(height, 1.0 - BASE_AMBIENT, BASE_AMBIENT)
+        sky_out = dr.fma(sky, T, veil * (air * glow + (1.0 - air) * sky))
         if sun_term is None:
             return sky_out, sun * T
         s, e_sun = sun_term
@@ -326,7 +344,7 @@ class CloudLayer:
         shade = dr.exp(-tau_s)
         lit = henyey_greenstein(mu, PHASE_G) * shade + (ALBEDO / math.pi) * (MULTIPLE + (1.0 - MULTIPLE) * shade)
         lit = dr.select(s.y > 0.0, lit, 0.0)
-        return sky_out, dr.fma(sun, T, mi.Color3f(e_sun) * (veil * lit))
+        return sky_out, dr.fma(sun, T, mi.Color3f(e_sun) * air * (veil * lit))
 
     def apply(
         self,
