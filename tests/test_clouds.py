@@ -6,7 +6,7 @@ import warnings
 
 import numpy as np
 import pytest
-from test_forest_path import VARIANT, look, quad, surfaces_only
+from test_forest_path import VARIANT, backward_grads, look, quad, surfaces_only
 from test_render_scene import TOP_DOWN
 
 from forest.config import parse_config
@@ -252,20 +252,13 @@ def test_a_cumulus_is_sunlit_on_top_and_grey_below():
 def test_light_gradients_through_the_cumulus_match_finite_differences():
     """Path replay through the cumulus a camera ray sees: the sky's and the sun's scale gradients equal the
     difference quotients (the image is linear in each, so the quotient is exact)."""
-    import drjit as dr
 
     horizon = PathCamera(look([0.0, 20.0, 0.0], [0.0, 120.0, -1000.0]), 70.0, 24, 14)
     sky = SkyLight("constant", radiance=(0.2, 0.3, 0.5), clouds=Clouds(cover=0.5, scale=600.0, seed=2))
     scene = PathScene(surfaces_only([GROUND], horizon, sun=SUN, sky=sky, spp=4), VARIANT)
     assert scene.lights.clouds.tall > 0.0
     weights = np.random.default_rng(2).uniform(0.5, 1.5, (14, 24, 3))
-    params = {k: scene.params[k] for k in ("sun_irradiance", "sky_radiance")}
-    for v in params.values():
-        dr.enable_grad(v)
-    scene.render_backward(weights, seed=3)
-    grads = {k: np.asarray(dr.grad(v), np.float64).ravel() for k, v in params.items()}
-    for v in params.values():
-        dr.disable_grad(v)
+    grads = {k: g.ravel() for k, g in backward_grads(scene, ("sun_irradiance", "sky_radiance"), weights).items()}
 
     def loss() -> float:
         return float((scene.render(seed=3).rgb.astype(np.float64) * weights).sum())

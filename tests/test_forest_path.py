@@ -425,6 +425,21 @@ def ad_scene(library):
     return PathScene(inputs, VARIANT)
 
 
+def backward_grads(scene, names, weights) -> dict[str, np.ndarray]:
+    """d(Σ w · image)/d(parameter) for the scene's parameters ``names``, by path replay (seed 3)."""
+    import drjit as dr
+
+    params = {k: scene.params[k] for k in names}
+    for v in params.values():
+        dr.enable_grad(v)
+    try:
+        scene.render_backward(weights, seed=3)
+        return {k: np.asarray(dr.grad(v), np.float64) for k, v in params.items()}
+    finally:
+        for v in params.values():
+            dr.disable_grad(v)
+
+
 def _loss(scene, weights, **values):
     """Σ w · image for parameter values set by name (numpy), same seed every time."""
     mi = scene.mi
@@ -440,7 +455,6 @@ def _loss(scene, weights, **values):
 
 
 def test_reverse_mode_gradients_match_finite_differences(ad_scene):
-    import drjit as dr
 
     scene = ad_scene
     rng = np.random.default_rng(5)
@@ -448,13 +462,7 @@ def test_reverse_mode_gradients_match_finite_differences(ad_scene):
     grid0 = np.asarray(scene.params["colour_grid"], np.float64)
     sun0 = np.asarray(scene.params["sun_irradiance"], np.float64).ravel()
     sky0 = np.asarray(scene.params["sky_radiance"], np.float64).ravel()
-    params = {k: scene.params[k] for k in ("colour_grid", "sun_irradiance", "sky_radiance")}
-    for v in params.values():
-        dr.enable_grad(v)
-    scene.render_backward(weights, seed=3)
-    grads = {k: np.asarray(dr.grad(v), np.float64) for k, v in params.items()}
-    for v in params.values():
-        dr.disable_grad(v)
+    grads = backward_grads(scene, ("colour_grid", "sun_irradiance", "sky_radiance"), weights)
     # The colour grid: every cell and channel, central differences.
     h = 0.02
     for idx in np.ndindex(2, 2, 3):
@@ -825,13 +833,7 @@ def test_haze_gradients_match_finite_differences(haze_scene):
         finally:
             scene.params.update(saved)
 
-    params = {k: scene.params[k] for k in names}
-    for v in params.values():
-        dr.enable_grad(v)
-    scene.render_backward(weights, seed=3)
-    grads = {k: np.asarray(dr.grad(v), np.float64).ravel() for k, v in params.items()}
-    for v in params.values():
-        dr.disable_grad(v)
+    grads = {k: g.ravel() for k, g in backward_grads(scene, names, weights).items()}
     steps = {"haze_density": 1e-4, "haze_height": 0.5, "haze_anisotropy": 0.01, "haze_colour": 0.02}
     for k in names:
         for c in range(len(base[k])):

@@ -212,6 +212,8 @@ class CloudLayer:
         height = getattr(clouds, "height", None)
         #: The tallest cumulus above the layer, metres, as camera rays see them (0: the flat layer).
         self.tall = TOWER * self.scale if height is None else float(height)
+        #: The cumulus' extinction σ = 3D/H, per metre (equation (6)): a vertical ray through a full tower meets 3D.
+        self.sigma = 3.0 * self.density / self.tall if self.tall > 0.0 else 0.0
         self.threshold = self._quantile(1.0 - self.cover)
 
     def _quantile(self, q: float) -> float:
@@ -263,8 +265,7 @@ class CloudLayer:
         import drjit as dr
 
         mi = self.mi
-        tall = self.tall
-        sigma = 3.0 * self.density / tall  # τ through a full tower, vertically, is the flat layer's 3·D
+        tall, sigma = self.tall, self.sigma
         up = active & (d.y > MIN_MU) & (o.y < self.altitude)
         inv_dy = 1.0 / dr.maximum(d.y, MIN_MU)
         t0 = (self.altitude - o.y) * inv_dy
@@ -332,14 +333,13 @@ class CloudLayer:
         if sun_term is None:
             return sky_out, sun * T
         s, e_sun = sun_term
-        sigma = 3.0 * self.density / tall
         tau_s = mi.Float(0.0)
         last = 0.0
         for f in SUN_STEPS:
             q = dr.fma(s, f * tall, front)
             tau_s += self._occupancy(q.x, q.y, q.z) * ((f - last) * tall)
             last = f
-        tau_s = DIFFUSION * sigma * tau_s
+        tau_s = DIFFUSION * self.sigma * tau_s
         mu = dr.dot(d, s)
         shade = dr.exp(-tau_s)
         lit = henyey_greenstein(mu, PHASE_G) * shade + (ALBEDO / math.pi) * (MULTIPLE + (1.0 - MULTIPLE) * shade)
