@@ -143,7 +143,8 @@ class Clouds:
     on a plane ``altitude`` metres up, clouds about ``scale`` metres across, optical thickness up to about
     3 × ``density``, edges ``softness`` wide (noise units), the pattern from ``seed`` and slid by ``wind``
     (x, z metres); camera rays see cumulus up to ``height`` metres tall above the plane (None: 0.4 ×
-    ``scale``; 0: the flat layer)."""
+    ``scale``; 0: the flat layer); ``clustering`` gathers the clouds into groups with clear sky between and
+    varies their heights (0: evenly spread, all as tall)."""
 
     cover: float = 0.4
     altitude: float = 2000.0
@@ -153,6 +154,7 @@ class Clouds:
     softness: float = 0.12
     wind: tuple[float, float] = (0.0, 0.0)
     height: float | None = None
+    clustering: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -235,5 +237,6 @@ def resolve_lights(config) -> Lights:
             float(c.softness),
             (float(c.wind[0]), float(c.wind[1])),
             None if c.height is None else float(c.height),
+            float(c.clustering),
         )
     return Lights(sun=sun if sun is not None and sun.lit else None, sky=sky, clouds=clouds)

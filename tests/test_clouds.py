@@ -85,10 +85,11 @@ def test_the_sun_side_of_a_cloud_is_brighter_than_the_far_side():
 
 
 def test_clouds_shade_the_ground():
-    """Seen from above, the ground under a sun in an overcast-ish layer is darker, and patchy (cloud shadows)."""
+    """Seen from above, the ground under a sun in an overcast-ish layer is darker, and patchy (cloud shadows).
+    The view is 1.2 km across, smaller than a group of clouds, so the groups are off: ``cover`` holds there."""
     down = PathCamera(look([0.0, 600.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 90.0, 32, 32)
     clear = render(None, camera=down, spp=4)
-    shaded = render(Clouds(cover=0.6, scale=300.0, altitude=1000.0), camera=down, spp=4)
+    shaded = render(Clouds(cover=0.6, scale=300.0, altitude=1000.0, clustering=0.0), camera=down, spp=4)
     assert shaded.mean() < 0.9 * clear.mean()
     assert shaded.mean(axis=2).std() > 1.5 * clear.mean(axis=2).std()
 
@@ -110,6 +111,9 @@ def test_clouds_are_off_by_default_and_read_from_the_config():
     assert c.clouds == Clouds(cover=0.3, altitude=1500.0, seed=7, wind=(5.0, 1.0))
     tall = resolve_lights(config(sky + "\nclouds = { cover = 0.3, height = 450.0 }")).clouds
     assert tall is not None and tall.height == 450.0
+    assert tall.clustering == 0.5  # the default: groups of clouds
+    even = resolve_lights(config(sky + "\nclouds = { cover = 0.3, clustering = 0.0 }")).clouds
+    assert even is not None and even.clustering == 0.0
     assert resolve_lights(config(sky + "\nclouds = { cover = 0.0 }")).clouds is None
     # [lights] with only clouds keeps the default daylight
     only = resolve_lights(config("clouds = { cover = 0.5 }"))
@@ -127,6 +131,7 @@ def test_clouds_are_off_by_default_and_read_from_the_config():
         ("clouds = { wind = [1.0] }", "lights.clouds.wind"),
         ("clouds = { colour = 1 }", "lights.clouds.colour: unknown key"),
         ("clouds = { height = -10.0 }", "lights.clouds.height: must be >= 0"),
+        ("clouds = { clustering = 1.2 }", "lights.clouds.clustering: must be <= 1"),
     ],
 )
 def test_bad_cloud_values_are_refused_in_one_line(body, message):
@@ -241,8 +246,9 @@ def test_a_cumulus_is_sunlit_on_top_and_grey_below():
     with dr.suspend_grad():
         T, front, _ = layer.cumulus(o, d, mi.Bool(True))
         L = np.asarray(ls.eval(d, mi.Bool(True), o, camera=mi.Bool(np.ones(len(d_np), bool))))
+        tower = np.asarray(layer.tower(front.x, front.z))  # each cumulus' own tallest, a fraction of H
     L = (L.T if L.shape[0] == 3 else L).reshape(-1, 3).mean(axis=1)
-    eta = (np.asarray(front.y) - layer.altitude) / layer.tall
+    eta = (np.asarray(front.y) - layer.altitude) / (layer.tall * tower)
     cloudy = (np.asarray(T) < 0.05) & (np.degrees(np.arccos(np.clip(d_np @ s, -1.0, 1.0))) > 30.0)
     top, base = cloudy & (eta > 0.6), cloudy & (eta < 0.25)
     assert top.sum() > 100 and base.sum() > 100
@@ -284,7 +290,8 @@ def test_far_cumulus_fade_toward_the_sky_through_the_air():
     (blue is scattered out of the cloud's brighter light the most)."""
     import drjit as dr
 
-    mi, ls = _light_set(Clouds(cover=0.35, scale=1500.0, altitude=2000.0, seed=4))
+    # The even layer: near and far clouds alike, so what differs between them is the air.
+    mi, ls = _light_set(Clouds(cover=0.35, scale=1500.0, altitude=2000.0, seed=4, clustering=0.0))
     layer = ls.clouds
     rng = np.random.default_rng(6)
     o = mi.Point3f(0.0, 80.0, 0.0)
@@ -303,3 +310,89 @@ def test_far_cumulus_fade_toward_the_sky_through_the_air():
     assert float(np.median(gap[far])) < 0.8 * float(np.median(gap[near]))
     red = L[:, 0] / L[:, 2]
     assert float(np.median(red[far])) > float(np.median(red[near]))
+
+
+def _layer(clouds: Clouds):
+    """The drjit cloud layer of ``clouds`` in the tests' variant."""
+    import mitsuba as mi
+
+    from forest.render.path.clouds import CloudLayer
+
+    mi.set_variant(VARIANT)
+    return CloudLayer(mi, clouds)
+
+
+def _grid(layer, span: float, n: int, offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """τ and the cumulus' profile over an n × n jittered grid ``span`` × ``scale`` wide, ``offset`` metres away
+    (far from where the layer measures its threshold: a held-out patch of sky)."""
+    import drjit as dr
+
+    mi = layer.mi
+    step = span * layer.scale / n
+    g = np.arange(n) * step + offset
+    x, z = (a.ravel() for a in np.meshgrid(g, g))
+    j = np.random.default_rng(11).uniform(0.0, step, (2, x.size))
+    x, z = mi.Float((x + j[0]).astype(np.float32)), mi.Float((z + j[1]).astype(np.float32))
+    with dr.suspend_grad():
+        return np.asarray(layer.thickness(x, z)).reshape(n, n), np.asarray(layer.profile(x, z)).reshape(n, n)
+
+
+def test_clustering_gathers_the_clouds_into_groups_and_keeps_the_cover():
+    """Equation (2'): with ``clustering`` the clouds gather into groups about 6 × scale across with clear sky
+    between — the cover of 6-scale cells spreads far more than for the even layer — while the whole sky keeps
+    its ``cover`` (held out: a patch 100 km from where the threshold was measured)."""
+    spread, cover = {}, {}
+    for c in (0.0, 0.5):
+        layer = _layer(Clouds(cover=0.35, scale=1000.0, seed=4, clustering=c))
+        tau, _ = _grid(layer, 192.0, 768, -100_000.0)
+        cloud = tau > 0.0
+        cover[c] = float(cloud.mean())
+        spread[c] = float(cloud.reshape(32, 24, 32, 24).mean(axis=(1, 3)).std())
+    assert cover[0.0] == pytest.approx(0.35, abs=0.03) and cover[0.5] == pytest.approx(0.35, abs=0.03)
+    assert spread[0.5] > 1.4 * spread[0.0]  # measured 0.12 against 0.07
+
+
+def test_clustered_cumulus_differ_in_height():
+    """Equation (5'): each cumulus tops out at its own share of ``height``, between 1 − 0.6 c and 1, so the
+    tallest points of separate clouds spread more than for the even layer; no cloud overtops its tower."""
+    from scipy import ndimage
+
+    cv = {}
+    for c in (0.0, 0.5):
+        layer = _layer(Clouds(cover=0.35, scale=1000.0, seed=4, clustering=c))
+        tau, profile = _grid(layer, 48.0, 384, 40_000.0)
+        labels, k = ndimage.label(tau > 0.0)
+        size = ndimage.sum(tau > 0.0, labels, np.arange(1, k + 1))
+        tops = ndimage.maximum(profile, labels, np.arange(1, k + 1))[size >= 20]
+        assert len(tops) > 50
+        cv[c] = float(tops.std() / tops.mean())
+        if c > 0.0:
+            import drjit as dr
+
+            mi = layer.mi
+            xz = np.random.default_rng(2).uniform(0.0, 40_000.0, (2, 20000)).astype(np.float32)
+            with dr.suspend_grad():
+                tower = np.asarray(layer.tower(mi.Float(xz[0]), mi.Float(xz[1])))
+                top = np.asarray(layer.profile(mi.Float(xz[0]), mi.Float(xz[1])))
+            assert tower.min() >= 1.0 - 0.6 * c - 1e-6 and tower.max() <= 1.0
+            assert np.percentile(tower, 90) - np.percentile(tower, 10) > 0.1
+            assert np.all(top <= tower + 1e-6)
+    assert cv[0.5] > 1.3 * cv[0.0]  # measured 0.17 against 0.11
+
+
+def test_clustering_breaks_the_even_band_of_far_clouds():
+    """What a camera sees toward the horizon (1.5°–6° up, 24 sectors of azimuth): with clustering the share of
+    clouded rays varies from sector to sector much more than the even layer's — groups and gaps instead of an
+    even band."""
+    import drjit as dr
+
+    spread = {}
+    for c in (0.0, 0.5):
+        layer = _layer(Clouds(cover=0.35, scale=1500.0, altitude=2000.0, seed=4, clustering=c))
+        mi = layer.mi
+        d_np, d = _directions(mi, np.random.default_rng(3), 24000, 1.5, 6.0)
+        with dr.suspend_grad():
+            T = np.asarray(layer.cumulus(mi.Point3f(0.0, 80.0, 0.0), d, mi.Bool(True))[0])
+        sector = (np.arctan2(d_np[:, 0], d_np[:, 2]) % (2.0 * np.pi) / (2.0 * np.pi) * 24).astype(int)
+        spread[c] = float(np.std([(T[sector == k] < 0.5).mean() for k in range(24)]))
+    assert spread[0.5] > 1.4 * spread[0.0]  # measured 0.10 against 0.05

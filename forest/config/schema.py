@@ -966,6 +966,11 @@ class CloudsConfig(Section):
         description="Height of the tallest cumulus above the layer, metres, as the camera sees them "
         "(default 0.4 × scale; 0: a flat layer).",
     )
+    clustering: Unit = Field(
+        0.5,
+        description="How much the clouds gather into groups, about 6 × scale across, with clear sky between, "
+        "and differ in height, 0–1 (0: evenly spread, all as tall).",
+    )
 
 
 class LightsConfig(Section):

@@ -22,6 +22,17 @@ noise is thresholded at its (1 − cover) quantile n₀ (measured once on a 256�
 
 is the optical thickness (D = ``density``, w = ``softness``: the width of the edge in noise units).
 
+**Groups.**  Fair-weather cumulus are not spread evenly: they gather in groups and fields with clear
+sky between, at scales several times a cloud's size (organised convection), so a sky toward the horizon
+shows banks and gaps rather than an even band.  With c = ``clustering`` the noise thresholded in (2) is
+
+    n'(x) = n(x) + c · G · (m(x) − ½)                                                        (2')
+
+with m a value noise :data:`CLUSTER` × ``scale`` across (its lattice turned so no axis shows) and
+G = :data:`CLUSTER_GAIN`: where m is high a group's clouds merge and grow, where it is low the sky is
+clear.  n₀ is measured on n', over a span of :data:`QUANTILE_SPAN` × ``scale`` (dozens of groups), so
+the whole sky keeps its ``cover``; a view of a patch smaller than a group sees more or less of it.
+
 **Radiance.**  What a ray sees of the sky through the layer is
 
     L = T·(L_sky + L_sun) + (1 − T)·L_cloud,     T = exp(−τ f(t))                       (3)
@@ -47,7 +58,13 @@ on the layer's plane where the flat layer has cloud, as tall as
 
     y_top(x) − h = H · s(n − n₀; w) · √(clip((n − n₀)/(1 − n₀), 0, 1))                        (5)
 
-(H = ``height``, by default 0.4 × ``scale``; s the edge's smoothstep of (2)), and the ray marches it
+(H = ``height``, by default 0.4 × ``scale``; s the edge's smoothstep of (2)), each cumulus topped at
+its own share of H:
+
+    y_top(x) − h ← y_top(x) − h · (1 − S c (1 − g(x))),   g = ½ m(x) + ½ v(x)                (5')
+
+with S = :data:`TOWER_SPREAD`, m the group field of (2') (the tallest towers in a group's core) and v a
+value noise :data:`TOWER_CELL` × ``scale`` across (cloud to cloud).  The ray marches it
 between y = h and y = h + H at points at most :data:`STEP` × ``scale`` apart (:data:`MARCH` to
 :data:`MARCH_MAX` of them: a grazing ray crosses many clouds; a coarser march misses some and shows
 a thinner sky, 50 % of the demo's sky pixels clouded with 8 points against 65 % converged), offset
@@ -65,7 +82,7 @@ taken at its front x_f, the mean of the points weighted by what each absorbs, T_
 V = e^(−τ_s) the sunlight reaching x_f through the cumulus, τ_s = 0.15 σ Σ o(x_f + ℓ_j s) Δℓ_j at
 the distances ℓ_j = :data:`SUN_STEPS` × H toward the sun (Schneider & Vos 2015's light march), m =
 :data:`MULTIPLE` the light multiple scattering carries into the shade, η ∈ [0, 1] the front's
-height in the cumulus and b = :data:`BASE_AMBIENT` the sky light that reaches a base: sunlit domes
+height as a share of its own cumulus' top (5') and b = :data:`BASE_AMBIENT` the sky light that reaches a base: sunlit domes
 over grey bases.  Between the camera and a cloud tens of kilometres away lies air: its Rayleigh
 extinction a = e^(−β_R ρ̄ |x_f − o|) (β_R = :data:`RAYLEIGH` per RGB channel, ρ̄ the air's density at
 the path's mean height, scale height :data:`RAYLEIGH_HEIGHT`) dims the cloud, and the light the air
@@ -115,9 +132,10 @@ DIFFUSION = 0.15
 FADE = 30.0
 #: Thickness of the layer as a fraction of ``scale`` (the self-shadow's step toward the sun).
 THICKNESS = 0.25
-#: Grid on which the noise's (1 − cover) quantile is measured (side, and its span in units of ``scale``).
-QUANTILE_GRID = 256
-QUANTILE_SPAN = 64.0
+#: Jittered grid on which the pattern's (1 − cover) quantile is measured (side, and its span in units of ``scale``:
+#: dozens of the groups of equation (2')).
+QUANTILE_GRID = 512
+QUANTILE_SPAN = 256.0
 #: Directions this close to the horizon (ω_y) see no cloud.
 MIN_MU = 1e-3
 #: Camera rays: the cumulus' tallest height above the layer's base, as a fraction of ``scale``.
@@ -136,6 +154,14 @@ TOP_EDGE = 0.05
 MULTIPLE = 0.15
 #: Camera rays: the share of the sky's ambient light that reaches a cumulus' base (its top takes all of it).
 BASE_AMBIENT = 0.4
+#: Clouds gather into groups: a field CLUSTER × ``scale`` across raises or lowers the pattern's noise by up to
+#: ± CLUSTER_GAIN / 2 × ``clustering`` (equation (2')).
+CLUSTER = 6.0
+CLUSTER_GAIN = 0.5
+#: Camera rays: cumulus differ in height: each one's tallest is (1 − TOWER_SPREAD × ``clustering`` × (1 − g)) × H,
+#: g ∈ [0, 1] half the group field and half a field TOWER_CELL × ``scale`` across (one value per cloud or two).
+TOWER_SPREAD = 0.6
+TOWER_CELL = 1.5
 #: Camera rays: Rayleigh scattering coefficients of air at sea level for red, green and blue (680, 550, 440 nm),
 #: per metre, and the scale height of its density, metres (Bruneton & Neyret 2008, "Precomputed atmospheric
 #: scattering", EGSR).
@@ -209,6 +235,8 @@ class CloudLayer:
         self.density = float(clouds.density)
         self.softness = float(clouds.softness)
         self.wind = (float(clouds.wind[0]), float(clouds.wind[1]))
+        #: How much the clouds gather into groups and differ in height, c ∈ [0, 1] (equations (2') and (5')).
+        self.clustering = float(getattr(clouds, "clustering", 0.0))
         height = getattr(clouds, "height", None)
         #: The tallest cumulus above the layer, metres, as camera rays see them (0: the flat layer).
         self.tall = TOWER * self.scale if height is None else float(height)
@@ -217,38 +245,77 @@ class CloudLayer:
         self.threshold = self._quantile(1.0 - self.cover)
 
     def _quantile(self, q: float) -> float:
-        """The noise's q-quantile, measured on a fixed grid (deterministic)."""
+        """The pattern's q-quantile, measured on a fixed grid (deterministic)."""
         import drjit as dr
 
         mi = self.mi
-        g = (np.arange(QUANTILE_GRID, dtype=np.float32) + 0.5) * np.float32(QUANTILE_SPAN / QUANTILE_GRID)
+        # Jittered grid points (a fixed stream): a regular grid would sample the lattice at a few fixed offsets.
+        g = np.arange(QUANTILE_GRID, dtype=np.float64) * (QUANTILE_SPAN / QUANTILE_GRID)
         gx, gy = (a.ravel() for a in np.meshgrid(g, g))
+        jitter = np.random.default_rng(0x0C10D).uniform(0.0, QUANTILE_SPAN / QUANTILE_GRID, (2, gx.size))
+        gx, gy = (gx + jitter[0]).astype(np.float32), (gy + jitter[1]).astype(np.float32)
         with dr.suspend_grad():
-            n = np.asarray(fbm(mi, mi.Float(gx), mi.Float(gy), self.seed), np.float64)
+            n = np.asarray(self._pattern(mi.Float(gx), mi.Float(gy))[0], np.float64)
         return float(np.quantile(n, min(max(q, 0.0), 1.0)))
+
+    def _groups(self, u: Any, v: Any) -> Any:
+        """The group field m ∈ [0, 1) at pattern coordinates (u, v) (units of ``scale``): value noise CLUSTER
+        × ``scale`` across, its lattice turned by ≈ 36.9° so no axis shows."""
+        k = 1.0 / CLUSTER
+        return value_noise(self.mi, (0.8 * u - 0.6 * v) * k + 5.3, (0.6 * u + 0.8 * v) * k - 2.9, self.seed + 7919)
+
+    def _pattern(self, u: Any, v: Any) -> tuple[Any, Any]:
+        """The pattern's noise at (u, v) (units of ``scale``), equation (2'), and the group field there (None
+        when ``clustering`` is 0): n' = n + c · CLUSTER_GAIN · (m − ½)."""
+        n = fbm(self.mi, u, v, self.seed)
+        if self.clustering <= 0.0:
+            return n, None
+        m = self._groups(u, v)
+        return n + (self.clustering * CLUSTER_GAIN) * (m - 0.5), m
+
+    def _coords(self, x: Any, z: Any) -> tuple[Any, Any]:
+        """Layer coordinates (x, z), metres, to the pattern's (units of ``scale``, the wind taken off)."""
+        inv = 1.0 / self.scale
+        return (x - self.wind[0]) * inv, (z - self.wind[1]) * inv
 
     def thickness(self, x: Any, z: Any) -> Any:
         """Optical thickness τ at layer coordinates (x, z) in metres, equation (2)."""
         import drjit as dr
 
-        inv = 1.0 / self.scale
-        n = fbm(self.mi, (x - self.wind[0]) * inv, (z - self.wind[1]) * inv, self.seed)
+        n, _ = self._pattern(*self._coords(x, z))
         excess = n - self.threshold
         edge = dr.clip(excess * (1.0 / self.softness), 0.0, 1.0)
         body = 1.0 + 2.0 * dr.maximum(excess, 0.0) * (1.0 / max(1.0 - self.threshold, 1e-3))
         return self.density * edge * edge * (3.0 - 2.0 * edge) * body
 
     def profile(self, x: Any, z: Any) -> Any:
-        """A cumulus' height at layer coordinates (x, z) as a fraction of its tallest, p ∈ [0, 1], equation (5):
-        0 where the flat layer is clear, rising with the noise past its threshold as a dome (√)."""
+        """A cumulus' height at layer coordinates (x, z) as a fraction of the tallest, p ∈ [0, 1], equation (5):
+        0 where the flat layer is clear, rising with the noise past its threshold as a dome (√), each cloud
+        topped at its own :meth:`tower`."""
         import drjit as dr
 
-        inv = 1.0 / self.scale
-        n = fbm(self.mi, (x - self.wind[0]) * inv, (z - self.wind[1]) * inv, self.seed)
+        u, v = self._coords(x, z)
+        n, m = self._pattern(u, v)
         excess = n - self.threshold
         edge = dr.clip(excess * (1.0 / self.softness), 0.0, 1.0)
         body = dr.clip(excess * (1.0 / max(1.0 - self.threshold, 1e-3)), 0.0, 1.0)
-        return edge * edge * (3.0 - 2.0 * edge) * dr.sqrt(body)
+        dome = edge * edge * (3.0 - 2.0 * edge) * dr.sqrt(body)
+        return dome if m is None else dome * self._tower(u, v, m)
+
+    def _tower(self, u: Any, v: Any, m: Any) -> Any:
+        """The tallest a cumulus at pattern coordinates (u, v) rises, as a fraction of H (equation (5')):
+        1 − TOWER_SPREAD · c · (1 − g), g = ½ m + ½ v_c with m the group field (taller in a group's core) and
+        v_c value noise TOWER_CELL × ``scale`` across (cloud to cloud)."""
+        k = 1.0 / TOWER_CELL
+        cell = value_noise(self.mi, (0.6 * u + 0.8 * v) * k - 11.7, (0.8 * v - 0.6 * u) * k + 3.1, self.seed + 4271)
+        return 1.0 - (TOWER_SPREAD * self.clustering) * (1.0 - 0.5 * (m + cell))
+
+    def tower(self, x: Any, z: Any) -> Any:
+        """The tallest a cumulus standing at layer coordinates (x, z) rises, as a fraction of ``height``."""
+        if self.clustering <= 0.0:
+            return self.mi.Float(1.0)
+        u, v = self._coords(x, z)
+        return self._tower(u, v, self._groups(u, v))
 
     def _occupancy(self, x: Any, y: Any, z: Any) -> Any:
         """How far inside a cumulus the point (x, y, z) is, in [0, 1]: 1 below its top, 0 above, a soft top."""
@@ -323,7 +390,8 @@ class CloudLayer:
         T, front, _ = self.cumulus(o, d, active, jitter)
         veil = 1.0 - T
         tall = self.tall
-        height = dr.clip((front.y - self.altitude) * (1.0 / tall), 0.0, 1.0)
+        # η: the front's height in its own cumulus (a short one's top takes the sky's light as a tall one's does).
+        height = dr.clip((front.y - self.altitude) / (tall * self.tower(front.x, front.z)), 0.0, 1.0)
         # The air between the camera and the cloud, equation (8): Rayleigh extinction at the path's mean height,
         # its in-scattered light taken as the clear sky's toward d.
         density = dr.exp(-0.5 * (o.y + front.y) * (1.0 / RAYLEIGH_HEIGHT))
