@@ -40,7 +40,9 @@ temporary file that is removed at once.
 
       m_tree · N  →  m_inst · N_inst + m_flat · T_far + m_row · N
 
-  with N_inst the trees that stay instances, T_far the merged triangles and
+  with N_inst the trees that stay instances, T_far the merged triangles —
+  with the skirt to the horizon's, world-space too (:func:`world_triangles`:
+  0.1–1.5 M with hills and woods, cut finer for a narrower view) — and
   m_row each tree's own arrays (transform, normal matrix, ids).  The
   coefficients are measured peak resident sizes of ``forest render`` in
   Mitsuba 3.9.1, rounded up: M₀ ≈ 0.27 GB (a few trees, a small image);
@@ -636,6 +638,23 @@ def render_estimate(
     )
 
 
+def world_triangles(scene: Scene, frames: Sequence[float], width: int) -> int:
+    """forest_path's world-space triangles beyond the trees that the model counts as merged ones: the skirt to
+    the horizon (:func:`forest.skirt.skirt_triangles`; with hills and woods its rings are cut finer for a
+    narrower field of view or a wider image, :func:`forest.skirt.relief_step` — the narrowest of ``frames``)."""
+    from .skirt import hills, relief_step, skirt_triangles
+
+    rc = scene.config.render
+    if not rc.horizon_ground:
+        return 0
+    h = hills(scene.config)
+    relief = (
+        h is not None and rc.horizon_hills is not None and bool(rc.horizon_hills.woods) and len(scene.instances) > 0
+    )
+    fov = min(float(scene.camera_at(float(f)).fov) for f in (frames or [1.0]))
+    return skirt_triangles(scene.terrain, h, relief, relief_step(fov, int(width)))
+
+
 def scene_render_estimate(scene: Scene, variant: str, frames: Sequence[float], size: FrameSize) -> RenderEstimate:
     """:func:`render_estimate` of a loaded Scene: its trees and their triangles at ``size``, and in the JIT
     variants the trees merged at the far level for ``frames`` (:func:`forest.render.path.from_scene.far_plan`).
@@ -646,6 +665,7 @@ def scene_render_estimate(scene: Scene, variant: str, frames: Sequence[float], s
         from .render.path.from_scene import far_plan
 
         far_trees, far_triangles = far_plan(scene, [float(f) for f in frames])
+        far_triangles += world_triangles(scene, frames, size.width)
     return render_estimate(
         size.width,
         size.height,

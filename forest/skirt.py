@@ -228,12 +228,11 @@ def skirt_mesh(
     every ``step`` radians around the terrain (:func:`relief_step`).
     """
     v = np.asarray(terrain.vertices, np.float64)
-    edges = boundary_edges(terrain.faces)
-    if len(edges) == 0:
+    boundary = _boundary(terrain)
+    if boundary is None:
         return None
-    used = np.unique(edges)
+    used, (a, b), c = boundary
     xmin, zmin, xmax, zmax = terrain.extent
-    c = np.array([(xmin + xmax) / 2.0, (zmin + zmax) / 2.0])
     inner = v[used]
     rel = inner[:, [0, 2]] - c
     dist = np.maximum(np.linalg.norm(rel, axis=1), 1e-9)
@@ -245,8 +244,6 @@ def skirt_mesh(
     outer[:, [0, 2]] = c + unit * max(float(radius), float(dist.max()) + 2.0 * ramp)
     outer[:, 1] = inner[:, 1].mean()
     k = len(used)
-    local = np.searchsorted(used, edges)  # boundary vertex → 0..k-1
-    a, b = local[:, 0], local[:, 1]
     if hills is not None and hills.height > 0:
         relief = woods if woods is not None and woods.height > 0.0 else None
         return _hilly_skirt(terrain, hills, (inner, mid, outer), c, (a, b), relief, step)
@@ -268,15 +265,49 @@ def skirt_mesh(
     return Skirt(verts.astype(np.float32), faces.astype(np.uint32), normals.astype(np.float32))
 
 
-def subdivide_ring(points: np.ndarray, c: np.ndarray, edges: tuple[np.ndarray, np.ndarray], step: float):
-    """The ring ``points`` (k, 3) with every edge (a, b) cut into s equal pieces, s the smallest count that keeps
-    each piece within ``step`` radians seen from ``c``: (points (k + E·(s − 1), 3), chains (E, s + 1)), each
-    edge's vertices from a to b, its new ones after the first k."""
+def _boundary(terrain) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], np.ndarray] | None:
+    """The terrain's boundary: (its vertices' indices, its edges (a, b) as indices into those, the extent's centre
+    (x, z)); None for a terrain without one."""
+    edges = boundary_edges(terrain.faces)
+    if len(edges) == 0:
+        return None
+    used = np.unique(edges)
+    xmin, zmin, xmax, zmax = terrain.extent
+    local = np.searchsorted(used, edges)  # boundary vertex → 0..k-1
+    return used, (local[:, 0], local[:, 1]), np.array([(xmin + xmax) / 2.0, (zmin + zmax) / 2.0])
+
+
+def skirt_triangles(terrain, hills: Hills | None = None, relief: bool = False, step: float = RELIEF_STEP) -> int:
+    """How many triangles :func:`skirt_mesh` makes around ``terrain`` (``relief``: with the woods' relief, its
+    rings cut every ``step`` radians), counted without building it — for the pre-flight memory estimate:
+    4 per boundary edge without hills, E·(s + 1) + 2·E·s·:data:`HILL_RINGS` with them (s pieces an edge)."""
+    boundary = _boundary(terrain)
+    if boundary is None:
+        return 0
+    used, edges, c = boundary
+    e = len(edges[0])
+    if hills is None or hills.height <= 0:
+        return 4 * e
+    s = ring_pieces(np.asarray(terrain.vertices, np.float64)[used], c, edges, step) if relief else 1
+    return e * (s + 1) + 2 * e * s * HILL_RINGS
+
+
+def ring_pieces(points: np.ndarray, c: np.ndarray, edges: tuple[np.ndarray, np.ndarray], step: float) -> int:
+    """The smallest count s of equal pieces that keeps every edge (a, b) of the ring ``points`` within ``step``
+    radians seen from ``c`` (1 for an infinite step)."""
     a, b = edges
-    k, e = len(points), len(a)
     ang = np.arctan2(points[:, 2] - c[1], points[:, 0] - c[0])
     turn = np.abs(np.angle(np.exp(1j * (ang[b] - ang[a]))))
-    s = max(1, int(np.ceil(float(turn.max(initial=0.0)) / step)))
+    return max(1, int(np.ceil(float(turn.max(initial=0.0)) / step)))
+
+
+def subdivide_ring(points: np.ndarray, c: np.ndarray, edges: tuple[np.ndarray, np.ndarray], step: float):
+    """The ring ``points`` (k, 3) with every edge (a, b) cut into s equal pieces, s the smallest count that keeps
+    each piece within ``step`` radians seen from ``c`` (:func:`ring_pieces`): (points (k + E·(s − 1), 3), chains
+    (E, s + 1)), each edge's vertices from a to b, its new ones after the first k."""
+    a, b = edges
+    k, e = len(points), len(a)
+    s = ring_pieces(points, c, edges, step)
     t = np.arange(1, s, dtype=np.float64) / s
     new = points[a][:, None, :] + (points[b] - points[a])[:, None, :] * t[None, :, None]  # (E, s−1, 3)
     chains = np.empty((e, s + 1), np.int64)

@@ -170,7 +170,16 @@ def test_the_wooded_skirt_joins_the_terrain_and_is_fine_enough_for_crowns():
     """With woods the skirt still closes on the terrain's boundary (its open edges are the terrain's boundary
     and the outer ring), its rings' neighbours are at most RELIEF_STEP apart seen from the centre, it is the
     hills plus the relief, and its normals are the hills' (smooth) ones."""
-    from forest.skirt import HILL_RINGS, RELIEF_STEP, RELIEF_STEP_MAX, Hills, boundary_edges, relief_step, skirt_mesh
+    from forest.skirt import (
+        HILL_RINGS,
+        RELIEF_STEP,
+        RELIEF_STEP_MAX,
+        Hills,
+        boundary_edges,
+        relief_step,
+        skirt_mesh,
+        skirt_triangles,
+    )
     from forest.terrain import fbm_heights, grid_terrain
 
     terrain = grid_terrain(fbm_heights(33, 4, 0.5, 1) * 20.0, (200.0, 200.0))
@@ -198,6 +207,12 @@ def test_the_wooded_skirt_joins_the_terrain_and_is_fine_enough_for_crowns():
     assert relief_step(50.0, 8000) == RELIEF_STEP and relief_step(90.0, 64) == RELIEF_STEP_MAX
     coarse = skirt_mesh(terrain, 30_000.0, hills, fc, relief_step(50.0, 800))
     assert coarse is not None and len(plain.vertices) < len(coarse.vertices) < len(wooded.vertices)
+    # The pre-flight's count of the skirt's triangles, without building it, is what each build makes.
+    flat = skirt_mesh(terrain, 30_000.0)
+    assert flat is not None and skirt_triangles(terrain) == len(flat.faces)
+    assert skirt_triangles(terrain, hills) == len(plain.faces)
+    assert skirt_triangles(terrain, hills, True) == len(wooded.faces)
+    assert skirt_triangles(terrain, hills, True, relief_step(50.0, 800)) == len(coarse.faces)
     # The first k columns of every ring are the plain hills' vertices, raised by the relief there.
     base = plain.vertices[k:].reshape(HILL_RINGS + 1, k, 3).astype(np.float64)
     np.testing.assert_allclose(rings[:, :k, [0, 2]], base[:, :, [0, 2]], atol=1e-3)
@@ -270,3 +285,35 @@ def test_forest_path_stands_the_woods_on_the_skyline(tmp_path, monkeypatch):
     gained = (a_woods > 0.99) & (a_hills < 0.01)
     assert gained.sum() >= 5 and not np.any((a_hills > 0.99) & (a_woods < 0.01))
     assert float(layers["woods"]["G"][upper][gained].min()) > 0.005
+
+
+def test_the_preflight_counts_the_skirt_forest_path_builds(tmp_path, monkeypatch):
+    """The pre-flight memory model counts the skirt's world-space triangles (0.1–1.5 M with hills and woods) with
+    the merged ones: its count is what forest_path's geometry then builds beside the terrain, and a wider image
+    (a finer relief step) counts more."""
+    from forest.preflight import scene_render_estimate, world_triangles
+    from forest.render.frame import FrameSize
+    from forest.render.path import PathScene
+
+    library = BoxLibrary(tmp_path / "lib")
+    rng = np.random.default_rng(2)
+    xz = np.stack([rng.uniform(-48.0, -20.0, 150), rng.uniform(-48.0, 48.0, 150)], axis=1)
+    positions = np.stack([xz[:, 0], np.zeros(150), xz[:, 1]], axis=1)
+    cfg = parse_config(LEVEL, path=tmp_path / "scene.toml", base_dir=tmp_path)
+    scene = load_scene(cfg, trees(positions, scale=3.0), library=library)
+    built = PathScene(path_inputs(scene), "llvm_ad_rgb")
+    skirt = built.stats.world_triangles - len(scene.terrain.faces)
+    assert skirt > 10 * len(scene.terrain.faces)
+    assert world_triangles(scene, [1.0], 64) == skirt
+    assert world_triangles(scene, [1.0], 1280) > skirt
+    import forest.render.path.from_scene as from_scene
+
+    monkeypatch.setattr(from_scene, "far_plan", lambda *a, **k: (0, 0))  # the box library's parts count no triangles
+    size = FrameSize(64, 32, 4)
+    with_skirt = scene_render_estimate(scene, "llvm_ad_rgb", [1.0], size)
+    assert with_skirt.far_triangles >= skirt
+    level = parse_config(LEVEL.replace("horizon_hills", "horizon_ground = false\n# "), path=tmp_path / "s.toml")
+    bare = scene_render_estimate(
+        load_scene(level, trees(positions, scale=3.0), library=library), "llvm_ad_rgb", [1.0], size
+    )
+    assert with_skirt.far_triangles - bare.far_triangles == skirt and with_skirt.memory > bare.memory

@@ -306,6 +306,7 @@ class FrameStats:
     flattened_triangles: int = 0
     shapegroups: int = 0
     instanced_triangles: int = 0
+    world_triangles: int = 0  # the terrain, its skirt to the horizon and the surfaces
     load_seconds: float = 0.0
     lod_counts: dict[str, int] = field(default_factory=dict)
 
@@ -395,6 +396,7 @@ class TraversalScene:
             name = f"world_{k}"
             entries[name] = _mi_mesh(mi, name, parts.vertices[p], parts.local_faces[p])
             top_parts[name] = p
+            stats.world_triangles += len(parts.local_faces[p])
         if len(entries) == 1:
             raise ForestError("path inputs: nothing to render (no trees, terrain or surfaces)")
         report(0.6, f"Mitsuba scene: loading {len(entries) - 1:,} shapes and instances")
