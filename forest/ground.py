@@ -69,6 +69,19 @@ over the painted colour (:mod:`forest.render.path.materials`, :func:`~forest.ren
 without the detail texture on that share (the bed under water shows no soil grain); the other
 renderers and the exports keep the painted colour alone.
 
+**Variation.**  A material painted one colour reads, from tens of metres away, as a flat sheet: real
+ground varies in patches — thicker and thinner grass, drier and greener, more and less litter — which
+the detail texture (a few metres across) averages away at a distance.  So the painted grid is varied,
+for every material but water, by a lognormal factor in luminance and a warm–cool shift:
+
+    ρ ← ρ ⊙ exp(σ n₁ − σ²/2) ⊙ (exp(σ n₂ − σ²/2), 1, exp(−σ n₂ − σ²/2))
+
+n₁ and n₂ independent unit Gaussian fields of correlation length ``variation_scale`` (the edges' noise,
+seeded apart), σ = ``variation``; E[exp(σn − σ²/2)] = 1, so every material keeps its mean albedo.  The
+default σ = 0.12 follows a photographed meadow (``tests/fixtures/photos/autumn_larch_hillside.jpg``:
+its field's 16- and 8-pixel blocks vary by 0.078–0.097 in log luminance and 0.093–0.142 in log
+red/green, lighting included; ``bench/bench_ground.py`` prints them beside the grid's).
+
 Built-in materials and their sources: :data:`forest.config.schema.GROUND_MATERIALS`.
 """
 
@@ -89,6 +102,8 @@ from .maps import sample_bilinear, terrain_moisture
 from .terrain import Terrain
 
 TAG = 0x6A0D
+#: Noise indices of the macro variation's two fields (after any rule's own index).
+VARIATION_INDEX = 1 << 20
 #: Default ramp width of a ``[lo, hi]`` window's edges, per variable (altitude: a share of the height range).
 RAMP = {"slope": 6.0, "altitude": 0.05, "moisture": 0.1, "canopy": 0.15, "relief": 1.0}
 #: Where each variable's range ends: a window edge at or beyond these is no edge.
@@ -355,7 +370,7 @@ def paint_rules(
     if ground.base == WATER_MATERIAL:
         water = np.ones(shape, np.float64)
     if not rules:
-        return rgb.astype(np.float32), None if water is None else water.astype(np.float32)
+        return _finish(rgb, water, extent, ground, config.seed)
     height = terrain.height_at(x.ravel(), z.ravel()).reshape(shape)
     hmin, hmax = terrain.height_range
     units = {"slope": 1.0, "altitude": max(hmax - hmin, 1.0), "moisture": 1.0, "canopy": 1.0, "relief": 1.0}
@@ -404,7 +419,44 @@ def paint_rules(
         rgb += alpha[..., None] * (c - rgb)
         if water is not None:
             water += alpha * ((1.0 if rule.material == WATER_MATERIAL else 0.0) - water)
-    return rgb.astype(np.float32), None if water is None else np.clip(water, 0.0, 1.0).astype(np.float32)
+    return _finish(rgb, water, extent, ground, config.seed)
+
+
+def _finish(
+    rgb: np.ndarray,
+    water: np.ndarray | None,
+    extent: tuple[float, float, float, float],
+    ground: GroundConfig,
+    seed: int,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The painted grid varied (:func:`vary`) and both grids as float32."""
+    water = None if water is None else np.clip(water, 0.0, 1.0)
+    if ground.variation > 0.0:
+        rgb = vary(rgb, water, extent, ground.variation, ground.variation_scale, seed)
+    return rgb.astype(np.float32), None if water is None else water.astype(np.float32)
+
+
+def vary(
+    rgb: np.ndarray,
+    water: np.ndarray | None,
+    extent: tuple[float, float, float, float],
+    sigma: float,
+    scale_m: float,
+    seed: int,
+) -> np.ndarray:
+    """The painted grid ``rgb`` (H, W, 3) with the ground's macro variation (module docstring, "Variation"):
+    ρ ⊙ exp(σ n₁ − σ²/2) ⊙ (exp(σ n₂ − σ²/2), 1, exp(−σ n₂ − σ²/2)), n₁ and n₂ unit Gaussian fields of correlation
+    length ``scale_m`` (:func:`edge_noise`); the water's share W of a texel keeps its colour."""
+    shape = rgb.shape[:2]
+    n1 = edge_noise(shape, extent, scale_m, seed, VARIATION_INDEX)
+    n2 = edge_noise(shape, extent, scale_m, seed, VARIATION_INDEX + 1)
+    lum = np.exp(sigma * n1 - 0.5 * sigma * sigma)
+    factor = np.stack([np.exp(sigma * n2), np.ones(shape), np.exp(-sigma * n2)], -1)
+    factor[..., ::2] *= np.exp(-0.5 * sigma * sigma)
+    factor *= lum[..., None]
+    if water is not None:
+        factor = 1.0 + (1.0 - water[..., None]) * (factor - 1.0)
+    return np.clip(rgb * factor, 0.0, 1.0)
 
 
 def read_terrain_texture(config: Config) -> np.ndarray | None:

@@ -41,7 +41,7 @@ def albedo(cfg):
 def test_slope_windows_give_their_materials(tmp_path):
     cfg = ramp_scene(
         tmp_path,
-        'detail_tile = 0.0\nresolution = 64\nbase = "soil"\n'
+        'detail_tile = 0.0\nvariation = 0.0\nresolution = 64\nbase = "soil"\n'
         'rules = [{ material = "grass", slope = [0.0, 20.0], noise = 0.0 },\n'
         '         { material = "rock", slope = [35.0, 90.0], noise = 0.0 }]\n',
     )
@@ -56,7 +56,7 @@ def test_altitude_window_and_later_rules_paint_over(tmp_path):
     """A ramp window [lo0, lo1, hi1, hi0]: 0 below lo0, 1 from lo1; the later rule covers the earlier."""
     cfg = ramp_scene(
         tmp_path,
-        'detail_tile = 0.0\nresolution = 100\nbase = "soil"\n'
+        'detail_tile = 0.0\nvariation = 0.0\nresolution = 100\nbase = "soil"\n'
         'rules = [{ material = "rock", slope = [30.0, 90.0], noise = 0.0 },\n'
         '         { material = "snow", altitude = [30.0, 34.0, 1000.0, 1000.0], noise = 0.0 }]\n',
     )
@@ -75,7 +75,7 @@ def test_map_weight_and_invert(tmp_path):
     write_png(tmp_path / "river.png", np.repeat((np.arange(8) < 4)[None, :].astype(float), 8, axis=0))
     cfg = ramp_scene(
         tmp_path,
-        'detail_tile = 0.0\nresolution = 64\nbase = "soil"\n'
+        'detail_tile = 0.0\nvariation = 0.0\nresolution = 64\nbase = "soil"\n'
         'rules = [{ material = "wet", map = "river.png", invert = true }]\n',
     )
     _, ta = albedo(cfg)
@@ -104,6 +104,7 @@ def test_default_rules_put_litter_under_trees_and_grass_in_the_open(tmp_path):
             percent = 100
             [ground]
             detail_tile = 0.0
+            variation = 0.0
             resolution = 128
             """,
         )
@@ -121,7 +122,7 @@ def test_default_rules_put_litter_under_trees_and_grass_in_the_open(tmp_path):
 
 
 def test_detail_has_mean_one_tiles_and_at_multiplies(tmp_path):
-    cfg = ramp_scene(tmp_path, 'resolution = 32\ndetail_tile = 5.0\nbase = "rock"\nrules = []\n')
+    cfg = ramp_scene(tmp_path, 'resolution = 32\ndetail_tile = 5.0\nvariation = 0.0\nbase = "rock"\nrules = []\n')
     _, ta = albedo(cfg)
     assert ta.detail is not None and ta.detail_tile_m == 5.0
     np.testing.assert_allclose(ta.detail.reshape(-1, 3).mean(axis=0), 1.0, rtol=1e-4)
@@ -173,3 +174,63 @@ def test_bad_ground_names_the_field(tmp_path, bad):
 
     with pytest.raises(ConfigError, match=r"ground\.(base|rules\[0\]\.canopy)"):
         ramp_scene(tmp_path, bad + "\n")
+
+
+FLAT = """
+seed = {seed}
+[terrain]
+flat = {{ size = 400.0 }}
+[scatter]
+count = 0
+[[species]]
+model = "broadleaf"
+percent = 100
+[ground]
+detail_tile = 0.0
+resolution = 256
+base = "{base}"
+rules = []
+{extra}
+"""
+
+
+def flat_albedo(tmp_path, base: str = "grass", extra: str = "", seed: int = 1) -> np.ndarray:
+    (tmp_path / f"s{seed}").mkdir(exist_ok=True)
+    cfg = load_config(write_scene(tmp_path / f"s{seed}", FLAT.format(seed=seed, base=base, extra=extra)))
+    return albedo(cfg)[1].rgb.astype(np.float64)
+
+
+def test_variation_patches_the_ground_and_keeps_each_materials_mean(tmp_path):
+    """``[ground] variation``: a lognormal factor in luminance and a warm–cool shift, σ = 0.12 by default, in
+    patches about ``variation_scale`` metres across; the material's mean albedo is kept, ``variation = 0`` is the
+    material itself, water keeps its colour, and the seed picks the patches."""
+    grass = np.asarray(GROUND_MATERIALS["grass"], np.float64)
+    rgb = flat_albedo(tmp_path)
+    log = np.log(rgb / grass)
+    np.testing.assert_allclose(rgb.reshape(-1, 3).mean(axis=0), grass, rtol=0.04)
+    assert 0.09 < float(log[..., 1].std()) < 0.15  # luminance alone on green
+    warm = log[..., 0] - log[..., 2]  # red against blue: twice the shift
+    assert 0.17 < float(warm.std()) < 0.31
+    assert abs(float(np.corrcoef(log[..., 1].ravel(), warm.ravel())[0, 1])) < 0.2  # two independent fields
+    # Patches: neighbours 1.6 m apart agree, texels 50 m apart do not.
+    g = log[..., 1] - log[..., 1].mean()
+
+    def corr(k: int) -> float:
+        return float((g[:, k:] * g[:, :-k]).mean() / g.var())
+
+    assert corr(1) > 0.9 and abs(corr(32)) < 0.3
+    assert np.array_equal(
+        flat_albedo(tmp_path, extra="variation = 0.0"), np.broadcast_to(grass, rgb.shape).astype(np.float32)
+    )
+    water = np.asarray(GROUND_MATERIALS["water"], np.float32)
+    assert np.array_equal(flat_albedo(tmp_path, base="water"), np.broadcast_to(water, rgb.shape))
+    assert np.array_equal(flat_albedo(tmp_path), rgb) and not np.array_equal(flat_albedo(tmp_path, seed=2), rgb)
+    wide = np.log(flat_albedo(tmp_path, extra="variation_scale = 60.0")[..., 1] / grass[1])
+    assert float((wide[:, 32:] * wide[:, :-32]).mean() / wide.var()) > corr(32) + 0.2
+
+
+def test_bad_variation_is_refused_in_one_line(tmp_path):
+    from forest.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"ground\.variation: must be <= 1"):
+        flat_albedo(tmp_path, extra="variation = 1.5")

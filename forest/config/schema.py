@@ -524,6 +524,12 @@ class GroundConfig(Section):
         1.0, description="Contrast of the detail texture (0 flat, 1 as drawn)."
     )
     relief_radius: Positive = Field(30.0, description="Metres around a point that rules' relief looks for the floor.")
+    variation: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = Field(
+        0.12,
+        description="Patches of lighter and darker, warmer and cooler ground over the rules' materials: the "
+        "standard deviation of the albedo's logarithm (0: each material one colour).",
+    )
+    variation_scale: Positive = Field(20.0, description="Size of those patches, metres.")
     water_ripple: Annotated[float, Field(ge=0.0, le=20.0, allow_inf_nan=False)] = Field(
         2.0, description="Ripples on water (rules of material water): RMS tilt of its mirror, degrees (0 flat)."
     )
