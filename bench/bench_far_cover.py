@@ -42,7 +42,7 @@ def main() -> None:
     inputs = path_inputs(scene, width=480, height=270, spp=8)
     assert inputs.far_cover is not None
     c = scene.terrain_albedo.far_cover
-    print(f"far cover: the terrain's canopy cover {c:.3f}; open ground ×{np.mean(inputs.far_cover.open):.2f}, "
+    print(f"far cover: the terrain's wooded land {c:.3f}; open ground ×{np.mean(inputs.far_cover.open):.2f}, "
           f"woods ×{np.mean(inputs.far_cover.canopy):.2f} of the far albedo (channel means)")  # fmt: skip
     fc = inputs.far_cover
     variants = {

@@ -1,43 +1,47 @@
 """Woods and open ground on the far landscape: the skirt's land cover in patches.
 
 :mod:`forest.skirt` paints the ground past the terrain's edge one colour, the
-far landscape's albedo
+far landscape's albedo ρ_far, the mean over the terrain of what each point
+looks like from afar, (1 − c)·ρ_g + c·ρ_c (c the crowns' cover there, ρ_c the
+canopy's reflectance, ρ_g the ground's albedo; :func:`forest.skirt.landscape`).
+Seen from a few hundred metres up, hills painted that mean are smooth green
+humps: a real wooded landscape is a mosaic of woods and fields, and inside the
+woods the crowns and their shadows give the canopy a grain (Forman, *Land
+Mosaics: The Ecology of Landscapes and Regions*, 1995, ch. 1: patches,
+corridors and matrix; the canopy grain of a forest seen from afar is what Li
+and Strahler 1992, "Geometric-optical bidirectional reflectance modeling of
+the discrete crown vegetation canopy", IEEE TGRS 30(2): 276–292, model as
+sunlit and shaded crown and ground).
 
-    ρ_far = (1 − c̄)·ρ_o + c̄·ρ_c
+The mosaic's two kinds of land are the terrain's own: its wooded land, where
+the crowns cover at least half the ground (c ≥ :data:`forest.skirt.WOODED`), a
+share w̄ of it with the mean albedo ρ_w there (crowns over their gaps), and its
+open land, the rest, with ρ_o = (ρ_far − w̄·ρ_w)/(1 − w̄) — the meadows, fields
+and riverbeds the terrain has, not the litter between its crowns.  A terrain
+that is all forest, or all open, stays one colour; a forest with clearings
+gets fields of the clearings' ground.
 
-with c̄ the crowns' mean cover of the terrain, ρ_c the canopy's reflectance
-and ρ_o = ⟨(1 − c)·ρ_g⟩ / (1 − c̄) the open ground's (the ground grid
-weighted by the gaps between crowns; :func:`forest.skirt.landscape`).  Seen
-from a few hundred metres up, hills painted that mean are smooth green humps:
-a real wooded landscape is a mosaic of woods and fields, and inside the woods
-the crowns and their shadows give the canopy a grain (Forman, *Land Mosaics:
-The Ecology of Landscapes and Regions*, 1995, ch. 1: patches, corridors and
-matrix; the canopy grain of a forest seen from afar is what Li and Strahler
-1992, "Geometric-optical bidirectional reflectance modeling of the discrete
-crown vegetation canopy", IEEE TGRS 30(2): 276–292, model as sunlit and
-shaded crown and ground).
+So the skirt's albedo mixes them with a cover that varies across the land,
+C(x, z) ∈ [0, 1], and a canopy grain g(x, z) of mean 1:
 
-So the skirt's albedo is the same rule with a cover that varies across the
-land, C(x, z) ∈ [0, 1], and a canopy grain g(x, z) of mean 1:
-
-    ρ(x, z) = (1 − C)·ρ_o + C·g·ρ_c,    ⟨C⟩ = c̄,  ⟨C·g⟩ = c̄
+    ρ(x, z) = (1 − C)·ρ_o + C·g·ρ_w,    ⟨C⟩ = w̄,  ⟨C·g⟩ = w̄
 
 whose mean over the land is ρ_far exactly: the far landscape keeps the colour
-the Scene computed, and a terrain without trees (c̄ = 0) or under a closed
-canopy (c̄ ≈ 1) stays one colour.  C is a soft threshold of a fractional
+the Scene computed, and a terrain without wooded land (w̄ = 0) or all wooded
+(w̄ ≈ 1) stays one colour.  C is a soft threshold of a fractional
 Brownian motion of value noise (:data:`STAND_M`-metre stands down to
 :data:`GRAIN_M`-metre crowns, lacunarity 2, gain ½; Perlin 1985, Ebert et al.
 2003, ch. 16 as :mod:`forest.skirt`'s hills), C = s((f − t)/2ε + ½) with s
-the smoothstep and t found by bisection so that ⟨C⟩ = c̄; g = 1 + a·(h − ⟨h⟩)
+the smoothstep and t found by bisection so that ⟨C⟩ = w̄; g = 1 + a·(h − ⟨h⟩)
 is a value noise h of :data:`GRAIN_M`-metre cells (a = :data:`GRAIN`), rescaled so that
-⟨C·g⟩ = c̄.
+⟨C·g⟩ = w̄.
 
 The pattern is one periodic tile of :data:`TILE_M` metres on
 :data:`TEXELS` × :data:`TEXELS` texels (:func:`cover_tile`), looked up by world
 X/Z with wrapping, and stored as the two weights (1 − C, C·g), so that the
 renderer's factor on ρ_far is
 
-    m(x, z) = (1 − C)·ρ_o/ρ_far + C·g·ρ_c/ρ_far
+    m(x, z) = (1 − C)·ρ_o/ρ_far + C·g·ρ_w/ρ_far
 
 It fades in past the terrain's edge over the same distance as the albedo grid
 fades to ρ_far (:func:`forest.skirt.fade_beyond_edge`), so the terrain and its
@@ -61,10 +65,27 @@ enough around the camera for these to show on a skyline
 (:func:`forest.skirt.skirt_mesh`), and its vertex normals follow them, so the
 woods' crowns also take light and shade.
 
+**Prefilter.**  The skirt carries the relief on rings whose spacing grows
+with the distance from the terrain (5 % of the radius: a hundred metres and
+more), against columns cut a pixel or two apart.  Crowns :data:`CROWN_M`
+metres apart, sampled every column but only every ring, became long ridges
+running away from the camera, and with a low sun their shadows striped the
+hills like eroded cliffs.  So at a vertex the domes are averaged over its ring
+spacing f: their deviation from their mean k̄ is kept in proportion
+CROWN_M / f, what a box of width f keeps of them,
+
+    Δy_f = s(d / P) · C · H · (1 − a_c + a_c·(k̄ + min(1, CROWN_M / f)·(k − k̄)))
+
+C itself is left sharp: the woods' edges are long curves, not a per-column
+pattern, and a ring spacing turns a step across them into a slope, not a
+ridge (averaging C too, tried, smoothed the stands away).  On the hills the
+woods then stand as smooth-topped stands whose edges step up from the fields;
+crowns show where the rings are close enough to hold them.
+
 forest_path draws both (``[render] horizon_hills``' ``woods``, on by default
 with hills); the scalar renderer keeps the one colour ρ_far and the smooth
 hills, as it keeps the ground without its detail texture.  Deterministic: the
-tile depends only on c̄ (rounded to 10⁻⁶) and the hills' seed, the domes on the
+tile depends only on w̄ (rounded to 10⁻⁶) and the hills' seed, the domes on the
 seed.
 """
 
@@ -172,7 +193,7 @@ class FarCover:
     """What forest_path needs to draw the mosaic (module docstring).
 
     ``tile``: :func:`cover_tile`'s weights; ``open`` and ``canopy``: ρ_o/ρ_far and
-    ρ_c/ρ_far (3,) each; ``extent``: the terrain's (xmin, zmin, xmax, zmax);
+    ρ_w/ρ_far (3,) each; ``extent``: the terrain's (xmin, zmin, xmax, zmax);
     ``ramp``: P, metres past it over which the mosaic fades in; ``tile_m``: the tile's side;
     ``height``: H, the canopy's height (metres; 0: no relief); ``seed``: the crowns' pattern.
     """
@@ -202,13 +223,20 @@ class FarCover:
         w = wrapped_bilinear(self.tile[..., :1], x.ravel() / self.tile_m, z.ravel() / self.tile_m)
         return (1.0 - w[:, 0]).reshape(x.shape)
 
-    def relief(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """Δy at world (x, z), metres: how far the woods stand above the ground there (module docstring)."""
+    def relief(self, x: np.ndarray, z: np.ndarray, footprint: np.ndarray | float | None = None) -> np.ndarray:
+        """Δy at world (x, z), metres: how far the woods stand above the ground there (module docstring), its crowns
+        averaged over ``footprint`` metres around each point (None or up to :data:`CROWN_M`: unfiltered) — the
+        spacing of the mesh that carries it, so that crowns it cannot hold do not alias into ridges ("Prefilter")."""
         x = np.asarray(x, np.float64)
         z = np.asarray(z, np.float64)
         if self.height <= 0.0:
             return np.zeros(x.shape)
-        crowns = 1.0 - CROWN_DEPTH + CROWN_DEPTH * crown_domes(x, z, self.seed)
+        k = crown_domes(x, z, self.seed)
+        if footprint is not None:
+            f = np.broadcast_to(np.asarray(footprint, np.float64), x.shape)
+            keep = np.clip(CROWN_M / np.maximum(f, 1e-9), 0.0, 1.0)  # a box of width f keeps ~CROWN_M/f of them
+            k = dome_mean() + keep * (k - dome_mean())
+        crowns = 1.0 - CROWN_DEPTH + CROWN_DEPTH * k
         return self._ramp(x, z) * self.woods(x, z) * self.height * crowns
 
     def factor(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -220,6 +248,14 @@ class FarCover:
         w = wrapped_bilinear(self.tile, x.ravel() / self.tile_m, z.ravel() / self.tile_m).reshape(*x.shape, 2)
         m = w[..., :1] * np.asarray(self.open) + w[..., 1:2] * np.asarray(self.canopy)
         return 1.0 + self._ramp(x, z)[..., None] * (m - 1.0)
+
+
+@lru_cache(maxsize=1)
+def dome_mean() -> float:
+    """k̄, the mean of :func:`crown_domes` over the land (measured on a 512 × 512 grid over 64 × 64 cells)."""
+    g = (np.arange(512) + 0.5) * (64.0 * CROWN_M / 512)
+    x, z = np.meshgrid(g, g)
+    return float(crown_domes(x, z, 0).mean())
 
 
 def crown_domes(x: np.ndarray, z: np.ndarray, seed: int) -> np.ndarray:
@@ -252,20 +288,20 @@ def far_cover(
     seed: int,
     height: float = 0.0,
 ) -> FarCover | None:
-    """The :class:`FarCover` of a far landscape ρ_far = (1 − c̄)·ρ_o + c̄·ρ_c (``far``, ``canopy``, ``cover`` c̄)
-    whose canopy stands ``height`` metres; None where there is no mosaic to draw (c̄ within
-    :data:`MIN_CONTRAST` of 0 or 1, or ρ_far black)."""
+    """The :class:`FarCover` of a far landscape ρ_far = (1 − w̄)·ρ_o + w̄·ρ_w (``far``; ``canopy`` ρ_w, the wooded
+    land's albedo; ``cover`` w̄, its share) whose canopy stands ``height`` metres; None where there is no mosaic to
+    draw (w̄ within :data:`MIN_CONTRAST` of 0 or 1, or ρ_far black)."""
     rho_far = np.asarray(far, np.float64).reshape(3)
-    rho_c = np.asarray(canopy, np.float64).reshape(3)
+    rho_w = np.asarray(canopy, np.float64).reshape(3)
     c = float(cover)
     if not (MIN_CONTRAST < c < 1.0 - MIN_CONTRAST) or not np.all(rho_far > 0.0):
         return None
-    rho_o = np.maximum((rho_far - c * rho_c) / (1.0 - c), 0.0)
+    rho_o = np.maximum((rho_far - c * rho_w) / (1.0 - c), 0.0)
     tile = cover_tile(round(c, 6), int(seed))
     return FarCover(
         tile,
         tuple(float(v) for v in rho_o / rho_far),  # type: ignore[arg-type]
-        tuple(float(v) for v in rho_c / rho_far),  # type: ignore[arg-type]
+        tuple(float(v) for v in rho_w / rho_far),  # type: ignore[arg-type]
         tuple(float(v) for v in extent),  # type: ignore[arg-type]
         max(float(ramp), 1e-6),
         height=max(float(height), 0.0),

@@ -153,8 +153,9 @@ class TerrainAlbedo:
     #: The far landscape's albedo ρ_far (3,) that the ground skirt fades to (:func:`forest.skirt.horizon_albedo`
     #: sets it on the Scene's albedo); None: the grid's mean.
     far: tuple[float, float, float] | None = None
-    #: The far landscape's canopy reflectance ρ_c and the crowns' mean cover ⟨c⟩ behind ``far`` (None and 0
-    #: without trees): the woods and open ground of the skirt's mosaic (:mod:`forest.far_cover`).
+    #: The far landscape's wooded land behind ``far``: its albedo ρ_w (crowns over their gaps) and its share w̄ of
+    #: the land (None and 0 without trees; :func:`forest.skirt.landscape`): the woods and open ground of the
+    #: skirt's mosaic (:mod:`forest.far_cover`), the open ground taking the rest of ``far``.
     far_canopy: tuple[float, float, float] | None = None
     far_cover: float = 0.0
     #: The canopy's height behind ``far_canopy``, metres (0 without trees): the woods' relief on the skirt.

@@ -92,6 +92,13 @@ renderers).  The Scene computes it once (:func:`horizon_albedo`: its
 it from there (:func:`far_colour`); an albedo built without a Scene fades to
 its mean.  Deterministic: no random numbers, only sums over the trees and the
 grid.
+
+The same sums split it into the terrain's two kinds of land, for the woods and
+fields that :mod:`forest.far_cover` draws on the hills: the wooded land, where
+c ≥ :data:`WOODED` (the crowns cover half the ground or more), a share w̄ of the
+texels with the mean albedo ρ_w = ⟨ρ_g + c·(ρ_c − ρ_g)⟩ there, and the open
+land, the rest — so that (1 − w̄)·ρ_open + w̄·ρ_w = ρ_far (both take the whole
+grid's mean ρ̄_g in place of the samples' mean, as ρ_far does).
 """
 
 from __future__ import annotations
@@ -350,7 +357,9 @@ def _hilly_skirt(
     verts = np.concatenate([inner, mid, rings.reshape(-1, 3)])
     land = verts.copy()  # the hills without the woods: their normals shade the skirt (module docstring)
     if woods is not None:
-        verts[k + q :, 1] += woods.relief(verts[k + q :, 0], verts[k + q :, 2])
+        # Each ring's relief averaged over its spacing from the ring inside it (forest.far_cover, "Prefilter").
+        spacing = np.diff(np.concatenate([r0[None, :], radius]), axis=0)  # (M, q)
+        verts[k + q :, 1] += woods.relief(verts[k + q :, 0], verts[k + q :, 2], spacing.ravel())
     # The ramp's band: each boundary edge (a, b) fans to its chain on the ramp's ring, half from a, half from b.
     half = (s + 1) // 2
     lo, hi = chains[:, :-1] + k, chains[:, 1:] + k
@@ -428,6 +437,9 @@ def fade_beyond_edge(
 
 #: Texels along the terrain's longer side of the canopy-cover grid that :func:`landscape` averages over.
 COVER_RESOLUTION = 256
+#: Crown cover from which a texel counts as wooded land (the Boolean model's c = 1 − e^(−D) at D = ln 2: the crowns
+#: cover half the ground), below it open land (:func:`landscape`).
+WOODED = 0.5
 
 
 def canopy_reflectance(omega: np.ndarray | Sequence[float]) -> np.ndarray:
@@ -451,13 +463,17 @@ def crown_colours(species: Sequence[Species]) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Landscape:
-    """The far landscape (module docstring): ``far`` ρ_far, ``canopy`` ρ_c (None without trees), ``cover`` ⟨c⟩ and
-    ``height``, the canopy's height in metres (the trees' heights weighted by crown area, as ρ_c)."""
+    """The far landscape (module docstring): ``far`` ρ_far, ``canopy`` ρ_c (None without trees), ``cover`` ⟨c⟩,
+    ``height``, the canopy's height in metres (the trees' heights weighted by crown area, as ρ_c), and its two
+    kinds of land: ``wooded`` w̄, the share of the land whose cover is at least :data:`WOODED`, and ``woods`` ρ_w,
+    that land's albedo (None without trees; the rest is open land, ρ_far = (1 − w̄)·ρ_open + w̄·ρ_w)."""
 
     far: np.ndarray
     canopy: np.ndarray | None = None
     cover: float = 0.0
     height: float = 0.0
+    woods: np.ndarray | None = None
+    wooded: float = 0.0
 
 
 def landscape(
@@ -494,10 +510,16 @@ def landscape(
     u = (x.ravel() - ext[0]) / max(ext[2] - ext[0], 1e-12)
     v = (z.ravel() - ext[1]) / max(ext[3] - ext[1], 1e-12)
     under = np.asarray(sample_bilinear(rgb, u, v), np.float64).reshape(-1, rgb.shape[-1])
-    far = np.asarray(mean + (cover * (canopy - under)).mean(axis=0), np.float64)
+    land = under + cover * (canopy - under)  # each texel's albedo seen from afar: crowns over their gaps
+    far = np.asarray(mean + (land - under).mean(axis=0), np.float64)
     tall = tree_heights(species)[sp[trees]] * np.asarray(instances.scale, np.float64)[trees]
     height = float(area @ tall / area.sum())
-    return Landscape(far, np.asarray(canopy, np.float64), float(cover.mean()), height)
+    # The two kinds of land; both take the whole grid's ground mean in place of the samples' (δ), so that
+    # (1 − w̄)·ρ_open + w̄·ρ_w = ρ_far exactly.
+    wooded = cover[:, 0] >= WOODED
+    delta = mean - under.mean(axis=0)
+    woods = land[wooded].mean(axis=0) + delta if wooded.any() else np.asarray(canopy, np.float64)
+    return Landscape(far, np.asarray(canopy, np.float64), float(cover.mean()), height, woods, float(wooded.mean()))
 
 
 def tree_heights(species: Sequence[Species]) -> np.ndarray:
@@ -507,14 +529,14 @@ def tree_heights(species: Sequence[Species]) -> np.ndarray:
 
 
 def horizon_albedo(scene: Scene) -> TerrainAlbedo:
-    """The Scene's ``terrain_albedo`` with ``far``, its far landscape's albedo, and the canopy's reflectance and
-    mean cover behind it (``far_canopy``, ``far_cover``: :func:`landscape` of its trees; :mod:`forest.far_cover`)."""
+    """The Scene's ``terrain_albedo`` with ``far``, its far landscape's albedo, and its wooded land's albedo and
+    share behind it (``far_canopy``, ``far_cover``: :func:`landscape` of its trees; :mod:`forest.far_cover`)."""
     albedo = scene.terrain_albedo
     ones = np.ones((len(scene.instances), 3))  # the species' own colours (module docstring)
     land = landscape(albedo.rgb, albedo.extent, scene.instances, scene.species, len(scene.config.species), ones)
-    canopy = None if land.canopy is None else (float(land.canopy[0]), float(land.canopy[1]), float(land.canopy[2]))
+    canopy = None if land.woods is None else (float(land.woods[0]), float(land.woods[1]), float(land.woods[2]))
     far = (float(land.far[0]), float(land.far[1]), float(land.far[2]))
-    return replace(albedo, far=far, far_canopy=canopy, far_cover=float(land.cover), far_height=float(land.height))
+    return replace(albedo, far=far, far_canopy=canopy, far_cover=float(land.wooded), far_height=float(land.height))
 
 
 def far_colour(albedo: TerrainAlbedo) -> np.ndarray:

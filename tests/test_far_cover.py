@@ -100,8 +100,9 @@ def test_forest_path_draws_the_mosaic_the_host_computes(tmp_path, monkeypatch):
     monkeypatch.setattr(forest.skirt, "skirt_mesh", lambda t, r, h=None, *rest: skirt_mesh(t, r, h))
     library = BoxLibrary(tmp_path / "lib")
     rng = np.random.default_rng(1)
-    xz = rng.uniform(-45.0, 45.0, (60, 2))
-    positions = np.stack([xz[:, 0], np.zeros(60), xz[:, 1]], axis=1)
+    # A wood on the west half and open ground on the east: the two kinds of land the mosaic draws.
+    xz = np.stack([rng.uniform(-45.0, 0.0, 300), rng.uniform(-45.0, 45.0, 300)], axis=1)
+    positions = np.stack([xz[:, 0], np.zeros(300), xz[:, 1]], axis=1)
 
     def scene_at(woods: str, x: float, z: float):
         text = SCENE.format(woods=woods, x=x, z=z, z1=z + 1.0)
@@ -166,6 +167,34 @@ def test_the_woods_stand_a_canopy_high_with_crowns_on_top():
     assert flat is not None and float(np.abs(flat.relief(x, z)).max()) == 0.0
 
 
+def test_the_relief_is_averaged_over_the_spacing_of_the_mesh_that_carries_it():
+    """Prefilter: up to a crown's spacing the relief is the unfiltered one; averaged over 256 m (a far ring's
+    spacing) the crowns go (in deep woods the relief is nearly flat) while the woods' mean height stays; and along an arc
+    of such a ring, neighbouring columns a few metres apart no longer jump by a crown's depth (the jumps that,
+    interpolated to the next ring, drew ridges)."""
+    from forest.far_cover import dome_mean
+
+    fc = far_cover((0.05, 0.07, 0.03), (0.03, 0.05, 0.01), 0.6, (-50.0, -50.0, 50.0, 50.0), 10.0, 2, height=20.0)
+    assert fc is not None
+    rng = np.random.default_rng(4)
+    x, z = rng.uniform(0.0, fc.tile_m, (2, 200_000)) + 7.0 * fc.tile_m
+    sharp = fc.relief(x, z)
+    np.testing.assert_allclose(fc.relief(x, z, 2.0), sharp, atol=1e-9)
+    wide = fc.relief(x, z, 256.0)
+    assert float(wide.mean()) == pytest.approx(float(sharp.mean()), rel=0.02)
+    deep = fc.woods(x, z) > 0.999
+    assert deep.sum() > 1000
+    assert float(wide[deep].std()) < 0.1 * float(sharp[deep].std())
+    level = 20.0 * (1.0 - CROWN_DEPTH + CROWN_DEPTH * dome_mean())
+    assert float(np.median(wide[deep])) == pytest.approx(level, rel=0.02)  # the crowns' mean height
+    # An arc 8 km out, columns 5 m apart.
+    phi = np.arange(4000) * (5.0 / 8000.0) + 0.3
+    ax, az = 8000.0 * np.cos(phi) + 7.0 * fc.tile_m, 8000.0 * np.sin(phi)
+    jumps = {f: np.abs(np.diff(fc.relief(ax, az, f))) for f in (None, 256.0)}
+    p90 = {f: float(np.percentile(j, 90)) for f, j in jumps.items()}
+    assert p90[None] > 0.05 * 20.0 and p90[256.0] < 0.15 * p90[None]  # measured 0.37 m against 3.1 m
+
+
 def test_the_wooded_skirt_joins_the_terrain_and_is_fine_enough_for_crowns():
     """With woods the skirt still closes on the terrain's boundary (its open edges are the terrain's boundary
     and the outer ring), its rings' neighbours are at most RELIEF_STEP apart seen from the centre, it is the
@@ -217,7 +246,10 @@ def test_the_wooded_skirt_joins_the_terrain_and_is_fine_enough_for_crowns():
     base = plain.vertices[k:].reshape(HILL_RINGS + 1, k, 3).astype(np.float64)
     np.testing.assert_allclose(rings[:, :k, [0, 2]], base[:, :, [0, 2]], atol=1e-3)
     lift = rings[1:, :k, 1] - base[1:, :, 1]
-    np.testing.assert_allclose(lift, fc.relief(base[1:, :, 0], base[1:, :, 2]), atol=2e-2)
+    centre = np.array([0.0, 0.0])  # the terrain's extent is centred on the origin
+    radii = np.linalg.norm(base[:, :, [0, 2]] - centre, axis=-1)
+    spacing = np.diff(radii, axis=0)  # each ring's relief is averaged over its spacing from the ring inside it
+    np.testing.assert_allclose(lift, fc.relief(base[1:, :, 0], base[1:, :, 2], spacing), atol=2e-2)
     assert float(lift.max()) > 20.0 and float(lift.min()) > -2e-2
     # Smooth normals: the crowns tilt the faces, not the shading normal, which stays the hills' own.
     low = skirt_mesh(terrain, 30_000.0, hills, dataclasses.replace(fc, height=1e-6))  # same rings, no crowns

@@ -142,6 +142,43 @@ def test_the_gaps_show_the_ground_that_is_there():
     assert far[0] < mean_mix[0]  # less soil than a mix with the ground's mean would show
 
 
+def test_the_far_fields_are_the_terrains_open_land_not_the_litter_between_crowns():
+    """The two kinds of land behind ρ_far: a forest on the brown half and open grass on the green half give wooded
+    land on about half the texels with the crowns-over-soil albedo there, and open land of the grass — not the
+    mean of the ground between the crowns (mostly soil), which the fields showed before; the split adds up to
+    ρ_far exactly, and the mosaic built from it paints its open ground grass."""
+    from forest.far_cover import far_cover
+    from forest.skirt import WOODED
+
+    bounds = np.array([[-2.0, 0.0, -2.0], [2.0, 6.0, 2.0]])
+    sp = Species("tree", [Lod("high", 12, bounds, [Part("leaf", None, GREEN, None, True)])])
+    grass = np.array([0.05, 0.15, 0.04])
+    ground = np.empty((32, 32, 3), np.float32)
+    ground[:, :16] = SOIL  # x < 0, under the trees
+    ground[:, 16:] = grass
+    inst = trees(lattice(3.0, xmax=0.0), names=("tree",))
+    land = landscape(ground, EXTENT, inst, (sp,), 1, inst.tint)
+    assert land.woods is not None and land.wooded == pytest.approx(0.5, abs=0.05)
+    cover = canopy_cover(inst, crown_radii((sp,)), 1, EXTENT, grid_shape(EXTENT, COVER_RESOLUTION))
+    assert float(cover[:, : cover.shape[1] // 2].mean()) > WOODED > float(cover[:, cover.shape[1] // 2 :].mean())
+    rho_c = canopy_reflectance(GREEN)
+    c_in = float(cover[cover >= WOODED].mean())
+    np.testing.assert_allclose(land.woods, (1.0 - c_in) * np.asarray(SOIL) + c_in * rho_c, rtol=0.05)
+    rho_open = (land.far - land.wooded * land.woods) / (1.0 - land.wooded)
+    np.testing.assert_allclose(rho_open, grass, rtol=0.05)  # the open land is the grass
+    gaps = (land.far - land.cover * rho_c) / (1.0 - land.cover)  # the former fields: the ground between crowns
+    assert gaps[0] / gaps[1] > 1.5 * grass[0] / grass[1]  # … redder: soil between the crowns
+    fc = far_cover(land.far, land.woods, land.wooded, EXTENT, 10.0, 0)
+    assert fc is not None
+    np.testing.assert_allclose(np.asarray(fc.open) * land.far, rho_open, rtol=1e-9)
+    # The mosaic's mean over a tile is ρ_far: (1 − w̄)·ρ_open + w̄·ρ_w.
+    np.testing.assert_allclose((1.0 - land.wooded) * rho_open + land.wooded * land.woods, land.far, rtol=1e-9)
+    # A forest over the whole terrain is all wooded land: no fields to draw.
+    full = trees(lattice(3.0), names=("tree",))
+    whole = landscape(ground, EXTENT, full, (sp,), 1, full.tint)
+    assert whole.wooded > 0.9
+
+
 def test_a_bare_terrain_keeps_the_grounds_mean(tmp_path, library):
     """Without trees the far albedo is the grid's mean, bit for bit, and the fade is the former one."""
     rng = np.random.default_rng(3)
@@ -222,12 +259,10 @@ def test_the_scene_carries_the_far_albedo_to_both_renderers(tmp_path, library):
     ones = np.ones((len(scene.instances), 3))  # the species' own colours, not what look-dev fits
     land = landscape(albedo.rgb, albedo.extent, scene.instances, sp, 1, ones)
     np.testing.assert_allclose(albedo.far, land.far)
-    # … and the canopy and cover behind it (the skirt's woods and open ground, forest.far_cover): the far
-    # albedo splits into them with a non-negative open ground, ρ_far = (1 − c̄)·ρ_o + c̄·ρ_c.
-    assert land.canopy is not None and 0.0 < albedo.far_cover < 1.0 and albedo.far_cover == land.cover
-    np.testing.assert_allclose(albedo.far_canopy, land.canopy)
-    rho_o = (np.asarray(albedo.far) - albedo.far_cover * land.canopy) / (1.0 - albedo.far_cover)
-    assert np.all(rho_o > 0.0)
+    # … and the wooded land behind it (the skirt's woods and open ground, forest.far_cover): a 4 m lattice of
+    # 4 m crowns covers the ground about evenly, so all of it is wooded land: one colour, no fields.
+    assert land.woods is not None and albedo.far_cover == land.wooded and land.wooded > 0.9
+    np.testing.assert_allclose(albedo.far_canopy, land.woods)
     assert albedo.far[1] / albedo.far[0] > 1.2 * SOIL[1] / SOIL[0]  # greener than the soil: the canopy
 
     look = ground_look(scene)  # forest_path
