@@ -288,17 +288,21 @@ percent = 100
 """
 
 
+def level_scene(tmp_path, text: str = LEVEL):
+    """The scene of ``text`` (default :data:`LEVEL`) with 150 boxes 18 m tall west of x = −20 (a wood)."""
+    rng = np.random.default_rng(2)
+    xz = np.stack([rng.uniform(-48.0, -20.0, 150), rng.uniform(-48.0, 48.0, 150)], axis=1)
+    positions = np.stack([xz[:, 0], np.zeros(150), xz[:, 1]], axis=1)
+    cfg = parse_config(text, path=tmp_path / "scene.toml", base_dir=tmp_path)
+    return load_scene(cfg, trees(positions, scale=3.0), library=BoxLibrary(tmp_path / "lib"))
+
+
 def test_forest_path_stands_the_woods_on_the_skyline(tmp_path, monkeypatch):
     """Looking level over the edge, the woods' relief (18 m boxes: a canopy 18 m high) covers sky that the hills
     alone leave open, and never uncovers any; the pixels it covers are lit ground."""
     import forest.skirt
 
-    library = BoxLibrary(tmp_path / "lib")
-    rng = np.random.default_rng(2)
-    xz = np.stack([rng.uniform(-48.0, -20.0, 150), rng.uniform(-48.0, 48.0, 150)], axis=1)
-    positions = np.stack([xz[:, 0], np.zeros(150), xz[:, 1]], axis=1)
-    cfg = parse_config(LEVEL, path=tmp_path / "scene.toml", base_dir=tmp_path)
-    scene = load_scene(cfg, trees(positions, scale=3.0), library=library)
+    scene = level_scene(tmp_path)
     fc = path_inputs(scene).far_cover
     assert fc is not None and abs(fc.height - 18.0) < 1e-9
     layers = {}
@@ -327,12 +331,7 @@ def test_the_preflight_counts_the_skirt_forest_path_builds(tmp_path, monkeypatch
     from forest.render.frame import FrameSize
     from forest.render.path import PathScene
 
-    library = BoxLibrary(tmp_path / "lib")
-    rng = np.random.default_rng(2)
-    xz = np.stack([rng.uniform(-48.0, -20.0, 150), rng.uniform(-48.0, 48.0, 150)], axis=1)
-    positions = np.stack([xz[:, 0], np.zeros(150), xz[:, 1]], axis=1)
-    cfg = parse_config(LEVEL, path=tmp_path / "scene.toml", base_dir=tmp_path)
-    scene = load_scene(cfg, trees(positions, scale=3.0), library=library)
+    scene = level_scene(tmp_path)
     built = PathScene(path_inputs(scene), "llvm_ad_rgb")
     skirt = built.stats.world_triangles - len(scene.terrain.faces)
     assert skirt > 10 * len(scene.terrain.faces)
@@ -344,8 +343,6 @@ def test_the_preflight_counts_the_skirt_forest_path_builds(tmp_path, monkeypatch
     size = FrameSize(64, 32, 4)
     with_skirt = scene_render_estimate(scene, "llvm_ad_rgb", [1.0], size)
     assert with_skirt.far_triangles >= skirt
-    level = parse_config(LEVEL.replace("horizon_hills", "horizon_ground = false\n# "), path=tmp_path / "s.toml")
-    bare = scene_render_estimate(
-        load_scene(level, trees(positions, scale=3.0), library=library), "llvm_ad_rgb", [1.0], size
-    )
+    bare_scene = level_scene(tmp_path, LEVEL.replace("horizon_hills", "horizon_ground = false\n# "))
+    bare = scene_render_estimate(bare_scene, "llvm_ad_rgb", [1.0], size)
     assert with_skirt.far_triangles - bare.far_triangles == skirt and with_skirt.memory > bare.memory

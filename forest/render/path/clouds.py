@@ -61,7 +61,7 @@ on the layer's plane where the flat layer has cloud, as tall as
 (H = ``height``, by default 0.4 × ``scale``; s the edge's smoothstep of (2)), each cumulus topped at
 its own share of H:
 
-    y_top(x) − h ← y_top(x) − h · (1 − S c (1 − g(x))),   g = ½ m(x) + ½ v(x)                (5')
+    (y_top(x) − h) ← (y_top(x) − h) · (1 − S·c·(1 − g(x))),   g = ½ m(x) + ½ v(x)           (5')
 
 with S = :data:`TOWER_SPREAD`, m the group field of (2') (the tallest towers in a group's core) and v a
 value noise :data:`TOWER_CELL` × ``scale`` across (cloud to cloud).  The ray marches it
@@ -82,8 +82,8 @@ taken at its front x_f, the mean of the points weighted by what each absorbs, T_
 V = e^(−τ_s) the sunlight reaching x_f through the cumulus, τ_s = 0.15 σ Σ o(x_f + ℓ_j s) Δℓ_j at
 the distances ℓ_j = :data:`SUN_STEPS` × H toward the sun (Schneider & Vos 2015's light march), m =
 :data:`MULTIPLE` the light multiple scattering carries into the shade, η ∈ [0, 1] the front's
-height as a share of its own cumulus' top (5') and b = :data:`BASE_AMBIENT` the sky light that reaches a base: sunlit domes
-over grey bases.  Between the camera and a cloud tens of kilometres away lies air: its Rayleigh
+height as a share of its own cumulus' top (5') and b = :data:`BASE_AMBIENT` the sky light that
+reaches a base: sunlit domes over grey bases.  Between the camera and a cloud tens of kilometres away lies air: its Rayleigh
 extinction a = e^(−β_R ρ̄ |x_f − o|) (β_R = :data:`RAYLEIGH` per RGB channel, ρ̄ the air's density at
 the path's mean height, scale height :data:`RAYLEIGH_HEIGHT`) dims the cloud, and the light the air
 scatters in is taken as the clear sky's toward ω:
