@@ -209,7 +209,7 @@ def test_render_too_many_trees_for_memory_fails_before_rendering(tmp_path):
 
     cfg = tmp_path / "many.toml"
     cfg.write_text(MANY.format(count=40_000, lod="[1000.0, 2000.0, 3000.0]"))
-    env = {**os.environ, "FOREST_MEMORY_GB": "0.5"}
+    env = {**os.environ, "FOREST_MEMORY_GB": "0.9"}
     out = tmp_path / "many.exr"
     r = subprocess.run(
         [*FOREST, "render", cfg, "-o", out, "--variant", "llvm_ad_rgb"],
@@ -224,7 +224,7 @@ def test_render_too_many_trees_for_memory_fails_before_rendering(tmp_path):
     error = lines[-1]
     assert "many.toml: scatter.count: " in error and "40,000 trees" in error and "Traceback" not in r.stderr
     fit = int(error.split("about ")[-1].split(" trees fit")[0].replace(",", ""))
-    assert 1_000 < fit < 40_000  # (0.5 GB − 0.3 GB base) / ~16.4 KB ≈ 12 800
+    assert 1_000 < fit < 40_000  # (0.9 GiB − 0.3 GB base − 0.24 GB for 4 shrubs × 4 levels) / ~16.4 KB ≈ 25 000
     assert "[lod] distances" in error
     assert not out.exists() and not out.with_suffix(".png").exists()
     assert not any(line.startswith("rendered") for line in r.stdout.splitlines())
