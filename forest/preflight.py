@@ -641,7 +641,7 @@ def render_estimate(
 def unique_triangles(scene: Scene) -> int:
     """The triangles of every level of every individual of every species — what both renderers build once and
     instance (:func:`forest.render.path.from_scene.scene_species`; counting one individual a species left the
-    gallery's peaks 20–45 % above the estimate)."""
+    gallery's peaks 15–35 % above the estimate)."""
     from .render.path.from_scene import scene_species
 
     lists, _ = scene_species(scene)

@@ -325,8 +325,8 @@ def test_the_summary_gives_the_gpus_peak_memory_in_cuda_only():
 
     assert gpu_peak_gb("llvm_ad_rgb") is None and gpu_peak_gb("scalar_rgb") is None
     r = RenderResult([], [1], "cuda_ad_rgb", "", 8, 6, 4, 1, 10, 100, 50, 1, 1.0, 2.0, 3.0)
-    assert "peak 3.00 GB;" not in r.summary() and r.summary().endswith("peak 3.00 GB")
-    assert replace(r, gpu_peak_gb=1.25).summary().endswith("peak 3.00 GB (GPU 1.25 GB)")
+    assert "peak 3.00 GiB;" not in r.summary() and r.summary().endswith("peak 3.00 GiB")
+    assert replace(r, gpu_peak_gb=1.25).summary().endswith("peak 3.00 GiB (GPU 1.25 GiB)")
 
 
 def test_render_denoise_cleans_a_final_frame_and_stays_deterministic(scene):

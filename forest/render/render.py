@@ -80,15 +80,15 @@ class RenderResult:
             f"rendered {frames} {self.width}x{self.height} {self.spp} spp ({self.variant}): "
             f"{self.trees:,} trees, {self.instanced_triangles:,} instanced triangles, "
             f"{self.unique_triangles:,} unique, load {self.load_seconds:.1f} s, "
-            f"render {self.render_seconds:.1f} s, peak {self.peak_memory_gb:.2f} GB"
-            + (f" (GPU {self.gpu_peak_gb:.2f} GB)" if self.gpu_peak_gb is not None else "")
+            f"render {self.render_seconds:.1f} s, peak {self.peak_memory_gb:.2f} GiB"
+            + (f" (GPU {self.gpu_peak_gb:.2f} GiB)" if self.gpu_peak_gb is not None else "")
             + lod
             + (f"; {'' if self.denoised else 'not '}denoised ({self.denoise_rule})" if self.denoise_rule else "")
         )
 
 
 def gpu_peak_gb(variant: str) -> float | None:
-    """Peak GPU memory drjit's CUDA allocator held in this process, GB (None outside ``cuda_ad_rgb``)."""
+    """Peak GPU memory drjit's CUDA allocator held in this process, GiB (None outside ``cuda_ad_rgb``)."""
     if variant != "cuda_ad_rgb":
         return None
     import drjit as dr
@@ -97,7 +97,8 @@ def gpu_peak_gb(variant: str) -> float | None:
 
 
 def peak_memory_gb() -> float:
-    """Peak resident memory of this process (getrusage ru_maxrss, KiB on Linux)."""
+    """Peak resident memory of this process, GiB (getrusage ru_maxrss, KiB on Linux), as the pre-flight's
+    estimate is printed."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
 
 
