@@ -42,7 +42,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 CASES = ("probe", "demo", "original", "million", "lookdev")
 VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb")
-SUMMARY = re.compile(r"load ([\d.]+) s, render ([\d.]+) s, peak ([\d.]+) GB(?: \(GPU ([\d.]+) GB\))?")
+SUMMARY = re.compile(r"load ([\d.]+) s, render ([\d.]+) s, peak ([\d.]+) GiB(?: \(GPU ([\d.]+) GiB\))?")
 
 
 def forest_cmd() -> list[str]:

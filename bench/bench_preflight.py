@@ -108,13 +108,13 @@ def memory(tmp: Path) -> None:
             print(f"   {variant} {side}: failed: {r.stderr.strip()[-200:]}")
             continue
         est = re.search(r"([\d,]+) trees: about ([\d.]+) (MiB|GiB)", r.stderr)
-        peak = re.search(r"peak ([\d.]+) GB", r.stdout)
+        peak = re.search(r"peak ([\d.]+) GiB", r.stdout)
         assert est and peak, (r.stderr, r.stdout)
-        est_gb = float(est.group(2)) / (1024 if est.group(3) == "MiB" else 1)  # GiB, as the summary's "GB"
+        est_gb = float(est.group(2)) / (1024 if est.group(3) == "MiB" else 1)  # GiB, as the summary's peak
         got = float(peak.group(1))
         trees = int(est.group(1).replace(",", ""))
         print(
-            f"   {variant:12s} {side:4d}x{side:<4d} {trees:8,d}  {est_gb:6.2f} GB  {got:6.2f} GB  {est_gb / got:5.2f}"
+            f"   {variant:12s} {side:4d}x{side:<4d} {trees:8,d}  {est_gb:6.2f} GiB {got:6.2f} GiB {est_gb / got:5.2f}"
         )
 
 
