@@ -60,10 +60,9 @@ weighted by crown area, as ρ_c), a_c = :data:`CROWN_DEPTH` the share of it
 that is crowns, and k a field of domes, one per jittered lattice cell of
 :data:`CROWN_M` metres, k = √(1 − (F₁/r)²)⁺ (F₁ the distance to the nearest
 cell's point, Worley 1996, "A cellular texture basis function", SIGGRAPH;
-r = :data:`CROWN_RADIUS` cells).  The skirt's hill rings are sampled finely
-enough around the camera for these to show on a skyline
-(:func:`forest.skirt.skirt_mesh`), and its vertex normals follow them, so the
-woods' crowns also take light and shade.
+r = :data:`CROWN_RADIUS` cells).  The skirt's hill rings are cut every pixel
+or two around the terrain (:func:`forest.skirt.skirt_mesh`), so the woods'
+edges show on a skyline; the shading normals stay the smooth hills' own.
 
 **Prefilter.**  The skirt carries the relief on rings whose spacing grows
 with the distance from the terrain (5 % of the radius: a hundred metres and

@@ -30,9 +30,9 @@ temporary file that is removed at once.
 
   where N is the number of trees (each an instance record and its share of the
   acceleration structure), T_unique the triangles of the levels of detail of
-  every species' individuals (:func:`unique_triangles`), W·H the image (the film, the running and accumulated beauty in
-  float64, the depth/id/species layers and the copies made to write the EXR and
-  PNG) and L the rays one sample pass traces at once in the JIT variants
+  every species' individuals (:func:`unique_triangles`), W·H the image (the
+  film, the running and accumulated beauty in float64, the depth/id/species
+  layers and the copies made to write the EXR and PNG) and L the rays one sample pass traces at once in the JIT variants
   (:data:`JIT_LANES` at most).  In the JIT variants
   (forest_path) the trees at the far level are not instances: they are merged
   into one world-space mesh per species and part
