@@ -46,7 +46,13 @@ temporary file that is removed at once.
   m_row each tree's own arrays (transform, normal matrix, ids).  The
   coefficients are measured peak resident sizes of ``forest render`` in
   Mitsuba 3.9.1, rounded up: M₀ ≈ 0.27 GB (a few trees, a small image);
-  scalar_rgb ≈ 183 B per pixel (256² → 1024²); forest_path ≈ 770 B per
+  scalar_rgb ≈ 920 B per pixel on the demo (400×225 → 1200×675: 1.93 →
+  2.55 GiB) and 950–1 580 B on a small forest (256² → 768²), counted as
+  1 400, and ≈ 510 B per loaded triangle (the demo's 3.2 M, its prototypes
+  times their colour-jitter bins, :func:`unique_triangles`: 1.85 GiB at no
+  pixels; the 183 B per pixel and 200 B per triangle measured before
+  Cryptomatte, the AOVs and the bins had the demo at 0.43× its peak);
+  forest_path ≈ 770 B per
   pixel (its beauty, alpha, albedo, normal and per-sample id accumulators:
   130 000 trees at 480×270 and 960×540, 64 spp, 1.48 → 1.76 GiB) and ≈ 72 B
   per lane (one queued pass's outputs, :data:`BYTES_PER_LANE`); per tree ≈ 4.6 KB in scalar_rgb between 100 000 and
@@ -101,7 +107,8 @@ GiB = 1 << 30
 
 # -- memory model (bytes), see the module docstring --------------------------------------------
 BASE_BYTES = 300 << 20
-BYTES_PER_TRIANGLE = 200
+#: scalar_rgb: bytes per loaded triangle (its shapegroups' meshes and BVHs).
+BYTES_PER_TRIANGLE = 520
 #: JIT variants: bytes per unique triangle (forest_path's part buffers and Mitsuba's shapegroup meshes).
 BYTES_PER_TRIANGLE_JIT = 800
 BYTES_PER_TREE = {"scalar": 4_700, "jit": 18_000}
@@ -110,7 +117,7 @@ BYTES_PER_TREE = {"scalar": 4_700, "jit": 18_000}
 BYTES_PER_INSTANCE = 16 * 1024
 BYTES_PER_FLAT_TRIANGLE = 128
 BYTES_PER_ROW = 1000
-BYTES_PER_PIXEL = {"scalar": 200, "jit": 800}
+BYTES_PER_PIXEL = {"scalar": 1400, "jit": 800}
 #: Bytes per lane of a pass: one pass's per-sample outputs (radiance, coverage, first-hit row, segments, albedo,
 #: normal: 48 B) and its per-pixel sums (36 B at one sample per pixel) stay alive while the next pass runs
 #: (``PathScene.passes`` queues pass k before pass k − 1 is added): the case study at 1920×1080 peaked
@@ -638,14 +645,21 @@ def render_estimate(
     )
 
 
-def unique_triangles(scene: Scene) -> int:
+def unique_triangles(scene: Scene, variant: str = "llvm_ad_rgb") -> int:
     """The triangles of every level of every individual of every species — what both renderers build once and
     instance (:func:`forest.render.path.from_scene.scene_species`; counting one individual a species left the
-    gallery's peaks 15–35 % above the estimate)."""
+    gallery's peaks 15–35 % above the estimate).  ``scalar_rgb`` loads a prototype of T triangles once per
+    colour-jitter bin when the trees are jittered, k = :func:`forest.render.instancing.jitter_bin_count` (T)
+    copies (on the demo 0.9 → 3.1 M loaded triangles)."""
     from .render.path.from_scene import scene_species
 
     lists, _ = scene_species(scene)
-    return sum(lod.triangles for group in lists for sp in group for lod in sp.lods)
+    counts = [lod.triangles for group in lists for sp in group for lod in sp.lods]
+    if _kind(variant) == "scalar" and scene.tree_jitter() is not None:
+        from .render.instancing import jitter_bin_count
+
+        return sum(t * jitter_bin_count(t) for t in counts)
+    return sum(counts)
 
 
 def world_triangles(scene: Scene, frames: Sequence[float], width: int) -> int:
@@ -684,7 +698,7 @@ def scene_render_estimate(scene: Scene, variant: str, frames: Sequence[float], s
         variant,
         frames=len(frames),
         subframes=size.subframes,
-        triangles=unique_triangles(scene),
+        triangles=unique_triangles(scene, variant),
         far_trees=far_trees,
         far_triangles=far_triangles,
     )

@@ -70,11 +70,13 @@ def test_the_service_stated_room_binds_when_smaller(tmp_path, monkeypatch):
     monkeypatch.setattr(preflight, "memory_room", lambda: Room(64 * 2**30))
     _reports, error = run_task(tmp_path, spec_of(tiny_config(), memory_bytes=ROOM))
     assert isinstance(error, ForestError) and REFUSED.match(str(error)), error
-    reports, result = run_task(tmp_path, spec_of(tiny_config(), memory_bytes=IMAGE_ONLY + 64 * 2**20))
+    # a room that holds the image, the trees and their prototypes' triangles (scalar_rgb loads each once per
+    # colour-jitter bin: about 0.5 GiB for the broadleaf's)
+    reports, result = run_task(tmp_path, spec_of(tiny_config(), memory_bytes=IMAGE_ONLY + 800 * 2**20))
     assert not isinstance(result, Exception), result
     lines = [r.line for r in reports if isinstance(r, Log)]
     assert any(
-        re.match(r"render: 1 frame 32x24 at 2 spp, \d+ trees: about .* of 3\d\d\.\d MiB available", s) for s in lines
+        re.match(r"render: 1 frame 32x24 at 2 spp, \d+ trees: about .* of 1\.\d GiB available", s) for s in lines
     )
     assert (tmp_path / "job" / "out" / "render.exr").is_file()
 
