@@ -267,8 +267,8 @@ def case_render(tmp: Path, libs: dict[str, Path], trees: int, width: int, height
         print(
             f"cards render {tag:4s} {p['trees']:,} trees {width}x{height} {spp} spp max_depth {depth}: forest_path llvm "
             f"{p['frame_s']:.1f} s wall / {p['cpu_s']:.1f} CPU-s (build {p['build_s']:.1f} s, render "
-            f"{p['render_s']:.1f} s), peak {p['peak_gb']:.2f} GB | scalar_rgb {s['frame_s']:.1f} s wall / "
-            f"{s['cpu_s']:.1f} CPU-s, peak {s['peak_gb']:.2f} GB | scalar/llvm {s['frame_s'] / p['frame_s']:.2f} wall, "
+            f"{p['render_s']:.1f} s), peak {p['peak_gb']:.2f} GiB | scalar_rgb {s['frame_s']:.1f} s wall / "
+            f"{s['cpu_s']:.1f} CPU-s, peak {s['peak_gb']:.2f} GiB | scalar/llvm {s['frame_s'] / p['frame_s']:.2f} wall, "
             f"{s['cpu_s'] / p['cpu_s']:.2f} CPU"
         )
     for r in ("path", "scalar"):
@@ -309,7 +309,7 @@ def case_flythrough(libs: dict[str, Path], size: str, spp: int, quads: bool) -> 
             f"cards flythrough {tag:4s} (case study 3) {r['trees']:,} trees ({r['instances']:,} instances, "
             f"{r['flat_triangles']:,} merged far triangles; levels {r['lod']}), {w}x{h} {spp} spp max_depth 3: "
             f"forest_path llvm {r['frame_s']:.1f} s end to end (build {r['build_s']:.1f} s, render "
-            f"{r['render_s']:.1f} s), {r['cpu_s']:.1f} CPU-s, peak {r['peak_gb']:.2f} GB (goal ≤ 180 s at 1920x1080x64)"
+            f"{r['render_s']:.1f} s), {r['cpu_s']:.1f} CPU-s, peak {r['peak_gb']:.2f} GiB (goal ≤ 180 s at 1920x1080x64)"
         )
     print(f"cards flythrough: load average {load_average()} at end")
 

@@ -242,7 +242,7 @@ def main() -> None:
             s = stats[name]
             print(
                 f"cycles {name:6s}: {s['wall_s']:.1f} s wall / {s['cpu_s']:.1f} CPU-s per frame (command), "
-                f"render {s['render_s']:.1f} s, peak {s['peak_gb']:.2f} GB; mean {mean:.4f}, "
+                f"render {s['render_s']:.1f} s, peak {s['peak_gb']:.2f} GiB; mean {mean:.4f}, "
                 f"σ {sigma:.5f} (σ/mean {sigma / mean:.3f})"
             )
         f, c = stats["forest"], stats["cycles"]

@@ -100,6 +100,7 @@ def cpu_s() -> float:
 
 
 def peak_gb() -> float:
+    """Peak resident memory of this process, GiB (ru_maxrss is in KiB on Linux)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
 
 
@@ -335,8 +336,8 @@ def case_scale(tmp: Path, scale: float, width: int, height: int, spp: int, depth
             f"forest_path scale {p['trees']:,} trees ({p['instances']:,} instances, {p['flattened']:,} merged far), "
             f"{width}x{height} {spp} spp, max_depth {depth}: llvm {p['frame_s']:.1f} s wall / {p['cpu_s']:.1f} CPU-s "
             f"(build {p['build_s']:.1f} s, beauty {p['beauty_s']:.1f} s, layers {p['layers_s']:.2f} s), peak "
-            f"{p['peak_gb']:.2f} GB | scalar_rgb {s['frame_s']:.1f} s wall / {s['cpu_s']:.1f} CPU-s, peak "
-            f"{s['peak_gb']:.2f} GB | scalar/llvm time ratio {s['frame_s'] / p['frame_s']:.2f} wall, "
+            f"{p['peak_gb']:.2f} GiB | scalar_rgb {s['frame_s']:.1f} s wall / {s['cpu_s']:.1f} CPU-s, peak "
+            f"{s['peak_gb']:.2f} GiB | scalar/llvm time ratio {s['frame_s'] / p['frame_s']:.2f} wall, "
             f"{s['cpu_s'] / p['cpu_s']:.2f} CPU (goal ≥ 2)"
         )
         if count == 10_000:
@@ -404,7 +405,7 @@ def case_million(tmp: Path, scale: float) -> None:
     print(
         f"forest_path million: {r['trees']:,} trees (levels high/medium/low/far {lv}): {r['instances']:,} instances, "
         f"{r['flattened']:,} far trees merged into {r['flat_triangles']:,} triangles; scatter {r['scatter_s']:.1f} s, "
-        f"build {r['build_s']:.1f} s, 320x180 4 spp {r['render_s']:.1f} s, peak {r['peak_gb']:.2f} GB (≤ 6 GB)"
+        f"build {r['build_s']:.1f} s, 320x180 4 spp {r['render_s']:.1f} s, peak {r['peak_gb']:.2f} GiB (≤ 6 GB)"
     )
 
 

@@ -337,7 +337,7 @@ def case_original(
     print(
         f"render original: {count:,} trees, {w}x{h} {spp} spp, max_depth {depth}, forest render --variant {variant}: "
         f"{r['wall_s']:.0f} s wall end to end, {r['cpu_s']:.0f} CPU-s (≈ {r['cpu_s'] / 2:.0f} s on 2 idle cores), "
-        f"peak {r['peak_gb']:.2f} GB — target ≤ 180 s on 2 idle cores, original 1800–2400 s"
+        f"peak {r['peak_gb']:.2f} GiB — target ≤ 180 s on 2 idle cores, original 1800–2400 s"
     )
     print(f"render original: {r['summary']}")
     if full:
@@ -356,7 +356,7 @@ def case_original(
     full_cpu = fixed + per_sample * 1920 * 1080 * 64
     print(
         f"render original: {count:,} trees, {w}x{h} {spp2} spp: {r2['wall_s']:.0f} s wall, {r2['cpu_s']:.0f} CPU-s, "
-        f"peak {r2['peak_gb']:.2f} GB → fixed ≈ {fixed:.0f} CPU-s, {per_sample * 1e6:.2f} CPU-µs per sample"
+        f"peak {r2['peak_gb']:.2f} GiB → fixed ≈ {fixed:.0f} CPU-s, {per_sample * 1e6:.2f} CPU-µs per sample"
     )
     print(
         f"render original: EXTRAPOLATED (not measured) to {count:,} trees, 1920x1080 64 spp: about {full_cpu:.0f} "
@@ -385,7 +385,7 @@ def case_default(tmp: Path, scale: float, variant: str) -> None:
         r["exr"] = sub / "frame.exr"
         print(
             f"render default: {name}: {count:,} trees requested, {w}x{h} 64 spp, {variant}: {r['wall_s']:.0f} s wall "
-            f"end to end, {r['cpu_s']:.0f} CPU-s, peak {r['peak_gb']:.2f} GB — target ≤ 180 s on 2 cores"
+            f"end to end, {r['cpu_s']:.0f} CPU-s, peak {r['peak_gb']:.2f} GiB — target ≤ 180 s on 2 cores"
         )
         print(f"render default: {r['summary']}")
     d, o, t = runs.values()
@@ -540,7 +540,7 @@ def case_million(tmp: Path, scale: float, variant: str) -> None:
     per_tree = r["instanced"] / max(r["trees"], 1)
     print(
         f"render million: {r['trees']:,} trees × {per_tree:,.0f} triangles = {r['instanced'] / 1e9:.2f} G "
-        f"instanced triangles, 1280x720 16 spp: peak {r['peak_gb']:.2f} GB (target ≤ 6 GB; "
+        f"instanced triangles, 1280x720 16 spp: peak {r['peak_gb']:.2f} GiB (target ≤ 6 GB; "
         f"{r['peak_gb'] * 1e6 / max(r['trees'], 1):.1f} KB per tree), "
         f"scene {r['load_s']:.0f} s, render {r['render_s']:.0f} s, end to end {r['total_s']:.0f} s "
         f"({r['cpu_s']:.0f} CPU-s)"
@@ -760,9 +760,9 @@ def case_scale(tmp: Path, scale: float, width: int, height: int, spp: int, depth
         per_tree[count] = (p["cpu_s"] / p["trees"], s["cpu_s"] / s["trees"])
         print(
             f"render scale {p['trees']:,} trees: llvm_ad_rgb {p['wall_s']:.1f} s wall / {p['cpu_s']:.1f} CPU-s "
-            f"(scene {p['load_s']:.1f} s), peak {p['peak_gb']:.2f} GB, {p['cpu_s'] / p['trees'] * 1e6:.0f} CPU-µs "
+            f"(scene {p['load_s']:.1f} s), peak {p['peak_gb']:.2f} GiB, {p['cpu_s'] / p['trees'] * 1e6:.0f} CPU-µs "
             f"per tree | scalar_rgb {s['wall_s']:.1f} s wall / {s['cpu_s']:.1f} CPU-s (scene {s['load_s']:.1f} s), "
-            f"peak {s['peak_gb']:.2f} GB, {s['cpu_s'] / s['trees'] * 1e6:.0f} CPU-µs per tree | scalar/llvm "
+            f"peak {s['peak_gb']:.2f} GiB, {s['cpu_s'] / s['trees'] * 1e6:.0f} CPU-µs per tree | scalar/llvm "
             f"{s['wall_s'] / p['wall_s']:.2f}x wall, {s['cpu_s'] / p['cpu_s']:.2f}x CPU (goal ≥ 2)"
         )
     if 10_000 in per_tree and 130_000 in per_tree:
