@@ -350,13 +350,12 @@ def load_scene(
     before anything is loaded or scattered.
     """
     step: Progress = progress or _silent
-    step(0.0, "terrain")
-
     if library is None:
         from .library import open_library
 
         library = open_library()
-    check_species(config, library)  # a misspelled species fails now, not after the trees are scattered
+    check_species(config, library)  # a misspelled species fails now, before any progress or work
+    step(0.0, "terrain")
     terrain = load_terrain(config.terrain, config.path)
     config.camera.stand_on(terrain.height_at)  # [camera] height_above_ground: heights from the ground, once for all
     if instances is None or isinstance(instances, (str, Path)):

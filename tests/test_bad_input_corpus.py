@@ -38,11 +38,11 @@ def corpus(tmp_path_factory) -> Path:
     return root
 
 
-def _case_names() -> list[str]:
+def _case_names(kind: str | None = None) -> list[str]:
     import tempfile
 
     with tempfile.TemporaryDirectory() as d:
-        return [c.name for c in make_corpus.cases(Path(d))]
+        return [c.name for c in make_corpus.cases(Path(d)) if kind is None or c.kind == kind]
 
 
 NAMES = _case_names()
@@ -91,3 +91,17 @@ def test_bad_input(corpus, tmp_path, name):
         assert word in line, (word, line)
     assert _snapshot(work) == before, "the case's folder changed"
     assert not (state / "forest" / "tracebacks").exists(), "a user's mistake was saved as a bug"
+
+
+@pytest.mark.parametrize("name", _case_names("species"))
+def test_a_misspelled_species_is_one_line_in_a_farms_log_too(corpus, tmp_path, name):
+    """With progress as a render farm reads it (``FOREST_PROGRESS=lines``) a species mistake is still the one
+    error line: the species are checked before the scene's first progress line."""
+    src = corpus / name
+    meta = json.loads((src / "case.json").read_text())
+    work = tmp_path / "case"
+    shutil.copytree(src, work, symlinks=True)
+    env = {**os.environ, "XDG_STATE_HOME": str(tmp_path / "state"), "FOREST_MEMORY_GB": make_corpus.MEMORY_GB}
+    env.update({**meta["env"], "FOREST_PROGRESS": "lines"})
+    r = subprocess.run([*_forest(), *meta["argv"]], cwd=work, env=env, capture_output=True, text=True, timeout=TIMEOUT)
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [r.stderr.strip()], r.stderr
