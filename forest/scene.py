@@ -355,8 +355,11 @@ def load_scene(
 
         library = open_library()
     check_species(config, library)  # a misspelled species fails now, before any progress or work
-    step(0.0, "terrain")
+    # So do an unreadable heightmap, terrain mesh or colour map: they are read before the first progress line,
+    # which a render farm's log would show above the error.
     terrain = load_terrain(config.terrain, config.path)
+    colour = _colour_grid(config, terrain)
+    step(0.0, "terrain")
     config.camera.stand_on(terrain.height_at)  # [camera] height_above_ground: heights from the ground, once for all
     if instances is None or isinstance(instances, (str, Path)):
         from .scatter import scene_instances
@@ -378,7 +381,6 @@ def load_scene(
     individuals = resolve_individuals(config, library, species)
     inst = fold_individuals(inst, individuals)
     step(0.8, "colour map")
-    colour = _colour_grid(config, terrain)
     if _scattered(inst):
         inst = retint(inst, colour, tint_params(model_settings(config), species, config.seed))
     step(0.85, "ground")

@@ -38,11 +38,11 @@ def corpus(tmp_path_factory) -> Path:
     return root
 
 
-def _case_names(kind: str | None = None) -> list[str]:
+def _case_names(*kinds: str) -> list[str]:
     import tempfile
 
     with tempfile.TemporaryDirectory() as d:
-        return [c.name for c in make_corpus.cases(Path(d)) if kind is None or c.kind == kind]
+        return [c.name for c in make_corpus.cases(Path(d)) if not kinds or c.kind in kinds]
 
 
 NAMES = _case_names()
@@ -93,10 +93,11 @@ def test_bad_input(corpus, tmp_path, name):
     assert not (state / "forest" / "tracebacks").exists(), "a user's mistake was saved as a bug"
 
 
-@pytest.mark.parametrize("name", _case_names("species"))
-def test_a_misspelled_species_is_one_line_in_a_farms_log_too(corpus, tmp_path, name):
-    """With progress as a render farm reads it (``FOREST_PROGRESS=lines``) a species mistake is still the one
-    error line: the species are checked before the scene's first progress line."""
+@pytest.mark.parametrize("name", _case_names("input", "species", "value"))
+def test_a_mistake_in_an_input_is_one_line_in_a_farms_log_too(corpus, tmp_path, name):
+    """With progress as a render farm reads it (``FOREST_PROGRESS=lines``) a mistake in a file, a species or a
+    value is still the one error line: the species, the terrain, the maps and the meshes are read before the
+    first progress line (a truncated map had left ``Progress: 0% scatter: terrain`` above its error)."""
     src = corpus / name
     meta = json.loads((src / "case.json").read_text())
     work = tmp_path / "case"

@@ -68,18 +68,18 @@ def scatter(
     t0 = time.perf_counter()
     step = progress or no_progress
     rule = RULES[config.scatter.method]
-    step(0.0, "terrain")
+    # The inputs are read before the first progress line, so a user's mistake in one (an unreadable map,
+    # heightmap or mesh) is the command's one line even in a render farm's log.
     terrain = terrain or load_terrain(config.terrain, config.path)
-    step(0.1, "species")
     if library is None:
         from ..library import open_library
 
         library = open_library()
     models = resolve_models(config, library)
+    maps = MapSet(config)
+    step(0.15, "terrain, species and maps read")
     tints = tint_params(model_settings(config), models, config.seed)
     dead = dead_fractions([sp.dead for sp in config.species], models)
-    step(0.15, "maps")
-    maps = MapSet(config)
     inputs = input_hashes(config)
     rng = random_streams(config.seed)
 
