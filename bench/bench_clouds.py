@@ -27,7 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from timing import best_of
+from timing import best_of, versus
 
 
 def cloud_share(scene, camera_rays: bool) -> float:
@@ -91,12 +91,10 @@ def main() -> None:
     names = list(variants)
     scenes = {name: PathScene(inp, "llvm_ad_rgb") for name, inp in variants.items()}
     images, best = best_of({name: (lambda s=s: s.render(seed=1)) for name, s in scenes.items()})
-    base_wall, base_cpu = best[names[0]]
+    base_cpu = best[names[0]][1]
     for name in names:
-        wall, cpu = best[name]
         mean = float(np.asarray(images[name].rgb).mean())  # type: ignore[attr-defined]
-        print(f"clouds {name:30s}: {wall:6.2f} s wall, {cpu:6.2f} CPU-s ({cpu / base_cpu:.2f}x CPU, "
-              f"{wall / base_wall:.2f}x wall of the clear sky), mean {mean:.4f}")  # fmt: skip
+        print(f"clouds {name:30s}: {versus(best[name], best[names[0]], 'the clear sky')}, mean {mean:.4f}")
     flat, even, cumulus = scenes[names[1]], scenes[names[2]], scenes[names[3]]
     print(f"clouds: of the pixels that see the sky, {cloud_share(flat, False):.1%} show cloud with the flat layer, "
           f"{cloud_share(even, True):.1%} with even cumulus, {cloud_share(cumulus, True):.1%} with grouped cumulus")  # fmt: skip

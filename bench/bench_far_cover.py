@@ -26,7 +26,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from timing import best_of, cpu_seconds
+from timing import best_of, cpu_seconds, versus
 
 
 def main() -> None:
@@ -79,10 +79,9 @@ def main() -> None:
     print(f"far cover: {past.mean():.1%} of the frame's pixels see ground over 100 m past the terrain's edge")
     base_wall, base_cpu = best[names[0]]
     for name in names:
-        wall, cpu = best[name]
         mean = float(np.asarray(images[name].rgb).mean())  # type: ignore[attr-defined]
-        print(f"far cover {name:27s}: build {build[name][0]:5.2f} s wall, {build[name][1]:5.2f} CPU-s; render {wall:6.2f} s wall, {cpu:6.2f} CPU-s "
-              f"({cpu / base_cpu:.2f}x CPU, {wall / base_wall:.2f}x wall of the one colour), mean {mean:.4f}")  # fmt: skip
+        print(f"far cover {name:27s}: build {build[name][0]:5.2f} s wall, {build[name][1]:5.2f} CPU-s; render "
+              f"{versus(best[name], best[names[0]], 'the one colour')}, mean {mean:.4f}")  # fmt: skip
     print(f"far cover: on those pixels the mosaic scales the luminance by {lo:.2f}-{hi:.2f} (5-95 %), "
           f"mean {ratio.mean():.3f} (same seed, hazed)")  # fmt: skip
     sky = {n: scenes[n].layers()["row"] < 0 for n in names[1:]}

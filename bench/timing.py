@@ -35,3 +35,10 @@ def best_of(
             if key not in best or took[1] < best[key][1]:
                 best[key] = took
     return first, best
+
+
+def versus(run: tuple[float, float], base: tuple[float, float], what: str) -> str:
+    """One variant's (wall s, CPU s) from :func:`best_of` against the baseline's:
+    ``"W s wall, C CPU-s (Rx CPU, Rx wall of WHAT)"``."""
+    wall, cpu = run
+    return f"{wall:6.2f} s wall, {cpu:6.2f} CPU-s ({cpu / base[1]:.2f}x CPU, {wall / base[0]:.2f}x wall of {what})"
