@@ -16,10 +16,15 @@ Every case runs in a child process under its own time limit (a case that runs pa
   ≤ 2 s of render), twice: with its kernels compiled in the run, then with drjit's kernel cache warm;
 * ``original`` — the 2005 case study 3: 130 000 trees, 1920×1080, 64 spp, max_depth 3
   (target ≤ 10 s of render);
+* ``default`` — the case study with default settings (no ``[lod]``: automatic levels of detail and solid
+  cards; the default ``max_depth``), as ``bench/bench_render.py --case default`` renders it on the CPU;
 * ``million`` — 1 000 000 trees at 1280×720, 16 spp: time and peak memory (GPU memory from
   drjit's allocator where the variant is cuda);
 * ``lookdev`` — an aligned look-dev round trip: the demo rendered as a reference at 192×108, then
   ``forest match`` fitting it from the demo's config (target ≤ 10 s).
+
+``--profile DIR`` runs each ``forest render`` under :mod:`cProfile` and keeps ``DIR/<case>_<variant>.prof``
+(host time by function; a kernel's execution shows where the host waits for it).
 
 Render seconds come from ``forest render``'s summary line (scene load and render apart; the first
 run of a kernel includes its compilation, which drjit caches on disk for the runs after).
@@ -40,7 +45,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-CASES = ("probe", "demo", "original", "million", "lookdev")
+CASES = ("probe", "demo", "original", "default", "million", "lookdev")
+#: Where ``render_case`` keeps a cProfile of each render (``--profile``); None: no profiling.
+PROFILE: Path | None = None
 VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb")
 SUMMARY = re.compile(r"load ([\d.]+) s, render ([\d.]+) s, peak ([\d.]+) GiB(?: \(GPU ([\d.]+) GiB\))?")
 
@@ -69,11 +76,16 @@ def render_line(out: str) -> str:
 
 def render_case(name: str, config: Path, variant: str, out: Path, timeout: float, extra: list[str] = ()) -> dict:
     """``forest render CONFIG --variant V`` end to end; load and render seconds from its summary."""
-    exr = out / f"{name.replace(', ', '_')}_{variant}.exr"
-    status, wall, text = run([*forest_cmd(), "render", str(config), "-o", str(exr), "--variant", variant, *extra],
-                             timeout)  # fmt: skip
+    stem = f"{name.replace(', ', '_')}_{variant}"
+    exr = out / f"{stem}.exr"
+    cmd = forest_cmd()
+    if PROFILE is not None and len(cmd) == 1:
+        cmd = [sys.executable, "-m", "cProfile", "-o", str(PROFILE / f"{stem}.prof"), *cmd]
+    status, wall, text = run([*cmd, "render", str(config), "-o", str(exr), "--variant", variant, *extra], timeout)
+    if status == "ok" and not render_line(text):  # cProfile swallows the command's exit status
+        status = "failed (no summary line)"
     m = SUMMARY.search(render_line(text))
-    r = {"case": name, "variant": variant, "status": status, "wall_s": wall}
+    r = {"case": name, "variant": variant, "status": status, "wall_s": wall, "summary": render_line(text)}
     if m:
         r.update(load_s=float(m.group(1)), render_s=float(m.group(2)), peak_gb=float(m.group(3)))
         if m.group(4):
@@ -203,6 +215,11 @@ def case_original(variants: list[str], out: Path, timeout: float) -> list[dict]:
     return [render_case("original", cfg, v, out, timeout) for v in variants]
 
 
+def case_default(variants: list[str], out: Path, timeout: float) -> list[dict]:
+    cfg = scene_file(out / "default", count=130_000, width=1920, height=1080, spp=64, depth=None, lod=None)
+    return [render_case("default", cfg, v, out, timeout) for v in variants]
+
+
 def case_million(variants: list[str], out: Path, timeout: float) -> list[dict]:
     cfg = scene_file(out / "million", count=1_000_000, width=1280, height=720, spp=16,
                      lod="distances = [150.0, 600.0, 1800.0]")  # fmt: skip
@@ -259,6 +276,7 @@ def main() -> None:
     ap.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=VARIANTS)
     ap.add_argument("--timeout", type=float, default=120.0, help="seconds each child process may run")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--profile", default=None, metavar="DIR", help="keep a cProfile of each forest render in DIR")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--variant", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--size", default="320x180", help="probe image size")
@@ -272,6 +290,10 @@ def main() -> None:
         print(json.dumps(worker_probe(a.variant, out, w, h, a.spp, a.max_depth)))
         return
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    if a.profile:
+        global PROFILE
+        PROFILE = Path(a.profile)
+        PROFILE.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
     for case in a.cases:
         kw = {"size": a.size, "spp": a.spp, "max_depth": a.max_depth} if case == "probe" else {}

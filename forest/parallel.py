@@ -66,3 +66,23 @@ def rowwise(fn: Callable[..., Any], *arrays: np.ndarray, min_rows: int | None = 
     if isinstance(parts[0], tuple):
         return tuple(np.concatenate(p, axis=0) for p in zip(*parts))
     return np.concatenate(parts, axis=0)
+
+
+def blockwise(fn: Callable[[int, int], None], n: int, *, min_rows: int | None = None) -> None:
+    """``fn(lo, hi)`` on contiguous blocks of rows ``[lo, hi)`` covering ``range(n)``, in threads.
+
+    For work done *in place*: ``fn`` updates rows lo…hi − 1 of arrays it holds (views, so each block
+    writes its own rows) and row i's update depends only on row i of its inputs, so the result is
+    the same to the bit as ``fn(0, n)``.  One call when n < ``min_rows`` (default :data:`MIN_ROWS`),
+    on one core, or when called from one of the blocks (nested), as :func:`rowwise`.
+    """
+    if threading.current_thread().name.startswith(_PREFIX):
+        fn(0, n)
+        return
+    k = min(workers(), max(1, n // max(1, MIN_ROWS if min_rows is None else min_rows)))
+    if k <= 1:
+        fn(0, n)
+        return
+    bounds = np.linspace(0, n, k + 1).astype(np.int64)
+    for f in [_pool().submit(fn, int(lo), int(hi)) for lo, hi in itertools.pairwise(bounds)]:
+        f.result()

@@ -83,3 +83,54 @@ def test_a_forked_child_makes_its_own_pool(monkeypatch):
     _, status = os.waitpid(pid, 0)
     parallel._pool.cache_clear()
     assert os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
+
+
+@pytest.mark.parametrize("n_workers", [2, 3, 8])
+def test_coverage_counted_in_blocks_of_pixels_equals_one_block(monkeypatch, n_workers):
+    """A frame's Cryptomatte coverage counted on pixel blocks in threads (forest.parallel.blockwise) holds the same
+    slots and counts as one block: passes where a third of the pixels meet two to five ids, some of them new to
+    the pixel in later passes, and sky samples (NONE) among them."""
+    from forest.imaging.cryptomatte import NONE
+    from forest.render.coverage import SampleCoverage
+
+    rng = np.random.default_rng(11)
+    h, w, spp = 37, 53, 4
+    base = rng.integers(0, 40, h * w)
+    passes = []
+    for _ in range(5):
+        ids = np.repeat(base[:, None], spp, axis=1)
+        mixed = rng.random(ids.shape) < 0.3
+        ids[mixed] = rng.integers(0, 5, int(mixed.sum())) + 100 * rng.integers(0, 2, int(mixed.sum()))
+        ids[rng.random(ids.shape) < 0.1] = NONE
+        passes.append(ids)
+
+    def count(workers: int) -> SampleCoverage:
+        monkeypatch.setattr(parallel, "workers", lambda: workers)
+        monkeypatch.setattr(parallel, "MIN_ROWS", 64)
+        parallel._pool.cache_clear()
+        cov = SampleCoverage(h, w)
+        for ids in passes:
+            cov.add(ids)
+        return cov
+
+    one, split = count(1), count(n_workers)
+    parallel._pool.cache_clear()
+    assert np.array_equal(one.ids, split.ids) and np.array_equal(one.count, split.count)
+    assert np.array_equal(one.total, split.total)
+    assert (one.count[:, 1] > 0).sum() > h * w // 5  # the case is not trivial: many pixels hold two or more slots
+    np.testing.assert_array_equal(one.count.sum(axis=1) + (np.stack(passes) == NONE).sum(axis=(0, 2)), one.total)
+
+
+def test_display_transform_in_blocks_equals_one_call(monkeypatch):
+    """The OCIO display transform applied on pixel blocks in threads gives the same code values as one call."""
+    from forest.imaging.view import to_display
+
+    rgb = np.random.default_rng(5).uniform(0.0, 6.0, (300, 400, 3)).astype(np.float32)
+    monkeypatch.setattr(parallel, "MIN_ROWS", 1000)
+    monkeypatch.setattr(parallel, "workers", lambda: 1)
+    one = to_display(rgb, "agx", 0.5, "punchy")
+    monkeypatch.setattr(parallel, "workers", lambda: 4)
+    parallel._pool.cache_clear()
+    split = to_display(rgb, "agx", 0.5, "punchy")
+    parallel._pool.cache_clear()
+    assert np.array_equal(one, split) and one.std() > 0.05

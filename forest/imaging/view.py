@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
+from ..parallel import blockwise
 from . import ocio_config as _cfg
 
 VIEWS = ("agx", "filmic", "standard", "aces")
@@ -119,7 +120,8 @@ def to_display(rgb: np.ndarray, view: str = DEFAULT_VIEW, exposure: float = 0.0,
     out = np.ascontiguousarray(out, dtype=np.float32)
     if out.size:
         flat = out.reshape(-1, 3)
-        _processor(view, exposure, look).applyRGB(flat)
+        processor = _processor(view, exposure, look)  # OCIO's CPU processors are thread-safe; blocks in threads
+        blockwise(lambda lo, hi: processor.applyRGB(flat[lo:hi]), len(flat))
     return np.clip(out, 0.0, 1.0, out=out)
 
 

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..imaging.cryptomatte import NONE, Cryptomatte, Ranking, TreeTable, encode, rank_coverage
-from ..parallel import rowwise
+from ..parallel import blockwise, rowwise
 
 if TYPE_CHECKING:
     from ..instances import InstanceSet
@@ -45,12 +45,18 @@ RANKS = 6
 def sample_ids(rows: np.ndarray, tree_ids: np.ndarray, *, n_trees: int, no_hit: int) -> np.ndarray:
     """Sample ids from renderer rows: a tree row r < N → ``tree_ids[r]``, row N (the ground) → :data:`TERRAIN`,
     ``no_hit`` → :data:`NONE`."""
-    r = np.asarray(rows).astype(np.int64)
-    out = np.full(r.shape, NONE, np.int64)
-    tree = r < n_trees
-    out[tree] = np.asarray(tree_ids, np.int64)[r[tree]]
-    out[(r >= n_trees) & (r != int(no_hit))] = TERRAIN
-    return out
+    rows = np.asarray(rows)
+    ids = np.asarray(tree_ids, np.int64)
+
+    def convert(block: np.ndarray) -> np.ndarray:
+        r = block.astype(np.int64)
+        out = np.full(r.shape, NONE, np.int64)
+        tree = r < n_trees
+        out[tree] = ids[r[tree]]
+        out[(r >= n_trees) & (r != int(no_hit))] = TERRAIN
+        return out
+
+    return np.asarray(rowwise(convert, rows.reshape(-1))).reshape(rows.shape)  # elementwise: blocks in threads
 
 
 class SampleCoverage:
@@ -69,44 +75,13 @@ class SampleCoverage:
         Samples are taken in order, each as the module docstring says.  Most samples of a
         pixel meet the object already in its first slot, and most others one in another slot:
         both are counted for the whole pass at once; only samples that meet an id their pixel
-        has no slot for yet are taken sample by sample.
+        has no slot for yet are taken sample by sample.  A pixel's slots depend on its own
+        samples alone, so blocks of pixels are counted in threads
+        (:func:`forest.parallel.blockwise`; the same counts as one block).
         """
-        a = np.asarray(ids, np.int64).reshape(self.height * self.width, -1)
+        a = np.asarray(ids).reshape(self.height * self.width, -1)
         self.total += a.shape[1]
-        # A pixel with no slot yet gives its first slot to its first sample that met something, count 0
-        # (the sample itself is then counted below with the others equal to it): what taking samples in
-        # order does, since slots fill from the first, without visiting every pixel of a frame's first pass.
-        fresh = np.nonzero(self.ids[:, 0] == NONE)[0]
-        if len(fresh):
-            met = a[fresh] != NONE
-            has = met.any(axis=1)
-            self.ids[fresh[has], 0] = a[fresh[has], met[has].argmax(axis=1)]
-        first = self.ids[:, 0]
-        same = (a == first[:, None]) & (first != NONE)[:, None]
-        self.count[:, 0] += same.sum(axis=1)
-        # Samples that met an id one of their pixel's slots already holds: counted all at once.
-        pix, col = np.nonzero(~same & (a != NONE))
-        x = a[pix, col]
-        match = self.ids[pix] == x[:, None]
-        found = match.any(axis=1)
-        np.add.at(self.count, (pix[found], match[found].argmax(axis=1)), 1.0)
-        # The rest met an id their pixel has no slot for: sample by sample, in order, as new slots fill.
-        pix, col, x = pix[~found], col[~found], x[~found]
-        for s in np.unique(col).tolist():
-            sel = col == s
-            p, xs = pix[sel], x[sel]
-            slots = self.ids[p]
-            match = slots == xs[:, None]
-            found = match.any(axis=1)
-            self.count[p[found], match[found].argmax(axis=1)] += 1.0  # a slot an earlier sample of this pass made
-            new = ~found
-            if new.any():
-                empty = slots[new] == NONE
-                room = empty.any(axis=1)
-                take = p[new][room]
-                where = empty[room].argmax(axis=1)
-                self.ids[take, where] = xs[new][room]
-                self.count[take, where] = 1.0
+        blockwise(lambda lo, hi: _count(self.ids[lo:hi], self.count[lo:hi], a[lo:hi]), len(a))
 
     def ranking(self, ranks: int = RANKS) -> Ranking:
         """The ``ranks`` ids with the most samples per pixel, their coverage = samples / all the pixel's samples.
@@ -131,6 +106,46 @@ class SampleCoverage:
         )
         shape = (self.height, self.width, ranks)
         return Ranking(ids=ids.reshape(shape), coverage=cov.reshape(shape))
+
+
+def _count(slot_ids: np.ndarray, count: np.ndarray, samples: np.ndarray) -> None:
+    """Count one pass's ``samples`` (P, S) into the slots ``slot_ids`` and ``count`` (P, K) of the same P pixels,
+    in place (:meth:`SampleCoverage.add`)."""
+    a = np.asarray(samples, np.int64)
+    # A pixel with no slot yet gives its first slot to its first sample that met something, count 0
+    # (the sample itself is then counted below with the others equal to it): what taking samples in
+    # order does, since slots fill from the first, without visiting every pixel of a frame's first pass.
+    fresh = np.nonzero(slot_ids[:, 0] == NONE)[0]
+    if len(fresh):
+        met = a[fresh] != NONE
+        has = met.any(axis=1)
+        slot_ids[fresh[has], 0] = a[fresh[has], met[has].argmax(axis=1)]
+    first = slot_ids[:, 0]
+    same = (a == first[:, None]) & (first != NONE)[:, None]
+    count[:, 0] += same.sum(axis=1)
+    # Samples that met an id one of their pixel's slots already holds: counted all at once.
+    pix, col = np.nonzero(~same & (a != NONE))
+    x = a[pix, col]
+    match = slot_ids[pix] == x[:, None]
+    found = match.any(axis=1)
+    np.add.at(count, (pix[found], match[found].argmax(axis=1)), 1.0)
+    # The rest met an id their pixel has no slot for: sample by sample, in order, as new slots fill.
+    pix, col, x = pix[~found], col[~found], x[~found]
+    for s in np.unique(col).tolist():
+        sel = col == s
+        p, xs = pix[sel], x[sel]
+        slots = slot_ids[p]
+        match = slots == xs[:, None]
+        found = match.any(axis=1)
+        count[p[found], match[found].argmax(axis=1)] += 1.0  # a slot an earlier sample of this pass made
+        new = ~found
+        if new.any():
+            empty = slots[new] == NONE
+            room = empty.any(axis=1)
+            take = p[new][room]
+            where = empty[room].argmax(axis=1)
+            slot_ids[take, where] = xs[new][room]
+            count[take, where] = 1.0
 
 
 def _mixed(count: np.ndarray) -> np.ndarray:
