@@ -20,6 +20,16 @@ Every case runs in a child process under its own time limit (a case that runs pa
   cards; the default ``max_depth``), as ``bench/bench_render.py --case default`` renders it on the CPU;
 * ``million`` — 1 000 000 trees at 1280×720, 16 spp: time and peak memory (GPU memory from
   drjit's allocator where the variant is cuda);
+* ``repose`` — what a motion-blurred sub-frame with wind costs: the fly-through's 130 000 trees through
+  :class:`forest.render.path.PathScene`, built once, then moved to the wind of a later instant by rebuilding
+  the Mitsuba scene (:meth:`PathScene.pose`, what forest does) and by updating the instances' ``to_world``
+  and the merged meshes' vertices in place (``mi.traverse`` + ``SceneParameters.update``, an experiment kept
+  here); seconds of each and the two images' relative mean difference (the same geometry: 0 up to
+  floating point);
+* ``flatten`` — instancing against merging: a 20 000-tree case-study scene built with trees of at most 64
+  (forest's default), 1 500 (the low level) and 12 000 (the medium level) triangles merged into
+  world-space meshes: build and one-pass render seconds, instances left, GPU memory (cuda), and the
+  images against the default's;
 * ``lookdev`` — an aligned look-dev round trip: the demo rendered as a reference at 192×108, then
   ``forest match`` fitting it from the demo's config (target ≤ 10 s).
 
@@ -45,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-CASES = ("probe", "demo", "original", "default", "million", "lookdev")
+CASES = ("probe", "demo", "original", "default", "million", "repose", "flatten", "lookdev")
 #: Where ``render_case`` keeps a cProfile of each render (``--profile``); None: no profiling.
 PROFILE: Path | None = None
 VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb")
@@ -169,6 +179,152 @@ def worker_probe(variant: str, out: Path, width: int, height: int, spp: int, max
     }
 
 
+def update_in_place(mi, traversal, geometry, matrices: np.ndarray) -> dict:
+    """Move a built traversal scene's trees to ``matrices`` without rebuilding it (the ``repose`` experiment):
+    each instance's ``to_world``, each merged mesh's world vertices, and the hit tables' row matrices."""
+    import drjit as dr
+
+    from forest.render.path.arrays import owned
+    from forest.render.path.geometry import normal_matrices
+
+    t0 = time.perf_counter()
+    params = mi.traverse(traversal.scene)
+    t1 = time.perf_counter()
+    mats = np.ascontiguousarray(matrices, np.float64)
+    T, M4 = mi.ScalarTransform4f, mi.ScalarMatrix4f
+    flat_rows = np.asarray(traversal.flat_rows, np.int64)
+    parts = geometry.parts
+    moved = 0
+    keys = list(params.keys())
+    for key in keys:
+        if key.startswith("tree_") and key.endswith(".to_world"):
+            params[key] = T(M4(mats[int(key[5:-9])]))
+            moved += 1
+        elif key.startswith("flat_") and key.endswith(".vertex_positions"):
+            part = key[: -len(".vertex_positions")].split("_")[2]
+            v = parts.vertices[int(part)].astype(np.float64)
+            count = dr.width(params[key]) // (3 * len(v))
+            off = traversal.flat_offsets[key[: -len(".vertex_positions")]]
+            m = mats[flat_rows[off : off + count]]
+            world = np.einsum("nij,vj->nvi", m[:, :3, :3], v) + m[:, None, :3, 3]
+            params[key] = mi.Float(world.astype(np.float32).ravel())
+    t2 = time.perf_counter()
+    params.update()
+    n = len(mats)
+    mat3 = np.zeros((n + 1, 3, 4), np.float32)
+    mat3[:n] = mats[:, :3, :]
+    mat3[n, :, :3] = np.eye(3)
+    nrm = np.zeros((n + 1, 3, 3), np.float32)
+    nrm[:n] = normal_matrices(mats)
+    nrm[n] = np.eye(3)
+    traversal.row_matrix = owned(mi.Float, mat3.ravel())
+    traversal.row_normal = owned(mi.Float, nrm.ravel())
+    dr.eval()
+    t3 = time.perf_counter()
+    return {"traverse_s": t1 - t0, "set_s": t2 - t1, "update_s": t3 - t2, "moved": moved}
+
+
+def _pass_image(path, spp: int = 2) -> np.ndarray:
+    return np.sum([p.rgb / p.spp for p in path.passes(spp=spp, seed=3)], axis=0)
+
+
+def _rel_diff(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.abs(a - b).mean() / max(float(np.abs(b).mean()), 1e-12))
+
+
+def worker_repose(variant: str) -> dict:
+    from forest.config import load_config
+    from forest.render.path import PathScene
+    from forest.render.path.from_scene import path_inputs
+    from forest.scene import load_scene
+    from forest.wind import tree_matrices
+
+    config = load_config(ROOT / "configs" / "flythrough.toml")
+    scene = load_scene(config)
+    inputs = path_inputs(scene, width=480, height=270, spp=2)
+    t0 = time.perf_counter()
+    path = PathScene(inputs, variant)
+    build = time.perf_counter() - t0
+    st = path.traversal.stats
+    later = tree_matrices(scene.instances, 1.0 / config.camera.fps, config.wind)
+    t0 = time.perf_counter()
+    path.pose(inputs.levels, later, solid=inputs.solid)
+    rebuild = time.perf_counter() - t0
+    rebuilt = _pass_image(path)
+    path.pose(inputs.levels, inputs.matrices, solid=inputs.solid)  # back to the first instant, rebuilt
+    t0 = time.perf_counter()
+    timing = update_in_place(path.mi, path.traversal, path.geometry, later)
+    update = time.perf_counter() - t0
+    updated = _pass_image(path)
+    return {
+        "case": "repose",
+        "variant": variant,
+        "status": "ok",
+        "instances": st.instances,
+        "merged_trees": st.flattened_trees,
+        "build_s": build,
+        "rebuild_s": rebuild,
+        "in_place_s": update,
+        **timing,
+        "relative_mean_difference": _rel_diff(updated, rebuilt),
+    }
+
+
+def worker_flatten(variant: str, out: Path) -> dict:
+    import dataclasses
+
+    import drjit as dr
+
+    from forest.config import load_config
+    from forest.render.path import PathScene
+    from forest.render.path.from_scene import path_inputs
+    from forest.scene import load_scene
+
+    cfg = scene_file(out / "flatten", count=20_000, width=480, height=270, spp=4,
+                     lod="distances = [150.0, 600.0, 1800.0]")  # fmt: skip
+    scene = load_scene(load_config(cfg))
+    base = path_inputs(scene, width=480, height=270, spp=4)
+    rows, ref = [], None
+    for limit in (64, 1_500, 12_000):
+        t0 = time.perf_counter()
+        path = PathScene(dataclasses.replace(base, flatten_triangles=limit), variant)
+        build = time.perf_counter() - t0
+        st = path.traversal.stats
+        _pass_image(path, 1)  # compiles the kernel
+        t0 = time.perf_counter()
+        image = _pass_image(path, 4)
+        render = time.perf_counter() - t0
+        ref = image if ref is None else ref
+        gpu = float(dr.detail.malloc_watermark(dr.JitBackend.CUDA)) / 2**30 if variant.startswith("cuda") else None
+        rows.append({"merge_up_to": limit, "instances": st.instances, "merged_trees": st.flattened_trees,
+                     "merged_triangles": st.flattened_triangles, "build_s": round(build, 2),
+                     "render_s": round(render, 2), "gpu_watermark_gb": gpu,
+                     "relative_mean_difference": _rel_diff(image, ref)})  # fmt: skip
+        del path
+    return {"case": "flatten", "variant": variant, "status": "ok", "rows": rows}
+
+
+def case_worker(name: str, variants: list[str], out: Path, timeout: float) -> list[dict]:
+    """A worker case in a child process per variant (its JSON line, or the status and the output's tail)."""
+    rows = []
+    for v in variants:
+        cmd = [sys.executable, __file__, "--worker", name, "--variant", v, "--out", str(out)]
+        status, wall, text = run(cmd, timeout)
+        lines = [line for line in text.splitlines() if line.startswith('{"case"')]
+        r = json.loads(lines[-1]) if lines else {"case": name, "variant": v, "status": status, "tail": text[-2500:]}
+        r["wall_s"] = wall
+        rows.append(r)
+    return rows
+
+
+def case_repose(variants: list[str], out: Path, timeout: float) -> list[dict]:
+    return case_worker("repose", variants, out, timeout)
+
+
+def case_flatten(variants: list[str], out: Path, timeout: float) -> list[dict]:
+    return case_worker("flatten", variants, out, timeout)
+
+
 # -- cases ----------------------------------------------------------------------------------------------------------
 
 
@@ -288,6 +444,12 @@ def main() -> None:
     if a.worker == "probe":
         w, h = (int(x) for x in a.size.split("x"))
         print(json.dumps(worker_probe(a.variant, out, w, h, a.spp, a.max_depth)))
+        return
+    if a.worker == "repose":
+        print(json.dumps(worker_repose(a.variant)))
+        return
+    if a.worker == "flatten":
+        print(json.dumps(worker_flatten(a.variant, out)))
         return
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
     if a.profile:

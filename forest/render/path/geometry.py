@@ -440,6 +440,8 @@ class TraversalScene:
         #: part -> registry id of its mesh in a shapegroup (what OptiX reports as ``pi.shape``)
         self.part_mesh_reg = {p: int(r) for (_, _, p), r in zip(members, member_reg)}
         self.flat_rows = owned(mi.UInt32, rows_all)
+        #: each merged mesh's first entry in ``flat_rows`` (its trees, in the order their copies were written)
+        self.flat_offsets = {name: off for name, (_, off) in flat_meta.items()}
         self.first_part = owned(mi.UInt32, first_part)
         self.row_matrix = owned(mi.Float, mat3.ravel())
         self.row_normal = owned(mi.Float, nrm.ravel())
