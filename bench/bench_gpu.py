@@ -304,11 +304,11 @@ def worker_flatten(variant: str, out: Path) -> dict:
     return {"case": "flatten", "variant": variant, "status": "ok", "rows": rows}
 
 
-def case_worker(name: str, variants: list[str], out: Path, timeout: float) -> list[dict]:
+def case_worker(name: str, variants: list[str], out: Path, timeout: float, extra: list[str] = ()) -> list[dict]:
     """A worker case in a child process per variant (its JSON line, or the status and the output's tail)."""
     rows = []
     for v in variants:
-        cmd = [sys.executable, __file__, "--worker", name, "--variant", v, "--out", str(out)]
+        cmd = [sys.executable, __file__, "--worker", name, "--variant", v, "--out", str(out), *extra]
         status, wall, text = run(cmd, timeout)
         lines = [line for line in text.splitlines() if line.startswith('{"case"')]
         r = json.loads(lines[-1]) if lines else {"case": name, "variant": v, "status": status, "tail": text[-2500:]}
@@ -331,15 +331,8 @@ def case_flatten(variants: list[str], out: Path, timeout: float) -> list[dict]:
 def case_probe(
     variants: list[str], out: Path, timeout: float, size: str = "320x180", spp: int = 4, max_depth: int | None = None
 ) -> list[dict]:
-    rows = []
-    for v in variants:
-        cmd = [sys.executable, __file__, "--worker", "probe", "--variant", v, "--out", str(out), "--size", size,
-               "--spp", str(spp)] + ([] if max_depth is None else ["--max-depth", str(max_depth)])  # fmt: skip
-        status, wall, text = run(cmd, timeout)
-        lines = [line for line in text.splitlines() if line.startswith('{"case"')]
-        r = json.loads(lines[-1]) if lines else {"case": "probe", "variant": v, "status": status, "tail": text[-2500:]}
-        r["wall_s"] = wall
-        rows.append(r)
+    extra = ["--size", size, "--spp", str(spp)] + ([] if max_depth is None else ["--max-depth", str(max_depth)])
+    rows = case_worker("probe", variants, out, timeout, extra)
     images = {v: out / f"probe_{v}.npy" for v in variants if (out / f"probe_{v}.npy").exists()}
     if len(images) == 2:
         a, b = (np.load(p) for p in images.values())
