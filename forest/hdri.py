@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import hashlib
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -208,12 +207,9 @@ def find_sun(rgb: np.ndarray) -> tuple[MapSun | None, np.ndarray]:
 
 def cache_folder() -> Path:
     """Where processed maps go: ``$FOREST_CACHE_DIR/skies``, else ``skies`` in the user cache folder."""
-    env = os.environ.get("FOREST_CACHE_DIR")
-    if env:
-        return Path(env).expanduser() / "skies"
-    import platformdirs
+    from .cache import cache_folder as folder
 
-    return Path(platformdirs.user_cache_path("forest")) / "skies"
+    return folder("skies")
 
 
 @dataclass(frozen=True)

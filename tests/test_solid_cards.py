@@ -169,3 +169,65 @@ def test_a_scene_rebuilt_with_other_solid_flags_draws_them(library):
     # A level with nothing to draw solid (the box: no texture) shares its cut-out prototype, parts and all.
     box = scene.geometry.prototype(0, 0, 0, False)
     assert scene.geometry.prototype(0, 0, 0, True) is box
+
+
+def _card_files(folder, covered_from: int = 8):
+    """A card mesh (PLY) and its texture (PNG, alpha 0 where u < covered_from / 16) as a library part has them."""
+    from forest.library.mesh import MeshData, write_ply
+    from forest.library.textures import write_texture
+
+    v, f, uv = card_quad()
+    normals = np.tile(np.array([0.0, 1.0, 0.0], np.float32), (len(v), 1))
+    mesh = write_ply(folder / "card.ply", MeshData(v, f, normals, uv))
+    rgba = np.ones((16, 16, 4), np.float32)
+    rgba[..., :3] = (0.5, 0.6, 0.7)
+    rgba[:, :covered_from, 3] = 0.0
+    return mesh, write_texture(folder / "card.png", rgba)
+
+
+def test_solid_meshes_are_kept_in_the_cache_folder_and_read_back_the_same(tmp_path, monkeypatch):
+    """A part's solid mesh is computed once, kept under forest's cache folder, and a later process reads the same
+    arrays from it; a changed texture is another entry; an entry that is not a solid mesh is computed again."""
+    import forest.render.path.solid as solid
+
+    monkeypatch.setenv("FOREST_CACHE_DIR", str(tmp_path / "cache"))
+    mesh, tex = _card_files(tmp_path)
+    solid._solid_file.cache_clear()
+    computed = solid._solid_file(str(mesh), str(tex))
+    entry = solid.cache_entry(mesh, tex)
+    assert entry.parent == tmp_path / "cache" / "solid" and entry.is_file()
+    assert computed.coverage == pytest.approx(0.5, abs=0.02)
+
+    solid._solid_file.cache_clear()  # as a new process would
+    monkeypatch.setattr(solid, "solid_cards", lambda *a: pytest.fail("read from the cache, not computed"))
+    kept = solid._solid_file(str(mesh), str(tex))
+    for name in ("vertices", "faces", "normals", "uv", "rgb"):
+        np.testing.assert_array_equal(getattr(kept, name), getattr(computed, name))
+    assert kept.coverage == computed.coverage
+    monkeypatch.undo()
+    monkeypatch.setenv("FOREST_CACHE_DIR", str(tmp_path / "cache"))
+
+    other = tmp_path / "other"
+    other.mkdir()
+    mesh2, tex2 = _card_files(other, covered_from=12)  # the same mesh, another texture
+    assert solid.cache_entry(mesh2, tex2) != entry and solid.cache_entry(mesh2, tex) == entry
+
+    entry.write_bytes(b"not an npz")  # a damaged entry: computed again, and rewritten
+    solid._solid_file.cache_clear()
+    again = solid._solid_file(str(mesh), str(tex))
+    np.testing.assert_array_equal(again.vertices, computed.vertices)
+    assert solid.read_entry(entry) is not None
+    solid._solid_file.cache_clear()
+
+
+def test_an_unwritable_cache_folder_only_means_computing_again(tmp_path, monkeypatch):
+    import forest.render.path.solid as solid
+
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.setenv("FOREST_CACHE_DIR", str(blocker / "below"))  # a folder that cannot be made
+    mesh, tex = _card_files(tmp_path)
+    solid._solid_file.cache_clear()
+    sm = solid._solid_file(str(mesh), str(tex))
+    assert sm.coverage == pytest.approx(0.5, abs=0.02) and not (blocker / "below").exists()
+    solid._solid_file.cache_clear()

@@ -74,8 +74,7 @@ MIN_COVERAGE = 0.99
 MIN_TREES = 0.03
 #: The child ends itself (SIGALRM) this long after the bound, should the parent that enforces it be gone.
 ALARM_GRACE_S = 10.0
-#: The variable that moves the cache folder, and the file in it.
-CACHE_ENV = "FOREST_CACHE_DIR"
+#: The file in the cache folder (:mod:`forest.cache`; ``CACHE_ENV`` moves the folder).
 CACHE_NAME = "gpu-selfcheck.json"
 
 
@@ -128,12 +127,9 @@ def machine_key() -> dict[str, str]:
 
 def cache_path() -> Path:
     """The results file: ``$FOREST_CACHE_DIR/gpu-selfcheck.json``, else in the user cache folder."""
-    env = os.environ.get(CACHE_ENV)
-    if env:
-        return Path(env) / CACHE_NAME
-    import platformdirs
+    from ..cache import cache_root
 
-    return Path(platformdirs.user_cache_path("forest")) / CACHE_NAME
+    return cache_root() / CACHE_NAME
 
 
 # -- the child --------------------------------------------------------------------------------------
