@@ -405,3 +405,41 @@ def test_leaf_card_alpha(tmp_path, library, variant):
         assert ground["true"] - ground["false"] > 0.07
     else:
         assert ground["true"] == ground["false"] and ground["true"] > 0.07 + 0.1 * 0.9
+
+
+def test_a_wind_blurred_frame_builds_one_scene_per_sub_frame(tmp_path, library, monkeypatch):
+    """With wind, every sub-frame needs its own pose; forest_path's renderer is built in the pose of the first
+    sub-frame the frame loop renders (farthest from the centre), so K sub-frames cost K scene builds, not K + 1,
+    and the frame is the same as when the renderer was built in the centre's pose."""
+    import forest.render.jit_frame as jit_frame
+    import forest.render.path.frame as path_frame
+    from forest.render.loop import first_pose_time, subframe_order
+
+    assert subframe_order([0.5, 1.0, 1.5], 1.0) == [0, 2, 1]  # the centre last
+    t = first_pose_time(1.0, 1.0, 3, 24.0)  # an end of the shutter (which end: the float tie-break of the order)
+    assert t * 24.0 == pytest.approx(1.0 - 1.0 / 3.0) or t * 24.0 == pytest.approx(1.0 + 1.0 / 3.0)
+    assert first_pose_time(1.0, 0.0, 3, 24.0) == pytest.approx(1.0 / 24.0)  # no shutter: the frame itself
+    cam = "position = [0.0, 8.0, -30.0]\ntarget = [0.0, 4.0, 0.0]\nshutter = 1.0"
+    cfg = make_config(
+        tmp_path,
+        camera=cam,
+        replace_camera=True,
+        render="subframes = 3",
+        extra="[wind]\nstrength = 10.0\nfrequency = 1.0\ndirection = 90.0\n",
+    )
+    inst = trees([[0.0, 0.0, 0.0], [6.0, 0.0, 4.0]], phase=np.array([0.0, 1.5], np.float32))
+    builds = []
+    build = path_frame.TraversalScene
+
+    def counted(*a, **kw):
+        builds.append(1)
+        return build(*a, **kw)
+
+    monkeypatch.setattr(path_frame, "TraversalScene", counted)
+    render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "now.exr", variant="llvm_ad_rgb")
+    assert len(builds) == 3
+    builds.clear()
+    monkeypatch.setattr(jit_frame, "first_pose_time", lambda frame, shutter, subframes, fps: frame / fps)
+    render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "centre.exr", variant="llvm_ad_rgb")
+    assert len(builds) == 4  # built in the centre's pose, then three sub-frames
+    np.testing.assert_array_equal(read_exr(tmp_path / "now.exr")["rgb"], read_exr(tmp_path / "centre.exr")["rgb"])

@@ -36,7 +36,7 @@ from ..scene import Scene
 from ..wind import tree_matrices
 from .adaptive import LUMA, Convergence, chunks, default_min_spp, rounds_passes, schedule
 from .frame import FrameSize
-from .loop import PassCallback, frame_seed, render_frame
+from .loop import PassCallback, first_pose_time, frame_seed, render_frame
 from .output import FrameImage
 from .path import PathScene
 from .path.aovs import GroupSums
@@ -110,13 +110,15 @@ class PathFrameRenderer:
         report(0.0, f"loading Mitsuba ({variant})")
         mitsuba(variant)
         report(0.15, f"levels of detail and wind of {len(self.instances):,} trees")
-        inputs = path_inputs(scene, frame=1.0, width=self.width, height=self.height, spp=self.spp)
+        # The wind of the first sub-frame the frame loop poses for frame 1, so that pose is this one.
+        t_first = first_pose_time(1.0, config.camera.shutter, self.subframes, config.camera.fps)
+        inputs = path_inputs(scene, frame=1.0, width=self.width, height=self.height, spp=self.spp, time_s=t_first)
         report(0.25, f"Mitsuba scene of {len(self.instances):,} trees, {len(scene.species)} species")
         self.path = PathScene(inputs, variant, progress=lambda f, m: report(0.25 + 0.75 * f, m))
         report(1.0, "scene built")
         self._frame = 1.0  # the frame being rendered, whose camera decides the solid cards (Scene.solid_cards)
         self._solid = inputs.solid  # the trees drawn with solid cards in the loaded pose
-        self._pose_key = self._key(inputs.levels, 1.0 / config.camera.fps)
+        self._pose_key = self._key(inputs.levels, t_first)
         self.aovs = tuple(config.render.aovs)
         self._groups: GroupSums | None = None  # the light groups of the frame being rendered
         rc = config.render

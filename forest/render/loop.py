@@ -11,7 +11,9 @@ only poses its scene and traces.  Per frame f (time t = f / fps seconds):
    sub-frames at f + s·((k + ½)/K − ½) (:func:`forest.camera.subframe_times`),
    each with its own camera and wind pose (:meth:`Backend.pose`) — a box
    filter over the shutter.  The sub-frame nearest the frame's centre is
-   rendered last, so the centre's pose is loaded for step 4;
+   rendered last, so the centre's pose is loaded for step 4; the farthest is
+   rendered first, and a backend built for frame f loads that sub-frame's pose
+   (:func:`first_pose_time`), so with wind K sub-frames cost K scene builds;
 3. each sub-frame traces ⌈spp / K⌉ samples per pixel in passes
    (:meth:`Backend.passes`, :meth:`Backend.samples`), seeded
    ``seed · 1 000 003 + round(1000 f) · 997 + 101 k`` for sub-frame k
@@ -205,6 +207,18 @@ class Beauty:
         return (self.means + self._sub_mean()) / (self.subframes + 1)
 
 
+def subframe_order(times: list[float], frame: float) -> list[int]:
+    """The order sub-frames are rendered in: farthest from the frame's centre first, the centre last (step 2)."""
+    return sorted(range(len(times)), key=lambda k: (-abs(times[k] - frame), k))
+
+
+def first_pose_time(frame: float, shutter: float, subframes: int, fps: float) -> float:
+    """Seconds of the first sub-frame :func:`render_frame` poses for ``frame``: a backend that loads that pose
+    when it is built has its first :meth:`Backend.pose` already done (one scene build fewer with wind)."""
+    times = subframe_times(frame, shutter, subframes)
+    return times[subframe_order(times, frame)[0]] / fps
+
+
 def render_frame(
     backend: Backend, frame: float, on_pass: PassCallback | None = None, groups: GroupSums | None = None
 ) -> FrameImage:
@@ -215,7 +229,7 @@ def render_frame(
     w, h = backend.width, backend.height
     levels = scene.levels(frame) if len(scene.instances) else np.zeros(0, np.int64)
     times = subframe_times(frame, cam.shutter, backend.subframes)
-    order = sorted(range(len(times)), key=lambda k: (-abs(times[k] - frame), k))  # the centre last
+    order = subframe_order(times, frame)
     spp_sub = max(1, math.ceil(backend.spp / len(times)))
     total = len(times) * len(backend.passes(spp_sub))
     beauty = Beauty(h * w)
