@@ -488,3 +488,29 @@ def test_image_files_carry_no_time_stamp(tmp_path):
         stamp = inp.spec().getattribute("DateTime")
         inp.close()
         assert not stamp, (ext, stamp)
+
+
+def test_srgb_decoding_gives_colour_sciences_values_to_the_bit():
+    """forest's sRGB decoding is colour-science's eotf_sRGB (the same knee and float64 arithmetic): every 8- and
+    16-bit code value, values around the knee, and out-of-range values clipped to [0, 1] decode to the same
+    float32."""
+    import colour
+
+    from forest.images import SRGB_KNEE, srgb_to_linear
+
+    knee = float(colour.models.eotf_inverse_sRGB(0.0031308))
+    assert SRGB_KNEE == knee
+    values = np.concatenate(
+        [
+            np.arange(256) / 255.0,
+            np.arange(65536) / 65535.0,
+            np.nextafter(knee, [-1.0, 2.0]),
+            [knee, -0.5, 1.5, 0.0, 1.0],
+            np.random.default_rng(3).random(10_000),
+        ]
+    )
+    for a in (values, values.astype(np.float32), values.reshape(-1, 1)):
+        want = np.asarray(colour.models.eotf_sRGB(np.clip(a, 0.0, 1.0)), dtype=np.float32)
+        got = srgb_to_linear(a)
+        assert got.dtype == np.float32 and got.shape == want.shape
+        np.testing.assert_array_equal(got, want)
