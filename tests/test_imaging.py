@@ -499,7 +499,7 @@ def test_srgb_decoding_gives_colour_sciences_values_to_the_bit():
     from forest.images import SRGB_KNEE, srgb_to_linear
 
     knee = float(colour.models.eotf_inverse_sRGB(0.0031308))
-    assert SRGB_KNEE == knee
+    assert knee == SRGB_KNEE
     values = np.concatenate(
         [
             np.arange(256) / 255.0,
