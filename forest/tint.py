@@ -71,13 +71,29 @@ def tree_uniforms(ids: np.ndarray, seed: int, tag: int, count: int) -> np.ndarra
     return (splitmix64(x) >> np.uint64(11)).astype(np.float64) * 2.0**-53
 
 
-def _oklab_matrices() -> tuple[np.ndarray, np.ndarray]:
-    """Linear sRGB → LMS and Oklab's LMS′ → Lab, from colour-science's definitions (sRGB primaries, D65)."""
-    import colour
-    from colour.models import oklab
+#: Linear sRGB → LMS: Oklab's M₁ (XYZ → LMS) times the sRGB primaries' RGB → XYZ (D65), as colour-science
+#: defines both (``colour.models.oklab.MATRIX_1_XYZ_TO_LMS``, ``RGB_COLOURSPACE_sRGB.matrix_RGB_to_XYZ``), kept
+#: here to the bit so a scatter need not import colour-science (1–3 s a command); a test recomputes them.
+SRGB_TO_LMS = np.array(
+    [
+        [0.41217385032507, 0.5362974607032, 0.05146302925248],
+        [0.21187214048845002, 0.6807476834212001, 0.10740645682645002],
+        [0.08831541121808, 0.2818663070584, 0.6302634466074201],
+    ]
+)
+#: Oklab's M₂ (LMS′ → Lab), colour-science's ``MATRIX_2_LMS_TO_LAB``, likewise.
+LMS_TO_LAB = np.array(
+    [
+        [0.2104542553, 0.793617785, -0.0040720468],
+        [1.9779984951, -2.428592205, 0.4505937099],
+        [0.0259040371, 0.7827717662, -0.808675766],
+    ]
+)
 
-    rgb_to_xyz = np.asarray(colour.models.RGB_COLOURSPACE_sRGB.matrix_RGB_to_XYZ, dtype=np.float64)
-    return np.asarray(oklab.MATRIX_1_XYZ_TO_LMS) @ rgb_to_xyz, np.asarray(oklab.MATRIX_2_LMS_TO_LAB)
+
+def _oklab_matrices() -> tuple[np.ndarray, np.ndarray]:
+    """Linear sRGB → LMS and Oklab's LMS′ → Lab (:data:`SRGB_TO_LMS`, :data:`LMS_TO_LAB`)."""
+    return SRGB_TO_LMS, LMS_TO_LAB
 
 
 def oklab(rgb: np.ndarray) -> np.ndarray:
@@ -146,7 +162,6 @@ def tree_tints(
         return tint
     xi = 2.0 * tree_uniforms(np.asarray(ids)[rows], seed, JITTER_TAG, 2) - 1.0
     c = np.maximum(np.asarray(base, dtype=np.float64)[k[rows]], 1e-6)
-    _oklab_matrices()  # colour-science imported here once, not by several threads at once
     out = rowwise(jitter_colours, c * tint[rows], hue[k[rows]] * xi[:, 0], value[k[rows]] * xi[:, 1])
     tint[rows] = (out / c).astype(np.float32)
     return tint

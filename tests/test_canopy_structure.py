@@ -216,3 +216,20 @@ def test_edge_taper_needs_a_presence_map(tmp_path):
     bad = _scene(tmp_path, "edge_taper = { scale = 0.0 }", count=10, name="bad.toml")
     r = run_forest("scatter", bad, "-o", tmp_path / "out.npz", "-q")
     assert r.returncode == 2 and "scatter.edge_taper.scale" in r.stderr.strip(), r.stderr
+
+
+def test_the_oklab_matrices_are_colour_sciences_to_the_bit():
+    """forest keeps colour-science's Oklab matrices as constants (a scatter need not import colour-science):
+    they are its M₁ · sRGB→XYZ and M₂, recomputed here, equal to the bit; and oklab() matches colour's own
+    RGB → Oklab conversion of linear sRGB."""
+    import colour
+    from colour.models import oklab as ok
+
+    from forest.tint import LMS_TO_LAB, SRGB_TO_LMS, oklab
+
+    rgb_to_xyz = np.asarray(colour.models.RGB_COLOURSPACE_sRGB.matrix_RGB_to_XYZ, dtype=np.float64)
+    np.testing.assert_array_equal(SRGB_TO_LMS, np.asarray(ok.MATRIX_1_XYZ_TO_LMS) @ rgb_to_xyz)
+    np.testing.assert_array_equal(LMS_TO_LAB, np.asarray(ok.MATRIX_2_LMS_TO_LAB))
+    rgb = np.random.default_rng(2).random((64, 3))
+    want = colour.XYZ_to_Oklab(colour.RGB_to_XYZ(rgb, colour.models.RGB_COLOURSPACE_sRGB, apply_cctf_decoding=False))
+    np.testing.assert_allclose(oklab(rgb), want, atol=1e-12)
