@@ -72,8 +72,9 @@ scene-linear: these curves only make display pictures (PNG, previews).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
-from scipy.optimize import brentq
 
 MID_GREY = 0.18
 """Scene-linear 18 % grey, the pivot of the log encodings."""
@@ -133,20 +134,21 @@ def _hable(x: np.ndarray) -> np.ndarray:
     return (x * (A * x + C * B) + D * E) / (x * (A * x + B) + D * F) - E / F
 
 
-def _solve_filmic_bias() -> float:
+@functools.lru_cache(maxsize=1)
+def filmic_bias() -> float:
+    """Exposure bias k of the filmic view: F(0.18·k) / F(W) = display-linear of code 0.5 (solved on first use, so
+    importing this module does not import SciPy's optimisers)."""
+    from scipy.optimize import brentq
+
     target = float(srgb_eotf(np.array(DISPLAY_GREY)))
     white = float(_hable(np.array(HABLE["W"])))
     return float(brentq(lambda k: float(_hable(np.array(MID_GREY * k))) / white - target, 0.1, 100.0, xtol=1e-14))
 
 
-FILMIC_BIAS = _solve_filmic_bias()
-"""Exposure bias k of the filmic view: F(0.18·k) / F(W) = display-linear of code 0.5."""
-
-
 def filmic_display_linear(v: np.ndarray) -> np.ndarray:
     """Per-channel Hable curve: scene-linear → display-linear in [0, 1]."""
     v = np.maximum(np.asarray(v, dtype=np.float64), 0.0)
-    return np.clip(_hable(FILMIC_BIAS * v) / _hable(np.array(HABLE["W"])), 0.0, 1.0)
+    return np.clip(_hable(filmic_bias() * v) / _hable(np.array(HABLE["W"])), 0.0, 1.0)
 
 
 def filmic(rgb: np.ndarray) -> np.ndarray:
