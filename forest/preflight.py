@@ -705,7 +705,13 @@ def scene_render_estimate(scene: Scene, variant: str, frames: Sequence[float], s
 
 
 def largest_fitting(width: int, height: int, budget: int, estimate) -> tuple[int, int] | None:
-    """The largest (w, h) of the same aspect ratio with ``estimate(w, h) <= budget``, sides multiples of 16."""
+    """The largest (w, h) of the same aspect ratio with ``estimate(w, h) <= budget``, w a multiple of 16.
+
+    Memory grows with the image on the whole, so a bisection on the scale factor finds the edge; but not
+    strictly — a smaller image packs more samples into a pass of the same lanes, so just below the edge an
+    image can need a little more than one a few pixels larger.  So from the bisection's width the widths
+    that are multiples of 16 are tried downwards until one fits (None when none does).
+    """
     aspect = width / height
     lo, hi = 0.0, 1.0
     for _ in range(40):  # bisection on the scale factor; memory grows with it
@@ -715,11 +721,11 @@ def largest_fitting(width: int, height: int, budget: int, estimate) -> tuple[int
             lo = mid
         else:
             hi = mid
-    w = int(width * lo) // 16 * 16
-    h = int(round(w / aspect)) if w else 0
-    if w < 16 or h < 1 or estimate(w, h) > budget:
-        return None
-    return w, h
+    for w in range(int(width * lo) // 16 * 16, 15, -16):
+        h = int(round(w / aspect))
+        if h >= 1 and estimate(w, h) <= budget:
+            return w, h
+    return None
 
 
 def check_render_memory(

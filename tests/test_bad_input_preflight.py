@@ -509,3 +509,17 @@ def test_a_scene_may_draw_on_at_most_256_tree_variants(tmp_path):
     assert "260 tree variants" in str(e.value) and f"at most {MAX_TREE_VARIANTS}" in str(e.value)
     few = "".join(f'[[species]]\nmodel = "conifer@{i}"\npercent = 1\nindividuals = 1\n' for i in range(70))
     check_species(_config(tmp_path, few), _Lib())  # 70 variants: fine
+
+
+def test_the_largest_fitting_image_is_found_where_memory_is_not_monotonic_in_size():
+    """Just below the edge a smaller image can need a little more memory than a larger one (more samples per
+    pass); the bisection's width rounded to 16 may then not fit, and a smaller one is offered instead of none
+    (seen in a 1 GiB cgroup: "even a small image does not fit" at 970.8 MiB where 976x515 fit at 971.3)."""
+    from forest.preflight import largest_fitting
+
+    def need(w: int, h: int) -> int:
+        return w * h + (10**6 if 960 < w <= 976 else 0)
+
+    budget = 980 * 551
+    assert largest_fitting(1920, 1080, budget, need) == (960, 540)
+    assert need(960, 540) <= budget < need(976, 549)
