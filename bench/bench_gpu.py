@@ -30,6 +30,11 @@ Every case runs in a child process under its own time limit (a case that runs pa
   (forest's default), 1 500 (the low level) and 12 000 (the medium level) triangles merged into
   world-space meshes: build and one-pass render seconds, instances left, GPU memory (cuda), and the
   images against the default's;
+* ``instances`` — what one Mitsuba instance costs to build, four ways, on 20 000 instances of a cube:
+  ``load_dict`` of the scene's dict with ``parallel=True`` (what forest does) and ``parallel=False``, and
+  each instance made alone (``load_dict`` of its own dict) before the scene is made of the objects
+  (µs per instance; on 2 CPU cores, past a process's first build, about 37–40 parallel, 32–33 serial and
+  29 + 3.4 made alone: Mitsuba's parallel loading gains nothing there);
 * ``lookdev`` — an aligned look-dev round trip: the demo rendered as a reference at 192×108, then
   ``forest match`` fitting it from the demo's config (target ≤ 10 s).
 
@@ -55,7 +60,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-CASES = ("probe", "demo", "original", "default", "million", "repose", "flatten", "lookdev")
+CASES = ("probe", "demo", "original", "default", "million", "repose", "flatten", "instances", "lookdev")
 #: Where ``render_case`` keeps a cProfile of each render (``--profile``); None: no profiling.
 PROFILE: Path | None = None
 VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb")
@@ -304,6 +309,40 @@ def worker_flatten(variant: str, out: Path) -> dict:
     return {"case": "flatten", "variant": variant, "status": "ok", "rows": rows}
 
 
+def worker_instances(variant: str, count: int = 20_000) -> dict:
+    import mitsuba as mi
+
+    from forest.runtime import mitsuba
+
+    mitsuba(variant)
+    T = mi.ScalarTransform4f
+    pos = np.random.default_rng(0).uniform(-500.0, 500.0, (count, 3)).tolist()
+    group = mi.load_dict({"type": "shapegroup", "c": {"type": "cube"}})
+    us: dict[str, float] = {}
+    for parallel in (True, False):
+        entries = {"type": "scene", "g": group}
+        entries.update({f"tree_{i}": {"type": "instance", "shapegroup": group, "to_world": T().translate(pos[i])}
+                        for i in range(count)})  # fmt: skip
+        t0 = time.perf_counter()
+        scene = mi.load_dict(entries, parallel=parallel)
+        us[f"scene_dict_parallel_{parallel}"] = (time.perf_counter() - t0) / count * 1e6
+        del scene, entries
+    t0 = time.perf_counter()
+    objects = [mi.load_dict({"type": "instance", "shapegroup": group, "to_world": T().translate(pos[i])})
+               for i in range(count)]  # fmt: skip
+    us["objects_one_by_one"] = (time.perf_counter() - t0) / count * 1e6
+    entries = {"type": "scene", "g": group, **{f"tree_{i}": o for i, o in enumerate(objects)}}
+    t0 = time.perf_counter()
+    mi.load_dict(entries)
+    us["scene_of_objects"] = (time.perf_counter() - t0) / count * 1e6
+    return {"case": "instances", "variant": variant, "status": "ok", "instances": count,
+            "us_per_instance": {k: round(v, 1) for k, v in us.items()}}  # fmt: skip
+
+
+def case_instances(variants: list[str], out: Path, timeout: float) -> list[dict]:
+    return case_worker("instances", variants, out, timeout)
+
+
 def case_worker(name: str, variants: list[str], out: Path, timeout: float, extra: list[str] = ()) -> list[dict]:
     """A worker case in a child process per variant (its JSON line, or the status and the output's tail)."""
     rows = []
@@ -437,6 +476,9 @@ def main() -> None:
     if a.worker == "probe":
         w, h = (int(x) for x in a.size.split("x"))
         print(json.dumps(worker_probe(a.variant, out, w, h, a.spp, a.max_depth)))
+        return
+    if a.worker == "instances":
+        print(json.dumps(worker_instances(a.variant)))
         return
     if a.worker == "repose":
         print(json.dumps(worker_repose(a.variant)))
