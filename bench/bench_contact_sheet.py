@@ -3,7 +3,7 @@
     .venv/bin/python bench/bench_contact_sheet.py                 # docs/images/contact_sheet.jpg
     .venv/bin/python bench/bench_contact_sheet.py -o /tmp/sheet.png --height 240
 
-Each row is one example scene's gallery image (``docs/images/<scene>.png``, what
+Each row is one example scene's gallery image (``docs/images/<scene>.jpg``, what
 ``bench/bench_gallery.py --images docs/images`` wrote) and, on its right, the shipped
 photograph (``tests/fixtures/photos``, licences and authors in its README) chosen as the
 nearest kind of view: the same camera height and framing, a forest of the same make-up.
@@ -75,7 +75,7 @@ def main() -> None:
     args = ap.parse_args()
     rows = []
     for scene, photo, why in PAIRS:
-        render = read_rgb(IMAGES / f"{scene}.png")
+        render = read_rgb(IMAGES / f"{scene}.jpg")
         picture = read_rgb(PHOTOS / f"{photo}.jpg")
         print(f"{scene:>10}: {stats(render)}   |  {photo}: {stats(picture)}   ({why})")
         a, b = to_height(render, args.height), to_height(picture, args.height)
