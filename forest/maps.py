@@ -105,9 +105,10 @@ def label_partitions(img8: np.ndarray, partitions: tuple[Partition, ...], tolera
 
 
 class MapSet:
-    """The ``[maps]`` of a config, loaded once and sampled many times."""
+    """The ``[maps]`` of a config, loaded once and sampled many times; ``colour``, the colour map's tint grid
+    (:func:`colour_tint_grid`) when the caller has read the map already (the Scene does), else it is read here."""
 
-    def __init__(self, config: Config):
+    def __init__(self, config: Config, colour: np.ndarray | None = None):
         m = config.maps
         self.config = config
         self.presence_threshold = m.presence_threshold
@@ -124,8 +125,11 @@ class MapSet:
 
         self.presence = load(read_map_grey, "presence", m.presence)
         self.density = load(read_map_grey, "density", m.density)
-        raw_colour = load(lambda p, what: read_colour_map(p), "colour", m.colour)  # noqa: ARG005 (load passes what=)
-        self.colour = None if raw_colour is None else colour_tint_grid(raw_colour, m.colour_normalise)[0]
+        if colour is not None or m.colour is None:
+            self.colour = colour
+        else:
+            raw = load(lambda p, what: read_colour_map(p), "colour", m.colour)  # noqa: ARG005 (load passes what=)
+            self.colour = colour_tint_grid(raw, m.colour_normalise)[0]
         self.partition: PartitionMap | None = None
         if m.partition is not None:
             raw = load(read_image, "partition", m.partition)

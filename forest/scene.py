@@ -373,6 +373,7 @@ def load_scene(
             progress=scatter_step,
             terrain=terrain,
             library=library,
+            colour=None if colour is None else colour.rgb,  # the map read once, above
         )
     else:
         inst = instances

@@ -57,11 +57,13 @@ def scatter(
     progress: Progress | None = None,
     terrain: Terrain | None = None,
     library: Library | None = None,
+    colour: np.ndarray | None = None,
 ) -> tuple[InstanceSet, ScatterReport]:
     """Scatter the trees a config describes.  Raises :class:`~forest.errors.ForestError` on bad input.
 
     ``library`` (default :func:`forest.library.open_library`) gives each species'
-    leaf colour, about which the tints are jittered.
+    leaf colour, about which the tints are jittered; ``colour``, the colour map's tint grid when the caller
+    has read it already (:class:`~forest.maps.MapSet`).
     """
     if config.scatter.edge_taper is not None and config.maps.presence is None:
         raise ConfigError(config.path, "scatter.edge_taper", "needs [maps] presence: the taper follows its edge")
@@ -76,7 +78,7 @@ def scatter(
 
         library = open_library()
     models = resolve_models(config, library)
-    maps = MapSet(config)
+    maps = MapSet(config, colour)
     step(0.15, "terrain, species and maps read")
     tints = tint_params(model_settings(config), models, config.seed)
     dead = dead_fractions([sp.dead for sp in config.species], models)
@@ -156,11 +158,13 @@ def scene_instances(
     progress: Progress | None = None,
     terrain: Terrain | None = None,
     library: Library | None = None,
+    colour: np.ndarray | None = None,
 ) -> InstanceSet:
     """The scene's InstanceSet: loaded from ``instances_path`` if given (and checked against the
-    config's species and input files, :func:`~forest.scatter.provenance.check_provenance`), else scattered."""
+    config's species and input files, :func:`~forest.scatter.provenance.check_provenance`), else scattered
+    (``colour``: as :func:`scatter`'s)."""
     if instances_path is None:
-        return scatter(config, progress=progress, terrain=terrain, library=library)[0]
+        return scatter(config, progress=progress, terrain=terrain, library=library, colour=colour)[0]
     inst = InstanceSet.load(instances_path)
     check_provenance(inst, config, instances_path)
     return inst
