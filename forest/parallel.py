@@ -47,6 +47,15 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_pool.cache_clear)
 
 
+def _bounds(n: int, min_rows: int | None) -> np.ndarray | None:
+    """Block edges 0 = b₀ < … < b_k = n for ``n`` rows, or None for one call: under ``min_rows`` rows (default
+    :data:`MIN_ROWS`) a block, on one core, or already on a block (a nested split would wait on its own pool)."""
+    if threading.current_thread().name.startswith(_PREFIX):
+        return None
+    k = min(workers(), max(1, n // max(1, MIN_ROWS if min_rows is None else min_rows)))
+    return None if k <= 1 else np.linspace(0, n, k + 1).astype(np.int64)
+
+
 def rowwise(fn: Callable[..., Any], *arrays: np.ndarray, min_rows: int | None = None) -> Any:
     """``fn(*arrays)`` computed on blocks of rows in threads and concatenated along axis 0.
 
@@ -54,13 +63,9 @@ def rowwise(fn: Callable[..., Any], *arrays: np.ndarray, min_rows: int | None = 
     tuple of them, row i depending only on the inputs' row i.  One call when N < ``min_rows``
     (default :data:`MIN_ROWS`), on one core, or when called from one of the blocks (nested).
     """
-    n = len(arrays[0])
-    if threading.current_thread().name.startswith(_PREFIX):
-        return fn(*arrays)  # already on a block: a nested split would wait on its own pool
-    k = min(workers(), max(1, n // max(1, MIN_ROWS if min_rows is None else min_rows)))
-    if k <= 1:
+    bounds = _bounds(len(arrays[0]), min_rows)
+    if bounds is None:
         return fn(*arrays)
-    bounds = np.linspace(0, n, k + 1).astype(np.int64)
     futures = [_pool().submit(fn, *(a[lo:hi] for a in arrays)) for lo, hi in itertools.pairwise(bounds)]
     parts = [f.result() for f in futures]
     if isinstance(parts[0], tuple):
@@ -76,13 +81,9 @@ def blockwise(fn: Callable[[int, int], None], n: int, *, min_rows: int | None = 
     the same to the bit as ``fn(0, n)``.  One call when n < ``min_rows`` (default :data:`MIN_ROWS`),
     on one core, or when called from one of the blocks (nested), as :func:`rowwise`.
     """
-    if threading.current_thread().name.startswith(_PREFIX):
+    bounds = _bounds(n, min_rows)
+    if bounds is None:
         fn(0, n)
         return
-    k = min(workers(), max(1, n // max(1, MIN_ROWS if min_rows is None else min_rows)))
-    if k <= 1:
-        fn(0, n)
-        return
-    bounds = np.linspace(0, n, k + 1).astype(np.int64)
     for f in [_pool().submit(fn, int(lo), int(hi)) for lo, hi in itertools.pairwise(bounds)]:
         f.result()
