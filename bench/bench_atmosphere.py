@@ -11,7 +11,8 @@ Cases:
   ground extinction σ₀ at several scale heights H.  The sky ray crosses the column, so its
   optical depth toward elevation θ is ≈ σ₀·H·e^(−h/H)/sin θ (h the camera's height).
 * ``cost`` — the demo at 160×90, 4 spp, forest_path (llvm_ad_rgb): seconds per frame
-  with the haze only and with a valley fog added (best of 5 alternating renders after a warm-up).
+  with the haze only, with a valley fog added (a level top) and with fog banks (a top that varies by
+  8 m) (best of 5 alternating renders after a warm-up).
 
 Figures are printed one per line.
 """
@@ -111,7 +112,11 @@ def cost_case() -> None:
     from forest.scene import load_scene
 
     base = load_config(ROOT / "configs" / "demo.toml")
-    cases = {"haze only": {}, "haze + valley fog": {"render.valley_fog": {"density": 0.01}}}
+    cases = {
+        "haze only": {},
+        "haze + valley fog": {"render.valley_fog": {"density": 0.01, "variation": 0.0}},
+        "haze + fog banks": {"render.valley_fog": {"density": 0.01, "variation": 8.0}},
+    }
     scenes = {}
     for name, over in cases.items():
         scenes[name] = PathScene(
@@ -127,6 +132,9 @@ def cost_case() -> None:
     for name, best in times.items():
         print(f"cost demo 160x90x4 ({VARIANT}), {name}: {best:.2f} s (best of 5)")
     print(f"cost valley fog: {times['haze + valley fog'] / times['haze only'] - 1:+.0%}")
+    print(
+        f"cost fog banks (variation 8 m) against a level top: {times['haze + fog banks'] / times['haze + valley fog']:.2f}x"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,7 +15,9 @@ from forest.render.path.haze import (
     HazeInputs,
     HazeModel,
     density_from_visibility,
+    fog_anchor_np,
     fog_depth_np,
+    fog_top_np,
     phi_np,
     transmittance_np,
     visibility_from_density,
@@ -114,7 +116,8 @@ def test_the_valley_fog_top_is_above_the_lowest_point_or_absolute():
     ab = haze_inputs(
         parse_config(MINIMAL + "[render]\nvalley_fog = { density = 0.01, top = 5.0, absolute = true }\n"), terrain
     )
-    assert rel is not None and rel.density == 0.0 and rel.fog == FogLayer(0.01, low + 5.0, 15.0)
+    assert rel is not None and rel.density == 0.0
+    assert rel.fog == FogLayer(0.01, low + 5.0, 15.0, variation=6.0, variation_scale=150.0, seed=0)
     assert ab is not None and ab.fog is not None and ab.fog.top == 5.0
 
 
@@ -187,11 +190,13 @@ def test_the_new_default_haze_height_keeps_a_clear_sky_blue():
     assert 180.0 < new[1] < 260.0  # still blue
 
 
+@pytest.mark.parametrize("variation", [0.0, 15.0])
 @pytest.mark.parametrize("variant", ["scalar_rgb", "llvm_ad_rgb"])
-def test_both_renderers_fog_the_ground_as_the_closed_form(tmp_path, variant):
+def test_both_renderers_fog_the_ground_as_the_closed_form(tmp_path, variant, variation):
     """A grey ground seen straight down from 220 m through a valley fog alone (top 20 m, falloff 10 m, red
     haze colour): L = 0.1·T + (1 − T) in red, T = exp(−τ_f) of the closed form — forest_path per segment,
-    scalar_rgb in its post-process (which a valley fog without a haze must still run)."""
+    scalar_rgb in its post-process (which a valley fog without a haze must still run).  With a varying top
+    both read it over the ground under the frame's centre (the segments' lowest ends)."""
     sys.path.insert(0, str(ROOT / "tests"))
     from test_render import make_config, read_exr, trees
 
@@ -201,7 +206,7 @@ def test_both_renderers_fog_the_ground_as_the_closed_form(tmp_path, variant):
     from render_fixtures import BoxLibrary
 
     library = BoxLibrary(tmp_path / "lib")
-    fog = "valley_fog = { density = 0.01, top = 20.0, falloff = 10.0 }\n"
+    fog = f"valley_fog = {{ density = 0.01, top = 20.0, falloff = 10.0, variation = {variation}, variation_scale = 40.0 }}\n"
     extra = "haze_anisotropy = 0.0\nhaze_colour = [1.0, 0.0, 0.0]\nmax_depth = 2\n"
     centres = []
     for name, render in (("clear", extra), ("f", fog + extra)):
@@ -213,5 +218,52 @@ def test_both_renderers_fog_the_ground_as_the_closed_form(tmp_path, variant):
     # L0: the ground as this renderer lights it without fog (0.1 in forest_path; scalar_rgb's Mitsuba
     # integrator lights the same grey ground some 9 % darker at max_depth 2, a difference of its own).
     l0, centre = centres
-    t = float(np.exp(-fog_depth_np(220.0, -1.0, 220.0, FogLayer(0.01, 0.0 + 20.0, 10.0))))
+    layer = FogLayer(0.01, 0.0 + 20.0, 10.0, variation=variation, variation_scale=40.0, seed=3)  # the config's seed
+    t = float(np.exp(-fog_depth_np(220.0, -1.0, 220.0, layer, np.zeros(2))).ravel()[0])
     np.testing.assert_allclose(centre, [l0[0] * t + (1.0 - t), l0[1] * t, l0[2] * t], atol=0.004)
+    if variation:  # the top over the centre is not the level one: the test sees the variation
+        assert abs(float(np.ravel(fog_top_np(layer, np.zeros(2)))[0]) - 20.0) > 2.0
+
+
+def test_a_fog_with_variation_lies_in_banks_the_same_in_numpy_and_drjit():
+    """The top y_t + v·(2N − 1) spans about ±v over the ground, changes smoothly (banks ~ S across), follows
+    the seed, and forest_path's drjit twin reads the same top and optical depth as the numpy model at each
+    segment's lowest end; v = 0 is the level fog, bit for bit."""
+    from forest.runtime import mitsuba
+
+    fog = FogLayer(density=0.01, top=20.0, falloff=10.0, variation=8.0, variation_scale=100.0, seed=4)
+    g = np.linspace(-2000.0, 2000.0, 201)
+    xz = np.stack(np.meshgrid(g, g), axis=-1)
+    top = fog_top_np(fog, xz)
+    assert top.min() >= 12.0 and top.max() <= 28.0 and top.max() - top.min() > 12.0
+    assert abs(float(top.mean()) - 20.0) < 1.0
+    # Smooth: over 20 m steps the top moves at most 2v · 2.48 · 20/S (the quintic fade's slope 15/8 on each
+    # octave, weighted), never a jump.
+    assert np.abs(np.diff(top, axis=0)).max() < 2.0 * 8.0 * 2.48 * 20.0 / 100.0
+    other = fog_top_np(FogLayer(0.01, 20.0, 10.0, variation=8.0, variation_scale=100.0, seed=5), xz)
+    assert np.abs(other - top).mean() > 1.0
+    # The segments' lowest ends: the end going down, the start going up.
+    o = np.array([[10.0, 50.0, 20.0], [10.0, 50.0, 20.0]])
+    d = np.array([[0.6, -0.8, 0.0], [0.6, 0.8, 0.0]])
+    np.testing.assert_allclose(fog_anchor_np(o, d, np.array([10.0, 10.0])), [[16.0, 20.0], [10.0, 20.0]])
+    # drjit against numpy, rays down into and over the fog.
+    rng = np.random.default_rng(8)
+    n = 256
+    oy = rng.uniform(0.0, 200.0, n)
+    org = np.stack([rng.uniform(-500, 500, n), oy, rng.uniform(-500, 500, n)], axis=1)
+    dirs = rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    ell = rng.uniform(1.0, 800.0, n)
+    anchor = fog_anchor_np(org, dirs, ell)
+    ref = fog_depth_np(oy, dirs[:, 1], ell, fog, anchor)
+    mi = mitsuba(VARIANT)
+    haze = HazeInputs(density=0.0, height=150.0, colour=(0.1, 0.1, 0.1), fog=fog)
+    model = HazeModel(mi, haze, HazeModel.initial_params(mi, haze), None)
+    o3, d3 = (mi.Point3f(*[mi.Float(v.astype(np.float32)) for v in a.T]) for a in (org, dirs))
+    length = mi.Float(ell.astype(np.float32))
+    np.testing.assert_allclose(np.asarray(model.fog_top(o3, d3, length)), fog_top_np(fog, anchor), atol=2e-3)
+    t_dr = np.asarray(model.transmittance(o3, mi.Vector3f(d3), length))
+    np.testing.assert_allclose(t_dr, np.exp(-ref), rtol=2e-3, atol=2e-4)
+    # No variation: the level fog's numbers exactly (the anchors are not even read).
+    level = FogLayer(density=0.01, top=20.0, falloff=10.0)
+    assert np.array_equal(fog_depth_np(oy, dirs[:, 1], ell, level, anchor), fog_depth_np(oy, dirs[:, 1], ell, level))

@@ -1069,7 +1069,8 @@ def _aovs(value: list[str]) -> list[str]:
 
 class ValleyFog(Section):
     """``[render] valley_fog``: a fog that pools in low ground (forest.render.path.haze): extinction ``density``
-    up to ``top``, thinning by e every ``falloff`` metres above it."""
+    up to ``top``, thinning by e every ``falloff`` metres above it; the top rises and falls by up to
+    ``variation`` metres in banks ``variation_scale`` metres across."""
 
     density: Positive = Field(description="Extinction per metre inside the fog (0.01: 390 m visibility).")
     top: Annotated[float, Field(ge=-100_000.0, le=100_000.0, allow_inf_nan=False)] = Field(
@@ -1079,6 +1080,12 @@ class ValleyFog(Section):
         15.0, description="Above the top the fog thins by e every this many metres."
     )
     absolute: Bool = Field(False, description="top is an absolute height (world Y), not above the lowest point.")
+    variation: Annotated[float, Field(ge=0.0, le=100_000.0, allow_inf_nan=False)] = Field(
+        6.0, description="How far the top rises and falls over the ground, metres: banks of fog (0: a level top)."
+    )
+    variation_scale: Annotated[float, Field(gt=0.0, le=1.0e6, allow_inf_nan=False)] = Field(
+        150.0, description="Size of those banks, metres."
+    )
 
 
 class HorizonHillsConfig(Section):
@@ -1120,7 +1127,9 @@ class RenderConfig(Section):
         150.0, description="Aerial perspective: height over which the haze thins by e (scale height), metres."
     )
     valley_fog: ValleyFog | None = Field(
-        None, description="A fog that pools in low ground: { density, top, falloff, absolute } (default none)."
+        None,
+        description="A fog that pools in low ground: { density, top, falloff, absolute, variation, "
+        "variation_scale } (default none).",
     )
     haze_colour: RGB | None = Field(
         None, description="Radiance the haze tends to away from the sun (default: the sky's mean radiance)."

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .path.haze import source_np, transmittance_np
+from .path.haze import fog_anchor_np, source_np, transmittance_np
 
 if TYPE_CHECKING:
     from ..config import Config
@@ -76,15 +76,16 @@ def apply_haze(
         if luminance(sun_irradiance) <= 0:
             sun_direction = sun_irradiance = None
     d = pixel_directions(camera)
-    oy = float(np.asarray(camera.to_world)[1, 3])
+    origin = np.asarray(camera.to_world, np.float64)[:3, 3]
+    oy = float(origin[1])
     hit = depth < float(camera.far) * 0.999
     geo = np.where(hit, depth, 0.0)
     edge = ~hit & (alpha > 0) & (maximum_filter(hit.astype(np.uint8), size=3) > 0)
     geo = np.where(edge, maximum_filter(geo, size=3), geo)
     geo = np.where(hit | edge, geo, haze.sky_distance)
     a = np.clip(alpha, 0.0, 1.0)
-    t_geo = transmittance_np(oy, d[..., 1], geo, haze)
-    t_sky = transmittance_np(oy, d[..., 1], haze.sky_distance, haze)
+    t_geo = transmittance_np(oy, d[..., 1], geo, haze, fog_anchor_np(origin, d, geo))
+    t_sky = transmittance_np(oy, d[..., 1], haze.sky_distance, haze, fog_anchor_np(origin, d, haze.sky_distance))
     t = (a * t_geo + (1.0 - a) * t_sky)[..., None]
     j = source_np(d, haze, sun_direction, sun_irradiance)
     return (np.asarray(rgb, np.float64) * t + j * (1.0 - t)).astype(np.float32)

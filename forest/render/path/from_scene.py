@@ -104,7 +104,14 @@ def haze_inputs(config: Config, terrain: Terrain) -> HazeInputs | None:
     fog = None
     if vf is not None:
         top = float(vf.top) + (0.0 if vf.absolute else float(terrain.height_range[0]))
-        fog = FogLayer(density=float(vf.density), top=top, falloff=float(vf.falloff))
+        fog = FogLayer(
+            density=float(vf.density),
+            top=top,
+            falloff=float(vf.falloff),
+            variation=float(vf.variation),
+            variation_scale=float(vf.variation_scale),
+            seed=int(config.seed) & 0x7FFFFFFF,
+        )
     return HazeInputs(
         fog=fog,
         density=float(rc.haze),

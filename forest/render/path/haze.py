@@ -84,6 +84,24 @@ which is stable for any height (φ's argument is ≥ 0).  The fog scatters the
 same light as the haze (J above; one phase function and source for both), so the
 two media add: T = exp(−τ − τ_f) and L_in = (1 − T)·J stay exact.
 
+A fog with an uneven top (``variation`` v > 0, ``variation_scale`` S).  Real
+valley fog is flat-topped only where an inversion caps it; elsewhere it lies in
+banks, thicker in some hollows than others.  The top then rises and falls over the
+ground by up to v metres,
+
+    y_t(x, z) = y_t + v · (2 N(x/S, z/S) − 1),
+
+N a two-octave value noise in [0, 1) (:func:`fog_noise_np`, :func:`fog_noise`;
+the lattice hash of :mod:`.clouds`).  The closed form above needs one y_t per
+segment, so each segment reads the top over its *lowest end* (its end point for a
+ray going down, its start for one going up or level, :func:`fog_anchor_np`) —
+where the fog it crosses is densest.  This is exact for a top that is level
+along the segment and an approximation where a segment runs far through the fog
+with the top changing under it (a grazing ray over a fog bank sees the bank's
+thickness at the point it reaches); the banks, S ≈ 100 m and more, change little
+between a crown and the ground just behind it, so silhouettes do not cut the
+fog's pattern.
+
 The same formulas in numpy (:func:`transmittance_np`, :func:`source_np`) serve
 the ``scalar_rgb`` renderer's post-process, so both renderers share one model.
 """
@@ -126,10 +144,20 @@ class FogLayer:
     density: float
     top: float
     falloff: float = 15.0
+    #: How far the top rises and falls over the ground, metres (0: a level top).
+    variation: float = 0.0
+    #: Size of the fog's banks (the noise's wavelength), metres.
+    variation_scale: float = 150.0
+    seed: int = 0
 
     def validate(self) -> None:
-        """Raise ``ForestError`` unless ρ > 0, F > 0 and y_t finite."""
+        """Raise ``ForestError`` unless ρ > 0, F > 0, y_t finite, v ≥ 0 and S > 0."""
         from ...errors import ForestError
+
+        if not (math.isfinite(self.variation) and self.variation >= 0.0):
+            raise ForestError(f"path inputs: valley fog variation must be >= 0, got {self.variation}")
+        if not (math.isfinite(self.variation_scale) and self.variation_scale > 0.0):
+            raise ForestError(f"path inputs: valley fog variation_scale must be > 0, got {self.variation_scale}")
 
         if not (math.isfinite(self.density) and self.density > 0.0):
             raise ForestError(f"path inputs: valley fog density must be > 0, got {self.density}")
@@ -187,31 +215,101 @@ def phi_np(x: np.ndarray) -> np.ndarray:
 
 
 def transmittance_np(
-    origin_y: npt.ArrayLike, direction_y: npt.ArrayLike, length: npt.ArrayLike, haze: HazeInputs
+    origin_y: npt.ArrayLike,
+    direction_y: npt.ArrayLike,
+    length: npt.ArrayLike,
+    haze: HazeInputs,
+    anchor_xz: npt.ArrayLike | None = None,
 ) -> np.ndarray:
-    """T(ℓ) of segments starting at height ``origin_y`` with unit-direction y component ``direction_y``."""
+    """T(ℓ) of segments starting at height ``origin_y`` with unit-direction y component ``direction_y``;
+    ``anchor_xz`` (…, 2): where each segment reads the fog's top (:func:`fog_anchor_np`; needed only for a
+    fog with ``variation``)."""
     oy = np.asarray(origin_y, np.float64)
     sigma = haze.density * np.exp(-(oy - haze.ground) / haze.height)
     ell = np.asarray(length, np.float64)
     tau = sigma * ell * phi_np(ell * np.asarray(direction_y, np.float64) / haze.height)
     if haze.fog is not None:
-        tau = tau + fog_depth_np(oy, direction_y, ell, haze.fog)
+        tau = tau + fog_depth_np(oy, direction_y, ell, haze.fog, anchor_xz)
     return np.exp(-tau)
 
 
+def _hash_np(ix: np.ndarray, iz: np.ndarray, seed: int) -> np.ndarray:
+    """The numpy twin of :func:`.clouds._hash`: a float in [0, 1) per lattice point, the same bits."""
+    u = np.uint32
+    with np.errstate(over="ignore"):
+        h = (ix.astype(np.int32).view(u) * u(0x8DA6B343)) ^ (iz.astype(np.int32).view(u) * u(0xD8163841))
+        h = h ^ u((seed * 0x9E3779B9) & 0xFFFFFFFF)
+        h = (h ^ (h >> u(16))) * u(0x7FEB352D)
+        h = (h ^ (h >> u(15))) * u(0x846CA68B)
+        h = h ^ (h >> u(16))
+    return (h >> u(8)).astype(np.float64) * (1.0 / 16777216.0)
+
+
+def _value_noise_np(x: np.ndarray, z: np.ndarray, seed: int) -> np.ndarray:
+    """The numpy twin of :func:`.clouds.value_noise` (float64 blending)."""
+    fx, fz = np.floor(x), np.floor(z)
+    ix, iz = fx.astype(np.int64), fz.astype(np.int64)
+    tx, tz = x - fx, z - fz
+    ux = tx * tx * tx * (tx * (tx * 6.0 - 15.0) + 10.0)
+    uz = tz * tz * tz * (tz * (tz * 6.0 - 15.0) + 10.0)
+    a, b = _hash_np(ix, iz, seed), _hash_np(ix + 1, iz, seed)
+    c, d = _hash_np(ix, iz + 1, seed), _hash_np(ix + 1, iz + 1, seed)
+    top = a + (b - a) * ux
+    return top + ((c + (d - c) * ux) - top) * uz
+
+
+#: The fog top's noise: octaves, the second at 2.13× the first's frequency and 0.4 of its weight.
+FOG_OCTAVES = ((1.0, 1.0), (2.13, 0.4))
+
+
+def fog_noise_np(fog: FogLayer, x: npt.ArrayLike, z: npt.ArrayLike) -> np.ndarray:
+    """N(x/S, z/S) ∈ [0, 1) of the fog's top at world points (x, z) (module docstring)."""
+    x = np.asarray(x, np.float64) / fog.variation_scale
+    z = np.asarray(z, np.float64) / fog.variation_scale
+    total = np.zeros(np.broadcast_shapes(x.shape, z.shape))
+    for i, (f, w) in enumerate(FOG_OCTAVES):
+        total += w * _value_noise_np(x * f + 7.1 * i, z * f - 3.3 * i, fog.seed + 101 * i)
+    return total / sum(w for _, w in FOG_OCTAVES)
+
+
+def fog_anchor_np(origin: npt.ArrayLike, direction: npt.ArrayLike, length: npt.ArrayLike) -> np.ndarray:
+    """(…, 2) the (x, z) of each segment's lowest end: its end point going down, its start otherwise."""
+    o = np.asarray(origin, np.float64)
+    d = np.asarray(direction, np.float64)
+    ell = np.asarray(length, np.float64)
+    s = np.where(d[..., 1] < 0.0, ell, 0.0)
+    return np.stack([o[..., 0] + s * d[..., 0], o[..., 2] + s * d[..., 2]], axis=-1)
+
+
+def fog_top_np(fog: FogLayer, anchor_xz: npt.ArrayLike | None) -> np.ndarray | float:
+    """y_t over the points ``anchor_xz`` (…, 2): the level top plus v·(2N − 1); the level top without variation."""
+    if fog.variation <= 0.0:
+        return fog.top
+    if anchor_xz is None:
+        raise ValueError("a valley fog with variation needs the segments' anchors (fog_anchor_np)")
+    a = np.asarray(anchor_xz, np.float64)
+    return fog.top + fog.variation * (2.0 * fog_noise_np(fog, a[..., 0], a[..., 1]) - 1.0)
+
+
 def fog_depth_np(
-    origin_y: npt.ArrayLike, direction_y: npt.ArrayLike, length: npt.ArrayLike, fog: FogLayer
+    origin_y: npt.ArrayLike,
+    direction_y: npt.ArrayLike,
+    length: npt.ArrayLike,
+    fog: FogLayer,
+    anchor_xz: npt.ArrayLike | None = None,
 ) -> np.ndarray:
-    """τ_f of the valley fog along segments (module docstring): ρ·(ℓ_b + ℓ_a·e^(−(y_lo − y_t)/F)·φ(ℓ_a|d_y|/F))."""
+    """τ_f of the valley fog along segments (module docstring): ρ·(ℓ_b + ℓ_a·e^(−(y_lo − y_t)/F)·φ(ℓ_a|d_y|/F)),
+    y_t read over ``anchor_xz`` for a fog with ``variation``."""
     oy = np.asarray(origin_y, np.float64)
     dy = np.asarray(direction_y, np.float64)
     ell = np.asarray(length, np.float64)
+    top = fog_top_np(fog, anchor_xz)
     flat = np.abs(dy) < 1e-12
-    sc = np.clip((fog.top - oy) / np.where(flat, 1.0, dy), 0.0, ell)  # the crossing of y = y_t, clamped
-    below = np.where(flat, np.where(oy < fog.top, ell, 0.0), np.where(dy > 0.0, sc, ell - sc))
+    sc = np.clip((top - oy) / np.where(flat, 1.0, dy), 0.0, ell)  # the crossing of y = y_t, clamped
+    below = np.where(flat, np.where(oy < top, ell, 0.0), np.where(dy > 0.0, sc, ell - sc))
     above = ell - below
     y_lo = np.where(flat, oy, oy + sc * dy)  # the lowest point of the part above y_t
-    rise = np.maximum(y_lo - fog.top, 0.0) / fog.falloff
+    rise = np.maximum(y_lo - top, 0.0) / fog.falloff
     part = above * np.exp(-rise) * phi_np(above * np.abs(dy) / fog.falloff)
     return fog.density * (below + part)
 
@@ -287,20 +385,44 @@ class HazeModel:
         phi = dr.select(small, 1.0 - x * 0.5 + x * x * (1.0 / 6.0), (1.0 - dr.exp(-xs)) / xs)
         if self.fog is None:
             return dr.exp(-sigma * length * phi)
-        return dr.exp(-(sigma * length * phi + self.fog_depth(o.y, d.y, length)))
+        top = self.fog_top(o, d, length)
+        return dr.exp(-(sigma * length * phi + self.fog_depth(o.y, d.y, length, top)))
 
-    def fog_depth(self, oy: Any, dy: Any, length: Any) -> Any:
-        """τ_f of the valley fog along the segments (the drjit twin of :func:`fog_depth_np`)."""
+    def fog_top(self, o: Any, d: Any, length: Any) -> Any:
+        """y_t over each segment's lowest end (the drjit twin of :func:`fog_top_np` at :func:`fog_anchor_np`);
+        the level top (a Python float) for a fog without variation."""
+        import drjit as dr
+
+        from .clouds import value_noise
+
+        fog = self.fog
+        assert fog is not None
+        if fog.variation <= 0.0:
+            return fog.top
+        s = dr.select(d.y < 0.0, length, 0.0)
+        inv = 1.0 / fog.variation_scale
+        x, z = dr.fma(d.x, s, o.x) * inv, dr.fma(d.z, s, o.z) * inv
+        total: Any = 0.0
+        for i, (f, w) in enumerate(FOG_OCTAVES):
+            total = total + w * value_noise(self.mi, x * f + 7.1 * i, z * f - 3.3 * i, fog.seed + 101 * i)
+        n = total * (1.0 / sum(w for _, w in FOG_OCTAVES))
+        return fog.top + fog.variation * (2.0 * n - 1.0)
+
+    def fog_depth(self, oy: Any, dy: Any, length: Any, top: Any = None) -> Any:
+        """τ_f of the valley fog along the segments (the drjit twin of :func:`fog_depth_np`); ``top``: y_t per
+        segment (:meth:`fog_top`; default the level top)."""
         import drjit as dr
 
         fog = self.fog
         assert fog is not None
+        if top is None:
+            top = fog.top
         flat = dr.abs(dy) < 1e-12
-        sc = dr.clip((fog.top - oy) / dr.select(flat, 1.0, dy), 0.0, length)
-        below = dr.select(flat, dr.select(oy < fog.top, length, 0.0), dr.select(dy > 0.0, sc, length - sc))
+        sc = dr.clip((top - oy) / dr.select(flat, 1.0, dy), 0.0, length)
+        below = dr.select(flat, dr.select(oy < top, length, 0.0), dr.select(dy > 0.0, sc, length - sc))
         above = length - below
         y_lo = dr.select(flat, oy, oy + sc * dy)
-        rise = dr.maximum(y_lo - fog.top, 0.0) * (1.0 / fog.falloff)
+        rise = dr.maximum(y_lo - top, 0.0) * (1.0 / fog.falloff)
         x = above * dr.abs(dy) * (1.0 / fog.falloff)
         small = x < SERIES_BELOW
         xs = dr.select(small, 1.0, x)
