@@ -34,6 +34,8 @@ def test_segment_cap_counts_the_chains_of_a_path():
     # chain and a bounce chain.
     assert segment_cap(1) == MAX_SKIPS + 1
     assert segment_cap(3) - segment_cap(2) == 2 * MAX_SKIPS + 1
+    # Light shafts: one more shadow chain per path (the haze's, from one point of the camera ray).
+    assert segment_cap(3, shafts=True) - segment_cap(3) == MAX_SKIPS
 
 
 @pytest.mark.parametrize("name", EXAMPLES)
@@ -44,7 +46,8 @@ def test_segment_counts_stay_within_their_cap_on_every_example(name):
     counts = np.concatenate([p.segments.ravel() for p in path.passes(aux=True)])
     assert counts.size == 40 * 24 * 2
     assert counts.min() >= 1
-    assert counts.max() <= segment_cap(inputs.max_depth)
+    shafts = inputs.haze is not None and inputs.haze.shafts
+    assert counts.max() <= segment_cap(inputs.max_depth, shafts)
     # Paths do bounce and pass cut-outs here: the counter counts, it is not stuck at its first value.
     assert counts.max() > counts.min()
 

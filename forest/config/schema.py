@@ -1137,6 +1137,11 @@ class RenderConfig(Section):
     haze_anisotropy: Annotated[float, Field(ge=-0.95, le=0.95, allow_inf_nan=False)] = Field(
         0.7, description="Henyey-Greenstein g of the haze: > 0 glows toward the sun, 0 scatters evenly."
     )
+    haze_shafts: Bool = Field(
+        True,
+        description="forest_path: the sun lights the haze and valley fog only where nothing stands between them "
+        "(light shafts through crowns; one more shadow ray per camera ray); false: the haze is lit everywhere.",
+    )
     terrain_colour: RGB = Field(
         (0.18, 0.16, 0.11), description="Given: the ground is this one material (linear RGB) instead of [ground]."
     )

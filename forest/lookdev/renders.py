@@ -91,6 +91,9 @@ class FitRenderer:
             # The config's haze settings at density 0: renders as no haze, ready to be fitted.
             hz = haze_inputs(config.with_overrides({"render.haze": 1e-6}), scene.terrain)
             inputs = replace(inputs, haze=None if hz is None else replace(hz, density=0.0))
+        if inputs.haze is not None:
+            # Light shafts are a primal-only estimate (forest.render.path.integrator): fits use the lit haze.
+            inputs = replace(inputs, haze=replace(inputs.haze, shafts=False))
         sky = inputs.sky
         self.gradient = sky is not None and sky.kind == "constant"
         if sky is not None and self.gradient:

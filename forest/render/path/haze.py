@@ -15,9 +15,9 @@ atmospheric effects in games"; Quílez 2010, "Better fog"):
     T(ℓ) = exp(−τ(ℓ))
 
 In-scattering.  With a single-scattering albedo of 1 and the light arriving at
-the haze taken as the light the sky and sun send to the ground (so it is the
-same at every point of the segment: sun shafts — the haze's own shadows — are
-not modelled), the radiance the haze adds along the segment toward the viewer is
+the haze taken as the light the sky and sun send to the ground (the same at every
+point of the segment; the sun's share shadowed on camera rays with ``shafts``,
+below), the radiance the haze adds along the segment toward the viewer is
 
     L_in = ∫₀^ℓ T(s) σ(s) J(d) ds = (1 − T(ℓ)) · J(d)
 
@@ -102,6 +102,23 @@ thickness at the point it reaches); the banks, S ≈ 100 m and more, change litt
 between a crown and the ground just behind it, so silhouettes do not cut the
 fog's pattern.
 
+Light shafts (``shafts``, ``[render] haze_shafts``).  The sun reaches a point of
+the haze only where nothing stands between it and the sun; with a visibility
+V(s) ∈ [0, 1] along the segment the sun's share of the in-scattering is
+
+    L_sun = ∫₀^ℓ T(s) σ(s) E_sun p(d · s) V(s) ds.
+
+Drawing s with the density σ(s)T(s) / (1 − T(ℓ)) — the distance at which light
+scatters, by inverting the closed-form optical depth τ(s) = −ln(1 − u(1 − T(ℓ)))
+(:meth:`HazeModel.sample_distance`, bisection) — the unshadowed value times the
+visibility at that one point is an unbiased estimate of it:
+
+    L̂_sun = (1 − T(ℓ)) · E_sun p(d · s) · V(s*).
+
+The ambient share C keeps its closed form.  How the integrator spends its one
+shadow ray per camera ray on the steps of that ray is in :mod:`.integrator`.
+The ``scalar_rgb`` post-process keeps the unshadowed haze.
+
 The same formulas in numpy (:func:`transmittance_np`, :func:`source_np`) serve
 the ``scalar_rgb`` renderer's post-process, so both renderers share one model.
 """
@@ -124,6 +141,8 @@ SERIES_BELOW = 1e-3
 MAX_NEG_EXPONENT = 60.0
 #: −ln(0.02): Koschmieder's constant (a 2 % contrast threshold), σ₀ = KOSCHMIEDER / V.
 KOSCHMIEDER = 3.912
+#: Bisections of :meth:`HazeModel.sample_distance`: the scattering point to ℓ / 2¹⁶ (0.3 m on a 20 km sky ray).
+SAMPLE_BISECTIONS = 16
 
 
 def density_from_visibility(visibility_km: float) -> float:
@@ -184,6 +203,9 @@ class HazeInputs:
     ground: float = 0.0
     sky_distance: float = 20_000.0
     fog: FogLayer | None = None
+    #: forest_path: the sun's share of the in-scattering on camera rays is shadowed (light shafts; see
+    #: :mod:`.integrator`, "Light shafts"); off, every point of the haze sees the sun.
+    shafts: bool = False
 
     def validate(self) -> None:
         """Raise ``ForestError`` unless density ≥ 0, height > 0, g ∈ (−1, 1) and the colour a non-negative RGB."""
@@ -362,6 +384,7 @@ class HazeModel:
         self.g = params["haze_anisotropy"]
         self.sun = sun
         self.fog = haze.fog
+        self.shafts = bool(haze.shafts) and sun is not None
 
     @staticmethod
     def initial_params(mi: Any, haze: HazeInputs) -> dict[str, Any]:
@@ -372,6 +395,63 @@ class HazeModel:
             "haze_colour": mi.Color3f(*[float(c) for c in (haze.colour or (0.0, 0.0, 0.0))]),
             "haze_anisotropy": mi.Float(float(haze.anisotropy)),
         }
+
+    def optical_depth(self, o: Any, d: Any, length: Any, top: Any = None) -> Any:
+        """τ(ℓ) of the segments o + s·d, s ∈ [0, ``length``] (Float), the fog's top ``top`` per segment
+        (default: :meth:`fog_top` of these segments)."""
+        import drjit as dr
+
+        inv_h = dr.rcp(self.height)
+        sigma = self.density * dr.exp(-(o.y - self.ground) * inv_h)
+        x = length * d.y * inv_h
+        small = dr.abs(x) < SERIES_BELOW
+        xs = dr.select(small, 1.0, dr.maximum(x, -MAX_NEG_EXPONENT))
+        phi = dr.select(small, 1.0 - x * 0.5 + x * x * (1.0 / 6.0), (1.0 - dr.exp(-xs)) / xs)
+        tau = sigma * length * phi
+        if self.fog is None:
+            return tau
+        if top is None:
+            top = self.fog_top(o, d, length)
+        return tau + self.fog_depth(o.y, d.y, length, top)
+
+    def sample_distance(self, o: Any, d: Any, length: Any, T: Any, u: Any) -> Any:
+        """s* ∈ [0, ``length``] drawn with density σ(s)T(s)/(1 − T(ℓ)) (the module docstring, "Light shafts"):
+        τ(s*) = −ln(1 − u(1 − T(ℓ))) solved by :data:`SAMPLE_BISECTIONS` bisections on the closed form, the
+        fog's top held at the whole segment's (the medium the segment's T was computed in)."""
+        import drjit as dr
+
+        top = self.fog_top(o, d, length) if self.fog is not None else None
+        target = -dr.log(dr.maximum(1.0 - u * (1.0 - T), 1e-30))
+        lo, hi = length * 0.0, length
+        for _ in range(SAMPLE_BISECTIONS):
+            mid = 0.5 * (lo + hi)
+            below = self.optical_depth(o, d, mid, top) < target
+            lo, hi = dr.select(below, mid, lo), dr.select(below, hi, mid)
+        return 0.5 * (lo + hi)
+
+    def ambient(self) -> Any:
+        """C (Color3f): the part of J that does not depend on the sun."""
+        return self.mi.Color3f(self.colour)
+
+    def sun_source(self, d: Any) -> Any:
+        """E_sun · p_HG(d · s; g) (Color3f): the sun's part of J(d); zero without a sun."""
+        import drjit as dr
+
+        mi = self.mi
+        if self.sun is None:
+            return mi.Color3f(0.0)
+        direction, irradiance_of, scale = self.sun
+        mu = dr.dot(d, mi.Vector3f(*[float(v) for v in direction]))
+        g = self.g
+        denom = 1.0 + g * g - 2.0 * g * mu
+        p = (1.0 - g * g) * dr.rcp(4.0 * dr.pi * denom * dr.sqrt(denom))
+        return irradiance_of(scale) * p
+
+    def sun_direction(self) -> Any:
+        """The unit vector toward the sun (Vector3f), or None without a sun."""
+        if self.sun is None:
+            return None
+        return self.mi.Vector3f(*[float(v) for v in self.sun[0]])
 
     def transmittance(self, o: Any, d: Any, length: Any) -> Any:
         """T(ℓ) of the segments o + s·d, s ∈ [0, ``length``] (Float)."""
@@ -431,15 +511,6 @@ class HazeModel:
 
     def source(self, d: Any) -> Any:
         """J(d) (Color3f): the ambient colour plus the sun through the Henyey–Greenstein phase function."""
-        import drjit as dr
-
-        mi = self.mi
-        J = mi.Color3f(self.colour)
         if self.sun is None:
-            return J
-        direction, irradiance_of, scale = self.sun
-        mu = dr.dot(d, mi.Vector3f(*[float(v) for v in direction]))
-        g = self.g
-        denom = 1.0 + g * g - 2.0 * g * mu
-        p = (1.0 - g * g) * dr.rcp(4.0 * dr.pi * denom * dr.sqrt(denom))
-        return J + irradiance_of(scale) * p
+            return self.ambient()
+        return self.ambient() + self.sun_source(d)

@@ -23,6 +23,16 @@ direction ωi, throughput β and BSDF f:
 * **aerial perspective** — each camera or bounce segment of length ℓ that ends
   on a surface (and a camera ray that leaves the scene) passes through the
   haze of :mod:`.haze`: L += β·(1 − T)·J(d), β ← β·T.
+* **light shafts** (the haze's ``shafts``, primal renders) — on a camera ray the
+  sun's share of J is shadowed: each step k of the ray (the segments between
+  passed texels) draws a scattering point s*_k ~ σT (:meth:`.haze.HazeModel.sample_distance`)
+  and has the unshadowed value c_k = β·(1 − T_k)·E_sun p; one point j is kept by
+  weighted reservoir sampling (Chao 1982; Talbot et al. 2005, "Importance
+  resampling for global illumination"), w_k = mean(c_k), and when the camera
+  ray stops one shadow ray from s*_j toward the sun adds (Σ_k w_k)·c_j/w_j·V(s*_j)
+  — unbiased for Σ_k c_k V(s*_k), at the cost of one shadow chain per camera
+  ray.  The ambient share C keeps its closed form; bounce segments keep the
+  unshadowed J.  Off in gradient renders (look-dev fits the unshadowed haze).
 
 Camera and bounce rays pass through cut-out texels stochastically: a hit of
 opacity α stops the ray with probability α (else the ray continues from just
@@ -80,18 +90,19 @@ NO_HIT = 0xFFFFFFFF
 MAX_SKIPS = 24
 
 
-def segment_cap(max_depth: int) -> int:
+def segment_cap(max_depth: int, shafts: bool = False) -> int:
     """The most ray segments one path of :meth:`PathKernel.sample` can trace, by construction.
 
     A path has ``max_depth`` extension chains (camera or bounce ray), each at most
     :data:`MAX_SKIPS` passed texels and one stop, and ``max_depth − 1`` shadow chains, each at
     most :data:`MAX_SKIPS` segments (the last sets its visibility to 0):
-    ``max_depth·(MAX_SKIPS + 1) + (max_depth − 1)·MAX_SKIPS``.  The segment loop stops a lane one
+    ``max_depth·(MAX_SKIPS + 1) + (max_depth − 1)·MAX_SKIPS``, and with light ``shafts`` one more
+    shadow chain (the haze's, once per camera ray).  The segment loop stops a lane one
     segment past this, a guard that no path can reach unless the bound above is broken (a lane
     that reached it would lose its pending light, and its counter shows it).
     """
     d = max(1, int(max_depth))
-    return d * (MAX_SKIPS + 1) + (d - 1) * MAX_SKIPS
+    return d * (MAX_SKIPS + 1) + (d - 1) * MAX_SKIPS + (MAX_SKIPS if shafts else 0)
 
 
 #: Mitsuba's ray offset: (1 + max |x_i|) · 1500 · 2⁻²⁴ metres along the geometric normal.
@@ -348,6 +359,12 @@ class PathKernel:
             state[f"C:{g}"] = mi.Color3f(0.0)
         if groups and aux and haze is not None:
             state["G:haze"] = mi.Color3f(0.0)
+        shafts = primal and haze is not None and haze.shafts
+        if shafts:  # the reservoir of the camera ray's scattering points, then the haze's shadow ray
+            state.update(
+                hw=mi.Float(0.0), hx=mi.Point3f(0.0), hc=mi.Color3f(0.0), hshadow=mi.Bool(False),
+                hso=mi.Point3f(0.0), hvis=mi.Float(1.0), hskips=mi.UInt32(0), hC=mi.Color3f(0.0),
+            )  # fmt: skip
         if not primal:  # the vertex a pending shadow ray belongs to
             state.update(
                 vp=mi.Point3f(0.0), vuv=mi.Point2f(0.0), vmat=mi.UInt32(0), vns=mi.Vector3f(zeros3),
@@ -362,10 +379,12 @@ class PathKernel:
             state.update(vkeep=mi.Float(1.0), vspec=mi.Bool(False))
         keys = list(state)
         i_active, i_segments = keys.index("active"), keys.index("segments")
-        guard = segment_cap(self.max_depth) + 1  # a hard stop no path reaches (see segment_cap)
+        i_hshadow = keys.index("hshadow") if shafts else None
+        guard = segment_cap(self.max_depth, shafts) + 1  # a hard stop no path reaches (see segment_cap)
 
         def cond(*values: Any) -> Any:
-            return values[i_active] & (values[i_segments] < guard)
+            alive = values[i_active] if i_hshadow is None else values[i_active] | values[i_hshadow]
+            return alive & (values[i_segments] < guard)
 
         # A term may not depend on the parameters being differentiated (the sky's emission when only the
         # colour grid has gradients): allowed here, since the terms are propagated one by one.
@@ -381,12 +400,33 @@ class PathKernel:
             S = dict(zip(keys, values))
             active = S["active"]
             S["segments"] = S["segments"] + 1
-            shadow = active & S["shadowing"]
+            hshadow = S["hshadow"] if shafts else mi.Bool(False)
+            shadow = active & S["shadowing"] & ~hshadow
             o = dr.select(shadow, S["so"], S["eo"])
             d = dr.select(shadow, S["sd"], S["ed"])
             maxt = dr.select(shadow, dr.inf, S["emaxt"])
-            hit = self._hit(o, d, maxt, active)
+            if shafts:  # the haze's shadow ray goes first
+                assert haze is not None
+                o = dr.select(hshadow, S["hso"], o)
+                d = dr.select(hshadow, haze.sun_direction(), d)
+                maxt = dr.select(hshadow, dr.inf, maxt)
+            hit = self._hit(o, d, maxt, active | hshadow)
             alpha = self._alpha(hit, hit.valid) if self.mats.has_cutouts else mi.Float(1.0)
+
+            # ---- the haze's shadow segment: attenuate, pass on, or add the shafts' light
+            if shafts:
+                h_hit = hshadow & hit.valid
+                hvis = dr.select(h_hit, S["hvis"] * (1.0 - alpha), S["hvis"])
+                hskips = dr.select(h_hit, S["hskips"] + 1, S["hskips"])
+                hvis = dr.select(h_hit & (hskips >= MAX_SKIPS), 0.0, hvis)
+                h_done = hshadow & (~hit.valid | (hvis <= 0.0))
+                S["hso"] = dr.select(hshadow & ~h_done, dr.fma(d, self._past(o, d, hit.t), o), S["hso"])
+                S["hvis"], S["hskips"] = hvis, hskips
+                shaft = dr.select(h_done, S["hC"] * hvis, 0.0)
+                S["L"] = S["L"] + shaft
+                if "G:haze" in S:
+                    S["G:haze"] = S["G:haze"] + shaft
+                S["hshadow"] = hshadow & ~h_done
 
             # ---- a shadow segment: attenuate, pass on, or finish
             s_hit = shadow & hit.valid
@@ -421,9 +461,9 @@ class PathKernel:
             active = active & ~(s_done & ~S["cont"])
 
             # ---- an extension segment (camera or bounce ray): pass a cut-out texel, leave, or stop
-            ext = active & ~shadow
+            ext = active & ~shadow & ~hshadow
             if haze is not None:
-                self._haze_step(S, haze, o, d, hit, ext, primal, differentiate)
+                self._haze_step(S, haze, o, d, hit, ext, primal, differentiate, shafts)
             u = S["rng"].next_float32()
             through = ext & hit.valid & (u >= alpha) & (S["eskips"] < MAX_SKIPS)
             step = self._past(o, d, hit.t)
@@ -431,6 +471,14 @@ class PathKernel:
             S["emaxt"] = dr.select(through, S["emaxt"] - step, S["emaxt"])
             S["eskips"] = dr.select(through, S["eskips"] + 1, S["eskips"])
             stop = ext & ~through
+            if shafts:  # the camera ray ends: its kept scattering point starts the haze's shadow ray
+                start = stop & (S["depth"] == 0) & (S["hw"] > 0.0)
+                S["hshadow"] = S["hshadow"] | start
+                S["hso"] = dr.select(start, S["hx"], S["hso"])
+                S["hC"] = dr.select(start, S["hc"] * S["hw"], S["hC"])
+                S["hvis"] = dr.select(start, 1.0, S["hvis"])
+                S["hskips"] = dr.select(start, 0, S["hskips"])
+                S["hw"] = dr.select(start, 0.0, S["hw"])
             escaped = stop & ~hit.valid
             vertex = stop & hit.valid
             S["covered"] = S["covered"] | (vertex & (S["depth"] == 0))
@@ -592,18 +640,43 @@ class PathKernel:
         ext: Any,
         primal: bool,
         differentiate: Callable[[dict[str, Any], Any], None],
+        shafts: bool = False,
     ) -> None:
         """The haze along this step of an extension segment (see :mod:`.haze`), in place on the state ``S``.
 
         The step runs to the surface hit (a cut-out texel passed or the vertex), or — for a camera
         ray that leaves the scene — to the haze's sky distance.  Bounce rays that reach the sky
-        are not hazed (the lights are the light arriving at the ground).
+        are not hazed (the lights are the light arriving at the ground).  With ``shafts`` (primal
+        only) a camera step adds the ambient share now and offers its sun share to the ray's
+        reservoir (the module docstring, "light shafts").
         """
         import drjit as dr
 
         seg = ext & (hit.valid | (S["depth"] == 0))
         length = dr.select(hit.valid, hit.t, dr.minimum(S["emaxt"], haze.sky_distance))
         length = dr.select(seg, length, 0.0)
+        if shafts:
+            T = haze.transmittance(o, d, length)
+            camera = seg & (S["depth"] == 0)
+            scatter = S["β"] * (1.0 - T)
+            c = dr.select(camera, scatter * haze.sun_source(d), 0.0)
+            w = (c[0] + c[1] + c[2]) * (1.0 / 3.0)
+            offer = camera & (w > 0.0)
+            u_s = S["rng"].next_float32()
+            u_keep = S["rng"].next_float32()
+            t = haze.sample_distance(o, d, length, T, u_s)
+            t = dr.minimum(t, length * 0.999)  # a point in the air, short of the surface the step ends on
+            hw = S["hw"] + dr.select(offer, w, 0.0)
+            keep = offer & (u_keep * hw < w)
+            S["hw"] = hw
+            S["hx"] = dr.select(keep, dr.fma(d, t, o), S["hx"])
+            S["hc"] = dr.select(keep, c / dr.maximum(w, 1e-30), S["hc"])
+            C = dr.select(seg, scatter * dr.select(camera, haze.ambient(), haze.source(d)), 0.0)
+            S["L"] = S["L"] + C
+            if "G:haze" in S:
+                S["G:haze"] = S["G:haze"] + C
+            S["β"] = S["β"] * dr.select(seg, T, 1.0)
+            return
         with dr.resume_grad(when=not primal):
             T = haze.transmittance(o, d, length)
             C = dr.select(seg, S["β"] * (1.0 - T) * haze.source(d), 0.0)
