@@ -13,6 +13,8 @@ Cases:
 * ``cost`` — the demo at 160×90, 4 spp, forest_path (llvm_ad_rgb): seconds per frame
   with the haze only, with a valley fog added (a level top) and with fog banks (a top that varies by
   8 m) (best of 5 alternating renders after a warm-up).
+* ``shafts`` — light shafts (``[render] haze_shafts``) against the lit haze on the demo, the ecosystem and
+  the valley at 320×180, 8 spp: seconds per frame and the change of the frame's mean.
 
 Figures are printed one per line.
 """
@@ -137,14 +139,47 @@ def cost_case() -> None:
     )
 
 
+def shafts_case(scenes: tuple[str, ...] = ("demo", "ecosystem", "valley"), size: tuple[int, int] = (320, 180)) -> None:
+    """Seconds per frame with light shafts against the lit haze, and what they change in the frame's mean
+    (examples at ``size``, 8 spp, best of 3 alternating renders)."""
+    from forest.config import load_config
+    from forest.render.path import PathScene
+    from forest.render.path.from_scene import path_inputs
+    from forest.scene import load_scene
+
+    for name in scenes:
+        base = load_config(ROOT / "configs" / f"{name}.toml")
+        runs = {}
+        for shafts in (False, True):
+            scene = load_scene(base.with_overrides({"render.haze_shafts": shafts}))
+            runs[shafts] = PathScene(path_inputs(scene, width=size[0], height=size[1], spp=8), VARIANT)
+            runs[shafts].render()  # warm-up: kernels compiled
+        times = dict.fromkeys(runs, np.inf)
+        images = {}
+        for _ in range(3):
+            for shafts, ps in runs.items():
+                t0 = time.perf_counter()
+                out = ps.render()
+                times[shafts] = min(times[shafts], time.perf_counter() - t0)
+                images[shafts] = np.asarray(out.rgb, np.float64)
+        lit, shaded = images[False].mean(), images[True].mean()
+        print(
+            f"shafts {name} {size[0]}x{size[1]}x8 ({VARIANT}): lit haze {times[False]:.2f} s, shafts "
+            f"{times[True]:.2f} s = {times[True] / times[False]:.2f}x; frame mean {lit:.4f} -> {shaded:.4f} "
+            f"({shaded / lit - 1:+.1%})"
+        )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--case", choices=("sky", "cost", "all"), default="all")
+    ap.add_argument("--case", choices=("sky", "cost", "shafts", "all"), default="all")
     args = ap.parse_args(argv)
     if args.case in ("sky", "all"):
         sky_case()
     if args.case in ("cost", "all"):
         cost_case()
+    if args.case in ("shafts", "all"):
+        shafts_case()
     return 0
 
 

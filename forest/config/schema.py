@@ -1053,6 +1053,15 @@ def _denoise(value: Any) -> bool | str:
     raise fail(f'must be true, false or "auto", got {value!r}')
 
 
+def _shafts(value: Any) -> bool | str:
+    """``[render] haze_shafts``: true, false or "auto" (on with a valley fog; ``forest.render.path.from_scene``)."""
+    if isinstance(value, bool):
+        return value
+    if value == "auto":
+        return "auto"
+    raise fail(f'must be true, false or "auto", got {value!r}')
+
+
 #: The comp AOVs ``[render] aovs`` may name (see docs/rendering.md, *Comp AOVs*). None is written by default:
 #: N, P and albedo cost no render time (they come with the beauty's samples and the pixel-centre layers pass)
 #: but double the EXR's size, which a farm writing thousands of frames pays for on every one; ask for them.
@@ -1137,10 +1146,11 @@ class RenderConfig(Section):
     haze_anisotropy: Annotated[float, Field(ge=-0.95, le=0.95, allow_inf_nan=False)] = Field(
         0.7, description="Henyey-Greenstein g of the haze: > 0 glows toward the sun, 0 scatters evenly."
     )
-    haze_shafts: Bool = Field(
-        True,
+    haze_shafts: Annotated[Any, AfterValidator(_shafts)] = Field(
+        "auto",
         description="forest_path: the sun lights the haze and valley fog only where nothing stands between them "
-        "(light shafts through crowns; one more shadow ray per camera ray); false: the haze is lit everywhere.",
+        "(light shafts through crowns; one more shadow ray per camera ray, +13-19 %): true, false (the haze lit "
+        'everywhere) or "auto": on with a valley_fog, where they show (docs/rendering.md, Light shafts).',
     )
     terrain_colour: RGB = Field(
         (0.18, 0.16, 0.11), description="Given: the ground is this one material (linear RGB) instead of [ground]."

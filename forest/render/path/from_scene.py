@@ -120,7 +120,7 @@ def haze_inputs(config: Config, terrain: Terrain) -> HazeInputs | None:
         anisotropy=float(rc.haze_anisotropy),
         ground=float(terrain.height_range[0]),
         sky_distance=min(distance, far),
-        shafts=bool(rc.haze_shafts),
+        shafts=rc.valley_fog is not None if rc.haze_shafts == "auto" else bool(rc.haze_shafts),
     )
 
 
