@@ -131,34 +131,43 @@ def wall(z: float, half: float = 400.0):
     return MeshData(v, np.array([[0, 1, 2], [0, 2, 3]], np.uint32), n, uv)
 
 
-def test_valley_fog_hides_low_ground_more_than_high_and_the_render_is_the_closed_form():
-    """A black wall 200 m ahead of a camera 30 m up, seen through a valley fog (top 20 m, falloff 10 m) and
-    nothing else, under a constant sky with the haze colour C: every pixel is C·(1 − T) with T the closed
-    form along its ray.  Rows the same angle below and above the horizon meet the wall at the same distance,
-    the lower one in the fog (5 m), the upper one clear of it (55 m)."""
+def wall_view(haze: HazeInputs, extra=(), sun=None, spp: int = 16):
+    """A black wall 200 m ahead of a camera 30 m up (12×24 pixels), the ``extra`` black surfaces, a black
+    sky and ``sun``, seen through ``haze`` with max_depth 1 (the haze's light only): (RGB, the camera)."""
     from bench_atmosphere import look
 
     from forest.instances import InstanceSet
     from forest.render.path import Material, PathCamera, PathInputs, PathScene, SkyLight, Surface
-    from forest.render.post import pixel_directions
 
     camera = PathCamera(look([0.0, 30.0, 0.0], [0.0, 30.0, 100.0]), 30.0, 12, 24)
-    fog = FogLayer(density=0.01, top=20.0, falloff=10.0)
-    c = 0.5
-    haze = HazeInputs(density=0.0, height=150.0, colour=(c, c, c), anisotropy=0.0, fog=fog)
+    black = Material("surface", (0.0, 0.0, 0.0))
     inputs = PathInputs(
         instances=InstanceSet.empty(species_names=("none",)),
         species=[None],
         levels=np.zeros(0, np.int64),
         matrices=np.zeros((0, 4, 4)),
         camera=camera,
-        surfaces=[Surface(wall(200.0), Material("surface", (0.0, 0.0, 0.0)))],
+        surfaces=[Surface(m, black) for m in (wall(200.0), *extra)],
+        sun=sun,
         sky=SkyLight("constant", radiance=(0.0, 0.0, 0.0)),
         max_depth=1,
-        spp=16,
+        spp=spp,
         haze=haze,
     )
-    rgb = np.asarray(PathScene(inputs, VARIANT).render().rgb, np.float64)
+    return np.asarray(PathScene(inputs, VARIANT).render().rgb, np.float64), camera
+
+
+def test_valley_fog_hides_low_ground_more_than_high_and_the_render_is_the_closed_form():
+    """A black wall 200 m ahead of a camera 30 m up, seen through a valley fog (top 20 m, falloff 10 m) and
+    nothing else, under a constant sky with the haze colour C: every pixel is C·(1 − T) with T the closed
+    form along its ray.  Rows the same angle below and above the horizon meet the wall at the same distance,
+    the lower one in the fog (5 m), the upper one clear of it (55 m)."""
+    from forest.render.post import pixel_directions
+
+    fog = FogLayer(density=0.01, top=20.0, falloff=10.0)
+    c = 0.5
+    haze = HazeInputs(density=0.0, height=150.0, colour=(c, c, c), anisotropy=0.0, fog=fog)
+    rgb, camera = wall_view(haze)
     d = pixel_directions(camera)
     ell = 200.0 / d[..., 2]
     expected = c * (1.0 - transmittance_np(30.0, d[..., 1], ell, haze))
@@ -269,45 +278,28 @@ def test_a_fog_with_variation_lies_in_banks_the_same_in_numpy_and_drjit():
     assert np.array_equal(fog_depth_np(oy, dirs[:, 1], ell, level, anchor), fog_depth_np(oy, dirs[:, 1], ell, level))
 
 
-def _shaft_scene(roof: bool, shafts: bool, spp: int = 16):
-    """A black wall 200 m ahead of a camera 30 m up, in a haze and a valley fog under a sun 60° high
-    behind the camera and a black sky, with an opaque black roof 150 m up over everything (out of view:
-    the highest ray meets the wall at 133 m) or none; returns (the render's RGB, the camera, the haze)."""
-    from bench_atmosphere import look
-
-    from forest.instances import InstanceSet
+def _shaft_scene(roof: bool, shafts: bool):
+    """:func:`wall_view` in a haze and a valley fog under a sun 60° high behind the camera, with an opaque
+    black roof 150 m up over everything (out of view: the highest ray meets the wall at 133 m) or none;
+    returns (the render's RGB, the camera, the haze)."""
     from forest.library.mesh import MeshData
-    from forest.render.path import Material, PathCamera, PathInputs, PathScene, SkyLight, Surface
     from forest.render.path.inputs import SunLight
 
-    camera = PathCamera(look([0.0, 30.0, 0.0], [0.0, 30.0, 100.0]), 30.0, 12, 24)
     haze = HazeInputs(
         density=0.001, height=150.0, colour=(0.05, 0.05, 0.05), anisotropy=0.3, shafts=shafts,
         fog=FogLayer(density=0.01, top=20.0, falloff=10.0, variation=5.0, variation_scale=60.0),
     )  # fmt: skip
-    surfaces = [Surface(wall(200.0), Material("surface", (0.0, 0.0, 0.0)))]
+    extra = []
     if roof:
         h = 2000.0
         v = np.array([[-h, 150.0, -h], [h, 150.0, -h], [h, 150.0, h], [-h, 150.0, h]], np.float32)
         n = np.tile(np.array([[0.0, -1.0, 0.0]], np.float32), (4, 1))
         uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
-        mesh = MeshData(v, np.array([[0, 1, 2], [0, 2, 3]], np.uint32), n, uv)
-        surfaces.append(Surface(mesh, Material("surface", (0.0, 0.0, 0.0))))
+        extra.append(MeshData(v, np.array([[0, 1, 2], [0, 2, 3]], np.uint32), n, uv))
     e = np.radians(60.0)
-    inputs = PathInputs(
-        instances=InstanceSet.empty(species_names=("none",)),
-        species=[None],
-        levels=np.zeros(0, np.int64),
-        matrices=np.zeros((0, 4, 4)),
-        camera=camera,
-        surfaces=surfaces,
-        sun=SunLight((0.0, float(np.sin(e)), -float(np.cos(e))), (3.0, 3.0, 3.0)),
-        sky=SkyLight("constant", radiance=(0.0, 0.0, 0.0)),
-        max_depth=1,
-        spp=spp,
-        haze=haze,
-    )
-    return np.asarray(PathScene(inputs, VARIANT).render().rgb, np.float64), camera, haze
+    sun = SunLight((0.0, float(np.sin(e)), -float(np.cos(e))), (3.0, 3.0, 3.0))
+    rgb, camera = wall_view(haze, extra, sun)
+    return rgb, camera, haze
 
 
 def test_light_shafts_shadow_the_haze_and_change_nothing_where_the_sun_is_free():

@@ -1044,17 +1044,9 @@ def _exposure(value: Any) -> float:
         raise fail(e.message) from None
 
 
-def _denoise(value: Any) -> bool | str:
-    """``[render] denoise``: true, false or "auto" (:func:`forest.imaging.denoise.denoise_rule`)."""
-    if isinstance(value, bool):
-        return value
-    if value == "auto":
-        return "auto"
-    raise fail(f'must be true, false or "auto", got {value!r}')
-
-
-def _shafts(value: Any) -> bool | str:
-    """``[render] haze_shafts``: true, false or "auto" (on with a valley fog; ``forest.render.path.from_scene``)."""
+def _bool_or_auto(value: Any) -> bool | str:
+    """A switch with a rule of its own: true, false or "auto" (``[render] denoise``:
+    :func:`forest.imaging.denoise.denoise_rule`; ``haze_shafts``: on with a valley fog, ``forest.render.path.from_scene``)."""
     if isinstance(value, bool):
         return value
     if value == "auto":
@@ -1146,7 +1138,7 @@ class RenderConfig(Section):
     haze_anisotropy: Annotated[float, Field(ge=-0.95, le=0.95, allow_inf_nan=False)] = Field(
         0.7, description="Henyey-Greenstein g of the haze: > 0 glows toward the sun, 0 scatters evenly."
     )
-    haze_shafts: Annotated[Any, AfterValidator(_shafts)] = Field(
+    haze_shafts: Annotated[Any, AfterValidator(_bool_or_auto)] = Field(
         "auto",
         description="forest_path: the sun lights the haze and valley fog only where nothing stands between them "
         "(light shafts through crowns; one more shadow ray per camera ray, +13-19 %): true, false (the haze lit "
@@ -1170,7 +1162,7 @@ class RenderConfig(Section):
     alpha_shadows: Bool = Field(
         True, description="scalar_rgb: shadow rays see through leaf-card alpha (forest_path always does)."
     )
-    denoise: Annotated[Any, AfterValidator(_denoise)] = Field(
+    denoise: Annotated[Any, AfterValidator(_bool_or_auto)] = Field(
         False,
         description="Denoise every frame with Open Image Denoise, guided by the first-hit albedo and normal "
         "(--preview always does): true (needs the 'denoise' extra, pyoidn), false, or \"auto\": when pyoidn is "

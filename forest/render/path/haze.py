@@ -454,19 +454,10 @@ class HazeModel:
         return self.mi.Vector3f(*[float(v) for v in self.sun[0]])
 
     def transmittance(self, o: Any, d: Any, length: Any) -> Any:
-        """T(ℓ) of the segments o + s·d, s ∈ [0, ``length``] (Float)."""
+        """T(ℓ) = e^(−τ(ℓ)) of the segments o + s·d, s ∈ [0, ``length``] (Float; :meth:`optical_depth`)."""
         import drjit as dr
 
-        inv_h = dr.rcp(self.height)
-        sigma = self.density * dr.exp(-(o.y - self.ground) * inv_h)
-        x = length * d.y * inv_h
-        small = dr.abs(x) < SERIES_BELOW
-        xs = dr.select(small, 1.0, dr.maximum(x, -MAX_NEG_EXPONENT))
-        phi = dr.select(small, 1.0 - x * 0.5 + x * x * (1.0 / 6.0), (1.0 - dr.exp(-xs)) / xs)
-        if self.fog is None:
-            return dr.exp(-sigma * length * phi)
-        top = self.fog_top(o, d, length)
-        return dr.exp(-(sigma * length * phi + self.fog_depth(o.y, d.y, length, top)))
+        return dr.exp(-self.optical_depth(o, d, length))
 
     def fog_top(self, o: Any, d: Any, length: Any) -> Any:
         """y_t over each segment's lowest end (the drjit twin of :func:`fog_top_np` at :func:`fog_anchor_np`);

@@ -415,13 +415,10 @@ class PathKernel:
 
             # ---- the haze's shadow segment: attenuate, pass on, or add the shafts' light
             if shafts:
-                h_hit = hshadow & hit.valid
-                hvis = dr.select(h_hit, S["hvis"] * (1.0 - alpha), S["hvis"])
-                hskips = dr.select(h_hit, S["hskips"] + 1, S["hskips"])
-                hvis = dr.select(h_hit & (hskips >= MAX_SKIPS), 0.0, hvis)
-                h_done = hshadow & (~hit.valid | (hvis <= 0.0))
-                S["hso"] = dr.select(hshadow & ~h_done, dr.fma(d, self._past(o, d, hit.t), o), S["hso"])
-                S["hvis"], S["hskips"] = hvis, hskips
+                hvis, S["hskips"], h_done, S["hso"] = self._shadow_step(
+                    hshadow, S["hvis"], S["hskips"], S["hso"], o, d, hit, alpha
+                )
+                S["hvis"] = hvis
                 shaft = dr.select(h_done, S["hC"] * hvis, 0.0)
                 S["L"] = S["L"] + shaft
                 if "G:haze" in S:
@@ -429,13 +426,10 @@ class PathKernel:
                 S["hshadow"] = hshadow & ~h_done
 
             # ---- a shadow segment: attenuate, pass on, or finish
-            s_hit = shadow & hit.valid
-            vis = dr.select(s_hit, S["vis"] * (1.0 - alpha), S["vis"])
-            sskips = dr.select(s_hit, S["sskips"] + 1, S["sskips"])
-            vis = dr.select(s_hit & (sskips >= MAX_SKIPS), 0.0, vis)
-            s_done = shadow & (~hit.valid | (vis <= 0.0))
-            S["so"] = dr.select(shadow & ~s_done, dr.fma(d, self._past(o, d, hit.t), o), S["so"])
-            S["vis"], S["sskips"] = vis, sskips
+            vis, S["sskips"], s_done, S["so"] = self._shadow_step(
+                shadow, S["vis"], S["sskips"], S["so"], o, d, hit, alpha
+            )
+            S["vis"] = vis
             if primal:
                 S["L"] = dr.select(s_done, S["L"] + S["C"] * vis, S["L"])
                 for g in lgroups:
@@ -629,6 +623,22 @@ class PathKernel:
                 first["groups"] = split
             return L, out["covered"], L, first
         return (L if primal else out["δL"]), out["covered"], L
+
+    def _shadow_step(
+        self, on: Any, vis: Any, skips: Any, origin: Any, o: Any, d: Any, hit: Hit, alpha: Any
+    ) -> tuple[Any, Any, Any, Any]:
+        """One segment of a shadow chain on the lanes ``on``: the visibility times (1 − α) of a cut-out surface
+        hit (0 past :data:`MAX_SKIPS` of them), whether the chain is done (it left the scene or is black), and
+        its next origin just past the hit; returns (vis, skips, done, origin)."""
+        import drjit as dr
+
+        s_hit = on & hit.valid
+        vis = dr.select(s_hit, vis * (1.0 - alpha), vis)
+        skips = dr.select(s_hit, skips + 1, skips)
+        vis = dr.select(s_hit & (skips >= MAX_SKIPS), 0.0, vis)
+        done = on & (~hit.valid | (vis <= 0.0))
+        origin = dr.select(on & ~done, dr.fma(d, self._past(o, d, hit.t), o), origin)
+        return vis, skips, done, origin
 
     def _haze_step(
         self,
