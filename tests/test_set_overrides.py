@@ -106,6 +106,12 @@ def test_export_set_changes_the_exported_trees(scene, tmp_path):
         (["render", "{s}", "-o", "{d}/x.exr"], "render.exposure=40", "--set render.exposure: "),
         (["render", "{s}", "-o", "{d}/x.exr"], "species[4].percent=10", "--set species[4].percent: species has no"),
         (["render", "{s}", "-o", "{d}/x.exr"], "nothing.here=1", "--set nothing.here: unknown key"),
+        (  # a field inside the table the flag sets is named too
+            ["render", "{s}", "-o", "{d}/x.exr"],
+            "render.valley_fog={density=0.01, variation=-2.0}",
+            "--set render.valley_fog: variation: must be >= 0, got -2",
+        ),
+        (["render", "{s}", "-o", "{d}/x.exr"], "render.haze_shafts=maybe", "--set render.haze_shafts: must be true"),
         (["scatter", "{s}", "-o", "{d}/x.npz"], "scatter.count=-3", "--set scatter.count: "),
         (["export", "usd", "{s}", "-o", "{d}/x.usda"], "camera.fov=[1]", "--set camera.fov: "),
         (["export", "points", "{s}", "-o", "{d}/x.csv"], "terrain.colour=1", "--set terrain.colour: unknown key"),

@@ -133,7 +133,10 @@ def load_with_flags(
             raise e.for_parameter(e.field) from None
         label = _owner(e.field, {k: v for k, v in labels.items() if k not in given})
         if label is not None:
-            raise ParameterError(label, e.message) from None
+            # A field inside the table the flag set (--set render.valley_fog={...}) is named after the flag.
+            key, field = label.removeprefix("--set "), e.field or ""
+            inside = label.startswith("--set ") and field.startswith(f"{key}.")
+            raise ParameterError(label, f"{field[len(key) + 1 :]}: {e.message}" if inside else e.message) from None
         raise
     except ForestError as e:  # apply_overrides: "override 'KEY': species has no element 3"
         for key, label in labels.items():
