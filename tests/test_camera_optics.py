@@ -122,3 +122,32 @@ def test_render_header_carries_the_derived_fov_and_both_given_is_one_line(tmp_pa
     assert r.returncode == 0, r.stderr
     spec = oiio.ImageInput.open(str(tmp_path / "lens.exr")).spec()
     assert float(spec.getattribute("forest:fov")) == pytest.approx(39.5978, abs=1e-4)
+
+
+def test_with_keys_every_frame_takes_the_keys_pose():
+    """With keys every frame's pose comes from them, a still's too: a [camera] position left in the file from a
+    still camera does not move frame 1 (files that have both keep rendering as before)."""
+    keyed = config("position = [5.0, 10.0, -50.0]\ntarget = [0.0, 0.0, 0.0]\n", KEYS)
+    assert tuple(camera_at(keyed.camera, 1.0).position) == (0.0, 10.0, -50.0)
+    still = config("position = [5.0, 10.0, -50.0]\ntarget = [0.0, 0.0, 0.0]\n")
+    assert tuple(camera_at(still.camera, 1.0).position) == (5.0, 10.0, -50.0)
+
+
+def test_set_camera_position_on_a_keyed_scene_is_one_line_before_any_work(tmp_path, capsys):
+    """`--set camera.position=…` on the demo (which has keys) changed nothing, silently: it is refused in one line
+    naming the flag, before any work, and nothing is written; with `camera.keys=[]` it is the camera."""
+    from conftest import run
+
+    out = tmp_path / "x.exr"
+    argv = ["render", str(ROOT / "configs" / "demo.toml"), "--preview", "-o", str(out)]
+    assert run([*argv, "--set", "camera.position=[5.0, 75.0, -295.0]"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("forest: error: --set camera.position: is not used"), err
+    assert not out.exists()
+    # The first key's own pose is not a change; clearing the keys makes the position the camera.
+    from forest.commands import load_with_flags
+
+    demo = ROOT / "configs" / "demo.toml"
+    assert load_with_flags(demo, {}, ["camera.position=[30.0, 80.0, -285.0]"]).camera.keys
+    cfg = load_with_flags(demo, {}, ["camera.position=[5.0, 75.0, -295.0]", "camera.keys=[]"])
+    assert tuple(camera_at(cfg.camera, 1.0).position) == (5.0, 75.0, -295.0)

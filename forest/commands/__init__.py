@@ -127,7 +127,7 @@ def load_with_flags(
     labels = {key: label for key, (label, _) in flags.items()}
     merged = {**{key: value for key, (_, value) in flags.items()}, **given}
     try:
-        return load_config(path, overrides=merged)
+        config = load_config(path, overrides=merged)
     except ConfigError as e:
         if e.field in given:
             raise e.for_parameter(e.field) from None
@@ -144,3 +144,24 @@ def load_with_flags(
             if e.message.startswith(lead):
                 raise ParameterError(label, e.message[len(lead) :]) from None
         raise
+    _refuse_unused_pose(config, labels)
+    return config
+
+
+def _refuse_unused_pose(config: Any, labels: dict[str, str]) -> None:
+    """A flag that sets ``camera.position`` or ``camera.target`` of a scene with ``camera.keys`` would change
+    nothing (every frame's pose, a still's too, comes from the keys): refused, naming the flag."""
+    from ..errors import ParameterError
+
+    keys = config.camera.keys
+    for name in ("position", "target"):
+        label = labels.get(f"camera.{name}")
+        if label is None or not keys:
+            continue
+        first = tuple(getattr(keys[0], name))
+        if any(abs(a - b) > 1e-9 for a, b in zip(getattr(config.camera, name), first)):
+            raise ParameterError(
+                label,
+                f"is not used: [camera] keys set the camera of every frame (keys[0].{name} = {list(first)}); "
+                "set the keys (camera.keys[0].position …), or camera.keys=[] for a still camera",
+            )

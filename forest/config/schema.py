@@ -686,8 +686,10 @@ class CameraConfig(Section):
     or on the world point ``focus_on``, or — by default — on ``target`` (:mod:`forest.camera`).
     """
 
-    position: Point3 | None = Field(None, description="Default: the first key, else a view over the terrain.")
-    target: Point3 | None = None
+    position: Point3 | None = Field(
+        None, description="Default: the first key, else a view over the terrain; with keys, the keys' poses are used."
+    )
+    target: Point3 | None = Field(None, description="Default: the first key's; with keys, the keys' targets are used.")
     fov: Fov = Field(40.0, description="Horizontal field of view, degrees (derived when focal_length is given).")
     focal_length: FocalLength | None = Field(
         None, description="Focal length, mm (e.g. 50): sets fov from sensor_width; give fov or focal_length, not both."
