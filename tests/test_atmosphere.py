@@ -131,7 +131,7 @@ def wall(z: float, half: float = 400.0):
     return MeshData(v, np.array([[0, 1, 2], [0, 2, 3]], np.uint32), n, uv)
 
 
-def wall_view(haze: HazeInputs, extra=(), sun=None, spp: int = 16):
+def wall_view(haze: HazeInputs, extra=(), sun=None, spp: int = 16, clouds=None):
     """A black wall 200 m ahead of a camera 30 m up (12×24 pixels), the ``extra`` black surfaces, a black
     sky and ``sun``, seen through ``haze`` with max_depth 1 (the haze's light only): (RGB, the camera)."""
     from bench_atmosphere import look
@@ -149,7 +149,7 @@ def wall_view(haze: HazeInputs, extra=(), sun=None, spp: int = 16):
         camera=camera,
         surfaces=[Surface(m, black) for m in (wall(200.0), *extra)],
         sun=sun,
-        sky=SkyLight("constant", radiance=(0.0, 0.0, 0.0)),
+        sky=SkyLight("constant", radiance=(0.0, 0.0, 0.0), clouds=clouds),
         max_depth=1,
         spp=spp,
         haze=haze,
@@ -278,7 +278,7 @@ def test_a_fog_with_variation_lies_in_banks_the_same_in_numpy_and_drjit():
     assert np.array_equal(fog_depth_np(oy, dirs[:, 1], ell, level, anchor), fog_depth_np(oy, dirs[:, 1], ell, level))
 
 
-def _shaft_scene(roof: bool, shafts: bool):
+def _shaft_scene(roof: bool, shafts: bool, clouds=None):
     """:func:`wall_view` in a haze and a valley fog under a sun 60° high behind the camera, with an opaque
     black roof 150 m up over everything (out of view: the highest ray meets the wall at 133 m) or none;
     returns (the render's RGB, the camera, the haze)."""
@@ -298,7 +298,7 @@ def _shaft_scene(roof: bool, shafts: bool):
         extra.append(MeshData(v, np.array([[0, 1, 2], [0, 2, 3]], np.uint32), n, uv))
     e = np.radians(60.0)
     sun = SunLight((0.0, float(np.sin(e)), -float(np.cos(e))), (3.0, 3.0, 3.0))
-    rgb, camera = wall_view(haze, extra, sun)
+    rgb, camera = wall_view(haze, extra, sun, clouds=clouds)
     return rgb, camera, haze
 
 
@@ -375,3 +375,28 @@ def test_light_shafts_are_on_with_a_valley_fog_by_default_and_can_be_set():
     with pytest.raises(ConfigError) as e:
         parse_config(MINIMAL + '[render]\nhaze_shafts = "yes"\n', path=Path("scene.toml"))
     assert str(e.value).startswith("scene.toml: render.haze_shafts") and '"auto"' in str(e.value)
+
+
+def test_cloud_shadows_fall_on_the_shafts_as_on_the_ground():
+    """Under an overcast layer (cover 1) the shafts' sun is the sun through the clouds, T_c = e^(−τ) of the layer
+    along the sun's ray, the factor a surface's shadow ray takes (CloudLayer.transmittance): the render's sun share
+    is the clear one times T_c; the lit haze without shafts ignores the clouds, as before."""
+    from forest.lights import Clouds
+    from forest.render.path.clouds import CloudLayer
+    from forest.runtime import mitsuba
+
+    overcast = Clouds(cover=1.0, altitude=3000.0, scale=800.0, density=0.5, softness=0.05, height=0.0)
+    ambient, _, _ = _shaft_scene(roof=True, shafts=True)  # C·(1 − T): the haze without its sun
+    clear, _, _ = _shaft_scene(roof=False, shafts=True)
+    clouded, _, _ = _shaft_scene(roof=False, shafts=True, clouds=overcast)
+    lit, _, _ = _shaft_scene(roof=False, shafts=False, clouds=overcast)
+    np.testing.assert_allclose(lit, clear, rtol=1e-4, atol=1e-6)  # the closed form has no cloud shadows
+    mi = mitsuba(VARIANT)
+    e = np.radians(60.0)
+    s = mi.Vector3f(0.0, float(np.sin(e)), -float(np.cos(e)))
+    t_c = float(
+        np.asarray(CloudLayer(mi, overcast).transmittance(mi.Point3f(0.0, 30.0, 100.0), s, mi.Bool(True))[0])[0]
+    )
+    assert 0.05 < t_c < 0.95  # a cloud layer the sun shines through, dimmed
+    sun_share = clear[..., 1] - ambient[..., 1]
+    np.testing.assert_allclose(clouded[..., 1] - ambient[..., 1], t_c * sun_share, rtol=0.06, atol=1e-5)

@@ -31,8 +31,11 @@ direction ωi, throughput β and BSDF f:
   resampling for global illumination"), w_k = mean(c_k), and when the camera
   ray stops one shadow ray from s*_j toward the sun adds (Σ_k w_k)·c_j/w_j·V(s*_j)
   — unbiased for Σ_k c_k V(s*_k), at the cost of one shadow chain per camera
-  ray.  The ambient share C keeps its closed form; bounce segments keep the
-  unshadowed J.  Off in gradient renders (look-dev fits the unshadowed haze).
+  ray; V includes the cloud layer's transmittance toward the sun, as a surface's
+  sun does (:meth:`.clouds.CloudLayer.transmittance`), so cloud shadows fall on
+  the haze as on the ground.  The ambient share C keeps its closed form; bounce
+  segments keep the unshadowed J.  Off in gradient renders (look-dev fits the
+  unshadowed haze).
 
 Camera and bounce rays pass through cut-out texels stochastically: a hit of
 opacity α stops the ray with probability α (else the ray continues from just
@@ -418,6 +421,8 @@ class PathKernel:
                 hvis, S["hskips"], h_done, S["hso"] = self._shadow_step(
                     hshadow, S["hvis"], S["hskips"], S["hso"], o, d, hit, alpha
                 )
+                if lights.clouds is not None:  # the sun through the cloud layer, as a surface's shadow ray has it
+                    hvis = dr.select(h_done, hvis * lights.clouds.transmittance(o, d, h_done)[0], hvis)
                 S["hvis"] = hvis
                 shaft = dr.select(h_done, S["hC"] * hvis, 0.0)
                 S["L"] = S["L"] + shaft
