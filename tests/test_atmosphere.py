@@ -356,7 +356,7 @@ def test_the_haze_draws_its_scattering_points_with_density_sigma_t():
 
 def test_light_shafts_are_on_with_a_valley_fog_by_default_and_can_be_set():
     """``[render] haze_shafts``: "auto" (the default) shadows the haze where a valley fog is (where shafts
-    show: bench_atmosphere.py --case shafts measured -0.1 % on the demo's thin haze for 13 % more time);
+    show most: bench_atmosphere.py --case shafts, docs/rendering.md "Light shafts");
     true or false force it; anything else is one clear line."""
     from forest.render.path.from_scene import haze_inputs
     from forest.terrain import grid_terrain

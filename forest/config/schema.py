@@ -1143,7 +1143,7 @@ class RenderConfig(Section):
     haze_shafts: Annotated[Any, AfterValidator(_bool_or_auto)] = Field(
         "auto",
         description="forest_path: the sun lights the haze and valley fog only where nothing stands between them "
-        "(light shafts through crowns; one more shadow ray per camera ray, +13-19 %): true, false (the haze lit "
+        "(light shafts through crowns, the clouds' shadows on the haze; one more shadow ray per camera ray, +13-21 %): true, false (the haze lit "
         'everywhere) or "auto": on with a valley_fog, where they show (docs/rendering.md, Light shafts).',
     )
     terrain_colour: RGB = Field(
