@@ -400,3 +400,27 @@ def test_cloud_shadows_fall_on_the_shafts_as_on_the_ground():
     assert 0.05 < t_c < 0.95  # a cloud layer the sun shines through, dimmed
     sun_share = clear[..., 1] - ambient[..., 1]
     np.testing.assert_allclose(clouded[..., 1] - ambient[..., 1], t_c * sun_share, rtol=0.06, atol=1e-5)
+
+
+def test_the_shafts_shadow_rays_aim_at_the_suns_disc():
+    """:meth:`HazeModel.sun_ray` draws directions uniformly in the sun's cone (0.53°, the disc the surfaces'
+    soft shadows see): all within its half-angle, centred on the sun, cos θ uniform (its mean halfway)."""
+    from forest.render.path.inputs import SUN_ANGULAR_DIAMETER
+    from forest.runtime import mitsuba
+
+    mi = mitsuba(VARIANT)
+    s = np.array([0.3, 0.8, -0.5])
+    s /= np.linalg.norm(s)
+    haze = HazeInputs(density=0.001, colour=(0.1, 0.1, 0.1))
+    model = HazeModel(mi, haze, HazeModel.initial_params(mi, haze), (tuple(s), lambda scale: mi.Color3f(1.0), 1.0))
+    n = 4096
+    rng = np.random.default_rng(2)
+    u = mi.Point2f(*[mi.Float(rng.random(n).astype(np.float32)) for _ in range(2)])
+    d = np.stack([np.asarray(c, np.float64) for c in model.sun_ray(u)], axis=1)
+    cos = np.clip(d @ s, -1.0, 1.0)
+    half = np.radians(SUN_ANGULAR_DIAMETER) / 2.0
+    assert np.degrees(np.arccos(cos)).max() <= np.degrees(half) * 1.01
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-5)
+    mean = d.mean(axis=0)
+    assert np.degrees(np.arccos(min(1.0, float(mean @ s / np.linalg.norm(mean))))) < 0.02
+    assert abs(float(np.mean(1.0 - cos)) / (1.0 - np.cos(half)) - 0.5) < 0.05

@@ -113,7 +113,10 @@ scatters, by inverting the closed-form optical depth τ(s) = −ln(1 − u(1 −
 (:meth:`HazeModel.sample_distance`, bisection) — the unshadowed value times the
 visibility at that one point is an unbiased estimate of it:
 
-    L̂_sun = (1 − T(ℓ)) · E_sun p(d · s) · V(s*).
+    L̂_sun = (1 − T(ℓ)) · E_sun p(d · s) · V(s*),
+
+V taken toward a point of the sun's disc drawn uniformly in its cone (:meth:`HazeModel.sun_ray`), so the
+shafts' edges are soft as the disc's shadows on surfaces are.
 
 The ambient share C keeps its closed form.  How the integrator spends its one
 shadow ray per camera ray on the steps of that ray is in :mod:`.integrator`.
@@ -452,6 +455,21 @@ class HazeModel:
         if self.sun is None:
             return None
         return self.mi.Vector3f(*[float(v) for v in self.sun[0]])
+
+    def sun_ray(self, u: Any) -> Any:
+        """A direction toward the sun's disc (angular diameter :data:`.inputs.SUN_ANGULAR_DIAMETER`), uniform in
+        its cone for ``u`` ∈ [0, 1)²: cos θ = 1 − u₀(1 − cos α), φ = 2π u₁ about the sun's direction."""
+        import drjit as dr
+
+        from .inputs import SUN_ANGULAR_DIAMETER
+
+        mi = self.mi
+        cos_a = math.cos(math.radians(SUN_ANGULAR_DIAMETER) / 2.0)
+        cos_t = 1.0 - u.x * (1.0 - cos_a)
+        sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
+        sin_p, cos_p = dr.sincos(2.0 * dr.pi * u.y)
+        local = mi.Vector3f(sin_t * cos_p, sin_t * sin_p, cos_t)
+        return mi.Frame3f(self.sun_direction()).to_world(local)
 
     def transmittance(self, o: Any, d: Any, length: Any) -> Any:
         """T(ℓ) = e^(−τ(ℓ)) of the segments o + s·d, s ∈ [0, ``length``] (Float; :meth:`optical_depth`)."""

@@ -29,7 +29,8 @@ direction ωi, throughput β and BSDF f:
   and has the unshadowed value c_k = β·(1 − T_k)·E_sun p; one point j is kept by
   weighted reservoir sampling (Chao 1982; Talbot et al. 2005, "Importance
   resampling for global illumination"), w_k = mean(c_k), and when the camera
-  ray stops one shadow ray from s*_j toward the sun adds (Σ_k w_k)·c_j/w_j·V(s*_j)
+  ray stops one shadow ray from s*_j toward a point of the sun's disc (uniform in
+  its cone, as the disc's soft shadows on surfaces) adds (Σ_k w_k)·c_j/w_j·V(s*_j)
   — unbiased for Σ_k c_k V(s*_k), at the cost of one shadow chain per camera
   ray; V includes the cloud layer's transmittance toward the sun, as a surface's
   sun does (:meth:`.clouds.CloudLayer.transmittance`), so cloud shadows fall on
@@ -366,7 +367,8 @@ class PathKernel:
         if shafts:  # the reservoir of the camera ray's scattering points, then the haze's shadow ray
             state.update(
                 hw=mi.Float(0.0), hx=mi.Point3f(0.0), hc=mi.Color3f(0.0), hshadow=mi.Bool(False),
-                hso=mi.Point3f(0.0), hvis=mi.Float(1.0), hskips=mi.UInt32(0), hC=mi.Color3f(0.0),
+                hso=mi.Point3f(0.0), hsd=mi.Vector3f(0.0, 1.0, 0.0), hvis=mi.Float(1.0), hskips=mi.UInt32(0),
+                hC=mi.Color3f(0.0),
             )  # fmt: skip
         if not primal:  # the vertex a pending shadow ray belongs to
             state.update(
@@ -411,7 +413,7 @@ class PathKernel:
             if shafts:  # the haze's shadow ray goes first
                 assert haze is not None
                 o = dr.select(hshadow, S["hso"], o)
-                d = dr.select(hshadow, haze.sun_direction(), d)
+                d = dr.select(hshadow, S["hsd"], d)
                 maxt = dr.select(hshadow, dr.inf, maxt)
             hit = self._hit(o, d, maxt, active | hshadow)
             alpha = self._alpha(hit, hit.valid) if self.mats.has_cutouts else mi.Float(1.0)
@@ -471,9 +473,12 @@ class PathKernel:
             S["eskips"] = dr.select(through, S["eskips"] + 1, S["eskips"])
             stop = ext & ~through
             if shafts:  # the camera ray ends: its kept scattering point starts the haze's shadow ray
+                assert haze is not None
                 start = stop & (S["depth"] == 0) & (S["hw"] > 0.0)
                 S["hshadow"] = S["hshadow"] | start
                 S["hso"] = dr.select(start, S["hx"], S["hso"])
+                u_disc = mi.Point2f(S["rng"].next_float32(), S["rng"].next_float32())
+                S["hsd"] = dr.select(start, haze.sun_ray(u_disc), S["hsd"])
                 S["hC"] = dr.select(start, S["hc"] * S["hw"], S["hC"])
                 S["hvis"] = dr.select(start, 1.0, S["hvis"])
                 S["hskips"] = dr.select(start, 0, S["hskips"])
