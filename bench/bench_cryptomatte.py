@@ -27,7 +27,7 @@ import numpy as np
 
 import forest.parallel
 from forest.imaging.cryptomatte import NONE, SPECIES_MATTE, TREE_MATTE, Ranking, TreeTable, encode, rank_coverage
-from forest.render.coverage import RANKS, SampleCoverage
+from forest.render.coverage import RANKS, SampleCoverage, count_samples
 
 
 class BaselineCoverage(SampleCoverage):
@@ -44,19 +44,7 @@ class BaselineCoverage(SampleCoverage):
             (pix,) = np.nonzero(others[:, s])
             if len(pix) == 0:
                 continue
-            x = a[pix, s]
-            slots = self.ids[pix]
-            match = slots == x[:, None]
-            found = match.any(axis=1)
-            self.count[pix[found], match[found].argmax(axis=1)] += 1.0
-            new = ~found
-            if new.any():
-                empty = slots[new] == NONE
-                room = empty.any(axis=1)
-                take = pix[new][room]
-                where = empty[room].argmax(axis=1)
-                self.ids[take, where] = x[new][room]
-                self.count[take, where] = 1.0
+            count_samples(self.ids, self.count, pix, a[pix, s])
 
     def ranking(self, ranks: int = RANKS) -> Ranking:
         order = np.lexsort((self.ids, -self.count), axis=1)[:, :ranks]

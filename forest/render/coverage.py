@@ -133,19 +133,24 @@ def _count(slot_ids: np.ndarray, count: np.ndarray, samples: np.ndarray) -> None
     pix, col, x = pix[~found], col[~found], x[~found]
     for s in np.unique(col).tolist():
         sel = col == s
-        p, xs = pix[sel], x[sel]
-        slots = slot_ids[p]
-        match = slots == xs[:, None]
-        found = match.any(axis=1)
-        count[p[found], match[found].argmax(axis=1)] += 1.0  # a slot an earlier sample of this pass made
-        new = ~found
-        if new.any():
-            empty = slots[new] == NONE
-            room = empty.any(axis=1)
-            take = p[new][room]
-            where = empty[room].argmax(axis=1)
-            slot_ids[take, where] = xs[new][room]
-            count[take, where] = 1.0
+        count_samples(slot_ids, count, pix[sel], x[sel])
+
+
+def count_samples(slot_ids: np.ndarray, count: np.ndarray, pix: np.ndarray, xs: np.ndarray) -> None:
+    """Count one sample ``xs[i]`` of each (distinct) pixel ``pix[i]`` into its slots, in place: the slot that holds
+    the id, else the pixel's first empty slot (count 1), else nothing (every slot taken by other ids)."""
+    slots = slot_ids[pix]
+    match = slots == xs[:, None]
+    found = match.any(axis=1)
+    count[pix[found], match[found].argmax(axis=1)] += 1.0  # a slot an earlier sample made
+    new = ~found
+    if new.any():
+        empty = slots[new] == NONE
+        room = empty.any(axis=1)
+        take = pix[new][room]
+        where = empty[room].argmax(axis=1)
+        slot_ids[take, where] = xs[new][room]
+        count[take, where] = 1.0
 
 
 def _mixed(count: np.ndarray) -> np.ndarray:

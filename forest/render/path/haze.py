@@ -417,13 +417,15 @@ class HazeModel:
             top = self.fog_top(o, d, length)
         return tau + self.fog_depth(o.y, d.y, length, top)
 
-    def sample_distance(self, o: Any, d: Any, length: Any, T: Any, u: Any) -> Any:
+    def sample_distance(self, o: Any, d: Any, length: Any, T: Any, u: Any, top: Any = None) -> Any:
         """s* ∈ [0, ``length``] drawn with density σ(s)T(s)/(1 − T(ℓ)) (the module docstring, "Light shafts"):
         τ(s*) = −ln(1 − u(1 − T(ℓ))) solved by :data:`SAMPLE_BISECTIONS` bisections on the closed form, the
-        fog's top held at the whole segment's (the medium the segment's T was computed in)."""
+        fog's top held at the whole segment's (the medium the segment's T was computed in; ``top``: that top,
+        when the caller has it)."""
         import drjit as dr
 
-        top = self.fog_top(o, d, length) if self.fog is not None else None
+        if top is None and self.fog is not None:
+            top = self.fog_top(o, d, length)
         target = -dr.log(dr.maximum(1.0 - u * (1.0 - T), 1e-30))
         lo, hi = length * 0.0, length
         for _ in range(SAMPLE_BISECTIONS):

@@ -676,7 +676,8 @@ class PathKernel:
         length = dr.select(hit.valid, hit.t, dr.minimum(S["emaxt"], haze.sky_distance))
         length = dr.select(seg, length, 0.0)
         if shafts:
-            T = haze.transmittance(o, d, length)
+            top = haze.fog_top(o, d, length) if haze.fog is not None else None  # read once, for T and the draw
+            T = dr.exp(-haze.optical_depth(o, d, length, top))
             camera = seg & (S["depth"] == 0)
             scatter = S["β"] * (1.0 - T)
             c = dr.select(camera, scatter * haze.sun_source(d), 0.0)
@@ -684,7 +685,7 @@ class PathKernel:
             offer = camera & (w > 0.0)
             u_s = S["rng"].next_float32()
             u_keep = S["rng"].next_float32()
-            t = haze.sample_distance(o, d, length, T, u_s)
+            t = haze.sample_distance(o, d, length, T, u_s, top)
             t = dr.minimum(t, length * 0.999)  # a point in the air, short of the surface the step ends on
             hw = S["hw"] + dr.select(offer, w, 0.0)
             keep = offer & (u_keep * hw < w)
