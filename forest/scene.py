@@ -73,6 +73,11 @@ forest_path applies the same tints as parameters (look-dev differentiates
 them), the scalar renderer multiplies the leaf colours and the ground albedo,
 and the exporters write ``tree_tints()`` and a ground albedo times
 ``ground_tint`` — so a fitted look renders and exports the same everywhere.
+
+**Bark.**  ``scene.bark_tints()`` is each tree's bark factor (its bark's
+hue/value jitter and moss, ``[[species]] bark``, :func:`forest.tint.bark_tints`),
+a pure function of the tree's id, the seed and the config, so it needs no
+column: every renderer and exporter multiplies a tree's ``bark`` parts by it.
 """
 
 from __future__ import annotations
@@ -97,7 +102,7 @@ from .preflight import check_species
 from .scatter.models import model_settings, resolve_individuals, resolve_models, scatter_models
 from .skirt import horizon_albedo
 from .terrain import Terrain, load_terrain
-from .tint import TintParams, tint_params
+from .tint import TintParams, bark_params, tint_params
 
 Progress = Callable[[float, str], None]
 
@@ -195,6 +200,19 @@ class Scene:
             return tint
         table = self.leaf_tint.astype(np.float32)
         return (tint * table[np.asarray(self.instances.species, np.int64)]).astype(np.float32)
+
+    def bark_tints(self) -> np.ndarray | None:
+        """(N, 3) float32: each tree's bark factor f_i (hue/value jitter and moss, :func:`forest.tint.bark_tints`,
+        from ``[[species]] bark``); None when every f_i is 1.  Every renderer and exporter multiplies a tree's
+        ``bark`` parts' colour by its row."""
+        inst = self.instances
+        if not len(inst):
+            return None
+        params = bark_params(model_settings(self.config), self.species, self.config.seed)
+        f = params.tints(inst.species, inst.id)
+        if np.all(np.abs(f - 1.0) < 1e-6):
+            return None
+        return f
 
     def tree_jitter(self) -> np.ndarray | None:
         """(N, 3) float32: each tree's tint beyond the colour map, j_i = t_i ⊘ m(x_i); None when every j_i is 1.

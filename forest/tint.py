@@ -39,10 +39,11 @@ import numpy as np
 from .parallel import rowwise
 
 if TYPE_CHECKING:
-    from .config.schema import ColourJitter
+    from .config.schema import BarkLook, ColourJitter
     from .library import Species
 
 JITTER_TAG = 0x7177E5
+BARK_TAG = 0xBA2C
 GREY = (0.18, 0.18, 0.18)  # the base of a species with no tinted part (its tint multiplies nothing)
 _GAMMA = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -192,5 +193,95 @@ def tint_params(settings: Sequence[_Jittered], species: Sequence[Species], seed:
         base=np.array([leaf_colour(sp) for sp in species], dtype=np.float64).reshape(-1, 3),
         hue=np.array([s.colour_jitter.hue for s in settings], dtype=np.float64),
         value=np.array([s.colour_jitter.value for s in settings], dtype=np.float64),
+        seed=int(seed),
+    )
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Bark: the same jitter around the bark's colour, and moss.
+
+
+def bark_colour(species: Species) -> tuple[float, float, float] | None:
+    """The colour the bark factor multiplies: the first ``bark`` part of the species' highest level, or None."""
+    for lod in species.lods[:1]:
+        for part in lod.parts:
+            if getattr(part, "kind", "") == "bark":
+                r, g, b = (float(x) for x in part.colour)
+                return (r, g, b)
+    return None
+
+
+def bark_tints(
+    species: np.ndarray,
+    ids: np.ndarray,
+    seed: int,
+    base: np.ndarray,
+    hue: np.ndarray,
+    value: np.ndarray,
+    moss: np.ndarray,
+    moss_colour: np.ndarray,
+) -> np.ndarray:
+    """Every tree's bark factor f_i = ((1 − μ_i)·J_i(b_s) + μ_i·g_s) ⊘ b_s: ``(N, 3)`` float32.
+
+    ``b_s`` is the species' bark colour (``base`` (S, 3), NaN for a species
+    without bark), J_i the tree's hue/value jitter exactly as the leaves'
+    (module docstring) with amplitudes ``hue`` / ``value`` (S,) and its own
+    uniforms (tag :data:`BARK_TAG`, so a tree's bark and leaves vary
+    independently), μ_i = lo + (hi − lo)·ξ_i,3 the share of the bark under moss of
+    albedo g_s (``moss`` (S, 2) = [lo, hi], ``moss_colour`` (S, 3)).  Mixing
+    albedos by area share is the linear mix of a surface half-covered by
+    each.  A renderer multiplies every bark part's colour (its texture's
+    detail kept) by f_i.  Rows of a species without bark or without
+    variation get 1.
+    """
+    k = np.asarray(species, np.int64).ravel()
+    out = np.ones((len(k), 3), np.float32)
+    base = np.asarray(base, np.float64).reshape(-1, 3)
+    hue, value = np.asarray(hue, np.float64), np.asarray(value, np.float64)
+    moss = np.asarray(moss, np.float64).reshape(-1, 2)
+    varies = np.all(np.isfinite(base), axis=1) & ((hue > 0) | (value > 0) | (moss[:, 1] > 0))
+    rows = np.flatnonzero(varies[k]) if len(k) else np.zeros(0, np.int64)
+    if not len(rows):
+        return out
+    s = k[rows]
+    xi = tree_uniforms(np.asarray(ids)[rows], seed, BARK_TAG, 3)
+    c = np.maximum(base[s], 1e-6)
+    jittered = rowwise(jitter_colours, c, hue[s] * (2.0 * xi[:, 0] - 1.0), value[s] * (2.0 * xi[:, 1] - 1.0))
+    mu = (moss[s, 0] + (moss[s, 1] - moss[s, 0]) * xi[:, 2])[:, None]
+    mixed = (1.0 - mu) * jittered + mu * np.asarray(moss_colour, np.float64).reshape(-1, 3)[s]
+    out[rows] = (mixed / c).astype(np.float32)
+    return out
+
+
+@dataclass(frozen=True)
+class BarkParams:
+    """What :func:`bark_tints` needs besides the trees, per species index, and the seed."""
+
+    base: np.ndarray  # (S, 3) bark colour b_s, NaN without bark
+    hue: np.ndarray  # (S,)
+    value: np.ndarray  # (S,)
+    moss: np.ndarray  # (S, 2)
+    moss_colour: np.ndarray  # (S, 3)
+    seed: int
+
+    def tints(self, species: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """:func:`bark_tints` of these trees: ``(N, 3)`` float32."""
+        return bark_tints(species, ids, self.seed, self.base, self.hue, self.value, self.moss, self.moss_colour)
+
+
+class _Barked(Protocol):
+    @property
+    def bark(self) -> BarkLook: ...
+
+
+def bark_params(settings: Sequence[_Barked], species: Sequence[Species], seed: int) -> BarkParams:
+    """The :class:`BarkParams` of a scene: ``settings[s].bark`` and :func:`bark_colour` of ``species[s]``."""
+    base = [bark_colour(sp) for sp in species]
+    return BarkParams(
+        base=np.array([(np.nan,) * 3 if b is None else b for b in base], np.float64).reshape(-1, 3),
+        hue=np.array([s.bark.hue for s in settings], np.float64),
+        value=np.array([s.bark.value for s in settings], np.float64),
+        moss=np.array([s.bark.moss for s in settings], np.float64).reshape(-1, 2),
+        moss_colour=np.array([s.bark.moss_colour for s in settings], np.float64).reshape(-1, 3),
         seed=int(seed),
     )

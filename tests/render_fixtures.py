@@ -67,7 +67,8 @@ class Species:
 
 
 class BoxLibrary:
-    """Species ``box``: LOD high is a 2×6×2 m white box, LODs low/far a 2×3×2 m blue one (both tinted)."""
+    """Species ``box``: LOD high is a 2×6×2 m white box, LODs low/far a 2×3×2 m blue one (both tinted); ``card``
+    and ``stump`` (a bark box) below."""
 
     def __init__(self, root: Path, translucency: float = 0.0):
         root.mkdir(parents=True, exist_ok=True)
@@ -97,6 +98,11 @@ class BoxLibrary:
         path = write_ply(root / "card.ply", card)
         part = Part("leaf", path, (0.8, 0.8, 0.8), tex, False, 0.0)
         self.species["card"] = Species("card", [Lod("high", 2, card.bounds(), [part])])
+        # Species "stump": a 2×6×2 m box of bark (untinted, grey), the parts a tree's bark factor multiplies.
+        m = box_mesh((-1, 0, -1), (1, 6, 1))
+        path = write_ply(root / "stump.ply", m)
+        bark = Part("bark", path, (0.4, 0.4, 0.4), None, False, 0.0)
+        self.species["stump"] = Species("stump", [Lod("high", m.triangles, m.bounds(), [bark])])
 
     def names(self):
         return sorted(self.species)

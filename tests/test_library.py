@@ -212,11 +212,11 @@ def test_import_mesh_formats(tmp_lib, fixture, options):
     assert tomllib.loads(tmp_lib.manifest_path.read_text())["species"]["oak"]["source"] == "imported"
     if fixture in ("tree.obj", "tree.glb"):
         parts = {p.kind: p for p in sp.lods[0].parts}
-        assert set(parts) == {"leaf", "surface"}
-        assert parts["leaf"].tinted and not parts["surface"].tinted
+        assert set(parts) == {"leaf", "bark"}  # the trunk's material is named bark
+        assert parts["leaf"].tinted and not parts["bark"].tinted
         if fixture == "tree.obj":  # MTL Kd values are linear colours
             np.testing.assert_allclose(parts["leaf"].colour, [0.06, 0.16, 0.03], atol=0.005)
-            np.testing.assert_allclose(parts["surface"].colour, [0.12, 0.08, 0.05], atol=0.005)
+            np.testing.assert_allclose(parts["bark"].colour, [0.12, 0.08, 0.05], atol=0.005)
 
 
 def test_import_replaces_only_with_force(tmp_lib):
@@ -767,3 +767,23 @@ def test_list_shows_unbuilt_species_without_building_them(tmp_lib, capsys):
     rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)}
     assert rows["shrub"]["built"] and rows["shrub"]["lods"]["high"] > rows["shrub"]["lods"]["far"] > 0
     assert not rows["conifer"]["built"]
+
+
+def test_import_names_bark_and_leaves(tmp_lib, tmp_path):
+    """An imported tree's part named "Trunk" is bark (multiplied by each tree's bark factor), "Leaves" leaf."""
+    import trimesh
+
+    from forest.library.importer import add_species
+
+    scene = trimesh.Scene()
+    for name, box, colour in (("Trunk", ((-0.2, 0, -0.2), (0.2, 3, 0.2)), [90, 70, 50, 255]),
+                              ("Leaves", ((-1.5, 2, -1.5), (1.5, 5, 1.5)), [60, 140, 40, 255])):  # fmt: skip
+        lo, hi = np.array(box, float)
+        tm = trimesh.creation.box(bounds=np.array([lo, hi]))
+        tm.visual = trimesh.visual.TextureVisuals(material=trimesh.visual.material.PBRMaterial(baseColorFactor=colour))
+        scene.add_geometry(tm, geom_name=name)
+    path = tmp_path / "tree.glb"
+    scene.export(path)
+    sp = add_species(tmp_lib, path, "tree", preview=False)
+    kinds = {(p.kind, p.tinted) for p in sp.lods[0].parts}
+    assert kinds == {("bark", False), ("leaf", True)}

@@ -347,6 +347,33 @@ class ColourJitter(Section):
     )
 
 
+#: The default moss colour (:class:`BarkLook`): linear sRGB of a dull olive green, about 8 % luminance.
+MOSS_COLOUR = (0.055, 0.085, 0.03)
+
+
+class BarkLook(Section):
+    """Per-tree bark variation: a hue rotation and lightness scale in OkLCh as :class:`ColourJitter`, then a
+    share of moss mixed in, uniform in ``moss`` = [lo, hi] (:func:`forest.tint.bark_tints`)."""
+
+    hue: Annotated[float, Field(ge=0.0, le=180.0, allow_inf_nan=False)] = Field(
+        6.0, description="Largest hue rotation of the bark, degrees of OkLCh hue."
+    )
+    value: Annotated[float, Field(ge=0.0, le=0.9, allow_inf_nan=False)] = Field(
+        0.15, description="Largest relative change of the bark's Oklab lightness L (0.15 = ±15 %)."
+    )
+    moss: tuple[Unit, Unit] = Field(
+        (0.0, 0.25), description="Range [lo, hi] of the share of the bark covered by moss, drawn per tree."
+    )
+    moss_colour: RGB = Field(MOSS_COLOUR, description="The moss's albedo, linear RGB.")
+
+    _pairs = field_validator("moss")(_ordered_pair)
+
+    @property
+    def varies(self) -> bool:
+        """Whether any tree's bark differs from the species' colour."""
+        return self.hue > 0 or self.value > 0 or self.moss[1] > 0
+
+
 def is_mesh_model(model: str) -> bool:
     """True when a ``model`` string names a mesh file rather than a library species."""
     return Path(model).suffix.lower() in MESH_SUFFIXES
@@ -403,6 +430,7 @@ class SpeciesConfig(Section):
         "library species, 1 for a mesh).",
     )
     colour_jitter: ColourJitter = Field(default_factory=ColourJitter, description="Per-tree hue and value variation.")
+    bark: BarkLook = Field(default_factory=BarkLook, description="Per-tree bark hue, value and moss.")
     dead: Unit = Field(
         0.0,
         description="Share of trees standing dead (snags: the tree without its leaves; e.g. 0.02); forest's "
@@ -590,6 +618,7 @@ class GroundCoverConfig(Section):
         None, description=f"Different plants drawn (default {DEFAULT_INDIVIDUALS} for a library species, 1 for a mesh)."
     )
     colour_jitter: ColourJitter = Field(default_factory=ColourJitter, description="Per-plant hue and value variation.")
+    bark: BarkLook = Field(default_factory=BarkLook, description="Per-plant bark hue, value and moss.")
     clumping: CoverClumping = Field(
         default_factory=CoverClumping,
         description="Patches: the density varies over a noise field with the mean kept; strength = 0 turns it off.",

@@ -25,7 +25,10 @@ the ``forest_species`` collection (children are ordered by name:
 ``[export] blender_lod`` (default each species' first level).
 
 **Look and light** (units in :mod:`forest.export.radiometry`): albedo =
-base colour × texture × the tree's tint (an instance attribute), leaves
+base colour × texture × the tree's tint (an instance attribute) on tinted
+parts, × the tree's bark factor (the instance attribute ``bark_tint``,
+``[[species]] bark``'s hue/value jitter and moss; written only when some
+tree's differs from 1) on bark parts, leaves
 (1 − τ)·diffuse + τ·translucent, the texture's alpha cutting leaf cards; the
 terrain textured by the ground's albedo grid (or ``terrain_colour``); a Sun lamp of
 strength E (irradiance) turned so its −Z travels along −d; the World
@@ -62,9 +65,11 @@ from ..lights import resolve_lights
 from ..scene import Scene
 from . import radiometry
 from .common import (
+    bark_factors,
     check_instances,
     export_frames,
     ground_colour,
+    is_bark,
     lod_mesh,
     look_instances,
     species_plans,
@@ -181,6 +186,12 @@ def _mesh_files(folder: Path, stem: str, vertices, faces, normals, uv) -> dict:
     }
 
 
+def rgba(rgb: np.ndarray) -> np.ndarray:
+    """Per-point colours (N, 3) as Blender's colour attributes hold them: (N, 4) float64 with A = 1."""
+    rgb = np.asarray(rgb, np.float64).reshape(-1, 3)
+    return np.concatenate([rgb, np.ones((len(rgb), 1))], axis=1)
+
+
 def _lod_choice(scene: Scene, plans) -> dict[int, object]:
     config = scene.config
     want = config.export.blender_lod
@@ -199,8 +210,15 @@ def _lod_choice(scene: Scene, plans) -> dict[int, object]:
 
 
 def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
-    """Write the scene's data for :mod:`forest.export.blender_build` into ``folder``; returns the manifest."""
+    """Write the scene's data for :mod:`forest.export.blender_build` into ``folder``; returns the manifest.
+
+    With bark factors (:func:`forest.export.common.bark_factors`) the points
+    get ``bark_tint`` (``points_bark_tint.bin``: RGBA, A = 1, as ``tint``) and
+    every bark part ``"bark": true``, which multiplies its material by it;
+    without, neither is written and the manifest is that of unvarying bark.
+    """
     config, instances, terrain = scene.config, look_instances(scene), scene.terrain
+    bark = bark_factors(scene)
     C = Y_UP_TO_Z_UP
     plans = species_plans(scene, used_only=False)
     lods = _lod_choice(scene, plans)
@@ -220,23 +238,26 @@ def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
                 texture=str(Path(tex).resolve()) if tex else None,
                 alpha=bool(tex),
             )
+            if bark is not None and is_bark(part):
+                entry["bark"] = True
             parts.append(entry)
         species.append(
             {"name": plan.name, "object": f"species_{plan.index:03d}_{plan.name}", "model": plan.model, "parts": parts}
         )
-    # trees: position C·p, rotation C·R·Cᵀ as Euler XYZ, uniform scale, species, tint
+    # trees: position C·p, rotation C·R·Cᵀ as Euler XYZ, uniform scale, species, tint (and bark factor)
     n = len(instances)
     R = quaternion_to_matrix(instances.rotation.astype(np.float64)) if n else np.zeros((0, 3, 3))
     rot = euler_xyz(C @ R @ C.T) if n else np.zeros((0, 3))
-    tint = np.concatenate([instances.tint.astype(np.float64), np.ones((n, 1))], axis=1)
     points = {
         "count": n,
         "position": _save(folder, "points_p.bin", instances.position.astype(np.float64) @ C.T, "<f4"),
         "rotation": _save(folder, "points_r.bin", rot, "<f4"),
         "scale": _save(folder, "points_s.bin", instances.scale, "<f4"),
         "species": _save(folder, "points_species.bin", instances.species, "<i4"),
-        "tint": _save(folder, "points_tint.bin", tint, "<f4"),
+        "tint": _save(folder, "points_tint.bin", rgba(instances.tint), "<f4"),
     }
+    if bark is not None:
+        points["bark_tint"] = _save(folder, "points_bark_tint.bin", rgba(bark), "<f4")
     t = _mesh_files(folder, "terrain", terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv)
     t["colour"] = list(ground_colour(scene))
     grid = terrain_texture(scene)

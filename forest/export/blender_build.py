@@ -9,14 +9,17 @@ datablocks:
   in a hidden collection ``forest_species``, named ``species_<index>_<name>``
   so the collection's alphabetical order is the species index;
 * a point cloud mesh ``forest_points`` with point attributes ``species`` (int),
-  ``rotation`` (Euler XYZ, radians), ``scale`` (float) and ``tint`` (colour),
+  ``rotation`` (Euler XYZ, radians), ``scale`` (float), ``tint`` (colour) and,
+  when the manifest has one, ``bark_tint`` (colour: the tree's bark factor),
   and a Geometry Nodes modifier: Collection Info (separate children) →
   Instance on Points (pick instance by ``species``, rotation, scale), so every
   tree is an instance and the species meshes exist once;
 * materials: albedo = base colour × texture RGB × tint (the ``tint`` instance
   attribute, read with an Attribute node of type Instancer) where the part is
-  tinted; leaves mix a diffuse and a translucent BSDF by their translucency
-  share, and the texture's alpha mixes in a transparent BSDF;
+  tinted, × the bark factor (the ``bark_tint`` instance attribute, read the
+  same way) where the manifest marks the part ``bark``; leaves mix a diffuse
+  and a translucent BSDF by their translucency share, and the texture's alpha
+  mixes in a transparent BSDF;
 * the terrain (textured by the colour map when there is one), the camera
   (animated over the exported frames), a Sun lamp and the World background;
 * Cycles settings from ``[render]`` and the Standard view transform, so an
@@ -98,8 +101,27 @@ def image_node(nodes, path: str):
     return node
 
 
+def multiply(nodes, links, colour, by):
+    """A MixRGB node (Multiply, factor 1) of the outputs ``colour`` × ``by``; returns its output."""
+    mul = nodes.new("ShaderNodeMixRGB")
+    mul.blend_type = "MULTIPLY"
+    mul.inputs["Fac"].default_value = 1.0
+    links.new(colour, mul.inputs["Color1"])
+    links.new(by, mul.inputs["Color2"])
+    return mul.outputs["Color"]
+
+
+def instancer_colour(nodes, name: str):
+    """The colour output of an Attribute node reading the instance attribute ``name`` (type Instancer)."""
+    attr = nodes.new("ShaderNodeAttribute")
+    attr.attribute_type = "INSTANCER"
+    attr.attribute_name = name
+    return attr.outputs["Color"]
+
+
 def make_material(name: str, part: dict):
-    """albedo = colour × texture × tint; leaves: (1−τ)·diffuse + τ·translucent; alpha cuts the card."""
+    """albedo = colour × texture × tint (tinted parts) × bark factor (bark parts); leaves: (1−τ)·diffuse +
+    τ·translucent; alpha cuts the card."""
     mat = bpy.data.materials.new(name)
     mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
@@ -111,22 +133,11 @@ def make_material(name: str, part: dict):
     tex = None
     if part.get("texture"):
         tex = image_node(nodes, part["texture"])
-        mul = nodes.new("ShaderNodeMixRGB")
-        mul.blend_type = "MULTIPLY"
-        mul.inputs["Fac"].default_value = 1.0
-        links.new(albedo, mul.inputs["Color1"])
-        links.new(tex.outputs["Color"], mul.inputs["Color2"])
-        albedo = mul.outputs["Color"]
+        albedo = multiply(nodes, links, albedo, tex.outputs["Color"])
     if part.get("tinted"):
-        attr = nodes.new("ShaderNodeAttribute")
-        attr.attribute_type = "INSTANCER"
-        attr.attribute_name = "tint"
-        mul = nodes.new("ShaderNodeMixRGB")
-        mul.blend_type = "MULTIPLY"
-        mul.inputs["Fac"].default_value = 1.0
-        links.new(albedo, mul.inputs["Color1"])
-        links.new(attr.outputs["Color"], mul.inputs["Color2"])
-        albedo = mul.outputs["Color"]
+        albedo = multiply(nodes, links, albedo, instancer_colour(nodes, "tint"))
+    if part.get("bark"):
+        albedo = multiply(nodes, links, albedo, instancer_colour(nodes, "bark_tint"))
     diffuse = nodes.new("ShaderNodeBsdfDiffuse")
     links.new(albedo, diffuse.inputs["Color"])
     shader = diffuse.outputs["BSDF"]
@@ -178,19 +189,27 @@ def make_species(manifest: dict, folder: Path):
     return coll
 
 
+#: The point attributes of ``forest_points``: (name, type, array code, field); those the manifest has are made.
+POINT_ATTRIBUTES = (
+    ("species", "INT", "i", "value"),
+    ("rotation", "FLOAT_VECTOR", "f", "vector"),
+    ("scale", "FLOAT", "f", "value"),
+    ("tint", "FLOAT_COLOR", "f", "color"),
+    ("bark_tint", "FLOAT_COLOR", "f", "color"),
+)
+
+
 def make_points(manifest: dict, folder: Path, coll):
-    """The point cloud ``forest_points`` (species, rotation, scale, tint per point) instancing ``coll``'s species."""
+    """The point cloud ``forest_points`` (species, rotation, scale, tint and bark factor per point) instancing
+    ``coll``'s species."""
     pts = manifest["points"]
     n = pts["count"]
     mesh = bpy.data.meshes.new("forest_points")
     mesh.vertices.add(n)
     mesh.vertices.foreach_set("co", read(folder, pts["position"], "f"))
-    for name, kind, code, field in (
-        ("species", "INT", "i", "value"),
-        ("rotation", "FLOAT_VECTOR", "f", "vector"),
-        ("scale", "FLOAT", "f", "value"),
-        ("tint", "FLOAT_COLOR", "f", "color"),
-    ):
+    for name, kind, code, field in POINT_ATTRIBUTES:
+        if name not in pts:
+            continue
         attr = mesh.attributes.new(name, kind, "POINT")
         if n:
             attr.data.foreach_set(field, read(folder, pts[name], code))

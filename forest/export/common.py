@@ -18,6 +18,11 @@ Conventions (both exporters, and the same as the Mitsuba renderer):
   the default — per species from ``[lod] pixels`` (dᵢ = H·f/tᵢ for a tree of
   scale 1, H its highest level's bound height, f the camera's focal length
   in pixels); with ``[lod] auto = false`` every tree uses the first level.
+* **Bark.**  A tree's bark factor f_i (:func:`bark_factors`, an RGB
+  multiplier: ``[[species]] bark``'s hue/value jitter and moss) travels with
+  the tree as its leaf colour does, and multiplies the colour (× texture) of
+  the parts of kind ``bark`` (:func:`is_bark`); nothing of it is written when
+  every f_i is 1.
 """
 
 from __future__ import annotations
@@ -268,6 +273,13 @@ def texture_mean_detail(path) -> np.ndarray:
     return (rgb[mask] if mask.any() else rgb.reshape(-1, 3)).mean(axis=0).astype(np.float32)
 
 
+def part_albedo(part) -> np.ndarray:
+    """A part's albedo before any per-tree factor, as one colour: base colour × mean texture detail."""
+    c = np.asarray(part.colour, np.float32)
+    tex = getattr(part, "texture", None)
+    return c * texture_mean_detail(tex) if tex else c
+
+
 def canopy_colour(lod) -> np.ndarray | None:
     """The colour of a level's first tinted part before the tint: base colour × mean texture detail.
 
@@ -277,10 +289,42 @@ def canopy_colour(lod) -> np.ndarray | None:
     """
     for part in lod.parts:
         if getattr(part, "tinted", False):
-            c = np.asarray(part.colour, np.float32)
-            tex = getattr(part, "texture", None)
-            return c * texture_mean_detail(tex) if tex else c
+            return part_albedo(part)
     return None
+
+
+def is_bark(part) -> bool:
+    """Whether a library part is bark: the parts a tree's bark factor multiplies."""
+    return getattr(part, "kind", "") == "bark"
+
+
+def bark_colour(lod) -> np.ndarray | None:
+    """The colour of a level's first bark part before the bark factor: base colour × mean texture detail.
+
+    What :func:`canopy_colour` is to the leaves: materials that cannot multiply
+    a texture by a per-tree colour show f_i × this.  None when no part is bark.
+    """
+    for part in lod.parts:
+        if is_bark(part):
+            return part_albedo(part)
+    return None
+
+
+def bark_factors(scene) -> np.ndarray | None:
+    """Each tree's bark factor f_i (:meth:`forest.scene.Scene.bark_tints`): ``(N, 3)`` float32, row i the
+    InstanceSet's row i, or None when every f_i is 1.
+
+    Every exporter writes these rows beside the trees' colours and multiplies
+    the ``bark`` parts' colour (× texture) by them; with None it writes no bark
+    factor at all, so the files are those of a forest whose bark does not vary.
+    """
+    f = scene.bark_tints()
+    if f is None:
+        return None
+    f = np.ascontiguousarray(f, dtype=np.float32).reshape(-1, 3)
+    if len(f) != len(scene.instances):
+        raise ForestError(f"bark factors: {len(f)} rows for {len(scene.instances)} trees")
+    return f
 
 
 def bound_radius(bound: np.ndarray) -> float:

@@ -44,14 +44,16 @@ and in id order within a species; every tree is one attribute block::
       Attribute "identifier" "string name" ["tree_<id>"]
       ConcatTransform [...16...]
       Color [r g b]
+      Attribute "user" "color barktint" [r g b]
       Procedural "DelayedReadArchive" ["archives/<species>_<lod>.rib"] [bound]
     AttributeEnd
 
-Nothing inside an archive sets ``identifier``, so a tree's name is the one
-its block gives it.  Numbers are fixed-width (7 decimals for the matrix and
-colour, 6 for positions) so that a million trees are formatted as one numpy
-byte matrix per block of :data:`CHUNK` trees and streamed to disk
-(:mod:`forest.export.text`).
+(the ``barktint`` line only where some tree's bark factor differs from 1;
+see *Look*).  Nothing inside an archive sets ``identifier``, so a tree's name
+is the one its block gives it.  Numbers are fixed-width (7 decimals for the
+matrix, colour and bark factor, 6 for positions) so that a million trees are
+formatted as one numpy byte matrix per block of :data:`CHUNK` trees and
+streamed to disk (:mod:`forest.export.text`).
 
 **Matrices.**  RenderMan transforms row vectors (p' = p·M), the InstanceSet
 column vectors (p' = M·p); ``ConcatTransform`` therefore receives Mᵀ, row by
@@ -69,16 +71,24 @@ archive's own measured bound [xmin xmax ymin ymax zmin zmax] (the library's
 
 **Look.**  The same material model as the Mitsuba render
 (:mod:`forest.render.materials`): albedo = base colour × texture RGB (decoded
-from sRGB) × the tree's ``Color`` where the part is tinted; opacity = the
-texture's alpha; leaves lit from behind by their translucency share.  RI 3.2:
-the ``forest_surface`` shader (``shaders/forest_surface.sl``, compiled by
-``prepare.sh``).  RenderMan 22+: ``PxrTexture`` (linearised) × ``PxrPrimvar``
-"Cs" through ``PxrBlend`` multiplies into a ``PxrSurface`` whose ``presence`` is
-the texture's alpha, double-sided for leaves.  Textures are TIFF files (8-bit
-sRGB RGB + straight alpha, the library's own pixels), which RI 3.2 renderers
-read; ``[export] rib_textures = "tex"`` (the default in RenderMan 22+ mode)
-makes the RIB name ``.tex`` files instead, which ``prepare.sh`` makes from the
-TIFFs with ``txmake`` (or ``tdlmake``, ``teqser``, ``texmake``).  The terrain
+from sRGB) × the tree's ``Color`` where the part is tinted × the tree's bark
+factor where the part is bark; opacity = the texture's alpha; leaves lit from
+behind by their translucency share.  The bark factor f_i
+(:func:`forest.export.common.bark_factors`: ``[[species]] bark``'s hue/value
+jitter and moss) is the user attribute ``user:barktint`` of the tree's block,
+written only when some f_i differs from 1 — then bark parts' materials read it
+(1 where a tree has none); otherwise neither the attribute nor the reading is
+written.  RI 3.2: the ``forest_surface`` shader (``shaders/forest_surface.sl``,
+compiled by ``prepare.sh``; ``"float bark" [1]`` makes it multiply by
+``attribute("user:barktint")``).  RenderMan 22+: ``PxrTexture`` (linearised) ×
+``PxrPrimvar`` "Cs" (tinted parts) × ``PxrAttribute`` "user:barktint" (bark
+parts, default 1) through ``PxrBlend`` multiplies into a ``PxrSurface`` whose
+``presence`` is the texture's alpha, double-sided for leaves.  Textures are
+TIFF files (8-bit sRGB RGB + straight alpha, the library's own pixels), which
+RI 3.2 renderers read; ``[export] rib_textures = "tex"`` (the default in
+RenderMan 22+ mode) makes the RIB name ``.tex`` files instead, which
+``prepare.sh`` makes from the TIFFs with ``txmake`` (or ``tdlmake``,
+``teqser``, ``texmake``).  The terrain
 takes the ground's albedo grid (the renderers' ``terrain_texture``, else
 ``[ground]``'s rules) through ``textures/terrain.tif``, or ``[render]
 terrain_colour`` when the ground is that one material.
@@ -142,10 +152,12 @@ from ..scene import Scene
 from . import radiometry
 from .common import (
     SpeciesPlan,
+    bark_factors,
     check_instances,
     export_frames,
     export_options,
     ground_colour,
+    is_bark,
     lod_mesh,
     look_instances,
     measured_bounds,
@@ -165,6 +177,10 @@ MESH_DECIMALS = 6
 HEADER = b"##RenderMan RIB\n"
 INFINITE_AREA = 1e38  # RenderMan's "infinitely large" detail
 SHADER = "forest_surface"
+#: A tree's bark factor is its user attribute ``Attribute "user" "color barktint"``; shaders read it by its full
+#: name, :data:`BARK_ATTRIBUTE`.
+BARK_NAME = "barktint"
+BARK_ATTRIBUTE = f"user:{BARK_NAME}"
 
 #: ``[export] rib_display`` → (display driver, image suffix).  ``file`` and ``framebuffer`` are
 #: the two every RenderMan-compliant renderer has (RI 3.2, ``RiDisplay``); the others are
@@ -429,17 +445,30 @@ def points_polygons(vertices, faces, normals, st, indent: str = "    ") -> bytes
     return b"".join(parts)
 
 
-def part_material(part, handle: str, renderman22: bool, texture: str | None) -> str:
+def multiply_pattern(name: str, top: str, below: str) -> str:
+    """A ``PxrBlend`` named ``name`` that multiplies the colour output ``top`` ("node:port") by ``below`` (its
+    ``bottomRGB`` parameter: a constant colour or a reference)."""
+    return (
+        f'    Pattern "PxrBlend" "{name}" "int operation" [18] '
+        f'"reference color topRGB" ["{top}"] "float topA" [1] {below} "float bottomA" [1]'
+    )
+
+
+def part_material(part, handle: str, renderman22: bool, texture: str | None, bark: bool = False) -> str:
     """The material lines of one archive part (see the module docstring, *Look*).
 
     ``texture`` is the part's texture as the RIB names it (relative to the export folder) or None.
+    ``bark``: the trees carry bark factors, so a bark part multiplies its colour by :data:`BARK_ATTRIBUTE`.
     """
     base = nums(part.colour)
     tinted = bool(getattr(part, "tinted", False))
+    barked = bark and is_bark(part)
     translucency = float(getattr(part, "translucency", 0.0) or 0.0)
     leaf = getattr(part, "kind", "surface") == "leaf"
     if not renderman22:
         params = f'"color basecolour" [{base}] "float tinted" [{int(tinted)}]'
+        if barked:
+            params += ' "float bark" [1]'
         if texture:
             params += f' "string texturename" [{rib_string(texture)}]'
         if translucency > 0:
@@ -447,30 +476,30 @@ def part_material(part, handle: str, renderman22: bool, texture: str | None) -> 
         lines = [] if tinted else [f"    Color [{base}]"]
         return "\n".join([*lines, f'    Surface "{SHADER}" {params}']) + "\n"
     lines = []
-    colour = f'"color diffuseColor" [{base}]'
+    below = f'"color bottomRGB" [{base}]'  # the albedo so far, as the next multiply's bottom layer
     presence = ""
     if texture:
         lines.append(
             f'    Pattern "PxrTexture" "{handle}_tex" "string filename" [{rib_string(texture)}] '
             '"int linearize" [1] "int invertT" [0] "float missingAlpha" [1]'
         )
-        lines.append(
-            f'    Pattern "PxrBlend" "{handle}_base" "int operation" [18] '
-            f'"reference color topRGB" ["{handle}_tex:resultRGB"] "float topA" [1] '
-            f'"color bottomRGB" [{base}] "float bottomA" [1]'
-        )
-        colour = f'"reference color diffuseColor" ["{handle}_base:resultRGB"]'
+        lines.append(multiply_pattern(f"{handle}_base", f"{handle}_tex:resultRGB", below))
+        below = f'"reference color bottomRGB" ["{handle}_base:resultRGB"]'
         presence = f' "reference float presence" ["{handle}_tex:resultA"]'
     if tinted:
-        below = f'"reference color bottomRGB" ["{handle}_base:resultRGB"]' if texture else f'"color bottomRGB" [{base}]'
         lines.append(f'    Pattern "PxrPrimvar" "{handle}_cs" "string varname" ["Cs"] "string type" ["color"]')
-        lines.append(
-            f'    Pattern "PxrBlend" "{handle}_colour" "int operation" [18] '
-            f'"reference color topRGB" ["{handle}_cs:resultRGB"] "float topA" [1] {below} "float bottomA" [1]'
-        )
-        colour = f'"reference color diffuseColor" ["{handle}_colour:resultRGB"]'
+        lines.append(multiply_pattern(f"{handle}_colour", f"{handle}_cs:resultRGB", below))
+        below = f'"reference color bottomRGB" ["{handle}_colour:resultRGB"]'
     else:
         lines.append(f"    Color [{base}]")
+    if barked:
+        lines.append(
+            f'    Pattern "PxrAttribute" "{handle}_bark" "string varname" ["{BARK_ATTRIBUTE}"] '
+            '"string type" ["color"] "vector defaultFloat3" [1 1 1]'
+        )
+        lines.append(multiply_pattern(f"{handle}_barked", f"{handle}_bark:resultRGB", below))
+        below = f'"reference color bottomRGB" ["{handle}_barked:resultRGB"]'
+    colour = below.replace("bottomRGB", "diffuseColor")
     extra = ""
     if translucency > 0:
         extra += f' "float diffuseTransmitGain" [{num(translucency)}] {colour.replace("diffuseColor", "diffuseTransmitColor")}'
@@ -522,8 +551,11 @@ class ObjectTable:
         return True
 
 
-def archive_bytes(plan: SpeciesPlan, lod, meshes, bound, renderman22: bool, handles: dict, textures: dict) -> bytes:
-    """One species level: per part its attributes, material and ``ObjectInstance`` (object space, metres, Y up)."""
+def archive_bytes(
+    plan: SpeciesPlan, lod, meshes, bound, renderman22: bool, handles: dict, textures: dict, bark: bool = False
+) -> bytes:
+    """One species level: per part its attributes, material and ``ObjectInstance`` (object space, metres, Y up);
+    ``bark``: bark parts multiply by the tree's bark factor (:func:`part_material`)."""
     name = f"{plan.name}_{lod.name}"
     tris = sum(len(m.faces) for _, m in meshes)
     out = [
@@ -538,11 +570,12 @@ def archive_bytes(plan: SpeciesPlan, lod, meshes, bound, renderman22: bool, hand
             continue
         kind = getattr(part, "kind", "surface")
         tint_note = ", tinted" if getattr(part, "tinted", False) else ""
+        tint_note += ", times the tree's bark factor" if bark and is_bark(part) else ""
         tex = textures.get(str(part.texture)) if getattr(part, "texture", None) else None
         out += [
             f"  AttributeBegin  # part {k}: {kind}{tint_note}\n".encode(),
             b"    Sides 2\n" if kind == "leaf" else b"",
-            part_material(part, f"{name}_{kind}{k}", renderman22, tex).encode(),
+            part_material(part, f"{name}_{kind}{k}", renderman22, tex, bark).encode(),
             f"    ObjectInstance {handles[(plan.index, lod.name, k)]}\n".encode(),
             b"  AttributeEnd\n",
         ]
@@ -727,20 +760,21 @@ def tree_suffixes(
     return out, lod_archives
 
 
-def field_digits(instances: InstanceSet) -> dict:
-    """Integer-part widths of the per-tree numbers, sized from the whole InstanceSet so the
-    fixed-width text of a tree does not depend on how trees are split into blocks."""
+def field_digits(instances: InstanceSet, bark: np.ndarray | None = None) -> dict:
+    """Integer-part widths of the per-tree numbers, sized from the whole InstanceSet (and its bark
+    factors) so the fixed-width text of a tree does not depend on how trees are split into blocks."""
 
     def digits(top):
         return len(str(int(math.ceil(float(top) * (1 + 1e-6) + 1e-6))))
 
     if len(instances) == 0:
-        return {"matrix": 1, "position": 1, "colour": 1, "id": 1}
+        return {"matrix": 1, "position": 1, "colour": 1, "id": 1, "bark": 1}
     return {
         "matrix": digits(np.abs(instances.scale).max()),
         "position": digits(np.abs(instances.position).max()),
         "colour": digits(np.abs(instances.tint).max()),
         "id": len(str(int(instances.id.max()))),
+        "bark": digits(np.abs(bark).max()) if bark is not None and len(bark) else 1,
     }
 
 
@@ -772,8 +806,10 @@ def write_chunk(
     widths: dict,
     time_s: float | None = None,
     wind=None,
+    bark: np.ndarray | None = None,
 ) -> int:
-    """Write the trees ``rows``: identifier, ConcatTransform (Mᵀ), Color, then ``suffix``.
+    """Write the trees ``rows``: identifier, ConcatTransform (Mᵀ), Color, the bark factor (``bark``, rows as
+    the InstanceSet's; none when None), then ``suffix``.
 
     Numbers are fixed-width (:class:`forest.export.text.RowWriter`): RIB only
     needs whitespace between tokens, and the columns line up.
@@ -784,6 +820,13 @@ def write_chunk(
         m = quaternion_to_matrix(instances.rotation[rows].astype(np.float64))
         m *= instances.scale[rows].astype(np.float64)[:, None, None]
     md, pd, cd = widths["matrix"], widths["position"], widths["colour"]
+    barks: list = []
+    if bark is not None:
+        barks = [
+            f'  Attribute "user" "color {BARK_NAME}" ['.encode(),
+            Field(bark[rows].astype(np.float64), COLOUR_DECIMALS, pad=True, int_digits=widths["bark"]),
+            b"]\n",
+        ]
     # RIB row k of Mᵀ = column k of M
     return out.write(
         [
@@ -800,6 +843,7 @@ def write_chunk(
             b" 1]\n  Color [",
             Field(instances.tint[rows].astype(np.float64), COLOUR_DECIMALS, pad=True, int_digits=cd),
             b"]\n",
+            *barks,
             suffix,
         ],
         len(rows),
@@ -817,6 +861,7 @@ def write_instance_file(
     *,
     time_s: float | None = None,
     wind=None,
+    bark: np.ndarray | None = None,
 ) -> int:
     """Stream one partition's trees to ``path``; returns the bytes written.
 
@@ -824,23 +869,31 @@ def write_instance_file(
     in id order within a species, and formatted in blocks of :data:`CHUNK`, so
     memory stays bounded whatever the partition's size and the archive text
     after each tree's ``Color`` is one constant per block.  ``time_s``: the
-    wind's time (seconds) for the trees' sway, None for none.
+    wind's time (seconds) for the trees' sway, None for none.  ``bark``: every
+    tree's bark factor (:func:`forest.export.common.bark_factors`, rows as the
+    InstanceSet's), written after its ``Color``; None writes none.
     """
     names = ", ".join(f"{p.name} ({p.model})" for p in plans)
     species = instances.species[rows]
     if len(rows) and not np.isin(species, list(suffixes)).all():
         raise ForestError("instances: a tree's species has no archive")
     rows = rows[np.argsort(species, kind="stable")]
-    widths = field_digits(instances)
+    widths = field_digits(instances, bark)
     bounds = np.searchsorted(np.sort(species), sorted(suffixes) + [np.iinfo(np.int64).max], side="left")
     written = 0
     sway = f", wind sway at t = {time_s:g} s" if time_s is not None and wind is not None and wind.strength > 0 else ""
+    bark_note = (
+        f"# {BARK_ATTRIBUTE} is the tree's bark factor (linear RGB) that its bark parts multiply by.\n"
+        if bark is not None
+        else ""
+    )
     with open(path, "wb") as fh:
         head = (
             HEADER.decode() + f"# forest instances: partition {partition!r}, {len(rows)} trees; species {names}\n"
             "# world: metres, Y up, right-handed. ConcatTransform is the tree's object-to-world\n"
             f"# matrix M transposed (RenderMan transforms row vectors){sway}, Color its colour-map tint\n"
             "# (linear RGB); archive bounds are in the tree's object space.\n"
+            f"{bark_note}"
             "AttributeBegin\n"
             f'Attribute "identifier" "string name" [{rib_string("partition_" + partition)}]\n'
         )
@@ -853,7 +906,7 @@ def write_instance_file(
                 block = rows[bounds[k] : bounds[k + 1]]
                 for start in range(0, len(block), CHUNK):
                     r = block[start : start + CHUNK]
-                    written += write_chunk(out, instances, r, suffixes[sp], widths, time_s, wind)
+                    written += write_chunk(out, instances, r, suffixes[sp], widths, time_s, wind, bark)
                     done += len(r)
                     if progress:
                         progress(done / len(rows), partition)
@@ -1024,6 +1077,7 @@ def export_rib(
     this one did not write again (other partitions, frames, species) are removed.
     """
     config, instances, terrain = scene.config, look_instances(scene), scene.terrain
+    bark = bark_factors(scene)
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
@@ -1079,7 +1133,7 @@ def export_rib(
                         if len(m.faces):
                             objects.define((plan.index, lod.name, k), f"{plan.name}_{lod.name}_{part.kind}{k}", m)
                     rel = f"archives/{plan.name}_{slug(lod.name)}.rib"
-                    data = archive_bytes(plan, lod, meshes, bound, r22, objects.handles, textures)
+                    data = archive_bytes(plan, lod, meshes, bound, r22, objects.handles, textures, bark is not None)
                     (tmp / rel).write_bytes(data)
                     archive_paths[(plan.index, lod.name)] = rel
                     bounds[(plan.index, lod.name)] = bound
@@ -1119,7 +1173,16 @@ def export_rib(
                         report(0.1 + 0.85 * (d + f * n) / total, f"partition {m}")
 
                     result.bytes += write_instance_file(
-                        tmp / name, instances, rows, pname, suffixes, plans, sub, time_s=group.time_s, wind=config.wind
+                        tmp / name,
+                        instances,
+                        rows,
+                        pname,
+                        suffixes,
+                        plans,
+                        sub,
+                        time_s=group.time_s,
+                        wind=config.wind,
+                        bark=bark,
                     )
                     result.instance_files.setdefault(pname, out_dir / name)
                     names.append(name)

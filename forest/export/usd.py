@@ -23,16 +23,20 @@ species among the instancer's prototypes), ``ids`` (the InstanceSet id),
 precision; USD stores them imaginary-first) and ``orientations`` (the same in
 half precision, for readers older than ``orientationsf``), ``scales`` (s, s, s) and
 ``primvars:displayColor`` (the colour-map tint, linear RGB, ``vertex``
-interpolation = one value per instance).  USD composes a point instancer's
-transform as scale, then rotation, then translation — the InstanceSet's
-M = T·R·S exactly, so no conversion is needed: the scene is already right-
-handed with Y up.
+interpolation = one value per instance), and — only where some tree's bark
+factor differs from 1 — ``primvars:forest:barkTint`` (the bark factor f_i,
+color3f, one per instance) and ``primvars:forest:barkColor`` (f_i × the
+species' bark colour).  USD composes a point instancer's transform as scale,
+then rotation, then translation — the InstanceSet's M = T·R·S exactly, so no
+conversion is needed: the scene is already right-handed with Y up.
 
 **Colour.**  An untinted part (bark) authors its own ``displayColor`` (its base
 colour).  A tinted part (leaves) authors none, so it shows the instance's
 tint, and carries its base colour as ``primvars:forest:baseColor`` for a
 material that multiplies the two (the product is the reflectance the Mitsuba
-render uses).
+render uses).  With bark factors, a bark part's material multiplies its colour
+(× texture) by the instance's ``forest:barkTint`` as a leaf's does by its
+tint (:func:`part_material`); without them it is an untinted part's material.
 
 **Camera and lights.**  USD cameras look down −Z with +Y up: the camera's
 transform has columns (right, up, −forward, position).  Its lens is the
@@ -73,21 +77,29 @@ from ..scene import Scene
 from . import radiometry
 from .common import (
     SpeciesPlan,
+    bark_colour,
+    bark_factors,
     bound_radius,
     canopy_colour,
     check_instances,
     export_frames,
     export_options,
     ground_colour,
+    is_bark,
     lod_mesh,
     look_instances,
     measured_bounds,
+    part_albedo,
     partition_rows,
     species_plans,
     terrain_texture,
 )
 
 SUFFIXES = (".usda", ".usdc", ".usd")
+#: Per-instance primvars of the bark factor f_i (written only when some f_i differs from 1): f_i itself, for
+#: materials that multiply, and f_i × the species' bark colour, for those that cannot (UsdPreviewSurface).
+BARK_TINT = "forest:barkTint"
+BARK_COLOUR = "forest:barkColor"
 
 
 @dataclass
@@ -159,12 +171,13 @@ def _input(shader, name: str, type_name, value=None, source=None):
     return i
 
 
-def part_material(stage, path: str, part, texture: str | None, canopy=None):
-    """The material of one part: a UsdPreviewSurface network, and for tinted parts a MaterialX one.
+def part_material(stage, path: str, part, texture: str | None, canopy=None, bark: bool = False):
+    """The material of one part: a UsdPreviewSurface network, and for parts multiplied by a per-tree colour
+    (tinted parts; bark parts when ``bark``) a MaterialX one.
 
-    Untinted parts (bark): diffuse = base colour × texture.rgb (the texture is
-    sRGB-encoded, read through ``st``, scaled by the linear base colour with
-    UsdUVTexture's ``scale``), opacity = texture alpha.
+    Untinted parts (bark without bark factors): diffuse = base colour ×
+    texture.rgb (the texture is sRGB-encoded, read through ``st``, scaled by
+    the linear base colour with UsdUVTexture's ``scale``), opacity = texture alpha.
 
     Tinted parts (leaves) — albedo = base colour × detail × tint, the model of
     :mod:`forest.render.materials`:
@@ -179,6 +192,13 @@ def part_material(stage, path: str, part, texture: str | None, canopy=None):
       ``ND_image_color4`` × base × ``ND_geompropvalue_color3`` of ``forest:tint``
       (the tint itself) into ``ND_UsdPreviewSurface_surfaceshader``, opacity =
       the image's alpha.
+
+    Bark parts when the trees carry bark factors (``bark``) — albedo = base
+    colour × detail × f_i — the same two networks: ``outputs:surface`` reads
+    :data:`BARK_COLOUR` (f_i × base × the texture's mean detail, fallback the
+    part's own, :func:`forest.export.common.part_albedo`), ``outputs:mtlx:surface``
+    multiplies by ``ND_geompropvalue_color3`` of :data:`BARK_TINT` (f_i itself,
+    default 1).
     """
     from pxr import Sdf, UsdShade
 
@@ -190,6 +210,7 @@ def part_material(stage, path: str, part, texture: str | None, canopy=None):
     _input(surf, "roughness", T.Float, 0.8)
     colour = [float(c) for c in part.colour]
     tinted = bool(getattr(part, "tinted", False))
+    barked = bark and is_bark(part)
     alpha = None
     if texture:
         reader = UsdShade.Shader.Define(stage, f"{path}/ST")
@@ -205,25 +226,39 @@ def part_material(stage, path: str, part, texture: str | None, canopy=None):
         alpha = tex.CreateOutput("a", T.Float)
         _input(surf, "opacity", T.Float, source=alpha)
         _input(surf, "opacityThreshold", T.Float, 0.5)
-        if not tinted:
+        if not (tinted or barked):
             _input(surf, "diffuseColor", T.Color3f, source=rgb)
     if tinted:
-        tint = UsdShade.Shader.Define(stage, f"{path}/DisplayColor")
-        tint.CreateIdAttr("UsdPrimvarReader_float3")
-        _input(tint, "varname", T.String, "displayColor")
-        fallback = canopy if canopy is not None else colour
-        _input(tint, "fallback", T.Float3, Gf.Vec3f(*[float(c) for c in fallback]))
-        _input(surf, "diffuseColor", T.Color3f, source=tint.CreateOutput("result", T.Float3))
+        _primvar_diffuse(stage, surf, f"{path}/DisplayColor", "displayColor", canopy if canopy is not None else colour)
+    elif barked:
+        _primvar_diffuse(stage, surf, f"{path}/BarkColor", BARK_COLOUR, part_albedo(part))
     elif not texture:
         _input(surf, "diffuseColor", T.Color3f, Gf.Vec3f(*colour))
     mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
-    if tinted:
-        _mtlx_network(stage, mat, path, colour, texture)
+    factors = ([("tint", "forest:tint")] if tinted else []) + ([("bark", BARK_TINT)] if barked else [])
+    if factors:
+        _mtlx_network(stage, mat, path, colour, texture, factors)
     return mat
 
 
-def _mtlx_network(stage, mat, path: str, colour: list[float], texture: str | None) -> None:
-    """The exact tinted-part network in MaterialX standard-library nodes (see :func:`part_material`)."""
+def _primvar_diffuse(stage, surf, path: str, varname: str, fallback) -> None:
+    """Connect ``surf``'s diffuseColor to a ``UsdPrimvarReader_float3`` at ``path`` of ``varname`` (``fallback``
+    where the primvar is absent)."""
+    from pxr import Sdf, UsdShade
+
+    Gf = _pxr()[0]
+    T = Sdf.ValueTypeNames
+    reader = UsdShade.Shader.Define(stage, path)
+    reader.CreateIdAttr("UsdPrimvarReader_float3")
+    _input(reader, "varname", T.String, varname)
+    _input(reader, "fallback", T.Float3, Gf.Vec3f(*[float(c) for c in fallback]))
+    _input(surf, "diffuseColor", T.Color3f, source=reader.CreateOutput("result", T.Float3))
+
+
+def _mtlx_network(stage, mat, path: str, colour: list[float], texture: str | None, factors: list[tuple[str, str]]):
+    """The exact network of a part multiplied by per-tree colours, in MaterialX standard-library nodes (see
+    :func:`part_material`): base × image × each of ``factors`` = [(node name, primvar)], every factor read by
+    an ``ND_geompropvalue_color3`` of default 1."""
     from pxr import Sdf, UsdShade
 
     Gf = _pxr()[0]
@@ -234,14 +269,19 @@ def _mtlx_network(stage, mat, path: str, colour: list[float], texture: str | Non
         sh.CreateIdAttr(node_id)
         return sh
 
+    def factor(name: str, primvar: str):
+        sh = node(name, "ND_geompropvalue_color3")
+        _input(sh, "geomprop", T.String, primvar)
+        _input(sh, "default", T.Color3f, Gf.Vec3f(1.0, 1.0, 1.0))
+        return sh.CreateOutput("out", T.Color3f)
+
     surf = node("surface", "ND_UsdPreviewSurface_surfaceshader")
     _input(surf, "roughness", T.Float, 0.8)
-    tint = node("tint", "ND_geompropvalue_color3")
-    _input(tint, "geomprop", T.String, "forest:tint")
-    _input(tint, "default", T.Color3f, Gf.Vec3f(1.0, 1.0, 1.0))
+    (first, *others) = factors
     base = Gf.Vec3f(*colour)
+    first_out = factor(*first)
     albedo = node("albedo", "ND_multiply_color3")
-    _input(albedo, "in1", T.Color3f, source=tint.CreateOutput("out", T.Color3f))
+    _input(albedo, "in1", T.Color3f, source=first_out)
     if texture:
         st = node("st", "ND_geompropvalue_vector2")
         _input(st, "geomprop", T.String, "st")
@@ -263,15 +303,22 @@ def _mtlx_network(stage, mat, path: str, colour: list[float], texture: str | Non
         _input(surf, "opacityThreshold", T.Float, 0.5)
     else:
         _input(albedo, "in2", T.Color3f, base)
-    _input(surf, "diffuseColor", T.Color3f, source=albedo.CreateOutput("out", T.Color3f))
+    result = albedo.CreateOutput("out", T.Color3f)
+    for name, primvar in others:
+        times = node(f"albedo_{name}", "ND_multiply_color3")
+        _input(times, "in1", T.Color3f, source=result)
+        _input(times, "in2", T.Color3f, source=factor(name, primvar))
+        result = times.CreateOutput("out", T.Color3f)
+    _input(surf, "diffuseColor", T.Color3f, source=result)
     mat.CreateSurfaceOutput("mtlx").ConnectToSource(surf.CreateOutput("out", T.Token))
 
 
-def write_species_layer(path: Path, plan: SpeciesPlan) -> dict:
+def write_species_layer(path: Path, plan: SpeciesPlan, bark: bool = False) -> dict:
     """One species as a layer: default prim ``/<name>`` with a ``lod`` variant per level.
 
     Part textures are copied to ``textures/`` beside the layer (so the export
-    is self-contained) and bound through :func:`part_material`.  Returns
+    is self-contained) and bound through :func:`part_material` (``bark``: the
+    trees carry bark factors, which bark parts multiply by).  Returns
     {lod name: bound (2, 3)} of the levels written.
     """
     from pxr import UsdShade
@@ -312,7 +359,7 @@ def write_species_layer(path: Path, plan: SpeciesPlan) -> dict:
                     mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([base]))
                 texture = _copy_texture(getattr(part, "texture", None), path.parent, plan.name)
                 mat = part_material(
-                    stage, f"{root_path}/Geom/Materials/{prim_name(kind)}{k}", part, texture, canopy_colour(lod)
+                    stage, f"{root_path}/Geom/Materials/{prim_name(kind)}{k}", part, texture, canopy_colour(lod), bark
                 )
                 UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
             geom.GetPrim().SetCustomDataByKey("forest:triangles", int(sum(len(m.faces) for _, m in meshes)))
@@ -431,12 +478,18 @@ def write_instancer(
     lod_selection: dict[int, str],
     canopies: dict[int, np.ndarray] | None = None,
     radii: np.ndarray | None = None,
+    bark: np.ndarray | None = None,
+    bark_colours: dict[int, np.ndarray] | None = None,
 ):
     """A PointInstancer for ``rows``; ``prototypes`` = [(species index, layer path relative to the stage)].
 
     Per instance: ``primvars:forest:tint`` (the InstanceSet's tint) and
     ``primvars:displayColor`` = tint × the species' canopy colour
-    (``canopies[species]``, :func:`canopy_colour`; 1 where absent).  ``radii``
+    (``canopies[species]``, :func:`canopy_colour`; 1 where absent).  With
+    ``bark`` (every tree's bark factor f_i, rows as the InstanceSet's; None
+    writes neither): ``primvars:forest:barkTint`` = f_i and
+    ``primvars:forest:barkColor`` = f_i × the species' bark colour
+    (``bark_colours[species]``, :func:`bark_colour`; 1 where absent).  ``radii``
     (per species index: the largest distance of the selected level's bound
     corners from the origin) bound the instancer's ``extent``: every tree lies
     within position ± radius × scale.
@@ -463,20 +516,32 @@ def write_instancer(
     s = instances.scale[rows]
     inst.CreateScalesAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(np.repeat(s[:, None], 3, axis=1))))
     tint = instances.tint[rows]
-    api = UsdGeom.PrimvarsAPI(inst)
-    pv = api.CreatePrimvar("forest:tint", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.vertex)
-    pv.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(tint)))
-    canopy = np.ones((len(instances.species_names), 3), np.float32)
-    for sp, c in (canopies or {}).items():
-        canopy[sp] = c
-    display = tint * canopy[instances.species[rows].astype(np.int64)]
-    pv = api.CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.vertex)
-    pv.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(display, dtype=np.float32)))
+    species = instances.species[rows].astype(np.int64)
+    n_species = len(instances.species_names)
+
+    def colours(name: str, values: np.ndarray) -> None:  # one colour per instance
+        pv = UsdGeom.PrimvarsAPI(inst).CreatePrimvar(name, Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.vertex)
+        pv.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(values, dtype=np.float32)))
+
+    colours("forest:tint", tint)
+    colours("displayColor", tint * species_table(n_species, canopies)[species])
+    if bark is not None:
+        f = bark[rows]
+        colours(BARK_TINT, f)
+        colours(BARK_COLOUR, f * species_table(n_species, bark_colours)[species])
     if len(rows) and radii is not None:
         r = (radii[instances.species[rows].astype(np.int64)] * instances.scale[rows].astype(np.float32))[:, None]
         p = instances.position[rows]
         inst.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([(p - r).min(axis=0), (p + r).max(axis=0)])))
     return inst
+
+
+def species_table(n: int, colours: dict[int, np.ndarray] | None) -> np.ndarray:
+    """``(n, 3)`` float32: row s = ``colours[s]``, 1 for the species it does not name."""
+    table = np.ones((n, 3), np.float32)
+    for sp, c in (colours or {}).items():
+        table[sp] = c
+    return table
 
 
 def export_usd(
@@ -493,6 +558,7 @@ def export_usd(
     """
     t0 = time.perf_counter()
     config, instances, terrain = scene.config, look_instances(scene), scene.terrain
+    bark = bark_factors(scene)
     path = Path(path)
     if path.suffix.lower() not in SUFFIXES:
         raise ForestError(f"{path}: a USD file name must end in .usda, .usdc or .usd")
@@ -511,12 +577,15 @@ def export_usd(
                 config.path, "export.usd_lod", f"{want!r} is not a level of {plan.model!r} (levels: {', '.join(names)})"
             )
         lod_selection[plan.index] = want
-    canopies, radii = {}, np.zeros(len(instances.species_names), np.float32)
+    canopies, barks, radii = {}, {}, np.zeros(len(instances.species_names), np.float32)
     for plan in plans:
         lod = next(l for l in plan.species.lods if l.name == lod_selection[plan.index])
         c = canopy_colour(lod)
         if c is not None:
             canopies[plan.index] = c
+        b = bark_colour(lod) if bark is not None else None
+        if b is not None:
+            barks[plan.index] = b
         radii[plan.index] = bound_radius(measured_bounds(lod, lod_mesh(lod)))
     report = progress or (lambda _f, _m="": None)
     _Gf, Sdf, Usd, UsdGeom, _UsdLux, _Vt = _pxr()
@@ -531,7 +600,7 @@ def export_usd(
             layers = {}
             for plan in plans:
                 rel = f"{species_dir}/{plan.name}{ext}"
-                write_species_layer(tmp / rel, plan)
+                write_species_layer(tmp / rel, plan, bark is not None)
                 layers[plan.index] = "./" + rel
                 result.species_layers.append(path.parent / rel)
             result.textures = sorted(
@@ -570,7 +639,7 @@ def export_usd(
                 used = np.unique(instances.species[rows])
                 protos = [(int(i), layers[int(i)]) for i in used]
                 prim = f"/World/Forest/{prim_name(pname)}"
-                write_instancer(stage, prim, instances, rows, protos, lod_selection, canopies, radii)
+                write_instancer(stage, prim, instances, rows, protos, lod_selection, canopies, radii, bark, barks)
                 result.instancers[pname] = prim
             layer.Save()
             result.instance_seconds = time.perf_counter() - t1

@@ -13,7 +13,9 @@ Steps, for a file and a name:
    or whose texture is an alpha cut-out (over 5 % of texels below ½ alpha),
    become ``leaf`` parts (two-sided, alpha-tested) and are tinted by the colour
    map; if no name says so, the greenest part (``g > r`` and ``g > b``) is
-   tinted, and failing that every part.
+   tinted, and failing that every part.  An untinted part named bark, trunk,
+   branch, twig, stem or wood becomes ``bark``: each tree's bark factor
+   (``[[species]] bark``: jitter and moss) multiplies it.
 3. **Normalise**: rotate a Z-up file to Y up (``(x, y, z) → (x, z, −y)``), scale
    to metres (``--units`` or the file's own unit, or ``--height``), then translate
    so the base sits at the origin: ``y_min = 0`` and the X/Z bounding-box centre
@@ -58,6 +60,8 @@ MAX_FILE_BYTES = 256 * 1024 * 1024
 MAX_TRIANGLES = 5_000_000
 HIGH_MAX = lodmod.BUDGETS["high"][1]
 LEAF_RE = re.compile(r"leaf|leaves|foliage|needle|frond|canopy|crown|blatt|feuill", re.I)
+#: Names of the untinted parts that become ``bark`` (multiplied by each tree's bark factor, ``[[species]] bark``).
+BARK_RE = re.compile(r"bark|trunk|branch|twig|stem|wood|rinde|stamm|tronc|ecorce|écorce", re.I)
 UNITS = {
     "m": 1.0,
     "meters": 1.0,
@@ -277,7 +281,8 @@ def _surface_area(vertices: np.ndarray, faces: np.ndarray) -> float:
 
 
 def _classify(parts) -> list[tuple[str, bool]]:
-    """(kind, tinted) per part: leaf by name; tint leaves, else the greenest part, else all."""
+    """(kind, tinted) per part: leaf by name; tint leaves, else the greenest part, else all; an untinted part named
+    bark, trunk, branch … is ``bark``."""
     kinds = []
     for label, _mesh, _colour, image in parts:
         # Leaves by name, or by an alpha-cut texture (cards whose texels are partly transparent).
@@ -285,11 +290,14 @@ def _classify(parts) -> list[tuple[str, bool]]:
         leafy = bool(LEAF_RE.search(label)) or cutout
         kinds.append("leaf" if leafy else "surface")
     if "leaf" in kinds:
-        return [(k, k == "leaf") for k in kinds]
-    green = [c[1] > c[0] and c[1] > c[2] for _, _, c, _ in parts]
-    if any(green):
-        return [(k, g) for k, g in zip(kinds, green)]
-    return [(k, True) for k in kinds]
+        tinted = [k == "leaf" for k in kinds]
+    else:
+        green = [c[1] > c[0] and c[1] > c[2] for _, _, c, _ in parts]
+        tinted = green if any(green) else [True] * len(kinds)
+    return [
+        ("bark" if k == "surface" and not t and BARK_RE.search(label) else k, t)
+        for (label, *_), k, t in zip(parts, kinds, tinted)
+    ]
 
 
 def seed_of(digest: str) -> int:

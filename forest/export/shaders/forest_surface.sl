@@ -3,9 +3,11 @@
  *
  * The same model as forest's Mitsuba materials (forest.render.materials):
  *
- *   albedo   a  = basecolour * detail(s,t) * (Cs if tinted)
+ *   albedo   a  = basecolour * detail(s,t) * (Cs if tinted) * (f if bark)
  *                 detail = the texture's RGB, decoded from sRGB (1 without a texture),
- *                 Cs     = the tree's colour-map tint (the Color of its block in the instance file);
+ *                 Cs     = the tree's colour-map tint (the Color of its block in the instance file),
+ *                 f      = the tree's bark factor, its user attribute "barktint" (hue/value jitter
+ *                          and moss; 1 where the tree has none);
  *   opacity  Oi = Os * alpha(s,t)        the texture's fourth channel: the leaf-card mask;
  *   colour   Ci = Oi * a * (Ka*ambient() + Kd*((1-translucency)*diffuse(Nf) + translucency*diffuse(-Nf)))
  *                 translucency = the share of the light a leaf transmits (lit from behind).
@@ -21,6 +23,7 @@
 surface forest_surface(
     color basecolour = 1;
     float tinted = 1;
+    float bark = 0;
     string texturename = "";
     float translucency = 0;
     float Ka = 1;
@@ -30,6 +33,12 @@ surface forest_surface(
     float alpha = 1;
     if (tinted != 0)
         albedo *= Cs;
+    if (bark != 0) {
+        color f = 1;
+        if (attribute("user:barktint", f) == 0)
+            f = 1;  /* the tree has no bark factor */
+        albedo *= f;
+    }
     if (texturename != "") {
         /* sRGB decoding (IEC 61966-2-1), channel by channel, written out: some compilers (aqsl 1.8)
            inline a user function called three times in one expression into a single result */

@@ -51,7 +51,7 @@ from .haze import HazeInputs, HazeModel
 from .inputs import PathCamera, PathInputs
 from .integrator import LAYER_ALPHA, NO_HIT, PathKernel, integrator_class
 from .lens import thin_lens_rays
-from .materials import FarCoverArrays, MaterialArrays, MaterialStore, TerrainMap, world_map_texture
+from .materials import FarCoverArrays, MaterialArrays, MaterialStore, RowTints, TerrainMap, world_map_texture
 
 #: Largest number of paths (pixels × samples) traced in one pass on the CPU (``llvm_ad_rgb``).
 MAX_LANES = 1 << 21
@@ -234,12 +234,9 @@ class PathScene:
         leaf, ground = inputs.tints()
         self.params["leaf_tint"] = owned(mi.Float, leaf.astype(np.float32).ravel())
         self.params["ground_tint"] = mi.Color3f(*[float(x) for x in ground])
-        #: Each row's colour jitter (the trees', then 1 for the identity row), or None: see ``.materials``.
-        self.row_tint = None
-        if inputs.tree_tint is not None:
-            rows = np.ones((self.geometry.n_trees + 1, 3), np.float32)
-            rows[:-1] = np.asarray(inputs.tree_tint, np.float32)
-            self.row_tint = owned(mi.Float, rows.ravel())
+        #: Each row's colour jitter and bark factor (the trees', then 1 for the identity row), or None: see
+        #: ``.materials.RowTints``.
+        self.row_tint = RowTints.build(mi, inputs.tree_tint, inputs.bark_tint)
         if inputs.colour_grid is not None:
             self.params["colour_grid"] = owned(mi.TensorXf, np.asarray(inputs.colour_grid, dtype=np.float32))
         self.haze: HazeInputs | None = None

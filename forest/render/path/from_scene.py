@@ -197,6 +197,7 @@ def path_inputs(
         terrain_water=look.water,
         water_ripple=float(config.model.ground.water_ripple),
         tree_tint=scene.tree_jitter(),
+        bark_tint=scene.bark_tints(),
         far_cover=far_mosaic(scene, look),
     )
 

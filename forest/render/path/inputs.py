@@ -167,6 +167,8 @@ class PathInputs:
     (:func:`~forest.render.path.materials.water_lobe`); None for no water.
     ``tree_tint`` (N, 3) multiplies the tinted parts of each tree besides the colour
     grid: its colour beyond the map (:meth:`forest.scene.Scene.tree_jitter`), None for 1.
+    ``bark_tint`` (N, 3) multiplies each tree's ``bark`` parts (:meth:`forest.scene.Scene.bark_tints`),
+    None for 1.
     ``far_cover`` (:class:`forest.far_cover.FarCover`) draws woods and open ground on the skirt past an
     (H, W, 3) ``terrain_colour``'s terrain; None keeps it one colour.
     """
@@ -207,6 +209,7 @@ class PathInputs:
     water_ripple: float = 2.0
     tree_tint: np.ndarray | None = None
     far_cover: Any = None
+    bark_tint: np.ndarray | None = None
 
     def terrain_map_array(self) -> np.ndarray:
         """``terrain_colour`` as float32, with ``terrain_water`` as a fourth channel where there is water."""
@@ -263,11 +266,14 @@ class PathInputs:
                 f"path inputs: leaf_tint must be ({len(self.species)}, 3), one RGB per species, "
                 f"got {np.shape(self.leaf_tint)}"
             )
-        if self.tree_tint is not None:
-            tt = np.asarray(self.tree_tint)
+        for name in ("tree_tint", "bark_tint"):
+            tt = getattr(self, name)
+            if tt is None:
+                continue
+            tt = np.asarray(tt)
             if tt.shape != (len(self.instances), 3) or not np.all(np.isfinite(tt)) or np.any(tt < 0):
                 raise ForestError(
-                    f"path inputs: tree_tint must be finite, non-negative and ({len(self.instances)}, 3), "
+                    f"path inputs: {name} must be finite, non-negative and ({len(self.instances)}, 3), "
                     f"one RGB per tree, got shape {tt.shape}"
                 )
         leaf, ground = self.tints()

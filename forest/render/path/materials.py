@@ -240,6 +240,7 @@ class MaterialTable:
     tint_row: np.ndarray  # (M,) int32: row of the tint table (a species' leaves, the terrain) or −1
     sheen: np.ndarray | None = None  # (M,) float32: cuticle specular weight s (leaves; 0 none)
     roughness: np.ndarray | None = None  # (M,) float32: its GGX α
+    bark: np.ndarray | None = None  # (M,) bool: a tree's bark (multiplied by the tree's bark factor)
 
 
 class MaterialStore:
@@ -267,6 +268,7 @@ class MaterialStore:
         if not 0.0 <= tau <= 1.0:
             raise ForestError(f"material translucency must be in [0, 1], got {tau}")
         sheen, rough = leaf_sheen(m) if kind == KIND_LEAF else (0.0, 0.0)
+        bark = getattr(m, "kind", "surface") == "bark"
         colour = tuple(round(float(c), 7) for c in m.colour)
         if len(colour) != 3:
             raise ForestError(f"material colour must be RGB, got {m.colour!r}")
@@ -280,6 +282,7 @@ class MaterialStore:
             int(tint_row),
             sheen,
             rough,
+            bark,
         )
         if key not in self._index:
             t = -1
@@ -288,7 +291,7 @@ class MaterialStore:
                     self._textures.append(str(tex))
                 t = self._textures.index(str(tex))
             self._index[key] = len(self._rows)
-            self._rows.append((kind, colour, tau, t, key[3], terrain_map, int(tint_row), sheen, rough))
+            self._rows.append((kind, colour, tau, t, key[3], terrain_map, int(tint_row), sheen, rough, bark))
         return self._index[key]
 
     def _array_key(self, a: np.ndarray) -> str:
@@ -313,7 +316,7 @@ class MaterialStore:
     def table(self) -> MaterialTable:
         """The stored materials as a :class:`MaterialTable` with one texture atlas (empty: one grey surface)."""
         atlas = pack_atlas([self._arrays[p] if p in self._arrays else texture_rgba(p) for p in self._textures])
-        rows = self._rows or [(KIND_SURFACE, (0.5, 0.5, 0.5), 0.0, -1, False, False, -1, 0.0, 0.0)]
+        rows = self._rows or [(KIND_SURFACE, (0.5, 0.5, 0.5), 0.0, -1, False, False, -1, 0.0, 0.0, False)]
         tex = np.array([r[3] for r in rows], np.int32)
         cut = np.array([t >= 0 and not atlas.opaque[t] for t in tex.tolist()], bool)
         return MaterialTable(
@@ -328,6 +331,7 @@ class MaterialStore:
             tint_row=np.array([r[6] for r in rows], np.int32),
             sheen=np.array([r[7] for r in rows], np.float32),
             roughness=np.array([r[8] for r in rows], np.float32),
+            bark=np.array([r[9] for r in rows], bool),
         )
 
 
@@ -400,6 +404,31 @@ def world_map_texture(mi: Any, data: Any, *, differentiable: bool = False) -> An
     )
 
 
+@dataclass(frozen=True)
+class RowTints:
+    """Per-row colour factors of the trees (row N: 1, the identity row of world-space parts), as flat Floats of
+    3 values per row, or None for all 1: ``leaf`` multiplies tinted materials (the tree's colour jitter j_i,
+    :meth:`forest.scene.Scene.tree_jitter`), ``bark`` its bark (f_i, :meth:`forest.scene.Scene.bark_tints`)."""
+
+    leaf: Any = None
+    bark: Any = None
+
+    @classmethod
+    def build(cls, mi: Any, leaf: np.ndarray | None, bark: np.ndarray | None) -> RowTints | None:
+        """The tables from (N, 3) arrays (None for all 1), with the identity row appended; None when both are None."""
+        if leaf is None and bark is None:
+            return None
+
+        def rows(x: np.ndarray | None) -> Any:
+            if x is None:
+                return None
+            out = np.ones((len(x) + 1, 3), np.float32)
+            out[:-1] = np.asarray(x, np.float32)
+            return owned(mi.Float, out.ravel())
+
+        return cls(rows(leaf), rows(bark))
+
+
 @dataclass
 class MaterialArrays:
     """The material table as drjit arrays for one variant (built once per scene)."""
@@ -420,6 +449,7 @@ class MaterialArrays:
     sheen: Any = None  # Float (M,): s
     roughness: Any = None  # Float (M,): α
     sheen_albedo: Any = None  # Float (M·SHEEN_TABLE_SIZE,): E(μi) of each material's lobe (s = 1)
+    bark: Any = None  # Bool (M,): a tree's bark, multiplied by the tree's bark factor (RowTints.bark)
 
     @classmethod
     def build(cls, mi: Any, table: MaterialTable) -> MaterialArrays:
@@ -462,6 +492,7 @@ class MaterialArrays:
             has_cutouts=bool(table.cutout.any()),
             has_textures=bool((table.texture >= 0).any()),
             tint_row=table.tint_row.copy(),
+            bark=mi.Bool(table.bark if table.bark is not None else np.zeros(len(table.kind), bool)),
             **extra,
         )
 
@@ -547,14 +578,15 @@ def shading(
     terrain_map: TerrainMap | None,
     active: Any,
     row: Any = None,
-    row_tint: Any = None,
+    row_tint: RowTints | None = None,
 ) -> Shading:
     """R, T and the lobe probability at a hit (see the module docstring).
 
     ``grid`` is a ``Texture2f`` over ``extent`` (xmin, zmin, xmax, zmax) or None;
     ``terrain_map`` a :class:`TerrainMap` or None.  Gradients flow
-    from ``grid``'s tensor into R and T.  ``row_tint`` (Float, 3 per row, or None) is
-    each row's jitter j_r, gathered at the hit's ``row`` for tinted materials.
+    from ``grid``'s tensor into R and T.  ``row_tint`` (:class:`RowTints`, or None) holds
+    each row's jitter j_r, gathered at the hit's ``row`` for tinted materials, and its bark
+    factor f_r, gathered for bark materials.
     """
     import drjit as dr
 
@@ -579,11 +611,14 @@ def shading(
         g = mi.Color3f(*grid.eval(pos, active=tinted)[:3])
         a = dr.select(tinted, a * g, a)
         plain = None if plain is None else dr.select(tinted, plain * g, plain)
-    if row_tint is not None and row is not None:
+    if row_tint is not None and row is not None and row_tint.leaf is not None:
         jittered = dr.gather(mi.Bool, mats.tinted, material, active) & active
-        j = dr.gather(mi.Color3f, row_tint, row, jittered)
+        j = dr.gather(mi.Color3f, row_tint.leaf, row, jittered)
         a = dr.select(jittered, a * j, a)
         plain = None if plain is None else dr.select(jittered, plain * j, plain)
+    if row_tint is not None and row is not None and row_tint.bark is not None:
+        barked = dr.gather(mi.Bool, mats.bark, material, active) & active
+        a = dr.select(barked, a * dr.gather(mi.Color3f, row_tint.bark, row, barked), a)
     if terrain_map is not None:
         tmap, (txmin, tzmin, txmax, tzmax) = terrain_map.texture, terrain_map.extent
         tpos = mi.Point2f((p.x - txmin) * (1.0 / (txmax - txmin)), (p.z - tzmin) * (1.0 / (tzmax - tzmin)))
