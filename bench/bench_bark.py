@@ -6,8 +6,8 @@
 A grove seen from among its trunks under a low sun (where bark fills a good share of the frame).
 "without" sets ``bark = { hue = 0, value = 0, moss = [0, 0] }`` on every species, which is the
 scene without a bark table at all (``Scene.bark_tints()`` is None); "with" keeps the defaults.
-forest_path: each variant renders twice, alternating, the faster kept (a busy machine slows both
-alike), the scene built anew each time.  scalar_rgb shares its colour bins between the leaves'
+forest_path, whole render (scatter, scene build and render) timed by ``timing.best_of``: one warm-up
+each, then alternating rounds, the fastest by CPU kept.  scalar_rgb shares its colour bins between the leaves'
 jitter and the bark (``forest.render.instancing.JitterBins``), so the bark costs no shapegroup
 there but takes bins from the leaves: the script prints the leaves' Oklab error to their bins'
 colours on the demo's trees with and without the bark, and its shapegroup count.
@@ -18,13 +18,14 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from timing import best_of, versus
 
 SCENE = """
 name = "bark"
@@ -58,8 +59,8 @@ max_depth = 4
 OFF = "bark = { hue = 0.0, value = 0.0, moss = [0.0, 0.0] }"
 
 
-def render(config: Path) -> tuple[np.ndarray, float, float]:
-    """(linear RGB, build s, render s) of the config with forest_path."""
+def render(config: Path) -> np.ndarray:
+    """Linear RGB of the config with forest_path (scatter, scene build, render)."""
     from forest.config import load_config
     from forest.library import open_library
     from forest.render.path import PathScene
@@ -69,11 +70,9 @@ def render(config: Path) -> tuple[np.ndarray, float, float]:
 
     cfg = load_config(config)
     inst, _ = scatter(cfg)
-    t0 = time.perf_counter()
     scene = PathScene(path_inputs(load_scene(cfg, inst, library=open_library())), "llvm_ad_rgb")
-    t1 = time.perf_counter()
-    rgb = scene.render().rgb
-    return rgb, t1 - t0, time.perf_counter() - t1
+    rgb: np.ndarray = scene.render().rgb
+    return rgb
 
 
 def scalar_bins(bark: bool) -> tuple[float, float, float, int]:
@@ -129,17 +128,12 @@ def main() -> None:
             configs[on].write_text(
                 SCENE.format(count=a.count, width=a.width, height=a.height, spp=a.spp, bark="" if on else OFF)
             )
-        best: dict[bool, tuple[np.ndarray, float, float]] = {}
-        for _ in range(2):
-            for on in (False, True):
-                r = render(configs[on])
-                if on not in best or r[2] < best[on][2]:
-                    best[on] = r
-    off, on = best[False], best[True]
+        images, best = best_of({on: (lambda on=on: render(configs[on])) for on in (False, True)}, rounds=2)
+    off, on = images[False], images[True]
     print(f"image: {a.width}x{a.height} {a.spp} spp, {a.count} trees, max_depth 4, llvm_ad_rgb")
-    print(f"build without: {off[1]:.2f} s, with: {on[1]:.2f} s")
-    print(f"render without: {off[2]:.2f} s, with: {on[2]:.2f} s, ratio {on[2] / off[2]:.2f}")
-    print(f"mean radiance without: {off[0].mean():.5f}, with: {on[0].mean():.5f} ({on[0].mean() / off[0].mean():.3f}x)")
+    print(f"bark without: {versus(best[False], best[False], 'without')}")
+    print(f"bark with   : {versus(best[True], best[False], 'without')}")
+    print(f"mean radiance without: {off.mean():.5f}, with: {on.mean():.5f} ({on.mean() / off.mean():.3f}x)")
     for bark in (False, True):
         leaf, bk, flat, groups = scalar_bins(bark)
         print(f"scalar_rgb demo, bark {'on ' if bark else 'off'}: leaf rms Oklab error to its bin {leaf:.4f}, "
@@ -148,7 +142,7 @@ def main() -> None:
         from forest.images import linear_to_srgb, write_image
 
         gap = np.ones((a.height, 4, 3), np.float32)
-        side = np.concatenate([off[0], gap, on[0]], axis=1)
+        side = np.concatenate([off, gap, on], axis=1)
         write_image(a.picture, np.clip(linear_to_srgb(np.clip(side * 1.6, 0, 1)), 0, 1).astype(np.float32))
         print(f"picture: {a.picture} (without | with)")
 

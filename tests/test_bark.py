@@ -23,9 +23,10 @@ from forest.tint import bark_tints
 from render_fixtures import BoxLibrary
 
 # Six grey bark boxes (scale 2: 4 × 12 × 4 m) seen from straight above (nearly orthographic: their tops only),
-# under a white sky, on a black ground.
+# under a white sky, on a black ground (``head``: top-level keys; ``species``: the [[species]] tables).
 SCENE = """
 seed = 5
+{head}
 [terrain]
 flat = {{ size = 60.0 }}
 [camera]
@@ -42,13 +43,11 @@ spp = 4
 max_depth = 2
 terrain_colour = [0.0, 0.0, 0.0]
 {render}
-[[species]]
-model = "stump"
-percent = 100
-bark = {bark}
+{species}
 [lod]
 auto = false
 """
+STUMPS = '[[species]]\nmodel = "stump"\npercent = 100\nbark = {bark}\n'
 STRONG = "{ hue = 30.0, value = 0.4, moss = [0.0, 0.8], moss_colour = [0.05, 0.3, 0.02] }"
 NONE = "{ hue = 0.0, value = 0.0, moss = [0.0, 0.0] }"
 POSITIONS = [[x, 0.0, z] for x in (-12.0, 0.0, 12.0) for z in (-6.0, 6.0)]
@@ -61,7 +60,7 @@ def library(tmp_path_factory):
 
 def stump_scene(tmp_path: Path, library: BoxLibrary, bark: str = STRONG, render: str = ""):
     """The six stumps with ``bark`` (an inline TOML table) as a Scene."""
-    text = SCENE.format(bark=bark, render=render)
+    text = SCENE.format(head="", render=render, species=STUMPS.format(bark=bark))
     cfg = parse_config(text, path=tmp_path / "scene.toml", base_dir=tmp_path)
     p = np.asarray(POSITIONS, np.float32)
     n = len(p)

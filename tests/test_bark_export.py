@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pxr import Usd, UsdGeom, UsdShade
+from test_bark import NONE, SCENE, STRONG
 
 from forest.config import parse_config
 from forest.export.blender import export_blender, write_manifest
@@ -32,40 +33,18 @@ from render_fixtures import BoxLibrary
 
 needs_blender = pytest.mark.skipif(shutil.which("blender") is None, reason="Blender is not installed")
 
-# Seen from straight above (nearly orthographic), under a white sky, on a black ground (the Blender test renders
-# it in Cycles).
-SCENE = """
-seed = 5
-name = "barkwood"
-[terrain]
-flat = {{ size = 60.0 }}
-[camera]
-position = [0.0, 400.0, 0.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 0.0, 1.0]
-fov = 6.0
-[lights]
-sky = {{ radiance = 1.0, colour = [1.0, 1.0, 1.0] }}
-[render]
-width = 40
-height = 40
-spp = 4
-max_depth = 2
-terrain_colour = [0.0, 0.0, 0.0]
-[[species]]
+# test_bark's scene (seen from straight above, under a white sky, on a black ground; the Blender test renders it
+# in Cycles) with these species.
+SPECIES = """[[species]]
 model = "stump"
 percent = 75
 bark = {bark}
 [[species]]
 model = "box"
 percent = 25
-[lod]
-auto = false
 """
-STRONG = "{ hue = 30.0, value = 0.4, moss = [0.0, 0.8], moss_colour = [0.05, 0.3, 0.02] }"
-NONE = "{ hue = 0.0, value = 0.0, moss = [0.0, 0.0] }"
 POSITIONS = [[x, 0.0, z] for z in (-6.0, 6.0) for x in (-15.0, -5.0, 5.0, 15.0)]
-SPECIES = [0, 1, 0, 0, 0, 0, 1, 0]  # the boxes at (-5, -6) and (5, 6)
+ROWS = [0, 1, 0, 0, 0, 0, 1, 0]  # the species of each tree: the boxes at (-5, -6) and (5, 6)
 PARTITIONS = [0, 1, 1, 0, 1, 0, 0, 1]
 BARK_NAMES = (b"barktint", b"barkTint", b"barkColor", b"bark_tint")
 GREY = 0.4  # the stump's bark colour
@@ -78,7 +57,7 @@ def library(tmp_path_factory):
 
 def bark_scene(tmp_path: Path, library: BoxLibrary, bark: str = STRONG):
     """The eight trees with the stumps' ``bark`` (an inline TOML table) as a Scene."""
-    text = SCENE.format(bark=bark)
+    text = SCENE.format(head='name = "barkwood"', render="", species=SPECIES.format(bark=bark))
     cfg = parse_config(text, path=tmp_path / "scene.toml", base_dir=tmp_path)
     p = np.asarray(POSITIONS, np.float32)
     n = len(p)
@@ -89,7 +68,7 @@ def bark_scene(tmp_path: Path, library: BoxLibrary, bark: str = STRONG):
         rotation=yaw_tilt_quaternion(np.zeros(n), up, np.zeros(n)),
         yaw=np.zeros(n),
         scale=np.full(n, 2.0),
-        species=np.asarray(SPECIES, np.int64),
+        species=np.asarray(ROWS, np.int64),
         tint=np.ones((n, 3), np.float32),
         partition=np.asarray(PARTITIONS),
         normal=up,

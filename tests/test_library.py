@@ -18,7 +18,7 @@ from forest.library.textures import read_texture
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = Path(__file__).parent / "fixtures"
-PRESETS = ("broadleaf", "conifer", "palm", "shrub", "fern", "grass")
+PRESETS = ("broadleaf", "birch", "conifer", "pine", "palm", "shrub", "fern", "grass")
 
 
 @pytest.fixture(scope="module")
@@ -94,7 +94,7 @@ def test_budgets_bounds_and_files(lib, name):
     bark = [p for p in high.parts if p.kind == "bark"][0].load()
     low_pts = bark.vertices[bark.vertices[:, 1] < 0.05]
     assert len(low_pts)
-    if name in ("broadleaf", "conifer", "palm"):  # one trunk, standing on the origin
+    if name in ("broadleaf", "birch", "conifer", "pine", "palm"):  # one trunk, standing on the origin
         assert np.linalg.norm(low_pts[:, [0, 2]].mean(axis=0)) < 0.05
     else:  # clumps: stems rise from around the origin
         assert np.linalg.norm(low_pts[:, [0, 2]], axis=1).min() < 0.3
@@ -458,7 +458,8 @@ def test_bark_uv_tiles_along_the_stem(lib):
 @pytest.mark.parametrize("name", PRESETS)
 def test_calibrated_colours(name):
     """Presets hold measured albedos: green leaves of luminance 0.08–0.25 (PROSPECT-D / LOPEX93 range),
-    translucency 0.15–0.6, bark of luminance 0.07–0.25; the cited sources are in the preset."""
+    translucency 0.15–0.6, bark of luminance 0.07–0.25 (0.3–0.5 for a birch's white "papery" bark, Juola et
+    al. 2020); the cited sources are in the preset."""
     from forest.library.generator import validate_recipe
 
     text = (ROOT / f"library/presets/{name}.toml").read_text()
@@ -467,7 +468,8 @@ def test_calibrated_colours(name):
     leaf, bark = np.array(tree["leaf_colour"]), np.array(tree["bark_colour"])
     assert leaf[1] > leaf[0] > leaf[2] and 0.08 <= leaf @ y <= 0.25, leaf
     assert 0.15 <= tree["translucency"] <= 0.6
-    assert 0.07 <= bark @ y <= 0.25, bark
+    lo, hi = (0.3, 0.5) if tree["bark_texture"] == "papery" else (0.07, 0.25)
+    assert lo <= bark @ y <= hi, bark
     assert "PROSPECT-D" in text and "Féret" in text
 
 

@@ -46,7 +46,7 @@ Per stem (all angles in degrees, as in the paper):
   ``"NAME@SEED"`` is another tree of the same kind
   (:func:`forest.library.individuals.individual`).
 * **Bark** — ``bark_texture`` picks the tileable detail of
-  :func:`forest.library.textures.bark_rgb` (furrowed, scaly, ringed, smooth).
+  :func:`forest.library.textures.bark_rgb` (furrowed, scaly, ringed, smooth, papery).
 * **Cut cards** — ``leaf_cut = "outline"`` (the default) cuts every leaf,
   cluster and far card to a convex outline of its texture's alpha
   (:mod:`forest.library.outline`), so fewer rays hit transparent texels;

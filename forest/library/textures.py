@@ -230,7 +230,7 @@ def cluster_rgba(shape: str, n: int = SIZE, leaves: int = 14) -> np.ndarray:
 # Bark
 # ---------------------------------------------------------------------------
 
-BARK_STYLES = ("furrowed", "scaly", "ringed", "smooth")
+BARK_STYLES = ("furrowed", "scaly", "ringed", "smooth", "papery")
 BARK_SIZE = 256
 BARK_TAG = 0xBA4C
 
@@ -269,6 +269,22 @@ def _cells(n: int, rng: np.random.Generator, count: int, aspect: float) -> tuple
     return d[:, 0].reshape(n, n), d[:, 1].reshape(n, n), i[:, 0].reshape(n, n)
 
 
+def _lenticels(n: int, rng: np.random.Generator, count: int) -> np.ndarray:
+    """A factor ``(n, n)`` with ``count`` dark horizontal dashes (lenticels) on the torus: 1 − 0.85·k·e^(−r⁴),
+    r the periodic distance to a dash's centre in units of its half width (u) and half height (v), k ∈ [0.5, 1]."""
+    c = (np.arange(n) + 0.5) / n
+    centre = rng.uniform(0.0, 1.0, (count, 2))
+    half = np.stack([rng.uniform(0.02, 0.07, count), rng.uniform(0.0025, 0.0075, count)], axis=1)
+    depth = rng.uniform(0.5, 1.0, count)
+    out = np.ones((n, n))
+    for (u0, v0), (hu, hv), k in zip(centre, half, depth):  # 160 dashes, each a separable product of two rows
+        du = (c - u0 + 0.5) % 1.0 - 0.5
+        dv = (c - v0 + 0.5) % 1.0 - 0.5
+        r2 = (dv[:, None] / hv) ** 2 + (du[None, :] / hu) ** 2
+        out *= 1.0 - 0.85 * k * np.exp(-(r2**2))
+    return out
+
+
 def bark_rgb(style: str, n: int = BARK_SIZE) -> np.ndarray:
     """A tileable bark *detail factor*, ``(n, n, 3)`` float32 with mean exactly 1 per channel.
 
@@ -285,7 +301,12 @@ def bark_rgb(style: str, n: int = BARK_SIZE) -> np.ndarray:
       edge, dark cracks where ``F₂ − F₁`` is small;
     * ``ringed`` — a palm's leaf scars: a dark ring every 1/18 of a tile, wavy by
       ``0.15·N``, over fine fibres running up the stem;
-    * ``smooth`` — a thin mottled bark (beech, young stems): low-contrast noise.
+    * ``smooth`` — a thin mottled bark (beech, young stems): low-contrast noise;
+    * ``papery`` — a birch's white bark: fine peeling bands around the stem
+      ``N(0.05, 0.004)``, 160 dark lenticels (dashes 4–14 % of a circumference
+      wide and 0.5–1.5 % tall, darkened by up to 85 % with a soft quartic edge)
+      and dark blotches where a field ``N(0.05, 0.08)`` exceeds 1.3 σ (branch
+      scars and the dark bark between the white).
 
     Every style adds fine grain and a faint low-frequency hue shift (lichen and
     weathering).  The style's stream is fixed, so every species of one style
@@ -318,6 +339,10 @@ def bark_rgb(style: str, n: int = BARK_SIZE) -> np.ndarray:
         swell = 0.85 + 0.3 * np.sin(np.pi * f) ** 2
         fibre = periodic_noise(n, rng, 0.004, 0.05)
         d = swell * (1.0 - 0.6 * scar) * (1.0 + 0.12 * fibre)
+    elif style == "papery":
+        d = _lenticels(n, rng, 160)
+        blotch = np.clip((periodic_noise(n, rng, 0.05, 0.08) - 1.3) / 0.35, 0.0, 1.0)
+        d = d * (1.0 - 0.85 * blotch) * (1.0 + 0.07 * periodic_noise(n, rng, 0.05, 0.004))
     else:  # smooth
         d = 1.0 + 0.12 * periodic_noise(n, rng, 0.08, 0.08) + 0.05 * periodic_noise(n, rng, 0.02, 0.006)
     d = np.clip(d * (1.0 + 0.06 * grain), 0.05, None)
