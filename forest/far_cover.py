@@ -64,6 +64,24 @@ r = :data:`CROWN_RADIUS` cells).  The skirt's hill rings are cut every pixel
 or two around the terrain (:func:`forest.skirt.skirt_mesh`), so the woods'
 edges show on a skyline; the shading normals stay the smooth hills' own.
 
+**Treeline.**  Far hills that rise into mountains are not wooded to the top: trees
+end at a treeline, and above it lie alpine meadow, then scree and rock (Körner,
+*Alpine Treelines*, Springer 2012: the forest thins out over a band of height,
+the treeline ecotone).  With ``[render] horizon_hills`` ``treeline`` and
+``rockline`` (world heights, metres), at a point of height y
+
+    a = s((y − y_t + B_t) / 2B_t),    r = s((y − y_r + B_r) / 2B_r)
+
+(B_t = :data:`TREELINE_BAND_M`, B_r = :data:`ROCK_BAND_M`), the woods' cover
+becomes C·(1 − a) — the relief with it — and the mosaic's factor
+
+    m = ρ'_o·(1 − C + a·C) + (1 − a)·C·g·ρ_w / ρ_far,    ρ'_o = (1 − r)·ρ_o/ρ_far + r·ρ_rock/ρ_far
+
+with ρ_rock ``[ground]``'s rock.  Below the treeline it is the mosaic above,
+whose mean is ρ_far; above it the land is what it is there, not the terrain's
+mean.  forest_path reads y at the hit, which the woods' relief (a canopy, a
+few tens of metres) lifts a little inside the band.
+
 **Prefilter.**  The skirt carries the relief on rings whose spacing grows
 with the distance from the terrain (5 % of the radius: a hundred metres and
 more), against columns cut a pixel or two apart.  Crowns :data:`CROWN_M`
@@ -187,6 +205,21 @@ def cover_tile(cover: float, seed: int) -> np.ndarray:
     return tile
 
 
+#: Half the band (metres of height) over which the woods give way to open ground at the treeline, and over which
+#: open ground gives way to rock at the rock line (:meth:`FarCover.alpine`).
+TREELINE_BAND_M = 40.0
+ROCK_BAND_M = 80.0
+
+
+def _smooth_band(y: np.ndarray, centre: float | None, half: float) -> np.ndarray:
+    """s((y − centre + half) / 2·half): 0 well below ``centre``, 1 well above (0 everywhere when it is None)."""
+    if centre is None:
+        return np.zeros(np.shape(y))
+    t = np.clip((np.asarray(y, np.float64) - centre + half) / (2.0 * half), 0.0, 1.0)
+    out: np.ndarray = t * t * (3.0 - 2.0 * t)
+    return out
+
+
 @dataclass(frozen=True)
 class FarCover:
     """What forest_path needs to draw the mosaic (module docstring).
@@ -194,7 +227,9 @@ class FarCover:
     ``tile``: :func:`cover_tile`'s weights; ``open`` and ``canopy``: ρ_o/ρ_far and
     ρ_w/ρ_far (3,) each; ``extent``: the terrain's (xmin, zmin, xmax, zmax);
     ``ramp``: P, metres past it over which the mosaic fades in; ``tile_m``: the tile's side;
-    ``height``: H, the canopy's height (metres; 0: no relief); ``seed``: the crowns' pattern.
+    ``height``: H, the canopy's height (metres; 0: no relief); ``seed``: the crowns' pattern;
+    ``treeline``, ``rockline``: world heights (Y, metres) above which the woods give way to open ground
+    and open ground to rock, ``rock`` ρ_rock/ρ_far (None: no such line; module docstring, "Treeline").
     """
 
     tile: np.ndarray
@@ -205,6 +240,18 @@ class FarCover:
     tile_m: float = TILE_M
     height: float = 0.0
     seed: int = 0
+    treeline: float | None = None
+    rockline: float | None = None
+    rock: tuple[float, float, float] | None = None
+
+    def alpine(self, y: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """(a, r) at world heights ``y``: the share of the woods turned to open ground, and of the open ground
+        turned to rock (0 and 0 without the lines, or for ``y`` None)."""
+        if y is None:
+            return np.zeros(()), np.zeros(())
+        a = _smooth_band(y, self.treeline, TREELINE_BAND_M)
+        r = _smooth_band(y, self.rockline, ROCK_BAND_M) if self.rock is not None else np.zeros(np.shape(y))
+        return a, r
 
     def _ramp(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
         """s(d / P): 0 inside the terrain's extent, 1 from P past it."""
@@ -213,19 +260,28 @@ class FarCover:
         t = np.clip(d / self.ramp, 0.0, 1.0)
         return t * t * (3.0 - 2.0 * t)
 
-    def woods(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """C at world (x, z): the woods' cover of the land (the tile's first weight is 1 − C)."""
+    def woods(self, x: np.ndarray, z: np.ndarray, y: np.ndarray | None = None) -> np.ndarray:
+        """C at world (x, z): the woods' cover of the land (the tile's first weight is 1 − C), times 1 − a above the
+        treeline where the ground's height ``y`` is given."""
         from .ground import wrapped_bilinear
 
         x = np.asarray(x, np.float64)
         z = np.asarray(z, np.float64)
         w = wrapped_bilinear(self.tile[..., :1], x.ravel() / self.tile_m, z.ravel() / self.tile_m)
-        return (1.0 - w[:, 0]).reshape(x.shape)
+        c: np.ndarray = (1.0 - w[:, 0]).reshape(x.shape)
+        return c * (1.0 - self.alpine(y)[0])
 
-    def relief(self, x: np.ndarray, z: np.ndarray, footprint: np.ndarray | float | None = None) -> np.ndarray:
+    def relief(
+        self,
+        x: np.ndarray,
+        z: np.ndarray,
+        footprint: np.ndarray | float | None = None,
+        y: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Δy at world (x, z), metres: how far the woods stand above the ground there (module docstring), its crowns
         averaged over ``footprint`` metres around each point (None or up to :data:`CROWN_M`: unfiltered) — the
-        spacing of the mesh that carries it, so that crowns it cannot hold do not alias into ridges ("Prefilter")."""
+        spacing of the mesh that carries it, so that crowns it cannot hold do not alias into ridges ("Prefilter");
+        ``y`` the ground's height there (none above the treeline)."""
         x = np.asarray(x, np.float64)
         z = np.asarray(z, np.float64)
         if self.height <= 0.0:
@@ -236,16 +292,20 @@ class FarCover:
             keep = np.clip(CROWN_M / np.maximum(f, 1e-9), 0.0, 1.0)  # a box of width f keeps ~CROWN_M/f of them
             k = dome_mean() + keep * (k - dome_mean())
         crowns = 1.0 - CROWN_DEPTH + CROWN_DEPTH * k
-        return self._ramp(x, z) * self.woods(x, z) * self.height * crowns
+        return self._ramp(x, z) * self.woods(x, z, y) * self.height * crowns
 
-    def factor(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """m' (…, 3) at world (x, z): the factor on the skirt's albedo (module docstring), on the host."""
+    def factor(self, x: np.ndarray, z: np.ndarray, y: np.ndarray | None = None) -> np.ndarray:
+        """m' (…, 3) at world (x, z) and height ``y`` (None: below any treeline): the factor on the skirt's albedo
+        (module docstring), on the host."""
         from .ground import wrapped_bilinear
 
         x = np.asarray(x, np.float64)
         z = np.asarray(z, np.float64)
         w = wrapped_bilinear(self.tile, x.ravel() / self.tile_m, z.ravel() / self.tile_m).reshape(*x.shape, 2)
-        m = w[..., :1] * np.asarray(self.open) + w[..., 1:2] * np.asarray(self.canopy)
+        a, r = (v[..., None] for v in self.alpine(y))
+        rock = np.asarray(self.open if self.rock is None else self.rock)
+        open_ = np.asarray(self.open) + r * (rock - np.asarray(self.open))
+        m = open_ * (w[..., :1] + a * (1.0 - w[..., :1])) + (1.0 - a) * w[..., 1:2] * np.asarray(self.canopy)
         return 1.0 + self._ramp(x, z)[..., None] * (m - 1.0)
 
 
@@ -286,10 +346,14 @@ def far_cover(
     ramp: float,
     seed: int,
     height: float = 0.0,
+    treeline: float | None = None,
+    rockline: float | None = None,
+    rock: np.ndarray | tuple[float, float, float] | None = None,
 ) -> FarCover | None:
     """The :class:`FarCover` of a far landscape ρ_far = (1 − w̄)·ρ_o + w̄·ρ_w (``far``; ``canopy`` ρ_w, the wooded
-    land's albedo; ``cover`` w̄, its share) whose canopy stands ``height`` metres; None where there is no mosaic to
-    draw (w̄ within :data:`MIN_CONTRAST` of 0 or 1, or ρ_far black)."""
+    land's albedo; ``cover`` w̄, its share) whose canopy stands ``height`` metres, with the woods ending at
+    ``treeline`` and rock (albedo ``rock``) from ``rockline`` (world heights, None: none); None where there is no
+    mosaic to draw (w̄ within :data:`MIN_CONTRAST` of 0 or 1, or ρ_far black)."""
     rho_far = np.asarray(far, np.float64).reshape(3)
     rho_w = np.asarray(canopy, np.float64).reshape(3)
     c = float(cover)
@@ -305,4 +369,9 @@ def far_cover(
         max(float(ramp), 1e-6),
         height=max(float(height), 0.0),
         seed=int(seed),
+        treeline=None if treeline is None else float(treeline),
+        rockline=None if rockline is None or rock is None else float(rockline),
+        rock=None
+        if rock is None or rockline is None
+        else tuple(float(v) for v in np.asarray(rock, np.float64) / rho_far),  # type: ignore[arg-type]
     )

@@ -359,7 +359,7 @@ def _hilly_skirt(
     if woods is not None:
         # Each ring's relief averaged over its spacing from the ring inside it (forest.far_cover, "Prefilter").
         spacing = np.diff(np.concatenate([r0[None, :], radius]), axis=0)  # (M, q)
-        verts[k + q :, 1] += woods.relief(verts[k + q :, 0], verts[k + q :, 2], spacing.ravel())
+        verts[k + q :, 1] += woods.relief(verts[k + q :, 0], verts[k + q :, 2], spacing.ravel(), y=verts[k + q :, 1])
     # The ramp's band: each boundary edge (a, b) fans to its chain on the ramp's ring, half from a, half from b.
     half = (s + 1) // 2
     lo, hi = chains[:, :-1] + k, chains[:, 1:] + k

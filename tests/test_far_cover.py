@@ -346,3 +346,43 @@ def test_the_preflight_counts_the_skirt_forest_path_builds(tmp_path, monkeypatch
     bare_scene = level_scene(tmp_path, LEVEL.replace("horizon_hills", "horizon_ground = false\n# "))
     bare = scene_render_estimate(bare_scene, "llvm_ad_rgb", [1.0], size)
     assert with_skirt.far_triangles - bare.far_triangles == skirt and with_skirt.memory > bare.memory
+
+
+def test_a_treeline_ends_the_woods_and_a_rock_line_bares_the_ground():
+    """Below the treeline the mosaic is the one without it; above it the woods are gone (cover and relief), the
+    factor is the open ground's, and above the rock line it is the rock's; forest_path's drjit factor is the
+    host's at every height."""
+    import drjit as dr
+
+    from forest.far_cover import ROCK_BAND_M, TREELINE_BAND_M
+    from forest.render.path.materials import FarCoverArrays
+    from forest.runtime import mitsuba
+
+    far, canopy, rock = np.array([0.05, 0.07, 0.03]), np.array([0.03, 0.05, 0.01]), np.array([0.22, 0.21, 0.19])
+    args = (far, canopy, 0.8, (-50.0, -50.0, 50.0, 50.0), 10.0, 0)
+    plain = far_cover(*args, height=20.0)
+    alpine = far_cover(*args, height=20.0, treeline=600.0, rockline=900.0, rock=rock)
+    assert plain is not None and alpine is not None
+    rng = np.random.default_rng(4)
+    x, z = rng.uniform(200.0, 2000.0, 500), rng.uniform(200.0, 2000.0, 500)  # past the ramp
+    low, mid, high = (np.full(500, h) for h in (600.0 - TREELINE_BAND_M, 700.0, 900.0 + ROCK_BAND_M))
+    np.testing.assert_array_equal(alpine.factor(x, z, low), plain.factor(x, z))
+    np.testing.assert_array_equal(alpine.woods(x, z, low), plain.woods(x, z))
+    assert plain.woods(x, z).mean() > 0.5
+    np.testing.assert_array_equal(alpine.woods(x, z, mid), 0.0)
+    np.testing.assert_array_equal(alpine.relief(x, z, y=mid), 0.0)
+    np.testing.assert_allclose(alpine.factor(x, z, mid), np.broadcast_to(alpine.open, (500, 3)), rtol=1e-12)
+    np.testing.assert_allclose(alpine.factor(x, z, high) * far, np.broadcast_to(rock, (500, 3)), rtol=1e-12)
+    with pytest.raises(Exception, match="rockline"):
+        parse_config(
+            SCENE.format(woods="true", x=0, z=0, z1=1).replace(
+                "woods = true", "woods = true, treeline = 500.0, rockline = 400.0"
+            )
+        )
+    # drjit against numpy over the bands
+    mi = mitsuba("llvm_ad_rgb")
+    arrays = FarCoverArrays.build(mi, alpine)
+    y = np.linspace(400.0, 1100.0, 500)
+    got = arrays.factor(mi, mi.Point3f(x.astype(np.float32), y.astype(np.float32), z.astype(np.float32)), True)
+    got = np.stack([np.asarray(dr.detach(c)) for c in (got[0], got[1], got[2])], axis=1)
+    np.testing.assert_allclose(got, alpine.factor(x, z, y), rtol=2e-4, atol=1e-5)

@@ -1136,6 +1136,18 @@ class HorizonHillsConfig(Section):
         "canopy cover, colours and canopy height, the woods' crowns on the skyline (false: one colour, smooth "
         "hills).",
     )
+    treeline: Float | None = Field(
+        None, description="forest_path: height (world Y, metres) above which those woods give way to open ground."
+    )
+    rockline: Float | None = Field(
+        None, description="forest_path: height (world Y, metres) above which the open ground is [ground]'s rock."
+    )
+
+    @model_validator(mode="after")
+    def _lines(self) -> HorizonHillsConfig:
+        if self.treeline is not None and self.rockline is not None and self.rockline < self.treeline:
+            raise fail("must not be below treeline", "rockline")
+        return self
 
 
 class RenderConfig(Section):

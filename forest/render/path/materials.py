@@ -339,7 +339,8 @@ class FarCoverArrays(NamedTuple):
     """The far landscape's mosaic of woods and open ground (:mod:`forest.far_cover`) as drjit values.
 
     ``texture``: the periodic tile's weights (1 − C, C·g), wrapped; ``open``, ``canopy``: ρ_o/ρ_far and
-    ρ_c/ρ_far; ``extent`` the terrain's; ``ramp`` P metres; ``tile_m`` the tile's side."""
+    ρ_c/ρ_far; ``extent`` the terrain's; ``ramp`` P metres; ``tile_m`` the tile's side; ``treeline``,
+    ``rockline``, ``rock``: the alpine bands (None: none; :meth:`forest.far_cover.FarCover.alpine`)."""
 
     texture: Any
     open: Any
@@ -347,6 +348,9 @@ class FarCoverArrays(NamedTuple):
     extent: tuple[float, float, float, float]
     ramp: float
     tile_m: float
+    treeline: float | None = None
+    rockline: float | None = None
+    rock: Any = None
 
     @classmethod
     def build(cls, mi: Any, far: Any) -> FarCoverArrays:
@@ -360,16 +364,30 @@ class FarCoverArrays(NamedTuple):
             filter_mode=dr.FilterMode.Linear,
             wrap_mode=dr.WrapMode.Repeat,
         )
+        rock = None if far.rock is None else mi.Color3f(*far.rock)
         return cls(tex, mi.Color3f(*far.open), mi.Color3f(*far.canopy), tuple(far.extent), float(far.ramp),
-                   float(far.tile_m))  # fmt: skip
+                   float(far.tile_m), far.treeline, far.rockline, rock)  # fmt: skip
 
     def factor(self, mi: Any, p: Any, active: Any) -> Any:
         """m' (Color3f) at world ``p``: the mosaic's factor on the skirt's albedo, 1 on the terrain."""
         import drjit as dr
 
+        from ...far_cover import ROCK_BAND_M, TREELINE_BAND_M
+
+        def band(centre: float, half: float) -> Any:
+            t = dr.clip((p.y - (centre - half)) * (0.5 / half), 0.0, 1.0)
+            return t * t * (3.0 - 2.0 * t)
+
         inv = 1.0 / self.tile_m
         w = self.texture.eval(mi.Point2f(p.x * inv, p.z * inv), active=active)
-        m = self.open * w[0] + self.canopy * w[1]
+        if self.treeline is None and self.rock is None:
+            m = self.open * w[0] + self.canopy * w[1]
+        else:  # above the treeline the woods turn to open ground, above the rock line that ground to rock
+            a = band(self.treeline, TREELINE_BAND_M) if self.treeline is not None else mi.Float(0.0)
+            open_ = self.open
+            if self.rock is not None and self.rockline is not None:
+                open_ = dr.lerp(self.open, self.rock, band(self.rockline, ROCK_BAND_M))
+            m = open_ * dr.fma(a, 1.0 - w[0], w[0]) + self.canopy * ((1.0 - a) * w[1])
         xmin, zmin, xmax, zmax = self.extent
         d = dr.maximum(dr.maximum(xmin - p.x, p.x - xmax), dr.maximum(zmin - p.z, p.z - zmax))
         t = dr.clip(d * (1.0 / self.ramp), 0.0, 1.0)
