@@ -25,6 +25,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench_sheen import render as sheen_render
 from timing import best_of, versus
 
 SCENE = """
@@ -60,19 +61,9 @@ OFF = "bark = { hue = 0.0, value = 0.0, moss = [0.0, 0.0] }"
 
 
 def render(config: Path) -> np.ndarray:
-    """Linear RGB of the config with forest_path (scatter, scene build, render)."""
-    from forest.config import load_config
-    from forest.library import open_library
-    from forest.render.path import PathScene
-    from forest.render.path.from_scene import path_inputs
-    from forest.scatter import scatter
-    from forest.scene import load_scene
-
-    cfg = load_config(config)
-    inst, _ = scatter(cfg)
-    scene = PathScene(path_inputs(load_scene(cfg, inst, library=open_library())), "llvm_ad_rgb")
-    rgb: np.ndarray = scene.render().rgb
-    return rgb
+    """Linear RGB of the config with forest_path (scatter, scene build, render): bench_sheen's render with the
+    leaves' sheen as the config has it."""
+    return sheen_render(config, True)[0]
 
 
 def scalar_bins(bark: bool) -> tuple[float, float, float, int]:

@@ -7,15 +7,16 @@ divided by it must be the same for every tree.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
 import pytest
 from scipy.ndimage import binary_erosion
+from test_render import trees
 
 from forest.config import parse_config
-from forest.instances import InstanceSet, yaw_tilt_quaternion
 from forest.render import render_scene
 from forest.scene import load_scene
 from forest.tint import bark_tints
@@ -62,24 +63,8 @@ def stump_scene(tmp_path: Path, library: BoxLibrary, bark: str = STRONG, render:
     """The six stumps with ``bark`` (an inline TOML table) as a Scene."""
     text = SCENE.format(head="", render=render, species=STUMPS.format(bark=bark))
     cfg = parse_config(text, path=tmp_path / "scene.toml", base_dir=tmp_path)
-    p = np.asarray(POSITIONS, np.float32)
-    n = len(p)
-    up = np.tile([0.0, 1.0, 0.0], (n, 1))
-    trees = InstanceSet(
-        id=np.arange(40, 40 + n),
-        position=p,
-        rotation=yaw_tilt_quaternion(np.zeros(n), up, np.zeros(n)),
-        yaw=np.zeros(n),
-        scale=np.full(n, 2.0),
-        species=np.zeros(n, np.int64),
-        tint=np.ones((n, 3), np.float32),
-        partition=np.zeros(n),
-        normal=up,
-        phase=np.zeros(n),
-        species_names=["stump"],
-        extent=(-30.0, -30.0, 30.0, 30.0),
-    )
-    return load_scene(cfg, trees, library=library)
+    inst = dataclasses.replace(trees(POSITIONS, names=("stump",), scale=2.0), extent=(-30.0, -30.0, 30.0, 30.0))
+    return load_scene(cfg, inst, library=library)
 
 
 def tree_albedo(path: Path, ids: np.ndarray) -> np.ndarray:

@@ -9,6 +9,7 @@ gives with its factors taken away; the same config and seed write the same bytes
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import subprocess
@@ -18,13 +19,13 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom, UsdShade
 from test_bark import NONE, SCENE, STRONG
+from test_render import trees
 
 from forest.config import parse_config
 from forest.export.blender import export_blender, write_manifest
 from forest.export.rib import export_rib, shader_source
 from forest.export.usd import export_usd
 from forest.images import read_image, srgb_to_linear
-from forest.instances import InstanceSet, yaw_tilt_quaternion
 from forest.scene import load_scene
 
 import ribcheck
@@ -59,25 +60,16 @@ def bark_scene(tmp_path: Path, library: BoxLibrary, bark: str = STRONG):
     """The eight trees with the stumps' ``bark`` (an inline TOML table) as a Scene."""
     text = SCENE.format(head='name = "barkwood"', render="", species=SPECIES.format(bark=bark))
     cfg = parse_config(text, path=tmp_path / "scene.toml", base_dir=tmp_path)
-    p = np.asarray(POSITIONS, np.float32)
-    n = len(p)
-    up = np.tile([0.0, 1.0, 0.0], (n, 1))
-    trees = InstanceSet(
+    n = len(POSITIONS)
+    inst = dataclasses.replace(
+        trees(POSITIONS, names=("stump", "box"), scale=2.0),
         id=np.arange(40, 40 + 3 * n, 3),
-        position=p,
-        rotation=yaw_tilt_quaternion(np.zeros(n), up, np.zeros(n)),
-        yaw=np.zeros(n),
-        scale=np.full(n, 2.0),
-        species=np.asarray(ROWS, np.int64),
-        tint=np.ones((n, 3), np.float32),
-        partition=np.asarray(PARTITIONS),
-        normal=up,
-        phase=np.zeros(n),
-        species_names=["stump", "box"],
+        species=np.asarray(ROWS, np.uint16),
+        partition=np.asarray(PARTITIONS, np.int16),
         partition_names=["a", "b"],
         extent=(-30.0, -30.0, 30.0, 30.0),
     )
-    return load_scene(cfg, trees, library=library)
+    return load_scene(cfg, inst, library=library)
 
 
 def by_id(scene, ids, values) -> np.ndarray:

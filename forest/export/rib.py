@@ -486,19 +486,24 @@ def part_material(part, handle: str, renderman22: bool, texture: str | None, bar
         lines.append(multiply_pattern(f"{handle}_base", f"{handle}_tex:resultRGB", below))
         below = f'"reference color bottomRGB" ["{handle}_base:resultRGB"]'
         presence = f' "reference float presence" ["{handle}_tex:resultA"]'
-    if tinted:
-        lines.append(f'    Pattern "PxrPrimvar" "{handle}_cs" "string varname" ["Cs"] "string type" ["color"]')
-        lines.append(multiply_pattern(f"{handle}_colour", f"{handle}_cs:resultRGB", below))
-        below = f'"reference color bottomRGB" ["{handle}_colour:resultRGB"]'
-    else:
+    if not tinted:
         lines.append(f"    Color [{base}]")
-    if barked:
-        lines.append(
-            f'    Pattern "PxrAttribute" "{handle}_bark" "string varname" ["{BARK_ATTRIBUTE}"] '
-            '"string type" ["color"] "vector defaultFloat3" [1 1 1]'
-        )
-        lines.append(multiply_pattern(f"{handle}_barked", f"{handle}_bark:resultRGB", below))
-        below = f'"reference color bottomRGB" ["{handle}_barked:resultRGB"]'
+    # Per-tree factors, each read by a pattern and multiplied in: (reader, its node, the product node, used).
+    factors = [
+        (f'"PxrPrimvar" "{handle}_cs" "string varname" ["Cs"] "string type" ["color"]', "cs", "colour", tinted),
+        (
+            f'"PxrAttribute" "{handle}_bark" "string varname" ["{BARK_ATTRIBUTE}"] '
+            '"string type" ["color"] "vector defaultFloat3" [1 1 1]',
+            "bark",
+            "barked",
+            barked,
+        ),
+    ]
+    for reader, name, product, used in factors:
+        if used:
+            lines.append(f"    Pattern {reader}")
+            lines.append(multiply_pattern(f"{handle}_{product}", f"{handle}_{name}:resultRGB", below))
+            below = f'"reference color bottomRGB" ["{handle}_{product}:resultRGB"]'
     colour = below.replace("bottomRGB", "diffuseColor")
     extra = ""
     if translucency > 0:
