@@ -77,7 +77,18 @@ becomes C·(1 − a) — the relief with it — and the mosaic's factor
 
     m = ρ'_o·(1 − C + a·C) + (1 − a)·C·g·ρ_w / ρ_far,    ρ'_o = (1 − r)·ρ_o/ρ_far + r·ρ_rock/ρ_far
 
-with ρ_rock ``[ground]``'s rock.  Below the treeline it is the mosaic above,
+with ρ_rock ``[ground]``'s rock.  Above the treeline steep faces are rock
+too, whatever their height: loose rock comes to rest at about 35° (the angle
+of repose of talus), and soil and alpine grass do not hold on steeper ground,
+so with a rock line the open ground's rock share is
+
+    r' = 1 − (1 − r)·(1 − a·q),    q = s((cos θ₀ − n_y) / (cos θ₀ − cos θ₁))
+
+with n_y the shading normal's upward component (cos of the slope θ) and
+θ₀, θ₁ = :data:`STEEP_ROCK_DEG` (meadow below 30°, rock above 45°): on
+eroded hills (:mod:`forest.erosion`) the gullies' walls and the spurs between
+them turn to rock and their gentler floors and shoulders stay grass.  Without
+a normal (or below the treeline) q plays no part.  Below the treeline it is the mosaic above,
 whose mean is ρ_far; above it the land is what it is there, not the terrain's
 mean.  forest_path reads y at the hit, which the woods' relief (a canopy, a
 few tens of metres) lifts a little inside the band.
@@ -209,6 +220,17 @@ def cover_tile(cover: float, seed: int) -> np.ndarray:
 #: open ground gives way to rock at the rock line (:meth:`FarCover.alpine`).
 TREELINE_BAND_M = 40.0
 ROCK_BAND_M = 80.0
+#: Slopes (degrees) over which open ground above the treeline turns to rock (module docstring, "Treeline").
+STEEP_ROCK_DEG = (30.0, 45.0)
+
+
+def steep_share(up: np.ndarray) -> np.ndarray:
+    """q: the share of open ground above the treeline that is rock for its slope, from the shading normal's upward
+    component ``up`` (module docstring, "Treeline")."""
+    c0, c1 = (float(np.cos(np.radians(d))) for d in STEEP_ROCK_DEG)
+    t = np.clip((c0 - np.abs(np.asarray(up, np.float64))) / (c0 - c1), 0.0, 1.0)
+    out: np.ndarray = t * t * (3.0 - 2.0 * t)
+    return out
 
 
 def _smooth_band(y: np.ndarray, centre: float | None, half: float) -> np.ndarray:
@@ -244,13 +266,16 @@ class FarCover:
     rockline: float | None = None
     rock: tuple[float, float, float] | None = None
 
-    def alpine(self, y: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """(a, r) at world heights ``y``: the share of the woods turned to open ground, and of the open ground
-        turned to rock (0 and 0 without the lines, or for ``y`` None)."""
+    def alpine(self, y: np.ndarray | None, up: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(a, r) at world heights ``y`` (and shading normals' upward components ``up``): the share of the woods
+        turned to open ground, and of the open ground turned to rock (0 and 0 without the lines, or for ``y``
+        None; r the height's alone for ``up`` None)."""
         if y is None:
             return np.zeros(()), np.zeros(())
         a = _smooth_band(y, self.treeline, TREELINE_BAND_M)
         r = _smooth_band(y, self.rockline, ROCK_BAND_M) if self.rock is not None else np.zeros(np.shape(y))
+        if up is not None and self.rock is not None:
+            r = 1.0 - (1.0 - r) * (1.0 - a * steep_share(up))
         return a, r
 
     def _ramp(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -294,15 +319,18 @@ class FarCover:
         crowns = 1.0 - CROWN_DEPTH + CROWN_DEPTH * k
         return self._ramp(x, z) * self.woods(x, z, y) * self.height * crowns
 
-    def factor(self, x: np.ndarray, z: np.ndarray, y: np.ndarray | None = None) -> np.ndarray:
-        """m' (…, 3) at world (x, z) and height ``y`` (None: below any treeline): the factor on the skirt's albedo
-        (module docstring), on the host."""
+    def factor(
+        self, x: np.ndarray, z: np.ndarray, y: np.ndarray | None = None, up: np.ndarray | None = None
+    ) -> np.ndarray:
+        """m' (…, 3) at world (x, z) and height ``y`` (None: below any treeline), where the shading normal's upward
+        component is ``up`` (None: level ground): the factor on the skirt's albedo (module docstring), on the
+        host."""
         from .ground import wrapped_bilinear
 
         x = np.asarray(x, np.float64)
         z = np.asarray(z, np.float64)
         w = wrapped_bilinear(self.tile, x.ravel() / self.tile_m, z.ravel() / self.tile_m).reshape(*x.shape, 2)
-        a, r = (v[..., None] for v in self.alpine(y))
+        a, r = (v[..., None] for v in self.alpine(y, up))
         rock = np.asarray(self.open if self.rock is None else self.rock)
         open_ = np.asarray(self.open) + r * (rock - np.asarray(self.open))
         m = open_ * (w[..., :1] + a * (1.0 - w[..., :1])) + (1.0 - a) * w[..., 1:2] * np.asarray(self.canopy)

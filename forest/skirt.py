@@ -21,7 +21,7 @@ hundreds of metres up the ring lies a fraction of a pixel below the horizon.
 horizon reads as a sea or a salt flat beyond a forest; real country rises in
 hills whose silhouettes, hazed by distance, layer toward the horizon.  With
 :class:`Hills` (height A, scale L, seed) the long band becomes
-:data:`HILL_RINGS` rings at radii geometric from the ramp's end r₀ to R,
+:data:`HILL_RINGS` rings (:func:`hill_rings`) at radii geometric from the ramp's end r₀ to R,
 r_j = r₀ (R / r₀)^(j/M), and every ring vertex rises by
 
     y += A · s(min(d / L, 1)) · h(x / L, z / L),    d = r_j − r₀,   s(t) = t²(3 − 2t)
@@ -33,7 +33,9 @@ Approach*, 3rd ed. 2003, ch. 16), rescaled to [0, 1] and squared so that
 hills stand out of broad lowlands.  The weight s(d/L) keeps the ground level
 with the terrain's edge and lets the hills rise over one scale L past it, so
 they never wall in the scene; normals are the area-weighted face normals.
-Without hills the skirt is the two bands above, unchanged.  With the woods of
+With ``erosion`` (0–1) the hills are cut by gullies running down their slopes
+(:mod:`forest.erosion`), and the band carries :data:`ERODED_RINGS` rings so that
+the finest of them are held.  Without hills the skirt is the two bands above, unchanged.  With the woods of
 :mod:`forest.far_cover` (forest_path), the ramp's ring is first cut so that
 neighbouring vertices are at most about 1.5 of the camera's pixels apart seen
 from the centre (:func:`relief_step`), every ring carries those columns, and each vertex rises by the woods'
@@ -129,6 +131,8 @@ SKIRT_WIDTHS = 20.0
 SKIRT_RAMP = 0.03
 #: Rings of the skirt's long band when it carries hills (geometric in radius from the ramp's end to R).
 HILL_RINGS = 64
+#: Rings of that band when the hills are eroded (:func:`hill_rings`).
+ERODED_RINGS = 256
 #: Octaves of the hills' fractional Brownian motion.
 HILL_OCTAVES = 5
 #: Finest angle between neighbouring vertices of the hills' rings seen from the terrain's centre where they carry
@@ -145,15 +149,31 @@ HILL_TAG = 0x4849_4C4C
 @dataclass(frozen=True)
 class Hills:
     """Hills on the skirt (module docstring): ``height`` A (metres, the highest), ``scale`` L (metres, the size of
-    a hill and the distance over which they rise past the terrain's edge), ``seed`` (their pattern)."""
+    a hill and the distance over which they rise past the terrain's edge), ``seed`` (their pattern), ``erosion`` (the
+    depth of their gullies, 0–1, :mod:`forest.erosion`)."""
 
     height: float
     scale: float
     seed: int = 0
+    erosion: float = 0.0
 
 
 def hill_field(x: np.ndarray, z: np.ndarray, hills: Hills) -> np.ndarray:
-    """h(x/L, z/L) ∈ [0, 1] at world points (x, z): value-noise fBm rescaled to [0, 1], then squared."""
+    """h(x/L, z/L) at world points (x, z): value-noise fBm rescaled to [0, 1], then squared; with ``erosion``,
+    the gullies of :mod:`forest.erosion` cut into it (then a little outside [0, 1] where they are deepest)."""
+    h = _squared_fbm(x, z, hills, HILL_OCTAVES)
+    if hills.erosion > 0.0:
+        from .erosion import FLOW_OCTAVES, gullies
+
+        def smooth(px: np.ndarray, pz: np.ndarray) -> np.ndarray:
+            return _squared_fbm(px, pz, hills, FLOW_OCTAVES)
+
+        h = h + float(hills.erosion) * gullies(x, z, smooth, hills.height, hills.scale, hills.seed)
+    return h
+
+
+def _squared_fbm(x: np.ndarray, z: np.ndarray, hills: Hills, octaves: int) -> np.ndarray:
+    """The hills' first ``octaves`` octaves of value-noise fBm, rescaled to [0, 1] and squared."""
     from .scatter.canopy import lattice
 
     key = np.uint64((int(hills.seed) * 0x9E3779B97F4A7C15 + HILL_TAG) % 2**64)
@@ -161,7 +181,7 @@ def hill_field(x: np.ndarray, z: np.ndarray, hills: Hills) -> np.ndarray:
     v = np.asarray(z, np.float64) / float(hills.scale)
     total = np.zeros(np.shape(u))
     amplitude, norm = 1.0, 0.0
-    for octave in range(HILL_OCTAVES):
+    for octave in range(octaves):
         f = 2.0**octave
         # Each octave offset by an irrational shift so that lattice points of the octaves do not line up.
         pu, pv = u * f + 0.618 * octave, v * f + 0.414 * octave
@@ -179,12 +199,18 @@ def hill_field(x: np.ndarray, z: np.ndarray, hills: Hills) -> np.ndarray:
     return h * h
 
 
+def hill_rings(hills: Hills) -> int:
+    """Rings of the skirt's long band carrying ``hills``: :data:`HILL_RINGS`, :data:`ERODED_RINGS` with erosion
+    (its finest gullies, L/32 apart, need rings closer than the smooth hills do)."""
+    return ERODED_RINGS if hills.erosion > 0.0 else HILL_RINGS
+
+
 def hills(config: Config) -> Hills | None:
     """The config's ``[render] horizon_hills`` as :class:`Hills` (None when unset or 0 m high)."""
     h = config.render.horizon_hills
     if h is None or float(h.height) <= 0.0:
         return None
-    return Hills(float(h.height), float(h.scale), int(h.seed))
+    return Hills(float(h.height), float(h.scale), int(h.seed), float(h.erosion))
 
 
 def skirt_radius(extent, far: float) -> float:
@@ -230,7 +256,7 @@ def skirt_mesh(
 
     Two bands per boundary edge: a short one (:data:`SKIRT_RAMP` of the terrain's width, level with the edge)
     over which the shading normal turns from the terrain's to +Y, then the long one out to ``radius`` — with
-    ``hills``, :data:`HILL_RINGS` rings carrying them, and with ``woods`` (a
+    ``hills``, :func:`hill_rings` rings carrying them, and with ``woods`` (a
     :class:`forest.far_cover.FarCover` of a canopy taller than 0) the woods' relief on those rings, sampled
     every ``step`` radians around the terrain (:func:`relief_step`).
     """
@@ -287,7 +313,7 @@ def _boundary(terrain) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], np.nd
 def skirt_triangles(terrain, hills: Hills | None = None, relief: bool = False, step: float = RELIEF_STEP) -> int:
     """How many triangles :func:`skirt_mesh` makes around ``terrain`` (``relief``: with the woods' relief, its
     rings cut every ``step`` radians), counted without building it — for the pre-flight memory estimate:
-    4 per boundary edge without hills, E·(s + 1) + 2·E·s·:data:`HILL_RINGS` with them (s pieces an edge)."""
+    4 per boundary edge without hills, E·(s + 1) + 2·E·s·M with them (M = :func:`hill_rings`) (s pieces an edge)."""
     boundary = _boundary(terrain)
     if boundary is None:
         return 0
@@ -296,7 +322,7 @@ def skirt_triangles(terrain, hills: Hills | None = None, relief: bool = False, s
     if hills is None or hills.height <= 0:
         return 4 * e
     s = ring_pieces(np.asarray(terrain.vertices, np.float64)[used], c, edges, step) if relief else 1
-    return e * (s + 1) + 2 * e * s * HILL_RINGS
+    return e * (s + 1) + 2 * e * s * hill_rings(hills)
 
 
 def ring_pieces(points: np.ndarray, c: np.ndarray, edges: tuple[np.ndarray, np.ndarray], step: float) -> int:
@@ -332,7 +358,7 @@ def _hilly_skirt(
     woods: FarCover | None = None,
     step: float = RELIEF_STEP,
 ) -> Skirt:
-    """The skirt with hills (module docstring): the boundary, the ramp's ring, then :data:`HILL_RINGS` rings
+    """The skirt with hills (module docstring): the boundary, the ramp's ring, then :func:`hill_rings` rings
     out to the outer ring's radius; ``edge`` the boundary edges as (a, b) indices into the boundary ring; with
     ``woods``, the ramp's ring and the hills' rings subdivided to ``step`` radians and raised by its relief."""
     inner, mid, outer = ring_points
@@ -344,7 +370,7 @@ def _hilly_skirt(
     r0 = np.maximum(np.linalg.norm(rel, axis=1), 1e-9)
     unit = rel / r0[:, None]
     r_end = float(np.linalg.norm(outer[0, [0, 2]] - c))
-    m = HILL_RINGS
+    m = hill_rings(hills)
     t = np.arange(1, m + 1, dtype=np.float64) / m
     radius = r0[None, :] * (r_end / r0[None, :]) ** t[:, None]  # (M, q)
     rings = np.empty((m, q, 3))

@@ -386,3 +386,35 @@ def test_a_treeline_ends_the_woods_and_a_rock_line_bares_the_ground():
     got = arrays.factor(mi, mi.Point3f(x.astype(np.float32), y.astype(np.float32), z.astype(np.float32)), True)
     got = np.stack([np.asarray(dr.detach(c)) for c in (got[0], got[1], got[2])], axis=1)
     np.testing.assert_allclose(got, alpine.factor(x, z, y), rtol=2e-4, atol=1e-5)
+
+
+def test_steep_faces_above_the_treeline_are_rock_and_level_ground_is_not():
+    """Between the treeline and the rock line, open ground steeper than 45° is [ground]'s rock and ground
+    gentler than 30° stays open ground; below the treeline a steep face stays wooded (the same factor as level
+    ground); drjit's factor agrees with the host's over slopes and heights."""
+    import drjit as dr
+
+    from forest.far_cover import STEEP_ROCK_DEG, TREELINE_BAND_M, steep_share
+    from forest.render.path.materials import FarCoverArrays
+    from forest.runtime import mitsuba
+
+    far, canopy, rock = np.array([0.05, 0.07, 0.03]), np.array([0.03, 0.05, 0.01]), np.array([0.22, 0.21, 0.19])
+    alpine = far_cover(far, canopy, 0.8, (-50.0, -50.0, 50.0, 50.0), 10.0, 0, 20.0, 600.0, 900.0, rock)
+    assert alpine is not None
+    rng = np.random.default_rng(5)
+    x, z = rng.uniform(200.0, 2000.0, 400), rng.uniform(200.0, 2000.0, 400)
+    mid, low = np.full(400, 700.0), np.full(400, 600.0 - TREELINE_BAND_M)
+    gentle, steep = np.cos(np.radians(STEEP_ROCK_DEG[0] - 1.0)), np.cos(np.radians(STEEP_ROCK_DEG[1] + 1.0))
+    np.testing.assert_array_equal(steep_share(np.array([1.0, gentle, steep])), [0.0, 0.0, 1.0])
+    np.testing.assert_allclose(alpine.factor(x, z, mid, np.full(400, steep)) * far, np.broadcast_to(rock, (400, 3)))
+    np.testing.assert_array_equal(alpine.factor(x, z, mid, np.full(400, gentle)), alpine.factor(x, z, mid))
+    np.testing.assert_array_equal(alpine.factor(x, z, low, np.full(400, steep)), alpine.factor(x, z, low))
+    # drjit against numpy: heights through both bands, slopes from level to vertical (either facing)
+    mi = mitsuba("llvm_ad_rgb")
+    arrays = FarCoverArrays.build(mi, alpine)
+    y = np.linspace(400.0, 1100.0, 400)
+    up = rng.uniform(-1.0, 1.0, 400)
+    p = mi.Point3f(x.astype(np.float32), y.astype(np.float32), z.astype(np.float32))
+    got = arrays.factor(mi, p, True, mi.Float(up.astype(np.float32)))
+    got = np.stack([np.asarray(dr.detach(c)) for c in (got[0], got[1], got[2])], axis=1)
+    np.testing.assert_allclose(got, alpine.factor(x, z, y, up), rtol=2e-4, atol=1e-5)

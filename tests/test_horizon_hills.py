@@ -125,3 +125,65 @@ def test_hills_stand_above_the_horizon_in_both_renderers(tmp_path, variant):
             assert float(alpha[13:16].mean()) > 0.5  # 1-3 degrees up: the hills
     assert covered["plain"] < 0.02
     assert 0.1 < covered["hills"] < 0.6
+
+
+def test_erosion_cuts_gullies_down_the_fall_line_and_leaves_level_ground_smooth():
+    """The gullies (forest.erosion) are what erosion adds to the smooth hills: within their depth bound, zero where
+    the flow field is level, and on steep ground they vary across the fall line (a comb of gullies and spurs)
+    over four times as fast as along it."""
+    from forest.erosion import FLOW_OCTAVES, GULLY_DEPTH, GULLY_OCTAVES, GULLY_SLOPE
+    from forest.skirt import _squared_fbm
+
+    height, scale = 1200.0, 3000.0
+    smooth, eroded = Hills(height, scale, 0), Hills(height, scale, 0, 1.0)
+    rng = np.random.default_rng(1)
+    x, z = rng.uniform(-20_000.0, 20_000.0, 20_000), rng.uniform(-20_000.0, 20_000.0, 20_000)
+
+    def cut(px: np.ndarray, pz: np.ndarray) -> np.ndarray:
+        return hill_field(px, pz, eroded) - hill_field(px, pz, smooth)
+
+    g = cut(x, z)
+    assert np.abs(g).max() <= GULLY_DEPTH * sum(0.5**o for o in range(GULLY_OCTAVES))
+    assert np.abs(g).max() > 0.5 * GULLY_DEPTH
+    half = Hills(height, scale, 0, 0.5)
+    np.testing.assert_allclose(hill_field(x, z, half) - hill_field(x, z, smooth), 0.5 * g, atol=1e-12)
+    # The flow field's fall line, by central differences
+    eps = scale / 200.0
+
+    def flow(px: np.ndarray, pz: np.ndarray) -> np.ndarray:
+        return _squared_fbm(px, pz, smooth, FLOW_OCTAVES)
+
+    gx = (flow(x + eps, z) - flow(x - eps, z)) * height / (2.0 * eps)
+    gz = (flow(x, z + eps) - flow(x, z - eps)) * height / (2.0 * eps)
+    slope = np.hypot(gx, gz)
+    level = slope == 0.0
+    assert level.sum() > 100 and np.all(g[level] == 0.0)
+    steep = slope > 1.2 * GULLY_SLOPE
+    assert steep.sum() > 1000
+    fu, fv = gx[steep] / slope[steep], gz[steep] / slope[steep]
+    xs, zs, d = x[steep], z[steep], 2.0
+    along = np.abs(cut(xs + d * fu, zs + d * fv) - cut(xs - d * fu, zs - d * fv))
+    across = np.abs(cut(xs - d * fv, zs + d * fu) - cut(xs + d * fv, zs - d * fu))
+    assert across.mean() > 4.0 * along.mean()
+
+
+def test_eroded_hills_carry_more_rings_and_the_estimate_counts_them(terrain):
+    from forest.skirt import ERODED_RINGS, skirt_triangles
+
+    eroded = Hills(300.0, 1000.0, 4, 1.0)
+    mesh = skirt_mesh(terrain, 30_000.0, eroded)
+    plain = skirt_mesh(terrain, 30_000.0)
+    assert mesh is not None and plain is not None
+    k = len(plain.vertices) // 3
+    assert len(mesh.vertices) == (2 + ERODED_RINGS) * k
+    assert skirt_triangles(terrain, eroded) == len(mesh.faces)
+    again = skirt_mesh(terrain, 30_000.0, eroded)
+    assert again is not None and again.vertices.tobytes() == mesh.vertices.tobytes()
+
+
+def test_erosion_is_read_from_the_config_and_bounded():
+    got = hills(parse_config(SCENE.format(render="horizon_hills = { height = 90.0, erosion = 0.7 }")))
+    assert got is not None and got.erosion == 0.7
+    with pytest.raises(ConfigError) as e:
+        parse_config(SCENE.format(render="horizon_hills = { height = 90.0, erosion = 1.5 }"))
+    assert e.value.field == "render.horizon_hills.erosion"

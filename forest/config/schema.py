@@ -1130,6 +1130,11 @@ class HorizonHillsConfig(Section):
         1500.0, description="Size of a hill, metres; the hills rise over this distance past the terrain's edge."
     )
     seed: Annotated[int, Strict(), Field(ge=0, le=2**31 - 1)] = Field(0, description="Pattern of the hills.")
+    erosion: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = Field(
+        0.0,
+        description="Gullies and spurs down the hills' slopes, 0-1 (their depth; 0: smooth hills). "
+        "Mountains read as eroded at 0.5-1.",
+    )
     woods: Bool = Field(
         True,
         description="forest_path: woods and open ground in patches on that far ground, in the terrain's own "

@@ -261,8 +261,9 @@ class PathKernel:
         rng = mi.PCG32(size=n, initstate=mi.UInt64(seed), initseq=mi.UInt64(dr.arange(mi.UInt32, n)))
         valid, _, row, p, _, n_sh, uv, material, _ = self.trace(ray.o, ray.d, ray.maxt, rng, active)
         sh = shading(
-            mi, self.mats, material, uv, p, self.grid, self.extent, self.terrain_map, valid, row, self.row_tint
-        )
+            mi, self.mats, material, uv, p, self.grid, self.extent, self.terrain_map, valid, row, self.row_tint,
+            n_sh.y,
+        )  # fmt: skip
         normal = dr.select(dr.dot(n_sh, ray.d) > 0.0, -n_sh, n_sh)
         albedo = dr.select(valid, sh.reflect + sh.transmit, 0.0)
         return dr.select(valid, row, NO_HIT), albedo, dr.select(valid, normal, 0.0)
@@ -444,7 +445,7 @@ class PathKernel:
             else:
                 with dr.resume_grad():
                     sh = shading(mi, self.mats, S["vmat"], S["vuv"], S["vp"], self.grid, self.extent,
-                                 self.terrain_map, s_done, S.get("vrow"), self.row_tint)  # fmt: skip
+                                 self.terrain_map, s_done, S.get("vrow"), self.row_tint, S["vns"].y)  # fmt: skip
                     if water:
                         sh = replace(sh, reflect=sh.reflect * S["vkeep"])
                     f_l, _ = bsdf_eval(sh, S["vns"], S["vdl"], S.get("vwi"))
@@ -542,7 +543,7 @@ class PathKernel:
             with dr.resume_grad(when=not primal):
                 sh = shading(
                     mi, self.mats, sp.material, sp.uv, sp.p, self.grid, self.extent, self.terrain_map, vertex,
-                    h_row, self.row_tint,
+                    h_row, self.row_tint, ns.y,
                 )  # fmt: skip
                 if water:  # a Fresnel mirror over the diffuse ground where the terrain is water
                     assert self.terrain_map is not None and self.water_ripple is not None

@@ -368,11 +368,12 @@ class FarCoverArrays(NamedTuple):
         return cls(tex, mi.Color3f(*far.open), mi.Color3f(*far.canopy), tuple(far.extent), float(far.ramp),
                    float(far.tile_m), far.treeline, far.rockline, rock)  # fmt: skip
 
-    def factor(self, mi: Any, p: Any, active: Any) -> Any:
-        """m' (Color3f) at world ``p``: the mosaic's factor on the skirt's albedo, 1 on the terrain."""
+    def factor(self, mi: Any, p: Any, active: Any, up: Any = None) -> Any:
+        """m' (Color3f) at world ``p``: the mosaic's factor on the skirt's albedo, 1 on the terrain; ``up`` the
+        shading normal's upward component there (None: level; steep faces above the treeline are rock)."""
         import drjit as dr
 
-        from ...far_cover import ROCK_BAND_M, TREELINE_BAND_M
+        from ...far_cover import ROCK_BAND_M, STEEP_ROCK_DEG, TREELINE_BAND_M
 
         def band(centre: float, half: float) -> Any:
             t = dr.clip((p.y - (centre - half)) * (0.5 / half), 0.0, 1.0)
@@ -386,7 +387,12 @@ class FarCoverArrays(NamedTuple):
             a = band(self.treeline, TREELINE_BAND_M) if self.treeline is not None else mi.Float(0.0)
             open_ = self.open
             if self.rock is not None and self.rockline is not None:
-                open_ = dr.lerp(self.open, self.rock, band(self.rockline, ROCK_BAND_M))
+                r = band(self.rockline, ROCK_BAND_M)
+                if up is not None:  # steep faces above the treeline: r' = 1 − (1 − r)(1 − a·q)
+                    c0, c1 = (float(np.cos(np.radians(d))) for d in STEEP_ROCK_DEG)
+                    q = dr.clip((c0 - dr.abs(up)) * (1.0 / (c0 - c1)), 0.0, 1.0)
+                    r = 1.0 - (1.0 - r) * (1.0 - a * (q * q * (3.0 - 2.0 * q)))
+                open_ = dr.lerp(self.open, self.rock, r)
             m = open_ * dr.fma(a, 1.0 - w[0], w[0]) + self.canopy * ((1.0 - a) * w[1])
         xmin, zmin, xmax, zmax = self.extent
         d = dr.maximum(dr.maximum(xmin - p.x, p.x - xmax), dr.maximum(zmin - p.z, p.z - zmax))
@@ -597,6 +603,7 @@ def shading(
     active: Any,
     row: Any = None,
     row_tint: RowTints | None = None,
+    up: Any = None,
 ) -> Shading:
     """R, T and the lobe probability at a hit (see the module docstring).
 
@@ -604,7 +611,8 @@ def shading(
     ``terrain_map`` a :class:`TerrainMap` or None.  Gradients flow
     from ``grid``'s tensor into R and T.  ``row_tint`` (:class:`RowTints`, or None) holds
     each row's jitter j_r, gathered at the hit's ``row`` for tinted materials, and its bark
-    factor f_r, gathered for bark materials.
+    factor f_r, gathered for bark materials.  ``up`` is the shading normal's upward component
+    (the far mosaic's rock on steep faces, :meth:`FarCoverArrays.factor`; None: level).
     """
     import drjit as dr
 
@@ -644,7 +652,7 @@ def shading(
         t = tmap.eval(tpos, active=mapped)
         ground = mi.Color3f(t[0], t[1], t[2])
         if terrain_map.far is not None:  # woods and open ground on the skirt (forest.far_cover)
-            ground = ground * terrain_map.far.factor(mi, p, mapped)
+            ground = ground * terrain_map.far.factor(mi, p, mapped, up)
         a = dr.select(mapped, a * ground, a)
         if plain is not None and detail is not None:
             w = dr.select(mapped, dr.clip(t[3], 0.0, 1.0), 0.0)
