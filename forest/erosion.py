@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .scatter.canopy import lattice
+from .scatter.canopy import lattice_at
 
 #: Gullies per hill scale L in the coarsest octave (a gully every L/8).
 GULLY_FREQUENCY = 8.0
@@ -58,11 +58,19 @@ def gabor_along(u: np.ndarray, v: np.ndarray, tu: np.ndarray, tv: np.ndarray, ke
     total = np.zeros(np.shape(u))
     weight = np.zeros(np.shape(u))
     jitter = np.uint64((int(key) ^ 0x5851_F42D_4C95_7F2D) % 2**64)
-    for di in (-1.0, 0.0, 1.0):
-        for dj in (-1.0, 0.0, 1.0):
-            cu, cv = iu + di, iv + dj
-            du = u - (cu + 0.5 * lattice(cu, cv, key) + 0.25)
-            dv = v - (cv + 0.5 * lattice(cu, cv, jitter) + 0.25)
+    # The cells' jitter hashed once per cell of the points' bounding box (one ring of cells around it), then
+    # gathered by a flat index: the same values as lattice() per point.
+    lo_u, lo_v = int(iu.min(initial=0.0)) - 1, int(iv.min(initial=0.0)) - 1
+    width = int(iu.max(initial=0.0)) + 2 - lo_u
+    cells_u = np.arange(lo_u, lo_u + width + 1, dtype=np.int64)[None, :]
+    cells_v = np.arange(lo_v, int(iv.max(initial=0.0)) + 3, dtype=np.int64)[:, None]
+    ju, jv = lattice_at(cells_u, cells_v, key).ravel(), lattice_at(cells_u, cells_v, jitter).ravel()
+    base = (iv.astype(np.int64) - lo_v) * (width + 1) + (iu.astype(np.int64) - lo_u)
+    for dj in (-1, 0, 1):
+        for di in (-1, 0, 1):
+            cell = base + (dj * (width + 1) + di)
+            du = u - (iu + (di + 0.25) + 0.5 * ju[cell])
+            dv = v - (iv + (dj + 0.25) + 0.5 * jv[cell])
             w = np.exp(-2.0 * (du * du + dv * dv))
             total += w * np.cos(2.0 * np.pi * (du * tu + dv * tv))
             weight += w

@@ -114,6 +114,7 @@ import numpy as np
 from .ground import TerrainAlbedo, canopy_cover, crown_radii, grid_shape, texel_centres
 from .library.mesh import vertex_normals
 from .maps import sample_bilinear
+from .parallel import rowwise
 from .tint import leaf_colour
 
 if TYPE_CHECKING:
@@ -174,7 +175,7 @@ def hill_field(x: np.ndarray, z: np.ndarray, hills: Hills) -> np.ndarray:
 
 def _squared_fbm(x: np.ndarray, z: np.ndarray, hills: Hills, octaves: int) -> np.ndarray:
     """The hills' first ``octaves`` octaves of value-noise fBm, rescaled to [0, 1] and squared."""
-    from .scatter.canopy import lattice
+    from .scatter.canopy import lattice_at as lattice
 
     key = np.uint64((int(hills.seed) * 0x9E3779B97F4A7C15 + HILL_TAG) % 2**64)
     u = np.asarray(x, np.float64) / float(hills.scale)
@@ -379,13 +380,18 @@ def _hilly_skirt(
     level = (radius - r0[None, :]) / np.maximum(r_end - r0[None, :], 1e-9)
     rings[:, :, 1] = mid[None, :, 1] + (outer[0, 1] - mid[None, :, 1]) * level
     w = np.clip((radius - r0[None, :]) / float(hills.scale), 0.0, 1.0)
-    rings[:, :, 1] += float(hills.height) * w * w * (3.0 - 2.0 * w) * hill_field(rings[:, :, 0], rings[:, :, 2], hills)
+    # Point by point, so in blocks of rows on the machine's cores (the same values as one call).
+    field = rowwise(lambda px, pz: hill_field(px, pz, hills), rings[:, :, 0].ravel(), rings[:, :, 2].ravel())
+    rings[:, :, 1] += float(hills.height) * w * w * (3.0 - 2.0 * w) * field.reshape(m, q)
     verts = np.concatenate([inner, mid, rings.reshape(-1, 3)])
     land = verts.copy()  # the hills without the woods: their normals shade the skirt (module docstring)
     if woods is not None:
         # Each ring's relief averaged over its spacing from the ring inside it (forest.far_cover, "Prefilter").
         spacing = np.diff(np.concatenate([r0[None, :], radius]), axis=0)  # (M, q)
-        verts[k + q :, 1] += woods.relief(verts[k + q :, 0], verts[k + q :, 2], spacing.ravel(), y=verts[k + q :, 1])
+        far = verts[k + q :]
+        verts[k + q :, 1] += rowwise(
+            lambda px, pz, f, py: woods.relief(px, pz, f, y=py), far[:, 0], far[:, 2], spacing.ravel(), far[:, 1]
+        )
     # The ramp's band: each boundary edge (a, b) fans to its chain on the ramp's ring, half from a, half from b.
     half = (s + 1) // 2
     lo, hi = chains[:, :-1] + k, chains[:, 1:] + k

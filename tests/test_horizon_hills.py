@@ -187,3 +187,16 @@ def test_erosion_is_read_from_the_config_and_bounded():
     with pytest.raises(ConfigError) as e:
         parse_config(SCENE.format(render="horizon_hills = { height = 90.0, erosion = 1.5 }"))
     assert e.value.field == "render.horizon_hills.erosion"
+
+
+def test_lattice_at_gives_the_lattice_values_whether_it_tabulates_or_not():
+    """The hills' and gullies' lattice values come from a table over the points' bounding box when it is smaller
+    than the points asked for; they are the per-point hash's values either way."""
+    from forest.scatter.canopy import lattice, lattice_at
+
+    rng = np.random.default_rng(3)
+    key = np.uint64(0x1234_5678_9ABC)
+    dense = np.floor(rng.uniform(-20.0, 20.0, (2, 5000)))  # 41 × 41 cells for 5 000 points: tabulated
+    sparse = np.floor(rng.uniform(-1e6, 1e6, (2, 50)))  # a huge box for 50 points: hashed per point
+    for ix, iz in (dense, sparse):
+        np.testing.assert_array_equal(lattice_at(ix, iz, key), lattice(ix, iz, key))

@@ -113,6 +113,25 @@ def lattice(ix: np.ndarray, iz: np.ndarray, key: np.uint64) -> np.ndarray:
     return (h >> np.uint64(11)).astype(np.float64) * 2.0**-53
 
 
+def lattice_at(ix: np.ndarray, iz: np.ndarray, key: np.uint64) -> np.ndarray:
+    """:func:`lattice` at many integer points (given as floats or ints of one shape): the same values, hashed once
+    per lattice point of their bounding box and gathered when that box holds fewer points than are asked for (the
+    corners of noise cells shared by many samples), else hashed per point."""
+    ix = np.asarray(ix)
+    iz = np.asarray(iz)
+    if ix.size == 0:
+        return np.zeros(ix.shape)
+    lo_x, hi_x = int(ix.min()), int(ix.max())
+    lo_z, hi_z = int(iz.min()), int(iz.max())
+    box = (hi_x - lo_x + 1) * (hi_z - lo_z + 1)
+    if box >= ix.size:
+        return lattice(ix, iz, key)
+    table = lattice(
+        np.arange(lo_x, hi_x + 1, dtype=np.int64)[None, :], np.arange(lo_z, hi_z + 1, dtype=np.int64)[:, None], key
+    )
+    return table[iz.astype(np.int64) - lo_z, ix.astype(np.int64) - lo_x]
+
+
 def value_noise(x: np.ndarray, z: np.ndarray, key: np.uint64) -> np.ndarray:
     """Value noise V on the unit lattice at points (x, z) given as a separable grid (x (W,), z (D,)): (D, W)."""
     x0, z0 = np.floor(x), np.floor(z)
