@@ -35,7 +35,9 @@ with the terrain's edge and lets the hills rise over one scale L past it, so
 they never wall in the scene; normals are the area-weighted face normals.
 With ``erosion`` (0–1) the hills are cut by gullies running down their slopes
 (:mod:`forest.erosion`), and the band carries :data:`ERODED_RINGS` rings so that
-the finest of them are held.  Without hills the skirt is the two bands above, unchanged.  With the woods of
+the finest of them are held; unset, it follows the height
+(:func:`default_erosion`): hills up to 300 m stay smooth rolling country,
+mountains from 1 200 m are eroded.  Without hills the skirt is the two bands above, unchanged.  With the woods of
 :mod:`forest.far_cover` (forest_path), the ramp's ring is first cut so that
 neighbouring vertices are at most about 1.5 of the camera's pixels apart seen
 from the centre (:func:`relief_step`), every ring carries those columns, and each vertex rises by the woods'
@@ -134,6 +136,10 @@ SKIRT_RAMP = 0.03
 HILL_RINGS = 64
 #: Rings of that band when the hills are eroded (:func:`hill_rings`).
 ERODED_RINGS = 256
+#: Hills up to this height (metres) are smooth unless the config sets ``erosion`` (:func:`default_erosion`) …
+SMOOTH_HILLS_M = 300.0
+#: … and hills from this height are fully eroded.
+ERODED_HILLS_M = 1200.0
 #: Octaves of the hills' fractional Brownian motion.
 HILL_OCTAVES = 5
 #: Finest angle between neighbouring vertices of the hills' rings seen from the terrain's centre where they carry
@@ -206,12 +212,21 @@ def hill_rings(hills: Hills) -> int:
     return ERODED_RINGS if hills.erosion > 0.0 else HILL_RINGS
 
 
+def default_erosion(height: float) -> float:
+    """The ``erosion`` of hills ``height`` metres high when the config leaves it unset: 0 up to
+    :data:`SMOOTH_HILLS_M` (rolling country stays smooth), 1 from :data:`ERODED_HILLS_M` (mountains), linear
+    between."""
+    t = (float(height) - SMOOTH_HILLS_M) / (ERODED_HILLS_M - SMOOTH_HILLS_M)
+    return float(min(max(t, 0.0), 1.0))
+
+
 def hills(config: Config) -> Hills | None:
     """The config's ``[render] horizon_hills`` as :class:`Hills` (None when unset or 0 m high)."""
     h = config.render.horizon_hills
     if h is None or float(h.height) <= 0.0:
         return None
-    return Hills(float(h.height), float(h.scale), int(h.seed), float(h.erosion))
+    erosion = default_erosion(h.height) if h.erosion is None else float(h.erosion)
+    return Hills(float(h.height), float(h.scale), int(h.seed), erosion)
 
 
 def skirt_radius(extent, far: float) -> float:

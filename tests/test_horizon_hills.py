@@ -182,8 +182,15 @@ def test_eroded_hills_carry_more_rings_and_the_estimate_counts_them(terrain):
 
 
 def test_erosion_is_read_from_the_config_and_bounded():
+    """Set, it is the config's; unset, hills up to 300 m are smooth (the examples' far hills keep their bytes),
+    mountains from 1 200 m fully eroded, linear between."""
     got = hills(parse_config(SCENE.format(render="horizon_hills = { height = 90.0, erosion = 0.7 }")))
     assert got is not None and got.erosion == 0.7
+    for height, expected in ((90.0, 0.0), (300.0, 0.0), (750.0, 0.5), (1200.0, 1.0), (3000.0, 1.0)):
+        unset = hills(parse_config(SCENE.format(render=f"horizon_hills = {{ height = {height} }}")))
+        assert unset is not None and unset.erosion == pytest.approx(expected)
+    smooth = hills(parse_config(SCENE.format(render="horizon_hills = { height = 3000.0, erosion = 0.0 }")))
+    assert smooth is not None and smooth.erosion == 0.0
     with pytest.raises(ConfigError) as e:
         parse_config(SCENE.format(render="horizon_hills = { height = 90.0, erosion = 1.5 }"))
     assert e.value.field == "render.horizon_hills.erosion"

@@ -1130,10 +1130,10 @@ class HorizonHillsConfig(Section):
         1500.0, description="Size of a hill, metres; the hills rise over this distance past the terrain's edge."
     )
     seed: Annotated[int, Strict(), Field(ge=0, le=2**31 - 1)] = Field(0, description="Pattern of the hills.")
-    erosion: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = Field(
-        0.0,
-        description="Gullies and spurs down the hills' slopes, 0-1 (their depth; 0: smooth hills). "
-        "Mountains read as eroded at 0.5-1.",
+    erosion: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] | None = Field(
+        None,
+        description="Gullies and spurs down the hills' slopes, 0-1 (their depth; 0: smooth hills; default: from "
+        "the height, none up to 300 m, full from 1200 m, so that mountains are eroded and rolling hills smooth).",
     )
     woods: Bool = Field(
         True,
