@@ -1,10 +1,12 @@
-"""Eroded mountains (``[render] horizon_hills`` ``erosion``, forest.erosion): their cost, and their relief against a photograph's.
+"""Eroded mountains (``[render] horizon_hills`` ``erosion``, forest.erosion) and snow on them (``snowline``): their
+cost, and the mountains' relief against a photograph's.
 
     .venv/bin/python bench/bench_erosion.py [--size 640x360] [--spp 16] [--runs 2]
 
-The meadow (configs/meadow.toml: mountains past the forest, 1 200 m high, so fully eroded by default) rendered by ``forest render``
-with its erosion and without it (``erosion = 0``), alternating, best of ``--runs`` each: wall and CPU seconds of
-the whole command, and the ratio to the smooth hills.  Then the pictures: the
+The meadow (configs/meadow.toml: mountains past the forest, 1 200 m high, so fully eroded by default) rendered
+by ``forest render`` with its erosion, without it (``erosion = 0``) and with a snow line at 800 m, alternating,
+best of ``--runs`` each: wall and CPU seconds of the whole command, and the ratio to the smooth hills.  Then
+the pictures: the
 mountains' **relief contrast** — the standard deviation of the display luma's detail (the luma less its
 Gaussian blur of σ = 1/160 of the width, blurred inside the mask only) over its mean, on the pixels that see
 ground more than 1 km away (the EXR's depth) — set beside the same figure on the limestone ridge of the
@@ -38,10 +40,12 @@ def _children_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def render(out: Path, erosion: float, width: int, height: int, spp: int) -> tuple[float, float, str]:
-    """One ``forest render`` of the meadow: (wall s, CPU s, its summary line)."""
+def render(out: Path, sets: list[str], width: int, height: int, spp: int) -> tuple[float, float, str]:
+    """One ``forest render`` of the meadow with ``--set`` ``sets``: (wall s, CPU s, its summary line)."""
     cmd = [str(ROOT / ".venv" / "bin" / "forest"), "render", str(ROOT / "configs" / "meadow.toml"), "-o", str(out)]
-    cmd += ["--set", f"render.horizon_hills.erosion={erosion}", "--set", f"render.width={width}"]
+    for s in sets:
+        cmd += ["--set", s]
+    cmd += ["--set", f"render.width={width}"]
     cmd += ["--set", f"render.height={height}", "--set", f"render.spp={spp}"]
     t0, c0 = time.perf_counter(), _children_cpu()
     done = subprocess.run(cmd, capture_output=True, text=True, check=True)
@@ -125,26 +129,30 @@ def main() -> None:
     print(
         f"erosion: load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at start; meadow {w}x{h} {args.spp} spp"
     )
-    cases = {"smooth (erosion 0)": 0.0, "eroded (erosion 1)": 1.0}
+    cases = {
+        "smooth (erosion 0)": ["render.horizon_hills.erosion=0"],
+        "eroded (erosion 1)": ["render.horizon_hills.erosion=1"],
+        "eroded + snow 800 m": ["render.horizon_hills.erosion=1", "render.horizon_hills.snowline=800"],
+    }
     best: dict[str, tuple[float, float]] = {}
     summary: dict[str, str] = {}
     with tempfile.TemporaryDirectory() as tmp:
         out_dir = args.keep or Path(tmp)
         out_dir.mkdir(parents=True, exist_ok=True)
         for _ in range(args.runs):
-            for name, e in cases.items():
-                wall, cpu, line = render(out_dir / f"meadow_erosion{e:g}.exr", e, w, h, args.spp)
+            for k, (name, sets) in enumerate(cases.items()):
+                wall, cpu, line = render(out_dir / f"meadow_case{k}.exr", sets, w, h, args.spp)
                 b = best.get(name)
                 best[name] = (min(wall, b[0]), min(cpu, b[1])) if b else (wall, cpu)
                 summary[name] = line
         base = best["smooth (erosion 0)"]
-        for name, e in cases.items():
+        for k, name in enumerate(cases):
             wall, cpu = best[name]
-            contrast, rough, share = picture(out_dir / f"meadow_erosion{e:g}.png", out_dir / f"meadow_erosion{e:g}.exr")
-            print(f"erosion {name:18s}: {wall:6.1f} s wall, {cpu:6.1f} CPU-s ({wall / base[0]:.2f}x wall, "
+            contrast, rough, share = picture(out_dir / f"meadow_case{k}.png", out_dir / f"meadow_case{k}.exr")
+            print(f"erosion {name:19s}: {wall:6.1f} s wall, {cpu:6.1f} CPU-s ({wall / base[0]:.2f}x wall, "
                   f"{cpu / base[1]:.2f}x CPU of smooth); far ground {share:.1%} of the frame, relief contrast "
                   f"{contrast:.4f}, skyline roughness {rough:.5f}")  # fmt: skip
-            print(f"erosion {name:18s}: {summary[name]}")
+            print(f"erosion {name:19s}: {summary[name]}")
     contrast, rough, share = photo()
     print(f"erosion photograph {PHOTO.stem}: the ridge {share:.1%} of the frame, relief contrast {contrast:.4f}, "
           f"skyline roughness {rough:.5f}")  # fmt: skip

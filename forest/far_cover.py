@@ -93,6 +93,16 @@ whose mean is ρ_far; above it the land is what it is there, not the terrain's
 mean.  forest_path reads y at the hit, which the woods' relief (a canopy, a
 few tens of metres) lifts a little inside the band.
 
+**Snow.**  With ``snowline`` (a world height) the land above it lies under
+``[ground]``'s snow, except where it is too steep to hold: snow sloughs off
+faces steeper than about 50° (the steep rock bands of snowy mountains), so
+
+    σ = s((y − y_s + B_s) / 2B_s) · (1 − q_s),    q_s = s((cos θ₂ − n_y) / (cos θ₂ − cos θ₃))
+
+(B_s = :data:`SNOW_BAND_M`, θ₂, θ₃ = :data:`STEEP_SNOW_DEG`), and the factor
+becomes (1 − σ)·m' + σ·ρ_snow/ρ_far over whatever lies below it — woods,
+open ground or rock.  Without a normal every face holds snow.
+
 **Prefilter.**  The skirt carries the relief on rings whose spacing grows
 with the distance from the terrain (5 % of the radius: a hundred metres and
 more), against columns cut a pixel or two apart.  Crowns :data:`CROWN_M`
@@ -222,15 +232,24 @@ TREELINE_BAND_M = 40.0
 ROCK_BAND_M = 80.0
 #: Slopes (degrees) over which open ground above the treeline turns to rock (module docstring, "Treeline").
 STEEP_ROCK_DEG = (30.0, 45.0)
+#: Half the band (metres of height) over which the land gives way to snow at the snow line.
+SNOW_BAND_M = 60.0
+#: Slopes (degrees) over which snow gives way to the bare face below it (module docstring, "Snow").
+STEEP_SNOW_DEG = (45.0, 60.0)
+
+
+def _slope_share(up: np.ndarray, degrees: tuple[float, float]) -> np.ndarray:
+    """s((cos θ₀ − |up|) / (cos θ₀ − cos θ₁)): 0 on slopes under θ₀, 1 over θ₁ (``up`` the normal's upward part)."""
+    c0, c1 = (float(np.cos(np.radians(d))) for d in degrees)
+    t = np.clip((c0 - np.abs(np.asarray(up, np.float64))) / (c0 - c1), 0.0, 1.0)
+    out: np.ndarray = t * t * (3.0 - 2.0 * t)
+    return out
 
 
 def steep_share(up: np.ndarray) -> np.ndarray:
     """q: the share of open ground above the treeline that is rock for its slope, from the shading normal's upward
     component ``up`` (module docstring, "Treeline")."""
-    c0, c1 = (float(np.cos(np.radians(d))) for d in STEEP_ROCK_DEG)
-    t = np.clip((c0 - np.abs(np.asarray(up, np.float64))) / (c0 - c1), 0.0, 1.0)
-    out: np.ndarray = t * t * (3.0 - 2.0 * t)
-    return out
+    return _slope_share(up, STEEP_ROCK_DEG)
 
 
 def _smooth_band(y: np.ndarray, centre: float | None, half: float) -> np.ndarray:
@@ -251,7 +270,8 @@ class FarCover:
     ``ramp``: P, metres past it over which the mosaic fades in; ``tile_m``: the tile's side;
     ``height``: H, the canopy's height (metres; 0: no relief); ``seed``: the crowns' pattern;
     ``treeline``, ``rockline``: world heights (Y, metres) above which the woods give way to open ground
-    and open ground to rock, ``rock`` ρ_rock/ρ_far (None: no such line; module docstring, "Treeline").
+    and open ground to rock, ``rock`` ρ_rock/ρ_far (None: no such line; module docstring, "Treeline");
+    ``snowline``, ``snow``: the height above which the land is under snow, ρ_snow/ρ_far ("Snow").
     """
 
     tile: np.ndarray
@@ -265,6 +285,8 @@ class FarCover:
     treeline: float | None = None
     rockline: float | None = None
     rock: tuple[float, float, float] | None = None
+    snowline: float | None = None
+    snow: tuple[float, float, float] | None = None
 
     def alpine(self, y: np.ndarray | None, up: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(a, r) at world heights ``y`` (and shading normals' upward components ``up``): the share of the woods
@@ -334,7 +356,18 @@ class FarCover:
         rock = np.asarray(self.open if self.rock is None else self.rock)
         open_ = np.asarray(self.open) + r * (rock - np.asarray(self.open))
         m = open_ * (w[..., :1] + a * (1.0 - w[..., :1])) + (1.0 - a) * w[..., 1:2] * np.asarray(self.canopy)
+        if self.snow is not None and y is not None:
+            sigma = self.snow_share(y, up)[..., None]
+            m = m + sigma * (np.asarray(self.snow) - m)
         return 1.0 + self._ramp(x, z)[..., None] * (m - 1.0)
+
+    def snow_share(self, y: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+        """σ at heights ``y`` (and shading normals' upward components ``up``): the share of the land under snow
+        (module docstring, "Snow"; 0 without a snow line)."""
+        if self.snow is None:
+            return np.zeros(np.shape(y))
+        sigma = _smooth_band(y, self.snowline, SNOW_BAND_M)
+        return sigma if up is None else sigma * (1.0 - _slope_share(up, STEEP_SNOW_DEG))
 
 
 @lru_cache(maxsize=1)
@@ -377,10 +410,13 @@ def far_cover(
     treeline: float | None = None,
     rockline: float | None = None,
     rock: np.ndarray | tuple[float, float, float] | None = None,
+    snowline: float | None = None,
+    snow: np.ndarray | tuple[float, float, float] | None = None,
 ) -> FarCover | None:
     """The :class:`FarCover` of a far landscape ρ_far = (1 − w̄)·ρ_o + w̄·ρ_w (``far``; ``canopy`` ρ_w, the wooded
     land's albedo; ``cover`` w̄, its share) whose canopy stands ``height`` metres, with the woods ending at
-    ``treeline`` and rock (albedo ``rock``) from ``rockline`` (world heights, None: none); None where there is no
+    ``treeline``, rock (albedo ``rock``) from ``rockline`` and snow (albedo ``snow``) from ``snowline`` (world
+    heights, None: none); None where there is no
     mosaic to draw (w̄ within :data:`MIN_CONTRAST` of 0 or 1, or ρ_far black)."""
     rho_far = np.asarray(far, np.float64).reshape(3)
     rho_w = np.asarray(canopy, np.float64).reshape(3)
@@ -402,4 +438,8 @@ def far_cover(
         rock=None
         if rock is None or rockline is None
         else tuple(float(v) for v in np.asarray(rock, np.float64) / rho_far),  # type: ignore[arg-type]
+        snowline=None if snowline is None or snow is None else float(snowline),
+        snow=None
+        if snow is None or snowline is None
+        else tuple(float(v) for v in np.asarray(snow, np.float64) / rho_far),  # type: ignore[arg-type]
     )

@@ -418,3 +418,39 @@ def test_steep_faces_above_the_treeline_are_rock_and_level_ground_is_not():
     got = arrays.factor(mi, p, True, mi.Float(up.astype(np.float32)))
     got = np.stack([np.asarray(dr.detach(c)) for c in (got[0], got[1], got[2])], axis=1)
     np.testing.assert_allclose(got, alpine.factor(x, z, y, up), rtol=2e-4, atol=1e-5)
+
+
+def test_a_snow_line_covers_the_land_above_it_but_not_faces_too_steep_to_hold_snow():
+    """Above the snow line the factor is [ground]'s snow over woods, open ground and rock alike; a face steeper
+    than 60° stays what it was below the snow; below the band nothing changes to the bit; forest_path's drjit
+    factor agrees with the host's over heights and slopes; no snow line, no snow."""
+    import drjit as dr
+
+    from forest.far_cover import SNOW_BAND_M, STEEP_SNOW_DEG
+    from forest.render.path.materials import FarCoverArrays
+    from forest.runtime import mitsuba
+
+    far, canopy = np.array([0.05, 0.07, 0.03]), np.array([0.03, 0.05, 0.01])
+    rock, snow = np.array([0.22, 0.21, 0.19]), np.array([0.85, 0.87, 0.90])
+    args = (far, canopy, 0.8, (-50.0, -50.0, 50.0, 50.0), 10.0, 0, 20.0, 600.0, 900.0, rock)
+    bare = far_cover(*args)
+    snowy = far_cover(*args, snowline=1000.0, snow=snow)
+    assert bare is not None and snowy is not None and far_cover(*args, snow=snow).snow is None  # type: ignore[union-attr]
+    rng = np.random.default_rng(6)
+    x, z = rng.uniform(200.0, 2000.0, 400), rng.uniform(200.0, 2000.0, 400)
+    flat, cliff = np.ones(400), np.full(400, np.cos(np.radians(STEEP_SNOW_DEG[1] + 1.0)))
+    for y in (np.full(400, 700.0), np.full(400, 1000.0 - SNOW_BAND_M)):  # open ground, and rock, under the band
+        np.testing.assert_array_equal(snowy.factor(x, z, y, flat), bare.factor(x, z, y, flat))
+    high = np.full(400, 1000.0 + SNOW_BAND_M)
+    np.testing.assert_allclose(snowy.factor(x, z, high, flat) * far, np.broadcast_to(snow, (400, 3)), rtol=1e-12)
+    np.testing.assert_allclose(snowy.factor(x, z, high) * far, np.broadcast_to(snow, (400, 3)), rtol=1e-12)
+    np.testing.assert_array_equal(snowy.factor(x, z, high, cliff), bare.factor(x, z, high, cliff))
+    np.testing.assert_allclose(bare.factor(x, z, high, cliff) * far, np.broadcast_to(rock, (400, 3)), rtol=1e-12)
+    mi = mitsuba("llvm_ad_rgb")
+    arrays = FarCoverArrays.build(mi, snowy)
+    y = np.linspace(500.0, 1200.0, 400)
+    up = rng.uniform(-1.0, 1.0, 400)
+    p = mi.Point3f(x.astype(np.float32), y.astype(np.float32), z.astype(np.float32))
+    got = arrays.factor(mi, p, True, mi.Float(up.astype(np.float32)))
+    got = np.stack([np.asarray(dr.detach(c)) for c in (got[0], got[1], got[2])], axis=1)
+    np.testing.assert_allclose(got, snowy.factor(x, z, y, up), rtol=2e-4, atol=1e-5)

@@ -1147,6 +1147,11 @@ class HorizonHillsConfig(Section):
     rockline: Float | None = Field(
         None, description="forest_path: height (world Y, metres) above which the open ground is [ground]'s rock."
     )
+    snowline: Float | None = Field(
+        None,
+        description="forest_path: height (world Y, metres) above which the land lies under [ground]'s snow "
+        "(faces steeper than about 50 degrees stay bare).",
+    )
 
     @model_validator(mode="after")
     def _lines(self) -> HorizonHillsConfig:

@@ -216,9 +216,10 @@ def far_mosaic(scene: Scene, look: GroundLook) -> FarCover | None:
         return None
     core, padded = albedo.extent, look.extent
     ramp = min(core[0] - padded[0], core[1] - padded[1], padded[2] - core[2], padded[3] - core[3])
-    rock = scene.config.model.ground.palette()["rock"]
+    palette = scene.config.model.ground.palette()
     return far_cover(albedo.far, albedo.far_canopy, albedo.far_cover, core, ramp, int(h.seed), height=albedo.far_height,
-                     treeline=h.treeline, rockline=h.rockline, rock=rock)  # fmt: skip
+                     treeline=h.treeline, rockline=h.rockline, rock=palette["rock"], snowline=h.snowline,
+                     snow=palette["snow"])  # fmt: skip
 
 
 def far_plan(scene: Scene, frames: list[float] | None = None, flatten_triangles: int | None = None) -> tuple[int, int]:

@@ -351,6 +351,8 @@ class FarCoverArrays(NamedTuple):
     treeline: float | None = None
     rockline: float | None = None
     rock: Any = None
+    snowline: float | None = None
+    snow: Any = None
 
     @classmethod
     def build(cls, mi: Any, far: Any) -> FarCoverArrays:
@@ -365,15 +367,16 @@ class FarCoverArrays(NamedTuple):
             wrap_mode=dr.WrapMode.Repeat,
         )
         rock = None if far.rock is None else mi.Color3f(*far.rock)
+        snow = None if far.snow is None else mi.Color3f(*far.snow)
         return cls(tex, mi.Color3f(*far.open), mi.Color3f(*far.canopy), tuple(far.extent), float(far.ramp),
-                   float(far.tile_m), far.treeline, far.rockline, rock)  # fmt: skip
+                   float(far.tile_m), far.treeline, far.rockline, rock, far.snowline, snow)  # fmt: skip
 
     def factor(self, mi: Any, p: Any, active: Any, up: Any = None) -> Any:
         """m' (Color3f) at world ``p``: the mosaic's factor on the skirt's albedo, 1 on the terrain; ``up`` the
         shading normal's upward component there (None: level; steep faces above the treeline are rock)."""
         import drjit as dr
 
-        from ...far_cover import ROCK_BAND_M, STEEP_ROCK_DEG, TREELINE_BAND_M
+        from ...far_cover import ROCK_BAND_M, SNOW_BAND_M, STEEP_ROCK_DEG, STEEP_SNOW_DEG, TREELINE_BAND_M
 
         def band(centre: float, half: float) -> Any:
             t = dr.clip((p.y - (centre - half)) * (0.5 / half), 0.0, 1.0)
@@ -394,6 +397,13 @@ class FarCoverArrays(NamedTuple):
                     r = 1.0 - (1.0 - r) * (1.0 - a * (q * q * (3.0 - 2.0 * q)))
                 open_ = dr.lerp(self.open, self.rock, r)
             m = open_ * dr.fma(a, 1.0 - w[0], w[0]) + self.canopy * ((1.0 - a) * w[1])
+        if self.snow is not None and self.snowline is not None:  # snow over it, off faces too steep to hold it
+            sigma = band(self.snowline, SNOW_BAND_M)
+            if up is not None:
+                c2, c3 = (float(np.cos(np.radians(d))) for d in STEEP_SNOW_DEG)
+                q = dr.clip((c2 - dr.abs(up)) * (1.0 / (c2 - c3)), 0.0, 1.0)
+                sigma = sigma * (1.0 - q * q * (3.0 - 2.0 * q))
+            m = dr.lerp(m, self.snow, sigma)
         xmin, zmin, xmax, zmax = self.extent
         d = dr.maximum(dr.maximum(xmin - p.x, p.x - xmax), dr.maximum(zmin - p.z, p.z - zmax))
         t = dr.clip(d * (1.0 / self.ramp), 0.0, 1.0)
