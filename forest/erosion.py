@@ -12,8 +12,8 @@ run along the local fall line instead of a fixed direction:
 
     G_o(p) = Σ_c w_c cos(2π (f_o p − c)·t̂) / Σ_c w_c,    w_c = exp(−2 |f_o p − c|²)
 
-over the 3×3 cells c around f_o·p (unit cells, each centre jittered by up
-to ½ by a hash of the cell and the octave), with t̂ = ∇ℓ^⊥ / |∇ℓ| the
+over the 3×3 cells around f_o·p (unit cells, each with its point c placed
+within the cell's middle half by a hash of the cell and the octave), with t̂ = ∇ℓ^⊥ / |∇ℓ| the
 contour direction of a smoothed field ℓ (the hills' three coarsest octaves):
 a cosine of the distance across the fall line is constant along it, so each
 cell draws straight furrows down the slope, and where the slope turns around
@@ -32,6 +32,8 @@ purpose tag, no random state.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 
@@ -77,7 +79,14 @@ def gabor_along(u: np.ndarray, v: np.ndarray, tu: np.ndarray, tv: np.ndarray, ke
     return total / weight
 
 
-def gullies(x: np.ndarray, z: np.ndarray, smooth, height: float, scale: float, seed: int) -> np.ndarray:
+def gullies(
+    x: np.ndarray,
+    z: np.ndarray,
+    smooth: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    height: float,
+    scale: float,
+    seed: int,
+) -> np.ndarray:
     """The module docstring's furrows at world points (x, z), in units of the hills' height A (add e times this to
     h): ``smooth(x, z)`` is ℓ ∈ [0, 1], the smoothed field whose fall line they follow, ``height`` A and ``scale``
     L in metres."""

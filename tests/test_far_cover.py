@@ -352,11 +352,8 @@ def test_a_treeline_ends_the_woods_and_a_rock_line_bares_the_ground():
     """Below the treeline the mosaic is the one without it; above it the woods are gone (cover and relief), the
     factor is the open ground's, and above the rock line it is the rock's; forest_path's drjit factor is the
     host's at every height."""
-    import drjit as dr
 
     from forest.far_cover import ROCK_BAND_M, TREELINE_BAND_M
-    from forest.render.path.materials import FarCoverArrays
-    from forest.runtime import mitsuba
 
     far, canopy, rock = np.array([0.05, 0.07, 0.03]), np.array([0.03, 0.05, 0.01]), np.array([0.22, 0.21, 0.19])
     args = (far, canopy, 0.8, (-50.0, -50.0, 50.0, 50.0), 10.0, 0)
@@ -380,23 +377,16 @@ def test_a_treeline_ends_the_woods_and_a_rock_line_bares_the_ground():
             )
         )
     # drjit against numpy over the bands
-    mi = mitsuba("llvm_ad_rgb")
-    arrays = FarCoverArrays.build(mi, alpine)
     y = np.linspace(400.0, 1100.0, 500)
-    got = arrays.factor(mi, mi.Point3f(x.astype(np.float32), y.astype(np.float32), z.astype(np.float32)), True)
-    got = np.stack([np.asarray(dr.detach(c)) for c in (got[0], got[1], got[2])], axis=1)
-    np.testing.assert_allclose(got, alpine.factor(x, z, y), rtol=2e-4, atol=1e-5)
+    np.testing.assert_allclose(drjit_factor(alpine, x, y, z), alpine.factor(x, z, y), rtol=2e-4, atol=1e-5)
 
 
 def test_steep_faces_above_the_treeline_are_rock_and_level_ground_is_not():
     """Between the treeline and the rock line, open ground steeper than 45° is [ground]'s rock and ground
     gentler than 30° stays open ground; below the treeline a steep face stays wooded (the same factor as level
     ground); drjit's factor agrees with the host's over slopes and heights."""
-    import drjit as dr
 
     from forest.far_cover import STEEP_ROCK_DEG, TREELINE_BAND_M, steep_share
-    from forest.render.path.materials import FarCoverArrays
-    from forest.runtime import mitsuba
 
     far, canopy, rock = np.array([0.05, 0.07, 0.03]), np.array([0.03, 0.05, 0.01]), np.array([0.22, 0.21, 0.19])
     alpine = far_cover(far, canopy, 0.8, (-50.0, -50.0, 50.0, 50.0), 10.0, 0, 20.0, 600.0, 900.0, rock)
@@ -410,25 +400,17 @@ def test_steep_faces_above_the_treeline_are_rock_and_level_ground_is_not():
     np.testing.assert_array_equal(alpine.factor(x, z, mid, np.full(400, gentle)), alpine.factor(x, z, mid))
     np.testing.assert_array_equal(alpine.factor(x, z, low, np.full(400, steep)), alpine.factor(x, z, low))
     # drjit against numpy: heights through both bands, slopes from level to vertical (either facing)
-    mi = mitsuba("llvm_ad_rgb")
-    arrays = FarCoverArrays.build(mi, alpine)
     y = np.linspace(400.0, 1100.0, 400)
     up = rng.uniform(-1.0, 1.0, 400)
-    p = mi.Point3f(x.astype(np.float32), y.astype(np.float32), z.astype(np.float32))
-    got = arrays.factor(mi, p, True, mi.Float(up.astype(np.float32)))
-    got = np.stack([np.asarray(dr.detach(c)) for c in (got[0], got[1], got[2])], axis=1)
-    np.testing.assert_allclose(got, alpine.factor(x, z, y, up), rtol=2e-4, atol=1e-5)
+    np.testing.assert_allclose(drjit_factor(alpine, x, y, z, up), alpine.factor(x, z, y, up), rtol=2e-4, atol=1e-5)
 
 
 def test_a_snow_line_covers_the_land_above_it_but_not_faces_too_steep_to_hold_snow():
     """Above the snow line the factor is [ground]'s snow over woods, open ground and rock alike; a face steeper
     than 60° stays what it was below the snow; below the band nothing changes to the bit; forest_path's drjit
     factor agrees with the host's over heights and slopes; no snow line, no snow."""
-    import drjit as dr
 
     from forest.far_cover import SNOW_BAND_M, STEEP_SNOW_DEG
-    from forest.render.path.materials import FarCoverArrays
-    from forest.runtime import mitsuba
 
     far, canopy = np.array([0.05, 0.07, 0.03]), np.array([0.03, 0.05, 0.01])
     rock, snow = np.array([0.22, 0.21, 0.19]), np.array([0.85, 0.87, 0.90])
@@ -446,11 +428,19 @@ def test_a_snow_line_covers_the_land_above_it_but_not_faces_too_steep_to_hold_sn
     np.testing.assert_allclose(snowy.factor(x, z, high) * far, np.broadcast_to(snow, (400, 3)), rtol=1e-12)
     np.testing.assert_array_equal(snowy.factor(x, z, high, cliff), bare.factor(x, z, high, cliff))
     np.testing.assert_allclose(bare.factor(x, z, high, cliff) * far, np.broadcast_to(rock, (400, 3)), rtol=1e-12)
-    mi = mitsuba("llvm_ad_rgb")
-    arrays = FarCoverArrays.build(mi, snowy)
     y = np.linspace(500.0, 1200.0, 400)
     up = rng.uniform(-1.0, 1.0, 400)
+    np.testing.assert_allclose(drjit_factor(snowy, x, y, z, up), snowy.factor(x, z, y, up), rtol=2e-4, atol=1e-5)
+
+
+def drjit_factor(fc, x: np.ndarray, y: np.ndarray, z: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+    """forest_path's factor (``FarCoverArrays.factor`` in llvm_ad_rgb) at world points, as an (N, 3) array."""
+    import drjit as dr
+
+    from forest.render.path.materials import FarCoverArrays
+    from forest.runtime import mitsuba
+
+    mi = mitsuba("llvm_ad_rgb")
     p = mi.Point3f(x.astype(np.float32), y.astype(np.float32), z.astype(np.float32))
-    got = arrays.factor(mi, p, True, mi.Float(up.astype(np.float32)))
-    got = np.stack([np.asarray(dr.detach(c)) for c in (got[0], got[1], got[2])], axis=1)
-    np.testing.assert_allclose(got, snowy.factor(x, z, y, up), rtol=2e-4, atol=1e-5)
+    got = FarCoverArrays.build(mi, fc).factor(mi, p, True, None if up is None else mi.Float(up.astype(np.float32)))
+    return np.stack([np.asarray(dr.detach(c)) for c in (got[0], got[1], got[2])], axis=1)
