@@ -128,14 +128,20 @@ def _rows(m: np.ndarray, x: np.ndarray) -> np.ndarray:
     return np.einsum("ij,nj->ni", m, x)
 
 
-def leaf_colour(species: Species) -> tuple[float, float, float]:
-    """The colour the tint multiplies: the first tinted part of the species' highest level (grey if none)."""
+def first_part_colour(species: Species, kind: str | None = None) -> tuple[float, float, float] | None:
+    """The colour of the first part of the species' highest level that is tinted (``kind`` None) or of that
+    ``kind``; None if there is none."""
     for lod in species.lods[:1]:
         for part in lod.parts:
-            if part.tinted:
+            if part.tinted if kind is None else getattr(part, "kind", "") == kind:
                 r, g, b = (float(x) for x in part.colour)
                 return (r, g, b)
-    return GREY
+    return None
+
+
+def leaf_colour(species: Species) -> tuple[float, float, float]:
+    """The colour the tint multiplies: the first tinted part of the species' highest level (grey if none)."""
+    return first_part_colour(species) or GREY
 
 
 def tree_tints(
@@ -203,12 +209,7 @@ def tint_params(settings: Sequence[_Jittered], species: Sequence[Species], seed:
 
 def bark_colour(species: Species) -> tuple[float, float, float] | None:
     """The colour the bark factor multiplies: the first ``bark`` part of the species' highest level, or None."""
-    for lod in species.lods[:1]:
-        for part in lod.parts:
-            if getattr(part, "kind", "") == "bark":
-                r, g, b = (float(x) for x in part.colour)
-                return (r, g, b)
-    return None
+    return first_part_colour(species, "bark")
 
 
 def bark_tints(

@@ -378,9 +378,16 @@ class FarCoverArrays(NamedTuple):
 
         from ...far_cover import ROCK_BAND_M, SNOW_BAND_M, STEEP_ROCK_DEG, STEEP_SNOW_DEG, TREELINE_BAND_M
 
-        def band(centre: float, half: float) -> Any:
-            t = dr.clip((p.y - (centre - half)) * (0.5 / half), 0.0, 1.0)
+        def smooth(t: Any) -> Any:
+            t = dr.clip(t, 0.0, 1.0)
             return t * t * (3.0 - 2.0 * t)
+
+        def band(centre: float, half: float) -> Any:
+            return smooth((p.y - (centre - half)) * (0.5 / half))
+
+        def steep(degrees: tuple[float, float]) -> Any:  # 0 on slopes under degrees[0], 1 over degrees[1]
+            c0, c1 = (float(np.cos(np.radians(d))) for d in degrees)
+            return smooth((c0 - dr.abs(up)) * (1.0 / (c0 - c1)))
 
         inv = 1.0 / self.tile_m
         w = self.texture.eval(mi.Point2f(p.x * inv, p.z * inv), active=active)
@@ -392,22 +399,17 @@ class FarCoverArrays(NamedTuple):
             if self.rock is not None and self.rockline is not None:
                 r = band(self.rockline, ROCK_BAND_M)
                 if up is not None:  # steep faces above the treeline: r' = 1 − (1 − r)(1 − a·q)
-                    c0, c1 = (float(np.cos(np.radians(d))) for d in STEEP_ROCK_DEG)
-                    q = dr.clip((c0 - dr.abs(up)) * (1.0 / (c0 - c1)), 0.0, 1.0)
-                    r = 1.0 - (1.0 - r) * (1.0 - a * (q * q * (3.0 - 2.0 * q)))
+                    r = 1.0 - (1.0 - r) * (1.0 - a * steep(STEEP_ROCK_DEG))
                 open_ = dr.lerp(self.open, self.rock, r)
             m = open_ * dr.fma(a, 1.0 - w[0], w[0]) + self.canopy * ((1.0 - a) * w[1])
         if self.snow is not None and self.snowline is not None:  # snow over it, off faces too steep to hold it
             sigma = band(self.snowline, SNOW_BAND_M)
             if up is not None:
-                c2, c3 = (float(np.cos(np.radians(d))) for d in STEEP_SNOW_DEG)
-                q = dr.clip((c2 - dr.abs(up)) * (1.0 / (c2 - c3)), 0.0, 1.0)
-                sigma = sigma * (1.0 - q * q * (3.0 - 2.0 * q))
+                sigma = sigma * (1.0 - steep(STEEP_SNOW_DEG))
             m = dr.lerp(m, self.snow, sigma)
         xmin, zmin, xmax, zmax = self.extent
         d = dr.maximum(dr.maximum(xmin - p.x, p.x - xmax), dr.maximum(zmin - p.z, p.z - zmax))
-        t = dr.clip(d * (1.0 / self.ramp), 0.0, 1.0)
-        return dr.fma(t * t * (3.0 - 2.0 * t), m - 1.0, 1.0)
+        return dr.fma(smooth(d * (1.0 / self.ramp)), m - 1.0, 1.0)
 
 
 class TerrainMap(NamedTuple):
