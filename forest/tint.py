@@ -21,6 +21,22 @@ a species whose tinted parts differ in colour gets the same factor on each
 — Oklab's L is the cube root of a linear mix, so scaling L by k scales linear
 RGB of a grey by k³ — and close for small hue angles).
 
+**Accents** (``[[species]] accents``).  A share of a species' trees turns toward another
+colour: crowns flushing red or bronze new leaves and flowering yellow in a tropical canopy
+(young leaves of many tropical trees are red with anthocyanins: Lee & Collins 2001, "Phylogenetic
+and ontogenetic influences on the distribution of anthocyanins and betacyanins in leaves of
+tropical plants", *Int. J. Plant Sci.* 162), yellowing or beetle-killed brown crowns among summer
+conifers, whole autumn crowns.  Accent k of species s has a share σ_sk, a colour a_sk and a
+range of amounts [w_lo, w_hi]; a tree draws u_1, u_2 uniform in [0, 1) (its own hash, tag
+:data:`ACCENT_TAG`) and carries accent k when Σ_{j<k} σ_sj ≤ u_1 < Σ_{j≤k} σ_sj, mixed by
+w_i = w_lo + (w_hi − w_lo)·u_2 in Oklab before its jitter:
+
+    t_i = J_i(mix(c_s ⊙ m(x_i), a_sk, w_i)) ⊘ c_s,   mix(x, y, w) = Lab⁻¹((1 − w)·Lab(x) + w·Lab(y))
+
+so w = 1 is the accent itself (jittered like any tree), and the accented trees keep the
+species' spread.  A species without accents gets the same tints, to the bit, as before accents
+existed (the jitter's uniforms are drawn for the same rows from the same hash).
+
 ξ is a hash of the tree's id and the scene's seed (SplitMix64, Steele, Lea &
 Flood 2014, "Fast splittable pseudorandom number generators", OOPSLA), not a
 draw from a stream: a tree keeps its jitter whatever else is scattered, saved
@@ -32,7 +48,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -43,6 +59,7 @@ if TYPE_CHECKING:
     from .library import Species
 
 JITTER_TAG = 0x7177E5
+ACCENT_TAG = 0xACC3
 BARK_TAG = 0xBA2C
 GREY = (0.18, 0.18, 0.18)  # the base of a species with no tinted part (its tint multiplies nothing)
 _GAMMA = np.uint64(0x9E3779B97F4A7C15)
@@ -111,7 +128,6 @@ def jitter_colours(rgb: np.ndarray, hue_deg: np.ndarray, value: np.ndarray) -> n
     million colours take a few matrix products rather than colour-science's
     general per-call machinery.  Results outside the gamut are clipped at 0.
     """
-    to_lms, to_lab = _oklab_matrices()
     lab = oklab(rgb)
     h = np.radians(np.asarray(hue_deg, np.float64))
     c, s = np.cos(h), np.sin(h)
@@ -119,8 +135,20 @@ def jitter_colours(rgb: np.ndarray, hue_deg: np.ndarray, value: np.ndarray) -> n
     lab[:, 0] *= 1.0 + np.asarray(value, np.float64)
     lab[:, 1] = a * c - b * s
     lab[:, 2] = a * s + b * c
-    lms = _rows(np.linalg.inv(to_lab), lab) ** 3
+    return from_oklab(lab)
+
+
+def from_oklab(lab: np.ndarray) -> np.ndarray:
+    """Oklab rows (N, 3) → linear sRGB (N, 3), the inverse of :func:`oklab`; results outside the gamut clipped at 0."""
+    to_lms, to_lab = _oklab_matrices()
+    lms = _rows(np.linalg.inv(to_lab), np.asarray(lab, np.float64).reshape(-1, 3)) ** 3
     return np.maximum(_rows(np.linalg.inv(to_lms), lms), 0.0)
+
+
+def mix_oklab(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Linear sRGB rows ``x`` mixed toward ``y`` (N, 3) by ``w`` (N,) in Oklab: Lab⁻¹((1 − w)·Lab(x) + w·Lab(y))."""
+    w = np.asarray(w, np.float64).reshape(-1, 1)
+    return from_oklab((1.0 - w) * oklab(x) + w * oklab(y))
 
 
 def _rows(m: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -152,54 +180,124 @@ def tree_tints(
     base: np.ndarray,
     hue: Sequence[float] | np.ndarray,
     value: Sequence[float] | np.ndarray,
+    accents: Accents | None = None,
 ) -> np.ndarray:
-    """Every tree's tint t_i = J_i(c_s ⊙ m_i) ⊘ c_s (module docstring): ``(N, 3)`` float32.
+    """Every tree's tint t_i = J_i(mix(c_s ⊙ m_i, a_sk, w_i)) ⊘ c_s (module docstring): ``(N, 3)`` float32.
 
     ``map_tint`` (N, 3) the colour map's tint at each tree, ``species`` (N,)
     species indices, ``ids`` (N,) tree ids, ``base`` (S, 3) each species' leaf
-    colour c_s, ``hue`` / ``value`` (S,) each species' jitter amplitudes.
+    colour c_s, ``hue`` / ``value`` (S,) each species' jitter amplitudes,
+    ``accents`` each species' accents (None: none).
     """
     tint = np.array(map_tint, dtype=np.float32, copy=True).reshape(-1, 3)
     k = np.asarray(species, dtype=np.int64)
     hue = np.asarray(hue, dtype=np.float64)
     value = np.asarray(value, dtype=np.float64)
-    jittered = ((hue > 0) | (value > 0))[k] if len(k) else np.zeros(0, bool)
-    rows = np.flatnonzero(jittered)
+    accented = accents is not None and accents.any
+    varies = (hue > 0) | (value > 0)
+    if accented:
+        assert accents is not None
+        varies = varies | (accents.share.sum(axis=1) > 0)
+    rows = np.flatnonzero(varies[k]) if len(k) else np.zeros(0, np.int64)
     if len(rows) == 0:
         return tint
     xi = 2.0 * tree_uniforms(np.asarray(ids)[rows], seed, JITTER_TAG, 2) - 1.0
     c = np.maximum(np.asarray(base, dtype=np.float64)[k[rows]], 1e-6)
-    out = rowwise(jitter_colours, c * tint[rows], hue[k[rows]] * xi[:, 0], value[k[rows]] * xi[:, 1])
+    leaf = c * tint[rows]
+    if accented:
+        assert accents is not None
+        leaf = accents.apply(leaf, k[rows], np.asarray(ids)[rows], seed)
+    out = rowwise(jitter_colours, leaf, hue[k[rows]] * xi[:, 0], value[k[rows]] * xi[:, 1])
     tint[rows] = (out / c).astype(np.float32)
     return tint
 
 
 @dataclass(frozen=True)
+class Accents:
+    """Each species' colour accents (module docstring, "Accents"), padded to A per species with share 0."""
+
+    share: np.ndarray  # (S, A) σ_sk
+    colour: np.ndarray  # (S, A, 3) a_sk, linear sRGB
+    amount: np.ndarray  # (S, A, 2) [w_lo, w_hi]
+
+    @property
+    def any(self) -> bool:
+        """Whether any species has an accent with a share above 0."""
+        return bool(self.share.size and self.share.max() > 0)
+
+    def draw(self, species: np.ndarray, ids: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        """(accent index k per tree, −1 for none; its weight w_i): the module docstring's draw."""
+        s = np.asarray(species, np.int64)
+        u = tree_uniforms(np.asarray(ids), seed, ACCENT_TAG, 2)
+        cum = np.cumsum(self.share[s], axis=1)
+        k = np.sum(u[:, :1] >= cum, axis=1)
+        k = np.where(k < self.share.shape[1], k, -1)
+        lo_hi = self.amount[s, np.maximum(k, 0)]
+        w = lo_hi[:, 0] + (lo_hi[:, 1] - lo_hi[:, 0]) * u[:, 1]
+        return k, np.where(k >= 0, w, 0.0)
+
+    def apply(self, leaf: np.ndarray, species: np.ndarray, ids: np.ndarray, seed: int) -> np.ndarray:
+        """``leaf`` (N, 3) linear colours with each accented tree's mixed toward its accent (others unchanged)."""
+        s = np.asarray(species, np.int64)
+        k, w = self.draw(s, ids, seed)
+        out = np.array(leaf, np.float64, copy=True)
+        hit = np.flatnonzero(k >= 0)
+        if len(hit):
+            out[hit] = mix_oklab(out[hit], self.colour[s[hit], k[hit]], w[hit])
+        return out
+
+
+class _Accented(Protocol):
+    @property
+    def accents(self) -> Sequence[Any]: ...
+
+
+def accent_table(settings: Sequence[_Accented]) -> Accents:
+    """The :class:`Accents` of ``settings[s].accents`` (``[[species]]`` / ``[[ground_cover]]`` ``accents``)."""
+    n = max([len(s.accents) for s in settings] + [1])
+    share = np.zeros((len(settings), n))
+    colour = np.zeros((len(settings), n, 3))
+    amount = np.ones((len(settings), n, 2))
+    for i, s in enumerate(settings):
+        for j, a in enumerate(s.accents):
+            share[i, j], colour[i, j], amount[i, j] = a.share, a.colour, a.amount
+    return Accents(share=share, colour=colour, amount=amount)
+
+
+@dataclass(frozen=True)
 class TintParams:
-    """What :func:`tree_tints` needs besides the trees: per species index its leaf colour and jitter, and the seed."""
+    """What :func:`tree_tints` needs besides the trees: per species index its leaf colour, jitter and accents, and
+    the seed."""
 
     base: np.ndarray  # (S, 3) leaf colour c_s, linear sRGB
     hue: np.ndarray  # (S,) degrees
     value: np.ndarray  # (S,) fraction of L
     seed: int
+    accents: Accents | None = None
 
     def tints(self, map_tint: np.ndarray, species: np.ndarray, ids: np.ndarray) -> np.ndarray:
         """:func:`tree_tints` of these trees: ``(N, 3)`` float32."""
-        return tree_tints(map_tint, species, ids, self.seed, self.base, self.hue, self.value)
+        return tree_tints(map_tint, species, ids, self.seed, self.base, self.hue, self.value, self.accents)
 
 
 class _Jittered(Protocol):
     @property
     def colour_jitter(self) -> ColourJitter: ...
 
+    @property
+    def accents(self) -> Sequence[Any]: ...
+
 
 def tint_params(settings: Sequence[_Jittered], species: Sequence[Species], seed: int) -> TintParams:
-    """The :class:`TintParams` of a scene: ``settings[s].colour_jitter`` and :func:`leaf_colour` of ``species[s]``."""
+    """The :class:`TintParams` of a scene: ``settings[s]``'s ``colour_jitter`` and ``accents``, and
+    :func:`leaf_colour` of ``species[s]``."""
+    accents = accent_table(settings)
     return TintParams(
         base=np.array([leaf_colour(sp) for sp in species], dtype=np.float64).reshape(-1, 3),
         hue=np.array([s.colour_jitter.hue for s in settings], dtype=np.float64),
         value=np.array([s.colour_jitter.value for s in settings], dtype=np.float64),
         seed=int(seed),
+        accents=accents if accents.any else None,
     )
 
 

@@ -347,6 +347,42 @@ class ColourJitter(Section):
     )
 
 
+#: Most colour accents a species may carry (:class:`Accent`).
+MAX_ACCENTS = 8
+
+
+class Accent(Section):
+    """A share of a species' trees whose leaves turn toward another colour (:func:`forest.tint.tree_tints`).
+
+    Real canopies are not one green with jitter: from above a tropical forest shows the red and
+    bronze of crowns flushing new leaves and the yellow of flowering ones, a summer spruce forest a
+    few yellowing or beetle-killed brown crowns, a mixed wood in autumn whole crowns of yellow and
+    orange.  An accent mixes a tree's leaf colour toward ``colour`` by a weight drawn per tree in
+    ``amount``, in Oklab, before the tree's own hue/value jitter."""
+
+    share: Unit = Field(description="Share of the species' trees that carry this accent (0.03 = 3 %).")
+    colour: RGB = Field(description="The accent's leaf albedo, linear RGB, each channel at most 0.9.")
+    amount: tuple[Unit, Unit] = Field(
+        (0.7, 1.0), description="Range [lo, hi] of the mix toward the colour, drawn per tree (1 = the colour itself)."
+    )
+
+    _pairs = field_validator("amount")(_ordered_pair)
+
+    @field_validator("colour")
+    @classmethod
+    def _albedo(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        if max(v) > 0.9:
+            raise fail(f"each channel is a leaf albedo, at most 0.9, got {list(v)}")
+        return v
+
+
+def _accent_shares(v: tuple[Accent, ...]) -> tuple[Accent, ...]:
+    total = sum(a.share for a in v)
+    if total > 1.0 + 1e-9:
+        raise fail(f"the accents' shares add up to {total:g}, more than 1")
+    return v
+
+
 #: The default moss colour (:class:`BarkLook`): linear sRGB of a dull olive green, about 8 % luminance.
 MOSS_COLOUR = (0.055, 0.085, 0.03)
 
@@ -431,6 +467,11 @@ class SpeciesConfig(Section):
     )
     colour_jitter: ColourJitter = Field(default_factory=ColourJitter, description="Per-tree hue and value variation.")
     bark: BarkLook = Field(default_factory=BarkLook, description="Per-tree bark hue, value and moss.")
+    accents: Annotated[tuple[Accent, ...], Field(max_length=MAX_ACCENTS)] = Field(
+        (),
+        description="Shares of the trees whose leaves turn toward another colour (flushing, flowering, "
+        "yellowing, beetle-killed crowns), e.g. [{ share = 0.03, colour = [0.25, 0.06, 0.03] }].",
+    )
     dead: Unit = Field(
         0.0,
         description="Share of trees standing dead (snags: the tree without its leaves; e.g. 0.02); forest's "
@@ -438,6 +479,7 @@ class SpeciesConfig(Section):
     )
 
     _pairs = field_validator("scale", "altitude", "moisture")(_ordered_pair)
+    _accents = field_validator("accents")(_accent_shares)
 
     @model_validator(mode="after")
     def _slopes(self) -> SpeciesConfig:
@@ -619,6 +661,11 @@ class GroundCoverConfig(Section):
     )
     colour_jitter: ColourJitter = Field(default_factory=ColourJitter, description="Per-plant hue and value variation.")
     bark: BarkLook = Field(default_factory=BarkLook, description="Per-plant bark hue, value and moss.")
+    accents: Annotated[tuple[Accent, ...], Field(max_length=MAX_ACCENTS)] = Field(
+        (),
+        description="Shares of the plants whose leaves turn toward another colour (flushing, flowering, "
+        "yellowing, beetle-killed crowns), e.g. [{ share = 0.03, colour = [0.25, 0.06, 0.03] }].",
+    )
     clumping: CoverClumping = Field(
         default_factory=CoverClumping,
         description="Patches: the density varies over a noise field with the mean kept; strength = 0 turns it off.",
@@ -630,6 +677,7 @@ class GroundCoverConfig(Section):
     )
 
     _pairs = field_validator("scale", "altitude")(_ordered_pair)
+    _accents = field_validator("accents")(_accent_shares)
 
     @model_validator(mode="after")
     def _slopes(self) -> GroundCoverConfig:

@@ -1,0 +1,181 @@
+"""Colour accents: a share of a species' trees turned toward another leaf colour (``[[species]] accents``).
+
+The truths are the closed forms of :mod:`forest.tint` (the share drawn per tree, w = 1 giving the
+accent's albedo exactly, Oklab's mix measured by colour-science), the trees without an accent keeping
+their tints to the bit, and forest_path's first-hit albedo of each tree, which must be the accent's
+colour where the draw says so.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import run_forest
+from test_bark import tree_albedo
+from test_render import trees
+
+from forest.config import parse_config
+from forest.render import render_scene
+from forest.scatter.models import model_settings
+from forest.scene import load_scene
+from forest.tint import Accents, accent_table, leaf_colour, mix_oklab, tint_params, tree_tints
+
+from render_fixtures import BoxLibrary
+
+BROADLEAF = np.array([[0.097, 0.178, 0.027]])  # a broadleaf's leaf albedo
+FLUSH, FLOWER = (0.25, 0.06, 0.03), (0.5, 0.4, 0.05)
+
+
+def _accents(shares=(0.05, 0.03), amounts=((1.0, 1.0), (0.7, 1.0))) -> Accents:
+    return Accents(
+        share=np.array([shares], np.float64),
+        colour=np.array([[FLUSH, FLOWER][: len(shares)]], np.float64),
+        amount=np.array([amounts[: len(shares)]], np.float64),
+    )
+
+
+def test_each_accent_takes_its_share_and_the_others_keep_their_tints_to_the_bit():
+    n = 40_000
+    ids, species = np.arange(n) * 3 + 1, np.zeros(n, np.int64)
+    ones = np.ones((n, 3), np.float32)
+    acc = _accents()
+    k, w = acc.draw(species, ids, 7)
+    for j, share in enumerate((0.05, 0.03)):
+        got = (k == j).mean()
+        assert abs(got - share) < 4.0 * np.sqrt(share * (1 - share) / n), (j, got)  # 4 σ of the binomial
+    assert ((w[k == 1] >= 0.7) & (w[k == 1] < 1.0)).all() and (w[k == 0] == 1.0).all()
+    assert np.ptp(w[k == 1]) > 0.25  # spread over the range
+    plain = tree_tints(ones, species, ids, 7, BROADLEAF, [12.0], [0.2])
+    accented = tree_tints(ones, species, ids, 7, BROADLEAF, [12.0], [0.2], acc)
+    assert accented[k < 0].tobytes() == plain[k < 0].tobytes()
+    # Keyed by tree id and seed: a subset in another order draws the same, another seed not.
+    order = np.random.default_rng(2).permutation(n)[:900]
+    again = tree_tints(ones[order], species[order], ids[order], 7, BROADLEAF, [12.0], [0.2], acc)
+    np.testing.assert_array_equal(again, accented[order])
+    assert not np.array_equal(acc.draw(species, ids, 8)[0], k)
+
+
+def test_a_full_accent_is_its_colour_and_a_partial_one_is_oklabs_mix():
+    """w = 1 without jitter: the leaf albedo c ⊙ t is the accent's; w < 1: Oklab's mix, measured by colour-science."""
+    import colour
+
+    n = 4000
+    ids, species = np.arange(n), np.zeros(n, np.int64)
+    m = (0.8 + 0.4 * np.random.default_rng(1).random((n, 3))).astype(np.float32)  # a colour map's tint
+    acc = _accents()
+    k, w = acc.draw(species, ids, 3)
+    t = tree_tints(m, species, ids, 3, BROADLEAF, [0.0], [0.0], acc)
+    leaf = BROADLEAF * t.astype(np.float64)
+    np.testing.assert_allclose(leaf[k == 0], np.broadcast_to(FLUSH, leaf[k == 0].shape), rtol=1e-5)
+    np.testing.assert_array_equal(t[k < 0], m[k < 0])  # the map's tint alone
+
+    def lab(rgb):
+        return colour.XYZ_to_Oklab(colour.sRGB_to_XYZ(rgb, apply_cctf_decoding=False))
+
+    rows = np.flatnonzero(k == 1)
+    start = BROADLEAF * m[rows].astype(np.float64)
+    expect = (1.0 - w[rows, None]) * lab(start) + w[rows, None] * lab(np.array(FLOWER))
+    np.testing.assert_allclose(lab(leaf[rows]), expect, atol=2e-5)
+    np.testing.assert_allclose(mix_oklab(start, np.broadcast_to(FLOWER, start.shape), w[rows]), leaf[rows], rtol=1e-5)
+
+
+def test_jittered_accents_vary_around_the_accent():
+    """The tree's own hue/value jitter applies after the accent: accented crowns are not one flat colour."""
+    n = 20_000
+    ids, species = np.arange(n), np.zeros(n, np.int64)
+    acc = _accents(shares=(0.2,), amounts=((1.0, 1.0),))
+    k, _ = acc.draw(species, ids, 5)
+    leaf = BROADLEAF * tree_tints(np.ones((n, 3), np.float32), species, ids, 5, BROADLEAF, [10.0], [0.2], acc)
+    red = leaf[k == 0]
+    assert np.ptp(red[:, 0]) > 0.1 * FLUSH[0]
+    assert (red[:, 0] > 2.0 * red[:, 1]).all()  # still red, every one
+
+
+def test_a_scene_retints_with_the_configs_accents(tmp_path):
+    """A set scattered without accents, loaded with a config that has them, shows them (the Scene recomputes
+    the tints, as for the jitter); the exporters' column, ``tree_tints()``, carries them."""
+    from test_scene import four_trees, make_config
+
+    library = BoxLibrary(tmp_path / "lib")
+    inst = four_trees()
+    inst.meta["inputs"] = {}  # a scatter's set (not one made elsewhere): the Scene redoes its tints
+    cfg = make_config(tmp_path)
+    over = {"species[0].colour_jitter": {"hue": 0.0, "value": 0.0}}
+    plain = load_scene(cfg.with_overrides(over), inst, library=library)
+    over["species[0].accents"] = [{"share": 1.0, "colour": list(FLUSH), "amount": [1.0, 1.0]}]
+    red = load_scene(cfg.with_overrides(over), inst, library=library)
+    c = np.array(leaf_colour(library.resolve("box")))
+    np.testing.assert_allclose(c * red.tree_tints(), np.broadcast_to(FLUSH, (len(inst), 3)), rtol=1e-5)
+    assert not np.allclose(plain.tree_tints(), red.tree_tints())
+
+
+SCENE = """
+seed = {seed}
+[terrain]
+flat = {{ size = 60.0 }}
+[camera]
+position = [0.0, 400.0, 0.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 0.0, 1.0]
+fov = 6.0
+[lights]
+sky = {{ radiance = 1.0, colour = [1.0, 1.0, 1.0] }}
+[render]
+width = 40
+height = 40
+spp = 4
+max_depth = 2
+terrain_colour = [0.0, 0.0, 0.0]
+aovs = ["albedo"]
+[[species]]
+model = "box"
+percent = 100
+colour_jitter = {{ hue = 0.0, value = 0.0 }}
+accents = [{{ share = 0.35, colour = {flush}, amount = [1.0, 1.0] }},
+           {{ share = 0.35, colour = {flower}, amount = [1.0, 1.0] }}]
+[lod]
+auto = false
+"""
+POSITIONS = [[x, 0.0, z] for x in (-12.0, 0.0, 12.0) for z in (-6.0, 6.0)]
+
+
+def test_forest_path_renders_each_accented_tree_in_its_accent(tmp_path):
+    """Six boxes from above: each box's first-hit albedo is its accent's colour where the draw gave it one and
+    the species' own colour elsewhere."""
+    library = BoxLibrary(tmp_path / "lib")
+    text = SCENE.format(seed=1, flush=list(FLUSH), flower=list(FLOWER))
+    cfg = parse_config(text, path=tmp_path / "scene.toml", base_dir=tmp_path)
+    base = dataclasses.replace(trees(POSITIONS, scale=2.0), extent=(-30.0, -30.0, 30.0, 30.0))
+    params = tint_params(model_settings(cfg), (library.resolve("box"),), cfg.seed)
+    k, _ = accent_table(model_settings(cfg)).draw(base.species, base.id, cfg.seed)
+    assert set(k.tolist()) == {-1, 0, 1}, k  # the seed gives all three kinds among the six
+    inst = dataclasses.replace(base, tint=params.tints(np.ones((len(base), 3), np.float32), base.species, base.id))
+    scene = load_scene(cfg, inst, library=library)
+    render_scene(scene, output=tmp_path / "f.exr", variant="llvm_ad_rgb")
+    albedo = tree_albedo(tmp_path / "f.exr", scene.instances.id)
+    c = np.array(leaf_colour(library.resolve("box")))
+    expect = np.where((k == 0)[:, None], FLUSH, np.where((k == 1)[:, None], FLOWER, c))
+    np.testing.assert_allclose(albedo, expect, rtol=0.03)
+
+
+@pytest.mark.parametrize(
+    ("accents", "fragment"),
+    [
+        ("[{ share = 0.7, colour = [0.2, 0.1, 0.1] }, { share = 0.5, colour = [0.3, 0.3, 0.0] }]", "add up to 1.2"),
+        ("[{ share = 0.1, colour = [0.95, 0.1, 0.1] }]", "at most 0.9"),
+        ("[{ share = 0.1, colour = [0.2, 0.1, 0.1], amount = [0.9, 0.5] }]", "must not exceed"),
+    ],
+)
+def test_bad_accents_are_one_line_naming_the_field(tmp_path: Path, accents: str, fragment: str):
+    cfg = tmp_path / "scene.toml"
+    cfg.write_text(f'[terrain]\nflat = {{}}\n[[species]]\nmodel = "broadleaf"\npercent = 50\naccents = {accents}\n')
+    out = tmp_path / "t.npz"
+    r = run_forest("scatter", cfg, "-o", out)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    line = r.stderr.strip()
+    assert len(line.splitlines()) == 1 and "Traceback" not in line
+    assert "scene.toml" in line and "species[0].accents" in line and fragment in line, line
+    assert not out.exists()
