@@ -102,7 +102,7 @@ from .preflight import check_species
 from .scatter.models import model_settings, resolve_individuals, resolve_models, scatter_models
 from .skirt import horizon_albedo
 from .terrain import Terrain, load_terrain
-from .tint import TintParams, bark_params, tint_params
+from .tint import TintParams, accent_table, bark_params, tint_params
 
 Progress = Callable[[float, str], None]
 
@@ -213,6 +213,20 @@ class Scene:
         if np.all(np.abs(f - 1.0) < 1e-6):
             return None
         return f
+
+    def tree_accents(self) -> np.ndarray | None:
+        """(N,) int64: the colour accent each tree carries (``[[species]] accents``, :class:`forest.tint.Accents`;
+        −1 for none), or None when no tree carries one or the set's tints were made elsewhere (then they are
+        not this config's).  ``scalar_rgb`` gives accented trees their own colour bins
+        (:class:`forest.render.instancing.JitterBins`)."""
+        inst = self.instances
+        if not len(inst) or not _scattered(inst):
+            return None
+        table = accent_table(model_settings(self.config))
+        if not table.any:
+            return None
+        k, _ = table.draw(np.asarray(inst.species, np.int64), np.asarray(inst.id), self.config.seed)
+        return k if (k >= 0).any() else None
 
     def tree_jitter(self) -> np.ndarray | None:
         """(N, 3) float32: each tree's tint beyond the colour map, j_i = t_i ⊘ m(x_i); None when every j_i is 1.

@@ -179,3 +179,50 @@ def test_bad_accents_are_one_line_naming_the_field(tmp_path: Path, accents: str,
     assert len(line.splitlines()) == 1 and "Traceback" not in line
     assert "scene.toml" in line and "species[0].accents" in line and fragment in line, line
     assert not out.exists()
+
+
+def test_scalar_rgb_bins_give_accented_crowns_their_own_bins():
+    """JitterBins: with the accent groups, each group has a bin of its own whose factor is its trees' mean
+    (so a red crown stays red in scalar_rgb); without them the red crowns are averaged into green bins."""
+    from forest.render.instancing import JitterBins
+    from forest.tint import oklab
+
+    n = 2000
+    ids, species = np.arange(n) + 5, np.zeros(n, np.int64)
+    acc = _accents()
+    accents, _ = acc.draw(species, ids, 11)
+    t = tree_tints(np.ones((n, 3), np.float32), species, ids, 11, BROADLEAF, [11.0], [0.18], acc).astype(np.float64)
+    bins, factors = JitterBins(t, species, ids, BROADLEAF, accents=accents).bins(8)
+    for j in (0, 1):
+        group = accents == j
+        assert len(set(bins[group].tolist())) == 1 and bins[group][0] == 6 + j  # the last two bins
+        assert not np.isin(bins[~group], [6 + j]).any()
+        np.testing.assert_allclose(factors[0, 6 + j], t[group].mean(axis=0), rtol=1e-12)
+    assert set(bins[accents < 0].tolist()) == set(range(6))
+
+    def hue(rgb):
+        lab = oklab(rgb)
+        return np.degrees(np.arctan2(lab[:, 2], lab[:, 1]))
+
+    red = hue(np.array([FLUSH]))[0]
+    # With its own bin the flushing crowns' colour is red's hue; averaged into green bins no bin comes near it.
+    assert abs(hue(BROADLEAF * factors[0, 6])[0] - red) < 10.0
+    _, plain = JitterBins(t, species, ids, BROADLEAF).bins(8)
+    assert np.min(np.abs(hue(BROADLEAF * plain[0]) - red)) > 60.0
+
+
+def test_tree_accents_are_the_configs_draw_for_a_scattered_set_only(tmp_path):
+    from test_scene import four_trees, make_config
+
+    library = BoxLibrary(tmp_path / "lib")
+    cfg = make_config(tmp_path).with_overrides(
+        {"species[0].accents": [{"share": 0.5, "colour": list(FLUSH)}, {"share": 0.5, "colour": list(FLOWER)}]}
+    )
+    elsewhere = load_scene(cfg, four_trees(), library=library)
+    assert elsewhere.tree_accents() is None  # its tints are its own, not this config's
+    inst = four_trees()
+    inst.meta["inputs"] = {}
+    scene = load_scene(cfg, inst, library=library)
+    k, _ = accent_table(model_settings(cfg)).draw(inst.species, inst.id, cfg.seed)
+    np.testing.assert_array_equal(scene.tree_accents(), k)
+    assert (k >= 0).all()

@@ -141,6 +141,12 @@ class JitterBins:
     gives K_h = 1 for the library's greens up to k = 8).  Bin b has the factors j̄_b and f̄_b, the
     means of j_i and f_i over its trees, so the bins keep each species' mean colours; a species with
     fewer than k trees gets at most one bin per tree.  Trees of a species not binned get bin −1.
+
+    ``accents`` (N,) (each tree's colour accent, −1 for none: :meth:`forest.scene.Scene.tree_accents`, or
+    None) keeps accented crowns from being averaged into green bins: a few percent of a species, far
+    from the rest in hue, they would shift their bins' means a little and vanish.  With k ≥ 2 bins the
+    species' A largest accent groups, A ≤ k − 1, get one bin each (the last A), and the other trees
+    share the first k − A bins as above.
     """
 
     def __init__(
@@ -151,8 +157,10 @@ class JitterBins:
         base: np.ndarray,
         bark: np.ndarray | None = None,
         bark_base: np.ndarray | None = None,
+        accents: np.ndarray | None = None,
     ):
         self.jitter = np.asarray(jitter, np.float64).reshape(-1, 3)
+        self.accents = None if accents is None else np.asarray(accents, np.int64).ravel()
         self.species = np.asarray(species, np.int64).ravel()
         self.ids = np.asarray(ids).astype(np.int64).ravel()
         self.n_species = len(base)
@@ -192,15 +200,11 @@ class JitterBins:
         bark = np.ones((self.n_species, k, 3), np.float64)
         for s in np.flatnonzero(self.binned).tolist():
             rows = np.flatnonzero(self.species == s)
-            coords, ids = self.coords[rows], self.ids[rows]
-            shape = _grid_shape(k, *(float(x) for x in coords.std(axis=0)))
+            own, n_own = self._accent_bins(rows, k)  # each accent group's bin (offset into the last n_own), −1 else
+            rest = np.flatnonzero(own < 0)
             b = np.zeros(len(rows), np.int64)
-            for d, n in enumerate(shape):  # split every group of the previous coordinates by this one
-                sub = np.zeros(len(rows), np.int64)
-                for g in np.unique(b).tolist():
-                    members = np.flatnonzero(b == g)
-                    sub[members] = _equal_counts(coords[members, d], ids[members], n)
-                b = b * n + sub
+            b[rest] = self._grid_bins(rows[rest], k - n_own)
+            b[own >= 0] = k - n_own + own[own >= 0]
             bins[rows] = b
             counts = np.bincount(b, minlength=k).astype(np.float64)
             for table, values in ((factors, self.jitter), (bark, self.bark)):
@@ -211,6 +215,37 @@ class JitterBins:
                     table[s, :, ch] = np.where(counts > 0, total / np.maximum(counts, 1.0), 1.0)
         self._cache[k] = (bins, factors, bark)
         return self._cache[k]
+
+    def _grid_bins(self, rows: np.ndarray, k: int) -> np.ndarray:
+        """The trees ``rows`` split into ``k`` bins over their coordinates (the class docstring's grid)."""
+        coords, ids = self.coords[rows], self.ids[rows]
+        b = np.zeros(len(rows), np.int64)
+        if not len(rows):
+            return b
+        shape = _grid_shape(k, *(float(x) for x in coords.std(axis=0)))
+        for d, n in enumerate(shape):  # split every group of the previous coordinates by this one
+            sub = np.zeros(len(rows), np.int64)
+            for g in np.unique(b).tolist():
+                members = np.flatnonzero(b == g)
+                sub[members] = _equal_counts(coords[members, d], ids[members], n)
+            b = b * n + sub
+        return b
+
+    def _accent_bins(self, rows: np.ndarray, k: int) -> tuple[np.ndarray, int]:
+        """(per row of ``rows``: the index among the species' kept accent groups, −1 for none; how many kept).
+
+        At most k − 1 groups are kept, the largest first (ties: the lower accent index)."""
+        own = np.full(len(rows), -1, np.int64)
+        if self.accents is None or k < 2:
+            return own, 0
+        acc = self.accents[rows]
+        groups, counts = np.unique(acc[acc >= 0], return_counts=True)
+        if not len(groups):
+            return own, 0
+        kept = groups[np.lexsort((groups, -counts))][: k - 1]
+        for j, g in enumerate(np.sort(kept).tolist()):
+            own[acc == g] = j
+        return own, len(kept)
 
     def bins(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """``(bin (N,) int64 in [0, k) or −1, leaf factors j̄ (S, k, 3) float64)`` for ``k`` bins per species
@@ -306,8 +341,15 @@ class ForestBuilder:
                 np.float64,
             ).reshape(-1, 3)
             ones = np.ones((len(self.instances), 3))
+            tree_accents = getattr(scene, "tree_accents", None)
             jb = JitterBins(
-                ones if jitter is None else jitter, self.instances.species, self.instances.id, base, bark, bark_base
+                ones if jitter is None else jitter,
+                self.instances.species,
+                self.instances.id,
+                base,
+                bark,
+                bark_base,
+                tree_accents() if tree_accents is not None else None,
             )
             self.jitter = jb if jb.binned.any() else None
         # Shapegroup slot 0: no jitter; slot off(k) + b (off(k) = 1 + k(k−1)/2): bin b of k.
