@@ -20,10 +20,6 @@ mean colour is warm by the same rule.
 
 from __future__ import annotations
 
-import argparse
-import os
-import resource
-import subprocess
 import sys
 import tempfile
 import time
@@ -36,6 +32,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_foliage_stats import PHOTOS, crown_means, hsv, read
+from timing import forest_render, load_line, render_arguments
 
 CONFIG = ROOT / "configs" / "jungle.toml"
 PAIR = "aerial_road_conifers"
@@ -45,21 +42,6 @@ def warm(px: np.ndarray) -> np.ndarray:
     """Rows of (N, 3) 8-bit pixels that are warm, saturated and lit (the module docstring's rule)."""
     h, s, v = hsv(px)
     return ((h < 60.0) | (h >= 330.0)) & (s > 0.3) & (v > 0.15)
-
-
-def _children_cpu() -> float:
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
-
-
-def render(out: Path, sets: list[str], width: int, height: int, spp: int) -> tuple[float, float]:
-    """One ``forest render`` of the jungle with ``--set`` ``sets``: (wall s, CPU s)."""
-    cmd = [str(ROOT / ".venv" / "bin" / "forest"), "render", str(CONFIG), "-o", str(out), "-q"]
-    for s in [*sets, f"render.width={width}", f"render.height={height}", f"render.spp={spp}"]:
-        cmd += ["--set", s]
-    t0, c0 = time.perf_counter(), _children_cpu()
-    subprocess.run(cmd, capture_output=True, text=True, check=True)
-    return time.perf_counter() - t0, _children_cpu() - c0
 
 
 def canopy_of_render(exr: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -113,17 +95,9 @@ def tint_cost(n: int = 1_000_000) -> tuple[float, float]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", default="480x270")
-    ap.add_argument("--spp", type=int, default=16)
-    ap.add_argument("--runs", type=int, default=2)
-    ap.add_argument("--keep", type=Path, default=None, help="Keep the renders here.")
-    args = ap.parse_args()
+    args = render_arguments(__doc__.splitlines()[0], "480x270")
     w, h = (int(v) for v in args.size.split("x"))
-    load = os.getloadavg()
-    print(
-        f"accents: load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at start; jungle {w}x{h} {args.spp} spp"
-    )
+    print(f"accents: {load_line()} at start; jungle {w}x{h} {args.spp} spp")
     off = [f"species[{i}].accents=[]" for i in accented_species(CONFIG.read_text())]
     cases = {"without accents": off, "with accents (as configured)": []}
     best: dict[str, tuple[float, float]] = {}
@@ -133,7 +107,7 @@ def main() -> None:
         out_dir.mkdir(parents=True, exist_ok=True)
         for _ in range(args.runs):
             for k, (name, sets) in enumerate(cases.items()):
-                wall, cpu = render(out_dir / f"jungle_case{k}.exr", sets, w, h, args.spp)
+                wall, cpu, _ = forest_render(CONFIG, out_dir / f"jungle_case{k}.exr", sets, w, h, args.spp)
                 b = best.get(name)
                 best[name] = (min(wall, b[0]), min(cpu, b[1])) if b else (wall, cpu)
         for k, name in enumerate(cases):

@@ -16,41 +16,28 @@ on the contact sheet.  The photograph is the truth here: nothing in the erosion 
 
 from __future__ import annotations
 
-import argparse
-import os
-import resource
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from timing import forest_render, load_line, render_arguments
 
 PHOTO = ROOT / "tests" / "fixtures" / "photos" / "autumn_larch_hillside.jpg"
 #: Rows of the photograph above which its painted ground is the ridge, not the meadow.
 RIDGE_ROWS = 110
 
 
-def _children_cpu() -> float:
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
-
-
 def render(out: Path, sets: list[str], width: int, height: int, spp: int) -> tuple[float, float, str]:
     """One ``forest render`` of the meadow with ``--set`` ``sets``: (wall s, CPU s, its summary line)."""
-    cmd = [str(ROOT / ".venv" / "bin" / "forest"), "render", str(ROOT / "configs" / "meadow.toml"), "-o", str(out)]
-    for s in sets:
-        cmd += ["--set", s]
-    cmd += ["--set", f"render.width={width}"]
-    cmd += ["--set", f"render.height={height}", "--set", f"render.spp={spp}"]
-    t0, c0 = time.perf_counter(), _children_cpu()
-    done = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    wall, cpu, done = forest_render(ROOT / "configs" / "meadow.toml", out, sets, width, height, spp)
     lines = [ln for ln in done.stdout.splitlines() + done.stderr.splitlines() if "triangles" in ln]
-    return time.perf_counter() - t0, _children_cpu() - c0, (lines[-1].strip() if lines else "")
+    return wall, cpu, (lines[-1].strip() if lines else "")
 
 
 def luma(rgb: np.ndarray) -> np.ndarray:
@@ -118,17 +105,9 @@ def photo() -> tuple[float, float, float]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", default="640x360")
-    ap.add_argument("--spp", type=int, default=16)
-    ap.add_argument("--runs", type=int, default=2)
-    ap.add_argument("--keep", type=Path, default=None, help="Keep the renders here.")
-    args = ap.parse_args()
+    args = render_arguments(__doc__.splitlines()[0], "640x360")
     w, h = (int(v) for v in args.size.split("x"))
-    load = os.getloadavg()
-    print(
-        f"erosion: load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at start; meadow {w}x{h} {args.spp} spp"
-    )
+    print(f"erosion: {load_line()} at start; meadow {w}x{h} {args.spp} spp")
     cases = {
         "smooth (erosion 0)": ["render.horizon_hills.erosion=0"],
         "eroded (erosion 1)": ["render.horizon_hills.erosion=1"],
@@ -156,8 +135,7 @@ def main() -> None:
     contrast, rough, share = photo()
     print(f"erosion photograph {PHOTO.stem}: the ridge {share:.1%} of the frame, relief contrast {contrast:.4f}, "
           f"skyline roughness {rough:.5f}")  # fmt: skip
-    load = os.getloadavg()
-    print(f"erosion: load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} at end")
+    print(f"erosion: {load_line()} at end")
 
 
 if __name__ == "__main__":

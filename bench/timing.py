@@ -9,10 +9,16 @@ variant's fastest run by CPU seconds.
 
 from __future__ import annotations
 
+import argparse
+import os
 import resource
+import subprocess
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def cpu_seconds() -> float:
@@ -42,3 +48,39 @@ def versus(run: tuple[float, float], base: tuple[float, float], what: str) -> st
     ``"W s wall, C CPU-s (Rx CPU, Rx wall of WHAT)"``."""
     wall, cpu = run
     return f"{wall:6.2f} s wall, {cpu:6.2f} CPU-s ({cpu / base[1]:.2f}x CPU, {wall / base[0]:.2f}x wall of {what})"
+
+
+def children_cpu_seconds() -> float:
+    """User + system CPU seconds of this process's finished children so far."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def forest_render(
+    config: Path, out: Path, sets: Sequence[str], width: int, height: int, spp: int
+) -> tuple[float, float, subprocess.CompletedProcess[str]]:
+    """One whole ``forest render`` of ``config`` to ``out`` with ``--set`` ``sets`` at that size and samples:
+    (wall s, CPU s of the command, the finished process)."""
+    cmd = [str(ROOT / ".venv" / "bin" / "forest"), "render", str(config), "-o", str(out)]
+    for s in [*sets, f"render.width={width}", f"render.height={height}", f"render.spp={spp}"]:
+        cmd += ["--set", s]
+    t0, c0 = time.perf_counter(), children_cpu_seconds()
+    done = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    return time.perf_counter() - t0, children_cpu_seconds() - c0, done
+
+
+def render_arguments(description: str, size: str) -> argparse.Namespace:
+    """``--size WxH`` (default ``size``), ``--spp``, ``--runs``, ``--keep DIR``: the options of a bench that renders a
+    scene with and without a feature through :func:`forest_render`."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--size", default=size)
+    ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--runs", type=int, default=2)
+    ap.add_argument("--keep", type=Path, default=None, help="Keep the renders here.")
+    return ap.parse_args()
+
+
+def load_line() -> str:
+    """``load average a / b / c``: the machine's 1, 5 and 15-minute load averages."""
+    a, b, c = os.getloadavg()
+    return f"load average {a:.1f} / {b:.1f} / {c:.1f}"

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import run_forest
-from test_bark import tree_albedo
+from test_bark import SCENE, tree_albedo
 from test_render import trees
 
 from forest.config import parse_config
@@ -112,32 +112,14 @@ def test_a_scene_retints_with_the_configs_accents(tmp_path):
     assert not np.allclose(plain.tree_tints(), red.tree_tints())
 
 
-SCENE = """
-seed = {seed}
-[terrain]
-flat = {{ size = 60.0 }}
-[camera]
-position = [0.0, 400.0, 0.0]
-target = [0.0, 0.0, 0.0]
-up = [0.0, 0.0, 1.0]
-fov = 6.0
-[lights]
-sky = {{ radiance = 1.0, colour = [1.0, 1.0, 1.0] }}
-[render]
-width = 40
-height = 40
-spp = 4
-max_depth = 2
-terrain_colour = [0.0, 0.0, 0.0]
-aovs = ["albedo"]
-[[species]]
+#: Six boxes of the ``box`` species with two accents: the shares put, with the scene's seed (5), two boxes in
+#: each accent and two in none.
+BOXES = """[[species]]
 model = "box"
 percent = 100
 colour_jitter = {{ hue = 0.0, value = 0.0 }}
-accents = [{{ share = 0.35, colour = {flush}, amount = [1.0, 1.0] }},
-           {{ share = 0.35, colour = {flower}, amount = [1.0, 1.0] }}]
-[lod]
-auto = false
+accents = [{{ share = 0.72, colour = {flush}, amount = [1.0, 1.0] }},
+           {{ share = 0.04, colour = {flower}, amount = [1.0, 1.0] }}]
 """
 POSITIONS = [[x, 0.0, z] for x in (-12.0, 0.0, 12.0) for z in (-6.0, 6.0)]
 
@@ -146,7 +128,8 @@ def test_forest_path_renders_each_accented_tree_in_its_accent(tmp_path):
     """Six boxes from above: each box's first-hit albedo is its accent's colour where the draw gave it one and
     the species' own colour elsewhere."""
     library = BoxLibrary(tmp_path / "lib")
-    text = SCENE.format(seed=1, flush=list(FLUSH), flower=list(FLOWER))
+    species = BOXES.format(flush=list(FLUSH), flower=list(FLOWER))
+    text = SCENE.format(head="", render='aovs = ["albedo"]', species=species)
     cfg = parse_config(text, path=tmp_path / "scene.toml", base_dir=tmp_path)
     base = dataclasses.replace(trees(POSITIONS, scale=2.0), extent=(-30.0, -30.0, 30.0, 30.0))
     params = tint_params(model_settings(cfg), (library.resolve("box"),), cfg.seed)
