@@ -16,6 +16,12 @@ shipped photographs (``tests/fixtures/photos``, ``#00ff00``): above all ``aerial
 pair on the contact sheet, a nadir view over spruces with a few yellow larches among them.  The photographs are
 the truth: no accent was fitted to them.  Per crown (renders only): the share of trees, of ≥ 12 pixels, whose
 mean colour is warm by the same rule.
+
+Then autumn: the meadow (configs/meadow.toml) with :data:`AUTUMN`'s accents — its broadleaves yellow, orange and
+red, its birches yellow, half its shrubs turning, its spruces green — set beside the shipped photograph of an
+autumn larch wood (``autumn_larch_hillside``, the meadow's pair): the warm share of the trees' pixels and the hue
+(median, 10–90 %) of the warm ones.  The colours were chosen by eye for a mixed broadleaf wood, not from the
+photograph, whose wood is all larch.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ from __future__ import annotations
 import sys
 import tempfile
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +43,14 @@ from timing import forest_render, load_line, render_arguments
 
 CONFIG = ROOT / "configs" / "jungle.toml"
 PAIR = "aerial_road_conifers"
+MEADOW = ROOT / "configs" / "meadow.toml"
+#: The meadow in autumn (``--set`` overrides): docs/images/autumn.jpg and the comparison with the photograph.
+AUTUMN = [
+    "species[0].accents=[{share=0.45,colour=[0.45,0.30,0.03],amount=[0.6,1.0]},"
+    "{share=0.35,colour=[0.45,0.15,0.03],amount=[0.6,1.0]},{share=0.1,colour=[0.30,0.05,0.03],amount=[0.6,1.0]}]",
+    "species[1].accents=[{share=0.85,colour=[0.50,0.38,0.04],amount=[0.6,1.0]}]",
+    "species[3].accents=[{share=0.5,colour=[0.35,0.15,0.03],amount=[0.4,0.9]}]",
+]
 
 
 def warm(px: np.ndarray) -> np.ndarray:
@@ -44,15 +59,27 @@ def warm(px: np.ndarray) -> np.ndarray:
     return ((h < 60.0) | (h >= 330.0)) & (s > 0.3) & (v > 0.15)
 
 
-def canopy_of_render(exr: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(tree pixels (N, 3) uint8 of the PNG beside ``exr``, their tree ids), by the EXR's species and id layers."""
+def canopy_of_render(exr: Path, species_below: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(tree pixels (N, 3) uint8 of the PNG beside ``exr``, their tree ids), by the EXR's species and id layers;
+    ``species_below``: only species indices below it (the ``[[species]]``, not the ``[[ground_cover]]``)."""
     import OpenImageIO as oiio
 
     names = list(oiio.ImageInput.open(str(exr)).spec().channelnames)
     layers = read(exr)
     species, ids = layers[..., names.index("species.Z")], layers[..., names.index("id.Z")]
     png = read(exr.with_suffix(".png"))[..., :3]
-    return png[species >= 0], ids[species >= 0]
+    keep = (species >= 0) & (species < (np.inf if species_below is None else species_below))
+    return png[keep], ids[keep]
+
+
+def warm_hues(px: np.ndarray) -> str:
+    """``warm share S, hue median M° (10–90 % A–B°)`` of (N, 3) 8-bit pixels."""
+    h, _, _ = hsv(px)
+    w = warm(px)
+    if not w.any():
+        return f"warm share {w.mean():.3f}"
+    p10, p50, p90 = np.percentile(h[w], [10, 50, 90])
+    return f"warm share {w.mean():.3f}, warm hue median {p50:.0f}° (10–90 % {p10:.0f}–{p90:.0f}°)"
 
 
 def canopy_of_photo(jpg: Path) -> np.ndarray:
@@ -64,8 +91,6 @@ def canopy_of_photo(jpg: Path) -> np.ndarray:
 
 def accented_species(text: str) -> list[int]:
     """Indices of the ``[[species]]`` tables of the config text that set ``accents``."""
-    import tomllib
-
     return [i for i, s in enumerate(tomllib.loads(text).get("species", [])) if s.get("accents")]
 
 
@@ -122,6 +147,15 @@ def main() -> None:
             f"  {name:30s} {wall:6.1f} s wall  {cpu:6.1f} CPU-s  ({wall / base[0]:.2f}x wall, {cpu / base[1]:.2f}x CPU)"
             f"   warm share: pixels {px_share:.4f}, crowns {crown_share:.4f} of {n}"
         )
+    with tempfile.TemporaryDirectory() as tmp:
+        out_dir = args.keep or Path(tmp)
+        exr = out_dir / "meadow_autumn.exr"
+        wall, cpu, _ = forest_render(MEADOW, exr, AUTUMN, w, h, args.spp)
+        px, _ = canopy_of_render(exr, species_below=len(tomllib.loads(MEADOW.read_text())["species"]))
+        print(f"  meadow in autumn ({wall:.1f} s wall): its trees' {warm_hues(px)}")
+    print(
+        f"  photograph autumn_larch_hillside's canopy: {warm_hues(canopy_of_photo(PHOTOS / 'autumn_larch_hillside.jpg'))}"
+    )
     plain, accented = tint_cost()
     print(
         f"  tints of 1 000 000 trees: {plain * 1e3:.0f} ms without accents, {accented * 1e3:.0f} ms with "
