@@ -1257,7 +1257,7 @@ class RenderConfig(Section):
     horizon_hills: HorizonHillsConfig | None = Field(
         None,
         description="Hills on that ground (height, scale, seed, metres): hazed silhouettes toward the horizon "
-        "instead of a level plain; off by default. Drawn by forest's renderers; the exports write the terrain alone.",
+        "instead of a level plain; off by default. Drawn by forest's renderers; the exports write the hills in one far colour (no woods, rock or snow).",
     )
     seed: Annotated[Int, Field(ge=0)] = Field(0, description="Sampler seed.")
     alpha_shadows: Bool = Field(

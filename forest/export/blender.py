@@ -69,6 +69,7 @@ from .common import (
     check_instances,
     export_frames,
     ground_colour,
+    horizon,
     is_bark,
     lod_mesh,
     look_instances,
@@ -266,6 +267,11 @@ def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
 
         write_image(folder / "terrain.png", grid)
         t.update(texture=str((folder / "terrain.png").resolve()), colour=[1.0, 1.0, 1.0])
+    far = horizon(scene)
+    h = None
+    if far is not None:  # the hills past the terrain's edge, in their far colour
+        h = _mesh_files(folder, "horizon", far.vertices, far.faces, far.normals, far.uv)
+        h["colour"] = list(far.colour)
     keys = []
     # A lens given in millimetres goes over as one (sensor_width + lens), else as the angle.
     lens = config.camera.focal_length is not None or any(k.focal_length is not None for k in config.camera.keys)
@@ -310,6 +316,7 @@ def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
         "species": species,
         "points": points,
         "terrain": t,
+        "horizon": h,
         "camera": camera,
         "sun": sun,
         "sky": sky,

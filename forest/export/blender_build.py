@@ -247,13 +247,14 @@ def make_points(manifest: dict, folder: Path, coll):
     return obj
 
 
-def make_terrain(manifest: dict, folder: Path):
-    """The terrain object, its material the manifest's colour (and texture)."""
-    t = manifest["terrain"]
-    mesh = make_mesh("terrain", folder, t)
+def make_terrain(manifest: dict, folder: Path, name: str = "terrain"):
+    """The terrain object (or ``horizon``, the hills past its edge), its material the manifest's colour (and
+    texture)."""
+    t = manifest[name]
+    mesh = make_mesh(name, folder, t)
     part = {"colour": t["colour"], "texture": t.get("texture"), "tinted": False, "translucency": 0.0}
-    mesh.materials.append(make_material("terrain", part))
-    obj = bpy.data.objects.new("terrain", mesh)
+    mesh.materials.append(make_material(name, part))
+    obj = bpy.data.objects.new(name, mesh)
     bpy.context.scene.collection.objects.link(obj)
     return obj
 
@@ -400,6 +401,7 @@ def main(argv: list[str]) -> None:
     coll = make_species(manifest, folder)
     make_points(manifest, folder, coll)
     terrain = make_terrain(manifest, folder)
+    horizon = make_terrain(manifest, folder, "horizon") if manifest.get("horizon") else None
     make_camera(manifest)
     make_lights(manifest)
     set_render(manifest)
@@ -409,6 +411,8 @@ def main(argv: list[str]) -> None:
         scene = bpy.context.scene
         if coverage:  # alpha = trees: the terrain held out, the sky transparent, samples kept in their pixel
             terrain.is_holdout = True
+            if horizon is not None:
+                horizon.is_holdout = True
             scene.render.film_transparent = True
             scene.use_nodes = False  # no haze over the alpha
             scene.cycles.filter_width = 0.01

@@ -361,6 +361,45 @@ def ground_colour(scene) -> tuple[float, float, float]:
     return (float(c[0]), float(c[1]), float(c[2]))
 
 
+@dataclass(frozen=True)
+class Horizon:
+    """The far ground with its hills, as an exporter writes it (:func:`horizon`)."""
+
+    vertices: np.ndarray  # (V, 3) float32, metres, Y up
+    faces: np.ndarray  # (F, 3) uint32, wound upward
+    normals: np.ndarray  # (V, 3) float32
+    uv: np.ndarray  # (V, 2) float32: the map coordinates the terrain's uv would give them (outside [0, 1])
+    colour: tuple[float, float, float]  # linear albedo: the far landscape's, times the fitted ground tint
+
+
+def horizon(scene) -> Horizon | None:
+    """The hills past the terrain's edge (``[render] horizon_hills``) as forest's renderers build them: the skirt
+    out to the camera's far clip (:func:`forest.skirt.skirt_mesh`, :func:`forest.skirt.skirt_radius`) with the
+    hills on it, coloured with the far landscape's albedo (:func:`forest.skirt.far_colour`) times the fitted
+    ``ground_tint``.  None without hills or with ``horizon_ground = false``.  The woods' relief, their mosaic of
+    woods and fields, steep rock and snow are forest_path's shading and stay there."""
+    from ..skirt import far_colour, hills, skirt_mesh, skirt_radius
+
+    config, terrain = scene.config, scene.terrain
+    h = hills(config)
+    if h is None or not config.render.horizon_ground:
+        return None
+    sk = skirt_mesh(terrain, skirt_radius(terrain.extent, float(config.camera.far)), h)
+    if sk is None:
+        return None
+    c = np.asarray(far_colour(scene.terrain_albedo), np.float64).reshape(3)
+    gt = _ground_tint(scene)
+    if gt is not None:
+        c = c * gt.astype(np.float64)
+    colour = (float(c[0]), float(c[1]), float(c[2]))
+    xmin, zmin, xmax, zmax = (float(v) for v in terrain.extent)
+    v = np.asarray(sk.vertices, np.float64)
+    uv = np.stack([(v[:, 0] - xmin) / max(xmax - xmin, 1e-9), (v[:, 2] - zmin) / max(zmax - zmin, 1e-9)], 1)
+    return Horizon(
+        np.asarray(sk.vertices, np.float32), np.asarray(sk.faces, np.uint32), sk.normals, uv.astype(np.float32), colour
+    )
+
+
 def look_instances(scene):
     """The Scene's trees with the fitted leaf tint folded into their colour column (:meth:`Scene.tree_tints`):
     what every exporter writes as a tree's colour.  The InstanceSet itself when no leaf tint is set."""

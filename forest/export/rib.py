@@ -6,7 +6,8 @@ Layout of an export folder (render from inside it: every path is relative to it)
     archives/<species>_<lod>.rib   one tree level: per part its material and an ObjectInstance
     textures/<species>_<name>.tif  the parts' textures (sRGB RGB detail factor, alpha = leaf-card mask)
     textures/terrain.tif           the ground's albedo grid (terrain_texture, else [ground]'s rules)
-    terrain.rib                    the terrain as PointsPolygons with its textured material
+    terrain.rib                    the terrain as PointsPolygons with its textured material (and the hills
+                                   past its edge, [render] horizon_hills, in their far colour)
     instances_<partition>.rib      per partition: one attribute block per tree
     scene_<frame>.rib              per frame: display, camera, lights, the world
     shaders/forest_surface.sl      (RI 3.2) the surface shader, RenderMan Shading Language source
@@ -151,12 +152,14 @@ from ..lights import resolve_lights
 from ..scene import Scene
 from . import radiometry
 from .common import (
+    Horizon,
     SpeciesPlan,
     bark_factors,
     check_instances,
     export_frames,
     export_options,
     ground_colour,
+    horizon,
     is_bark,
     lod_mesh,
     look_instances,
@@ -588,31 +591,46 @@ def archive_bytes(
     return b"".join(out)
 
 
-def terrain_bytes(terrain, colour, renderman22: bool, texture: str | None) -> bytes:
-    """The terrain: ``texture`` (terrain colour × colour map, st = map coordinates) or a constant colour."""
+def terrain_bytes(terrain, colour, renderman22: bool, texture: str | None, far: Horizon | None = None) -> bytes:
+    """The terrain: ``texture`` (terrain colour × colour map, st = map coordinates) or a constant colour; with
+    ``far`` (:func:`forest.export.common.horizon`) the hills past its edge after it, in their constant
+    colour."""
+    out = [
+        HEADER,
+        f"# forest terrain: {len(terrain.vertices)} vertices, {len(terrain.faces)} triangles, metres, Y up\n".encode(),
+        _ground_block("terrain", terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv, colour,
+                      renderman22, texture),
+    ]  # fmt: skip
+    if far is not None:
+        h = far
+        out.append(f"# the hills past its edge: {len(h.vertices)} vertices, {len(h.faces)} triangles\n".encode())
+        out.append(_ground_block("horizon", h.vertices, h.faces, h.normals, h.uv, h.colour, renderman22, None))
+    return b"".join(out)
+
+
+def _ground_block(name: str, vertices, faces, normals, st, colour, renderman22: bool, texture: str | None) -> bytes:
+    """One ground mesh (``terrain`` or ``horizon``) in an attribute block: ``texture`` or a constant colour."""
     base = (1.0, 1.0, 1.0) if texture else colour
     if renderman22:
         if texture:
             material = (
-                f'  Pattern "PxrTexture" "terrain_tex" "string filename" [{rib_string(texture)}] '
+                f'  Pattern "PxrTexture" "{name}_tex" "string filename" [{rib_string(texture)}] '
                 '"int linearize" [1] "int invertT" [0]\n'
-                '  Bxdf "PxrDiffuse" "terrain" "reference color diffuseColor" ["terrain_tex:resultRGB"]\n'
+                f'  Bxdf "PxrDiffuse" "{name}" "reference color diffuseColor" ["{name}_tex:resultRGB"]\n'
             )
         else:
-            material = f'  Bxdf "PxrDiffuse" "terrain" "color diffuseColor" [{nums(colour)}]\n'
+            material = f'  Bxdf "PxrDiffuse" "{name}" "color diffuseColor" [{nums(colour)}]\n'
     else:
         tex = f' "string texturename" [{rib_string(texture)}]' if texture else ""
         material = f'  Surface "{SHADER}" "color basecolour" [{nums(base)}] "float tinted" [0]{tex}\n'
     return b"".join(
         [
-            HEADER,
-            f"# forest terrain: {len(terrain.vertices)} vertices, {len(terrain.faces)} triangles, metres, Y up\n".encode(),
             b"AttributeBegin\n",
-            b'  Attribute "identifier" "string name" ["terrain"]\n',
+            f'  Attribute "identifier" "string name" ["{name}"]\n'.encode(),
             b'  Orientation "rh"\n',
             f"  Color [{nums(colour)}]\n".encode(),
             material.encode(),
-            points_polygons(terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv, indent="  "),
+            points_polygons(vertices, faces, normals, st, indent="  "),
             b"AttributeEnd\n",
         ]
     )
@@ -1148,7 +1166,7 @@ def export_rib(
                 result.objects = out_dir / "objects.rib"
                 result.bytes += objects.bytes
             report(0.05, "archives")
-            data = terrain_bytes(terrain, ground_colour(scene), r22, terrain_tex)
+            data = terrain_bytes(terrain, ground_colour(scene), r22, terrain_tex, horizon(scene))
             (tmp / "terrain.rib").write_bytes(data)
             result.terrain = out_dir / "terrain.rib"
             result.bytes += len(data)

@@ -4,6 +4,7 @@ Stage layout (Y up, metres: ``upAxis = "Y"``, ``metersPerUnit = 1``)::
 
     /World                          Xform, the default prim
     /World/Terrain                  Mesh (points, normals, st, displayColor)
+    /World/Horizon                  Mesh: the hills past the terrain's edge ([render] horizon_hills), far colour
     /World/Camera                   Camera, time-sampled over the frames when keyed
     /World/Lights/Sun               DistantLight
     /World/Lights/Sky               DomeLight
@@ -76,6 +77,7 @@ from ..lights import resolve_lights
 from ..scene import Scene
 from . import radiometry
 from .common import (
+    Horizon,
     SpeciesPlan,
     bark_colour,
     bark_factors,
@@ -85,6 +87,7 @@ from .common import (
     export_frames,
     export_options,
     ground_colour,
+    horizon,
     is_bark,
     lod_mesh,
     look_instances,
@@ -400,6 +403,19 @@ def _terrain(stage, terrain, colour, texture: str | None = None):
     return mesh
 
 
+def _horizon(stage, far: Horizon):
+    """The hills past the terrain's edge (:func:`forest.export.common.horizon`): a mesh in their far colour."""
+    from pxr import UsdShade
+
+    Gf, Sdf, _Usd, UsdGeom, _UsdLux, Vt = _pxr()
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Horizon")
+    _set_mesh(UsdGeom, Vt, Sdf, mesh, far.vertices, far.faces, far.normals, far.uv)
+    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*far.colour)]))
+    part = type("HorizonPart", (), {"colour": far.colour, "tinted": False})()
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(part_material(stage, "/World/Looks/Horizon", part, None))
+    return mesh
+
+
 def _camera(stage, config: Config, frames: list[int]):
     Gf, _Sdf, Usd, UsdGeom, _UsdLux, _Vt = _pxr()
     cam_cfg = config.camera
@@ -630,6 +646,9 @@ def export_usd(
                 terrain_tex = f"./{path.stem}_terrain.png"
                 result.textures.append(path.parent / f"{path.stem}_terrain.png")
             _terrain(stage, terrain, ground_colour(scene), terrain_tex)
+            far = horizon(scene)
+            if far is not None:
+                _horizon(stage, far)
             _camera(stage, config, frame_list)
             _lights(stage, config, path.parent)
             UsdGeom.Xform.Define(stage, "/World/Forest")
