@@ -377,6 +377,7 @@ class Accent(Section):
 
 
 def _accent_shares(v: tuple[Accent, ...]) -> tuple[Accent, ...]:
+    """A species' accents: their shares add up to at most 1 (a tree carries one accent at most)."""
     total = sum(a.share for a in v)
     if total > 1.0 + 1e-9:
         raise fail(f"the accents' shares add up to {total:g}, more than 1")

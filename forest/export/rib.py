@@ -602,9 +602,10 @@ def terrain_bytes(terrain, colour, renderman22: bool, texture: str | None, far: 
                       renderman22, texture),
     ]  # fmt: skip
     if far is not None:
-        h = far
-        out.append(f"# the hills past its edge: {len(h.vertices)} vertices, {len(h.faces)} triangles\n".encode())
-        out.append(_ground_block("horizon", h.vertices, h.faces, h.normals, h.uv, h.colour, renderman22, None))
+        out.append(f"# the hills past its edge: {len(far.vertices)} vertices, {len(far.faces)} triangles\n".encode())
+        out.append(
+            _ground_block("horizon", far.vertices, far.faces, far.normals, far.uv, far.colour, renderman22, None)
+        )
     return b"".join(out)
 
 
