@@ -102,7 +102,7 @@ from .preflight import check_species
 from .scatter.models import model_settings, resolve_individuals, resolve_models, scatter_models
 from .skirt import horizon_albedo
 from .terrain import Terrain, load_terrain
-from .tint import TintParams, accent_table, bark_params, tint_params
+from .tint import TintParams, Where, accent_table, bark_params, tint_params
 
 Progress = Callable[[float, str], None]
 
@@ -225,7 +225,8 @@ class Scene:
         table = accent_table(model_settings(self.config))
         if not table.any:
             return None
-        k, _ = table.draw(np.asarray(inst.species, np.int64), np.asarray(inst.id), self.config.seed)
+        where = Where.of(inst.position, inst.extent)
+        k, _ = table.draw(np.asarray(inst.species, np.int64), np.asarray(inst.id), self.config.seed, where)
         return k if (k >= 0).any() else None
 
     def tree_jitter(self) -> np.ndarray | None:
@@ -325,7 +326,7 @@ def retint(instances: InstanceSet, colour: ColourGrid | None, params: TintParams
     """
     pos = instances.position
     map_tint = np.ones((len(instances), 3), np.float32) if colour is None else colour.at(pos[:, 0], pos[:, 2])
-    tint = params.tints(map_tint, instances.species, instances.id)
+    tint = params.tints(map_tint, instances.species, instances.id, Where.of(pos, instances.extent))
     if np.array_equal(tint, instances.tint):
         return instances
     return dataclasses.replace(instances, tint=tint)

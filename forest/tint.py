@@ -34,7 +34,12 @@ w_i = w_lo + (w_hi − w_lo)·u_2 in Oklab before its jitter:
     t_i = J_i(mix(c_s ⊙ m(x_i), a_sk, w_i)) ⊘ c_s,   mix(x, y, w) = Lab⁻¹((1 − w)·Lab(x) + w·Lab(y))
 
 so w = 1 is the accent itself (jittered like any tree), and the accented trees keep the
-species' spread.  A species without accents gets the same tints, to the bit, as before accents
+species' spread.  An accent of ``clustering`` c > 0 gathers its trees in patches: its share at a
+tree standing at x becomes σ_sk·((1 − c) + c·(γ + 1)·U(x)^γ), U the area-ranked fBm stand field of
+:func:`forest.scatter.canopy.stand_field` at wavelength ``patch_scale`` (uniform over the
+terrain's area, its own stream per species and accent) and γ = :data:`PATCH_GAMMA`; the factor's
+mean over the terrain is 1 ((γ + 1)·E[U^γ] = 1), so the share is kept while a fifth of the area
+holds most of the accented trees (the shares at a tree are capped to add up to 1).  A species without accents gets the same tints, to the bit, as before accents
 existed (the jitter's uniforms are drawn for the same rows from the same hash).
 
 ξ is a hash of the tree's id and the scene's seed (SplitMix64, Steele, Lea &
@@ -60,6 +65,9 @@ if TYPE_CHECKING:
 
 JITTER_TAG = 0x7177E5
 ACCENT_TAG = 0xACC3
+#: The exponent γ of a clustered accent's patches (module docstring, "Accents"): the top fifth of the area by
+#: U holds 1 − 0.8^(γ+1) = 67 % of the accented trees at γ = 4.
+PATCH_GAMMA = 4.0
 BARK_TAG = 0xBA2C
 GREY = (0.18, 0.18, 0.18)  # the base of a species with no tinted part (its tint multiplies nothing)
 _GAMMA = np.uint64(0x9E3779B97F4A7C15)
@@ -181,13 +189,14 @@ def tree_tints(
     hue: Sequence[float] | np.ndarray,
     value: Sequence[float] | np.ndarray,
     accents: Accents | None = None,
+    where: Where | None = None,
 ) -> np.ndarray:
     """Every tree's tint t_i = J_i(mix(c_s ⊙ m_i, a_sk, w_i)) ⊘ c_s (module docstring): ``(N, 3)`` float32.
 
     ``map_tint`` (N, 3) the colour map's tint at each tree, ``species`` (N,)
     species indices, ``ids`` (N,) tree ids, ``base`` (S, 3) each species' leaf
     colour c_s, ``hue`` / ``value`` (S,) each species' jitter amplitudes,
-    ``accents`` each species' accents (None: none).
+    ``accents`` each species' accents (None: none), ``where`` the trees' places (needed by clustered accents).
     """
     tint = np.array(map_tint, dtype=np.float32, copy=True).reshape(-1, 3)
     k = np.asarray(species, dtype=np.int64)
@@ -206,10 +215,30 @@ def tree_tints(
     leaf = c * tint[rows]
     if accented:
         assert accents is not None
-        leaf = accents.apply(leaf, k[rows], np.asarray(ids)[rows], seed)
+        leaf = accents.apply(leaf, k[rows], np.asarray(ids)[rows], seed, None if where is None else where.rows(rows))
     out = rowwise(jitter_colours, leaf, hue[k[rows]] * xi[:, 0], value[k[rows]] * xi[:, 1])
     tint[rows] = (out / c).astype(np.float32)
     return tint
+
+
+@dataclass(frozen=True)
+class Where:
+    """Where the trees stand, for clustered accents: their world X and Z (N,) and the terrain's extent."""
+
+    x: np.ndarray
+    z: np.ndarray
+    extent: tuple[float, float, float, float]
+
+    @classmethod
+    def of(cls, position: np.ndarray, extent: Sequence[float]) -> Where:
+        """From (N, 3) positions (Y up) and (xmin, zmin, xmax, zmax)."""
+        p = np.asarray(position)
+        xmin, zmin, xmax, zmax = (float(v) for v in extent)
+        return cls(p[:, 0], p[:, 2], (xmin, zmin, xmax, zmax))
+
+    def rows(self, rows: np.ndarray) -> Where:
+        """These trees only."""
+        return Where(self.x[rows], self.z[rows], self.extent)
 
 
 @dataclass(frozen=True)
@@ -219,27 +248,56 @@ class Accents:
     share: np.ndarray  # (S, A) σ_sk
     colour: np.ndarray  # (S, A, 3) a_sk, linear sRGB
     amount: np.ndarray  # (S, A, 2) [w_lo, w_hi]
+    clustering: np.ndarray | None = None  # (S, A) c, None for all 0
+    scale: np.ndarray | None = None  # (S, A) the patches' wavelength, metres
 
     @property
     def any(self) -> bool:
         """Whether any species has an accent with a share above 0."""
         return bool(self.share.size and self.share.max() > 0)
 
-    def draw(self, species: np.ndarray, ids: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    def shares(self, species: np.ndarray, seed: int, where: Where | None = None) -> np.ndarray:
+        """(N, A): each tree's share of each accent of its species — σ_sk, or for a clustered accent σ_sk times
+        its patches' factor at the tree (module docstring), capped to add up to 1."""
+        s = np.asarray(species, np.int64)
+        p = self.share[s].copy()
+        if self.clustering is None or not (self.clustering > 0).any():
+            return p
+        if where is None:
+            raise ValueError("clustered accents need the trees' places")
+        from .scatter.canopy import stand_field
+
+        for sp, k in zip(*np.nonzero(self.clustering > 0)):
+            rows = np.flatnonzero(s == sp)
+            if not len(rows):
+                continue
+            assert self.scale is not None
+            field = stand_field(where.extent, float(self.scale[sp, k]), seed, (ACCENT_TAG, int(sp), int(k)))
+            u = field.at(where.x[rows], where.z[rows])
+            c = float(self.clustering[sp, k])
+            p[rows, k] *= (1.0 - c) + c * (PATCH_GAMMA + 1.0) * u**PATCH_GAMMA
+        total = p.sum(axis=1, keepdims=True)
+        return np.where(total > 1.0, p / np.maximum(total, 1e-12), p)
+
+    def draw(
+        self, species: np.ndarray, ids: np.ndarray, seed: int, where: Where | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(accent index k per tree, −1 for none; its weight w_i): the module docstring's draw."""
         s = np.asarray(species, np.int64)
         u = tree_uniforms(np.asarray(ids), seed, ACCENT_TAG, 2)
-        cum = np.cumsum(self.share[s], axis=1)
+        cum = np.cumsum(self.shares(s, seed, where), axis=1)
         k = np.sum(u[:, :1] >= cum, axis=1)
         k = np.where(k < self.share.shape[1], k, -1)
         lo_hi = self.amount[s, np.maximum(k, 0)]
         w = lo_hi[:, 0] + (lo_hi[:, 1] - lo_hi[:, 0]) * u[:, 1]
         return k, np.where(k >= 0, w, 0.0)
 
-    def apply(self, leaf: np.ndarray, species: np.ndarray, ids: np.ndarray, seed: int) -> np.ndarray:
+    def apply(
+        self, leaf: np.ndarray, species: np.ndarray, ids: np.ndarray, seed: int, where: Where | None = None
+    ) -> np.ndarray:
         """``leaf`` (N, 3) linear colours with each accented tree's mixed toward its accent (others unchanged)."""
         s = np.asarray(species, np.int64)
-        k, w = self.draw(s, ids, seed)
+        k, w = self.draw(s, ids, seed, where)
         out = np.array(leaf, np.float64, copy=True)
         hit = np.flatnonzero(k >= 0)
         if len(hit):
@@ -258,10 +316,14 @@ def accent_table(settings: Sequence[_Accented]) -> Accents:
     share = np.zeros((len(settings), n))
     colour = np.zeros((len(settings), n, 3))
     amount = np.ones((len(settings), n, 2))
+    clustering = np.zeros((len(settings), n))
+    scale = np.ones((len(settings), n))
     for i, s in enumerate(settings):
         for j, a in enumerate(s.accents):
             share[i, j], colour[i, j], amount[i, j] = a.share, a.colour, a.amount
-    return Accents(share=share, colour=colour, amount=amount)
+            clustering[i, j], scale[i, j] = a.clustering, a.patch_scale
+    clustered = clustering if (clustering > 0).any() else None
+    return Accents(share=share, colour=colour, amount=amount, clustering=clustered, scale=scale)
 
 
 @dataclass(frozen=True)
@@ -275,9 +337,11 @@ class TintParams:
     seed: int
     accents: Accents | None = None
 
-    def tints(self, map_tint: np.ndarray, species: np.ndarray, ids: np.ndarray) -> np.ndarray:
-        """:func:`tree_tints` of these trees: ``(N, 3)`` float32."""
-        return tree_tints(map_tint, species, ids, self.seed, self.base, self.hue, self.value, self.accents)
+    def tints(
+        self, map_tint: np.ndarray, species: np.ndarray, ids: np.ndarray, where: Where | None = None
+    ) -> np.ndarray:
+        """:func:`tree_tints` of these trees (``where``: their places, for clustered accents): ``(N, 3)`` float32."""
+        return tree_tints(map_tint, species, ids, self.seed, self.base, self.hue, self.value, self.accents, where)
 
 
 class _Jittered(Protocol):

@@ -209,3 +209,51 @@ def test_tree_accents_are_the_configs_draw_for_a_scattered_set_only(tmp_path):
     k, _ = accent_table(model_settings(cfg)).draw(inst.species, inst.id, cfg.seed)
     np.testing.assert_array_equal(scene.tree_accents(), k)
     assert (k >= 0).all()
+
+
+def test_a_clustered_accent_keeps_its_share_and_gathers_in_patches():
+    """clustering = 1: about the same share over the terrain, but most of the accented trees in a fifth of it; the
+    draw depends only on the tree and its place (a subset draws the same); clustering = 0 is the plain draw."""
+    from forest.tint import Where
+
+    n = 60_000
+    rng = np.random.default_rng(4)
+    pos = np.stack([rng.uniform(0, 1000, n), np.zeros(n), rng.uniform(0, 1000, n)], 1)
+    ids, species = np.arange(n), np.zeros(n, np.int64)
+    where = Where.of(pos, (0.0, 0.0, 1000.0, 1000.0))
+    plain = _accents(shares=(0.05,), amounts=((1.0, 1.0),))
+    patchy = dataclasses.replace(plain, clustering=np.array([[1.0]]), scale=np.array([[150.0]]))
+    k0, _ = plain.draw(species, ids, 3, where)
+    k1, _ = patchy.draw(species, ids, 3, where)
+    assert abs((k1 == 0).mean() - 0.05) < 0.01  # the share is kept
+    # Patches: the accented trees' neighbourhoods (50 m cells) are far more uneven than the plain draw's.
+    cells = (pos[:, 0] // 50).astype(int) * 20 + (pos[:, 2] // 50).astype(int)
+
+    def unevenness(k):
+        counts = np.bincount(cells[k == 0], minlength=400)
+        return counts.std() / counts.mean()
+
+    assert unevenness(k1) > 2.5 * unevenness(k0)
+    top = np.sort(np.bincount(cells[k1 == 0], minlength=400))[::-1]
+    assert top[:80].sum() > 0.5 * top.sum()  # a fifth of the cells hold most of them
+    sub = np.random.default_rng(5).permutation(n)[:3000]
+    np.testing.assert_array_equal(patchy.draw(species[sub], ids[sub], 3, where.rows(sub))[0], k1[sub])
+    with pytest.raises(ValueError, match="places"):
+        patchy.draw(species, ids, 3)
+
+
+def test_a_scatter_with_clustered_accents_is_the_scenes_retint(tmp_path):
+    """The tints scatter writes for clustered accents are the ones the Scene recomputes (same places, same draw)."""
+    from forest.scatter import scatter
+
+    cfg = parse_config(
+        '[terrain]\nflat = { size = 400.0 }\n[scatter]\ncount = 4000\n[[species]]\nmodel = "broadleaf"\npercent = 100\n'
+        "accents = [{ share = 0.1, colour = [0.2, 0.09, 0.035], clustering = 1.0, patch_scale = 80.0 }]\n",
+        path=tmp_path / "scene.toml",
+        base_dir=tmp_path,
+    )
+    inst, _ = scatter(cfg)
+    scene = load_scene(cfg, inst)
+    assert scene.instances.tint.tobytes() == inst.tint.tobytes()
+    k = scene.tree_accents()
+    assert k is not None and 0.06 < (k == 0).mean() < 0.14

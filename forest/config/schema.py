@@ -365,6 +365,14 @@ class Accent(Section):
     amount: tuple[Unit, Unit] = Field(
         (0.7, 1.0), description="Range [lo, hi] of the mix toward the colour, drawn per tree (1 = the colour itself)."
     )
+    clustering: Unit = Field(
+        0.0,
+        description="0: the accented trees stand anywhere; toward 1 they gather in patches (a beetle outbreak's "
+        "spots), the share kept over the terrain.",
+    )
+    patch_scale: Annotated[float, Field(gt=0.0, le=100000.0, allow_inf_nan=False)] = Field(
+        80.0, description="Size of those patches, metres (the wavelength of their noise)."
+    )
 
     _pairs = field_validator("amount")(_ordered_pair)
 

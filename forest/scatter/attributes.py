@@ -37,7 +37,7 @@ from ..config import Config
 from ..instances import InstanceSet, yaw_tilt_quaternion
 from ..maps import MapSet
 from ..terrain import Terrain
-from ..tint import TintParams
+from ..tint import TintParams, Where
 from .candidates import Candidates
 from .canopy import edge_taper_factors, emergent_factors
 
@@ -103,7 +103,9 @@ def tree_attributes(
         yaw=yaw,
         scale=scale,
         species=k,
-        tint=tints.tints(maps.tint_at(position[:, 0], position[:, 2], terrain.extent), k, sel),
+        tint=tints.tints(
+            maps.tint_at(position[:, 0], position[:, 2], terrain.extent), k, sel, Where.of(position, terrain.extent)
+        ),
         partition=maps.partition_at(trees.u, trees.v),
         normal=trees.normal,
         phase=phase,

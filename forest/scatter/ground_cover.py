@@ -79,7 +79,7 @@ from ..errors import ConfigError
 from ..instances import COLUMNS, yaw_tilt_quaternion
 from ..maps import MapSet
 from ..terrain import Terrain
-from ..tint import TintParams
+from ..tint import TintParams, Where
 from .attributes import draw_individuals
 from .candidates import SLOPE_TOLERANCE, outside, slope_degrees
 from .canopy import smoothstep, stand_field
@@ -203,7 +203,9 @@ def scatter_cover(
         "yaw": yaw,
         "scale": (lo + (hi - lo) * scale) * (1.0 if rank is None else patch_size(rank[sel], cover.clumping.size)),
         "species": k,
-        "tint": tints.tints(maps.tint_at(pos32[:, 0], pos32[:, 2], terrain.extent), k, ids),
+        "tint": tints.tints(
+            maps.tint_at(pos32[:, 0], pos32[:, 2], terrain.extent), k, ids, Where.of(pos32, terrain.extent)
+        ),
         "partition": maps.partition_at(u[sel], v[sel]),
         "normal": normal[sel],
         "phase": phase,
