@@ -39,8 +39,9 @@ tree standing at x becomes σ_sk·((1 − c) + c·(γ + 1)·U(x)^γ), U the area
 :func:`forest.scatter.canopy.stand_field` at wavelength ``patch_scale`` (uniform over the
 terrain's area, its own stream per species and accent) and γ = :data:`PATCH_GAMMA`; the factor's
 mean over the terrain is 1 ((γ + 1)·E[U^γ] = 1), so the share is kept while a fifth of the area
-holds most of the accented trees (the shares at a tree are capped to add up to 1).  A species without accents gets the same tints, to the bit, as before accents
-existed (the jitter's uniforms are drawn for the same rows from the same hash).
+holds most of the accented trees (the shares at a tree are capped to add up to 1).  A species
+without accents gets the same tints, to the bit, as before accents existed (the jitter's uniforms
+are drawn for the same rows from the same hash).
 
 ξ is a hash of the tree's id and the scene's seed (SplitMix64, Steele, Lea &
 Flood 2014, "Fast splittable pseudorandom number generators", OOPSLA), not a
@@ -202,20 +203,18 @@ def tree_tints(
     k = np.asarray(species, dtype=np.int64)
     hue = np.asarray(hue, dtype=np.float64)
     value = np.asarray(value, dtype=np.float64)
-    accented = accents is not None and accents.any
+    acc = accents if accents is not None and accents.any else None
     varies = (hue > 0) | (value > 0)
-    if accented:
-        assert accents is not None
-        varies = varies | (accents.share.sum(axis=1) > 0)
+    if acc is not None:
+        varies = varies | (acc.share.sum(axis=1) > 0)
     rows = np.flatnonzero(varies[k]) if len(k) else np.zeros(0, np.int64)
     if len(rows) == 0:
         return tint
     xi = 2.0 * tree_uniforms(np.asarray(ids)[rows], seed, JITTER_TAG, 2) - 1.0
     c = np.maximum(np.asarray(base, dtype=np.float64)[k[rows]], 1e-6)
     leaf = c * tint[rows]
-    if accented:
-        assert accents is not None
-        leaf = accents.apply(leaf, k[rows], np.asarray(ids)[rows], seed, None if where is None else where.rows(rows))
+    if acc is not None:
+        leaf = acc.apply(leaf, k[rows], np.asarray(ids)[rows], seed, None if where is None else where.rows(rows))
     out = rowwise(jitter_colours, leaf, hue[k[rows]] * xi[:, 0], value[k[rows]] * xi[:, 1])
     tint[rows] = (out / c).astype(np.float32)
     return tint
@@ -344,12 +343,9 @@ class TintParams:
         return tree_tints(map_tint, species, ids, self.seed, self.base, self.hue, self.value, self.accents, where)
 
 
-class _Jittered(Protocol):
+class _Jittered(_Accented, Protocol):
     @property
     def colour_jitter(self) -> ColourJitter: ...
-
-    @property
-    def accents(self) -> Sequence[Any]: ...
 
 
 def tint_params(settings: Sequence[_Jittered], species: Sequence[Species], seed: int) -> TintParams:
