@@ -44,6 +44,16 @@ def river_mask(n: int, seed: int, width: float) -> np.ndarray:
     return np.abs(x[None, :] - centre[:, None]) / width
 
 
+def lake_basin(height: np.ndarray, centre, radii, depth: float) -> np.ndarray:
+    """The terrain lowered by a smooth bowl: ``depth`` (of full white) at ``centre`` (u, v), falling as
+    (1 − (r/2)²)² to nothing at twice the elliptical ``radii``; the demo's lake fills it to a level."""
+    n = height.shape[0]
+    t = (np.arange(n) + 0.5) / n
+    u, v = np.meshgrid(t, t)
+    r = np.hypot((u - centre[0]) / radii[0], (v - centre[1]) / radii[1])
+    return height - depth * np.clip(1.0 - (r / 2.0) ** 2, 0.0, 1.0) ** 2
+
+
 def main() -> None:
     HERE.mkdir(parents=True, exist_ok=True)
     height = fbm_heights(N, 6, 0.5, seed=11)
@@ -51,6 +61,7 @@ def main() -> None:
     valley = np.clip(dist / 3.0, 0, 1) ** 0.7  # the river runs in a valley
     height = 0.15 + 0.85 * height * (0.35 + 0.65 * valley)
     save("height.png", height, bits=16)
+    save("demo_height.png", lake_basin(height, (0.47, 0.27), (0.2, 0.11), 0.5), bits=16)
     save("presence.png", (dist > 1.0).astype(np.float32))
     dens = fbm_heights(N, 4, 0.6, seed=23)
     save("density.png", 0.25 + 0.75 * dens)

@@ -67,7 +67,9 @@ so W is the share of the texel's albedo that came from water layers (None when n
 water, and then nothing changes anywhere).  forest_path shades that share as a Fresnel mirror
 over the painted colour (:mod:`forest.render.path.materials`, :func:`~forest.render.path.materials.water_lobe`),
 without the detail texture on that share (the bed under water shows no soil grain); the other
-renderers and the exports keep the painted colour alone.
+renderers and the exports keep the painted colour alone.  ``[terrain] water`` (a lake or the sea at one
+level, :func:`forest.terrain.flood`) is painted the same way as the top layer, whatever the source of the
+albedo (:func:`paint_still_water`).
 
 **Variation.**  A material painted one colour reads, from tens of metres away, as a flat sheet: real
 ground varies in patches — thicker and thinner grass, drier and greener, more and less litter — which
@@ -370,7 +372,7 @@ def paint_rules(
     water = np.zeros(shape, np.float64) if any(r.material == WATER_MATERIAL for r in rules) else None
     if ground.base == WATER_MATERIAL:
         water = np.ones(shape, np.float64)
-    if not rules:
+    if not rules and terrain.water is None:
         return _finish(rgb, water, extent, ground, config.seed)
     height = terrain.height_at(x.ravel(), z.ravel()).reshape(shape)
     hmin, hmax = terrain.height_range
@@ -420,7 +422,25 @@ def paint_rules(
         rgb += alpha[..., None] * (c - rgb)
         if water is not None:
             water += alpha * ((1.0 if rule.material == WATER_MATERIAL else 0.0) - water)
+    rgb, water = paint_still_water(rgb, water, terrain, height, palette[WATER_MATERIAL])
     return _finish(rgb, water, extent, ground, config.seed)
+
+
+def paint_still_water(
+    rgb: np.ndarray, water: np.ndarray | None, terrain: Terrain, height: np.ndarray, colour: Sequence[float]
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """``[terrain] water`` painted over a grid as the top layer: its coverage W_lake = the terrain's
+    :meth:`~forest.terrain.Terrain.water_cover` at the texels' ``height`` (H, W), composited as a rule is,
+
+        ρ ← (1 − W_lake)·ρ + W_lake·c_water,    W ← (1 − W_lake)·W + W_lake;
+
+    the grids unchanged without water."""
+    lake = terrain.water_cover(height)
+    if lake is None:
+        return rgb, water
+    rgb = rgb + lake[..., None] * (np.asarray(colour, np.float64) - rgb)
+    water = lake if water is None else water + lake * (1.0 - water)
+    return rgb, water
 
 
 def _finish(
@@ -489,4 +509,11 @@ def terrain_albedo(
         rgb = np.asarray(rc.terrain_colour, np.float32).reshape(1, 1, 3)
     else:
         rgb, water = paint_rules(config, terrain, instances, species, ground)
+    if terrain.water is not None and water is None:  # a texture or one colour: the still water over it
+        shape = rgb.shape[:2] if rgb.shape[0] > 1 else grid_shape(terrain.extent, ground.resolution)
+        x, z = texel_centres(terrain.extent, shape)
+        height = terrain.height_at(x.ravel(), z.ravel()).reshape(shape)
+        base = np.broadcast_to(np.asarray(rgb, np.float64), (*shape, 3))
+        rgb, lake = paint_still_water(base, None, terrain, height, ground.palette()[WATER_MATERIAL])
+        water = None if lake is None else lake.astype(np.float32)
     return TerrainAlbedo(np.ascontiguousarray(rgb, dtype=np.float32), terrain.extent, detail, tile, water)

@@ -16,6 +16,14 @@ image column → +X, image row → +Z (row 0 at the smallest Z).  A map pixel
 Placement samples the *surface* uniformly by area (:meth:`Terrain.sample_points`),
 so the number of trees per square metre does not depend on how the terrain is
 parametrised or triangulated.
+
+**Still water** (``[terrain] water = { level, shore }``, :func:`flood`): every vertex below the
+level is raised to it, y ← max(y, level), so a lake's (or the sea's) surface is part of the one
+terrain mesh every renderer and exporter already draws — flat, at one height, its shoreline the
+level's contour on the mesh.  The ground paints it with the ``water`` material
+(:meth:`Terrain.water_cover`, :mod:`forest.ground`) and scatter keeps trees and ground cover off
+it and ``shore`` metres above it (:meth:`Terrain.dry`).  The bed under the water is not modelled:
+the water material's colour stands for it.
 """
 
 from __future__ import annotations
@@ -31,6 +39,9 @@ from .parallel import rowwise
 
 MAX_MESH_BYTES = 1024 * 1024 * 1024
 MAX_GRID = 4097
+#: Metres over which the ground turns from water to shore above the water's level (:meth:`Terrain.water_cover`):
+#: the flooded surface is at the level exactly, so only the shore's own triangles rise through this band.
+SHORE_RAMP = 0.05
 
 
 class Terrain:
@@ -43,7 +54,10 @@ class Terrain:
         *,
         grid_shape: tuple[int, int] | None = None,
         source: str = "mesh",
+        water: tuple[float, float] | None = None,
     ):
+        #: Still water as (level, shore) metres (:func:`flood`), None without.
+        self.water = water
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         self.grid_shape = grid_shape  # (rows along Z, columns along X) for grid terrains
@@ -160,6 +174,23 @@ class Terrain:
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
         return nrm
 
+    # -- water -------------------------------------------------------------------
+    def dry(self, y: np.ndarray) -> np.ndarray:
+        """Whether heights ``y`` stand more than ``shore`` metres above the water (all True without water)."""
+        y = np.asarray(y, dtype=np.float64)
+        if self.water is None:
+            return np.ones(y.shape, dtype=bool)
+        level, shore = self.water
+        return y > level + shore
+
+    def water_cover(self, height: np.ndarray) -> np.ndarray | None:
+        """The water's coverage W ∈ [0, 1] of ground at heights ``height`` (the flooded mesh's):
+        W = 1 − s((h − level) / :data:`SHORE_RAMP`), s the smoothstep; None without water."""
+        if self.water is None:
+            return None
+        t = np.clip((np.asarray(height, dtype=np.float64) - self.water[0]) / SHORE_RAMP, 0.0, 1.0)
+        return 1.0 - t * t * (3.0 - 2.0 * t)
+
     # -- queries -------------------------------------------------------------------
     def height_at(self, x, z) -> np.ndarray:
         """Terrain height at world X/Z (vectorised).  Outside the extent: clamped to the edge."""
@@ -234,8 +265,23 @@ def fbm_heights(resolution: int, octaves: int, roughness: float, seed: int) -> n
     return (out - lo) / max(hi - lo, 1e-12)
 
 
+def flood(terrain: Terrain, level: float, shore: float = 0.0) -> Terrain:
+    """The terrain under still water at ``level`` metres: y ← max(y, level) (module docstring), ``water`` set."""
+    v = terrain.vertices.copy()
+    np.maximum(v[:, 1], level, out=v[:, 1])
+    return Terrain(v, terrain.faces, grid_shape=terrain.grid_shape, source=terrain.source, water=(level, shore))
+
+
 def load_terrain(cfg: TerrainConfig, config_path: Path | None = None) -> Terrain:
-    """Build the :class:`Terrain` a ``[terrain]`` section describes."""
+    """Build the :class:`Terrain` a ``[terrain]`` section describes (flooded to its ``water`` level if it has one)."""
+    terrain = _load_source(cfg, config_path)
+    if cfg.water is None:
+        return terrain
+    return flood(terrain, cfg.water.level, cfg.water.shore)
+
+
+def _load_source(cfg: TerrainConfig, config_path: Path | None = None) -> Terrain:
+    """The terrain of the section's one source, as it is."""
     where = f"{config_path}: terrain" if config_path else "terrain"
     if cfg.flat is not None:
         return grid_terrain(np.zeros((2, 2)), (cfg.flat.size, cfg.flat.size), source="flat")

@@ -100,7 +100,7 @@ def test_file_fields_are_derived_from_the_schema():
 def test_referenced_files_of_an_example(tmp_path):
     cfg = load_config(ROOT / "configs" / "demo.toml")
     names = sorted(p.name for p in referenced_files(cfg))
-    assert names == ["colour.png", "density.png", "height.png", "partition.png", "presence.png"]
+    assert names == ["colour.png", "demo_height.png", "density.png", "partition.png", "presence.png"]
 
 
 def test_overrides_go_through_the_schema(tmp_path):

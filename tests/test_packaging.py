@@ -75,7 +75,7 @@ def test_wheel_installs_into_a_fresh_venv_and_renders_the_packaged_demo(tmp_path
     assert run([py, "-c", skies], cwd=work, env=env).stdout.strip() == "True"
     assert (Path(where).parent / "library_files" / "skies" / "LICENSE-blender-studiolights.txt").is_file()
     config = run([forest, "examples", "copy", "demo", work / "demo"], cwd=work, env=env).stdout.strip()
-    assert Path(config) == work / "demo" / "demo.toml" and (work / "demo" / "maps" / "height.png").is_file()
+    assert Path(config) == work / "demo" / "demo.toml" and (work / "demo" / "maps" / "demo_height.png").is_file()
     out = work / "out" / "demo.exr"
     # A tiny preview of the packaged demo, each species from one individual: the same code paths (the shipped
     # recipes built into the user library, the packaged maps read, forest_path rendering), a fraction of the time.

@@ -96,7 +96,7 @@ def test_submit_the_demo_with_its_maps_folder_watch_it_refine_and_download_an_ex
         assert c.get("/assets").json() == []  # nothing of the demo's on the service yet
 
         d.find_element(By.ID, "config-file").send_keys(str(scene))
-        wait(lambda: 'heightmap = "maps/height.png"' in d.find_element(By.ID, "config").get_attribute("value"))
+        wait(lambda: 'heightmap = "maps/demo_height.png"' in d.find_element(By.ID, "config").get_attribute("value"))
         d.find_element(By.ID, "folder-files").send_keys(str(scene.parent / "maps"))
         wait(lambda: d.find_element(By.ID, "asset-status").get_attribute("data-uploaded") == "5")
         names = sorted(a["name"] for a in c.get("/assets").json())
@@ -109,7 +109,7 @@ def test_submit_the_demo_with_its_maps_folder_watch_it_refine_and_download_an_ex
         d.find_element(By.ID, "submit").click()
         jid = wait(lambda: js(d, "return location.hash").partition("#job=")[2] or None, timeout=30)
         job_dir = data / "jobs" / jid
-        assert (job_dir / "maps" / "height.png").read_bytes() == (scene.parent / "maps" / "height.png").read_bytes()
+        assert (job_dir / "maps" / "demo_height.png").read_bytes() == (scene.parent / "maps" / "demo_height.png").read_bytes()
 
         # watch it refine: the preview is replaced pass after pass while the frames render
         seen = set()

@@ -143,6 +143,15 @@ class FlatTerrain(Section):
     size: Extent = Field(1000.0, description="Side of the square, metres.")
 
 
+class WaterLevel(Section):
+    """Still water at one height: a lake, a reservoir or the sea over the terrain's lower ground."""
+
+    level: Metres = Field(description="Height of the water's surface, metres (the terrain's own heights).")
+    shore: Annotated[float, Field(ge=0.0, le=1000.0, allow_inf_nan=False)] = Field(
+        0.5, description="Metres above the water kept free of trees and ground cover (their roots stay dry)."
+    )
+
+
 class TerrainConfig(Section):
     """Exactly one source: ``heightmap`` (with ``size`` and ``height``), ``mesh``, ``procedural`` or ``flat``."""
 
@@ -154,6 +163,13 @@ class TerrainConfig(Section):
     flat: FlatTerrain | None = None
     size: tuple[Extent, Extent] = Field((1000.0, 1000.0), description="Heightmap extent along X and Z, metres.")
     height: ExtentOrZero = Field(100.0, description="Heightmap: metres at full white.")
+    water: WaterLevel | None = Field(
+        None,
+        description=(
+            "Still water: the terrain below `level` becomes a flat water surface (the ground's `water` material), "
+            "no tree or ground cover stands within `shore` metres above it."
+        ),
+    )
 
     @model_validator(mode="after")
     def _one_source(self) -> TerrainConfig:

@@ -11,6 +11,7 @@ meets these rules in order; the first that fails rejects it:
 stage           a candidate at map coordinates (u, v) is rejected when
 ==============  ===============================================================
 presence        the presence map's nearest pixel is below the threshold
+water           it stands under ``[terrain] water`` or less than its ``shore`` above it
 density         its uniform draw ξ_d ≥ the density map's bilinear value times the
                 stand factor of ``[scatter] clumping`` (:mod:`forest.scatter.canopy`)
 empty ground    its species draw ξ_s·100 falls past Σ percent (unclaimed ground)
@@ -45,7 +46,7 @@ from .canopy import clumping_density, clumping_on
 #: streams before it (and every existing tree's position, yaw, scale, phase) stay as they were.
 STREAMS = ("position", "density", "species", "yaw", "scale", "phase", "individual", "emergent", "dead")
 TAG = 0x5CA77E2
-SHARED_STAGES = ("presence", "density", "empty ground", "partition", "slope", "altitude")
+SHARED_STAGES = ("presence", "water", "density", "empty ground", "partition", "slope", "altitude")
 SPECIES_STAGES = ("partition", "slope", "altitude")  # stages reported per species
 SLOPE_TOLERANCE = 1e-9  # degrees: slopes on a window's edge (up to round-off) are inside
 
@@ -176,6 +177,10 @@ def candidates(
 
     keep = maps.present(mu, mv)
     fate[~keep] = code["presence"]
+    if terrain.water is not None:
+        wet = keep & ~terrain.dry(position[:, 1])
+        fate[wet] = code["water"]
+        keep &= ~wet
     d_xi = rng["density"].random(n)
     clump = config.scatter.clumping
     if maps.density is not None or clumping_on(clump):

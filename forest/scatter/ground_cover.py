@@ -183,6 +183,7 @@ def scatter_cover(
     keep = rng["fade"].random(n) < p
     if cover.presence:
         keep &= maps.present(u, v)
+    keep &= terrain.dry(position[:, 1])
     slope_lo, slope_hi = np.full(n, cover.slope_min), np.full(n, cover.slope_max)
     keep &= ~outside(slope_degrees(normal), slope_lo, slope_hi, SLOPE_TOLERANCE)
     if cover.altitude is not None:

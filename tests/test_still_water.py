@@ -1,0 +1,165 @@
+"""Still water (``[terrain] water = { level, shore }``): a lake's flat surface in the one terrain mesh,
+painted with the ground's ``water`` material, kept free of trees and ground cover up to its shore."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import run_forest, write_png, write_scene
+
+from forest.config import load_config
+from forest.config.schema import GROUND_MATERIALS
+from forest.scatter import scatter
+from forest.scene import load_scene
+from forest.terrain import SHORE_RAMP, flood, grid_terrain, load_terrain
+
+LEVEL = 4.0
+BOWL = """
+seed = 5
+[terrain]
+heightmap = "bowl.png"
+size = [200.0, 200.0]
+height = 20.0
+water = {{ level = {level}, shore = {shore} }}
+[scatter]
+count = 6000
+min_distance = 0.5
+[[species]]
+model = "box.obj"
+percent = 100
+[lights]
+sky = {{ radiance = 1.0 }}
+[render]
+width = 24
+height = 16
+spp = 4
+"""
+
+
+def bowl_heights(n: int = 65) -> np.ndarray:
+    """A round bowl in [0, 1]: 0 at the centre, rising with the square of the distance to 1 at the corners."""
+    t = np.linspace(-1.0, 1.0, n)
+    r2 = t[None, :] ** 2 + t[:, None] ** 2
+    return r2 / r2.max()
+
+
+def write_bowl(tmp_path) -> None:
+    """The bowl's heightmap and a 1 m box as the trees' mesh."""
+    import trimesh
+
+    write_png(tmp_path / "bowl.png", bowl_heights(), bits=16)
+    trimesh.creation.box(extents=(1.0, 2.0, 1.0)).apply_translation((0.0, 1.0, 0.0)).export(tmp_path / "box.obj")
+
+
+def bowl_config(tmp_path, shore: float = 0.5, extra: str = ""):
+    write_bowl(tmp_path)
+    return load_config(write_scene(tmp_path, BOWL.format(level=LEVEL, shore=shore) + extra))
+
+
+def test_flood_raises_what_lies_below_the_level_and_keeps_the_rest():
+    rng = np.random.default_rng(1)
+    h = rng.random((9, 9)) * 10.0
+    dry = grid_terrain(h, (80.0, 80.0))
+    wet = flood(dry, 5.0, 1.0)
+    y0, y1 = dry.vertices[:, 1], wet.vertices[:, 1]
+    assert np.array_equal(y1, np.maximum(y0, 5.0))
+    assert np.array_equal(wet.vertices[:, [0, 2]], dry.vertices[:, [0, 2]])
+    assert np.array_equal(wet.faces, dry.faces) and wet.grid_shape == dry.grid_shape
+    assert wet.water == (5.0, 1.0) and dry.water is None
+    # The surface is flat at the level, exactly, wherever all three corners were under it.
+    under = (y0[dry.faces] < 5.0).all(axis=1)
+    assert under.any()
+    np.testing.assert_array_equal(wet.face_normals[under], np.tile([0.0, 1.0, 0.0], (int(under.sum()), 1)))
+    # dry(): more than the shore above the level; without water everything is dry.
+    assert list(wet.dry(np.array([5.0, 6.0, 6.01]))) == [False, False, True]
+    assert dry.dry(np.array([-100.0])).all()
+    # The water's coverage: 1 on the surface, 0 from SHORE_RAMP above it.
+    np.testing.assert_allclose(wet.water_cover(np.array([5.0, 5.0 + SHORE_RAMP / 2, 5.0 + SHORE_RAMP])), [1, 0.5, 0])
+    assert dry.water_cover(np.array([0.0])) is None
+
+
+def test_no_tree_stands_in_the_water_or_on_its_shore(tmp_path):
+    config = bowl_config(tmp_path, shore=0.5)
+    inst, report = scatter(config)
+    assert len(inst) > 500
+    assert inst.position[:, 1].min() >= np.float32(LEVEL + 0.5)  # positions are float32
+    # The share the water took is the flooded surface's share of the terrain (within sampling noise).
+    terrain = load_terrain(config.terrain, config.path)
+    y = terrain.vertices[terrain.faces, 1]
+    wet_area = terrain.face_areas[(y <= LEVEL + 0.5).all(axis=1)].sum() / terrain.area
+    n = report.candidates
+    share = report.rejected["water"] / n
+    assert share > 0.5 * wet_area and share < wet_area + 0.05  # shore triangles are partly dry
+    # Without water the same bowl grows trees on its floor.
+    dry = load_config(
+        write_scene(tmp_path, BOWL.format(level=LEVEL, shore=0.5).replace("water = {", "# {"), "dry.toml")
+    )
+    inst_dry, report_dry = scatter(dry)
+    assert report_dry.rejected["water"] == 0 and inst_dry.position[:, 1].min() < LEVEL
+
+
+def test_ground_cover_keeps_out_of_the_water(tmp_path):
+    extra = '[[ground_cover]]\nmodel = "box.obj"\ndensity = 0.5\nmax_distance = 500.0\n'
+    config = bowl_config(tmp_path, shore=0.2, extra=extra)
+    inst, _ = scatter(config)
+    cover = inst.species == 1
+    assert cover.sum() > 100
+    assert inst.position[cover, 1].min() >= np.float32(LEVEL + 0.2)  # positions are float32
+
+
+def test_the_ground_paints_the_lake_as_water(tmp_path):
+    config = bowl_config(tmp_path, extra='[ground]\nbase = "grass"\nrules = []\n')
+    scene = load_scene(config)
+    alb = scene.terrain_albedo
+    assert alb.water is not None
+    water_rgb = np.asarray(GROUND_MATERIALS["water"], np.float32)
+    centre = alb.water_at(np.array([0.0]), np.array([0.0]))
+    assert centre[0] == pytest.approx(1.0)
+    h, w = alb.water.shape
+    np.testing.assert_allclose(alb.rgb[h // 2, w // 2], water_rgb, rtol=1e-5)  # the grid, before the detail
+    corner = alb.water_at(np.array([95.0]), np.array([95.0]))
+    assert corner[0] == 0.0
+    # The wet share of the grid is the flooded share of the plan: h = 20·r²/2 (r in half-sides, 2 at the
+    # corners), so under the level r² < LEVEL/10, a disc of π·r² in the plan's 2 × 2.
+    plan = np.pi * (LEVEL / 10.0) / 4.0
+    assert float((alb.water > 0.5).mean()) == pytest.approx(plan, rel=0.1)
+    # One colour for the whole ground (``[render] terrain_colour``) keeps the lake.
+    one = load_config(write_scene(tmp_path, BOWL.format(level=LEVEL, shore=0.5).replace(
+        "spp = 4", "spp = 4\nterrain_colour = [0.3, 0.2, 0.1]"), "one.toml"))  # fmt: skip
+    alb1 = load_scene(one).terrain_albedo
+    assert alb1.water is not None and alb1.water_at(np.array([0.0]), np.array([0.0]))[0] == pytest.approx(1.0)
+    np.testing.assert_allclose(alb1.rgb[0, 0], [0.3, 0.2, 0.1], rtol=1e-5)  # a corner texel, dry
+
+
+def test_a_rendered_lake_mirrors_the_sky(tmp_path):
+    """Looking across the bowl at a low angle under a clear sky, the lake (the lower rows) is far bluer than
+    the same bowl's dry brown floor: the water reflects the sky."""
+    sky = "\n[lights.sky]\nsunsky = { turbidity = 3.0 }\n"
+    cam = "[camera]\nposition = [0.0, 14.0, -70.0]\ntarget = [0.0, 4.0, 0.0]\nfov = 30.0\n"
+    write_bowl(tmp_path)
+    rows = []
+    for name, water in (("wet", True), ("dry", False)):
+        text = BOWL.format(level=LEVEL, shore=0.5).replace("count = 6000", "count = 0") + cam
+        text = text.replace("[lights]\nsky = { radiance = 1.0 }\n", "") + sky
+        if not water:
+            text = text.replace("water = {", "# {")
+        path = write_scene(tmp_path, text + '[ground]\nbase = "soil"\nrules = []\n', f"{name}.toml")
+        out = tmp_path / f"{name}.exr"
+        r = run_forest("render", str(path), "-o", str(out), "-q", "--variant", "llvm_ad_rgb")
+        assert r.returncode == 0, r.stderr
+        import OpenImageIO as oiio
+
+        rows.append(oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)[10:16, 8:16, :3].reshape(-1, 3).mean(axis=0))
+    wet, dry = rows
+    assert wet[2] / wet[0] > 2.0 * dry[2] / dry[0]
+
+
+def test_bad_water_names_the_field(tmp_path):
+    write_bowl(tmp_path)
+    path = write_scene(tmp_path, BOWL.format(level=LEVEL, shore=0.5).replace(f"level = {LEVEL}, ", ""))
+    r = run_forest("scatter", str(path), "-o", str(tmp_path / "t.npz"))
+    assert r.returncode == 2 and "terrain.water.level" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "t.npz").exists()
+    path = write_scene(tmp_path, BOWL.format(level=LEVEL, shore=-1.0), "neg.toml")
+    r = run_forest("scatter", str(path), "-o", str(tmp_path / "t.npz"))
+    assert r.returncode == 2 and "terrain.water.shore" in r.stderr
