@@ -30,7 +30,7 @@ IMAGES = ROOT / "docs" / "images"
 
 #: (scene, photograph, why this photograph is the nearest kind of view).
 PAIRS: tuple[tuple[str, str, str], ...] = (
-    ("demo", "wooded_lake_shore_hills", "wooded hills seen from above the valley, sky on the top third"),
+    ("demo", "wooded_lake_shore_hills", "a lake below wooded shores and hills, sky on the top third"),
     ("valley", "golden_hour_summit", "layered ridges receding into haze under a low sun"),
     ("meadow", "autumn_larch_hillside", "a forest edge across a meadow from eye level"),
     ("jungle", "aerial_road_conifers", "a steep aerial view down on a canopy cut by a river or road"),
