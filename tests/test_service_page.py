@@ -109,7 +109,9 @@ def test_submit_the_demo_with_its_maps_folder_watch_it_refine_and_download_an_ex
         d.find_element(By.ID, "submit").click()
         jid = wait(lambda: js(d, "return location.hash").partition("#job=")[2] or None, timeout=30)
         job_dir = data / "jobs" / jid
-        assert (job_dir / "maps" / "demo_height.png").read_bytes() == (scene.parent / "maps" / "demo_height.png").read_bytes()
+        assert (job_dir / "maps" / "demo_height.png").read_bytes() == (
+            scene.parent / "maps" / "demo_height.png"
+        ).read_bytes()
 
         # watch it refine: the preview is replaced pass after pass while the frames render
         seen = set()
