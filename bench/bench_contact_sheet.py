@@ -35,7 +35,7 @@ PAIRS: tuple[tuple[str, str, str], ...] = (
     ("meadow", "autumn_larch_hillside", "a forest edge across a meadow from eye level"),
     ("jungle", "aerial_road_conifers", "a steep aerial view down on a canopy cut by a river or road"),
     ("ecosystem", "fog_over_hillside", "a wooded slope and its ridge line against a hazy sky"),
-    ("flythrough", "aerial_snowy_conifers", "low over the crowns of a dense conifer forest"),
+    ("flythrough", "wooded_lake_shore_hills", "a lake below wooded shores and hills under fair-weather clouds"),
 )
 PAD = 8
 
