@@ -262,3 +262,23 @@ def test_gradients_through_water_match_the_closed_form():
     f0, bed = fresnel(1.0), np.asarray(BED)
     np.testing.assert_allclose(grads["ground_tint"], (1.0 - f0) * bed * np.asarray(sky), rtol=0.02)
     np.testing.assert_allclose(grads["sky_radiance"], f0 + (1.0 - f0) * bed, rtol=0.02)
+
+
+def test_ripples_keep_their_rms_tilt_and_come_in_patches():
+    """The ripples' normal over 400 m of water: the mean of tan² of its tilt is tan² of ``water_ripple`` (the
+    wind's patches are normalised to a mean square of 1), while 20 m squares range from glassy to rippled."""
+    import mitsuba as mi
+
+    mi.set_variant(VARIANT)
+    from forest.render.path.materials import ripple_normal
+
+    t = (np.arange(800) + 0.5) * 0.5  # every 0.5 m over 400 m
+    x, z = np.meshgrid(t, t)
+    n = ripple_normal(mi, mi.Point3f(x.ravel(), 0.0, z.ravel()), 3.0)
+    nx, ny, nz = (np.asarray(c) for c in (n.x, n.y, n.z))
+    tan2 = ((nx * nx + nz * nz) / (ny * ny)).reshape(800, 800)
+    assert tan2.mean() == pytest.approx(np.tan(np.radians(3.0)) ** 2, rel=0.15)
+    local = tan2.reshape(20, 40, 20, 40).mean(axis=(1, 3))  # 20 m squares
+    assert np.percentile(local, 90) > 5.0 * np.percentile(local, 10)
+    flat = ripple_normal(mi, mi.Point3f(1.0, 0.0, 2.0), 0.0)
+    assert (float(flat.x[0]), float(flat.y[0]), float(flat.z[0])) == (0.0, 1.0, 0.0)

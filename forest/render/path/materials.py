@@ -811,7 +811,43 @@ def bsdf_sample(mi: Any, sh: Shading, frame: Any, u1: Any, u2: Any, wi: Any = No
 #: Refractive index of water in the visible band (1.333 at 589 nm, 20 °C; Hale & Querry 1973, Appl. Opt. 12: 555).
 WATER_IOR = 1.33
 #: The ripples' plane waves: (wavelength in metres, direction in degrees from +X towards +Z, phase in radians).
-RIPPLE_WAVES = ((0.53, 161.0, 0.3), (0.91, 17.0, 2.1), (1.7, 71.0, 4.4), (3.1, 133.0, 1.2))
+#: Eight wavelengths spaced evenly in log from 0.37 to 3.7 m, their directions spread over the half circle by
+#: the golden angle (no two within 20°), so their crests do not line up into a regular pattern.
+RIPPLE_WAVES = (
+    (0.37, 161.0, 0.3),
+    (0.51, 22.5, 2.1),
+    (0.71, 63.7, 4.4),
+    (0.98, 104.9, 1.2),
+    (1.35, 146.2, 5.6),
+    (1.87, 7.4, 3.3),
+    (2.67, 48.6, 0.9),
+    (3.70, 89.8, 2.7),
+)
+#: The wind's patches over the water ("cat's paws"): plane waves of tens of metres whose sum g sets where the
+#: ripples are (the slope scaled by m = max(g + :data:`PATCH_OFFSET`, 0) + :data:`PATCH_FLOOR`, normalised to
+#: a mean square of 1), so a calm lake shows glassy stretches that mirror the shore between rippled ones.
+PATCH_WAVES = ((37.0, 31.0, 0.7), (61.0, 118.0, 2.9), (97.0, 77.0, 5.1))
+PATCH_OFFSET = 0.25
+PATCH_FLOOR = 0.08
+
+
+def _patch_field(x: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """g(x, z) = the mean of :data:`PATCH_WAVES`' sines (numpy, for the normalisation)."""
+    g = np.zeros(np.broadcast(x, z).shape)
+    for wavelength, direction, phase in PATCH_WAVES:
+        d = np.radians(direction)
+        g += np.sin(2.0 * np.pi / wavelength * (x * np.cos(d) + z * np.sin(d)) + phase)
+    return g / len(PATCH_WAVES)
+
+
+def _patch_norm() -> float:
+    """1 / √E[m²] of the patches' raw weight over a 2 km square (so the mean square tilt is the one asked)."""
+    t = np.linspace(-1000.0, 1000.0, 1201)
+    m = np.maximum(_patch_field(t[:, None], t[None, :]) + PATCH_OFFSET, 0.0) + PATCH_FLOOR
+    return float(1.0 / np.sqrt(np.mean(m * m)))
+
+
+PATCH_NORM = _patch_norm()
 
 
 @dataclass
@@ -837,10 +873,13 @@ def water_coverage(mi: Any, mats: MaterialArrays, material: Any, p: Any, terrain
 
 
 def ripple_normal(mi: Any, p: Any, ripple_deg: float) -> Any:
-    """The water's normal at world ``p``: level (+Y) tilted by ripples, a sum of :data:`RIPPLE_WAVES`.
+    """The water's normal at world ``p``: level (+Y) tilted by ripples, a sum of :data:`RIPPLE_WAVES` in patches.
 
-    h(x, z) = Σ_k A_k sin(2π d_k·(x, z)/λ_k + φ_k) with every wave of the same slope amplitude
-    s = tan(ripple)·√(2/K), so that E|∇h|² = K s²/2 = tan² ripple (the RMS tilt asked); the normal is
+    h(x, z) = m(x, z) Σ_k A_k sin(2π d_k·(x, z)/λ_k + φ_k) with every wave of the same slope amplitude
+    s = tan(ripple)·√(2/K), so that E|∇h|² = K s²/2 = tan² ripple where m = 1; the wind's patch weight
+    m = N·(max(g + :data:`PATCH_OFFSET`, 0) + :data:`PATCH_FLOOR`), g the mean of :data:`PATCH_WAVES`' sines and
+    N = :data:`PATCH_NORM` making E[m²] = 1, so the RMS tilt over the water is the one asked while some
+    stretches are glassy and others rippled (m is tens of metres across, so ∇m is neglected).  The normal is
     (−∂h/∂x, 1, −∂h/∂z) normalised.  A fixed function of position: deterministic and free of noise
     textures (a cheap stand-in for a wave spectrum; Tessendorf 2001, "Simulating ocean water").
     """
@@ -848,7 +887,13 @@ def ripple_normal(mi: Any, p: Any, ripple_deg: float) -> Any:
 
     if ripple_deg <= 0.0:
         return mi.Vector3f(0.0, 1.0, 0.0)
-    s = float(np.tan(np.radians(ripple_deg)) * np.sqrt(2.0 / len(RIPPLE_WAVES)))
+    g = mi.Float(0.0)
+    for wavelength, direction, phase in PATCH_WAVES:
+        k = 2.0 * np.pi / wavelength
+        dx, dz = float(np.cos(np.radians(direction))), float(np.sin(np.radians(direction)))
+        g += dr.sin(dr.fma(p.x, k * dx, dr.fma(p.z, k * dz, phase)))
+    m = (dr.maximum(g * (1.0 / len(PATCH_WAVES)) + PATCH_OFFSET, 0.0) + PATCH_FLOOR) * PATCH_NORM
+    s = m * float(np.tan(np.radians(ripple_deg)) * np.sqrt(2.0 / len(RIPPLE_WAVES)))
     gx = mi.Float(0.0)
     gz = mi.Float(0.0)
     for wavelength, direction, phase in RIPPLE_WAVES:
