@@ -163,3 +163,19 @@ def test_bad_water_names_the_field(tmp_path):
     path = write_scene(tmp_path, BOWL.format(level=LEVEL, shore=-1.0), "neg.toml")
     r = run_forest("scatter", str(path), "-o", str(tmp_path / "t.npz"))
     assert r.returncode == 2 and "terrain.water.shore" in r.stderr
+
+
+def test_the_exports_draw_the_flat_lake(tmp_path):
+    """USD's terrain is the flooded mesh: its lowest points lie on the level, and as many as the mesh has there."""
+    from pxr import Usd, UsdGeom
+
+    from forest.export.usd import export_usd
+
+    config = bowl_config(tmp_path)
+    scene = load_scene(config)
+    res = export_usd(scene, tmp_path / "out" / "forest.usda")
+    stage = Usd.Stage.Open(str(res.path))
+    points = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath("/World/Terrain")).GetPointsAttr().Get())
+    assert points[:, 1].min() == pytest.approx(LEVEL)
+    on_level = int(np.sum(np.abs(points[:, 1] - LEVEL) < 1e-4))
+    assert on_level == int(np.sum(scene.terrain.vertices[:, 1] == LEVEL)) > 100

@@ -1,0 +1,93 @@
+"""The cost of still water (``[terrain] water``): the demo with its lake against the same terrain dry.
+
+    .venv/bin/python bench/bench_lake.py [--size 640x360] [--spp 16] [--runs 2] [--keep DIR]
+
+Both configs are ``configs/demo.toml`` (its basin, ``maps/demo_height.png``); the baseline drops the
+``water = {...}`` line of its ``[terrain]``, so trees grow on the basin's floor and the ground there is
+painted by the rules.  Whole ``forest render`` commands (scatter, scene build, render, EXR), alternating,
+best of ``--runs`` by CPU seconds; the tree counts and the share of the frame's pixels on the lake (the
+EXR's ``Z`` against the water's plane) are printed with them.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from timing import forest_render, load_line, render_arguments
+
+
+def configs(folder: Path) -> dict[str, Path]:
+    """The demo as it is ("lake") and without its water line ("dry"), beside a link to its maps."""
+    text = (ROOT / "configs" / "demo.toml").read_text()
+    dry = re.sub(r"^water = \{[^\n]*\n", "", text, count=1, flags=re.M)
+    if dry == text:
+        raise SystemExit("bench_lake: configs/demo.toml has no [terrain] water line")
+    (folder / "maps").symlink_to(ROOT / "configs" / "maps")
+    out = {}
+    for name, body in (("lake", text), ("dry", dry)):
+        out[name] = folder / f"{name}.toml"
+        out[name].write_text(body)
+    return out
+
+
+def trees(summary: str) -> str:
+    """The tree count of ``forest render``'s summary line ('?' when it has none)."""
+    m = re.search(r"([\d,]+) trees", summary)
+    return m.group(1) if m else "?"
+
+
+def water_share(exr: Path) -> float:
+    """The share of the frame's pixels whose first hit is within 5 cm of the demo's water level (16 m)."""
+    import OpenImageIO as oiio
+
+    buf = oiio.ImageBuf(str(exr))
+    names = list(buf.spec().channelnames)
+    if "P.Y" not in names:
+        return float("nan")
+    y = buf.get_pixels(oiio.FLOAT)[..., names.index("P.Y")]
+    return float(np.mean(np.abs(y - 16.0) < 0.05))
+
+
+def main() -> None:
+    args = render_arguments(__doc__.splitlines()[0], "640x360")
+    width, height = (int(v) for v in args.size.split("x"))
+    print(f"lake: {load_line()} at start; the demo at {width}x{height} {args.spp} spp, whole forest render")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        paths = configs(folder)
+        best: dict[str, tuple[float, float]] = {}
+        summary: dict[str, str] = {}
+        for _ in range(args.runs):
+            for name, path in paths.items():
+                out = folder / f"{name}.exr"
+                wall, cpu, done = forest_render(path, out, ["render.aovs=['P']"], width, height, args.spp)
+                summary[name] = done.stdout + done.stderr
+                if name not in best or cpu < best[name][1]:
+                    best[name] = (wall, cpu)
+        share = water_share(folder / "lake.exr")
+        for name, label in (("dry", "the basin dry (no water)"), ("lake", "the basin a lake")):
+            wall, cpu = best[name]
+            print(f"lake {label:26s}: {wall:6.1f} s wall, {cpu:6.1f} CPU-s, {trees(summary[name])} trees")
+        print(f"lake: {share:.1%} of the frame's pixels on the water")
+        print(f"lake cost: {best['lake'][1] / best['dry'][1]:.2f}x CPU, {best['lake'][0] / best['dry'][0]:.2f}x wall")
+        if args.keep is not None:
+            args.keep.mkdir(parents=True, exist_ok=True)
+            for name in paths:
+                for ext in (".exr", ".png"):
+                    src = folder / f"{name}{ext}"
+                    if src.exists():
+                        (args.keep / f"lake_{name}{ext}").write_bytes(src.read_bytes())
+    print(f"lake: {load_line()} at end")
+
+
+if __name__ == "__main__":
+    main()
