@@ -3,6 +3,10 @@ painted with the ground's ``water`` material, kept free of trees and ground cove
 
 from __future__ import annotations
 
+import json
+import shutil
+import subprocess
+
 import numpy as np
 import pytest
 from conftest import run_forest, write_png, write_scene
@@ -165,17 +169,76 @@ def test_bad_water_names_the_field(tmp_path):
     assert r.returncode == 2 and "terrain.water.shore" in r.stderr
 
 
-def test_the_exports_draw_the_flat_lake(tmp_path):
-    """USD's terrain is the flooded mesh: its lowest points lie on the level, and as many as the mesh has there."""
-    from pxr import Usd, UsdGeom
+def test_the_exports_write_the_water_apart_from_the_terrain(tmp_path):
+    """split_water: the triangles under the water leave the terrain for a water surface (flat at the level,
+    the water's colour, its index and a roughness from the ripples); USD writes it as /World/Water with a glossy
+    UsdPreviewSurface, RIB as a ``water`` block (a Fresnel PxrSurface in RenderMan 22+), and a ground without water
+    is the terrain's own arrays."""
+    from pxr import Usd, UsdGeom, UsdShade
 
+    from forest.export.common import split_water
+    from forest.export.rib import export_rib
     from forest.export.usd import export_usd
 
-    config = bowl_config(tmp_path)
+    config = bowl_config(tmp_path, extra="[ground]\nwater_ripple = 1.0\n")
     scene = load_scene(config)
+    ground, water = split_water(scene)
+    assert water is not None
+    terrain = scene.terrain
+    assert len(ground.faces) + len(water.faces) == len(terrain.faces)
+    np.testing.assert_allclose(water.vertices[water.faces].mean(axis=1)[:, 1], LEVEL, atol=0.05)
+    assert float(np.mean(water.vertices[:, 1] == LEVEL)) > 0.9  # the shore's own vertices rise above it
+    np.testing.assert_allclose(water.colour, GROUND_MATERIALS["water"], rtol=0.01)  # shore texels blend a little
+    assert water.ior == pytest.approx(1.33) and water.roughness == pytest.approx(np.sqrt(np.tan(np.radians(1.0))))
+
     res = export_usd(scene, tmp_path / "out" / "forest.usda")
     stage = Usd.Stage.Open(str(res.path))
-    points = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath("/World/Terrain")).GetPointsAttr().Get())
-    assert points[:, 1].min() == pytest.approx(LEVEL)
-    on_level = int(np.sum(np.abs(points[:, 1] - LEVEL) < 1e-4))
-    assert on_level == int(np.sum(scene.terrain.vertices[:, 1] == LEVEL)) > 100
+    wet = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Water"))
+    dry = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Terrain"))
+    assert len(wet.GetFaceVertexCountsAttr().Get()) == len(water.faces)
+    assert len(dry.GetFaceVertexCountsAttr().Get()) == len(ground.faces)
+    surface = UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/Water/Surface"))
+    assert surface.GetInput("ior").Get() == pytest.approx(1.33)
+    assert surface.GetInput("roughness").Get() == pytest.approx(water.roughness)
+    assert surface.GetInput("metallic").Get() == 0.0
+
+    rib = export_rib(scene, tmp_path / "rib").terrain.read_text()
+    assert '["water"]' in rib and f"{len(water.faces)} triangles" in rib
+    rib22 = export_rib(scene, tmp_path / "rib22", renderman22=True).terrain.read_text()
+    assert '"PxrSurface" "water"' in rib22 and '"int specularFresnelMode" [1]' in rib22
+
+    dry_config = load_config(write_scene(tmp_path, BOWL.format(level=LEVEL, shore=0.5).replace("water = {", "# {"),
+                                         "dry.toml"))  # fmt: skip
+    plain = load_scene(dry_config)
+    ground, water = split_water(plain)
+    assert water is None and ground.faces is plain.terrain.faces and ground.vertices is plain.terrain.vertices
+
+
+@pytest.mark.skipif(shutil.which("blender") is None, reason="Blender is not installed")
+def test_the_blend_holds_the_water(tmp_path):
+    """Blender: a ``water`` object with the water's triangles, its material a Fresnel mix of gloss over diffuse."""
+    from forest.export.blender import export_blender
+    from forest.export.common import split_water
+
+    scene = load_scene(bowl_config(tmp_path))
+    _, water = split_water(scene)
+    assert water is not None
+    res = export_blender(scene, tmp_path / "s.blend")
+    probe = tmp_path / "probe.py"
+    probe.write_text(
+        "import bpy, json, sys\n"
+        "o = bpy.data.objects['water']\n"
+        "nodes = o.data.materials[0].node_tree.nodes\n"
+        "fresnel = [n for n in nodes if n.bl_idname == 'ShaderNodeFresnel'][0]\n"
+        "gloss = [n for n in nodes if n.bl_idname == 'ShaderNodeBsdfGlossy'][0]\n"
+        "out = {'faces': len(o.data.polygons), 'ior': fresnel.inputs['IOR'].default_value,\n"
+        "       'roughness': gloss.inputs['Roughness'].default_value,\n"
+        "       'terrain': len(bpy.data.objects['terrain'].data.polygons)}\n"
+        "open(sys.argv[-1], 'w').write(json.dumps(out))\n"
+    )
+    cmd = ["blender", "-b", str(res.path), "--python-exit-code", "3", "--python", str(probe), "--"]
+    subprocess.run([*cmd, str(tmp_path / "o.json")], check=True, capture_output=True)
+    got = json.loads((tmp_path / "o.json").read_text())
+    assert got["faces"] == len(water.faces)
+    assert got["terrain"] == len(scene.terrain.faces) - len(water.faces)
+    assert got["ior"] == pytest.approx(1.33) and got["roughness"] == pytest.approx(water.roughness, rel=1e-5)

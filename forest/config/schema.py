@@ -557,6 +557,8 @@ GROUND_MATERIALS: dict[str, tuple[float, float, float]] = {
     # Fresnel mirror over it (``[ground]`` rules of this material); other renderers show this colour only.
     "water": (0.067, 0.074, 0.045),
 }
+#: Refractive index of water in the visible band (1.333 at 589 nm, 20 °C; Hale & Querry 1973, Appl. Opt. 12: 555).
+WATER_IOR = 1.33
 #: The ground material that forest_path renders as a water surface (a rule painting it marks water).
 WATER_MATERIAL = "water"
 MATERIAL_NAME = r"^[A-Za-z][A-Za-z0-9_-]{0,63}$"

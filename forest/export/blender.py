@@ -74,6 +74,7 @@ from .common import (
     lod_mesh,
     look_instances,
     species_plans,
+    split_water,
     terrain_texture,
 )
 
@@ -218,7 +219,7 @@ def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
     every bark part ``"bark": true``, which multiplies its material by it;
     without, neither is written and the manifest is that of unvarying bark.
     """
-    config, instances, terrain = scene.config, look_instances(scene), scene.terrain
+    config, instances = scene.config, look_instances(scene)
     bark = bark_factors(scene)
     C = Y_UP_TO_Z_UP
     plans = species_plans(scene, used_only=False)
@@ -259,7 +260,8 @@ def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
     }
     if bark is not None:
         points["bark_tint"] = _save(folder, "points_bark_tint.bin", rgba(bark), "<f4")
-    t = _mesh_files(folder, "terrain", terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv)
+    ground, water = split_water(scene)
+    t = _mesh_files(folder, "terrain", ground.vertices, ground.faces, ground.normals, ground.uv)
     t["colour"] = list(ground_colour(scene))
     grid = terrain_texture(scene)
     if grid is not None:
@@ -272,6 +274,10 @@ def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
     if far is not None:  # the hills past the terrain's edge, in their far colour
         h = _mesh_files(folder, "horizon", far.vertices, far.faces, far.normals, far.uv)
         h["colour"] = list(far.colour)
+    w = None
+    if water is not None:  # the ground's water, apart from the terrain: Fresnel-weighted gloss over its colour
+        w = _mesh_files(folder, "water", water.vertices, water.faces, water.normals, water.uv)
+        w.update(colour=list(water.colour), roughness=water.roughness, ior=water.ior)
     keys = []
     # A lens given in millimetres goes over as one (sensor_width + lens), else as the angle.
     lens = config.camera.focal_length is not None or any(k.focal_length is not None for k in config.camera.keys)
@@ -317,6 +323,7 @@ def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
         "points": points,
         "terrain": t,
         "horizon": h,
+        "water": w,
         "camera": camera,
         "sun": sun,
         "sky": sky,

@@ -259,6 +259,34 @@ def make_terrain(manifest: dict, folder: Path, name: str = "terrain"):
     return obj
 
 
+def make_water(manifest: dict, folder: Path):
+    """The ground's water: a mesh whose material is a GGX gloss of the manifest's roughness weighted by the
+    Fresnel reflectance of its index over a diffuse of its colour (F·gloss + (1 − F)·diffuse, forest_path's water)."""
+    w = manifest["water"]
+    mesh = make_mesh("water", folder, w)
+    mat = bpy.data.materials.new("water")
+    mat.use_nodes = True
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    nodes.clear()
+    out = nodes.new("ShaderNodeOutputMaterial")
+    diffuse = nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (*w["colour"], 1.0)
+    gloss = nodes.new("ShaderNodeBsdfGlossy")
+    gloss.inputs["Roughness"].default_value = float(w["roughness"])
+    gloss.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    fresnel = nodes.new("ShaderNodeFresnel")
+    fresnel.inputs["IOR"].default_value = float(w["ior"])
+    mix = nodes.new("ShaderNodeMixShader")
+    links.new(fresnel.outputs["Fac"], mix.inputs["Fac"])
+    links.new(diffuse.outputs["BSDF"], mix.inputs[1])
+    links.new(gloss.outputs["BSDF"], mix.inputs[2])
+    links.new(mix.outputs["Shader"], out.inputs["Surface"])
+    mesh.materials.append(mat)
+    obj = bpy.data.objects.new("water", mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
 def make_camera(manifest: dict):
     """The scene camera, keyframed per exported frame when there is more than one key."""
     c = manifest["camera"]
@@ -402,6 +430,7 @@ def main(argv: list[str]) -> None:
     make_points(manifest, folder, coll)
     terrain = make_terrain(manifest, folder)
     horizon = make_terrain(manifest, folder, "horizon") if manifest.get("horizon") else None
+    water = make_water(manifest, folder) if manifest.get("water") else None
     make_camera(manifest)
     make_lights(manifest)
     set_render(manifest)
@@ -411,8 +440,9 @@ def main(argv: list[str]) -> None:
         scene = bpy.context.scene
         if coverage:  # alpha = trees: the terrain held out, the sky transparent, samples kept in their pixel
             terrain.is_holdout = True
-            if horizon is not None:
-                horizon.is_holdout = True
+            for obj in (horizon, water):
+                if obj is not None:
+                    obj.is_holdout = True
             scene.render.film_transparent = True
             scene.use_nodes = False  # no haze over the alpha
             scene.cycles.filter_width = 0.01

@@ -6,8 +6,9 @@ Layout of an export folder (render from inside it: every path is relative to it)
     archives/<species>_<lod>.rib   one tree level: per part its material and an ObjectInstance
     textures/<species>_<name>.tif  the parts' textures (sRGB RGB detail factor, alpha = leaf-card mask)
     textures/terrain.tif           the ground's albedo grid (terrain_texture, else [ground]'s rules)
-    terrain.rib                    the terrain as PointsPolygons with its textured material (and the hills
-                                   past its edge, [render] horizon_hills, in their far colour)
+    terrain.rib                    the terrain as PointsPolygons with its textured material (its water apart,
+                                   glossy in RenderMan 22+, and the hills past its edge, [render] horizon_hills,
+                                   in their far colour)
     instances_<partition>.rib      per partition: one attribute block per tree
     scene_<frame>.rib              per frame: display, camera, lights, the world
     shaders/forest_surface.sl      (RI 3.2) the surface shader, RenderMan Shading Language source
@@ -152,8 +153,10 @@ from ..lights import resolve_lights
 from ..scene import Scene
 from . import radiometry
 from .common import (
+    Ground,
     Horizon,
     SpeciesPlan,
+    Water,
     bark_factors,
     check_instances,
     export_frames,
@@ -168,6 +171,7 @@ from .common import (
     remove_stale,
     slug,
     species_plans,
+    split_water,
     terrain_texture,
 )
 from .text import Field, LeftInt, RowWriter, format_numbers
@@ -591,16 +595,35 @@ def archive_bytes(
     return b"".join(out)
 
 
-def terrain_bytes(terrain, colour, renderman22: bool, texture: str | None, far: Horizon | None = None) -> bytes:
-    """The terrain: ``texture`` (terrain colour × colour map, st = map coordinates) or a constant colour; with
-    ``far`` (:func:`forest.export.common.horizon`) the hills past its edge after it, in their constant
-    colour."""
+def terrain_bytes(
+    ground: Ground,
+    colour,
+    renderman22: bool,
+    texture: str | None,
+    far: Horizon | None = None,
+    water: Water | None = None,
+) -> bytes:
+    """The terrain (``ground``: less its water, :func:`forest.export.common.split_water`): ``texture`` (terrain
+    colour × colour map, st = map coordinates) or a constant colour; with ``water`` its water after it (RenderMan
+    22+: a ``PxrSurface`` with a physical Fresnel specular of the water's index and roughness over its colour;
+    RI 3.2: its colour), with ``far`` (:func:`forest.export.common.horizon`) the hills past its edge, in their
+    constant colour."""
     out = [
         HEADER,
-        f"# forest terrain: {len(terrain.vertices)} vertices, {len(terrain.faces)} triangles, metres, Y up\n".encode(),
-        _ground_block("terrain", terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv, colour,
-                      renderman22, texture),
+        f"# forest terrain: {len(ground.vertices)} vertices, {len(ground.faces)} triangles, metres, Y up\n".encode(),
+        _ground_block("terrain", ground.vertices, ground.faces, ground.normals, ground.uv, colour, renderman22,
+                      texture),
     ]  # fmt: skip
+    if water is not None:
+        out.append(f"# its water: {len(water.vertices)} vertices, {len(water.faces)} triangles\n".encode())
+        glossy = (
+            f'  Bxdf "PxrSurface" "water" "color diffuseColor" [{nums(water.colour)}] "int specularFresnelMode" [1] '
+            f'"color specularIor" [{nums((water.ior,) * 3)}] "float specularRoughness" [{nums((water.roughness,))}]\n'
+        )
+        out.append(
+            _ground_block("water", water.vertices, water.faces, water.normals, water.uv, water.colour, renderman22,
+                          None, glossy if renderman22 else None)
+        )  # fmt: skip
     if far is not None:
         out.append(f"# the hills past its edge: {len(far.vertices)} vertices, {len(far.faces)} triangles\n".encode())
         out.append(
@@ -609,10 +632,15 @@ def terrain_bytes(terrain, colour, renderman22: bool, texture: str | None, far: 
     return b"".join(out)
 
 
-def _ground_block(name: str, vertices, faces, normals, st, colour, renderman22: bool, texture: str | None) -> bytes:
-    """One ground mesh (``terrain`` or ``horizon``) in an attribute block: ``texture`` or a constant colour."""
+def _ground_block(
+    name: str, vertices, faces, normals, st, colour, renderman22: bool, texture: str | None, bxdf: str | None = None
+) -> bytes:
+    """One ground mesh (``terrain``, ``water`` or ``horizon``) in an attribute block: ``texture`` or a constant
+    colour, or the material line ``bxdf`` as given."""
     base = (1.0, 1.0, 1.0) if texture else colour
-    if renderman22:
+    if bxdf is not None:
+        material = bxdf
+    elif renderman22:
         if texture:
             material = (
                 f'  Pattern "PxrTexture" "{name}_tex" "string filename" [{rib_string(texture)}] '
@@ -1100,7 +1128,7 @@ def export_rib(
     whole export succeeded; files of an earlier export into the same folder that
     this one did not write again (other partitions, frames, species) are removed.
     """
-    config, instances, terrain = scene.config, look_instances(scene), scene.terrain
+    config, instances = scene.config, look_instances(scene)
     bark = bark_factors(scene)
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
@@ -1167,7 +1195,8 @@ def export_rib(
                 result.objects = out_dir / "objects.rib"
                 result.bytes += objects.bytes
             report(0.05, "archives")
-            data = terrain_bytes(terrain, ground_colour(scene), r22, terrain_tex, horizon(scene))
+            ground, water = split_water(scene)
+            data = terrain_bytes(ground, ground_colour(scene), r22, terrain_tex, horizon(scene), water)
             (tmp / "terrain.rib").write_bytes(data)
             result.terrain = out_dir / "terrain.rib"
             result.bytes += len(data)

@@ -5,6 +5,8 @@ Stage layout (Y up, metres: ``upAxis = "Y"``, ``metersPerUnit = 1``)::
     /World                          Xform, the default prim
     /World/Terrain                  Mesh (points, normals, st, displayColor)
     /World/Horizon                  Mesh: the hills past the terrain's edge ([render] horizon_hills), far colour
+    /World/Water                    Mesh: the ground's water (its triangles taken out of the terrain), a glossy
+                                    UsdPreviewSurface of ior 1.33 over the water's colour
     /World/Camera                   Camera, time-sampled over the frames when keyed
     /World/Lights/Sun               DistantLight
     /World/Lights/Sky               DomeLight
@@ -77,8 +79,10 @@ from ..lights import resolve_lights
 from ..scene import Scene
 from . import radiometry
 from .common import (
+    Ground,
     Horizon,
     SpeciesPlan,
+    Water,
     bark_colour,
     bark_factors,
     bound_radius,
@@ -95,6 +99,7 @@ from .common import (
     part_albedo,
     partition_rows,
     species_plans,
+    split_water,
     terrain_texture,
 )
 
@@ -388,13 +393,14 @@ def _copy_texture(texture, layer_dir: Path, species: str) -> str | None:
     return "./" + rel
 
 
-def _terrain(stage, terrain, colour, texture: str | None = None):
-    """The terrain mesh, with ``texture`` (terrain colour × colour map, st = map coordinates) when given."""
+def _terrain(stage, ground: Ground, colour, texture: str | None = None):
+    """The terrain mesh (less its water, :func:`forest.export.common.split_water`), with ``texture`` (terrain colour
+    × colour map, st = map coordinates) when given."""
     from pxr import UsdShade
 
     Gf, Sdf, _Usd, UsdGeom, _UsdLux, Vt = _pxr()
     mesh = UsdGeom.Mesh.Define(stage, "/World/Terrain")
-    _set_mesh(UsdGeom, Vt, Sdf, mesh, terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv)
+    _set_mesh(UsdGeom, Vt, Sdf, mesh, ground.vertices, ground.faces, ground.normals, ground.uv)
     mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*colour)]))
     if texture:
         part = type("TerrainPart", (), {"colour": (1.0, 1.0, 1.0), "tinted": False})()
@@ -413,6 +419,29 @@ def _horizon(stage, far: Horizon):
     mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*far.colour)]))
     part = type("HorizonPart", (), {"colour": far.colour, "tinted": False})()
     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(part_material(stage, "/World/Looks/Horizon", part, None))
+    return mesh
+
+
+def _water(stage, water: Water):
+    """The ground's water (:func:`forest.export.common.split_water`): a mesh whose UsdPreviewSurface is a glossy
+    dielectric — ``diffuseColor`` the water's colour, ``ior`` 1.33, ``roughness`` from the ripples, not metallic —
+    so a renderer of the stage reflects the sky and the shore in it."""
+    from pxr import UsdShade
+
+    Gf, Sdf, _Usd, UsdGeom, _UsdLux, Vt = _pxr()
+    T = Sdf.ValueTypeNames
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Water")
+    _set_mesh(UsdGeom, Vt, Sdf, mesh, water.vertices, water.faces, water.normals, water.uv)
+    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*water.colour)]))
+    mat = UsdShade.Material.Define(stage, "/World/Looks/Water")
+    surf = UsdShade.Shader.Define(stage, "/World/Looks/Water/Surface")
+    surf.CreateIdAttr("UsdPreviewSurface")
+    _input(surf, "diffuseColor", T.Color3f, Gf.Vec3f(*water.colour))
+    _input(surf, "roughness", T.Float, water.roughness)
+    _input(surf, "ior", T.Float, water.ior)
+    _input(surf, "metallic", T.Float, 0.0)
+    mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
     return mesh
 
 
@@ -573,7 +602,7 @@ def export_usd(
     written into a temporary folder and moved into place only when complete.
     """
     t0 = time.perf_counter()
-    config, instances, terrain = scene.config, look_instances(scene), scene.terrain
+    config, instances = scene.config, look_instances(scene)
     bark = bark_factors(scene)
     path = Path(path)
     if path.suffix.lower() not in SUFFIXES:
@@ -645,7 +674,10 @@ def export_usd(
                 write_image(tmp / f"{path.stem}_terrain.png", grid)
                 terrain_tex = f"./{path.stem}_terrain.png"
                 result.textures.append(path.parent / f"{path.stem}_terrain.png")
-            _terrain(stage, terrain, ground_colour(scene), terrain_tex)
+            ground, water = split_water(scene)
+            _terrain(stage, ground, ground_colour(scene), terrain_tex)
+            if water is not None:
+                _water(stage, water)
             far = horizon(scene)
             if far is not None:
                 _horizon(stage, far)

@@ -76,6 +76,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ...config.schema import WATER_IOR
 from ...errors import ForestError
 from ...images import read_image, srgb_to_linear
 from .arrays import owned
@@ -808,8 +809,6 @@ def bsdf_sample(mi: Any, sh: Shading, frame: Any, u1: Any, u2: Any, wi: Any = No
 
 # -- water: the ground's Fresnel mirror (rules of material ``water``, forest.ground) ------------------------
 
-#: Refractive index of water in the visible band (1.333 at 589 nm, 20 °C; Hale & Querry 1973, Appl. Opt. 12: 555).
-WATER_IOR = 1.33
 #: The ripples' plane waves: (wavelength in metres, direction in degrees from +X towards +Z, phase in radians).
 #: Eight wavelengths spaced evenly in log from 0.37 to 3.7 m, their directions spread over the half circle by
 #: the golden angle (no two within 20°), so their crests do not line up into a regular pattern.
