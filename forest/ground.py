@@ -480,6 +480,30 @@ def vary(
     return np.clip(rgb * factor, 0.0, 1.0)
 
 
+def water_triangles(terrain: Terrain, albedo: TerrainAlbedo) -> np.ndarray | None:
+    """Which of the terrain's triangles are water: bool (F,), True where the water coverage W at the triangle's
+    centroid is at least ½ (the renderers without forest_path's per-hit mirror and the exports draw those as a
+    water surface of their own); None when the ground has no water or none of it reaches ½."""
+    if albedo.water is None:
+        return None
+    centroid = terrain.vertices[terrain.faces].mean(axis=1)
+    wet = albedo.water_at(centroid[:, 0], centroid[:, 2]) >= 0.5
+    return wet if wet.any() else None
+
+
+def water_colour(albedo: TerrainAlbedo) -> np.ndarray:
+    """The water's colour (3,): the painted albedo's mean over the texels of coverage W ≥ ½ (zeros without)."""
+    if albedo.water is None:
+        return np.zeros(3)
+    mask = np.asarray(albedo.water) >= 0.5
+    return np.asarray(albedo.rgb, np.float64)[mask].mean(axis=0) if mask.any() else np.zeros(3)
+
+
+def water_roughness(ripple_deg: float) -> float:
+    """The ripples as a microfacet roughness r, with GGX α = r² = tan(ripple) (the RMS slope)."""
+    return float(np.sqrt(np.tan(np.radians(ripple_deg))))
+
+
 def read_terrain_texture(config: Config) -> np.ndarray | None:
     """``[render] terrain_texture`` as linear RGB (H, W, 3), or None without one; a file that cannot be read is a
     :class:`~forest.errors.ConfigError` on ``render.terrain_texture``.  The only reader of that setting."""

@@ -210,22 +210,36 @@ def test_bad_water_values_are_refused_in_one_line(tmp_path, ground, field):
     assert "\n" not in message and field in message and "ground" in message
 
 
-def test_scalar_rgb_warns_and_keeps_the_colour(tmp_path):
-    """Mitsuba's own integrator has no water: one warning naming the variant; the ground is the painted colour."""
-    from forest.ground import TerrainAlbedo
-    from forest.render.scene import terrain_reflectance
+def test_scalar_rgb_draws_the_water_apart(tmp_path):
+    """Mitsuba's own integrator gets the water as a mesh of its own (plastic of index 1.33 over the water's colour,
+    roughplastic when it ripples) and the terrain without those triangles; no warning; a ground without water is
+    one terrain mesh as before."""
+    import mitsuba as mi
 
-    terrain = grid_terrain(np.zeros((5, 5)), (60.0, 60.0))
-    rgb = np.tile(np.asarray(BED, np.float32), (4, 4, 1))
+    from forest.ground import TerrainAlbedo
+    from forest.render.scene import terrain_dict, water_dict
+
+    mi.set_variant("scalar_rgb")
+    terrain = grid_terrain(np.zeros((9, 9)), (60.0, 60.0))
+    rgb = np.tile(np.asarray(BED, np.float32), (8, 8, 1))
+    water = np.zeros((8, 8), np.float32)
+    water[:, :4] = 1.0  # the half at x < 0
+    albedo = TerrainAlbedo(rgb, terrain.extent, water=water)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        plain = terrain_reflectance(TerrainAlbedo(rgb, terrain.extent), terrain, "scalar_rgb")
-        assert not caught
-        wet = terrain_reflectance(
-            TerrainAlbedo(rgb, terrain.extent, water=np.ones((4, 4), np.float32)), terrain, "scalar_rgb"
-        )
-    assert len(caught) == 1 and "scalar_rgb" in str(caught[0].message) and "\n" not in str(caught[0].message)
-    assert repr(plain) == repr(wet)
+        ground = terrain_dict(albedo, terrain, "scalar_rgb")
+        wet = water_dict(albedo, terrain, "scalar_rgb", ripple=0.0)
+        rough = water_dict(albedo, terrain, "scalar_rgb", ripple=2.0)
+    assert not caught and wet is not None and rough is not None
+    assert ground.face_count() + wet.face_count() == len(terrain.faces) and wet.face_count() == len(terrain.faces) // 2
+    params = mi.traverse(wet)
+    x = np.asarray(params["vertex_positions"]).reshape(-1, 3)[:, 0]
+    assert x[np.asarray(params["faces"]).reshape(-1, 3)].max() <= 1e-6  # only the water's half
+    assert "plastic" in str(wet.bsdf()).lower() and "1.33" in str(wet.bsdf())
+    assert "roughplastic" in str(rough.bsdf()).lower() or "RoughPlastic" in str(rough.bsdf())
+    dry = TerrainAlbedo(rgb, terrain.extent)
+    assert water_dict(dry, terrain, "scalar_rgb", ripple=2.0) is None
+    assert terrain_dict(dry, terrain, "scalar_rgb").face_count() == len(terrain.faces)
 
 
 def test_relief_is_the_height_above_the_valley_floor():

@@ -424,37 +424,33 @@ class Water:
 
 
 def split_water(scene) -> tuple[Ground, Water | None]:
-    """The terrain's triangles split into dry ground and water: a triangle is water when the ground's water coverage
-    W at its centroid is at least ½ (``[ground]`` rules of material ``water`` and ``[terrain] water``, the grid
-    forest_path shades as its mirror).  The water's colour is the painted albedo's mean over its texels of W ≥ ½
-    (times the fitted ``ground_tint``), its roughness r with α = r² = tan(``water_ripple``) (the ripples' RMS slope
-    as a GGX α), its index 1.33.  Without water the ground is the terrain's own arrays and the water None, so an
-    export of a scene without water is what it was."""
+    """The terrain's triangles split into dry ground and water (:func:`forest.ground.water_triangles`: the ground's
+    water coverage at the centroid ≥ ½; ``[ground]`` rules of material ``water`` and ``[terrain] water``, the grid
+    forest_path shades as its mirror).  The water's colour is :func:`forest.ground.water_colour` (times the fitted
+    ``ground_tint``), its roughness :func:`forest.ground.water_roughness` of ``water_ripple``, its index 1.33.
+    Without water the ground is the terrain's own arrays and the water None, so an export of a scene without water
+    is what it was."""
     from ..config.schema import WATER_IOR
+    from ..ground import water_colour, water_roughness, water_triangles
 
     terrain, albedo = scene.terrain, scene.terrain_albedo
     whole = Ground(terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv)
-    if albedo.water is None:
-        return whole, None
-    centroid = terrain.vertices[terrain.faces].mean(axis=1)
-    wet = albedo.water_at(centroid[:, 0], centroid[:, 2]) >= 0.5
-    if not wet.any():
+    wet = water_triangles(terrain, albedo)
+    if wet is None:
         return whole, None
     faces = terrain.faces[wet]
     used, inverse = np.unique(faces, return_inverse=True)
-    mask = np.asarray(albedo.water) >= 0.5
-    c = np.asarray(albedo.rgb, np.float64)[mask].mean(axis=0) if mask.any() else np.zeros(3)
+    c = water_colour(albedo)
     gt = _ground_tint(scene)
     if gt is not None:
         c = c * gt.astype(np.float64)
-    ripple = float(scene.config.model.ground.water_ripple)
     water = Water(
         np.asarray(terrain.vertices[used], np.float32),
         np.asarray(inverse.reshape(-1, 3), np.uint32),
         np.asarray(terrain.vertex_normals[used], np.float32),
         np.asarray(terrain.uv[used], np.float32),
         (float(c[0]), float(c[1]), float(c[2])),
-        float(np.sqrt(np.tan(np.radians(ripple)))),
+        water_roughness(float(scene.config.model.ground.water_ripple)),
         WATER_IOR,
     )
     return Ground(terrain.vertices, terrain.faces[~wet], terrain.vertex_normals, terrain.uv), water

@@ -59,7 +59,7 @@ from .path import PathScene
 from .path.frame import PassResult
 from .path.from_scene import path_camera, path_inputs
 from .post import apply_haze
-from .scene import emitter_dicts, sensor_dict, terrain_dict
+from .scene import emitter_dicts, sensor_dict, terrain_dict, water_dict
 
 #: Samples per pass in scalar_rgb (more passes = finer progress, same image statistics).
 SCALAR_PASS_SPP = 8
@@ -104,6 +104,13 @@ class FrameRenderer:
         skirt = skirt_radius(self.terrain.extent, float(config.camera.far)) if rc.horizon_ground else 0.0
         self.terrain_obj = terrain_dict(
             scene.terrain_albedo, self.terrain, variant, skirt=skirt, hills=hills(config), tint=scene.ground_tint
+        )
+        self.water_obj = water_dict(
+            scene.terrain_albedo,
+            self.terrain,
+            variant,
+            ripple=float(config.model.ground.water_ripple),
+            tint=scene.ground_tint,
         )
         self.emitters = emitter_dicts(config, variant, disc_sun=True)
         # Mitsuba 3.9.1's ``path`` tests shadow rays against whole leaf cards (alpha ignored);
@@ -173,6 +180,8 @@ class FrameRenderer:
         mats = tree_matrices(self.instances, time_s, wind)
         graph = self.forest.graph(levels, mats)
         scene = {"type": "scene", "integrator": self.integrator, "terrain": self.terrain_obj, **self.emitters}
+        if self.water_obj is not None:
+            scene["water"] = self.water_obj
         scene.update(graph.entries or {})
         try:
             self._scene = self.mi.load_dict(scene, parallel=True)

@@ -22,7 +22,7 @@ import numpy.typing as npt
 
 from ..camera import camera_at, look_at_matrix
 from ..errors import ConfigError, ForestError
-from ..ground import read_terrain_texture
+from ..ground import read_terrain_texture, water_colour, water_roughness, water_triangles
 from ..lights import resolve_lights
 from ..runtime import captured_stderr, mitsuba
 
@@ -383,15 +383,16 @@ def terrain_mesh(
     *,
     skirt: float = 0.0,
     hills: Hills | None = None,
+    faces: np.ndarray | None = None,
 ) -> Any:
     """The terrain as a Mitsuba ``Mesh`` object (positions, faces, smooth normals, uv) with ``bsdf``.
 
     ``skirt`` > 0 adds the ground that carries it to that radius (:func:`forest.skirt.skirt_mesh`), with
-    ``hills`` on it (None: a level plain).
+    ``hills`` on it (None: a level plain).  ``faces``: a subset of the terrain's triangles (default: all).
     """
     mi = mitsuba(variant)
     v = np.asarray(terrain.vertices, dtype=np.float32)
-    f = np.asarray(terrain.faces, dtype=np.uint32)
+    f = np.asarray(terrain.faces if faces is None else faces, dtype=np.uint32)
     n = np.asarray(terrain.vertex_normals, dtype=np.float32)
     uv = np.asarray(terrain.uv, dtype=np.float32)
     if skirt > 0:
@@ -448,13 +449,6 @@ def terrain_reflectance(
 
     grid = np.asarray(albedo.rgb, np.float32)
     extent = tuple(float(v) for v in albedo.extent)
-    if albedo.water is not None:  # water is forest_path's (forest.ground); here the ground keeps its painted colour
-        import warnings
-
-        from ..errors import ForestWarning
-
-        warnings.warn(f"[ground] water: not rendered in {variant} (Mitsuba's own integrator has no water surface; "
-                      "forest_path renders it): the water shows its colour", ForestWarning, stacklevel=2)  # fmt: skip
     far = far_colour(albedo)
     if tint is not None and not np.all(np.asarray(tint) == 1.0):
         grid = (grid * np.asarray(tint, np.float32).reshape(3)).astype(np.float32)
@@ -484,4 +478,31 @@ def terrain_dict(
     """
     reflectance = terrain_reflectance(albedo, terrain, variant, fade=skirt > 0, tint=tint)
     bsdf = {"type": "diffuse", "reflectance": reflectance}
-    return terrain_mesh(terrain, variant, bsdf, skirt=skirt, hills=hills)
+    wet = water_triangles(terrain, albedo)
+    faces = None if wet is None else terrain.faces[~wet]
+    return terrain_mesh(terrain, variant, bsdf, skirt=skirt, hills=hills, faces=faces)
+
+
+def water_dict(
+    albedo: TerrainAlbedo, terrain: Terrain, variant: str, *, ripple: float, tint: npt.ArrayLike | None = None
+) -> Any | None:
+    """The ground's water as a scene child of its own, or None without water: the terrain's triangles of
+    :func:`forest.ground.water_triangles` (which :func:`terrain_dict` leaves out) with Mitsuba's ``plastic`` BSDF —
+    a smooth dielectric interface of index 1.33 over a diffuse base of the water's colour
+    (:func:`forest.ground.water_colour` × ``tint``; the exports' colour too), the Fresnel mirror over the bed that
+    forest_path shades per hit (:mod:`forest.render.path.materials`) — or ``roughplastic`` (GGX, α = tan
+    ``ripple``, :func:`forest.ground.water_roughness` squared) when it ripples."""
+    from ..config.schema import WATER_IOR
+
+    wet = water_triangles(terrain, albedo)
+    if wet is None:
+        return None
+    colour = water_colour(albedo)
+    if tint is not None:
+        colour = colour * np.asarray(tint, np.float64).reshape(3)
+    bsdf: dict[str, Any] = {"int_ior": WATER_IOR, "ext_ior": 1.0, "diffuse_reflectance": _rgb(colour)}
+    if ripple > 0.0:
+        bsdf.update(type="roughplastic", distribution="ggx", alpha=water_roughness(ripple) ** 2)
+    else:
+        bsdf["type"] = "plastic"
+    return terrain_mesh(terrain, variant, bsdf, name="water", faces=terrain.faces[wet])
