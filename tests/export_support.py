@@ -255,3 +255,16 @@ position = [60.0, 30.0, -120.0]
 target = [10.0, 5.0, 0.0]
 fov = 35.0
 """
+
+
+def blender_probe(blend: Path, script: str, folder: Path) -> dict:
+    """Run ``script`` (Python that writes a JSON object to ``sys.argv[-1]``) in Blender on the ``blend`` file and
+    return that object."""
+    import json
+    import subprocess
+
+    probe, out = folder / "probe.py", folder / "probe.json"
+    probe.write_text(script)
+    cmd = ["blender", "-b", str(blend), "--python-exit-code", "3", "--python", str(probe), "--", str(out)]
+    subprocess.run(cmd, check=True, capture_output=True)
+    return json.loads(out.read_text())

@@ -8,9 +8,7 @@ nothing more when no hills are asked for.
 
 from __future__ import annotations
 
-import json
 import shutil
-import subprocess
 
 import numpy as np
 import pytest
@@ -24,7 +22,7 @@ from forest.scene import load_scene
 from forest.skirt import far_colour, hills, skirt_mesh, skirt_radius
 
 import ribcheck
-from export_support import FakeLibrary, make_config, make_instances, validation_errors
+from export_support import FakeLibrary, blender_probe, make_config, make_instances, validation_errors
 
 HILLS = "horizon_hills = { height = 120.0, scale = 600.0 }\n"
 
@@ -104,16 +102,14 @@ def test_the_blend_holds_the_hills(tmp_path, lib):
     far = horizon(scene)
     assert far is not None
     res = export_blender(scene, tmp_path / "s.blend")
-    probe = tmp_path / "probe.py"
-    probe.write_text(
+    got = blender_probe(
+        res.path,
         "import bpy, json, sys\n"
         "o = bpy.data.objects['horizon']\n"
         "rgb = [n for n in o.data.materials[0].node_tree.nodes if n.bl_idname == 'ShaderNodeRGB'][0]\n"
         "out = {'faces': len(o.data.polygons), 'colour': list(rgb.outputs[0].default_value)[:3]}\n"
-        "open(sys.argv[-1], 'w').write(json.dumps(out))\n"
+        "open(sys.argv[-1], 'w').write(json.dumps(out))\n",
+        tmp_path,
     )
-    cmd = ["blender", "-b", str(res.path), "--python-exit-code", "3", "--python", str(probe), "--"]
-    subprocess.run([*cmd, str(tmp_path / "o.json")], check=True, capture_output=True)
-    got = json.loads((tmp_path / "o.json").read_text())
     assert got["faces"] == len(far.faces)
     np.testing.assert_allclose(got["colour"], far.colour, rtol=1e-6)

@@ -3,9 +3,7 @@ painted with the ground's ``water`` material, kept free of trees and ground cove
 
 from __future__ import annotations
 
-import json
 import shutil
-import subprocess
 
 import numpy as np
 import pytest
@@ -16,6 +14,8 @@ from forest.config.schema import GROUND_MATERIALS
 from forest.scatter import scatter
 from forest.scene import load_scene
 from forest.terrain import SHORE_RAMP, flood, grid_terrain, load_terrain
+
+from export_support import blender_probe
 
 LEVEL = 4.0
 BOWL = """
@@ -226,8 +226,8 @@ def test_the_blend_holds_the_water(tmp_path):
     _, water = split_water(scene)
     assert water is not None
     res = export_blender(scene, tmp_path / "s.blend")
-    probe = tmp_path / "probe.py"
-    probe.write_text(
+    got = blender_probe(
+        res.path,
         "import bpy, json, sys\n"
         "o = bpy.data.objects['water']\n"
         "nodes = o.data.materials[0].node_tree.nodes\n"
@@ -236,11 +236,9 @@ def test_the_blend_holds_the_water(tmp_path):
         "out = {'faces': len(o.data.polygons), 'ior': fresnel.inputs['IOR'].default_value,\n"
         "       'roughness': gloss.inputs['Roughness'].default_value,\n"
         "       'terrain': len(bpy.data.objects['terrain'].data.polygons)}\n"
-        "open(sys.argv[-1], 'w').write(json.dumps(out))\n"
+        "open(sys.argv[-1], 'w').write(json.dumps(out))\n",
+        tmp_path,
     )
-    cmd = ["blender", "-b", str(res.path), "--python-exit-code", "3", "--python", str(probe), "--"]
-    subprocess.run([*cmd, str(tmp_path / "o.json")], check=True, capture_output=True)
-    got = json.loads((tmp_path / "o.json").read_text())
     assert got["faces"] == len(water.faces)
     assert got["terrain"] == len(scene.terrain.faces) - len(water.faces)
     assert got["ior"] == pytest.approx(1.33) and got["roughness"] == pytest.approx(water.roughness, rel=1e-5)
