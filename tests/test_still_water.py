@@ -15,7 +15,7 @@ from forest.scatter import scatter
 from forest.scene import load_scene
 from forest.terrain import SHORE_RAMP, flood, grid_terrain, load_terrain
 
-from export_support import blender_probe
+from export_support import blender_probe, validation_errors
 
 LEVEL = 4.0
 BOWL = """
@@ -203,6 +203,7 @@ def test_the_exports_write_the_water_apart_from_the_terrain(tmp_path):
     assert surface.GetInput("ior").Get() == pytest.approx(1.33)
     assert surface.GetInput("roughness").Get() == pytest.approx(water.roughness)
     assert surface.GetInput("metallic").Get() == 0.0
+    assert validation_errors(stage) == []
 
     rib = export_rib(scene, tmp_path / "rib").terrain.read_text()
     assert '["water"]' in rib and f"{len(water.faces)} triangles" in rib
