@@ -166,6 +166,10 @@ def test_bad_water_names_the_field(tmp_path):
     r = run_forest("scatter", str(path), "-o", str(tmp_path / "t.npz"))
     assert r.returncode == 2 and "terrain.water.level" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "t.npz").exists()
+    # A misspelt required key is named as the unknown key it is, not as the missing one.
+    path = write_scene(tmp_path, BOWL.format(level=LEVEL, shore=0.5).replace("level =", "levle ="), "typo.toml")
+    r = run_forest("scatter", str(path), "-o", str(tmp_path / "t.npz"))
+    assert r.returncode == 2 and "terrain.water.levle: unknown key (expected one of: level, shore)" in r.stderr
     path = write_scene(tmp_path, BOWL.format(level=LEVEL, shore=-1.0), "neg.toml")
     r = run_forest("scatter", str(path), "-o", str(tmp_path / "t.npz"))
     assert r.returncode == 2 and "terrain.water.shore" in r.stderr

@@ -83,8 +83,13 @@ def _unwrap(annotation: Any) -> Any:
 
 
 def first_error(error: ValidationError, data: Any) -> tuple[str | None, str]:
-    """(dotted field or None, message) of the first error pydantic reports."""
-    e = error.errors(include_url=False)[0]
+    """(dotted field or None, message) of the first error pydantic reports — except that a required key reported
+    missing gives way to an unknown key of the same table, the likelier mistake (a misspelt name)."""
+    errors = error.errors(include_url=False)
+    e = errors[0]
+    if e["type"] == "missing":
+        table = tuple(e["loc"][:-1])
+        e = next((x for x in errors if x["type"] == "extra_forbidden" and tuple(x["loc"][:-1]) == table), e)
     loc = tuple(p for p in e["loc"] if not (isinstance(p, str) and ("[" in p or "-" in p)))
     kind = e["type"]
     ctx = e.get("ctx") or {}
