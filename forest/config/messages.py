@@ -88,8 +88,8 @@ def first_error(error: ValidationError, data: Any) -> tuple[str | None, str]:
     errors = error.errors(include_url=False)
     e = errors[0]
     if e["type"] == "missing":
-        table = tuple(e["loc"][:-1])
-        e = next((x for x in errors if x["type"] == "extra_forbidden" and tuple(x["loc"][:-1]) == table), e)
+        parent = tuple(e["loc"][:-1])
+        e = next((x for x in errors if x["type"] == "extra_forbidden" and tuple(x["loc"][:-1]) == parent), e)
     loc = tuple(p for p in e["loc"] if not (isinstance(p, str) and ("[" in p or "-" in p)))
     kind = e["type"]
     ctx = e.get("ctx") or {}
