@@ -217,7 +217,7 @@ def test_scalar_rgb_draws_the_water_apart(tmp_path):
     import mitsuba as mi
 
     from forest.ground import TerrainAlbedo
-    from forest.render.scene import terrain_dict, water_dict
+    from forest.render.scene import ground_dicts, terrain_dict
 
     mi.set_variant("scalar_rgb")
     terrain = grid_terrain(np.zeros((9, 9)), (60.0, 60.0))
@@ -227,18 +227,19 @@ def test_scalar_rgb_draws_the_water_apart(tmp_path):
     albedo = TerrainAlbedo(rgb, terrain.extent, water=water)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        ground = terrain_dict(albedo, terrain, "scalar_rgb")
-        wet = water_dict(albedo, terrain, "scalar_rgb", ripple=0.0)
-        rough = water_dict(albedo, terrain, "scalar_rgb", ripple=2.0)
+        ground, wet = ground_dicts(albedo, terrain, "scalar_rgb", ripple=0.0)
+        _, rough = ground_dicts(albedo, terrain, "scalar_rgb", ripple=2.0)
+        alone = terrain_dict(albedo, terrain, "scalar_rgb")
     assert not caught and wet is not None and rough is not None
     assert ground.face_count() + wet.face_count() == len(terrain.faces) and wet.face_count() == len(terrain.faces) // 2
+    assert alone.face_count() == ground.face_count()  # terrain_dict leaves the water out too
     params = mi.traverse(wet)
     x = np.asarray(params["vertex_positions"]).reshape(-1, 3)[:, 0]
     assert x[np.asarray(params["faces"]).reshape(-1, 3)].max() <= 1e-6  # only the water's half
     assert "plastic" in str(wet.bsdf()).lower() and "1.33" in str(wet.bsdf())
     assert "roughplastic" in str(rough.bsdf()).lower() or "RoughPlastic" in str(rough.bsdf())
     dry = TerrainAlbedo(rgb, terrain.extent)
-    assert water_dict(dry, terrain, "scalar_rgb", ripple=2.0) is None
+    assert ground_dicts(dry, terrain, "scalar_rgb", ripple=2.0)[1] is None
     assert terrain_dict(dry, terrain, "scalar_rgb").face_count() == len(terrain.faces)
 
 

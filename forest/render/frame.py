@@ -59,7 +59,7 @@ from .path import PathScene
 from .path.frame import PassResult
 from .path.from_scene import path_camera, path_inputs
 from .post import apply_haze
-from .scene import emitter_dicts, sensor_dict, terrain_dict, water_dict
+from .scene import emitter_dicts, ground_dicts, sensor_dict
 
 #: Samples per pass in scalar_rgb (more passes = finer progress, same image statistics).
 SCALAR_PASS_SPP = 8
@@ -102,15 +102,14 @@ class FrameRenderer:
         self.materials = MaterialBuilder(variant, self.colour_grid, self.terrain.extent, self.terrain.height_range)
         self.forest = ForestBuilder(scene, self.materials)
         skirt = skirt_radius(self.terrain.extent, float(config.camera.far)) if rc.horizon_ground else 0.0
-        self.terrain_obj = terrain_dict(
-            scene.terrain_albedo, self.terrain, variant, skirt=skirt, hills=hills(config), tint=scene.ground_tint
-        )
-        self.water_obj = water_dict(
+        self.terrain_obj, self.water_obj = ground_dicts(
             scene.terrain_albedo,
             self.terrain,
             variant,
-            ripple=float(config.model.ground.water_ripple),
+            skirt=skirt,
+            hills=hills(config),
             tint=scene.ground_tint,
+            ripple=float(config.model.ground.water_ripple),
         )
         self.emitters = emitter_dicts(config, variant, disc_sun=True)
         # Mitsuba 3.9.1's ``path`` tests shadow rays against whole leaf cards (alpha ignored);

@@ -469,34 +469,40 @@ def terrain_dict(
     hills: Hills | None = None,
     tint: npt.ArrayLike | None = None,
 ) -> Any:
-    """The terrain as a scene child: a ``Mesh`` object with a diffuse BSDF.
+    """The terrain as a scene child: a ``Mesh`` object with a diffuse BSDF, less the ground's water (drawn apart,
+    :func:`ground_dicts`).
 
     The returned object goes into a scene dict like any shape dict
     (``scene["terrain"] = terrain_dict(...)``).  Reflectance: see
     :func:`terrain_reflectance` (``albedo``: the Scene's ``terrain_albedo``;
     ``tint``: the Scene's ``ground_tint``); ``skirt``, ``hills``: see :func:`terrain_mesh`.
     """
-    reflectance = terrain_reflectance(albedo, terrain, variant, fade=skirt > 0, tint=tint)
-    bsdf = {"type": "diffuse", "reflectance": reflectance}
-    wet = water_triangles(terrain, albedo)
-    faces = None if wet is None else terrain.faces[~wet]
-    return terrain_mesh(terrain, variant, bsdf, skirt=skirt, hills=hills, faces=faces)
+    return _terrain_obj(albedo, terrain, variant, water_triangles(terrain, albedo), skirt, hills, tint)
 
 
-def water_dict(
-    albedo: TerrainAlbedo, terrain: Terrain, variant: str, *, ripple: float, tint: npt.ArrayLike | None = None
-) -> Any | None:
-    """The ground's water as a scene child of its own, or None without water: the terrain's triangles of
-    :func:`forest.ground.water_triangles` (which :func:`terrain_dict` leaves out) with Mitsuba's ``plastic`` BSDF —
-    a smooth dielectric interface of index 1.33 over a diffuse base of the water's colour
+def ground_dicts(
+    albedo: TerrainAlbedo,
+    terrain: Terrain,
+    variant: str,
+    *,
+    skirt: float = 0.0,
+    hills: Hills | None = None,
+    tint: npt.ArrayLike | None = None,
+    ripple: float = 0.0,
+) -> tuple[Any, Any | None]:
+    """The terrain (:func:`terrain_dict`) and the ground's water as a scene child of its own, or None without
+    water: the terrain's triangles of :func:`forest.ground.water_triangles` with Mitsuba's ``plastic`` BSDF — a
+    smooth dielectric interface of index 1.33 over a diffuse base of the water's colour
     (:func:`forest.ground.water_colour` × ``tint``; the exports' colour too), the Fresnel mirror over the bed that
     forest_path shades per hit (:mod:`forest.render.path.materials`) — or ``roughplastic`` (GGX, α = tan
-    ``ripple``, :func:`forest.ground.water_roughness` squared) when it ripples."""
+    ``ripple``, :func:`forest.ground.water_roughness` squared) when it ripples.  Which triangles are water is
+    found once for both."""
     from ..config.schema import WATER_IOR
 
     wet = water_triangles(terrain, albedo)
+    ground = _terrain_obj(albedo, terrain, variant, wet, skirt, hills, tint)
     if wet is None:
-        return None
+        return ground, None
     colour = water_colour(albedo)
     if tint is not None:
         colour = colour * np.asarray(tint, np.float64).reshape(3)
@@ -505,4 +511,20 @@ def water_dict(
         bsdf.update(type="roughplastic", distribution="ggx", alpha=water_roughness(ripple) ** 2)
     else:
         bsdf["type"] = "plastic"
-    return terrain_mesh(terrain, variant, bsdf, name="water", faces=terrain.faces[wet])
+    return ground, terrain_mesh(terrain, variant, bsdf, name="water", faces=terrain.faces[wet])
+
+
+def _terrain_obj(
+    albedo: TerrainAlbedo,
+    terrain: Terrain,
+    variant: str,
+    wet: np.ndarray | None,
+    skirt: float,
+    hills: Hills | None,
+    tint: npt.ArrayLike | None,
+) -> Any:
+    """The terrain's diffuse mesh without the triangles ``wet`` marks (all of them when None)."""
+    reflectance = terrain_reflectance(albedo, terrain, variant, fade=skirt > 0, tint=tint)
+    bsdf = {"type": "diffuse", "reflectance": reflectance}
+    faces = None if wet is None else terrain.faces[~wet]
+    return terrain_mesh(terrain, variant, bsdf, skirt=skirt, hills=hills, faces=faces)

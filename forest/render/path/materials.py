@@ -839,14 +839,13 @@ def _patch_field(x: np.ndarray, z: np.ndarray) -> np.ndarray:
     return g / len(PATCH_WAVES)
 
 
-def _patch_norm() -> float:
-    """1 / √E[m²] of the patches' raw weight over a 2 km square (so the mean square tilt is the one asked)."""
+@lru_cache(maxsize=1)
+def patch_norm() -> float:
+    """N = 1 / √E[m²] of the patches' raw weight over a 2 km square (so the mean square tilt is the one asked);
+    computed once, on the first traced water hit, not at import."""
     t = np.linspace(-1000.0, 1000.0, 1201)
     m = np.maximum(_patch_field(t[:, None], t[None, :]) + PATCH_OFFSET, 0.0) + PATCH_FLOOR
     return float(1.0 / np.sqrt(np.mean(m * m)))
-
-
-PATCH_NORM = _patch_norm()
 
 
 @dataclass
@@ -877,7 +876,7 @@ def ripple_normal(mi: Any, p: Any, ripple_deg: float) -> Any:
     h(x, z) = m(x, z) Σ_k A_k sin(2π d_k·(x, z)/λ_k + φ_k) with every wave of the same slope amplitude
     s = tan(ripple)·√(2/K), so that E|∇h|² = K s²/2 = tan² ripple where m = 1; the wind's patch weight
     m = N·(max(g + :data:`PATCH_OFFSET`, 0) + :data:`PATCH_FLOOR`), g the mean of :data:`PATCH_WAVES`' sines and
-    N = :data:`PATCH_NORM` making E[m²] = 1, so the RMS tilt over the water is the one asked while some
+    N = :func:`patch_norm` making E[m²] = 1, so the RMS tilt over the water is the one asked while some
     stretches are glassy and others rippled (m is tens of metres across, so ∇m is neglected).  The normal is
     (−∂h/∂x, 1, −∂h/∂z) normalised.  A fixed function of position: deterministic and free of noise
     textures (a cheap stand-in for a wave spectrum; Tessendorf 2001, "Simulating ocean water").
@@ -891,7 +890,7 @@ def ripple_normal(mi: Any, p: Any, ripple_deg: float) -> Any:
         k = 2.0 * np.pi / wavelength
         dx, dz = float(np.cos(np.radians(direction))), float(np.sin(np.radians(direction)))
         g += dr.sin(dr.fma(p.x, k * dx, dr.fma(p.z, k * dz, phase)))
-    m = (dr.maximum(g * (1.0 / len(PATCH_WAVES)) + PATCH_OFFSET, 0.0) + PATCH_FLOOR) * PATCH_NORM
+    m = (dr.maximum(g * (1.0 / len(PATCH_WAVES)) + PATCH_OFFSET, 0.0) + PATCH_FLOOR) * patch_norm()
     s = m * float(np.tan(np.radians(ripple_deg)) * np.sqrt(2.0 / len(RIPPLE_WAVES)))
     gx = mi.Float(0.0)
     gz = mi.Float(0.0)
