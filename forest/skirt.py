@@ -43,6 +43,25 @@ neighbouring vertices are at most about 1.5 of the camera's pixels apart seen
 from the centre (:func:`relief_step`), every ring carries those columns, and each vertex rises by the woods'
 relief there; the normals stay those of the hills without it.
 
+**The sea.**  With still water (``[terrain] water``, :func:`forest.terrain.flood`) that reaches the
+terrain's edge, the water runs on past it: a sea, or a lake wider than the map.  Each column of the
+skirt (a boundary vertex and the points radially out from it) takes the water's share w ∈ [0, 1] of
+the edge around its angle θ from the centre (:class:`Sea`: the share of flooded boundary vertices in
+bins of 1/:data:`SEA_BINS` of a turn, smoothed twice by a box of :data:`SEA_SMOOTH` radians, a
+triangle window), and then
+
+    y_far = ȳ_land + w·(level − ȳ_land),    hills and woods × (1 − w),    y ← max(y, level)
+
+with ȳ_land the mean height of the boundary vertices (the far plane's height without water; the
+level for an island, whose edge is all water): the far plane sinks to the water's level where the edge is water, hills and the woods'
+relief rise out of it only where the edge is land (over a few degrees, as headlands and islands
+rather than walls; no woods within the water's ``shore`` metres of its level, as no trees there on the
+terrain), and the skirt is flooded as the terrain is.  The water's coverage there follows
+the height, W = 1 − s((y − level)/``SHORE_RAMP``) as on the terrain
+(:meth:`forest.terrain.Terrain.water_cover`); forest_path draws it past the terrain's extent
+(:class:`forest.render.path.materials.SeaMap`), scalar_rgb draws the faces it covers by half or more
+as water (:func:`wet_faces`).  Without water at the edge the skirt is as before.
+
 **Fade.**  With the skirt, the ground's albedo grid (the Scene's
 ``terrain_albedo``, :mod:`forest.ground`) is padded so that past the terrain's
 edge it fades to one colour, the far landscape's albedo ρ_far
@@ -151,6 +170,11 @@ RELIEF_STEP_MAX = 2.0 * np.pi / 1024
 RELIEF_PIXELS = 1.5
 #: Purpose tag of the hills' noise (a constant per purpose, CONTRIBUTING's seeding rule).
 HILL_TAG = 0x4849_4C4C
+#: Bins around the terrain (a whole turn) of the water's share of its edge (:class:`Sea`).
+SEA_BINS = 1440
+#: Width of each of the two box filters that smooth that share around the terrain, radians (together a
+#: triangle window reaching this far each side): hills rise out of the sea over a few degrees, not as walls.
+SEA_SMOOTH = float(np.radians(6.0))
 
 
 @dataclass(frozen=True)
@@ -229,6 +253,80 @@ def hills(config: Config) -> Hills | None:
     return Hills(float(h.height), float(h.scale), int(h.seed), erosion)
 
 
+@dataclass(frozen=True)
+class Sea:
+    """Still water at the terrain's edge, carried onto the skirt (module docstring, "The sea"): the water's
+    ``level`` and ``shore`` (metres above it kept free of trees, :meth:`forest.terrain.Terrain.dry`), the edge's
+    mean height ``land`` (the far plane's height away from the sea) (the level without dry edge), and ``share`` (:data:`SEA_BINS`,)
+    the water's smoothed share of the edge in equal bins of angle around ``centre`` (x, z), from −π."""
+
+    level: float
+    shore: float
+    land: float
+    share: np.ndarray
+    centre: np.ndarray
+
+    @classmethod
+    def at_edge(cls, terrain, boundary: np.ndarray, centre: np.ndarray) -> Sea | None:
+        """The sea of ``terrain`` whose ``boundary`` vertices (k, 3) surround ``centre``; None without water or
+        when none of them is flooded."""
+        from .terrain import SHORE_RAMP
+
+        if getattr(terrain, "water", None) is None:
+            return None
+        level = float(terrain.water[0])
+        wet = np.asarray(boundary, np.float64)[:, 1] <= level + SHORE_RAMP
+        if not wet.any():
+            return None
+        c = np.asarray(centre, np.float64)
+        turn = 2.0 * np.pi
+        ang = np.arctan2(boundary[:, 2] - c[1], boundary[:, 0] - c[0])
+        bins = np.floor((ang + np.pi) / turn * SEA_BINS).astype(np.int64) % SEA_BINS
+        count = np.bincount(bins, minlength=SEA_BINS).astype(np.float64)
+        share = np.bincount(bins, wet.astype(np.float64), SEA_BINS)
+        centres = (np.arange(SEA_BINS) + 0.5) * (turn / SEA_BINS) - np.pi
+        held = count > 0
+        share = np.interp(centres, centres[held], share[held] / count[held], period=turn)
+        half = max(1, int(round(SEA_SMOOTH / 2.0 / (turn / SEA_BINS))))
+        for _ in range(2):  # two boxes of 2·half + 1 bins: a triangle window
+            padded = np.concatenate([share[-half:], share, share[:half]])
+            run = np.concatenate([[0.0], np.cumsum(padded)])
+            share = (run[2 * half + 1 :] - run[: -2 * half - 1]) / (2 * half + 1)
+        land = float(np.asarray(boundary, np.float64)[:, 1].mean())  # the far plane's height without the sea
+        return cls(level, float(terrain.water[1]), land, np.clip(share, 0.0, 1.0), c)
+
+    def weight(self, points: np.ndarray) -> np.ndarray:
+        """w ∈ [0, 1] at ``points`` (n, 3): the water's share of the edge toward them, seen from the centre."""
+        p = np.asarray(points, np.float64)
+        turn = 2.0 * np.pi
+        ang = np.arctan2(p[:, 2] - self.centre[1], p[:, 0] - self.centre[0])
+        centres = (np.arange(SEA_BINS) + 0.5) * (turn / SEA_BINS) - np.pi
+        return np.interp(ang, centres, self.share, period=turn)
+
+    def far_height(self, w: np.ndarray) -> np.ndarray:
+        """The far plane's height for columns of sea share ``w``: ȳ_land + w·(level − ȳ_land)."""
+        return self.land + np.asarray(w, np.float64) * (self.level - self.land)
+
+
+def sea_at_edge(terrain) -> Sea | None:
+    """The :class:`Sea` the skirt around ``terrain`` carries (module docstring, "The sea"), or None: without
+    still water, or when it does not reach the terrain's edge."""
+    boundary = _boundary(terrain)
+    if boundary is None:
+        return None
+    used, _, c = boundary
+    return Sea.at_edge(terrain, np.asarray(terrain.vertices, np.float64)[used], c)
+
+
+def wet_faces(vertices: np.ndarray, faces: np.ndarray, level: float) -> np.ndarray:
+    """Which ``faces`` of a flooded mesh the water covers by half or more at their centroid (W ≥ ½, that is
+    y ≤ level + ``SHORE_RAMP``/2; :func:`forest.ground.water_triangles`' rule for the terrain), bool (F,)."""
+    from .terrain import SHORE_RAMP
+
+    y = np.asarray(vertices, np.float64)[np.asarray(faces, np.int64), 1].mean(axis=1)
+    return y <= float(level) + 0.5 * SHORE_RAMP
+
+
 def skirt_radius(extent, far: float) -> float:
     """R: the camera's far clip, at least :data:`MIN_SKIRT_RADIUS` and :data:`SKIRT_WIDTHS` terrain widths."""
     xmin, zmin, xmax, zmax = (float(v) for v in extent)
@@ -291,11 +389,12 @@ def skirt_mesh(
     mid[:, [0, 2]] = inner[:, [0, 2]] + unit * ramp
     outer = np.empty_like(inner)
     outer[:, [0, 2]] = c + unit * max(float(radius), float(dist.max()) + 2.0 * ramp)
-    outer[:, 1] = inner[:, 1].mean()
+    sea = Sea.at_edge(terrain, inner, c)
+    outer[:, 1] = inner[:, 1].mean() if sea is None else sea.far_height(sea.weight(outer))
     k = len(used)
     if hills is not None and hills.height > 0:
         relief = woods if woods is not None and woods.height > 0.0 else None
-        return _hilly_skirt(terrain, hills, (inner, mid, outer), c, (a, b), relief, step)
+        return _hilly_skirt(terrain, hills, (inner, mid, outer), c, (a, b), relief, step, sea)
     faces = np.concatenate(
         [
             np.stack([a, b, b + k], 1),
@@ -305,6 +404,8 @@ def skirt_mesh(
         ]
     )
     verts = np.concatenate([inner, mid, outer])
+    if sea is not None:
+        verts[:, 1] = np.maximum(verts[:, 1], sea.level)
     # Wind every face upward (+Y) whatever the terrain's own winding.
     p0, p1, p2 = (verts[faces[:, i]] for i in range(3))
     down = np.cross(p1 - p0, p2 - p0)[:, 1] < 0
@@ -373,10 +474,12 @@ def _hilly_skirt(
     edge: tuple[np.ndarray, np.ndarray],
     woods: FarCover | None = None,
     step: float = RELIEF_STEP,
+    sea: Sea | None = None,
 ) -> Skirt:
     """The skirt with hills (module docstring): the boundary, the ramp's ring, then :func:`hill_rings` rings
     out to the outer ring's radius; ``edge`` the boundary edges as (a, b) indices into the boundary ring; with
-    ``woods``, the ramp's ring and the hills' rings subdivided to ``step`` radians and raised by its relief."""
+    ``woods``, the ramp's ring and the hills' rings subdivided to ``step`` radians and raised by its relief; with
+    ``sea``, sunk to the water's level, hills and relief weighed by 1 − w, and flooded ("The sea")."""
     inner, mid, outer = ring_points
     k = len(inner)
     a, b = edge
@@ -393,20 +496,29 @@ def _hilly_skirt(
     rings[:, :, 0] = c[0] + unit[None, :, 0] * radius
     rings[:, :, 2] = c[1] + unit[None, :, 1] * radius
     level = (radius - r0[None, :]) / np.maximum(r_end - r0[None, :], 1e-9)
-    rings[:, :, 1] = mid[None, :, 1] + (outer[0, 1] - mid[None, :, 1]) * level
+    wet = np.zeros(q) if sea is None else sea.weight(mid)  # (q,): each column's sea share w
+    dryness = 1.0 - wet
+    far_y = outer[0, 1] if sea is None else sea.far_height(wet)[None, :]
+    rings[:, :, 1] = mid[None, :, 1] + (far_y - mid[None, :, 1]) * level
     w = np.clip((radius - r0[None, :]) / float(hills.scale), 0.0, 1.0)
     # Point by point, so in blocks of rows on the machine's cores (the same values as one call).
     field = rowwise(lambda px, pz: hill_field(px, pz, hills), rings[:, :, 0].ravel(), rings[:, :, 2].ravel())
-    rings[:, :, 1] += float(hills.height) * w * w * (3.0 - 2.0 * w) * field.reshape(m, q)
+    rise = w * w * (3.0 - 2.0 * w) * field.reshape(m, q)
+    rings[:, :, 1] += float(hills.height) * (rise if sea is None else rise * dryness[None, :])
     verts = np.concatenate([inner, mid, rings.reshape(-1, 3)])
+    if sea is not None:
+        verts[:, 1] = np.maximum(verts[:, 1], sea.level)
     land = verts.copy()  # the hills without the woods: their normals shade the skirt (module docstring)
     if woods is not None:
         # Each ring's relief averaged over its spacing from the ring inside it (forest.far_cover, "Prefilter").
         spacing = np.diff(np.concatenate([r0[None, :], radius]), axis=0)  # (M, q)
         far = verts[k + q :]
-        verts[k + q :, 1] += rowwise(
+        relief = rowwise(
             lambda px, pz, f, py: woods.relief(px, pz, f, y=py), far[:, 0], far[:, 2], spacing.ravel(), far[:, 1]
         )
+        if sea is not None:  # no woods on the water or its shore, and fewer where the edge is sea
+            relief = relief * np.tile(dryness, m) * (far[:, 1] > sea.level + sea.shore)
+        verts[k + q :, 1] += relief
     # The ramp's band: each boundary edge (a, b) fans to its chain on the ramp's ring, half from a, half from b.
     half = (s + 1) // 2
     lo, hi = chains[:, :-1] + k, chains[:, 1:] + k

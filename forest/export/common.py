@@ -377,14 +377,11 @@ def horizon(scene) -> Horizon | None:
     out to the camera's far clip (:func:`forest.skirt.skirt_mesh`, :func:`forest.skirt.skirt_radius`) with the
     hills on it, coloured with the far landscape's albedo (:func:`forest.skirt.far_colour`) times the fitted
     ``ground_tint``.  None without hills or with ``horizon_ground = false``.  The woods' relief, their mosaic of
-    woods and fields, steep rock and snow are forest_path's shading and stay there."""
-    from ..skirt import far_colour, hills, skirt_mesh, skirt_radius
+    woods and fields, steep rock and snow are forest_path's shading and stay there.  Still water at the terrain's
+    edge runs on over the skirt as water (:func:`split_water`), not as part of the horizon."""
+    from ..skirt import far_colour
 
-    config, terrain = scene.config, scene.terrain
-    h = hills(config)
-    if h is None or not config.render.horizon_ground:
-        return None
-    sk = skirt_mesh(terrain, skirt_radius(terrain.extent, float(config.camera.far)), h)
+    sk = _horizon_skirt(scene, sea=False)
     if sk is None:
         return None
     c = np.asarray(far_colour(scene.terrain_albedo), np.float64).reshape(3)
@@ -392,12 +389,40 @@ def horizon(scene) -> Horizon | None:
     if gt is not None:
         c = c * gt.astype(np.float64)
     colour = (float(c[0]), float(c[1]), float(c[2]))
-    xmin, zmin, xmax, zmax = (float(v) for v in terrain.extent)
+    return Horizon(
+        np.asarray(sk.vertices, np.float32), np.asarray(sk.faces, np.uint32), sk.normals, _map_uv(scene, sk), colour
+    )
+
+
+def _map_uv(scene, sk) -> np.ndarray:
+    """The map coordinates of a skirt's vertices (outside [0, 1] past the terrain's edge), float32 (V, 2)."""
+    xmin, zmin, xmax, zmax = (float(v) for v in scene.terrain.extent)
     v = np.asarray(sk.vertices, np.float64)
     uv = np.stack([(v[:, 0] - xmin) / max(xmax - xmin, 1e-9), (v[:, 2] - zmin) / max(zmax - zmin, 1e-9)], 1)
-    return Horizon(
-        np.asarray(sk.vertices, np.float32), np.asarray(sk.faces, np.uint32), sk.normals, uv.astype(np.float32), colour
-    )
+    return uv.astype(np.float32)
+
+
+def _horizon_skirt(scene, sea: bool | None = None):
+    """The exported horizon's skirt (:func:`horizon`): None without hills or with ``horizon_ground = false``.
+    ``sea``: only the faces still water covers past the terrain's edge (True; None when there are none) or only
+    the others (False) — :mod:`forest.skirt`, "The sea"; None: all."""
+    from ..skirt import Skirt, hills, sea_at_edge, skirt_mesh, skirt_radius, wet_faces
+
+    config, terrain = scene.config, scene.terrain
+    h = hills(config)
+    if h is None or not config.render.horizon_ground:
+        return None
+    has_sea = sea is not None and sea_at_edge(terrain) is not None
+    if sea and not has_sea:
+        return None
+    sk = skirt_mesh(terrain, skirt_radius(terrain.extent, float(config.camera.far)), h)
+    if sk is None or not has_sea:
+        return sk
+    keep = wet_faces(sk.vertices, sk.faces, float(terrain.water[0])) == bool(sea)
+    if not keep.any():
+        return None
+    used, inverse = np.unique(sk.faces[keep], return_inverse=True)
+    return Skirt(sk.vertices[used], inverse.reshape(-1, 3).astype(np.uint32), sk.normals[used])
 
 
 @dataclass(frozen=True)
@@ -429,30 +454,43 @@ def split_water(scene) -> tuple[Ground, Water | None]:
     forest_path shades as its mirror).  The water's colour is :func:`forest.ground.water_colour` (times the fitted
     ``ground_tint``), its roughness :func:`forest.ground.water_roughness` of ``water_ripple``, its index 1.33.
     Without water the ground is the terrain's own arrays and the water None, so an export of a scene without water
-    is what it was."""
+    is what it was.  With the exported horizon (:func:`horizon`) and still water at the terrain's edge, the water
+    runs on over the horizon's sea (:mod:`forest.skirt`, "The sea"), which the horizon leaves out."""
     from ..config.schema import WATER_IOR
     from ..ground import water_colour, water_roughness, water_triangles
 
     terrain, albedo = scene.terrain, scene.terrain_albedo
     whole = Ground(terrain.vertices, terrain.faces, terrain.vertex_normals, terrain.uv)
     wet = water_triangles(terrain, albedo)
-    if wet is None:
+    sea = _horizon_skirt(scene, sea=True)
+    if wet is None and sea is None:
         return whole, None
-    faces = terrain.faces[wet]
+    faces = terrain.faces[wet] if wet is not None else np.zeros((0, 3), np.int64)
     used, inverse = np.unique(faces, return_inverse=True)
+    verts = np.asarray(terrain.vertices[used], np.float32)
+    tris = np.asarray(inverse.reshape(-1, 3), np.uint32)
+    normals = np.asarray(terrain.vertex_normals[used], np.float32)
+    uv = np.asarray(terrain.uv[used], np.float32)
+    if sea is not None:
+        tris = np.concatenate([tris, np.asarray(sea.faces, np.uint32) + np.uint32(len(verts))])
+        verts = np.concatenate([verts, np.asarray(sea.vertices, np.float32)])
+        normals = np.concatenate([normals, np.asarray(sea.normals, np.float32)])
+        uv = np.concatenate([uv, _map_uv(scene, sea)])
     c = water_colour(albedo)
     gt = _ground_tint(scene)
     if gt is not None:
         c = c * gt.astype(np.float64)
     water = Water(
-        np.asarray(terrain.vertices[used], np.float32),
-        np.asarray(inverse.reshape(-1, 3), np.uint32),
-        np.asarray(terrain.vertex_normals[used], np.float32),
-        np.asarray(terrain.uv[used], np.float32),
+        verts,
+        tris,
+        normals,
+        uv,
         (float(c[0]), float(c[1]), float(c[2])),
         water_roughness(float(scene.config.model.ground.water_ripple)),
         WATER_IOR,
     )
+    if wet is None:
+        return whole, water
     return Ground(terrain.vertices, terrain.faces[~wet], terrain.vertex_normals, terrain.uv), water
 
 

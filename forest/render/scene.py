@@ -384,11 +384,14 @@ def terrain_mesh(
     skirt: float = 0.0,
     hills: Hills | None = None,
     faces: np.ndarray | None = None,
+    sea: bool | None = None,
 ) -> Any:
     """The terrain as a Mitsuba ``Mesh`` object (positions, faces, smooth normals, uv) with ``bsdf``.
 
     ``skirt`` > 0 adds the ground that carries it to that radius (:func:`forest.skirt.skirt_mesh`), with
     ``hills`` on it (None: a level plain).  ``faces``: a subset of the terrain's triangles (default: all).
+    ``sea``: of the skirt, only the faces its still water covers (True) or only the others (False)
+    (:func:`forest.skirt.wet_faces`; None: all of them).
     """
     mi = mitsuba(variant)
     v = np.asarray(terrain.vertices, dtype=np.float32)
@@ -399,6 +402,11 @@ def terrain_mesh(
         from ..skirt import skirt_mesh
 
         sk = skirt_mesh(terrain, skirt, hills)
+        if sk is not None and sea is not None and terrain.water is not None:
+            from ..skirt import Skirt, wet_faces
+
+            keep = wet_faces(sk.vertices, sk.faces, float(terrain.water[0])) == sea
+            sk = Skirt(sk.vertices, sk.faces[keep], sk.normals)
         if sk is not None:
             xmin, zmin, xmax, zmax = terrain.extent
             sk_uv = np.stack(
@@ -496,12 +504,14 @@ def ground_dicts(
     (:func:`forest.ground.water_colour` × ``tint``; the exports' colour too), the Fresnel mirror over the bed that
     forest_path shades per hit (:mod:`forest.render.path.materials`) — or ``roughplastic`` (GGX, α = tan
     ``ripple``, :func:`forest.ground.water_roughness` squared) when it ripples.  Which triangles are water is
-    found once for both."""
+    found once for both.  With the skirt (``skirt`` > 0) and still water at the terrain's edge, the skirt's sea
+    (:func:`forest.skirt.wet_faces`) is water too (:mod:`forest.skirt`, "The sea")."""
     from ..config.schema import WATER_IOR
 
     wet = water_triangles(terrain, albedo)
     ground = _terrain_obj(albedo, terrain, variant, wet, skirt, hills, tint)
-    if wet is None:
+    sea = _skirt_sea(terrain, skirt)
+    if wet is None and not sea:
         return ground, None
     colour = water_colour(albedo)
     if tint is not None:
@@ -511,7 +521,17 @@ def ground_dicts(
         bsdf.update(type="roughplastic", distribution="ggx", alpha=water_roughness(ripple) ** 2)
     else:
         bsdf["type"] = "plastic"
-    return ground, terrain_mesh(terrain, variant, bsdf, name="water", faces=terrain.faces[wet])
+    faces = terrain.faces[wet] if wet is not None else np.zeros((0, 3), np.int64)
+    if not sea:
+        return ground, terrain_mesh(terrain, variant, bsdf, name="water", faces=faces)
+    return ground, terrain_mesh(terrain, variant, bsdf, name="water", faces=faces, skirt=skirt, hills=hills, sea=True)
+
+
+def _skirt_sea(terrain: Terrain, skirt: float) -> bool:
+    """Whether the skirt out to ``skirt`` metres (0: none) carries still water past the terrain's edge."""
+    from ..skirt import sea_at_edge
+
+    return skirt > 0 and terrain.water is not None and sea_at_edge(terrain) is not None
 
 
 def _terrain_obj(
@@ -523,8 +543,10 @@ def _terrain_obj(
     hills: Hills | None,
     tint: npt.ArrayLike | None,
 ) -> Any:
-    """The terrain's diffuse mesh without the triangles ``wet`` marks (all of them when None)."""
+    """The terrain's diffuse mesh without the triangles ``wet`` marks (all of them when None), and its skirt
+    without the sea's (:func:`ground_dicts` draws those as water)."""
     reflectance = terrain_reflectance(albedo, terrain, variant, fade=skirt > 0, tint=tint)
     bsdf = {"type": "diffuse", "reflectance": reflectance}
     faces = None if wet is None else terrain.faces[~wet]
-    return terrain_mesh(terrain, variant, bsdf, skirt=skirt, hills=hills, faces=faces)
+    sea = False if _skirt_sea(terrain, skirt) else None
+    return terrain_mesh(terrain, variant, bsdf, skirt=skirt, hills=hills, faces=faces, sea=sea)

@@ -250,7 +250,7 @@ class PathScene:
         terrain_extent = inputs.terrain_extent or self.extent
         far = None if inputs.far_cover is None else FarCoverArrays.build(mi, inputs.far_cover)
         self.terrain_map = (
-            TerrainMap(world_map_texture(mi, tc), tuple(float(v) for v in terrain_extent), far)
+            TerrainMap(world_map_texture(mi, tc), tuple(float(v) for v in terrain_extent), far, inputs.sea_map())
             if tc.ndim == 3
             else None
         )

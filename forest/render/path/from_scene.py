@@ -199,7 +199,20 @@ def path_inputs(
         tree_tint=scene.tree_jitter(),
         bark_tint=scene.bark_tints(),
         far_cover=far_mosaic(scene, look),
+        sea_colour=sea_colour(scene),
     )
+
+
+def sea_colour(scene: Scene) -> tuple[float, float, float] | None:
+    """The painted water's colour for the sea past the terrain's edge (:mod:`forest.skirt`, "The sea"), or None:
+    without the skirt (``horizon_ground = false``) or without still water at the edge."""
+    from ...ground import water_colour
+    from ...skirt import sea_at_edge
+
+    if not scene.config.render.horizon_ground or sea_at_edge(scene.terrain) is None:
+        return None
+    c = water_colour(scene.terrain_albedo)
+    return (float(c[0]), float(c[1]), float(c[2]))
 
 
 def far_mosaic(scene: Scene, look: GroundLook) -> FarCover | None:

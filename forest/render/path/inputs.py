@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -28,6 +28,17 @@ SKY_KINDS = ("constant", "envmap", "sunsky", "gradient")
 #: meshes instead of instanced (≤ 64 triangles ≈ 2.3 KB of vertices per tree, against
 #: 13–17 KB per Mitsuba instance record in llvm).
 FLATTEN_MAX_TRIANGLES = 64
+
+
+class SeaMap(NamedTuple):
+    """Still water past the terrain's edge (:mod:`forest.skirt`, "The sea"): on the skirt, outside the terrain's
+    own ``extent`` (xmin, zmin, xmax, zmax), ground at height y is water of coverage
+    W = 1 − s((y − ``level``)/``SHORE_RAMP``), s the smoothstep (:meth:`forest.terrain.Terrain.water_cover`'s
+    rule), of albedo ``colour`` (the painted water's, :func:`forest.ground.water_colour`)."""
+
+    level: float
+    colour: tuple[float, float, float]
+    extent: tuple[float, float, float, float]
 
 
 @dataclass(frozen=True)
@@ -171,6 +182,9 @@ class PathInputs:
     None for 1.
     ``far_cover`` (:class:`forest.far_cover.FarCover`) draws woods and open ground on the skirt past an
     (H, W, 3) ``terrain_colour``'s terrain; None keeps it one colour.
+    ``sea_colour`` (RGB): with a skirt and a ``terrain`` whose still water reaches its edge, the skirt's water
+    past that edge is drawn as water of this albedo (:class:`~forest.render.path.materials.SeaMap`); None for no
+    sea (the skirt's colour is then the map's, faded).
     """
 
     instances: Any
@@ -210,6 +224,17 @@ class PathInputs:
     tree_tint: np.ndarray | None = None
     far_cover: Any = None
     bark_tint: np.ndarray | None = None
+    sea_colour: tuple[float, float, float] | None = None
+
+    def sea_map(self) -> SeaMap | None:
+        """The :class:`~forest.render.path.materials.SeaMap` of ``sea_colour``, or None (no sea colour, no
+        skirt, or a terrain without still water)."""
+        water = getattr(self.terrain, "water", None)
+        if self.sea_colour is None or water is None or self.skirt_radius <= 0.0:
+            return None
+        colour = tuple(float(c) for c in np.asarray(self.sea_colour, np.float64).reshape(3))
+        extent = tuple(float(v) for v in self.terrain.extent)
+        return SeaMap(float(water[0]), colour, extent)  # type: ignore[arg-type]
 
     def terrain_map_array(self) -> np.ndarray:
         """``terrain_colour`` as float32, with ``terrain_water`` as a fourth channel where there is water."""

@@ -80,7 +80,7 @@ from ...config.schema import WATER_IOR
 from ...errors import ForestError
 from ...images import read_image, srgb_to_linear
 from .arrays import owned
-from .inputs import Material
+from .inputs import Material, SeaMap
 
 KIND_SURFACE = 0
 KIND_LEAF = 1
@@ -415,11 +415,25 @@ class FarCoverArrays(NamedTuple):
 
 class TerrainMap(NamedTuple):
     """The terrain map: a ``Texture2f`` (RGB, and the water coverage as a fourth channel where there is water)
-    over ``extent``, and the far landscape's mosaic on the skirt (None: one colour)."""
+    over ``extent``, the far landscape's mosaic on the skirt (None: one colour), and the sea on the skirt
+    (:class:`SeaMap`; None: none)."""
 
     texture: Any
     extent: Sequence[float]
     far: FarCoverArrays | None = None
+    sea: SeaMap | None = None
+
+
+def sea_coverage(sea: SeaMap, p: Any, active: Any) -> Any:
+    """The sea's coverage W at world ``p`` (:class:`SeaMap`): 0 on the terrain's own extent and off ``active``."""
+    import drjit as dr
+
+    from ...terrain import SHORE_RAMP
+
+    xmin, zmin, xmax, zmax = sea.extent
+    outside = (p.x < xmin) | (p.x > xmax) | (p.z < zmin) | (p.z > zmax)
+    t = dr.clip((p.y - sea.level) * (1.0 / SHORE_RAMP), 0.0, 1.0)
+    return dr.select(active & outside, 1.0 - t * t * (3.0 - 2.0 * t), 0.0)
 
 
 def world_map_texture(mi: Any, data: Any, *, differentiable: bool = False) -> Any:
@@ -666,9 +680,15 @@ def shading(
         ground = mi.Color3f(t[0], t[1], t[2])
         if terrain_map.far is not None:  # woods and open ground on the skirt (forest.far_cover)
             ground = ground * terrain_map.far.factor(mi, p, mapped, up)
+        sea = None
+        if terrain_map.sea is not None:  # the water past the terrain's edge, by height (SeaMap)
+            sea = sea_coverage(terrain_map.sea, p, mapped)
+            ground = dr.lerp(ground, mi.Color3f(*terrain_map.sea.colour), sea)
         a = dr.select(mapped, a * ground, a)
         if plain is not None and detail is not None:
             w = dr.select(mapped, dr.clip(t[3], 0.0, 1.0), 0.0)
+            if sea is not None:
+                w = dr.maximum(w, sea)
             wet = dr.select(mapped, plain * ground, plain) * dr.fma(1.0 - detail, w, detail)
             a = dr.select(w > 0.0, wet, a)  # (1 − W)·detail + W in place of the detail
     leaf = dr.gather(mi.UInt32, mats.kind, material, active) == KIND_LEAF
@@ -860,14 +880,16 @@ class WaterLobe:
 
 
 def water_coverage(mi: Any, mats: MaterialArrays, material: Any, p: Any, terrain_map: TerrainMap, active: Any) -> Any:
-    """The water coverage W ∈ [0, 1] at a hit: the terrain map's fourth channel at its world X/Z (0 off the terrain)."""
+    """The water coverage W ∈ [0, 1] at a hit: the terrain map's fourth channel at its world X/Z (0 off the terrain),
+    or the sea's on the skirt where that is more (:func:`sea_coverage`)."""
     import drjit as dr
 
     tmap, (txmin, tzmin, txmax, tzmax) = terrain_map.texture, terrain_map.extent
     tpos = mi.Point2f((p.x - txmin) * (1.0 / (txmax - txmin)), (p.z - tzmin) * (1.0 / (tzmax - tzmin)))
     mapped = dr.gather(mi.Bool, mats.terrain_map, material, active) & active
     t = tmap.eval(tpos, active=mapped)
-    return dr.select(mapped, dr.clip(t[3], 0.0, 1.0), 0.0)
+    w = dr.select(mapped, dr.clip(t[3], 0.0, 1.0), 0.0)
+    return w if terrain_map.sea is None else dr.maximum(w, sea_coverage(terrain_map.sea, p, mapped))
 
 
 def ripple_normal(mi: Any, p: Any, ripple_deg: float) -> Any:
