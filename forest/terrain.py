@@ -175,13 +175,14 @@ class Terrain:
         return nrm
 
     # -- water -------------------------------------------------------------------
-    def dry(self, y: np.ndarray) -> np.ndarray:
-        """Whether heights ``y`` stand more than ``shore`` metres above the water (all True without water)."""
+    def dry(self, y: np.ndarray, shore: float | None = None) -> np.ndarray:
+        """Whether heights ``y`` stand more than ``shore`` metres above the water (all True without water);
+        ``shore`` None: the water's own (``[terrain] water`` ``shore``)."""
         y = np.asarray(y, dtype=np.float64)
         if self.water is None:
             return np.ones(y.shape, dtype=bool)
-        level, shore = self.water
-        return y > level + shore
+        level, own = self.water
+        return y > level + (own if shore is None else float(shore))
 
     def water_cover(self, height: np.ndarray) -> np.ndarray | None:
         """The water's coverage W ∈ [0, 1] of ground at heights ``height`` (the flooded mesh's):

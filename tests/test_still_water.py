@@ -111,6 +111,24 @@ def test_ground_cover_keeps_out_of_the_water(tmp_path):
     assert inst.position[cover, 1].min() >= np.float32(LEVEL + 0.2)  # positions are float32
 
 
+def test_water_edge_cover_grows_down_to_the_waterline(tmp_path):
+    """``water_edge = true`` (reeds): the cover keeps off the water itself only — none on the flooded surface (W ≥ ½
+    there), but plants within the shore's metre above it, down to a few centimetres of the level, at the density the
+    shore's area there asks (a band of 0-1 m above the level, the altitude window)."""
+    band = f"altitude = [{LEVEL}, {LEVEL + 1.0}]\n"
+    extra = '[[ground_cover]]\nmodel = "box.obj"\ndensity = 4.0\nmax_distance = 500.0\n' + band
+    config = bowl_config(tmp_path, shore=1.0, extra=extra + "water_edge = true\n")
+    inst, _ = scatter(config)
+    y = inst.position[inst.species == 1, 1].astype(np.float64)
+    assert len(y) > 50
+    assert y.min() > LEVEL + 0.5 * SHORE_RAMP - 1e-4  # never on the water
+    assert y.min() < LEVEL + 0.1 and np.mean(y < LEVEL + 0.5) > 0.3  # down to the waterline
+    # The same cover without it keeps the shore's metre free: nothing in the band at all.
+    plain = bowl_config(tmp_path, shore=1.0, extra=extra)
+    inst_plain, _ = scatter(plain)
+    assert (inst_plain.species == 1).sum() == 0
+
+
 def test_the_ground_paints_the_lake_as_water(tmp_path):
     config = bowl_config(tmp_path, extra='[ground]\nbase = "grass"\nrules = []\n')
     scene = load_scene(config)

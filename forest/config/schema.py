@@ -702,6 +702,11 @@ class GroundCoverConfig(Section):
         description="Metres: grow only this close to the edge of [maps] presence, on both sides "
         "(a shrub mantle; with presence = true only the inner side).",
     )
+    water_edge: Bool = Field(
+        False,
+        description="Grow down to the edge of still water ([terrain] water), as reeds and sedges do: "
+        "its shore keeps this cover off the water only, not off the bank above it.",
+    )
 
     _pairs = field_validator("scale", "altitude")(_ordered_pair)
     _accents = field_validator("accents")(_accent_shares)

@@ -20,7 +20,10 @@ camera can see a small plant: within ``max_distance`` of its path.
   density is ``density`` up to 0.7 R and there is no visible edge where the
   cover ends; then outside ``[maps] presence`` (with ``presence = true``),
   outside the slope window [``slope_min``, ``slope_max``] or the
-  ``altitude`` window.
+  ``altitude`` window; and on still water (``[terrain] water``) or within its
+  ``shore`` metres above it — or, with ``water_edge = true`` (reeds, sedges),
+  only on the water itself (its coverage ≥ ½: within ``SHORE_RAMP``/2 of the
+  level), so the cover grows down to the waterline.
 * **Patches** (``clumping = {strength, scale, size}``; off at the default
   strength 0).  A meadow is not an even lawn: its grasses grow in patches.
   The stand field of :mod:`forest.scatter.canopy` — fBm value noise at
@@ -78,7 +81,7 @@ from ..config.schema import MAX_TREES, CameraConfig, GroundCoverConfig
 from ..errors import ConfigError
 from ..instances import COLUMNS, yaw_tilt_quaternion
 from ..maps import MapSet
-from ..terrain import Terrain
+from ..terrain import SHORE_RAMP, Terrain
 from ..tint import TintParams, Where
 from .attributes import draw_individuals
 from .candidates import SLOPE_TOLERANCE, outside, slope_degrees
@@ -183,7 +186,7 @@ def scatter_cover(
     keep = rng["fade"].random(n) < p
     if cover.presence:
         keep &= maps.present(u, v)
-    keep &= terrain.dry(position[:, 1])
+    keep &= terrain.dry(position[:, 1], SHORE_RAMP / 2.0 if cover.water_edge else None)
     slope_lo, slope_hi = np.full(n, cover.slope_min), np.full(n, cover.slope_max)
     keep &= ~outside(slope_degrees(normal), slope_lo, slope_hi, SLOPE_TOLERANCE)
     if cover.altitude is not None:
