@@ -1,12 +1,14 @@
-"""The cost of still water (``[terrain] water``): the demo with its lake against the same terrain dry.
+"""The cost of still water (``[terrain] water``) and of its reeds: the demo with its lake against the same terrain dry.
 
     .venv/bin/python bench/bench_lake.py [--size 640x360] [--spp 16] [--runs 2] [--keep DIR]
 
-Both configs are ``configs/demo.toml`` (its basin, ``maps/demo_height.png``); the baseline drops the
-``water = {...}`` line of its ``[terrain]``, so trees grow on the basin's floor and the ground there is
+Three configs from ``configs/demo.toml`` (its basin, ``maps/demo_height.png``): "reeds", the demo as it is;
+"lake", without its reeds (the ``[[ground_cover]]`` of ``model = "reeds"``); "dry", without them and without
+the ``water = {...}`` line of its ``[terrain]``, so trees grow on the basin's floor and the ground there is
 painted by the rules.  Whole ``forest render`` commands (scatter, scene build, render, EXR), alternating,
-best of ``--runs`` by CPU seconds; the tree counts and the share of the frame's pixels on the lake (the
-EXR's ``Z`` against the water's plane) are printed with them.
+best of ``--runs`` by CPU seconds; the tree counts (plants with the reeds) and the share of the frame's
+pixels on the lake (the EXR's ``P.Y`` against the water's plane) are printed with them: the lake's cost is
+lake / dry, the reeds' reeds / lake.
 """
 
 from __future__ import annotations
@@ -26,14 +28,16 @@ from timing import forest_render, load_line, render_arguments
 
 
 def configs(folder: Path) -> dict[str, Path]:
-    """The demo as it is ("lake") and without its water line ("dry"), beside a link to its maps."""
+    """The demo as it is ("reeds"), without its reeds ("lake") and without them and its water line ("dry"), beside
+    a link to its maps."""
     text = (ROOT / "configs" / "demo.toml").read_text()
-    dry = re.sub(r"^water = \{[^\n]*\n", "", text, count=1, flags=re.M)
-    if dry == text:
-        raise SystemExit("bench_lake: configs/demo.toml has no [terrain] water line")
+    lake = re.sub(r'^\[\[ground_cover\]\][^\n]*\nmodel = "reeds"\n(?:(?!\[)[^\n]+\n)*\n', "", text, count=1, flags=re.M)
+    dry = re.sub(r"^water = \{[^\n]*\n", "", lake, count=1, flags=re.M)
+    if lake == text or dry == lake:
+        raise SystemExit("bench_lake: configs/demo.toml has no reeds or no [terrain] water line")
     (folder / "maps").symlink_to(ROOT / "configs" / "maps")
     out = {}
-    for name, body in (("lake", text), ("dry", dry)):
+    for name, body in (("reeds", text), ("lake", lake), ("dry", dry)):
         out[name] = folder / f"{name}.toml"
         out[name].write_text(body)
     return out
@@ -74,11 +78,13 @@ def main() -> None:
                 if name not in best or cpu < best[name][1]:
                     best[name] = (wall, cpu)
         share = water_share(folder / "lake.exr")
-        for name, label in (("dry", "the basin dry (no water)"), ("lake", "the basin a lake")):
+        labels = (("dry", "the basin dry (no water)"), ("lake", "the basin a lake"), ("reeds", "the lake and its reeds"))
+        for name, label in labels:
             wall, cpu = best[name]
             print(f"lake {label:26s}: {wall:6.1f} s wall, {cpu:6.1f} CPU-s, {trees(summary[name])} trees")
         print(f"lake: {share:.1%} of the frame's pixels on the water")
         print(f"lake cost: {best['lake'][1] / best['dry'][1]:.2f}x CPU, {best['lake'][0] / best['dry'][0]:.2f}x wall")
+        print(f"reeds cost: {best['reeds'][1] / best['lake'][1]:.2f}x CPU, {best['reeds'][0] / best['lake'][0]:.2f}x wall")
         if args.keep is not None:
             args.keep.mkdir(parents=True, exist_ok=True)
             for name in paths:
