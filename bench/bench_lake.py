@@ -78,13 +78,19 @@ def main() -> None:
                 if name not in best or cpu < best[name][1]:
                     best[name] = (wall, cpu)
         share = water_share(folder / "lake.exr")
-        labels = (("dry", "the basin dry (no water)"), ("lake", "the basin a lake"), ("reeds", "the lake and its reeds"))
+        labels = (
+            ("dry", "the basin dry (no water)"),
+            ("lake", "the basin a lake"),
+            ("reeds", "the lake and its reeds"),
+        )
         for name, label in labels:
             wall, cpu = best[name]
             print(f"lake {label:26s}: {wall:6.1f} s wall, {cpu:6.1f} CPU-s, {trees(summary[name])} trees")
         print(f"lake: {share:.1%} of the frame's pixels on the water")
         print(f"lake cost: {best['lake'][1] / best['dry'][1]:.2f}x CPU, {best['lake'][0] / best['dry'][0]:.2f}x wall")
-        print(f"reeds cost: {best['reeds'][1] / best['lake'][1]:.2f}x CPU, {best['reeds'][0] / best['lake'][0]:.2f}x wall")
+        print(
+            f"reeds cost: {best['reeds'][1] / best['lake'][1]:.2f}x CPU, {best['reeds'][0] / best['lake'][0]:.2f}x wall"
+        )
         if args.keep is not None:
             args.keep.mkdir(parents=True, exist_ok=True)
             for name in paths:
