@@ -155,6 +155,50 @@ def test_options_off_leave_the_scatter_as_before(tmp_path, library):
     np.testing.assert_allclose(inst.scale, (0.5 + xi).astype(inst.scale.dtype), rtol=1e-6)
 
 
+def _mixed(tmp_path, grouping: str, name: str):
+    """Broadleaves 30 % and conifers 70 % on a flat 400 m square, every candidate kept (:data:`OFF`)."""
+    return load_config(
+        write_scene(
+            tmp_path,
+            f"""
+            seed = 3
+            [terrain]
+            procedural = {{ size = 400.0, height = 0.0, resolution = 16 }}
+            [scatter]
+            count = 20000
+            {OFF}
+            {grouping}
+            [[species]]
+            model = "broadleaf"
+            percent = 30
+            [[species]]
+            model = "conifer"
+            percent = 70
+            """,
+            name=name,
+        )
+    )
+
+
+def test_grouping_keeps_each_species_share_and_gathers_it_in_patches(tmp_path, library):
+    """``[scatter] grouping``: the same sites, each species' share as its percent, but a tree's nearest neighbour is
+    of its own species far more often than the independent draws' Σ p² = 0.3² + 0.7² = 0.58 (Pielou's segregation)."""
+    from scipy.spatial import cKDTree
+
+    mixed, _ = scatter(_mixed(tmp_path, "", "mixed.toml"))
+    grouped, _ = scatter(_mixed(tmp_path, "grouping = { strength = 0.9, scale = 60.0 }", "grouped.toml"))
+    np.testing.assert_array_equal(mixed.position, grouped.position)  # the sites are untouched
+    same = {}
+    for name, inst in (("mixed", mixed), ("grouped", grouped)):
+        assert np.mean(inst.species == 1) == pytest.approx(0.7, abs=0.03)
+        _, nn = cKDTree(inst.position[:, [0, 2]]).query(inst.position[:, [0, 2]], k=2)
+        same[name] = float(np.mean(inst.species == inst.species[nn[:, 1]]))
+    assert same["mixed"] == pytest.approx(0.58, abs=0.02)
+    assert same["grouped"] > 0.8
+    again, _ = scatter(_mixed(tmp_path, "grouping = { strength = 0.9, scale = 60.0 }", "again.toml"))
+    np.testing.assert_array_equal(again.species, grouped.species)  # seeded
+
+
 @pytest.mark.parametrize(
     "line, field",
     [
@@ -163,6 +207,8 @@ def test_options_off_leave_the_scatter_as_before(tmp_path, library):
         ("clumping = { strength = 2.0 }", "scatter.clumping.strength"),
         ("emergents = { scale = [1.6, 1.3] }", "scatter.emergents.scale"),
         ("emergents = { fraction = -0.1 }", "scatter.emergents.fraction"),
+        ("grouping = { strength = 1.5 }", "scatter.grouping.strength"),
+        ("grouping = { scale = 0.0 }", "scatter.grouping.scale"),
     ],
 )
 def test_bad_values_fail_in_one_line(tmp_path, line, field):

@@ -311,6 +311,15 @@ class Emergents(Section):
     _pairs = field_validator("scale")(_ordered_pair)
 
 
+class Grouping(Section):
+    """Trees of one species in groups and patches instead of evenly mixed (:mod:`forest.scatter.canopy`)."""
+
+    strength: Unit = Field(
+        0.0, description="0 evenly mixed (off) … 1 each patch one species; every species keeps its percent."
+    )
+    scale: Positive = Field(60.0, description="Wavelength of the groups' noise, metres (groups ~ half this across).")
+
+
 class EdgeTaper(Section):
     """Trees smaller along the edge of the presence map, stepping up to the canopy (:mod:`forest.scatter.canopy`)."""
 
@@ -338,6 +347,10 @@ class ScatterConfig(Section):
     )
     emergents: Emergents = Field(
         default_factory=Emergents, description="Tall trees above the canopy; fraction = 0: off."
+    )
+    grouping: Grouping = Field(
+        default_factory=Grouping,
+        description="Species in groups and patches (strength > 0) rather than evenly mixed; percentages kept.",
     )
     edge_taper: EdgeTaper | None = Field(
         None,

@@ -14,7 +14,9 @@ presence        the presence map's nearest pixel is below the threshold
 water           it stands under ``[terrain] water`` or less than its ``shore`` above it
 density         its uniform draw ξ_d ≥ the density map's bilinear value times the
                 stand factor of ``[scatter] clumping`` (:mod:`forest.scatter.canopy`)
-empty ground    its species draw ξ_s·100 falls past Σ percent (unclaimed ground)
+empty ground    its species draw ξ_s·100 falls past Σ percent (unclaimed ground); with
+                ``[scatter] grouping`` ξ_s is coupled to a field of species patches
+                (:mod:`forest.scatter.canopy`)
 partition       its species lists ``partitions`` and the region under it is not one
 slope           the terrain slope θ = arccos(n_y) is outside [slope_min, slope_max]
 altitude        its height y is outside the species' ``altitude`` window
@@ -40,7 +42,7 @@ import numpy as np
 from ..config import Config, SpeciesConfig
 from ..maps import MapSet
 from ..terrain import Terrain
-from .canopy import clumping_density, clumping_on
+from .canopy import clumping_density, clumping_on, grouped_draw, grouping_on
 
 #: One stream per quantity, in this order for good: a new quantity is appended at the end, so the
 #: streams before it (and every existing tree's position, yaw, scale, phase) stay as they were.
@@ -196,7 +198,11 @@ def candidates(
         keep[thinned] = False
 
     progress(0.5, "species")
-    sp_draw = draw_species([sp.percent for sp in species], rng["species"].random(n))
+    xi_s = rng["species"].random(n)
+    group = config.scatter.grouping
+    if grouping_on(group):  # species in patches (forest.scatter.canopy, "Species in groups")
+        xi_s = grouped_draw(group, terrain.extent, config.seed, position[:, 0], position[:, 2], xi_s)
+    sp_draw = draw_species([sp.percent for sp in species], xi_s)
     empty = keep & (sp_draw >= len(species))
     fate[empty] = code["empty ground"]
     keep &= ~empty

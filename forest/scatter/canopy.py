@@ -59,6 +59,22 @@ map let it grow) is a times its drawn size, one W inside is full size.  The
 draws are not touched, so each tree keeps its own place in the species'
 range and the taper only lowers the edge's envelope.
 
+**Species in groups** (``[scatter] grouping = {strength, scale}``, off by default).  Drawn independently,
+the species of a mixed forest are evenly salted through it; real ones stand in groups and patches of
+one species — a clump of spruce, a birch grove — whose colours and shapes break a canopy into
+pieces (species patchiness at the scale of tens of metres: Pielou 1961, "Segregation and symmetry in
+two-species populations as studied by nearest-neighbor relationships", J. Ecol. 49: 255–269).  The
+species draw ξ_s (the ``species`` stream) is replaced by
+
+    ξ'_s = Φ(√m · Φ⁻¹(π(U_g(x))) + √(1 − m) · Φ⁻¹(ξ_s))
+
+with U_g the area rank of a stand field of its own (wavelength λ = ``scale``, stream
+:data:`GROUP_TAG`), π a seeded permutation of :data:`GROUP_INTERVALS` equal intervals of [0, 1]
+(so that which species border which is random, not the order of ``[[species]]``), m = ``strength``
+and Φ the standard normal distribution function (a Gaussian copula): both terms are standard
+normal, so ξ'_s is uniform whatever m — every species keeps its ``percent`` — while at m → 1 a
+species fills whole patches of the field and at m = 0 the draw is ξ_s itself (nothing is changed).
+
 **Snags** (``[[species]] dead``).  A share of each leafy species' trees is
 drawn from the ``dead`` stream; such a tree's ``individual`` is n + k, n the
 species' individual count and k its individual, and the Scene's individuals
@@ -83,11 +99,15 @@ from ..parallel import rowwise
 from ..tint import splitmix64
 
 if TYPE_CHECKING:
-    from ..config.schema import Clumping, EdgeTaper, Emergents
+    from ..config.schema import Clumping, EdgeTaper, Emergents, Grouping
     from ..library import Species
 
 _T = TypeVar("_T")
 CLUMP_TAG = 0xC1A3B5
+#: Purpose tag of the species groups' stand field and permutation (``[scatter] grouping``).
+GROUP_TAG = 0x62A0F5
+#: Equal intervals of the groups' field permuted so that neighbouring patches get unrelated species.
+GROUP_INTERVALS = 16
 OCTAVES = 3
 MAX_GRID = 1024  # grid cells per side of the stand field at most
 
@@ -215,6 +235,29 @@ def clumping_density(c: Clumping, extent: Sequence[float], seed: int, x: np.ndar
     """The stand factor p(x) at world points (x, z) for ``[scatter] clumping`` ``c`` and the scene's seed."""
     field = stand_field(extent, c.scale, seed)
     return rowwise(lambda xs, zs: stand_keep(field.at(xs, zs), c.strength, c.clearings), np.asarray(x), np.asarray(z))
+
+
+def grouping_on(g: Grouping) -> bool:
+    """Whether ``[scatter] grouping`` changes anything (strength > 0)."""
+    return g.strength > 0
+
+
+def grouped_draw(
+    g: Grouping, extent: Sequence[float], seed: int, x: np.ndarray, z: np.ndarray, xi: np.ndarray
+) -> np.ndarray:
+    """The species draws ``xi`` at world points (x, z) coupled to the groups' field (module docstring, "Species in
+    groups"): ξ' = Φ(√m Φ⁻¹(π(U)) + √(1 − m) Φ⁻¹(ξ)), uniform in (0, 1) like ξ."""
+    from scipy.special import ndtr, ndtri
+
+    field = stand_field(extent, g.scale, seed, (GROUP_TAG,))
+    order = np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, GROUP_TAG]))).permutation(GROUP_INTERVALS)
+    u = np.clip(field.at(np.asarray(x), np.asarray(z)), 0.0, 1.0) * GROUP_INTERVALS
+    cell = np.minimum(u.astype(np.int64), GROUP_INTERVALS - 1)
+    pu = (order[cell] + (u - cell)) / GROUP_INTERVALS
+    eps = 1e-12
+    m = float(g.strength)
+    w = np.sqrt(m) * ndtri(np.clip(pu, eps, 1 - eps)) + np.sqrt(1.0 - m) * ndtri(np.clip(xi, eps, 1 - eps))
+    return np.asarray(ndtr(w), np.float64)
 
 
 def emergent_factors(e: Emergents, xi: np.ndarray) -> np.ndarray:
