@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from timing import forest_render, load_line, render_arguments
+from timing import alternate_renders, keep_renders, load_line, render_arguments, tree_count
 
 
 def configs(folder: Path) -> dict[str, Path]:
@@ -41,12 +41,6 @@ def configs(folder: Path) -> dict[str, Path]:
         out[name] = folder / f"{name}.toml"
         out[name].write_text(body)
     return out
-
-
-def trees(summary: str) -> str:
-    """The tree count of ``forest render``'s summary line ('?' when it has none)."""
-    m = re.search(r"([\d,]+) trees", summary)
-    return m.group(1) if m else "?"
 
 
 def water_share(exr: Path) -> float:
@@ -68,15 +62,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         paths = configs(folder)
-        best: dict[str, tuple[float, float]] = {}
-        summary: dict[str, str] = {}
-        for _ in range(args.runs):
-            for name, path in paths.items():
-                out = folder / f"{name}.exr"
-                wall, cpu, done = forest_render(path, out, ["render.aovs=['P']"], width, height, args.spp)
-                summary[name] = done.stdout + done.stderr
-                if name not in best or cpu < best[name][1]:
-                    best[name] = (wall, cpu)
+        best, summary = alternate_renders(paths, folder, ["render.aovs=['P']"], width, height, args.spp, args.runs)
         share = water_share(folder / "lake.exr")
         labels = (
             ("dry", "the basin dry (no water)"),
@@ -85,19 +71,13 @@ def main() -> None:
         )
         for name, label in labels:
             wall, cpu = best[name]
-            print(f"lake {label:26s}: {wall:6.1f} s wall, {cpu:6.1f} CPU-s, {trees(summary[name])} trees")
+            print(f"lake {label:26s}: {wall:6.1f} s wall, {cpu:6.1f} CPU-s, {tree_count(summary[name])} trees")
         print(f"lake: {share:.1%} of the frame's pixels on the water")
         print(f"lake cost: {best['lake'][1] / best['dry'][1]:.2f}x CPU, {best['lake'][0] / best['dry'][0]:.2f}x wall")
         print(
             f"reeds cost: {best['reeds'][1] / best['lake'][1]:.2f}x CPU, {best['reeds'][0] / best['lake'][0]:.2f}x wall"
         )
-        if args.keep is not None:
-            args.keep.mkdir(parents=True, exist_ok=True)
-            for name in paths:
-                for ext in (".exr", ".png"):
-                    src = folder / f"{name}{ext}"
-                    if src.exists():
-                        (args.keep / f"lake_{name}{ext}").write_bytes(src.read_bytes())
+        keep_renders(folder, list(paths), args.keep, "lake")
     print(f"lake: {load_line()} at end")
 
 

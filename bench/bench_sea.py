@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from timing import forest_render, load_line, render_arguments
+from timing import alternate_renders, keep_renders, load_line, render_arguments, tree_count
 
 LEVEL = 8.0
 HALF = 600.0  # the terrain's half width, metres
@@ -93,12 +93,6 @@ def configs(folder: Path) -> dict[str, Path]:
     return out
 
 
-def trees(summary: str) -> str:
-    """The tree count of ``forest render``'s summary line ('?' when it has none)."""
-    m = re.search(r"([\d,]+) trees", summary)
-    return m.group(1) if m else "?"
-
-
 def water_shares(exr: Path) -> tuple[float, float]:
     """(share of the frame's pixels whose first hit is within 5 cm of the water's level, share of them past the
     terrain's edge as well)."""
@@ -122,28 +116,14 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         paths = configs(folder)
-        best: dict[str, tuple[float, float]] = {}
-        summary: dict[str, str] = {}
-        for _ in range(args.runs):
-            for name, path in paths.items():
-                out = folder / f"{name}.exr"
-                wall, cpu, done = forest_render(path, out, ["render.aovs=['P']"], width, height, args.spp)
-                summary[name] = done.stdout + done.stderr
-                if name not in best or cpu < best[name][1]:
-                    best[name] = (wall, cpu)
+        best, summary = alternate_renders(paths, folder, ["render.aovs=['P']"], width, height, args.spp, args.runs)
         water, past = water_shares(folder / "sea.exr")
         for name, label in (("dry", "the coast dry (no water)"), ("sea", "the coast and its sea")):
             wall, cpu = best[name]
-            print(f"sea {label:25s}: {wall:6.1f} s wall, {cpu:6.1f} CPU-s, {trees(summary[name])} trees")
+            print(f"sea {label:25s}: {wall:6.1f} s wall, {cpu:6.1f} CPU-s, {tree_count(summary[name])} trees")
         print(f"sea: {water:.1%} of the frame's pixels on the water, {past:.1%} on the sea past the terrain's edge")
         print(f"sea cost: {best['sea'][1] / best['dry'][1]:.2f}x CPU, {best['sea'][0] / best['dry'][0]:.2f}x wall")
-        if args.keep is not None:
-            args.keep.mkdir(parents=True, exist_ok=True)
-            for name in paths:
-                for ext in (".exr", ".png"):
-                    src = folder / f"{name}{ext}"
-                    if src.exists():
-                        (args.keep / f"sea_{name}{ext}").write_bytes(src.read_bytes())
+        keep_renders(folder, list(paths), args.keep, "sea")
     print(f"sea: {load_line()} at end")
 
 

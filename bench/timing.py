@@ -69,6 +69,42 @@ def forest_render(
     return time.perf_counter() - t0, children_cpu_seconds() - c0, done
 
 
+def alternate_renders(
+    paths: Mapping[str, Path], folder: Path, sets: Sequence[str], width: int, height: int, spp: int, runs: int
+) -> tuple[dict[str, tuple[float, float]], dict[str, str]]:
+    """Render each config of ``paths`` to ``folder/NAME.exr`` ``runs`` times, alternating (:func:`forest_render`):
+    ({name: (wall s, CPU s) of its fastest run by CPU}, {name: its last run's stdout + stderr})."""
+    best: dict[str, tuple[float, float]] = {}
+    summary: dict[str, str] = {}
+    for _ in range(runs):
+        for name, path in paths.items():
+            wall, cpu, done = forest_render(path, folder / f"{name}.exr", sets, width, height, spp)
+            summary[name] = done.stdout + done.stderr
+            if name not in best or cpu < best[name][1]:
+                best[name] = (wall, cpu)
+    return best, summary
+
+
+def tree_count(summary: str) -> str:
+    """The tree count of ``forest render``'s summary line ('?' when it has none)."""
+    import re
+
+    m = re.search(r"([\d,]+) trees", summary)
+    return m.group(1) if m else "?"
+
+
+def keep_renders(folder: Path, names: Sequence[str], keep: Path | None, prefix: str) -> None:
+    """Copy each ``folder/NAME.exr`` and ``.png`` to ``keep/PREFIX_NAME.*`` (nothing when ``keep`` is None)."""
+    if keep is None:
+        return
+    keep.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        for ext in (".exr", ".png"):
+            src = folder / f"{name}{ext}"
+            if src.exists():
+                (keep / f"{prefix}_{name}{ext}").write_bytes(src.read_bytes())
+
+
 def render_arguments(description: str, size: str) -> argparse.Namespace:
     """``--size WxH`` (default ``size``), ``--spp``, ``--runs``, ``--keep DIR``: the options of a bench that renders a
     scene with and without a feature through :func:`forest_render`."""

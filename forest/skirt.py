@@ -52,14 +52,13 @@ triangle window), and then
 
     y_far = ȳ_land + w·(level − ȳ_land),    hills and woods × (1 − w),    y ← max(y, level)
 
-with ȳ_land the mean height of the boundary vertices (the far plane's height without water; the
-level for an island, whose edge is all water): the far plane sinks to the water's level where the edge is water, hills and the woods'
-relief rise out of it only where the edge is land (over a few degrees, as headlands and islands
+with ȳ_land the mean height of the boundary vertices (the far plane's height without water): the
+far plane sinks to the water's level where the edge is water, hills and the woods' relief rise out of it only where the edge is land (over a few degrees, as headlands and islands
 rather than walls; no woods within the water's ``shore`` metres of its level, as no trees there on the
 terrain), and the skirt is flooded as the terrain is.  The water's coverage there follows
 the height, W = 1 − s((y − level)/``SHORE_RAMP``) as on the terrain
 (:meth:`forest.terrain.Terrain.water_cover`); forest_path draws it past the terrain's extent
-(:class:`forest.render.path.materials.SeaMap`), scalar_rgb draws the faces it covers by half or more
+(:class:`forest.render.path.inputs.SeaMap`), scalar_rgb draws the faces it covers by half or more
 as water (:func:`wet_faces`).  Without water at the edge the skirt is as before.
 
 **Fade.**  With the skirt, the ground's albedo grid (the Scene's
@@ -257,8 +256,8 @@ def hills(config: Config) -> Hills | None:
 class Sea:
     """Still water at the terrain's edge, carried onto the skirt (module docstring, "The sea"): the water's
     ``level`` and ``shore`` (metres above it kept free of trees, :meth:`forest.terrain.Terrain.dry`), the edge's
-    mean height ``land`` (the far plane's height away from the sea) (the level without dry edge), and ``share`` (:data:`SEA_BINS`,)
-    the water's smoothed share of the edge in equal bins of angle around ``centre`` (x, z), from −π."""
+    mean height ``land`` (the far plane's height away from the sea), and ``share`` (:data:`SEA_BINS`,) the water's
+    smoothed share of the edge in equal bins of angle around ``centre`` (x, z), from −π."""
 
     level: float
     shore: float

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import run_forest, write_png, write_scene
-from test_water import BED, VARIANT, fresnel, look
+from test_water import BED, VARIANT, fresnel, look, water_inputs
 
 from forest.render.path import PathCamera, PathInputs, PathScene, SkyLight
 from forest.skirt import SEA_SMOOTH, Hills, Sea, sea_at_edge, skirt_mesh, wet_faces
@@ -79,27 +79,12 @@ def test_a_dry_edge_keeps_the_skirt_as_it_was():
 
 
 def sea_inputs(camera, sky, sea_colour, spp: int = 128) -> PathInputs:
-    """A 400 m terrain flooded everywhere (its edge all water), carried to 30 km by the skirt."""
-    from forest.instances import InstanceSet
+    """tests/test_water.py's 400 m terrain of water, flooded everywhere (its edge all water) and carried to 30 km by
+    the skirt."""
+    from dataclasses import replace
 
-    return PathInputs(
-        instances=InstanceSet.empty(species_names=("box",)),
-        species=[None],
-        levels=np.zeros(0, np.int64),
-        matrices=np.zeros((0, 4, 4)),
-        camera=camera,
-        terrain=flood(grid_terrain(np.zeros((5, 5)), (400.0, 400.0)), 1.0),
-        terrain_colour=np.tile(np.asarray(BED, np.float32), (4, 4, 1)),
-        terrain_tinted=False,
-        terrain_water=np.ones((4, 4), np.float32),
-        water_ripple=0.0,
-        skirt_radius=30_000.0,
-        sea_colour=sea_colour,
-        sun=None,
-        sky=sky,
-        max_depth=2,
-        spp=spp,
-    )
+    flooded = flood(grid_terrain(np.zeros((5, 5)), (400.0, 400.0)), 1.0)
+    return replace(water_inputs(camera, sky, spp=spp), terrain=flooded, skirt_radius=30_000.0, sea_colour=sea_colour)
 
 
 def test_the_sea_past_the_edge_reflects_the_sky():

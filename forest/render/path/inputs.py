@@ -183,7 +183,7 @@ class PathInputs:
     ``far_cover`` (:class:`forest.far_cover.FarCover`) draws woods and open ground on the skirt past an
     (H, W, 3) ``terrain_colour``'s terrain; None keeps it one colour.
     ``sea_colour`` (RGB): with a skirt and a ``terrain`` whose still water reaches its edge, the skirt's water
-    past that edge is drawn as water of this albedo (:class:`~forest.render.path.materials.SeaMap`); None for no
+    past that edge is drawn as water of this albedo (:class:`~forest.render.path.inputs.SeaMap`); None for no
     sea (the skirt's colour is then the map's, faded).
     """
 
@@ -227,7 +227,7 @@ class PathInputs:
     sea_colour: tuple[float, float, float] | None = None
 
     def sea_map(self) -> SeaMap | None:
-        """The :class:`~forest.render.path.materials.SeaMap` of ``sea_colour``, or None (no sea colour, no
+        """The :class:`~forest.render.path.inputs.SeaMap` of ``sea_colour``, or None (no sea colour, no
         skirt, or a terrain without still water)."""
         water = getattr(self.terrain, "water", None)
         if self.sea_colour is None or water is None or self.skirt_radius <= 0.0:
