@@ -125,6 +125,7 @@ grid's mean ρ̄_g in place of the samples' mean, as ρ_far does).
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
@@ -414,9 +415,28 @@ def skirt_mesh(
     return Skirt(verts.astype(np.float32), faces.astype(np.uint32), normals.astype(np.float32))
 
 
+#: Each terrain's boundary (:func:`_boundary`), found once: the skirt, its triangle count, the sea and the exports
+#: all ask for it, and finding it is a sort of every edge (seconds on a 2049² heightmap).
+_BOUNDARIES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def _boundary(terrain) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], np.ndarray] | None:
     """The terrain's boundary: (its vertices' indices, its edges (a, b) as indices into those, the extent's centre
-    (x, z)); None for a terrain without one."""
+    (x, z)); None for a terrain without one.  Found once per terrain object (:data:`_BOUNDARIES`)."""
+    try:
+        return _BOUNDARIES[terrain]
+    except (KeyError, TypeError):
+        pass
+    found = _find_boundary(terrain)
+    try:
+        _BOUNDARIES[terrain] = found
+    except TypeError:  # an object that takes no weak reference: found again next time
+        pass
+    return found
+
+
+def _find_boundary(terrain) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], np.ndarray] | None:
+    """:func:`_boundary` itself."""
     edges = boundary_edges(terrain.faces)
     if len(edges) == 0:
         return None
@@ -532,7 +552,9 @@ def _hilly_skirt(
     down = np.cross(p1 - p0, p2 - p0)[:, 1] < 0
     faces[down] = faces[down][:, [0, 2, 1]]
     normals = vertex_normals(land, faces)  # area-weighted; every face winds upward, so they face +Y
-    normals[:k] = np.asarray(terrain.vertex_normals, np.float64)[np.unique(boundary_edges(terrain.faces))]
+    boundary = _boundary(terrain)
+    assert boundary is not None  # skirt_mesh made the rings from it
+    normals[:k] = np.asarray(terrain.vertex_normals, np.float64)[boundary[0]]
     normals[k : k + q] = (0.0, 1.0, 0.0)
     return Skirt(verts.astype(np.float32), faces.astype(np.uint32), normals.astype(np.float32))
 
