@@ -205,7 +205,8 @@ horizon_hills = {{ height = 200.0, scale = 2500.0 }}
 @pytest.mark.parametrize("level", [5.0, -1.0], ids=["sea", "dry"])
 def test_exports_carry_the_sea_on_past_the_edge(tmp_path, level):
     """USD: the water runs on past the terrain's edge over the horizon's sea and the horizon leaves it out; with the
-    level under the terrain nothing is water and the horizon is whole."""
+    level under the terrain nothing is water and the horizon is whole; without hills (no horizon written) the sea
+    is written all the same."""
     import trimesh
     from pxr import Usd, UsdGeom
 
@@ -229,3 +230,11 @@ def test_exports_carry_the_sea_on_past_the_edge(tmp_path, level):
     assert wp[:, 0].min() < -1000.0 and out.any() and wet_faces(wp, wf[out], level).all()
     assert not wet_faces(hp, hf, level).any()  # the horizon is land only
     assert hp[:, 0].max() > 1000.0  # the land's horizon to the east
+    without_hills = COAST.format(level=level).replace("horizon_hills = { height = 200.0, scale = 2500.0 }\n", "")
+    flat = write_scene(tmp_path, without_hills, "flat.toml")
+    r = run_forest("export", "usd", flat, "-o", tmp_path / "flat.usda")
+    assert r.returncode == 0, r.stderr
+    plain = Usd.Stage.Open(str(tmp_path / "flat.usda"))
+    assert not plain.GetPrimAtPath("/World/Horizon").IsValid()
+    fp = np.asarray(UsdGeom.Mesh(plain.GetPrimAtPath("/World/Water")).GetPointsAttr().Get())
+    assert fp[:, 0].min() < -1000.0  # the sea to the far clip, without hills

@@ -378,7 +378,7 @@ def horizon(scene) -> Horizon | None:
     hills on it, coloured with the far landscape's albedo (:func:`forest.skirt.far_colour`) times the fitted
     ``ground_tint``.  None without hills or with ``horizon_ground = false``.  The woods' relief, their mosaic of
     woods and fields, steep rock and snow are forest_path's shading and stay there.  Still water at the terrain's
-    edge runs on over the skirt as water (:func:`split_water`), not as part of the horizon."""
+    edge runs on over the skirt as water (:func:`split_water`, with or without hills), not as part of the horizon."""
     from ..skirt import far_colour
 
     sk = _horizon_skirt(scene, sea=False)
@@ -403,14 +403,15 @@ def _map_uv(scene, sk) -> np.ndarray:
 
 
 def _horizon_skirt(scene, sea: bool | None = None):
-    """The exported horizon's skirt (:func:`horizon`): None without hills or with ``horizon_ground = false``.
+    """The exported horizon's skirt (:func:`horizon`): None with ``horizon_ground = false``, and without hills
+    except for its sea (the renderers' level far plain is not exported; the water on it is).
     ``sea``: only the faces still water covers past the terrain's edge (True; None when there are none) or only
     the others (False) — :mod:`forest.skirt`, "The sea"; None: all."""
     from ..skirt import Skirt, hills, sea_at_edge, skirt_mesh, skirt_radius, wet_faces
 
     config, terrain = scene.config, scene.terrain
     h = hills(config)
-    if h is None or not config.render.horizon_ground:
+    if not config.render.horizon_ground or (h is None and not sea):
         return None
     has_sea = sea is not None and sea_at_edge(terrain) is not None
     if sea and not has_sea:
@@ -454,8 +455,9 @@ def split_water(scene) -> tuple[Ground, Water | None]:
     forest_path shades as its mirror).  The water's colour is :func:`forest.ground.water_colour` (times the fitted
     ``ground_tint``), its roughness :func:`forest.ground.water_roughness` of ``water_ripple``, its index 1.33.
     Without water the ground is the terrain's own arrays and the water None, so an export of a scene without water
-    is what it was.  With the exported horizon (:func:`horizon`) and still water at the terrain's edge, the water
-    runs on over the horizon's sea (:mod:`forest.skirt`, "The sea"), which the horizon leaves out."""
+    is what it was.  With still water at the terrain's edge (and ``horizon_ground``), the water runs on over the
+    skirt's sea to the camera's far clip (:mod:`forest.skirt`, "The sea"), which the horizon (:func:`horizon`,
+    written with hills) leaves out."""
     from ..config.schema import WATER_IOR
     from ..ground import water_colour, water_roughness, water_triangles
 
