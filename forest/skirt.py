@@ -372,8 +372,27 @@ def skirt_mesh(
     over which the shading normal turns from the terrain's to +Y, then the long one out to ``radius`` — with
     ``hills``, :func:`hill_rings` rings carrying them, and with ``woods`` (a
     :class:`forest.far_cover.FarCover` of a canopy taller than 0) the woods' relief on those rings, sampled
-    every ``step`` radians around the terrain (:func:`relief_step`).
+    every ``step`` radians around the terrain (:func:`relief_step`).  Without ``woods`` it is made once per
+    terrain, radius and hills (:func:`_per_terrain`; its arrays read-only): scalar_rgb's land and sea and an
+    export's horizon and water ask for the same one.
     """
+    if woods is not None:
+        return _skirt_mesh(terrain, radius, hills, woods, step)
+    return _per_terrain(terrain, ("skirt", float(radius), hills), lambda: _frozen(_skirt_mesh(terrain, radius, hills)))
+
+
+def _frozen(sk: Skirt | None) -> Skirt | None:
+    """``sk`` with read-only arrays (a shared, cached skirt)."""
+    if sk is not None:
+        for a in (sk.vertices, sk.faces, sk.normals):
+            a.setflags(write=False)
+    return sk
+
+
+def _skirt_mesh(
+    terrain, radius: float, hills: Hills | None = None, woods: FarCover | None = None, step: float = RELIEF_STEP
+) -> Skirt | None:
+    """:func:`skirt_mesh` itself."""
     v = np.asarray(terrain.vertices, np.float64)
     boundary = _boundary(terrain)
     if boundary is None:
@@ -415,24 +434,28 @@ def skirt_mesh(
     return Skirt(verts.astype(np.float32), faces.astype(np.uint32), normals.astype(np.float32))
 
 
-#: Each terrain's boundary (:func:`_boundary`), found once: the skirt, its triangle count, the sea and the exports
-#: all ask for it, and finding it is a sort of every edge (seconds on a 2049² heightmap).
-_BOUNDARIES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+#: What is made once per terrain object (:func:`_per_terrain`): its boundary — the skirt, its triangle count, the
+#: sea and the exports all ask for it, and finding it is a sort of every edge (seconds on a 2049² heightmap) —
+#: and its skirts without woods.  Weakly keyed: it goes with the terrain.
+_PER_TERRAIN: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _per_terrain(terrain, key, make):
+    """``make()``, made once per ``terrain`` object and ``key`` (:data:`_PER_TERRAIN`); an object that takes no weak
+    reference gets it made each time."""
+    try:
+        held = _PER_TERRAIN.setdefault(terrain, {})
+    except TypeError:
+        return make()
+    if key not in held:
+        held[key] = make()
+    return held[key]
 
 
 def _boundary(terrain) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], np.ndarray] | None:
     """The terrain's boundary: (its vertices' indices, its edges (a, b) as indices into those, the extent's centre
-    (x, z)); None for a terrain without one.  Found once per terrain object (:data:`_BOUNDARIES`)."""
-    try:
-        return _BOUNDARIES[terrain]
-    except (KeyError, TypeError):
-        pass
-    found = _find_boundary(terrain)
-    try:
-        _BOUNDARIES[terrain] = found
-    except TypeError:  # an object that takes no weak reference: found again next time
-        pass
-    return found
+    (x, z)); None for a terrain without one.  Found once per terrain object (:func:`_per_terrain`)."""
+    return _per_terrain(terrain, "boundary", lambda: _find_boundary(terrain))
 
 
 def _find_boundary(terrain) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], np.ndarray] | None:
