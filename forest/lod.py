@@ -17,13 +17,11 @@ is k = #{tᵢ ≥ p}, which is the rule above with per-species boundaries
 
     dᵢ = H_s · f / tᵢ.
 
-**Seen from above** (the automatic rule only): the far level is crossed
-vertical cards, which from high above are nearly edge-on and let the ground
-through.  A tree the camera sees at more than :data:`STEEP_VIEW` degrees above
-its horizon, sin θ = (c_y − p_y) / r, keeps the level before its far one
-(``low``), however small it is.  RIB's ``DetailRange`` measures raster area
-alone and cannot say this: a RIB export seen from steeply above uses the far
-level where forest's renderers do not.
+**Seen from above**: the far level's crossed vertical cards are edge-on from
+high above, so it also has a horizontal card textured with the crown seen from
+above (:func:`forest.library.lod.impostor`); it covers what the high level
+covers from any elevation, and the rule needs no exception for steep views
+(RIB's ``DetailRange``, which measures raster area alone, agrees with it).
 
 ``[lod] distances`` (manual): the same boundaries dᵢ for every species and no
 division by the scale, k = #{dᵢ ≤ r}.  ``[lod] auto = false``: every tree is
@@ -50,9 +48,6 @@ if TYPE_CHECKING:
     from .library import Species
 
 LOD_NAMES = ("high", "medium", "low", "far")
-#: Elevation (degrees) above which a tree keeps the level before its far one in the automatic rule: vertical
-#: crossed cards seen at θ above their horizon cover about cos θ of what they cover side on (0.77 at 40°).
-STEEP_VIEW = 40.0
 
 
 def camera_distance(position: np.ndarray, camera: np.ndarray) -> np.ndarray:
@@ -111,7 +106,6 @@ class LodPlan:
     heights: tuple[float, ...] = ()  # per species index, the automatic rule's H_s
     width: int = 0
     fov: float = 40.0
-    impostor: tuple[bool, ...] = ()  # per species index: its last level is the far crossed-card impostor
     solid_pixels: float = 0.0  # forest_path's solid cards on trees at most this many pixels tall (0: none)
 
     @property
@@ -159,12 +153,6 @@ class LodPlan:
         edges = np.array([self.boundaries(s, fov) for s in range(len(self.n_lods))], dtype=np.float64)
         k = (r[:, None] >= edges[species]).sum(axis=1)
         out: np.ndarray = np.minimum(k, n - 1).astype(np.int64)
-        if any(self.impostor):
-            # Seen from steeply above, a far impostor shows its cards edge-on: keep the level before it.
-            d = np.asarray(camera, dtype=np.float64)[None, :] - position
-            steep = d[:, 1] > math.sin(math.radians(STEEP_VIEW)) * np.maximum(np.linalg.norm(d, axis=1), 1e-9)
-            cap = np.where(np.asarray(self.impostor, bool)[species] & steep & (n > 1), n - 2, n - 1)
-            out = np.minimum(out, cap)
         return out
 
     def solid(
@@ -209,6 +197,5 @@ def lod_plan(config: Config, species: Sequence[Species]) -> LodPlan:
     heights = tuple(float(np.asarray(sp.lods[0].bounds)[1, 1] - np.asarray(sp.lods[0].bounds)[0, 1]) for sp in species)
     width, fov, solid = int(config.render.width), float(config.camera.fov), float(lod.solid_pixels)
     if lod.mode == "pixels":
-        impostor = tuple(len(sp.lods) > 1 and sp.lods[-1].name == "far" for sp in species)
-        return LodPlan((), n_lods, lod.thresholds, heights, width, fov, impostor, solid)
+        return LodPlan((), n_lods, lod.thresholds, heights, width, fov, solid)
     return LodPlan(lod.bands, n_lods, heights=heights, width=width, fov=fov, solid_pixels=solid)

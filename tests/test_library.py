@@ -117,6 +117,28 @@ def test_generation_is_deterministic(tmp_path):
     assert 0.6 < ha / hc < 1.6
 
 
+@pytest.mark.parametrize("name", ["broadleaf", "conifer"])
+def test_the_far_level_covers_the_crown_seen_from_above(lib, name):
+    """The far impostor's horizontal card: from 45° and 80° above the horizon (views its build never renders) the
+    far level covers what the high level covers, where three vertical cards alone covered 0.57 and 0.32 of a
+    broadleaf crown from 60° and 85° (they are edge-on from above).  Its mesh holds one card facing up."""
+    from forest.library.preview import render_lod
+
+    sp = lib.get(name)
+    for elevation in (45.0, 80.0):
+        cov = {lod: float(render_lod(sp, lod, size=(48, 48), spp=4, elevation=elevation)[..., 3].mean())
+               for lod in ("high", "far")}  # fmt: skip
+        assert abs(cov["far"] / cov["high"] - 1.0) < 0.2, (elevation, cov)
+    far = sp.lod("far").parts[0].load()
+    n = np.cross(far.vertices[far.faces[:, 1]] - far.vertices[far.faces[:, 0]],
+                 far.vertices[far.faces[:, 2]] - far.vertices[far.faces[:, 0]])  # fmt: skip
+    up = n[:, 1] > 0.99 * np.linalg.norm(n, axis=1)
+    assert up.any() and not (n[:, 1] < -0.01 * np.linalg.norm(n, axis=1)).any()
+    y = far.vertices[far.faces[up]][..., 1]
+    lo, hi = np.asarray(sp.lods[0].bounds)[:, 1]
+    assert np.ptp(y) < 1e-4 and lo + 0.3 * (hi - lo) < y.mean() < hi
+
+
 @pytest.mark.parametrize("name", PRESETS)
 def test_lower_levels_keep_silhouette_and_colour(lib, name):
     from forest.library.preview import render_lod
@@ -708,13 +730,15 @@ def test_cut_cards_are_built_where_they_pay(lib):
                 area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
                 assert np.bincount(comp, weights=area).max() < 0.75, name  # cut: less than 3/4 of each card
         far = sp.lod("far").parts[0].load()
-        assert far.triangles <= 4 * lodmod.FAR_VIEWS
+        assert far.triangles <= 4 * lodmod.FAR_TILES
     palm = lib.get("palm").lod("high").parts
     uv = [p for p in palm if p.kind == "leaf"][0].load().uv
     assert uv[:, 0].min() > 0.1 and uv[:, 0].max() < 0.9  # leaflets cut to the leaflet, not the card
 
 
 def test_leaf_cut_quad_keeps_quads(tmp_path):
+    from forest.library import lod as lodmod
+
     recipe = tomllib.loads((ROOT / "library/presets/fern.toml").read_text())
     recipe["tree"]["trunks"] = 3
     recipe["tree"]["leaf_cut"] = "quad"
@@ -724,7 +748,7 @@ def test_leaf_cut_quad_keeps_quads(tmp_path):
         m = read_ply(tmp_path / "q" / leaf["file"])
         corners = np.isin(np.round(m.uv[:, 0], 6), [0.0, 1.0]) | (entry["name"] == "far")
         assert corners.all(), entry["name"]
-    assert meta["lods"][-1]["triangles"] == 6
+    assert meta["lods"][-1]["triangles"] == 2 * lodmod.FAR_TILES  # uncut: a quad per card, the top one included
 
 
 def test_library_add_warns_of_missing_materials_and_textures(tmp_path, capsys):

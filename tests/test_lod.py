@@ -112,21 +112,14 @@ def test_auto_levels_are_the_bands_at_r_over_scale():
     assert plan.bands(0, 20.0)[1].near > plan.bands(0, 50.0)[1].near
 
 
-def test_trees_seen_from_steeply_above_keep_the_level_before_their_far_impostor():
-    """The far level is vertical crossed cards: from high above they are edge-on.  Trees the camera sees more than
-    STEEP_VIEW degrees above their horizon stop at ``low``; below that angle the size rule alone decides."""
-    from forest.lod import STEEP_VIEW
-
-    plan = LodPlan((), (4, 4), (240.0, 80.0, 20.0), (12.0, 12.0), 320, 60.0, (True, False))
-    far = 12.0 * (160 / math.tan(math.radians(30.0))) / 20.0 * 2  # twice the far boundary: a tiny tree
-    angles = np.array([STEEP_VIEW - 1.0, STEEP_VIEW + 1.0, 89.0])
-    pos = np.stack([far * np.cos(np.radians(angles)), -far * np.sin(np.radians(angles)), np.zeros(3)], 1)
-    cam = np.zeros(3)
-    assert plan.levels(pos, np.zeros(3, np.int64), cam).tolist() == [3, 2, 2]
-    # A species whose last level is not an impostor keeps it; the manual rule is unchanged.
-    assert plan.levels(pos, np.ones(3, np.int64), cam).tolist() == [3, 3, 3]
-    manual = LodPlan((10.0, 20.0, 30.0), (4,))
-    assert manual.levels(pos, np.zeros(3, np.int64), cam).tolist() == [3, 3, 3]
+def test_small_trees_seen_from_above_take_the_far_level_like_any_other():
+    """The far level has a card seen from above (forest.library.lod.impostor), so the automatic rule makes no
+    exception for steep views: a tree twice past the far boundary is far from 10°, 60° and 89° above its horizon."""
+    plan = LodPlan((), (4,), (240.0, 80.0, 20.0), (12.0,), 320, 60.0)
+    far = 12.0 * (160 / math.tan(math.radians(30.0))) / 20.0 * 2
+    angles = np.radians([10.0, 60.0, 89.0])
+    pos = np.stack([far * np.cos(angles), -far * np.sin(angles), np.zeros(3)], 1)
+    assert plan.levels(pos, np.zeros(3, np.int64), np.zeros(3)).tolist() == [3, 3, 3]
 
 
 def test_manual_distances_ignore_scale_and_species_size(tmp_path, lib):

@@ -112,14 +112,15 @@ COVER_EXPONENT = 0.7  # first guess of d ln(coverage) / d ln(card scale) for clu
 
 
 def far_coverage(folder: Path, level: dict, bounds: np.ndarray, res: int = FAR_RES, spp: int = 8) -> np.ndarray:
-    """A level's exact coverage along each far card's normal, ``(views, res, res)`` (see :func:`far_views`)."""
+    """A level's exact coverage along each far card's normal, ``(FAR_TILES, res, res)`` (see :func:`far_views`)."""
     return far_views(folder, level, bounds, res, spp)[..., 3]
 
 
 def far_views(
     folder: Path, level: dict, bounds: np.ndarray, res: int = FAR_RES, spp: int = 8, shaded: bool = False
 ) -> np.ndarray:
-    """Render a level along each far card's normal (Mitsuba), framed by ``bounds``: RGBA ``(views, res, res, 4)``.
+    """Render a level along each far card's normal (Mitsuba), framed by ``bounds``: RGBA ``(FAR_TILES, res, res, 4)``,
+    the view from above last.
 
     Alpha is the exact coverage; with ``shaded`` the RGB is the level's radiance under a unit sky
     (:func:`forest.library.preview.card_views`).
@@ -137,7 +138,7 @@ def far_views(
         )
         for p in level["parts"]
     ]
-    return card_views(parts, bounds, lodmod.FAR_VIEWS, res, spp, shaded=shaded)
+    return card_views(parts, bounds, lodmod.FAR_VIEWS, res, spp, shaded=shaded, top=True)
 
 
 def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "recipe") -> dict:
@@ -205,8 +206,8 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
                 break
             # Cluster cards: match the high level's rendered coverage c.  Locally c ∝ cover^p;
             # p ≈ 0.7 on the presets (not 2: the cards overlap more as they grow), then the secant.
-            got = float(far_coverage(out, entry, high_bounds, res=64, spp=4).mean())
-            want = float(coverage.mean())
+            got = float(far_coverage(out, entry, high_bounds, res=64, spp=4)[: lodmod.FAR_VIEWS].mean())
+            want = float(coverage[: lodmod.FAR_VIEWS].mean())  # from the side, as the level's cards are made
             if got <= 0 or abs(got / want - 1.0) < COVER_TOLERANCE:
                 break
             seen.append((math.log(cover), math.log(got)))

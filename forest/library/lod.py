@@ -368,6 +368,8 @@ def leaf_meshes(
 # ---------------------------------------------------------------------------
 
 FAR_VIEWS = 3
+#: The far atlas's tiles: the ``FAR_VIEWS`` vertical cards', then the horizontal card's (the view from above).
+FAR_TILES = FAR_VIEWS + 1
 MAX_SAMPLES = 2_500_000
 
 
@@ -462,24 +464,32 @@ def impostor(
 ) -> tuple[MeshData, np.ndarray, np.ndarray]:
     """Crossed-card far form of ``parts`` (mesh, linear colour, RGBA texture or None).
 
+    ``FAR_VIEWS`` vertical cards through the trunk's axis, each textured with the crown seen along its normal,
+    and one horizontal card textured with the crown seen from straight above, at the median height of the
+    crown's top surface.  Vertical crossed cards alone (the classic crossed-billboard impostor) are edge-on from
+    above: seen from 60° up they covered 0.57 of a broadleaf crown's high level and from 85° up 0.32, the
+    ground showing between them.  From straight
+    above the vertical cards vanish and the horizontal card alone covers what the high level does, so its
+    opacity is the top view's coverage as rendered, uncorrected.
+
     With ``cut`` each card is cut to the outline of its view's alpha
     (:func:`pick_outline` among :func:`forest.library.outline.card_outlines` of
     at most ``MAX_CARD_TRIANGLES["far"]`` triangles): a crown's silhouette fills
     a third of its card or less, and far trees are many.
 
-    ``shading (FAR_VIEWS, res, res, 3)``, when given, is each view rendered under a
+    ``shading (FAR_TILES, res, res, 3)``, when given, is each view rendered under a
     unit sky (:func:`forest.library.preview.card_view_shading`): albedo times the
     sky's visibility, so the atlas carries the crown's self-occlusion — darker
     inside and below, as the high level renders — which three flat cards lit in a
     scene would otherwise lack.  It replaces the splat's albedo where it hit.
 
-    ``coverage (FAR_VIEWS, res, res)``, when given, is the exact coverage of
-    each view (rendered, :func:`forest.library.preview.card_view_alpha`); the
+    ``coverage (FAR_TILES, res, res)``, when given, is the exact coverage of
+    each view, the view from above last (rendered, :func:`forest.library.preview.card_views`); the
     splat's own estimate over-covers thin geometry by up to half a sub-pixel
     per edge, so it serves only when no rendering is at hand.  Colour always
     comes from the splat (albedo of the nearest surface).
 
-    Returns the card mesh, the RGBA atlas (``res`` high, ``FAR_VIEWS·res`` wide;
+    Returns the card mesh, the RGBA atlas (``res`` high, ``FAR_TILES·res`` wide;
     RGB = albedo / colour scale, clipped at 1) and the colour scale (per-channel
     99th percentile of the albedo), so that ``colour × texture.rgb`` reproduces the albedo
     (the brightest 1 % of texels clip).
@@ -523,16 +533,27 @@ def impostor(
         samples_c.append(col)
     P = np.concatenate(samples_p) if samples_p else np.zeros((0, 3))
     C = np.concatenate(samples_c) if samples_c else np.zeros((0, 3))
-    atlas = np.zeros((res, FAR_VIEWS * res, 4), dtype=np.float64)
+    for name, given in (("coverage", coverage), ("shading", shading)):
+        if given is not None and len(given) != FAR_TILES:
+            raise ValueError(
+                f"impostor: {name} needs {FAR_TILES} views (the side views, then the top), got {len(given)}"
+            )
+    atlas = np.zeros((res, FAR_TILES * res, 4), dtype=np.float64)
     verts, uvs, nrms, covs = [], [], [], []
-    for k in range(FAR_VIEWS):
-        ang = math.pi * k / FAR_VIEWS
-        axis = np.array([math.cos(ang), 0.0, math.sin(ang)])
-        normal = np.array([-math.sin(ang), 0.0, math.cos(ang)])
-        a = P @ axis
-        depth = P @ normal
+    top_y = 0.5 * (lo[1] + hi[1])
+    for k in range(FAR_TILES):
+        if k < FAR_VIEWS:
+            ang = math.pi * k / FAR_VIEWS
+            axis = np.array([math.cos(ang), 0.0, math.sin(ang)])
+            normal = np.array([-math.sin(ang), 0.0, math.cos(ang)])
+            a = P @ axis
+            depth = P @ normal
+            iy = np.clip(((hi[1] - P[:, 1]) / height * sub).astype(np.int64), 0, sub - 1)  # row 0 = top
+        else:  # from above: columns along x, rows along z (row 0 at z = -R), the highest sample nearest
+            a = P[:, 0]
+            depth = P[:, 1]
+            iy = np.clip(((P[:, 2] + radius) / (2 * radius) * sub).astype(np.int64), 0, sub - 1)
         ix = np.clip(((a + radius) / (2 * radius) * sub).astype(np.int64), 0, sub - 1)
-        iy = np.clip(((hi[1] - P[:, 1]) / height * sub).astype(np.int64), 0, sub - 1)  # row 0 = top
         cell = iy * sub + ix
         # One sort on cell + (normalised distance from the viewer): per cell, the nearest sample first.
         dn = (depth.max() - depth) / max(float(np.ptp(depth)), 1e-9) * 0.999 if len(depth) else depth
@@ -543,6 +564,8 @@ def impostor(
         grid = np.zeros((sub * sub, 4))
         grid[cs[first], :3] = C[order][first]
         grid[cs[first], 3] = 1.0
+        if k == FAR_VIEWS and first.any():  # the horizontal card lies at the top surface's median height
+            top_y = float(np.median(P[order][first][:, 1]))
         grid = grid.reshape(res, ss, res, ss, 4)
         cov = grid[..., 3].mean(axis=(1, 3))
         hits = grid[..., 3].sum(axis=(1, 3))
@@ -557,22 +580,25 @@ def impostor(
             rgb = np.where(sh.sum(axis=-1, keepdims=True) > 0, sh, rgb)
         atlas[:, k * res : (k + 1) * res, :3] = rgb
         covs.append(cov)
-        u0, u1 = k / FAR_VIEWS, (k + 1) / FAR_VIEWS
-        quad = np.array(
-            [
-                -radius * axis + [0, lo[1], 0],
-                radius * axis + [0, lo[1], 0],
-                radius * axis + [0, hi[1], 0],
-                -radius * axis + [0, hi[1], 0],
-            ]
-        )
-        verts.append(quad)
-        uvs.append(np.array([[u0, 1.0], [u1, 1.0], [u1, 0.0], [u0, 0.0]]))
+        u0, u1 = k / FAR_TILES, (k + 1) / FAR_TILES
+        if k < FAR_VIEWS:
+            corners = [-radius * axis + [0, lo[1], 0], radius * axis + [0, lo[1], 0],
+                       radius * axis + [0, hi[1], 0], -radius * axis + [0, hi[1], 0]]  # fmt: skip
+            uvs.append(np.array([[u0, 1.0], [u1, 1.0], [u1, 0.0], [u0, 0.0]]))
+        else:  # corners in the order that winds the faces (0, 1, 2), (0, 2, 3) about +Y
+            corners = [[-radius, 0.0, -radius], [-radius, 0.0, radius], [radius, 0.0, radius], [radius, 0.0, -radius]]
+            uvs.append(np.array([[u0, 0.0], [u0, 1.0], [u1, 1.0], [u1, 0.0]]))
+            normal = np.array([0.0, 1.0, 0.0])
+        verts.append(np.array(corners, np.float64))
         nrms.append(np.repeat(normal[None], 4, axis=0))
+    verts[FAR_VIEWS][:, 1] = top_y
     cov = np.stack(covs)
-    gamma = calibrate_opacity(cov)
+    # The vertical cards stack where they cross: their opacity is calibrated to the side views' coverage.  From
+    # above they are edge-on, so the horizontal card carries the top view's coverage as it is.
+    gamma = calibrate_opacity(cov[:FAR_VIEWS])
     for k in range(FAR_VIEWS):
         atlas[:, k * res : (k + 1) * res, 3] = 1.0 - (1.0 - cov[k]) ** gamma
+    atlas[:, FAR_VIEWS * res :, 3] = cov[FAR_VIEWS]
     covered = atlas[..., 3] > 0
     # The 99th percentile, not the maximum: a few bright bark texels would otherwise squeeze
     # the foliage into the bottom of the 8-bit range.
@@ -580,7 +606,7 @@ def impostor(
     scale = np.maximum(scale, 1e-4)
     atlas[..., :3] = np.where(covered[..., None], np.minimum(atlas[..., :3] / scale, 1.0), 1.0)
     if not cut:
-        faces = (np.array([[0, 1, 2], [0, 2, 3]])[None] + 4 * np.arange(FAR_VIEWS)[:, None, None]).reshape(-1, 3)
+        faces = (np.array([[0, 1, 2], [0, 2, 3]])[None] + 4 * np.arange(FAR_TILES)[:, None, None]).reshape(-1, 3)
         mesh = MeshData(
             np.concatenate(verts).astype(np.float32),
             faces.astype(np.uint32),
@@ -588,38 +614,49 @@ def impostor(
             np.concatenate(uvs).astype(np.float32),
         )
     else:
-        mesh = _cut_far_cards(atlas[..., 3], radius, lo[1], hi[1], res)
+        mesh = _cut_far_cards(atlas[..., 3], radius, lo[1], hi[1], res, top_y)
     return mesh, atlas.astype(np.float32), scale
 
 
-def _cut_far_cards(alpha: np.ndarray, radius: float, y0: float, y1: float, res: int) -> MeshData:
-    """The crossed far cards, card ``k`` cut to the outline of its tile of the atlas ``alpha`` (res, K·res).
+def _cut_far_cards(alpha: np.ndarray, radius: float, y0: float, y1: float, res: int, top_y: float) -> MeshData:
+    """The far cards, card ``k`` cut to the outline of its tile of the atlas ``alpha`` (res, T·res), ``T`` =
+    ``FAR_TILES``.
 
-    Card ``k`` spans ``s ∈ [−R, R]`` along ``â_k = (cos φ_k, 0, sin φ_k)``,
-    ``φ_k = πk/K``, and ``y ∈ [y0, y1]``; its tile's uv ``(u, v)`` maps to
-    ``s = −R + 2R·(u·K − k)`` and ``y = y1 − v·(y1 − y0)`` (row 0 at the top).
-    uv's ``v`` runs down, so the outline's counter-clockwise fan is reversed to
-    wind about the card's normal ``(−sin φ_k, 0, cos φ_k) = â_k × Ŷ``.
+    Vertical card ``k < K`` (``K`` = ``FAR_VIEWS``) spans ``s ∈ [−R, R]`` along
+    ``â_k = (cos φ_k, 0, sin φ_k)``, ``φ_k = πk/K``, and ``y ∈ [y0, y1]``; its
+    tile's uv ``(u, v)`` maps to ``s = −R + 2R·(u·T − k)`` and
+    ``y = y1 − v·(y1 − y0)`` (row 0 at the top).  uv's ``v`` runs down, so the
+    outline's counter-clockwise fan is reversed to wind about the card's normal
+    ``(−sin φ_k, 0, cos φ_k) = â_k × Ŷ``.  The horizontal card (tile ``K``) lies
+    at ``y = top_y``, ``x = −R + 2R·(u·T − K)``, ``z = −R + 2R·v``, wound about ``+Ŷ``.
     """
     from .outline import card_outlines
 
     verts, uvs, nrms, faces = [], [], [], []
     count = 0
-    for k in range(FAR_VIEWS):
-        ang = math.pi * k / FAR_VIEWS
-        axis = np.array([math.cos(ang), 0.0, math.sin(ang)])
-        normal = np.array([-math.sin(ang), 0.0, math.cos(ang)])
+    for k in range(FAR_TILES):
         options = card_outlines(alpha, MAX_CARD_TRIANGLES["far"], rect_px=(k * res, 0, (k + 1) * res, res))
         o = pick_outline(options)
         if o.area >= 1.0:  # nothing to cut: the whole tile
-            o = quad((k / FAR_VIEWS, 0.0, (k + 1) / FAR_VIEWS, 1.0))
+            o = quad((k / FAR_TILES, 0.0, (k + 1) / FAR_TILES, 1.0))
         u, v = o.uv[:, 0], o.uv[:, 1]
-        s = -radius + 2.0 * radius * (u * FAR_VIEWS - k)
-        y = y1 - v * (y1 - y0)
-        verts.append(s[:, None] * axis + y[:, None] * np.array([0.0, 1.0, 0.0]))
+        s = -radius + 2.0 * radius * (u * FAR_TILES - k)
+        if k < FAR_VIEWS:
+            ang = math.pi * k / FAR_VIEWS
+            axis = np.array([math.cos(ang), 0.0, math.sin(ang)])
+            normal = np.array([-math.sin(ang), 0.0, math.cos(ang)])
+            y = y1 - v * (y1 - y0)
+            verts.append(s[:, None] * axis + y[:, None] * np.array([0.0, 1.0, 0.0]))
+        else:
+            normal = np.array([0.0, 1.0, 0.0])
+            verts.append(np.stack([s, np.full_like(s, top_y), -radius + 2.0 * radius * v], axis=1))
+        fan = o.fan()[:, [0, 2, 1]]
+        p = verts[-1]
+        if len(fan) and float(np.cross(p[fan[0, 1]] - p[fan[0, 0]], p[fan[0, 2]] - p[fan[0, 0]]) @ normal) < 0:
+            fan = fan[:, [0, 2, 1]]
         uvs.append(o.uv)
         nrms.append(np.repeat(normal[None], len(u), axis=0))
-        faces.append(o.fan()[:, [0, 2, 1]] + count)
+        faces.append(fan + count)
         count += len(u)
     return MeshData(
         np.concatenate(verts).astype(np.float32),

@@ -61,8 +61,9 @@ def part_bsdf(mi, part, cache: dict | None = None) -> dict:
     return diffuse
 
 
-def camera_for(bounds: np.ndarray, size: tuple[int, int]) -> dict:
-    """A ``perspective`` sensor dict framing ``bounds`` in a ``size`` (width, height) image, seen from +Z, 12° up.
+def camera_for(bounds: np.ndarray, size: tuple[int, int], elevation: float = 12.0) -> dict:
+    """A ``perspective`` sensor dict framing ``bounds`` in a ``size`` (width, height) image, seen from +Z,
+    ``elevation`` degrees up (below 90).
 
     ``_eye`` and ``_target`` stand in for ``to_world`` (built once the variant is set).
     """
@@ -77,7 +78,7 @@ def camera_for(bounds: np.ndarray, size: tuple[int, int]) -> dict:
     ext = hi - lo
     d = 1.1 * 0.5 * max(ext[1], ext[0] / max(aspect, 1e-3), ext[2]) / math.tan(half) + 0.5 * ext[2]
     d = max(d, 1.05 * r)
-    el = math.radians(12.0)
+    el = math.radians(float(elevation))
     eye = centre + d * np.array([0.0, math.sin(el), math.cos(el)])
     return {
         "type": "perspective",
@@ -98,18 +99,20 @@ def render_lod(
     size: tuple[int, int] = PREVIEW_SIZE,
     spp: int = PREVIEW_SPP,
     frame_bounds: np.ndarray | None = None,
+    elevation: float = 12.0,
 ) -> np.ndarray:
     """Render one level of detail; returns linear RGBA float32 ``(H, W, 4)``.
 
     The camera frames ``frame_bounds`` (default: the high level's bounds) so
-    images of different levels line up pixel for pixel.
+    images of different levels line up pixel for pixel, seen from ``elevation``
+    degrees above the horizon (below 90).
     """
     from ..runtime import mitsuba
 
     mi = mitsuba("scalar_rgb")
     level = species.lod(lod)
     bounds = species.lods[0].bounds if frame_bounds is None else frame_bounds
-    cam = camera_for(bounds, size)
+    cam = camera_for(bounds, size, elevation)
     eye, target = cam.pop("_eye"), cam.pop("_target")
     cam["to_world"] = mi.ScalarTransform4f().look_at(origin=eye, target=target, up=[0, 1, 0])
     cam["film"] = {
@@ -191,8 +194,14 @@ def card_view_shading(parts, bounds: np.ndarray, views: int, res: int, spp: int 
     return np.where(a > 1e-4, img[..., :3] / np.maximum(a, 1e-4), 0.0).astype(np.float32)
 
 
-def card_views(parts, bounds: np.ndarray, views: int, res: int, spp: int = 8, *, shaded: bool = False) -> np.ndarray:
+def card_views(
+    parts, bounds: np.ndarray, views: int, res: int, spp: int = 8, *, shaded: bool = False, top: bool = False
+) -> np.ndarray:
     """RGBA ``(views, res, res, 4)`` of ``parts`` in the far cards' orthographic views.
+
+    With ``top`` a view from straight above follows the ``views`` side views (``views + 1`` images): it looks
+    down ``−Ŷ`` over ``x, z ∈ [−R, R]``, column ``j`` at ``x = −R + (j + ½)·2R/res`` and row ``i`` at
+    ``z = −R + (i + ½)·2R/res`` — the layout of the far impostor's top tile (:func:`forest.library.lod.impostor`).
 
     ``shaded = False``: black opaque surfaces (RGB 0, alpha = coverage; a path
     ends at its first real hit, so depth only counts the transparent texels
@@ -239,14 +248,20 @@ def card_views(parts, bounds: np.ndarray, views: int, res: int, spp: int = 8, *,
             **shapes,
         }
     )
-    out = np.zeros((views, res, res, 4), dtype=np.float32)
-    for k in range(views):
-        phi = math.pi * k / views
-        n = np.array([-math.sin(phi), 0.0, math.cos(phi)])
-        eye = np.array([0.0, cy, 0.0]) + n * (4.0 * (radius + height))
-        to_world = mi.ScalarTransform4f().look_at(
-            origin=eye.tolist(), target=[0.0, cy, 0.0], up=[0, 1, 0]
-        ) @ mi.ScalarTransform4f().scale([radius, 0.5 * height, 1.0])
+    out = np.zeros((views + int(top), res, res, 4), dtype=np.float32)
+    for k in range(len(out)):
+        if k < views:
+            phi = math.pi * k / views
+            n = np.array([-math.sin(phi), 0.0, math.cos(phi)])
+            eye = np.array([0.0, cy, 0.0]) + n * (4.0 * (radius + height))
+            to_world = mi.ScalarTransform4f().look_at(
+                origin=eye.tolist(), target=[0.0, cy, 0.0], up=[0, 1, 0]
+            ) @ mi.ScalarTransform4f().scale([radius, 0.5 * height, 1.0])
+        else:  # from above: image up is -z (row 0 at z = -R), image right is +x
+            eye = np.array([0.0, cy + 4.0 * (radius + height), 0.0])
+            to_world = mi.ScalarTransform4f().look_at(
+                origin=eye.tolist(), target=[0.0, cy, 0.0], up=[0, 0, -1]
+            ) @ mi.ScalarTransform4f().scale([radius, radius, 1.0])
         sensor = mi.load_dict(
             {
                 "type": "orthographic",
