@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from test_forest_path import Material, PathCamera, PathScene, SunLight, Surface, card_texture, look, quad, surfaces_only
 
-from forest.render.path.arrays import owned
+from forest.render.path.arrays import opaque, owned
 
 VARIANT = "llvm_ad_rgb"
 
@@ -102,3 +102,35 @@ def test_a_scene_built_twice_reuses_its_kernels(tmp_path):
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
     assert misses == []
+
+
+def test_new_light_values_compile_no_new_kernel(tmp_path):
+    """Look-dev sets a scene's lights (and tints, haze) to new values at every step: held as kernel parameters
+    (:func:`forest.render.path.arrays.opaque`), every value renders with the same kernel and shows; as literals
+    (``mi.Color3f(r, g, b)``, what forest did) each value was a kernel of its own, compiled anew."""
+    camera = PathCamera(look([0.0, 30.0, 0.0], [0.0, 0.0, 0.0], (0.0, 0.0, 1.0)), 20.0, 8, 8)
+    sun = SunLight((0.0, 1.0, 0.0), (1.0, 1.0, 1.0))
+    ground = Surface(quad(0.0, 20.0), Material("surface", (0.5, 0.5, 0.5)))
+    scene = PathScene(surfaces_only([ground], camera, sun=sun, spp=2), VARIANT)
+    before = float(np.mean(scene.render().rgb))
+    (param,) = [light.param for light in scene.lights]
+
+    def render_with(value) -> tuple[set[str], np.ndarray]:
+        scene.params[param] = value
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        try:
+            dr.kernel_history()
+            rgb = np.asarray(scene.render().rgb).reshape(-1, 3).mean(0)
+            jit = [k for k in dr.kernel_history() if k.get("type") == dr.KernelType.JIT]
+        finally:
+            dr.set_flag(dr.JitFlag.KernelHistory, False)
+        return {k["hash"] for k in jit}, rgb
+
+    k1, rgb1 = render_with(opaque(mi.Color3f, 2.0, 2.0, 2.0))
+    k2, rgb2 = render_with(opaque(mi.Color3f, 0.5, 0.25, 1.0))
+    assert k1 == k2
+    np.testing.assert_allclose(rgb1, 2.0 * before, rtol=1e-3)
+    np.testing.assert_allclose(rgb2, [0.5 * before, 0.25 * before, before], rtol=1e-3)
+    l1, _ = render_with(mi.Color3f(1.5, 1.5, 1.5))  # why: a literal is part of the kernel's code
+    l2, _ = render_with(mi.Color3f(2.5, 2.5, 2.5))
+    assert l1 != l2

@@ -41,6 +41,7 @@ import numpy as np
 
 from ..lights import DEFAULT_SUN
 from ..render.path import PathScene, SkyLight
+from ..render.path.arrays import opaque
 from ..render.path.emitters import SkyBasis
 from ..render.path.from_scene import haze_inputs, path_inputs
 from .colour import luminance
@@ -209,7 +210,7 @@ class FitRenderer:
         mi = self.mi
         for k, v in values.items():
             if k in self.scene.params:
-                self.scene.params[k] = mi.Color3f(*[float(x) for x in np.asarray(v, np.float64).ravel()[:3]])
+                self.scene.params[k] = opaque(mi.Color3f, *np.asarray(v, np.float64).ravel()[:3])
 
     def set_sky_exponent(self, exponent: float) -> None:
         """The gradient sky's horizon band exponent k (:class:`~forest.render.path.inputs.SkyLight`); 1 is linear."""
@@ -225,14 +226,14 @@ class FitRenderer:
     def set_haze(self, density: float) -> None:
         """The haze's ground extinction σ₀ (1/m); nothing without a haze."""
         if self.haze is not None:
-            self.scene.params["haze_density"] = self.mi.Float(max(float(density), 0.0))
+            self.scene.params["haze_density"] = opaque(self.mi.Float, max(float(density), 0.0))
 
     def set_albedo(self, leaf_tint: np.ndarray, ground_tint: np.ndarray, grid: np.ndarray | None) -> None:
         """Set the (S, 3) leaf tints, the RGB ground tint and (when the scene has one) the colour grid."""
         mi = self.mi
         p = self.scene.params
         p["leaf_tint"] = mi.Float(np.asarray(leaf_tint, np.float32).ravel())
-        p["ground_tint"] = mi.Color3f(*[float(x) for x in np.asarray(ground_tint).ravel()])
+        p["ground_tint"] = opaque(mi.Color3f, *np.asarray(ground_tint).ravel())
         if grid is not None and "colour_grid" in p:
             p["colour_grid"] = mi.TensorXf(np.ascontiguousarray(grid, dtype=np.float32))
 

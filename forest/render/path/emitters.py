@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from .arrays import opaque
 from .inputs import SkyLight, SunLight
 
 #: Smallest probability of picking a light for next-event estimation when there are two.
@@ -203,6 +204,7 @@ class SkyBasis(ConstantSky):
         """The band's exponent k, and with it the mean of ℓ over the upper hemisphere (solid angle):
         ∫₀¹ (1 − μ)^k dμ = 1/(k + 1) for the horizon's.  A kernel traced afterwards uses the new shape."""
         self.exponent = float(exponent)
+        self._k = opaque(self.mi.Float, self.exponent)  # a kernel parameter: a fitted k compiles no new kernel
         h = 1.0 / (self.exponent + 1.0)
         self.mean_radiance = np.full(3, 1.0 - h if self.zenith else h)
 
@@ -215,7 +217,7 @@ class SkyBasis(ConstantSky):
         import drjit as dr
 
         mu = dr.maximum(d.y, 0.0)
-        band = 1.0 - mu if self.exponent == 1.0 else dr.power(1.0 - mu, self.exponent)
+        band = 1.0 - mu if self.exponent == 1.0 else dr.power(1.0 - mu, self._k)
         return 1.0 - band if self.zenith else band
 
     def sample(self, scale: Any, u: Any, active: Any) -> tuple[Any, Any, Any]:

@@ -44,7 +44,7 @@ import numpy as np
 from ...errors import ForestError
 from ...progress import scaled
 from ...runtime import mitsuba
-from .arrays import owned
+from .arrays import opaque, owned
 from .emitters import LightSet, make_backdrop, make_lights, sky_mean_radiance
 from .geometry import ForestGeometry, FrameStats, PartArrays, TraversalScene, available_bytes, memory_plan
 from .haze import HazeInputs, HazeModel
@@ -230,10 +230,10 @@ class PathScene:
         self.backdrop = make_backdrop(mi, inputs.sun, inputs.sky, self.lights)
         self.params: dict[str, Any] = {}
         for light in self.lights:
-            self.params[light.param] = mi.Color3f(*[float(x) for x in light.initial])
+            self.params[light.param] = opaque(mi.Color3f, *light.initial)
         leaf, ground = inputs.tints()
         self.params["leaf_tint"] = owned(mi.Float, leaf.astype(np.float32).ravel())
-        self.params["ground_tint"] = mi.Color3f(*[float(x) for x in ground])
+        self.params["ground_tint"] = opaque(mi.Color3f, *ground)
         #: Each row's colour jitter and bark factor (the trees', then 1 for the identity row), or None: see
         #: ``.materials.RowTints``.
         self.row_tint = RowTints.build(mi, inputs.tree_tint, inputs.bark_tint)

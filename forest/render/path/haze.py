@@ -135,6 +135,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
+from .arrays import opaque
+
 if TYPE_CHECKING:
     from .emitters import SunTerm
 
@@ -393,10 +395,10 @@ class HazeModel:
     def initial_params(mi: Any, haze: HazeInputs) -> dict[str, Any]:
         """The haze's scene parameters (:attr:`PARAMS`) at ``haze``'s values, as drjit scalars (no colour: black)."""
         return {
-            "haze_density": mi.Float(float(haze.density)),
-            "haze_height": mi.Float(float(haze.height)),
-            "haze_colour": mi.Color3f(*[float(c) for c in (haze.colour or (0.0, 0.0, 0.0))]),
-            "haze_anisotropy": mi.Float(float(haze.anisotropy)),
+            "haze_density": opaque(mi.Float, haze.density),
+            "haze_height": opaque(mi.Float, haze.height),
+            "haze_colour": opaque(mi.Color3f, *(haze.colour or (0.0, 0.0, 0.0))),
+            "haze_anisotropy": opaque(mi.Float, haze.anisotropy),
         }
 
     def optical_depth(self, o: Any, d: Any, length: Any, top: Any = None) -> Any:
