@@ -49,7 +49,12 @@ per-pixel 0.207 (aerial) and 0.391 (from 90 m) against 0.203 and 0.384 — at th
 (under 20 px) the numbers, not the close-up silhouette, decide.  The atlas without its baked sky visibility:
 per pixel 1.12/1.15/1.21 from 8° (broadleaf; conifer 1.05/1.06/1.02) and 0.85-0.94 from 30-60°: the baked
 shading darkens each far pixel by about a fifth from every angle, the crossed cards' own shadows a little more
-from above; neither alone is the high level's tone.
+from above; neither alone is the high level's tone.  Half of it (the splat's albedo times the square root of the
+baked sky visibility, V = Y(shaded) / Y(albedo)) fits the isolated trees (green per pixel 0.92-1.14 at every
+angle, from 0.72-0.90) and the aerial frame (per-pixel 0.193, frame 1.015), but not the forest seen from 90 m,
+whose farthest rows of overlapping far crowns it makes a third too bright (bands 1.30/1.18/1.30, 1.12/1.03/1.20
+... ; per-pixel 0.396 against 0.384): in a closed canopy the neighbours' shade is what the baked visibility
+stands for.  Not kept.
 """
 
 from __future__ import annotations
