@@ -8,8 +8,8 @@ value compiled a new path kernel (1.0-1.6 s each on 2 CPU cores, about 1 s on a 
 :func:`forest.render.path.arrays.opaque` holds it in memory instead.
 
 Each run is a child process with an empty drjit kernel cache of its own (``HOME`` pointed at a temporary folder,
-forest's data, cache and state folders kept), so every distinct kernel compiles, as on a fresh machine or a
-fresh GPU: ``forest match configs/demo.toml --mode aligned`` against the demo's own 192x108, 16 spp render.
+forest's data, cache and state folders kept; on a GPU OptiX's disk cache is off), so every distinct kernel
+compiles, as on a fresh machine or a fresh GPU: ``forest match configs/demo.toml --mode aligned`` against the demo's own 192x108, 16 spp render.
 The baseline is the same command with ``opaque`` replaced by the literal it was before.  Printed per run:
 distinct path kernels (over 3 000 operations), kernels compiled and their compilation seconds, launches, the
 fit's seconds and the whole command's wall seconds; then the ratios.  Alternating runs, best of ``--runs``.
@@ -32,7 +32,13 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from timing import load_line
 
-FOREST = str(ROOT / ".venv" / "bin" / "forest")
+
+def forest_cmd() -> list[str]:
+    """The ``forest`` command beside this interpreter (a virtual environment's, or an installed forest's on a GPU
+    machine), else forest's CLI through this interpreter."""
+    exe = Path(sys.executable).parent / "forest"
+    return [str(exe)] if exe.exists() else [sys.executable, "-c", "from forest.cli import main; main()"]
+
 
 CHILD = r"""
 import atexit, json, sys
@@ -73,7 +79,7 @@ def match(kind: str, demo: Path, ref: Path, out: Path, variant: str) -> dict:
     """One ``forest match`` in a child process with an empty drjit kernel cache; its figures."""
     with tempfile.TemporaryDirectory() as home:
         real = Path.home()
-        env = dict(os.environ, HOME=home, PYTHONUNBUFFERED="1")
+        env = dict(os.environ, HOME=home, PYTHONUNBUFFERED="1", OPTIX_CACHE_MAXSIZE="0")  # no OptiX disk cache
         for key, default in (("XDG_DATA_HOME", ".local/share"), ("XDG_CACHE_HOME", ".cache"),
                              ("XDG_STATE_HOME", ".local/state")):  # fmt: skip
             env.setdefault(key, str(real / default))
@@ -101,7 +107,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         ref = tmp / "ref.exr"
-        subprocess.run([FOREST, "render", str(demo), "-o", str(ref), "--width", "192", "--height", "108",
+        subprocess.run([*forest_cmd(), "render", str(demo), "-o", str(ref), "--width", "192", "--height", "108",
                         "--spp", "16", "--variant", args.variant, "-q"], check=True)  # fmt: skip
         best: dict[str, dict] = {}
         for r in range(args.runs):
