@@ -327,6 +327,13 @@ def wet_faces(vertices: np.ndarray, faces: np.ndarray, level: float) -> np.ndarr
     return y <= float(level) + 0.5 * SHORE_RAMP
 
 
+def sea_side(sk: Skirt, level: float, wet: bool) -> Skirt:
+    """``sk`` with only the faces still water at ``level`` covers (``wet``) or only the others (:func:`wet_faces`),
+    its vertices as they were."""
+    keep = wet_faces(sk.vertices, sk.faces, level) == bool(wet)
+    return Skirt(sk.vertices, sk.faces[keep], sk.normals)
+
+
 def skirt_radius(extent, far: float) -> float:
     """R: the camera's far clip, at least :data:`MIN_SKIRT_RADIUS` and :data:`SKIRT_WIDTHS` terrain widths."""
     xmin, zmin, xmax, zmax = (float(v) for v in extent)

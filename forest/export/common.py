@@ -407,7 +407,7 @@ def _horizon_skirt(scene, sea: bool | None = None):
     except for its sea (the renderers' level far plain is not exported; the water on it is).
     ``sea``: only the faces still water covers past the terrain's edge (True; None when there are none) or only
     the others (False) — :mod:`forest.skirt`, "The sea"; None: all."""
-    from ..skirt import Skirt, hills, sea_at_edge, skirt_mesh, skirt_radius, wet_faces
+    from ..skirt import Skirt, hills, sea_at_edge, sea_side, skirt_mesh, skirt_radius
 
     config, terrain = scene.config, scene.terrain
     h = hills(config)
@@ -419,10 +419,10 @@ def _horizon_skirt(scene, sea: bool | None = None):
     sk = skirt_mesh(terrain, skirt_radius(terrain.extent, float(config.camera.far)), h)
     if sk is None or not has_sea:
         return sk
-    keep = wet_faces(sk.vertices, sk.faces, float(terrain.water[0])) == bool(sea)
-    if not keep.any():
+    side = sea_side(sk, float(terrain.water[0]), bool(sea))
+    if not len(side.faces):
         return None
-    used, inverse = np.unique(sk.faces[keep], return_inverse=True)
+    used, inverse = np.unique(side.faces, return_inverse=True)
     return Skirt(sk.vertices[used], inverse.reshape(-1, 3).astype(np.uint32), sk.normals[used])
 
 

@@ -403,10 +403,9 @@ def terrain_mesh(
 
         sk = skirt_mesh(terrain, skirt, hills)
         if sk is not None and sea is not None and terrain.water is not None:
-            from ..skirt import Skirt, wet_faces
+            from ..skirt import sea_side
 
-            keep = wet_faces(sk.vertices, sk.faces, float(terrain.water[0])) == sea
-            sk = Skirt(sk.vertices, sk.faces[keep], sk.normals)
+            sk = sea_side(sk, float(terrain.water[0]), sea)
         if sk is not None:
             xmin, zmin, xmax, zmax = terrain.extent
             sk_uv = np.stack(
