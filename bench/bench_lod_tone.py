@@ -1,6 +1,8 @@
 """Do the levels of detail keep a tree's tone?  Each level's rendered coverage and radiance against the high level's.
 
     .venv/bin/python bench/bench_lod_tone.py [--species broadleaf,conifer,birch,pine] [--spp 32] [--count 100000]
+    .venv/bin/python bench/bench_lod_tone.py --fit broadleaf,conifer [--view aerial --keys far_top]
+    .venv/bin/python bench/bench_lod_tone.py --check broadleaf,conifer
 
 **Trees** (``--species``): 60 candidate sites on a flat 400 m square of dark ground (albedo 0.1), at least 25 m
 apart, half of each of two species at a time, seen from 120 m up and 330 m back (480x270, ``max_depth`` 4, a sun
@@ -16,8 +18,25 @@ trees seen from 350 m at 8°, 30°, 60° and 85° above the horizon: coverage an
 density of the case study, 320x180), rendered with every tree at its highest level and with the automatic level
 of detail (forest's default): the mean RGB of bands of rows from the horizon down, automatic over full.
 
+**Fit** (``--fit A,B``, then nothing else): each lower level's tone in a forest, the factors a tree recipe's
+``[lod_tone]`` carries.  bench_cycles' forest (100 000 trees requested, 60 % A and 40 % B, seen from 90 m,
+960x540, 16 spp) is rendered with every tree high (the truth) and with the automatic levels; each level's pixels
+are those that lose half their luminance when that level's leaves are rendered black.  The species' built
+folders are copied into a private library whose ``species.json`` the fit rewrites (a level's leaf colour and
+sheen weight, what ``[lod_tone]`` does at build).  Per species and level, a fixed point over ``--rounds``: with
+the sheen off in both, the albedo factor g ← g · truth / automatic (per channel, summed over the level's
+pixels); with it on, the sheen's own radiance (with minus without) in the automatic frame is matched to the
+truth's by its weight.  ``--view aerial --keys far_top`` fits the far level's horizontal card from 700 m up.
+It prints the recipe lines (the factors times the recipe's current ones).
+
+**Check** (``--check A,B``): the recipes' tone against the same levels without it (the factors divided out),
+at 640x360, on the fit view, under a low sun from the other side in a Hosek-Wilkie sky instead of a blue dome
+(``sunsky``), from 700 m up (``aerial``) and from 250 m up (``oblique``, trees 15-30° below the camera): per
+level, truth over automatic on its pixels, and the frame's bands and per-pixel difference.
+
 Both print their figures; nothing is asserted (the machine is shared).  The library's levels are built to match
-the high level's *coverage* seen from the side (forest.library.build); their brightness is not matched.
+the high level's *coverage* seen from the side (forest.library.build); their tone is set by the recipes'
+``[lod_tone]``, fitted by ``--fit``.
 
 Measured (AMD EPYC, 2 cores, idle): isolated trees, over high — broadleaf medium 1.12-1.20, low 1.24-1.44, far
 0.76-0.96 (coverage 0.92); conifer 1.03-1.08, 1.16-1.24, 0.77-0.85; birch, pine alike; palm far 0.48-0.74
@@ -60,6 +79,9 @@ stands for.  Not kept.
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -118,11 +140,15 @@ solid_pixels = 0
 """
 
 
-def render(cfg: Path, out: Path, lines: list[str] | None = None) -> dict[str, np.ndarray]:
+def render(
+    cfg: Path, out: Path, lines: list[str] | None = None, env: dict[str, str] | None = None
+) -> dict[str, np.ndarray]:
     """``forest render`` of ``cfg``: its beauty RGB and its ``species`` layer; ``lines`` gets its summary line."""
     import OpenImageIO as oiio
 
-    run = subprocess.run([FOREST, "render", str(cfg), "-o", str(out)], check=True, capture_output=True, text=True)
+    run = subprocess.run(
+        [FOREST, "render", str(cfg), "-o", str(out)], check=True, capture_output=True, text=True, env=env
+    )
     if lines is not None:
         lines.append(next((x for x in run.stdout.splitlines() if x.startswith("rendered")), ""))
     buf = oiio.ImageBuf(str(out))
@@ -211,6 +237,194 @@ def forest(count: int, spp: int, tmp: Path, aerial: bool = False) -> None:
     )
 
 
+TONED = ("medium", "low", "far", "far_top")  # far_top: the far level's horizontal card (its own part)
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+class ToneLibrary:
+    """A private copy of the built species whose lower levels' leaf albedo and sheen weight a fit scales.
+
+    Each level's parts are read from its species' ``species.json``; scaling the colour and sheen written there
+    is what a recipe's ``[lod_tone]`` does at build (``forest.library.build.toned``), without rebuilding.
+    ``factors[name][level] = (albedo RGB, sheen)`` multiply the levels *as built*, i.e. on top of the recipe's
+    current tone; :meth:`untoned` gives the factors that undo the recipe's tone (the levels as they were before
+    it), the baseline of ``--check``.
+    """
+
+    def __init__(self, tmp: Path, species: tuple[str, ...]):
+        from forest.library import individuals, open_library
+        from forest.library.generator import validate_recipe
+
+        self.root, self.species = tmp / "library", species
+        lib = open_library()
+        self.tone = {name: validate_recipe(lib.recipe(name)[0])["lod_tone"] for name in species}
+        self.meta: dict[Path, dict] = {}
+        for name in species:
+            for sp in individuals(lib, name, 4):
+                dst = self.root / "cache" / sp.folder.name
+                shutil.copytree(sp.folder, dst)
+                self.meta[dst / "species.json"] = json.loads((dst / "species.json").read_text())
+        self.env = dict(os.environ, FOREST_LIBRARY=str(self.root))
+
+    def untoned(self) -> dict[str, dict[str, tuple[np.ndarray, float]]]:
+        return {
+            name: {lv: (1.0 / np.array(t[lv]["albedo"]), 1.0 / max(t[lv]["sheen"], 1e-6)) for lv in TONED}
+            for name, t in self.tone.items()
+        }
+
+    def set(self, factors: dict[str, dict[str, tuple[np.ndarray, float]]] | None = None, sheen: bool = True) -> None:
+        """Write every copied species.json with ``factors`` (none: as built); ``sheen = False`` turns sheen off."""
+        for path, meta in self.meta.items():
+            m = json.loads(json.dumps(meta))
+            f = (factors or {}).get(m["name"].split("@")[0], {})
+            for level in m["lods"]:
+                for part in level["parts"]:
+                    if part["kind"] != "leaf":
+                        continue
+                    key = "far_top" if part["file"] == "far_top.ply" else level["name"]
+                    albedo, sh = f.get(key, (np.ones(3), 1.0))
+                    part["colour"] = [float(c) * float(a) for c, a in zip(part["colour"], albedo)]
+                    if "sheen" in part:
+                        part["sheen"] = min(1.0, float(part["sheen"]) * sh) if sheen else 0.0
+            path.write_text(json.dumps(m, indent=1, sort_keys=True) + "\n")
+
+
+def tone_scene(species: tuple[str, ...], width: int, height: int, spp: int, lod: str, view: str = "fit") -> str:
+    """bench_cycles' forest (100 000 trees requested, 60/40 % of two species) from 90 m up, or a held-out view."""
+    size = float(np.sqrt(100_000 / 130_000.0) * 4000.0)
+    text = SCENE.format(
+        size=size, count=100_000, camz=-0.5 * size, width=width, height=height, spp=spp, depth=3, seed=1
+    )
+    text = text.replace('model = "broadleaf"', f'model = "{species[0]}"').replace(
+        'model = "conifer"', f'model = "{species[1]}"'
+    )
+    if view in ("aerial", "oblique"):  # 700 m up looking at a point 600 m in (crowns seen 40-70° up), or 250 m up
+        y, z = (700.0, 600.0) if view == "aerial" else (250.0, 800.0)  # at one 800 m in (15-30° up)
+        text = text.replace("position = [0.0, 90.0,", f"position = [0.0, {y},")
+        text = text.replace("target = [0.0, 20.0, 0.0]", f"target = [0.0, 0.0, {-0.5 * size + z:.1f}]")
+    elif view == "sunsky":  # a low sun from the other side under Hosek-Wilkie's sky instead of a blue dome
+        text = text.replace("elevation = 35.0, azimuth = 140.0", "elevation = 15.0, azimuth = 250.0")
+        text = text.replace(
+            "sky = { radiance = 0.45, colour = [0.55, 0.7, 1.0] }", "sky = { sunsky = { turbidity = 3.0 } }"
+        )
+    return text.replace("[lod]\nauto = false\n", "[lod]\n" + (lod + "\n" if lod else ""))  # solid cards as by default
+
+
+class ToneCase:
+    """One view of the forest rendered through a :class:`ToneLibrary`: every tree high (the truth), the
+    automatic levels, and each lower level's pixels (the automatic frame with that level's leaves black)."""
+
+    def __init__(
+        self, lib: ToneLibrary, tmp: Path, view: str, width: int, height: int, spp: int, keys: tuple[str, ...] = TONED
+    ):
+        self.lib, self.tmp, self.view, self.size = lib, tmp, view, (width, height, spp)
+        lib.set()
+        self.high = self.render("high", LEVELS["high"])
+        self.high_plain = None
+        auto = self.render("auto")
+        self.masks: dict[tuple[str, str], np.ndarray] = {}
+        for level in keys:
+            lib.set({n: {level: (np.zeros(3), 1.0)} for n in lib.species})
+            black = self.render(f"black_{level}")
+            for k, name in enumerate(lib.species):
+                m = (auto["species"] == k) & (black["rgb"] @ LUMA < 0.5 * (auto["rgb"] @ LUMA))
+                if m.sum() >= 50:
+                    self.masks[(name, level)] = m
+        lib.set()
+
+    def render(self, name: str, lod: str = "") -> dict[str, np.ndarray]:
+        w, h, spp = self.size
+        cfg = self.tmp / f"{self.view}_{name}.toml"
+        cfg.write_text(tone_scene(self.lib.species, w, h, spp, lod, self.view))
+        return render(cfg, self.tmp / f"{self.view}_{name}.exr", env=self.lib.env)
+
+    def ratios(self, high: np.ndarray, auto: np.ndarray) -> dict[tuple[str, str], np.ndarray]:
+        """Per species and level: the truth's summed RGB over the automatic frame's, on that level's pixels."""
+        return {key: high[m].sum(axis=0) / np.maximum(auto[m].sum(axis=0), 1e-12) for key, m in self.masks.items()}
+
+    def frame(self, auto: np.ndarray) -> str:
+        """Bands of rows below the horizon (automatic over every tree high) and the per-pixel relative difference."""
+        f = self.high["rgb"]
+        sky = np.flatnonzero(f.mean(axis=(1, 2)) > 0.1)
+        h0 = int(sky.max()) + 1 if len(sky) and self.view not in ("aerial", "oblique") else 0
+        rows = f.shape[0] - h0
+        parts = []
+        for i in range(5):
+            lo, hi = h0 + int(rows * i / 5), h0 + int(rows * (i + 1) / 5)
+            r = auto[lo:hi].mean(axis=(0, 1)) / np.maximum(f[lo:hi].mean(axis=(0, 1)), 1e-12)
+            parts.append(f"{r[0]:.2f}/{r[1]:.2f}/{r[2]:.2f}")
+        err = float(np.abs(auto[h0:] - f[h0:]).mean() / max(float(f[h0:].mean()), 1e-12))
+        return "bands " + " ".join(parts) + f"; per-pixel {err:.3f}"
+
+
+def fit(
+    species: tuple[str, ...],
+    rounds: int,
+    width: int,
+    height: int,
+    spp: int,
+    tmp: Path,
+    view: str = "fit",
+    keys: tuple[str, ...] = ("medium", "low", "far"),
+) -> None:
+    """Fit each lower level's albedo factor (RGB) and sheen factor in a forest, on one view (``keys``: which;
+    the far level's horizontal card, ``far_top``, is seen from above, on the ``aerial`` view).
+
+    With the sheen off in both renders, the albedo factor g is updated by the truth over the automatic frame on
+    the level's pixels (a fixed point: radiance grows slower than the albedo inside a canopy); with it on, the
+    sheen's own radiance (with minus without) in each is matched by its weight.  Prints the recipe lines.
+    """
+    lib = ToneLibrary(tmp, species)
+    case = ToneCase(lib, tmp, view, width, height, spp, keys)
+    lib.set(sheen=False)
+    plain_high = case.render("high_plain", LEVELS["high"])["rgb"]
+    factors = {n: {lv: (np.ones(3), 1.0) for lv in keys} for n in species}
+    for r in range(rounds + 1):
+        lib.set(factors)
+        auto = case.render(f"auto{r}")["rgb"]
+        lib.set(factors, sheen=False)
+        plain = case.render(f"plain{r}")["rgb"]
+        for (name, level), m in case.masks.items():
+            hs, hp, a, ap = (x[m].sum(axis=0) for x in (case.high["rgb"], plain_high, auto, plain))
+            g, sh = factors[name][level]
+            print(
+                f"lod tone fit round {r} {name} {level} ({int(m.sum())} px): truth / automatic {np.round(hs / a, 3)}"
+                f", without sheen {np.round(hp / ap, 3)}; factors albedo {np.round(g, 3)}, sheen {sh:.3f}",
+                flush=True,
+            )
+            if r < rounds:
+                sheen_own = float((a - ap).sum())
+                sh = float(np.clip(sh * float((hs - hp).sum()) / sheen_own, 0.0, 4.0)) if sheen_own > 0 else sh
+                factors[name][level] = (g * hp / np.maximum(ap, 1e-12), sh)
+    for name in species:
+        print(f"lod tone fit {name}: [lod_tone] (on top of the recipe's current tone)")
+        for level in keys:
+            g, sh = factors[name][level]
+            t = lib.tone[name][level]
+            a = [round(float(x) * y, 3) for x, y in zip(g, t["albedo"])]
+            print(f"  {level} = {{ albedo = {a}, sheen = {round(sh * t['sheen'], 3)} }}")
+
+
+def check(species: tuple[str, ...], width: int, height: int, spp: int, tmp: Path) -> None:
+    """The recipes' tone against the levels without it, on the fit views and held-out ones (another light, another
+    elevation)."""
+    lib = ToneLibrary(tmp, species)
+    for view in ("fit", "sunsky", "aerial", "oblique"):
+        case = ToneCase(lib, tmp, view, width, height, spp)
+        lib.set(lib.untoned())
+        before = case.render("auto_untoned")["rgb"]
+        lib.set()
+        after = case.render("auto_toned")["rgb"]
+        rb, ra = case.ratios(case.high["rgb"], before), case.ratios(case.high["rgb"], after)
+        for key in case.masks:
+            print(
+                f"lod tone check {view} {key[0]} {key[1]} ({int(case.masks[key].sum())} px): truth / automatic "
+                f"without tone {np.round(rb[key], 3)}, with {np.round(ra[key], 3)}"
+            )
+        print(f"lod tone check {view} frame without tone: {case.frame(before)}")
+        print(f"lod tone check {view} frame with tone:    {case.frame(after)}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--species", default="broadleaf,conifer,birch,pine")
@@ -218,11 +432,30 @@ def main() -> None:
     ap.add_argument("--count", type=int, default=100_000)
     ap.add_argument("--angles", action=argparse.BooleanOptionalAction, default=True, help="the far level by elevation")
     ap.add_argument("--aerial", action="store_true", help="the forest case seen from 700 m up")
+    ap.add_argument("--fit", default="", help="two species: fit their lower levels' tone in a forest and stop")
+    ap.add_argument("--check", default="", help="two species: their recipes' tone against none, three views")
+    ap.add_argument("--rounds", type=int, default=3, help="--fit: fixed-point rounds")
+    ap.add_argument("--view", default="fit", choices=("fit", "aerial"), help="--fit: the view fitted on")
+    ap.add_argument("--keys", default="medium,low,far", help="--fit: the [lod_tone] entries fitted")
+    ap.add_argument("--size", default="", help="--fit/--check: WIDTHxHEIGHT (960x540 fit, 640x360 check)")
     args = ap.parse_args()
     print(f"lod tone: {load_line()} at start")
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
+        pair = tuple(s.strip() for s in (args.fit or args.check).split(",") if s.strip())
+        if pair:
+            if len(pair) != 2:
+                raise SystemExit("--fit/--check take two species, e.g. broadleaf,conifer")
+            size = args.size or ("960x540" if args.fit else "640x360")
+            w, h = (int(x) for x in size.split("x"))
+            if args.fit:
+                keys = tuple(k.strip() for k in args.keys.split(",") if k.strip())
+                fit(pair, args.rounds, w, h, min(args.spp, 16), tmp, args.view, keys)
+            else:
+                check(pair, w, h, min(args.spp, 16), tmp)
+            print(f"lod tone: {time.perf_counter() - t0:.0f} s; {load_line()} at end")
+            return
         trees([s.strip() for s in args.species.split(",") if s.strip()], args.spp, tmp)
         if args.angles:
             angles(args.spp, tmp)

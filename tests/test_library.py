@@ -121,7 +121,7 @@ def test_generation_is_deterministic(tmp_path):
 def test_the_far_level_covers_the_crown_seen_from_above(lib, name):
     """The far impostor's horizontal card: from 45° and 80° above the horizon (views its build never renders) the
     far level covers what the high level covers, where three vertical cards alone covered 0.57 and 0.32 of a
-    broadleaf crown from 60° and 85° (they are edge-on from above).  Its mesh holds one card facing up."""
+    broadleaf crown from 60° and 85° (they are edge-on from above).  It is its own part, facing up."""
     from forest.library.preview import render_lod
 
     sp = lib.get(name)
@@ -129,12 +129,17 @@ def test_the_far_level_covers_the_crown_seen_from_above(lib, name):
         cov = {lod: float(render_lod(sp, lod, size=(48, 48), spp=4, elevation=elevation)[..., 3].mean())
                for lod in ("high", "far")}  # fmt: skip
         assert abs(cov["far"] / cov["high"] - 1.0) < 0.2, (elevation, cov)
-    far = sp.lod("far").parts[0].load()
-    n = np.cross(far.vertices[far.faces[:, 1]] - far.vertices[far.faces[:, 0]],
-                 far.vertices[far.faces[:, 2]] - far.vertices[far.faces[:, 0]])  # fmt: skip
-    up = n[:, 1] > 0.99 * np.linalg.norm(n, axis=1)
-    assert up.any() and not (n[:, 1] < -0.01 * np.linalg.norm(n, axis=1)).any()
-    y = far.vertices[far.faces[up]][..., 1]
+    cards, top = (p.load() for p in sp.lod("far").parts)  # two parts: the vertical cards, then the horizontal one
+    assert [p.path.name for p in sp.lod("far").parts] == ["far_cards.ply", "far_top.ply"]
+
+    def normals(m):
+        n = np.cross(m.vertices[m.faces[:, 1]] - m.vertices[m.faces[:, 0]],
+                     m.vertices[m.faces[:, 2]] - m.vertices[m.faces[:, 0]])  # fmt: skip
+        return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+    assert len(top.faces) and (normals(top)[:, 1] > 0.99).all()
+    assert len(cards.faces) and (np.abs(normals(cards)[:, 1]) < 0.01).all()
+    y = top.vertices[:, 1]
     lo, hi = np.asarray(sp.lods[0].bounds)[:, 1]
     assert np.ptp(y) < 1e-4 and lo + 0.3 * (hi - lo) < y.mean() < hi
 
@@ -729,8 +734,7 @@ def test_cut_cards_are_built_where_they_pay(lib):
                 e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
                 area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
                 assert np.bincount(comp, weights=area).max() < 0.75, name  # cut: less than 3/4 of each card
-        far = sp.lod("far").parts[0].load()
-        assert far.triangles <= 4 * lodmod.FAR_TILES
+        assert sp.lod("far").triangles <= 4 * lodmod.FAR_TILES
     palm = lib.get("palm").lod("high").parts
     uv = [p for p in palm if p.kind == "leaf"][0].load().uv
     assert uv[:, 0].min() > 0.1 and uv[:, 0].max() < 0.9  # leaflets cut to the leaflet, not the card
@@ -813,3 +817,50 @@ def test_import_names_bark_and_leaves(tmp_lib, tmp_path):
     sp = add_species(tmp_lib, path, "tree", preview=False)
     kinds = {(p.kind, p.tinted) for p in sp.lods[0].parts}
     assert kinds == {("bark", False), ("leaf", True)}
+
+
+@pytest.mark.parametrize(
+    "tone,field",
+    [
+        ({"near": {"albedo": [1.0, 1.0, 1.0]}}, r"lod_tone\.near: unknown level"),
+        ({"far": {"albedo": [1.0, 1.0]}}, r"lod_tone\.far\.albedo: must be three numbers in \(0, 4\]"),
+        ({"low": {"albedo": [1.0, 0.0, 1.0]}}, r"lod_tone\.low\.albedo"),
+        ({"medium": {"sheen": -0.5}}, r"lod_tone\.medium\.sheen: must be a number in \[0, 4\]"),
+        ({"far": {"gloss": 1.0}}, r"lod_tone\.far: must be a table with `albedo`"),
+        ([1.0], r"lod_tone: must be a table of levels"),
+    ],
+)
+def test_lod_tone_is_checked(tone, field):
+    from forest.library.generator import validate_recipe
+
+    recipe = tomllib.loads((ROOT / "library/presets/conifer.toml").read_text())
+    recipe["lod_tone"] = tone
+    with pytest.raises(ConfigError, match=field):
+        validate_recipe(recipe, "conifer.toml")
+
+
+def test_lod_tone_scales_each_lower_levels_leaves(tmp_path):
+    """``[lod_tone]`` multiplies a lower level's leaf albedo and its sheen's weight (the far level's horizontal
+    card by ``far_top``), and nothing else: the same meshes and textures, the high level and the bark untouched;
+    without the table every level is as built."""
+    recipe = tomllib.loads((ROOT / "library/presets/fern.toml").read_text())
+    recipe["tree"]["trunks"] = 3
+    recipe.pop("lod_tone", None)
+    plain = generate(recipe, 2, tmp_path / "plain", name="fern")
+    tone = {
+        "medium": {"albedo": [0.9, 0.8, 0.7]},
+        "low": {"sheen": 0.5},
+        "far": {"albedo": [1.2, 1.1, 0.6], "sheen": 0.25},
+        "far_top": {"albedo": [1.5, 1.5, 1.5]},
+    }
+    toned = generate(recipe | {"lod_tone": tone}, 2, tmp_path / "toned", name="fern")
+    for a, b in zip(plain["lods"], toned["lods"]):
+        for pa, pb in zip(a["parts"], b["parts"]):
+            t = tone["far_top"] if pa["file"] == "far_top.ply" else tone.get(a["name"], {})
+            factor = np.array(t.get("albedo", [1.0, 1.0, 1.0])) if pa["kind"] == "leaf" else np.ones(3)
+            np.testing.assert_allclose(pb["colour"], np.array(pa["colour"]) * factor, atol=2e-6)
+            if pa["kind"] == "leaf":
+                assert pb["sheen"] == pytest.approx(pa["sheen"] * t.get("sheen", 1.0))
+                assert pb["roughness"] == pa["roughness"]
+    for f in sorted(p.name for p in (tmp_path / "plain").iterdir() if p.name != "species.json"):
+        assert (tmp_path / "plain" / f).read_bytes() == (tmp_path / "toned" / f).read_bytes(), f

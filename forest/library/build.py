@@ -141,6 +141,15 @@ def far_views(
     return card_views(parts, bounds, lodmod.FAR_VIEWS, res, spp, shaded=shaded, top=True)
 
 
+def toned(level: str, tone: dict, colour, sheen: tuple[float, float]) -> tuple[list[float], tuple[float, float]]:
+    """A level's leaf colour and sheen (weight, roughness) under the recipe's ``[lod_tone]``: the colour times the
+    level's ``albedo`` factor, the sheen's weight times its ``sheen`` factor (at most 1); the high level as given."""
+    t = tone.get(level)
+    if t is None:
+        return [float(c) for c in colour], sheen
+    return [float(c) * f for c, f in zip(colour, t["albedo"])], (min(1.0, sheen[0] * t["sheen"]), sheen[1])
+
+
 def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "recipe") -> dict:
     """Grow ``recipe`` with ``seed`` and write every level of detail into folder ``out``.
 
@@ -169,6 +178,7 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
     leaf_colour, bark_colour = tree["leaf_colour"], tree["bark_colour"]
     transl = tree["translucency"]
     sheen = (float(tree["leaf_sheen"]), float(tree["leaf_roughness"]))
+    tone = recipe["lod_tone"]
     lods = []
     high_meshes: list[tuple[MeshData, np.ndarray, np.ndarray | None]] = []
     coverage = shading = None
@@ -199,8 +209,9 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
             leaves = orient_faces(ground(leaves))
             write_ply(out / f"{lod}_leaf.ply", leaves)
             tex = "cluster.png" if clustered else "leaf.png"
+            colour, level_sheen = toned(lod, tone, leaf_colour, sheen)
             entry = lod_entry(
-                lod, parts + [part_entry("leaf", f"{lod}_leaf.ply", leaves, leaf_colour, tex, True, transl, sheen)]
+                lod, parts + [part_entry("leaf", f"{lod}_leaf.ply", leaves, colour, tex, True, transl, level_sheen)]
             )
             if coverage is None or not clustered or step == COVER_STEPS:
                 break
@@ -229,8 +240,13 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
         high_meshes, high_bounds, seed=seed, coverage=coverage, shading=shading, cut=cut
     )
     write_texture(out / "far.png", atlas)
-    write_ply(out / "far_cards.ply", far)
-    lods.append(lod_entry("far", [part_entry("leaf", "far_cards.ply", far, scale, "far.png", True, transl, sheen)]))
+    # Two parts: the vertical cards and the horizontal one, each toned by its own [lod_tone] entry.
+    far_parts = []
+    for key, file, mesh in zip(("far", "far_top"), ("far_cards.ply", "far_top.ply"), lodmod.split_top(far)):
+        write_ply(out / file, mesh)
+        colour, level_sheen = toned(key, tone, scale, sheen)
+        far_parts.append(part_entry("leaf", file, mesh, colour, "far.png", True, transl, level_sheen))
+    lods.append(lod_entry("far", far_parts))
     meta = {
         "name": name,
         "source": "generated",

@@ -294,7 +294,48 @@ def validate_recipe(recipe: dict, where: str = "recipe") -> dict:
         if not isinstance(d["sides"], int) or not 3 <= d["sides"] <= 64:
             raise ConfigError(where, f"level[{i}].sides", f"must be a whole number in [3, 64], got {d['sides']!r}")
         levels.append(d)
-    return {"tree": tree, "level": levels}
+    return {"tree": tree, "level": levels, "lod_tone": _lod_tone(recipe.get("lod_tone", {}), where)}
+
+
+#: What a recipe's ``[lod_tone]`` may name: the lower levels of detail (the high level is the reference) and
+#: ``far_top``, the far level's horizontal card (``far`` tones its vertical cards).
+TONED_LEVELS = ("medium", "low", "far", "far_top")
+
+
+def _lod_tone(table: Any, where: str) -> dict[str, dict[str, Any]]:
+    """``[lod_tone]``: per lower level, the factor on its leaves' albedo (RGB) and on their sheen's weight
+    (``far`` the far level's vertical cards, ``far_top`` its horizontal card, seen from above).
+
+    The lower levels keep the high level's coverage by construction (:mod:`forest.library.build`) but not its
+    tone: a crown of fewer, larger cluster cards, or three crossed cards, lets more of the sky and sun reach
+    the surface a camera sees than thousands of leaves shading each other, and a flat card shows a broad
+    sheen where leaves facing every way show glints.  The factors are fitted in a forest, not on one tree,
+    by ``bench/bench_lod_tone.py --fit``; 1 (the default) keeps the level as built.
+    """
+    if not isinstance(table, dict):
+        raise ConfigError(where, "lod_tone", "must be a table of levels (medium, low, far, far_top)")
+    unknown = sorted(set(table) - set(TONED_LEVELS))
+    if unknown:
+        raise ConfigError(
+            where, f"lod_tone.{unknown[0]}", f"unknown level (expected one of: {', '.join(TONED_LEVELS)})"
+        )
+    out: dict[str, dict[str, Any]] = {}
+    for level in TONED_LEVELS:
+        entry = table.get(level, table.get("far", {}) if level == "far_top" else {})  # the top card: as `far`
+        if not isinstance(entry, dict) or set(entry) - {"albedo", "sheen"}:
+            raise ConfigError(where, f"lod_tone.{level}", "must be a table with `albedo` (three numbers) and `sheen`")
+        albedo = entry.get("albedo", [1.0, 1.0, 1.0])
+        if not (
+            isinstance(albedo, list)
+            and len(albedo) == 3
+            and all(isinstance(x, (int, float)) and not isinstance(x, bool) and 0 < x <= 4 for x in albedo)
+        ):
+            raise ConfigError(where, f"lod_tone.{level}.albedo", f"must be three numbers in (0, 4], got {albedo!r}")
+        sheen = entry.get("sheen", 1.0)
+        if isinstance(sheen, bool) or not isinstance(sheen, (int, float)) or not 0 <= sheen <= 4:
+            raise ConfigError(where, f"lod_tone.{level}.sheen", f"must be a number in [0, 4], got {sheen!r}")
+        out[level] = {"albedo": [float(x) for x in albedo], "sheen": float(sheen)}
+    return out
 
 
 def _grow(origins, headings, sides_vec, lengths, radii0, lv: dict, tree: dict, level: int, rng) -> Level:

@@ -618,6 +618,21 @@ def impostor(
     return mesh, atlas.astype(np.float32), scale
 
 
+def split_top(mesh: MeshData) -> tuple[MeshData, MeshData]:
+    """The far level's mesh (:func:`impostor`) as its vertical cards and its horizontal card (faces whose normal is
+    +Y), each with only its own vertices: two parts, so a recipe's ``[lod_tone]`` can tone them apart."""
+    top = mesh.normals[mesh.faces[:, 0].astype(np.int64), 1] > 0.5
+
+    def sub(keep: np.ndarray) -> MeshData:
+        f = mesh.faces[keep].astype(np.int64)
+        used = np.unique(f)
+        remap = np.full(len(mesh.vertices), -1, np.int64)
+        remap[used] = np.arange(len(used))
+        return MeshData(mesh.vertices[used], remap[f].astype(np.uint32), mesh.normals[used], mesh.uv[used])
+
+    return sub(~top), sub(top)
+
+
 def _cut_far_cards(alpha: np.ndarray, radius: float, y0: float, y1: float, res: int, top_y: float) -> MeshData:
     """The far cards, card ``k`` cut to the outline of its tile of the atlas ``alpha`` (res, T·res), ``T`` =
     ``FAR_TILES``.
