@@ -880,3 +880,29 @@ def test_the_gradient_sky_band_sends_its_stated_irradiance(exponent):
         back = light.eval(mi.Color3f(1.0), ds, mi.Bool(True))
         assert np.allclose(np.asarray(value.x), np.asarray(back.x), atol=1e-6)
         assert float(dr.min(ds.y)[0]) >= 0.0
+
+
+def test_a_sample_that_is_not_finite_counts_as_black(ad_scene):
+    """One NaN or infinite sample (a path that met a degenerate surface) leaves its pixel finite: it adds 0 to
+    the pixel's sum and the other samples are kept, where it used to turn the whole pixel NaN."""
+    import drjit as dr
+
+    from forest.render.path.frame import pass_seed
+
+    kernel, camera = ad_scene.kernel(), ad_scene.inputs.camera
+
+    class Poisoned:
+        """The kernel, with the first sample of pixel 0 NaN and the first of pixel 1 infinite."""
+
+        def sample(self, *args, **kwargs):
+            out = kernel.sample(*args, **kwargs)
+            idx = dr.arange(ad_scene.mi.UInt32, dr.width(out[0][0]))
+            bad = dr.select(idx == 0, dr.nan, dr.select(idx == 4, dr.inf, 0.0))
+            return (type(out[0])(out[0][0] + bad, out[0][1], out[0][2]), *out[1:])
+
+    with dr.suspend_grad():
+        clean = ad_scene.sample_pass(kernel, camera, 4, pass_seed(3, 0))
+        poisoned = ad_scene.sample_pass(Poisoned(), camera, 4, pass_seed(3, 0))
+    assert np.isfinite(poisoned.rgb).all()
+    assert np.array_equal(poisoned.rgb[2:], clean.rgb[2:])
+    assert (poisoned.rgb[:2] <= clean.rgb[:2] + 1e-6).all() and (poisoned.rgb[:2] > 0).any()
