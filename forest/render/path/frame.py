@@ -512,7 +512,7 @@ class PathScene:
         sampler, ray, used = self._camera_rays(camera, spp, seed, pixels=lanes)
         out = kernel.sample(dr.ADMode.Primal, sampler, ray, None, None, mi_bool(mi, True), aux=aux, groups=groups)
         # A sample that is not finite (NaN or inf: 1 pixel of 230 400 in a 130 000-tree frame at 16 spp) would
-        # poison its pixel's sum; it counts as black, as Mitsuba's film and Cycles drop such samples.
+        # poison its pixel's sum; it counts as black, so one bad path costs its pixel one sample, not the pixel.
         L = dr.select(dr.isfinite(out[0][0] + out[0][1] + out[0][2]), out[0], 0.0)
         covered = mi_float(mi, out[1])
         extra = dict(out[3]) if aux else {}
