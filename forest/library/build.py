@@ -243,6 +243,8 @@ def generate(recipe: dict, seed: int, out: Path, *, name: str, where: str = "rec
     # Two parts: the vertical cards and the horizontal one, each toned by its own [lod_tone] entry.
     far_parts = []
     for key, file, mesh in zip(("far", "far_top"), ("far_cards.ply", "far_top.ply"), lodmod.split_top(far)):
+        if not len(mesh.faces):  # a crown that shows nothing from above (or only from above)
+            continue
         write_ply(out / file, mesh)
         colour, level_sheen = toned(key, tone, scale, sheen)
         far_parts.append(part_entry("leaf", file, mesh, colour, "far.png", True, transl, level_sheen))
