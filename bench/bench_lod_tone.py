@@ -96,7 +96,8 @@ above stay 1.2-1.3x (from 250 m) and 1.4-1.8x (from 700 m) darker than the truth
 tone depends on the elevation they are seen from.  On the examples (``--examples``, 8x8 blocks, untoned ->
 toned): demo 0.0107 -> 0.0065, valley 0.0082 -> 0.0051, fly-through 0.0087 -> 0.0054, meadow 0.0180 -> 0.0158,
 ecosystem 0.0096 -> 0.0092, jungle 0.313 -> 0.205 (seen straight down with every tree low: the low level's shape
-from above, not its tone).
+from above, not its tone; at the gallery's 1280x720 the automatic rule, which the jungle now uses, gives its larger
+crowns the medium level: 0.300 by distance, 0.210 automatic).
 """
 
 from __future__ import annotations
