@@ -165,13 +165,18 @@ solid_pixels = 0
 
 
 def render(
-    cfg: Path, out: Path, lines: list[str] | None = None, env: dict[str, str] | None = None
+    cfg: Path,
+    out: Path,
+    lines: list[str] | None = None,
+    env: dict[str, str] | None = None,
+    args: tuple[str, ...] = (),
 ) -> dict[str, np.ndarray]:
-    """``forest render`` of ``cfg``: its beauty RGB and its ``species`` layer; ``lines`` gets its summary line."""
+    """``forest render`` of ``cfg`` (with the CLI options ``args``): its beauty RGB and its ``species`` layer;
+    ``lines`` gets its summary line."""
     import OpenImageIO as oiio
 
     run = subprocess.run(
-        [FOREST, "render", str(cfg), "-o", str(out)], check=True, capture_output=True, text=True, env=env
+        [FOREST, "render", str(cfg), "-o", str(out), *args], check=True, capture_output=True, text=True, env=env
     )
     if lines is not None:
         lines.append(next((x for x in run.stdout.splitlines() if x.startswith("rendered")), ""))
@@ -179,6 +184,22 @@ def render(
     names = list(buf.spec().channelnames)
     px = buf.get_pixels(oiio.FLOAT)
     return {"rgb": px[..., :3], "species": px[..., names.index("species.Z")] if "species.Z" in names else None}
+
+
+def horizon(full: np.ndarray, aerial: bool) -> int:
+    """The first row below the horizon of a frame (0 when ``aerial``: no sky): rows of sky average over 0.1."""
+    sky = np.flatnonzero(full.mean(axis=(1, 2)) > 0.1)
+    return int(sky.max()) + 1 if len(sky) and not aerial else 0
+
+
+def band_ratios(a: np.ndarray, f: np.ndarray, top: int, n: int) -> list[tuple[int, int, np.ndarray]]:
+    """``n`` equal bands of rows from row ``top`` down: (first row, end row, mean RGB of ``a`` over ``f``'s)."""
+    rows = f.shape[0] - top
+    out = []
+    for i in range(n):
+        lo, hi = top + int(rows * i / n), top + int(rows * (i + 1) / n)
+        out.append((lo, hi, a[lo:hi].mean(axis=(0, 1)) / np.maximum(f[lo:hi].mean(axis=(0, 1)), 1e-12)))
+    return out
 
 
 def trees(species: list[str], spp: int, tmp: Path) -> None:
@@ -238,15 +259,9 @@ def forest(count: int, spp: int, tmp: Path, aerial: bool = False) -> None:
     auto.write_text(text.replace("[lod]\nauto = false\n", "[lod]\n"))
     lines: list[str] = []
     a, f = render(auto, tmp / "auto.exr", lines)["rgb"], render(full, tmp / "full.exr", lines)["rgb"]
-    sky = np.flatnonzero(f.mean(axis=(1, 2)) > 0.1)  # rows of sky: the horizon is below the last
-    h = int(sky.max()) + 1 if len(sky) and not aerial else 0
+    h = horizon(f, aerial)
     view = "from 700 m up" if aerial else "from 90 m up"
-    rows = f.shape[0] - h
-    bands = [(h + int(rows * i / 5), h + int(rows * (i + 1) / 5)) for i in range(5)]
-    parts = []
-    for lo, hi in bands:
-        r = a[lo:hi].mean(axis=(0, 1)) / np.maximum(f[lo:hi].mean(axis=(0, 1)), 1e-12)
-        parts.append(f"rows {lo}-{hi} {r[0]:.3f} {r[1]:.3f} {r[2]:.3f}")
+    parts = [f"rows {lo}-{hi} {r[0]:.3f} {r[1]:.3f} {r[2]:.3f}" for lo, hi, r in band_ratios(a, f, h, 5)]
     print(
         f"lod tone forest {count:,} trees {view}, automatic over every tree high (mean RGB by band): "
         + " | ".join(parts)
@@ -344,7 +359,6 @@ class ToneCase:
         self.lib, self.tmp, self.view, self.size = lib, tmp, view, (width, height, spp)
         lib.set()
         self.high = self.render("high", LEVELS["high"])
-        self.high_plain = None
         auto = self.render("auto")
         self.masks: dict[tuple[str, str], np.ndarray] = {}
         for level in keys:
@@ -369,14 +383,8 @@ class ToneCase:
     def frame(self, auto: np.ndarray) -> str:
         """Bands of rows below the horizon (automatic over every tree high) and the per-pixel relative difference."""
         f = self.high["rgb"]
-        sky = np.flatnonzero(f.mean(axis=(1, 2)) > 0.1)
-        h0 = int(sky.max()) + 1 if len(sky) and self.view not in ("aerial", "oblique") else 0
-        rows = f.shape[0] - h0
-        parts = []
-        for i in range(5):
-            lo, hi = h0 + int(rows * i / 5), h0 + int(rows * (i + 1) / 5)
-            r = auto[lo:hi].mean(axis=(0, 1)) / np.maximum(f[lo:hi].mean(axis=(0, 1)), 1e-12)
-            parts.append(f"{r[0]:.2f}/{r[1]:.2f}/{r[2]:.2f}")
+        h0 = horizon(f, self.view in ("aerial", "oblique"))
+        parts = [f"{r[0]:.2f}/{r[1]:.2f}/{r[2]:.2f}" for _, _, r in band_ratios(auto, f, h0, 5)]
         err = float(np.abs(auto[h0:] - f[h0:]).mean() / max(float(f[h0:].mean()), 1e-12))
         return "bands " + " ".join(parts) + f"; per-pixel {err:.3f}"
 
@@ -461,38 +469,26 @@ def blocks(x: np.ndarray, k: int = 8) -> np.ndarray:
     return x[:h, :w].reshape(h // k, k, w // k, k, 3).mean(axis=(1, 3))
 
 
-def render_example(cfg: Path, out: Path, size: list[str], env: dict[str, str], *extra: str) -> np.ndarray:
-    """``forest render`` of an example config at ``size`` (CLI options) with ``extra``: its beauty RGB."""
-    import OpenImageIO as oiio
-
-    subprocess.run([FOREST, "render", str(cfg), "-o", str(out), *size, *extra], check=True, env=env)
-    return oiio.ImageBuf(str(out)).get_pixels(oiio.FLOAT)[..., :3]
-
-
 def examples(names: list[str], width: int, height: int, spp: int, tmp: Path) -> None:
     """Each example scene (configs/NAME.toml: its own light, haze, camera and [lod] distances; 640x360, 16 spp,
     not denoised, no motion blur) with its levels toned and without the tone, against every tree high: the
     frame's mean and six bands of rows, each over the truth's, and the relative mean difference of 8x8-pixel
     block means and of pixels."""
     lib = ToneLibrary(tmp, TONED_SPECIES, individuals_each=8)
-    size = ["--width", str(width), "--height", str(height), "--spp", str(spp), "-q"]
-    size += ["--set", "render.denoise=false", "--set", "camera.shutter=0.0"]
+    size: tuple[str, ...] = ("--width", str(width), "--height", str(height), "--spp", str(spp), "-q")
+    size += ("--set", "render.denoise=false", "--set", "camera.shutter=0.0")
     for name in names:
         cfg = ROOT / "configs" / f"{name}.toml"
         lib.set()
-        truth = render_example(cfg, tmp / f"{name}_truth.exr", size, lib.env, "--set", ALL_HIGH)
-        toned = render_example(cfg, tmp / f"{name}_toned.exr", size, lib.env)
+        truth = render(cfg, tmp / f"{name}_truth.exr", env=lib.env, args=(*size, "--set", ALL_HIGH))["rgb"]
+        toned = render(cfg, tmp / f"{name}_toned.exr", env=lib.env, args=size)["rgb"]
         lib.set(lib.untoned())
-        untoned = render_example(cfg, tmp / f"{name}_untoned.exr", size, lib.env)
+        untoned = render(cfg, tmp / f"{name}_untoned.exr", env=lib.env, args=size)["rgb"]
         lib.set()
         finite = np.isfinite(truth).all(-1) & np.isfinite(toned).all(-1) & np.isfinite(untoned).all(-1)
         truth, toned, untoned = (np.where(finite[..., None], x, 0.0) for x in (truth, toned, untoned))
         for tag, x in (("without tone", untoned), ("with tone", toned)):
-            bands = []
-            for i in range(6):
-                lo, hi = truth.shape[0] * i // 6, truth.shape[0] * (i + 1) // 6
-                r = x[lo:hi].mean(axis=(0, 1)) / np.maximum(truth[lo:hi].mean(axis=(0, 1)), 1e-12)
-                bands.append(f"{r[0]:.3f}/{r[1]:.3f}/{r[2]:.3f}")
+            bands = [f"{r[0]:.3f}/{r[1]:.3f}/{r[2]:.3f}" for _, _, r in band_ratios(x, truth, 0, 6)]
             mean = x.mean(axis=(0, 1)) / truth.mean(axis=(0, 1))
             block = float(np.abs(blocks(x) - blocks(truth)).mean() / truth.mean())
             pixel = float(np.abs(x - truth).mean() / truth.mean())
