@@ -107,6 +107,25 @@ CASES = {
         {"t.obj": "v 0 0 0\nv 1 0 0\nv nan 0 1\nf 1 2 3\n"},
         ["terrain.mesh", "NaN"],
     ),
+    "placed_tree_of_no_species": (
+        "[terrain]\nflat = {}\n" + GOOD_SPECIES + '[[tree]]\nspecies = "oak"\nposition = [0.0, 0.0]\n',
+        {},
+        ["tree[0].species", "no [[species]] is named 'oak'"],
+    ),
+    "placed_tree_off_the_terrain": (
+        "[terrain]\nflat = { size = 100.0 }\n"
+        + GOOD_SPECIES
+        + '[[tree]]\nspecies = "broadleaf"\nposition = [80.0, 0.0]\n',
+        {},
+        ["tree[0].position", "outside the terrain"],
+    ),
+    "placed_tree_in_the_water": (
+        "[terrain]\nflat = { size = 100.0 }\nwater = { level = 2.0 }\n"
+        + GOOD_SPECIES
+        + '[[tree]]\nspecies = "broadleaf"\nposition = [0.0, 0.0]\n',
+        {},
+        ["tree[0].position", "in [terrain] water"],
+    ),
     "mesh_empty": ('[terrain]\nmesh = "t.obj"\n' + GOOD_SPECIES, {"t.obj": "# nothing\n"}, ["terrain.mesh", "t.obj"]),
 }
 

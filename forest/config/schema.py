@@ -740,6 +740,54 @@ class GroundCoverConfig(Section):
         return individual_count(self.model, self.individuals)
 
 
+#: Most ``[[tree]]`` entries a scene may place by hand.
+MAX_PLACED_TREES = 10_000
+
+
+class PlacedTree(Section):
+    """One ``[[tree]]``: a tree placed by hand — a specimen in a meadow, a hero tree by the camera.
+
+    It is one of a ``[[species]]``' trees (its individuals, colour jitter, accents and bark), stands where
+    ``position`` says whatever the maps say, and clears the scattered trees around its trunk.
+    """
+
+    species: Annotated[Str, Field(min_length=1)] = Field(
+        description="The [[species]] it is one of: that entry's name, or its model."
+    )
+    position: tuple[Metres, Metres] = Field(
+        description="[x, z] of the trunk's base, metres; it stands on the terrain there."
+    )
+    scale: Positive = Field(1.0, description="Uniform scale (1: the library tree's own size).")
+    yaw: Annotated[float, Field(ge=0.0, le=360.0, allow_inf_nan=False)] | None = Field(
+        None, description="Degrees about +Y (default: drawn from the seed)."
+    )
+    individual: Annotated[Int, Field(ge=0, le=MAX_INDIVIDUALS - 1)] | None = Field(
+        None, description="Which individual of its species, 0 … individuals − 1 (default: drawn from the seed)."
+    )
+    clear: Annotated[float, Field(ge=0.0, le=10000.0, allow_inf_nan=False)] | None = Field(
+        None,
+        description="Scattered trees standing within this many metres of it are left out (default: its crown's "
+        "radius, the highest level's horizontal reach times scale; 0 keeps them all).",
+    )
+
+
+def species_index(species: typing.Sequence[SpeciesConfig], ref: str) -> int:
+    """The ``[[species]]`` entry a ``[[tree]]``'s ``species`` names: by ``name``, else by ``model``.
+
+    Raises :class:`ValueError` (a finished sentence) when none or several entries match.
+    """
+    for key in ("name", "model"):
+        hits = [i for i, sp in enumerate(species) if getattr(sp, key) == ref]
+        if len(hits) == 1:
+            return hits[0]
+        if len(hits) > 1:
+            raise ValueError(
+                f"{ref!r} is the {key} of species[{hits[0]}] and species[{hits[1]}]; give them names and use one"
+            )
+    known = ", ".join(sorted({sp.name or sp.model for sp in species}))
+    raise ValueError(f"no [[species]] is named {ref!r} (species: {known})")
+
+
 # ---------------------------------------------------------------------------
 # [camera]
 # ---------------------------------------------------------------------------
@@ -1581,6 +1629,9 @@ class SceneConfig(Section):
     ecosystem: EcosystemConfig = Field(default_factory=EcosystemConfig)
     ground: GroundConfig = Field(default_factory=GroundConfig)
     ground_cover: list[GroundCoverConfig] = Field(default_factory=list)
+    tree: Annotated[list[PlacedTree], Field(max_length=MAX_PLACED_TREES)] = Field(
+        default_factory=list, description="Trees placed by hand, each one of a [[species]]' trees."
+    )
     camera: CameraConfig = Field(default_factory=CameraConfig)
     lights: LightsConfig = Field(default_factory=lambda: LightsConfig.model_validate({}))
     render: RenderConfig = Field(default_factory=RenderConfig)
@@ -1606,6 +1657,17 @@ class SceneConfig(Section):
                     raise fail(
                         f"unknown region {region!r} (regions: {', '.join(known) or 'none'})", f"species[{i}].partitions"
                     )
+        for i, tree in enumerate(self.tree):
+            try:
+                k = species_index(self.species, tree.species)
+            except ValueError as e:
+                raise fail(str(e), f"tree[{i}].species") from None
+            count = self.species[k].individual_count
+            if tree.individual is not None and tree.individual >= count:
+                raise fail(
+                    f"must be below species[{k}]'s {count} individual{'s' if count > 1 else ''}, got {tree.individual}",
+                    f"tree[{i}].individual",
+                )
         ground_given = {"rules", "base", "materials"} & self.ground.model_fields_set
         if "terrain_colour" in self.render.model_fields_set and ground_given:
             raise fail(

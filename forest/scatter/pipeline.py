@@ -16,7 +16,10 @@
 4. :func:`~forest.scatter.ground_cover.scatter_ground_cover` — the
    ``[[ground_cover]]`` plants near the camera path, appended as rows of
    their own species (:mod:`forest.scatter.models`);
-5. the provenance (:mod:`forest.scatter.provenance`): the hashes of the input
+5. the trees placed by hand (``[[tree]]``, :mod:`forest.scatter.placed`): the scattered
+   trees around each are left out (the report's stage ``placed tree``) and the placed
+   ones appended last, ids after every other row's;
+6. the provenance (:mod:`forest.scatter.provenance`): the hashes of the input
    files go into the InstanceSet's metadata.
 
 The species are resolved through the tree library once, for the leaf colours
@@ -45,7 +48,9 @@ from .canopy import dead_fractions
 from .ecosystem import ecosystem_rule
 from .ground_cover import CoverResult, scatter_ground_cover
 from .models import model_settings, resolve_models, scatter_models
-from .provenance import check_provenance, cover_digest, input_hashes
+from .placed import STAGE as PLACED_STAGE
+from .placed import check_places, clear_radii, cleared, placed_columns
+from .provenance import check_provenance, cover_digest, input_hashes, placed_digest
 from .report import ScatterReport, species_keys, tally
 from .survival import SurvivalRule, random_rule
 
@@ -78,6 +83,7 @@ def scatter(
 
         library = open_library()
     models = resolve_models(config, library)
+    placed_heights = check_places(config, terrain)
     maps = MapSet(config, colour)
     step(0.15, "terrain, species and maps read")
     tints = tint_params(model_settings(config), models, config.seed)
@@ -87,9 +93,21 @@ def scatter(
 
     cand, fate, species_draw = candidates(config, terrain, maps, rng, step)
     survival = rule(cand, config, terrain, step)
-    stages = SHARED_STAGES + survival.stages
+    placed = config.model.tree
+    stages = SHARED_STAGES + survival.stages + ((PLACED_STAGE,) if placed else ())
     # The rule's codes 1, 2, … follow the shared stages' in the per-candidate fates.
     fate[cand.index] = np.where(survival.fate > 0, survival.fate + len(SHARED_STAGES), 0)
+    alive, size, columns = survival.alive, survival.size, survival.columns
+    if placed:
+        # Survivors standing where a [[tree]] is placed: rejected by its stage, the last code.
+        gone = cleared(cand.position[alive], placed, clear_radii(placed, models, config))
+        if gone.any():
+            rows = np.flatnonzero(alive)[gone]
+            fate[cand.index[rows]] = len(stages)
+            alive = alive.copy()
+            alive[rows] = False
+            size = None if size is None else size[~gone]
+            columns = {key: col[~gone] for key, col in columns.items()}
 
     step(0.9, "attributes")
     meta = {
@@ -101,11 +119,13 @@ def scatter(
     digest = cover_digest(config)
     if digest is not None:
         meta["ground_cover"] = digest
-    alive = survival.alive
+    if placed:
+        meta["placed"] = placed_digest(config)
     trees = cand if alive.all() else cand.subset(alive)
-    inst = tree_attributes(trees, survival.size, config, terrain, maps, rng, meta, tints, dead)
+    inst = tree_attributes(trees, size, config, terrain, maps, rng, meta, tints, dead)
     names = list(inst.species_names)
-    rejected, by_species = tally(fate, species_draw, stages, SPECIES_STAGES + survival.stages, names)
+    per_species = SPECIES_STAGES + survival.stages + ((PLACED_STAGE,) if placed else ())
+    rejected, by_species = tally(fate, species_draw, stages, per_species, names)
     counts = inst.counts()
     kept = len(inst)
     cover: list[CoverResult] = []
@@ -113,6 +133,9 @@ def scatter(
         step(0.95, "ground cover")
         cover = scatter_ground_cover(config, terrain, maps, tints)
         inst = with_rows(inst, cover, scatter_models(config))
+    if placed:
+        first = config.scatter.count + sum(r.candidates for r in cover)
+        inst = with_columns(inst, placed_columns(config, terrain, maps, tints, placed_heights, first))
     report = ScatterReport(
         candidates=config.scatter.count,
         kept=kept,
@@ -121,9 +144,10 @@ def scatter(
         rejected_by_species=by_species,
         species=counts["species"],
         partitions=counts["partitions"],
-        columns=survival.columns,
+        columns=columns,
         individuals={key: s.individual_count for key, s in zip(species_keys(names), config.species)},
         cover={key: (r.kept, r.candidates) for key, r in zip(species_keys([r.name for r in cover]), cover)},
+        placed=len(placed),
     )
     if maps.partition is not None and maps.partition.unlabelled_pixels:
         pm = maps.partition
@@ -142,9 +166,18 @@ def scatter(
 def with_rows(inst: InstanceSet, cover: list[CoverResult], names: list[str]) -> InstanceSet:
     """The trees followed by the ground cover's rows, with ``species_names`` = ``names`` (trees' then cover's)."""
     cols = {c: np.concatenate([getattr(inst, c), *(r.columns[c] for r in cover)]) for c in COLUMNS}
+    return with_columns(inst, cols, names, append=False)
+
+
+def with_columns(
+    inst: InstanceSet, columns: dict[str, np.ndarray], names: list[str] | None = None, *, append: bool = True
+) -> InstanceSet:
+    """``inst`` with ``columns`` appended as rows (``append``) or in place of its own, and ``species_names`` =
+    ``names`` (default: its own)."""
+    cols = {c: np.concatenate([getattr(inst, c), columns[c]]) if append else columns[c] for c in COLUMNS}
     return InstanceSet(
         **cols,
-        species_names=names,
+        species_names=list(inst.species_names) if names is None else names,
         partition_names=list(inst.partition_names),
         extent=inst.extent,
         seed=inst.seed,

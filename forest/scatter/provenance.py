@@ -121,6 +121,10 @@ def check_provenance(inst: InstanceSet, config: Config, source: str | Path) -> N
             f"the camera path or [[ground_cover]] differ from those {source} was scattered with "
             "(ground cover grows around the camera); scatter again",
         )
+    if placed_digest(config) != inst.meta.get("placed"):
+        raise ConfigError(
+            config.path, "tree", f"the [[tree]] entries differ from those {source} was scattered with; scatter again"
+        )
     recorded = inst.meta.get("inputs")
     if recorded is None:
         warnings.warn(
@@ -158,4 +162,12 @@ def cover_digest(config: Config) -> str | None:
         "camera": config.camera.model_dump(mode="json"),
         "ground_cover": [c.model_dump(mode="json") for c in config.model.ground_cover],
     }
+    return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
+
+
+def placed_digest(config: Config) -> str | None:
+    """SHA-256 of the ``[[tree]]`` entries (trees placed by hand); None without any."""
+    if not config.model.tree:
+        return None
+    data = [t.model_dump(mode="json") for t in config.model.tree]
     return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()

@@ -34,6 +34,7 @@ class ScatterReport:
     columns: dict[str, np.ndarray] = field(default_factory=dict)
     individuals: dict[str, int] = field(default_factory=dict)  # tree species → individuals drawn from
     cover: dict[str, tuple[int, int]] = field(default_factory=dict)  # ground cover → (plants, candidates)
+    placed: int = 0  # trees placed by hand ([[tree]]), not counted in kept
 
     def lines(self) -> list[str]:
         """The report as the CLI prints it: totals, species, individuals, partitions, rejections, cover, warnings."""
@@ -56,6 +57,8 @@ class ScatterReport:
                 "  ground cover: "
                 + ", ".join(f"{k} {kept:,} (of {cand:,} sites)" for k, (kept, cand) in self.cover.items())
             )
+        if self.placed:
+            out.append(f"  placed by hand: {self.placed:,} ([[tree]]; not in the counts above)")
         out.extend(f"  warning: {w}" for w in self.warnings)
         return out
 
