@@ -170,3 +170,17 @@ denoise = false
     assert tree_img[1] > tree_img[2]  # green leaves, not blue sky
     edge = (slice(0, 32), slice(0, 4))
     np.testing.assert_allclose(images["tree"][edge], images["bare"][edge], atol=0.05)
+
+
+def test_cleared_is_every_tree_within_its_placed_trees_radius():
+    """The grid-cell prefilter drops none: against brute force, radii of mixed sizes, coordinates of both signs."""
+    from forest.config.schema import PlacedTree
+    from forest.scatter.placed import cleared
+
+    rng = np.random.default_rng(3)
+    position = np.zeros((20000, 3))
+    position[:, [0, 2]] = rng.uniform(-500.0, 500.0, (20000, 2))
+    trees = [PlacedTree(species="a", position=tuple(p)) for p in rng.uniform(-520.0, 520.0, (40, 2))]
+    radii = rng.choice([0.0, 3.0, 11.0, 60.0], 40)
+    d = np.hypot(*(position[:, None, [0, 2]] - np.array([t.position for t in trees])[None]).transpose(2, 0, 1))
+    np.testing.assert_array_equal(cleared(position, trees, radii), (d <= np.where(radii > 0, radii, -1.0)).any(axis=1))

@@ -63,15 +63,38 @@ def clear_radii(trees: Sequence[PlacedTree], models: Sequence[Species], config: 
 
 
 def cleared(position: np.ndarray, trees: Sequence[PlacedTree], radii: np.ndarray) -> np.ndarray:
-    """Which of the scattered trees at ``position`` (N, 3) stand within a placed tree's radius (plan distance)."""
+    """Which of the scattered trees at ``position`` (N, 3) stand within a placed tree's radius (plan distance).
+
+    Only the trees in the grid cells (side: the largest radius) around a placed tree go into the k-d tree, so a
+    few placed trees cost little in a scatter of millions.
+    """
     out = np.zeros(len(position), dtype=bool)
-    if not len(trees) or not len(position) or not (radii > 0).any():
+    radii = np.asarray(radii, dtype=np.float64)
+    live = radii > 0
+    if not len(position) or not live.any():
         return out
-    index = cKDTree(np.asarray(position, dtype=np.float64)[:, [0, 2]])
-    for t, r in zip(trees, radii):
-        if r > 0:
-            out[index.query_ball_point(t.position, r)] = True
+    centres = np.array([t.position for t in trees], dtype=np.float64)[live]
+    radii = radii[live]
+    xz = np.asarray(position, dtype=np.float64)[:, [0, 2]]
+    side = float(radii.max())
+    near = np.flatnonzero(np.isin(cell_codes(xz, side), _around(cell_codes(centres, side))))
+    if not len(near):
+        return out
+    hits = cKDTree(xz[near]).query_ball_point(centres, radii)
+    out[near[np.concatenate([np.asarray(h, dtype=np.int64) for h in hits])]] = True
     return out
+
+
+def cell_codes(xz: np.ndarray, side: float) -> np.ndarray:
+    """One integer per point for its cell of a square grid of ``side`` metres (cells ±2³¹ apart in z)."""
+    c = np.floor(xz / side).astype(np.int64)
+    return c[:, 0] * (1 << 32) + c[:, 1]
+
+
+def _around(codes: np.ndarray) -> np.ndarray:
+    """The codes of these cells and of their eight neighbours."""
+    steps = np.array([dx * (1 << 32) + dz for dx in (-1, 0, 1) for dz in (-1, 0, 1)], dtype=np.int64)
+    return np.unique((codes[:, None] + steps[None, :]).ravel())
 
 
 def terrain_normals(terrain: Terrain, x: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -92,13 +115,14 @@ def check_places(config: Config, terrain: Terrain) -> np.ndarray:
     trees = config.model.tree
     xz = np.array([t.position for t in trees], dtype=np.float64).reshape(-1, 2)
     xmin, zmin, xmax, zmax = terrain.extent
-    for i, (x, z) in enumerate(xz):
-        if not (xmin <= x <= xmax and zmin <= z <= zmax):
-            raise ConfigError(
-                config.path,
-                f"tree[{i}].position",
-                f"[{x:g}, {z:g}] is outside the terrain (x {xmin:g} to {xmax:g}, z {zmin:g} to {zmax:g})",
-            )
+    off = (xz[:, 0] < xmin) | (xz[:, 0] > xmax) | (xz[:, 1] < zmin) | (xz[:, 1] > zmax)
+    if off.any():
+        i = int(np.flatnonzero(off)[0])
+        raise ConfigError(
+            config.path,
+            f"tree[{i}].position",
+            f"[{xz[i, 0]:g}, {xz[i, 1]:g}] is outside the terrain (x {xmin:g} to {xmax:g}, z {zmin:g} to {zmax:g})",
+        )
     y = terrain.height_at(xz[:, 0], xz[:, 1]) if len(xz) else np.zeros(0)
     wet = ~terrain.dry(y)
     if wet.any():
