@@ -86,7 +86,8 @@ def cleared(position: np.ndarray, trees: Sequence[PlacedTree], radii: np.ndarray
 
 
 def cell_codes(xz: np.ndarray, side: float) -> np.ndarray:
-    """One integer per point for its cell of a square grid of ``side`` metres (cells ±2³¹ apart in z)."""
+    """One integer per point for its cell of a square grid of ``side`` metres: column · 2³² + row (wrapping
+    modulo 2⁶⁴ for absurd grids, where a collision only adds candidates: a cell's neighbours still match)."""
     c = np.floor(xz / side).astype(np.int64)
     return c[:, 0] * (1 << 32) + c[:, 1]
 
