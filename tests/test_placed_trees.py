@@ -184,3 +184,28 @@ def test_cleared_is_every_tree_within_its_placed_trees_radius():
     radii = rng.choice([0.0, 3.0, 11.0, 60.0], 40)
     d = np.hypot(*(position[:, None, [0, 2]] - np.array([t.position for t in trees])[None]).transpose(2, 0, 1))
     np.testing.assert_array_equal(cleared(position, trees, radii), (d <= np.where(radii > 0, radii, -1.0)).any(axis=1))
+
+
+def test_a_placed_tree_is_exported(tmp_path):
+    """USD, from the same InstanceSet: a scene whose only tree is placed by hand exports one instance, there."""
+    from pxr import Usd, UsdGeom
+
+    cfg = tmp_path / "one.toml"
+    cfg.write_text(
+        "seed = 2\n[terrain]\nprocedural = { size = 100.0, height = 8.0, octaves = 3, resolution = 32 }\n"
+        '[[species]]\nmodel = "broadleaf"\npercent = 0\n'
+        '[[tree]]\nspecies = "broadleaf"\nposition = [12.5, -7.0]\nscale = 1.3\n'
+    )
+    out = tmp_path / "one.usda"
+    r = run_forest("export", "usd", cfg, "-o", out)
+    assert r.returncode == 0, r.stderr
+    stage = Usd.Stage.Open(str(out))
+    points = [
+        np.array(UsdGeom.PointInstancer(p).GetPositionsAttr().Get())
+        for p in stage.Traverse()
+        if p.IsA(UsdGeom.PointInstancer)
+    ]
+    (pos,) = np.concatenate(points)
+    cfg_loaded = load_config(cfg)
+    ground = load_terrain(cfg_loaded.terrain, cfg_loaded.path).height_at([12.5], [-7.0])[0]
+    np.testing.assert_allclose(pos, [12.5, ground, -7.0], atol=1e-3)
