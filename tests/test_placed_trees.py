@@ -209,3 +209,26 @@ def test_a_placed_tree_is_exported(tmp_path):
     cfg_loaded = load_config(cfg)
     ground = load_terrain(cfg_loaded.terrain, cfg_loaded.path).height_at([12.5], [-7.0])[0]
     np.testing.assert_allclose(pos, [12.5, ground, -7.0], atol=1e-3)
+
+
+def test_a_placed_tree_can_stand_dead(make):
+    """``dead = true``: a snag, individual n + k of its species, whose individuals then include the snags (the
+    tree without its leaves) though the species itself draws none; a living placed tree stays below n."""
+    from forest.scatter.canopy import has_leaves
+    from forest.scene import load_scene
+
+    cfg = make(
+        '[[tree]]\nspecies = "spruce"\nposition = [0.0, 0.0]\nindividual = 1\ndead = true\nclear = 0.0\n'
+        '[[tree]]\nspecies = "spruce"\nposition = [30.0, 0.0]\nindividual = 1\nclear = 0.0\n'
+    )
+    inst, _ = scatter(cfg)
+    assert inst.individual[-2:].tolist() == [3 + 1, 1]  # the spruce has 3 individuals
+    scene = load_scene(cfg, inst)
+    spruce = scene.individuals[1]
+    assert len(spruce) == 6 and not has_leaves(spruce[4]) and has_leaves(spruce[1])
+    assert len(scene.individuals[0]) == 4  # the broadleaf, with no dead tree, has no snags
+    with pytest.raises(ConfigError) as e:
+        make('[[tree]]\nspecies = "broadleaf"\nposition = [0.0, 0.0]\ndead = true\n').with_overrides(
+            {"species[0].individuals": 200}
+        )
+    assert e.value.field == "tree[0].dead"

@@ -769,6 +769,11 @@ class PlacedTree(Section):
         description="Scattered trees standing within this many metres of it are left out (default: its crown's "
         "radius, the highest level's horizontal reach times scale; 0 keeps them all).",
     )
+    dead: Bool = Field(
+        False,
+        description="A standing dead tree (a snag: the tree without its leaves), as [[species]] dead draws; "
+        "forest's renderers draw it, the exports the living tree.",
+    )
 
 
 def species_index(species: typing.Sequence[SpeciesConfig], ref: str) -> int:
@@ -1663,6 +1668,11 @@ class SceneConfig(Section):
             except ValueError as e:
                 raise fail(str(e), f"tree[{i}].species") from None
             count = self.species[k].individual_count
+            if tree.dead and count > MAX_INDIVIDUALS // 2:
+                raise fail(
+                    f"needs species[{k}]'s individuals <= {MAX_INDIVIDUALS // 2} (snags take the upper half)",
+                    f"tree[{i}].dead",
+                )
             if tree.individual is not None and tree.individual >= count:
                 raise fail(
                     f"must be below species[{k}]'s {count} individual{'s' if count > 1 else ''}, got {tree.individual}",

@@ -15,7 +15,7 @@ from __future__ import annotations
 import re
 
 from ..config import Config
-from ..config.schema import GroundCoverConfig, SpeciesConfig
+from ..config.schema import GroundCoverConfig, SpeciesConfig, species_index
 from ..errors import ConfigError, ForestError
 from ..library import Library, Species
 from ..library.individuals import individual_seed
@@ -87,14 +87,16 @@ def resolve_individuals(
 ) -> tuple[tuple[Species, ...], ...]:
     """Per species index, its individuals (element 0 is ``species[s]``); see :func:`model_individuals`.
 
-    A ``[[species]]`` with ``dead`` > 0 and leaf parts has its n individuals followed by their n
-    snags (:func:`forest.scatter.canopy.snag`): a snag's ``individual`` is n + k.
+    A ``[[species]]`` with ``dead`` > 0, or one a ``[[tree]]`` with ``dead = true`` is of, and leaf parts has
+    its n individuals followed by their n snags (:func:`forest.scatter.canopy.snag`): a snag's ``individual``
+    is n + k.
     """
     settings = model_settings(config)
+    placed_dead = {species_index(config.species, t.species) for t in config.model.tree if t.dead}
     out = []
     for i, s in enumerate(settings):
         ind = model_individuals(library, s.model, species[i], s.individual_count, model_field(config, i), config)
-        if getattr(s, "dead", 0.0) > 0 and has_leaves(species[i]):
+        if (getattr(s, "dead", 0.0) > 0 or i in placed_dead) and has_leaves(species[i]):
             alive = tuple(ind[k % len(ind)] for k in range(s.individual_count))  # as many as scatter drew from
             ind = alive + tuple(snag(sp) for sp in alive)
         out.append(ind)

@@ -17,7 +17,9 @@ For placed tree j (id ``first_id + j``, after every scattered tree's and ground 
   (:mod:`forest.scatter.attributes`): the colour map's tint with the species' jitter, the partition
   under the trunk, yaw then the species' tilt toward the normal;
 * ``clear`` defaults to the tree's crown radius r = s · max(|x|, |z|) over its highest level's bounds
-  (the trunk's axis at the origin), so the crown has room.
+  (the trunk's axis at the origin), so the crown has room;
+* ``dead = true`` makes it a snag: individual n_k + k, whose species then carries its snags as a
+  ``[[species]] dead`` does (:func:`forest.scatter.models.resolve_individuals`).
 """
 
 from __future__ import annotations
@@ -159,7 +161,9 @@ def placed_columns(
     yaw = np.where(np.isnan(yaw), xi[:, 0] * (2 * np.pi), yaw)
     count = np.array([config.species[j].individual_count for j in k], dtype=np.int64)
     drawn = draw_individuals(xi[:, 1], count)
-    individual = np.array([d if t.individual is None else t.individual for t, d in zip(trees, drawn)], dtype=np.uint8)
+    chosen = np.array([d if t.individual is None else t.individual for t, d in zip(trees, drawn)], dtype=np.int64)
+    # A snag is individual n + k (forest.scatter.models.resolve_individuals), as a scattered one is.
+    individual = (chosen + np.where([t.dead for t in trees], count, 0)).astype(np.uint8)
     species = config.species
     align = np.array([config.scatter.align_to_normal if species[j].align is None else species[j].align for j in k])
     u, v = terrain.to_uv(position[:, 0], position[:, 2])
