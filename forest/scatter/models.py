@@ -15,11 +15,12 @@ from __future__ import annotations
 import re
 
 from ..config import Config
-from ..config.schema import GroundCoverConfig, SpeciesConfig, species_index
+from ..config.schema import GroundCoverConfig, SpeciesConfig
 from ..errors import ConfigError, ForestError
 from ..library import Library, Species
 from ..library.individuals import individual_seed
 from .canopy import has_leaves, snag
+from .placed import placed_species
 
 
 def model_settings(config: Config) -> list[SpeciesConfig | GroundCoverConfig]:
@@ -92,7 +93,7 @@ def resolve_individuals(
     is n + k.
     """
     settings = model_settings(config)
-    placed_dead = {species_index(config.species, t.species) for t in config.model.tree if t.dead}
+    placed_dead = {int(k) for t, k in zip(config.model.tree, placed_species(config)) if t.dead}
     out = []
     for i, s in enumerate(settings):
         ind = model_individuals(library, s.model, species[i], s.individual_count, model_field(config, i), config)

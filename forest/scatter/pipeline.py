@@ -94,13 +94,14 @@ def scatter(
     cand, fate, species_draw = candidates(config, terrain, maps, rng, step)
     survival = rule(cand, config, terrain, step)
     placed = config.model.tree
-    stages = SHARED_STAGES + survival.stages + ((PLACED_STAGE,) if placed else ())
+    placed_stage = (PLACED_STAGE,) if placed else ()
+    stages = SHARED_STAGES + survival.stages + placed_stage
     # The rule's codes 1, 2, … follow the shared stages' in the per-candidate fates.
     fate[cand.index] = np.where(survival.fate > 0, survival.fate + len(SHARED_STAGES), 0)
     alive, size, columns = survival.alive, survival.size, survival.columns
     if placed:
         # Survivors standing where a [[tree]] is placed: rejected by its stage, the last code.
-        gone = cleared(cand.position[alive], placed, clear_radii(placed, models, config))
+        gone = cleared(cand.position[alive], placed, clear_radii(config, models))
         if gone.any():
             rows = np.flatnonzero(alive)[gone]
             fate[cand.index[rows]] = len(stages)
@@ -124,8 +125,7 @@ def scatter(
     trees = cand if alive.all() else cand.subset(alive)
     inst = tree_attributes(trees, size, config, terrain, maps, rng, meta, tints, dead)
     names = list(inst.species_names)
-    per_species = SPECIES_STAGES + survival.stages + ((PLACED_STAGE,) if placed else ())
-    rejected, by_species = tally(fate, species_draw, stages, per_species, names)
+    rejected, by_species = tally(fate, species_draw, stages, SPECIES_STAGES + survival.stages + placed_stage, names)
     counts = inst.counts()
     kept = len(inst)
     cover: list[CoverResult] = []
@@ -165,16 +165,12 @@ def scatter(
 
 def with_rows(inst: InstanceSet, cover: list[CoverResult], names: list[str]) -> InstanceSet:
     """The trees followed by the ground cover's rows, with ``species_names`` = ``names`` (trees' then cover's)."""
-    cols = {c: np.concatenate([getattr(inst, c), *(r.columns[c] for r in cover)]) for c in COLUMNS}
-    return with_columns(inst, cols, names, append=False)
+    return with_columns(inst, {c: np.concatenate([r.columns[c] for r in cover]) for c in COLUMNS}, names)
 
 
-def with_columns(
-    inst: InstanceSet, columns: dict[str, np.ndarray], names: list[str] | None = None, *, append: bool = True
-) -> InstanceSet:
-    """``inst`` with ``columns`` appended as rows (``append``) or in place of its own, and ``species_names`` =
-    ``names`` (default: its own)."""
-    cols = {c: np.concatenate([getattr(inst, c), columns[c]]) if append else columns[c] for c in COLUMNS}
+def with_columns(inst: InstanceSet, columns: dict[str, np.ndarray], names: list[str] | None = None) -> InstanceSet:
+    """``inst`` with ``columns`` appended as rows, and ``species_names`` = ``names`` (default: its own)."""
+    cols = {c: np.concatenate([getattr(inst, c), columns[c]]) for c in COLUMNS}
     return InstanceSet(
         **cols,
         species_names=list(inst.species_names) if names is None else names,

@@ -53,12 +53,18 @@ def crown_radius(species: Species) -> float:
     return float(np.max(np.abs([lo[0], lo[2], hi[0], hi[2]])))
 
 
-def clear_radii(trees: Sequence[PlacedTree], models: Sequence[Species], config: Config) -> np.ndarray:
+def placed_species(config: Config) -> np.ndarray:
+    """The ``[[species]]`` index of each ``[[tree]]`` (its ``species`` by name, else by model; validated)."""
+    return np.array([species_index(config.species, t.species) for t in config.model.tree], dtype=np.int64)
+
+
+def clear_radii(config: Config, models: Sequence[Species]) -> np.ndarray:
     """Each placed tree's ``clear`` in metres: as given, else its crown radius times its scale."""
+    trees = config.model.tree
     return np.array(
         [
-            t.clear if t.clear is not None else t.scale * crown_radius(models[species_index(config.species, t.species)])
-            for t in trees
+            t.scale * crown_radius(models[k]) if t.clear is None else t.clear
+            for t, k in zip(trees, placed_species(config))
         ],
         dtype=np.float64,
     )
@@ -150,7 +156,7 @@ def placed_columns(
     """The ``[[tree]]`` entries as InstanceSet columns (module docstring), ids from ``first_id``."""
     trees = config.model.tree
     n = len(trees)
-    k = np.array([species_index(config.species, t.species) for t in trees], dtype=np.int64)
+    k = placed_species(config)
     ids = first_id + np.arange(n, dtype=np.uint64)
     xi = tree_uniforms(ids, config.seed, PLACED_TAG, 3)
     x = np.array([t.position[0] for t in trees], dtype=np.float64)
