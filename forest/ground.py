@@ -71,6 +71,26 @@ renderers and the exports keep the painted colour alone.  ``[terrain] water`` (a
 level, :func:`forest.terrain.flood`) is painted the same way as the top layer, whatever the source of the
 albedo (:func:`paint_still_water`).
 
+**Shallow water.**  Water shows its bed where it is shallow and its own colour where it is deep. The
+colour painted for water at depth H is the irradiance reflectance of a shallow water column over a bed
+(Maritorena, Morel & Gentili 1994, "Diffuse reflectance of oceanic shallow waters: influence of water
+depth and bottom albedo", *Limnol. Oceanogr.* 39: 1689, eq. 9):
+
+    R(H) = R_∞ + (A − R_∞)·exp(−2 K H)
+
+with R_∞ the ``water`` material's colour (the deep water's), A the bed — the ground painted under the
+water: the layers below a water rule, or everything under ``[terrain] water`` — and K
+``[ground] water_attenuation`` (per metre, RGB; light goes down to the bed and back up, hence 2H).
+A lake's or the sea's depth is exact, the level less the unflooded terrain's height
+(:meth:`forest.terrain.Terrain.water_depth`); a painted river has no bed of its own, so its bed falls from
+the water's edge at :data:`~forest.config.schema.BANK_GRADIENT` metres per metre to at most
+``[ground] water_depth`` (H = min(D, g·δ), δ the distance from the texel to the nearest texel that is not
+water, less half a texel: a Euclidean distance transform of W ≥ ½). So the shore is the bed's colour
+running into the water, which darkens toward its middle, where the water had met the bank as one flat
+colour. Composited like the coverage, the water's share of a texel is Σ_r w_r R(H, A_r) over the water
+layers r with weights w_r, which is R_∞·W + e^{−2KH}·(B − R_∞·W) with B = Σ_r w_r A_r accumulated as W is
+(B ← (1 − α_r)·B + α_r·[material_r = water]·A_r): one more (H, W, 3) grid while painting.
+
 **Variation.**  A material painted one colour reads, from tens of metres away, as a flat sheet: real
 ground varies in patches — thicker and thinner grass, drier and greener, more and less litter — which
 the detail texture (a few metres across) averages away at a distance.  So the painted grid is varied,
@@ -96,7 +116,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import Config
-from .config.schema import WATER_MATERIAL, GroundConfig, GroundRule
+from .config.schema import BANK_GRADIENT, WATER_MATERIAL, GroundConfig, GroundRule
 from .errors import ConfigError, ForestError
 from .instances import InstanceSet
 from .library import Species
@@ -374,6 +394,9 @@ def paint_rules(
         water = np.ones(shape, np.float64)
     if not rules and terrain.water is None:
         return _finish(rgb, water, extent, ground, config.seed)
+    # The dry layers' colour so far (what a water layer covers) and the water's share's bed B (module docstring).
+    bed = rgb.copy() if water is not None else None
+    water_bed = rgb * water[..., None] if water is not None else None
     height = terrain.height_at(x.ravel(), z.ravel()).reshape(shape)
     hmin, hmax = terrain.height_range
     units = {"slope": 1.0, "altitude": max(hmax - hmin, 1.0), "moisture": 1.0, "canopy": 1.0, "relief": 1.0}
@@ -420,25 +443,67 @@ def paint_rules(
             alpha *= 1.0 - weight if rule.invert else weight
         c = np.asarray(palette[rule.material], np.float64)
         rgb += alpha[..., None] * (c - rgb)
-        if water is not None:
-            water += alpha * ((1.0 if rule.material == WATER_MATERIAL else 0.0) - water)
-    rgb, water = paint_still_water(rgb, water, terrain, height, palette[WATER_MATERIAL])
+        if water is not None and bed is not None and water_bed is not None:
+            wet = rule.material == WATER_MATERIAL
+            water += alpha * ((1.0 if wet else 0.0) - water)
+            water_bed += alpha[..., None] * ((bed if wet else 0.0) - water_bed)
+            if not wet:
+                bed += alpha[..., None] * (c - bed)
+    if water is not None and water_bed is not None and ground.water_depth > 0.0:
+        depth = river_depth(water, extent, ground.water_depth)
+        deep = np.asarray(palette[WATER_MATERIAL], np.float64)
+        rgb += shallow(depth, ground.water_attenuation) * (water_bed - water[..., None] * deep)
+    del bed, water_bed
+    rgb, water = paint_still_water(
+        rgb, water, terrain, height, terrain.water_depth(x, z), palette[WATER_MATERIAL], ground.water_attenuation
+    )
     return _finish(rgb, water, extent, ground, config.seed)
 
 
+def shallow(depth: np.ndarray, attenuation: Sequence[float]) -> np.ndarray:
+    """(…, 3) exp(−2 K H): the share of the bed's colour in shallow water's, H = ``depth`` (…) metres and K =
+    ``attenuation`` (3,) per metre (module docstring, "Shallow water")."""
+    k = np.asarray(attenuation, np.float64).reshape(3)
+    return np.exp(-2.0 * np.asarray(depth, np.float64)[..., None] * k)
+
+
+def river_depth(water: np.ndarray, extent: tuple[float, float, float, float], deepest: float) -> np.ndarray:
+    """(H, W) metres of painted water over its bed: min(D, g·δ) with g :data:`~forest.config.schema.BANK_GRADIENT`,
+    D = ``deepest`` and δ the distance in metres from each texel of coverage W ≥ ½ to the nearest texel below ½,
+    less half a texel (0 off the water; D everywhere when no texel is dry)."""
+    from scipy.ndimage import distance_transform_edt
+
+    mask = np.asarray(water) >= 0.5
+    if mask.all():
+        return np.full(mask.shape, float(deepest))
+    xmin, zmin, xmax, zmax = extent
+    dz, dx = (zmax - zmin) / mask.shape[0], (xmax - xmin) / mask.shape[1]
+    delta = distance_transform_edt(mask, sampling=(dz, dx)) - 0.5 * min(dx, dz)
+    return np.where(mask, np.clip(BANK_GRADIENT * delta, 0.0, float(deepest)), 0.0)
+
+
 def paint_still_water(
-    rgb: np.ndarray, water: np.ndarray | None, terrain: Terrain, height: np.ndarray, colour: Sequence[float]
+    rgb: np.ndarray,
+    water: np.ndarray | None,
+    terrain: Terrain,
+    height: np.ndarray,
+    depth: np.ndarray,
+    colour: Sequence[float],
+    attenuation: Sequence[float],
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """``[terrain] water`` painted over a grid as the top layer: its coverage W_lake = the terrain's
     :meth:`~forest.terrain.Terrain.water_cover` at the texels' ``height`` (H, W), composited as a rule is,
 
-        ρ ← (1 − W_lake)·ρ + W_lake·c_water,    W ← (1 − W_lake)·W + W_lake;
+        ρ ← (1 − W_lake)·ρ + W_lake·R(H),    W ← (1 − W_lake)·W + W_lake,
 
-    the grids unchanged without water."""
+    R(H) = c + (ρ − c)·exp(−2 K H) the water of ``colour`` c and ``attenuation`` K at ``depth`` H (H, W) over the
+    ground painted under it (module docstring, "Shallow water"); the grids unchanged without water."""
     lake = terrain.water_cover(height)
     if lake is None:
         return rgb, water
-    rgb = rgb + lake[..., None] * (np.asarray(colour, np.float64) - rgb)
+    c = np.asarray(colour, np.float64)
+    seen = c + (rgb - c) * shallow(depth, attenuation)
+    rgb = rgb + lake[..., None] * (seen - rgb)
     water = lake if water is None else water + lake * (1.0 - water)
     return rgb, water
 
@@ -491,11 +556,18 @@ def water_triangles(terrain: Terrain, albedo: TerrainAlbedo) -> np.ndarray | Non
     return wet if wet.any() else None
 
 
-def water_colour(albedo: TerrainAlbedo) -> np.ndarray:
-    """The water's colour (3,): the painted albedo's mean over the texels of coverage W ≥ ½ (zeros without)."""
+def water_colour(albedo: TerrainAlbedo, *, edge: bool = False) -> np.ndarray:
+    """The water's colour (3,): the painted albedo's mean over the texels of coverage W ≥ ½ (zeros without);
+    ``edge``: over those on the grid's border only (the sea that runs on past the terrain's edge continues them),
+    all of them when none is."""
     if albedo.water is None:
         return np.zeros(3)
     mask = np.asarray(albedo.water) >= 0.5
+    if edge:
+        border = np.zeros_like(mask)
+        border[[0, -1], :] = border[:, [0, -1]] = True
+        if (mask & border).any():
+            mask = mask & border
     return np.asarray(albedo.rgb, np.float64)[mask].mean(axis=0) if mask.any() else np.zeros(3)
 
 
@@ -538,6 +610,14 @@ def terrain_albedo(
         x, z = texel_centres(terrain.extent, shape)
         height = terrain.height_at(x.ravel(), z.ravel()).reshape(shape)
         base = np.broadcast_to(np.asarray(rgb, np.float64), (*shape, 3))
-        rgb, lake = paint_still_water(base, None, terrain, height, ground.palette()[WATER_MATERIAL])
+        rgb, lake = paint_still_water(
+            base,
+            None,
+            terrain,
+            height,
+            terrain.water_depth(x, z),
+            ground.palette()[WATER_MATERIAL],
+            ground.water_attenuation,
+        )
         water = None if lake is None else lake.astype(np.float32)
     return TerrainAlbedo(np.ascontiguousarray(rgb, dtype=np.float32), terrain.extent, detail, tile, water)

@@ -22,8 +22,9 @@ level is raised to it, y ← max(y, level), so a lake's (or the sea's) surface i
 terrain mesh every renderer and exporter already draws — flat, at one height, its shoreline the
 level's contour on the mesh.  The ground paints it with the ``water`` material
 (:meth:`Terrain.water_cover`, :mod:`forest.ground`) and scatter keeps trees and ground cover off
-it and ``shore`` metres above it (:meth:`Terrain.dry`).  The bed under the water is not modelled:
-the water material's colour stands for it.
+it and ``shore`` metres above it (:meth:`Terrain.dry`).  The flooded terrain keeps the terrain it
+flooded as its ``bed``, so the water's depth is known wherever it stands (:meth:`Terrain.water_depth`):
+the ground shows the bed through shallow water (:mod:`forest.ground`, "Shallow water").
 """
 
 from __future__ import annotations
@@ -55,9 +56,12 @@ class Terrain:
         grid_shape: tuple[int, int] | None = None,
         source: str = "mesh",
         water: tuple[float, float] | None = None,
+        bed: Terrain | None = None,
     ):
         #: Still water as (level, shore) metres (:func:`flood`), None without.
         self.water = water
+        #: The terrain as it was before :func:`flood` raised it to the water's level (None when not flooded).
+        self.bed = bed
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.faces = np.ascontiguousarray(faces, dtype=np.int64)
         self.grid_shape = grid_shape  # (rows along Z, columns along X) for grid terrains
@@ -192,6 +196,15 @@ class Terrain:
         t = np.clip((np.asarray(height, dtype=np.float64) - self.water[0]) / SHORE_RAMP, 0.0, 1.0)
         return 1.0 - t * t * (3.0 - 2.0 * t)
 
+    def water_depth(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Metres of still water over the bed at world X/Z: max(level − h_bed(x, z), 0), h_bed the unflooded
+        terrain's height (:attr:`bed`); zeros without water."""
+        x = np.asarray(x, dtype=np.float64)
+        if self.water is None or self.bed is None:
+            return np.zeros(x.shape)
+        z = np.asarray(z, dtype=np.float64)
+        return np.maximum(self.water[0] - self.bed.height_at(x.ravel(), z.ravel()).reshape(x.shape), 0.0)
+
     # -- queries -------------------------------------------------------------------
     def height_at(self, x, z) -> np.ndarray:
         """Terrain height at world X/Z (vectorised).  Outside the extent: clamped to the edge."""
@@ -267,10 +280,13 @@ def fbm_heights(resolution: int, octaves: int, roughness: float, seed: int) -> n
 
 
 def flood(terrain: Terrain, level: float, shore: float = 0.0) -> Terrain:
-    """The terrain under still water at ``level`` metres: y ← max(y, level) (module docstring), ``water`` set."""
+    """The terrain under still water at ``level`` metres: y ← max(y, level) (module docstring), ``water`` set and
+    the unflooded terrain kept as its ``bed``."""
     v = terrain.vertices.copy()
     np.maximum(v[:, 1], level, out=v[:, 1])
-    return Terrain(v, terrain.faces, grid_shape=terrain.grid_shape, source=terrain.source, water=(level, shore))
+    return Terrain(
+        v, terrain.faces, grid_shape=terrain.grid_shape, source=terrain.source, water=(level, shore), bed=terrain
+    )
 
 
 def load_terrain(cfg: TerrainConfig, config_path: Path | None = None) -> Terrain:

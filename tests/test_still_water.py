@@ -138,7 +138,10 @@ def test_the_ground_paints_the_lake_as_water(tmp_path):
     centre = alb.water_at(np.array([0.0]), np.array([0.0]))
     assert centre[0] == pytest.approx(1.0)
     h, w = alb.water.shape
-    np.testing.assert_allclose(alb.rgb[h // 2, w // 2], water_rgb, rtol=1e-5)  # the grid, before the detail
+    # The centre is LEVEL metres deep over grass (shallow water, tested below); optically deep water is the colour.
+    deep = load_scene(bowl_config(tmp_path, extra='[ground]\nbase = "grass"\nrules = []\n'
+                                  "water_attenuation = [50.0, 50.0, 50.0]\n")).terrain_albedo  # fmt: skip
+    np.testing.assert_allclose(deep.rgb[h // 2, w // 2], water_rgb, rtol=1e-5)  # the grid, before the detail
     corner = alb.water_at(np.array([95.0]), np.array([95.0]))
     assert corner[0] == 0.0
     # The wet share of the grid is the flooded share of the plan: h = 20·r²/2 (r in half-sides, 2 at the
@@ -151,6 +154,45 @@ def test_the_ground_paints_the_lake_as_water(tmp_path):
     alb1 = load_scene(one).terrain_albedo
     assert alb1.water is not None and alb1.water_at(np.array([0.0]), np.array([0.0]))[0] == pytest.approx(1.0)
     np.testing.assert_allclose(alb1.rgb[0, 0], [0.3, 0.2, 0.1], rtol=1e-5)  # a corner texel, dry
+
+
+def test_the_lake_shows_its_bed_where_it_is_shallow(tmp_path):
+    """Shallow water (forest.ground, "Shallow water"): each texel under the lake is painted
+    R(H) = c + (A − c)·exp(−2KH) (Maritorena et al. 1994), A the grass under it, c the water's colour, K the
+    attenuation and H its depth — checked against the bowl's closed-form depth, LEVEL − (x² + z²)/1000 (the
+    heightmap is 20·(u² + v²)/2 over ±100 m), not against the terrain the code reads. The flooded terrain
+    keeps its bed; K large is the water's colour, K = 0 the bed itself; a one-colour ground shows its colour."""
+    from forest.ground import texel_centres
+
+    k = np.array([0.40, 0.20, 0.45])
+    config = bowl_config(tmp_path, extra='[ground]\nbase = "grass"\nrules = []\nvariation = 0.0\n'
+                         f"water_attenuation = [{k[0]}, {k[1]}, {k[2]}]\n")  # fmt: skip
+    scene = load_scene(config)
+    alb, terrain = scene.terrain_albedo, scene.terrain
+    x, z = texel_centres(alb.extent, alb.water.shape)
+    depth = LEVEL - (x**2 + z**2) / 1000.0
+    assert terrain.bed is not None and terrain.bed.height_range[0] == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(terrain.water_depth(x, z), np.maximum(depth, 0.0), atol=0.01)
+    inside = alb.water == 1.0
+    assert inside.sum() > 100 and depth[inside].max() > 3.5 and depth[inside].min() < 0.5
+    c, grass = np.asarray(GROUND_MATERIALS["water"]), np.asarray(GROUND_MATERIALS["grass"])
+    expected = c + (grass - c) * np.exp(-2.0 * depth[inside][:, None] * k)
+    np.testing.assert_allclose(alb.rgb[inside], expected, rtol=0.01, atol=2e-4)
+    # Shallower is nearer the grass: the texel nearest the shore is much nearer it than the centre's.
+    shallow_row = alb.rgb[inside][np.argmin(depth[inside])]
+    deep_row = alb.rgb[inside][np.argmax(depth[inside])]
+    assert np.abs(shallow_row - grass).max() < np.abs(deep_row - grass).max() / 3
+    clear = load_scene(bowl_config(tmp_path, extra='[ground]\nbase = "grass"\nrules = []\nvariation = 0.0\n'
+                                   "water_attenuation = [0.0, 0.0, 0.0]\n")).terrain_albedo  # fmt: skip
+    np.testing.assert_allclose(clear.rgb[inside], np.broadcast_to(grass, (inside.sum(), 3)), rtol=1e-5)
+    one = load_config(write_scene(tmp_path, BOWL.format(level=LEVEL, shore=0.5).replace(
+        "spp = 4", "spp = 4\nterrain_colour = [0.3, 0.2, 0.1]"), "one.toml"))  # fmt: skip
+    alb1 = load_scene(one).terrain_albedo
+    x1, z1 = texel_centres(alb1.extent, alb1.water.shape)
+    d1 = LEVEL - (x1**2 + z1**2) / 1000.0
+    in1 = alb1.water == 1.0
+    want = c + (np.array([0.3, 0.2, 0.1]) - c) * np.exp(-2.0 * d1[in1][:, None] * np.asarray(k))
+    np.testing.assert_allclose(alb1.rgb[in1], want, rtol=0.01, atol=2e-4)
 
 
 @pytest.mark.parametrize("variant", ["llvm_ad_rgb", "scalar_rgb"])
@@ -204,7 +246,7 @@ def test_the_exports_write_the_water_apart_from_the_terrain(tmp_path):
     from forest.export.rib import export_rib
     from forest.export.usd import export_usd
 
-    config = bowl_config(tmp_path, extra="[ground]\nwater_ripple = 1.0\n")
+    config = bowl_config(tmp_path, extra="[ground]\nwater_ripple = 1.0\nwater_attenuation = [50.0, 50.0, 50.0]\n")
     scene = load_scene(config)
     ground, water = split_water(scene)
     assert water is not None

@@ -201,6 +201,8 @@ def test_water_rules_paint_a_coverage_grid(tmp_path):
         ("\n[ground]\nwater_ripple = -1.0\n", "water_ripple"),
         ("\n[ground]\nwater_ripple = 45.0\n", "water_ripple"),
         ("\n[ground.materials]\nwater = [0.1, 0.2]\n", "water"),
+        ("\n[ground]\nwater_attenuation = [0.4, -0.2, 0.4]\n", "water_attenuation"),
+        ("\n[ground]\nwater_depth = -1.0\n", "water_depth"),
     ],
 )
 def test_bad_water_values_are_refused_in_one_line(tmp_path, ground, field):
@@ -297,3 +299,42 @@ def test_ripples_keep_their_rms_tilt_and_come_in_patches():
     assert np.percentile(local, 90) > 5.0 * np.percentile(local, 10)
     flat = ripple_normal(mi, mi.Point3f(1.0, 0.0, 2.0), 0.0)
     assert (float(flat.x[0]), float(flat.y[0]), float(flat.z[0])) == (0.0, 1.0, 0.0)
+
+
+def test_a_painted_river_shows_its_bed_at_its_edges(tmp_path):
+    """A river painted by a rule (a 20 m stripe of a map over wet ground, 1 m texels) is R(H) = c + (A − c)·
+    exp(−2KH) with A the wet ground under it and H = min(D, g·(d − ½ texel)), d the distance across the stripe
+    to its nearest dry column, counted here along the row; ``water_depth = 0`` keeps the water's colour everywhere
+    (as before shallow water), and the coverage is the same either way."""
+    from conftest import write_png
+
+    from forest.config.schema import BANK_GRADIENT, GROUND_MATERIALS
+
+    stripe = np.zeros((100, 100))
+    stripe[:, 40:60] = 1.0
+    write_png(tmp_path / "river.png", stripe)
+    rules = (
+        '\n[ground]\nbase = "wet"\nresolution = 100\nvariation = 0.0\nwater_depth = {depth}\n'
+        "water_attenuation = [0.8, 0.4, 0.9]\n"
+        '[[ground.rules]]\nmaterial = "water"\nmap = "river.png"\nnoise = 0.0\n'
+    )
+    _, plain = _scene(tmp_path, rules.format(depth=0.0))
+    np.testing.assert_allclose(plain.rgb[plain.water == 1.0], np.broadcast_to(GROUND_MATERIALS["water"], (2000, 3)),
+                               rtol=1e-5)  # fmt: skip
+    c, bed, k = (np.asarray(v) for v in (GROUND_MATERIALS["water"], GROUND_MATERIALS["wet"], (0.8, 0.4, 0.9)))
+    for deepest in (5.0, 1.0):
+        _, alb = _scene(tmp_path, rules.format(depth=deepest))
+        np.testing.assert_array_equal(alb.water, plain.water)
+        row = alb.water[50] >= 0.5
+        cols = np.flatnonzero(row)
+        assert len(cols) == 20 and np.all(np.diff(cols) == 1)
+        d = np.minimum(cols - (cols[0] - 1), (cols[-1] + 1) - cols).astype(float)  # metres to the nearest dry column
+        h = np.minimum(deepest, BANK_GRADIENT * (d - 0.5))
+        assert np.all(alb.water[50, cols] == 1.0)  # every texel across the stripe is all water
+        want = c + (bed - c) * np.exp(-2.0 * h[:, None] * k)
+        np.testing.assert_allclose(alb.rgb[50, cols], want, rtol=1e-4, atol=1e-6)
+        red = alb.rgb[50, cols[:10], 0]  # the wet bed is redder than the water: the red falls toward the middle
+        if deepest == 5.0:
+            assert np.all(np.diff(red) < 0)
+        else:  # 1 m is reached 7.2 m from the edge: the middle's columns are all that deep
+            assert np.all(np.diff(red[:7]) < 0) and np.ptp(red[7:]) < 1e-6 and h.max() == 1.0

@@ -564,12 +564,19 @@ GROUND_MATERIALS: dict[str, tuple[float, float, float]] = {
     "wet": (0.075, 0.062, 0.048),  # wet soil, mud, riverbed
     "sand": (0.400, 0.330, 0.240),  # dry quartz sand
     "snow": (0.850, 0.870, 0.900),  # fresh snow
-    # Open water: the bed seen through it, ρ_bed ⊙ exp(−2 σ_a d) (Beer–Lambert down and up), ρ_bed = (0.10, 0.09,
-    # 0.07) wet gravel, d = 0.5 m, σ_a = (0.40, 0.20, 0.45)/m: pure water (Pope & Fry 1997, Appl. Opt. 36: 8710)
-    # plus yellow substance (Bricaud et al. 1981, Limnol. Oceanogr. 26: 43).  forest_path adds the surface's
-    # Fresnel mirror over it (``[ground]`` rules of this material); other renderers show this colour only.
+    # Open water where its bed is out of sight (the deep water's colour; shallower water shows its bed, [ground]
+    # water_attenuation): as dark as half a metre of river water over wet gravel, ρ_bed ⊙ exp(−2 σ_a d)
+    # (Beer–Lambert down and up), ρ_bed = (0.10, 0.09, 0.07), d = 0.5 m, σ_a = WATER_ATTENUATION.  forest_path
+    # adds the surface's Fresnel mirror over it (``[ground]`` rules of this material); other renderers show this
+    # colour only.
     "water": (0.067, 0.074, 0.045),
 }
+#: River water's attenuation per metre (RGB): pure water (Pope & Fry 1997, Appl. Opt. 36: 8710) plus yellow
+#: substance (Bricaud et al. 1981, Limnol. Oceanogr. 26: 43); a Secchi disc vanishes at about 1.7/K (Poole &
+#: Atkins 1929), 8.5 m in the green.
+WATER_ATTENUATION = (0.40, 0.20, 0.45)
+#: Fall of a painted river's bed from its edge toward its middle, metres of depth per metre (:mod:`forest.ground`).
+BANK_GRADIENT = 0.15
 #: Refractive index of water in the visible band (1.333 at 589 nm, 20 °C; Hale & Querry 1973, Appl. Opt. 12: 555).
 WATER_IOR = 1.33
 #: The ground material that forest_path renders as a water surface (a rule painting it marks water).
@@ -642,6 +649,17 @@ class GroundConfig(Section):
     variation_scale: Positive = Field(20.0, description="Size of those patches, metres.")
     water_ripple: Annotated[float, Field(ge=0.0, le=20.0, allow_inf_nan=False)] = Field(
         2.0, description="Ripples on water (rules of material water): RMS tilt of its mirror, degrees (0 flat)."
+    )
+    water_attenuation: RGB = Field(
+        WATER_ATTENUATION,
+        description="How fast water hides its bed: attenuation per metre of depth (RGB; a Secchi disc vanishes at "
+        "about 1.7 / this). Shallow water shows the ground painted under it, deep water the water material's colour.",
+    )
+    water_depth: NonNegative = Field(
+        2.0,
+        description="Deepest water of rules of material water, metres: the bed falls from the water's edge at "
+        f"{BANK_GRADIENT} m per metre down to this (0: the water material's colour everywhere). [terrain] water "
+        "knows its own depth.",
     )
 
     @model_validator(mode="after")

@@ -204,14 +204,15 @@ def path_inputs(
 
 
 def sea_colour(scene: Scene) -> tuple[float, float, float] | None:
-    """The painted water's colour for the sea past the terrain's edge (:mod:`forest.skirt`, "The sea"), or None:
-    without the skirt (``horizon_ground = false``) or without still water at the edge."""
+    """The painted water's colour for the sea past the terrain's edge (:mod:`forest.skirt`, "The sea"): its mean
+    on the terrain's edge, which the sea continues; None without the skirt (``horizon_ground = false``) or without
+    still water at the edge."""
     from ...ground import water_colour
     from ...skirt import sea_at_edge
 
     if not scene.config.render.horizon_ground or sea_at_edge(scene.terrain) is None:
         return None
-    c = water_colour(scene.terrain_albedo)
+    c = water_colour(scene.terrain_albedo, edge=True)
     return (float(c[0]), float(c[1]), float(c[2]))
 
 
