@@ -41,7 +41,7 @@ import numpy as np
 
 from ..lights import DEFAULT_SUN
 from ..render.path import PathScene, SkyLight
-from ..render.path.arrays import opaque
+from ..render.path.arrays import mappable, opaque
 from ..render.path.emitters import SkyBasis
 from ..render.path.from_scene import haze_inputs, path_inputs
 from .colour import luminance
@@ -232,10 +232,10 @@ class FitRenderer:
         """Set the (S, 3) leaf tints, the RGB ground tint and (when the scene has one) the colour grid."""
         mi = self.mi
         p = self.scene.params
-        p["leaf_tint"] = mi.Float(np.asarray(leaf_tint, np.float32).ravel())
+        p["leaf_tint"] = mi.Float(mappable(np.asarray(leaf_tint, np.float32).ravel()))
         p["ground_tint"] = opaque(mi.Color3f, *np.asarray(ground_tint).ravel())
         if grid is not None and "colour_grid" in p:
-            p["colour_grid"] = mi.TensorXf(np.ascontiguousarray(grid, dtype=np.float32))
+            p["colour_grid"] = mi.TensorXf(mappable(np.asarray(grid, dtype=np.float32)))
 
     # -- images -------------------------------------------------------------------------
     def render(self, seed: int, spp: int | None = None) -> np.ndarray:
@@ -276,13 +276,13 @@ class FitRenderer:
             t = np.asarray(p[key], np.float64).reshape(-1, 3).copy()
             if species is not None:
                 t[np.arange(len(t)) != species] = 0.0
-            tan = mi.Float(t.astype(np.float32).ravel())
+            tan = mi.Float(mappable(t.astype(np.float32).ravel()))
         elif what == "ground":
             key = "ground_tint"
             tan = mi.Color3f(*[float(x) for x in np.asarray(p[key], np.float64).ravel()])
         elif what == "grid":
             key = "colour_grid"
-            tan = mi.TensorXf(np.ascontiguousarray(tangent, dtype=np.float32))
+            tan = mi.TensorXf(mappable(np.asarray(tangent, dtype=np.float32)))
         else:
             raise ValueError(what)
         value = p[key]

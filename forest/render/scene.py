@@ -25,6 +25,7 @@ from ..errors import ConfigError, ForestError
 from ..ground import read_terrain_texture, water_colour, water_roughness, water_triangles
 from ..lights import resolve_lights
 from ..runtime import captured_stderr, mitsuba
+from .path.arrays import mappable
 
 if TYPE_CHECKING:
     from ..config import Config
@@ -366,7 +367,7 @@ def colour_grid_texture(
     if _is_scalar(variant):
         vol["grid"] = mi.VolumeGrid(data)
     else:
-        vol["data"] = mi.TensorXf(data)
+        vol["data"] = mi.TensorXf(mappable(data))
     return {"type": "volume", "volume": vol}
 
 
@@ -425,10 +426,10 @@ def terrain_mesh(
     )
     params = mi.traverse(mesh)
     conv: Callable[[np.ndarray], Any] = (
-        (lambda a: a.ravel()) if _is_scalar(variant) else (lambda a: mi.Float(a.ravel()))
+        (lambda a: a.ravel()) if _is_scalar(variant) else (lambda a: mi.Float(mappable(a.ravel())))
     )
     params["vertex_positions"] = conv(v)
-    params["faces"] = f.ravel() if _is_scalar(variant) else mi.UInt32(f.ravel())
+    params["faces"] = f.ravel() if _is_scalar(variant) else mi.UInt32(mappable(f.ravel()))
     params["vertex_normals"] = conv(n)
     params["vertex_texcoords"] = conv(uv)
     params.update()

@@ -14,6 +14,16 @@ allocates (aligned), which also ends the aliasing: a later change to the numpy
 array no longer reaches the renderer.  In ``cuda_ad_rgb`` the constructor
 already copies to the device, and nothing more is done.
 
+**Reading past the end.** drjit's LLVM kernels load whole packets of 16 lanes (an unmasked
+``vmovdqu64`` on AVX-512), so the last packet of an array whose length is not a multiple of 16 reads
+up to 15 elements past its end — past the end of an aliased numpy buffer too. numpy's large buffers
+are pages of their own (``mmap``), and when such a buffer ends within a packet of a page that is not
+mapped the kernel faults: the demo crashed (SIGSEGV in a kernel thread, in ``owned``'s copy of
+a 6.4-million-element table) on about half its renders, depending on where the allocator put the
+table. :func:`mappable` gives drjit a view of a buffer :data:`SLACK` elements longer than the array,
+so the packet's excess stays in memory numpy owns; every numpy array this package hands drjit in a
+JIT variant goes through it (:func:`owned` too).
+
 A scene parameter made from Python numbers (``mi.Color3f(r, g, b)``, ``mi.Float(x)``)
 is a *literal*: its value is written into the code of every kernel that reads it,
 so each new value compiles a new kernel.  Look-dev sets its lights, tints and haze
@@ -29,6 +39,18 @@ from typing import Any
 
 import numpy as np
 
+#: Elements of memory after the end of a numpy buffer that drjit reads (:func:`mappable`).
+SLACK = 32
+
+
+def mappable(data: Any) -> np.ndarray:
+    """``data`` as a C-contiguous numpy array followed by :data:`SLACK` elements of its own memory: a view of the
+    first ``size`` elements of a larger buffer, for drjit to alias (module docstring, "Reading past the end")."""
+    a = np.asarray(data)
+    buf = np.empty(a.size + SLACK, dtype=a.dtype)
+    buf[: a.size] = a.ravel()
+    return buf[: a.size].reshape(a.shape)
+
 
 def opaque(cls: Any, *values: float) -> Any:
     """``cls(*values)`` (``mi.Float``, ``mi.Color3f``, …) held in memory: a kernel parameter, not a literal."""
@@ -43,7 +65,7 @@ def owned(cls: Any, data: Any) -> Any:
     """``data`` (array-like) as a ``cls`` array (``mi.Float``, ``mi.UInt32``, ``mi.TensorXf``, …) drjit owns."""
     import drjit as dr
 
-    a = np.ascontiguousarray(data)
+    a = mappable(data)
     arr = cls(a)
     if dr.backend_v(arr) != dr.JitBackend.LLVM or a.size == 0:
         return arr

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from .arrays import opaque
+from .arrays import mappable, opaque
 from .inputs import SkyLight, SunLight
 
 #: Smallest probability of picking a light for next-event estimation when there are two.
@@ -269,7 +269,7 @@ def sun_irradiance_of(mi: Any, emitter: Any, direction: npt.ArrayLike, samples: 
         return total / len(u1)
     with dr.suspend_grad():
         it = dr.zeros(mi.Interaction3f, len(u1))
-        u = mi.Point2f(mi.Float(u1.astype(np.float32)), mi.Float(u2.astype(np.float32)))
+        u = mi.Point2f(mi.Float(mappable(u1.astype(np.float32))), mi.Float(mappable(u2.astype(np.float32))))
         ds, w = emitter.sample_direction(it, u, mi.Bool(True))
         cos = dr.maximum(dr.dot(ds.d, mi.Vector3f(*[float(v) for v in s])), 0.0)
         ok = ds.pdf > 0.0
@@ -339,7 +339,7 @@ class EmitterLight:
         self.initial = np.asarray(initial, dtype=np.float64)
         self.direction = None if direction is None else np.asarray(direction, np.float64) / np.linalg.norm(direction)
         probes = fibonacci_hemisphere(SKY_PROBES)
-        d = mi.Vector3f(*[mi.Float(probes[:, k].astype(np.float32)) for k in range(3)])
+        d = mi.Vector3f(*[mi.Float(mappable(probes[:, k].astype(np.float32))) for k in range(3)])
         with dr.suspend_grad():
             # A Color3f of N lanes is (3, N) as an array: one row per probe after the transpose (a plain
             # reshape to (N, 3) would mix the channels of neighbouring probes into grey).

@@ -44,7 +44,7 @@ import numpy as np
 from ...errors import ForestError
 from ...progress import scaled
 from ...runtime import mitsuba
-from .arrays import opaque, owned
+from .arrays import mappable, opaque, owned
 from .emitters import LightSet, make_backdrop, make_lights, sky_mean_radiance
 from .geometry import ForestGeometry, FrameStats, PartArrays, TraversalScene, available_bytes, memory_plan
 from .haze import HazeInputs, HazeModel
@@ -508,7 +508,7 @@ class PathScene:
         mi = self.mi
         n = int(camera.width) * int(camera.height)
         m = n if pixels is None else len(pixels)
-        lanes = None if pixels is None else mi.UInt32(np.asarray(pixels, np.uint32))
+        lanes = None if pixels is None else mi.UInt32(mappable(np.asarray(pixels, np.uint32)))
         sampler, ray, used = self._camera_rays(camera, spp, seed, pixels=lanes)
         out = kernel.sample(dr.ADMode.Primal, sampler, ray, None, None, mi_bool(mi, True), aux=aux, groups=groups)
         # A sample that is not finite (NaN or inf: 1 pixel of 230 400 in a 130 000-tree frame at 16 spp) would
@@ -699,7 +699,7 @@ class PathScene:
             for _, sampler, ray, used in self._passes(camera, spp, seed):
                 # Each path's share of its pixel's adjoint: the image is the mean of all its paths.
                 lanes = np.repeat(g / total, used, axis=0)
-                δL = mi.Color3f(*[mi.Float(np.ascontiguousarray(lanes[:, c])) for c in range(3)])
+                δL = mi.Color3f(*[mi.Float(mappable(lanes[:, c])) for c in range(3)])
                 L, _, _ = kernel.sample(dr.ADMode.Primal, sampler.clone(), ray, None, None, mi.Bool(True))
                 dr.eval(L)
                 kernel.sample(dr.ADMode.Backward, sampler, ray, δL, L, mi.Bool(True))
@@ -788,12 +788,12 @@ def _render_op() -> type:
             self.scene, self.camera, self.spp, self.seed = scene, camera, spp, seed
             mi = scene.mi
             img = scene.render(camera, spp=spp, seed=seed).rgb
-            return mi.TensorXf(np.ascontiguousarray(img, dtype=np.float32))
+            return mi.TensorXf(mappable(np.asarray(img, dtype=np.float32)))
 
         def forward(self) -> None:
             mi = self.scene.mi
             d = self.scene.render_forward(self.camera, spp=self.spp, seed=self.seed)
-            self.set_grad_out(mi.TensorXf(np.ascontiguousarray(d, dtype=np.float32)))
+            self.set_grad_out(mi.TensorXf(mappable(np.asarray(d, dtype=np.float32))))
 
         def backward(self) -> None:
             g = np.asarray(self.grad_out(), dtype=np.float32)

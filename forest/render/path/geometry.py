@@ -55,7 +55,7 @@ from ...errors import ForestError
 from ...library.mesh import read_ply
 from ...memory import available_bytes as available_bytes  # MemAvailable and this process's cgroup limits
 from ...progress import ProgressFn, scaled
-from .arrays import owned
+from .arrays import mappable, owned
 from .inputs import Material, PathInputs
 from .materials import MaterialStore
 from .solid import can_draw_solid, solid_part
@@ -270,8 +270,8 @@ def _mi_mesh(mi: Any, name: str, vertices: np.ndarray, faces: np.ndarray) -> Any
         name, vertex_count=len(vertices), face_count=len(faces), has_vertex_normals=False, has_vertex_texcoords=False
     )
     p = mi.traverse(m)
-    p["vertex_positions"] = mi.Float(np.ascontiguousarray(vertices, dtype=np.float32).ravel())
-    p["faces"] = mi.UInt32(np.ascontiguousarray(faces, dtype=np.uint32).ravel())
+    p["vertex_positions"] = mi.Float(mappable(np.asarray(vertices, dtype=np.float32).ravel()))
+    p["faces"] = mi.UInt32(mappable(np.asarray(faces, dtype=np.uint32).ravel()))
     p.update()
     return m
 
