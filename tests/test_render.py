@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -407,18 +408,18 @@ def test_leaf_card_alpha(tmp_path, library, variant):
         assert ground["true"] == ground["false"] and ground["true"] > 0.07 + 0.1 * 0.9
 
 
-def test_a_wind_blurred_frame_builds_one_scene_per_sub_frame(tmp_path, library, monkeypatch):
-    """With wind, every sub-frame needs its own pose; forest_path's renderer is built in the pose of the first
-    sub-frame the frame loop renders (farthest from the centre), so K sub-frames cost K scene builds, not K + 1,
-    and the frame is the same as when the renderer was built in the centre's pose."""
+def test_a_wind_blurred_frame_builds_one_scene_per_pose(tmp_path, library, monkeypatch):
+    """When every sub-frame needs its own wind pose (here forced: no sway is small enough to share one),
+    forest_path's renderer is built in the pose of the first sub-frame the frame loop renders (farthest from the
+    centre), so K sub-frames cost K scene builds, not K + 1, and the frame is the same as when the renderer was
+    built in the centre's pose."""
     import forest.render.jit_frame as jit_frame
+    import forest.render.loop as loop
     import forest.render.path.frame as path_frame
     from forest.render.loop import first_pose_time, subframe_order
 
+    monkeypatch.setattr(loop, "POSE_PIXELS", 1e-12)
     assert subframe_order([0.5, 1.0, 1.5], 1.0) == [0, 2, 1]  # the centre last
-    t = first_pose_time(1.0, 1.0, 3, 24.0)  # an end of the shutter (which end: the float tie-break of the order)
-    assert t * 24.0 == pytest.approx(1.0 - 1.0 / 3.0) or t * 24.0 == pytest.approx(1.0 + 1.0 / 3.0)
-    assert first_pose_time(1.0, 0.0, 3, 24.0) == pytest.approx(1.0 / 24.0)  # no shutter: the frame itself
     cam = "position = [0.0, 8.0, -30.0]\ntarget = [0.0, 4.0, 0.0]\nshutter = 1.0"
     cfg = make_config(
         tmp_path,
@@ -428,6 +429,9 @@ def test_a_wind_blurred_frame_builds_one_scene_per_sub_frame(tmp_path, library, 
         extra="[wind]\nstrength = 10.0\nfrequency = 1.0\ndirection = 90.0\n",
     )
     inst = trees([[0.0, 0.0, 0.0], [6.0, 0.0, 4.0]], phase=np.array([0.0, 1.5], np.float32))
+    scene = load_scene(cfg, inst, library=library)
+    t = first_pose_time(scene, 1.0, 3, 40, 40)  # an end of the shutter (which end: the float tie-break of the order)
+    assert t * 24.0 == pytest.approx(1.0 - 1.0 / 3.0) or t * 24.0 == pytest.approx(1.0 + 1.0 / 3.0)
     builds = []
     build = path_frame.TraversalScene
 
@@ -436,10 +440,84 @@ def test_a_wind_blurred_frame_builds_one_scene_per_sub_frame(tmp_path, library, 
         return build(*a, **kw)
 
     monkeypatch.setattr(path_frame, "TraversalScene", counted)
-    render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "now.exr", variant="llvm_ad_rgb")
+    render_scene(scene, output=tmp_path / "now.exr", variant="llvm_ad_rgb")
     assert len(builds) == 3
     builds.clear()
-    monkeypatch.setattr(jit_frame, "first_pose_time", lambda frame, shutter, subframes, fps: frame / fps)
+    monkeypatch.setattr(jit_frame, "first_pose_time", lambda scene, frame, subframes, w, h: frame / 24.0)
     render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "centre.exr", variant="llvm_ad_rgb")
     assert len(builds) == 4  # built in the centre's pose, then three sub-frames
     np.testing.assert_array_equal(read_exr(tmp_path / "now.exr")["rgb"], read_exr(tmp_path / "centre.exr")["rgb"])
+
+
+def _sway_scene(tmp_path, library, *, strength: float, camera_z1: float | None = None, width: int = 400):
+    """One 6 m box 20 m in front of the camera (fov 40°), the wind across the view, 5 sub-frames over a whole
+    frame's shutter at 24 fps; ``camera_z1``: the camera moves along X to there by frame 2."""
+    if camera_z1 is None:
+        cam = "position = [0.0, 3.0, -20.0]\ntarget = [0.0, 3.0, 0.0]\nfov = 40.0\nshutter = 1.0\n"
+    else:
+        cam = (
+            "fov = 40.0\nshutter = 1.0\nkeys = [\n"
+            "  { frame = 1, position = [0.0, 3.0, -20.0], target = [0.0, 3.0, 0.0] },\n"
+            f"  {{ frame = 2, position = [{camera_z1}, 3.0, -20.0], target = [{camera_z1}, 3.0, 0.0] }},\n]\n"
+        )
+    text = BASE.format(maps="", camera=cam, render="subframes = 5", ground="[0.1, 0.1, 0.1]")
+    text = text.replace("width = 40\nheight = 40", f"width = {width}\nheight = {width}")
+    text += f"[wind]\nstrength = {strength}\nfrequency = 2.0\ndirection = 90.0\n[lod]\nauto = false\n"
+    cfg = parse_config(text, path=tmp_path / "scene.toml", base_dir=tmp_path)
+    return cfg, load_scene(cfg, trees([[0.0, 0.0, 0.0]], phase=np.array([0.3], np.float32)), library=library)
+
+
+def test_sub_frames_share_a_wind_pose_when_the_sway_is_small(tmp_path, library, monkeypatch):
+    """The sub-frames share m poses (forest.render.loop, step 2): the box's top sways across the view by
+    f·H·2|sin(Δθ/2)|/d pixels between the first and last sub-frame (θ(t) = A sin(2πft + φ), a pinhole's
+    closed form, not the code's projection), and m = ⌈that / 1 px⌉ when the camera stands still — here 2 of 5,
+    in runs posed at their mean times; a weaker wind shares one pose at the frame's centre (one scene build for
+    the frame, the image within noise of five poses'); a camera that moves the box by more than its sway
+    between two sub-frames shares one pose too."""
+    import math
+
+    import forest.render.loop as loop
+    import forest.render.path.frame as path_frame
+    from forest.camera import subframe_times
+    from forest.render.loop import pose_count, pose_times, subframe_order
+
+    times = subframe_times(1.0, 1.0, 5)
+
+    def expected(strength: float) -> float:
+        theta = [math.radians(strength) * math.sin(2 * math.pi * 2.0 * t / 24.0 + 0.3) for t in (times[0], times[-1])]
+        f_px = 200.0 / math.tan(math.radians(20.0))
+        return f_px * 6.0 * 2 * abs(math.sin((theta[1] - theta[0]) / 2)) / 20.0
+
+    _, scene = _sway_scene(tmp_path, library, strength=2.0)
+    m = math.ceil(expected(2.0))
+    assert 1 < m < 5 and pose_count(scene, 1.0, times, 400, 400) == m
+    poses = pose_times(scene, 1.0, times, 400, 400)
+    runs = sorted(set(poses))
+    assert len(runs) == m and poses == sorted(poses)  # contiguous runs in time order
+    for r in runs:
+        assert r == pytest.approx(np.mean([t for t, q in zip(times, poses) if q == r]))
+    order = subframe_order(times, 1.0, poses)
+    assert sum(poses[a] != poses[b] for a, b in itertools.pairwise(order)) == m - 1  # each run rendered together
+
+    _, weak = _sway_scene(tmp_path, library, strength=0.5, width=40)
+    assert expected(0.5) * 40 / 400 < 1.0 and pose_times(weak, 1.0, times, 40, 40) == [1.0] * 5
+    builds = []
+    build = path_frame.TraversalScene
+
+    def counted(*a, **kw):
+        builds.append(1)
+        return build(*a, **kw)
+
+    monkeypatch.setattr(path_frame, "TraversalScene", counted)
+    render_scene(weak, output=tmp_path / "one.exr", variant="llvm_ad_rgb")
+    assert len(builds) == 1
+    monkeypatch.setattr(loop, "POSE_PIXELS", 1e-12)
+    _, weak5 = _sway_scene(tmp_path, library, strength=0.5, width=40)
+    render_scene(weak5, output=tmp_path / "five.exr", variant="llvm_ad_rgb")
+    assert len(builds) == 6
+    a, b = read_exr(tmp_path / "one.exr")["rgb"], read_exr(tmp_path / "five.exr")["rgb"]
+    assert np.abs(a.mean(axis=(0, 1)) / b.mean(axis=(0, 1)) - 1.0).max() < 0.01
+    monkeypatch.setattr(loop, "POSE_PIXELS", 1.0)
+
+    _, moving = _sway_scene(tmp_path, library, strength=2.0, camera_z1=24.0)  # 1 m a sub-frame, 27 px at 20 m
+    assert pose_count(moving, 1.0, times, 400, 400) == 1

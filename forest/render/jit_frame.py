@@ -111,7 +111,7 @@ class PathFrameRenderer:
         mitsuba(variant)
         report(0.15, f"levels of detail and wind of {len(self.instances):,} trees")
         # The wind of the first sub-frame the frame loop poses for frame 1, so that pose is this one.
-        t_first = first_pose_time(1.0, config.camera.shutter, self.subframes, config.camera.fps)
+        t_first = first_pose_time(scene, 1.0, self.subframes, self.width, self.height)
         inputs = path_inputs(scene, frame=1.0, width=self.width, height=self.height, spp=self.spp, time_s=t_first)
         report(0.25, f"Mitsuba scene of {len(self.instances):,} trees, {len(scene.species)} species")
         self.path = PathScene(inputs, variant, progress=lambda f, m: report(0.25 + 0.75 * f, m))

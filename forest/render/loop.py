@@ -9,11 +9,26 @@ only poses its scene and traces.  Per frame f (time t = f / fps seconds):
    (the Scene's plan, :meth:`forest.scene.Scene.levels`);
 2. with ``shutter`` s > 0 the frame averages K = ``[render] subframes``
    sub-frames at f + s·((k + ½)/K − ½) (:func:`forest.camera.subframe_times`),
-   each with its own camera and wind pose (:meth:`Backend.pose`) — a box
-   filter over the shutter.  The sub-frame nearest the frame's centre is
-   rendered last, so the centre's pose is loaded for step 4; the farthest is
-   rendered first, and a backend built for frame f loads that sub-frame's pose
-   (:func:`first_pose_time`), so with wind K sub-frames cost K scene builds;
+   each with its own camera — a box filter over the shutter — and a wind pose
+   (:meth:`Backend.pose`).  A new wind pose is a new scene build, and the sway
+   over a shutter is small: the sub-frames, in time order, share m ≤ K poses
+   in runs of near-equal length, each run posed at its mean time
+   (:func:`pose_times`), m the fewest poses for which no tree's top in view
+   moves between two poses by more than the camera already moves it between
+   two sub-frames, or than :data:`POSE_PIXELS`:
+
+       m = clamp(max_i ⌈M_i / max(POSE_PIXELS, S_i)⌉, 1, K)
+
+   with M_i the pixels tree i's top sways between the first and last
+   sub-frame (its matrices at both times, projected with the frame's
+   camera) and S_i the pixels the camera moves it between two sub-frames
+   (its top at the frame's pose, projected by the first and last sub-frames'
+   cameras, over K − 1).  Without wind every sub-frame shares one pose; with
+   m = K each has its own, as a box filter of the sway would.  The run nearest
+   the frame's centre is rendered last (its sub-frame nearest the centre
+   last of all), so a pose near the centre's is loaded for step 4; the
+   farthest is rendered first, and a backend built for frame f loads that
+   pose (:func:`first_pose_time`), so m poses cost m scene builds;
 3. each sub-frame traces ⌈spp / K⌉ samples per pixel in passes
    (:meth:`Backend.passes`, :meth:`Backend.samples`), seeded
    ``seed · 1 000 003 + round(1000 f) · 997 + 101 k`` for sub-frame k
@@ -59,6 +74,7 @@ from .path.frame import PassResult
 from .path.integrator import NO_HIT
 
 if TYPE_CHECKING:
+    from ..camera import CameraState
     from ..config import Config
 
 #: ``on_pass(image so far, passes done, passes in the frame)``; the image (H, W, 3) float32 is made only when
@@ -207,16 +223,77 @@ class Beauty:
         return (self.means + self._sub_mean()) / (self.subframes + 1)
 
 
-def subframe_order(times: list[float], frame: float) -> list[int]:
-    """The order sub-frames are rendered in: farthest from the frame's centre first, the centre last (step 2)."""
-    return sorted(range(len(times)), key=lambda k: (-abs(times[k] - frame), k))
+#: Pixels a tree's top may sway between two wind poses of one frame however still the camera is (step 2).
+POSE_PIXELS = 1.0
 
 
-def first_pose_time(frame: float, shutter: float, subframes: int, fps: float) -> float:
-    """Seconds of the first sub-frame :func:`render_frame` poses for ``frame``: a backend that loads that pose
+def pose_count(scene: Scene, frame: float, times: list[float], width: int, height: int) -> int:
+    """m, the wind poses the sub-frames at ``times`` (frames, in time order) of ``frame`` share in a
+    ``width`` × ``height`` image (step 2)."""
+    from ..imaging.camera_matrices import camera_matrices
+    from ..wind import tree_matrices
+
+    wind, cam = scene.config.wind, scene.config.camera
+    k = len(times)
+    inst = scene.instances
+    if k <= 1 or wind.strength <= 0 or not len(inst):
+        return 1
+    if not scene.lod.heights:  # no heights to measure the sway by: every sub-frame its own pose
+        return k
+    w, h = int(width), int(height)
+    tall = np.asarray(scene.lod.heights, np.float64)[np.asarray(inst.species, np.int64)]
+    local = np.zeros((len(inst), 4))
+    local[:, 1], local[:, 3] = tall, 1.0  # the top of each tree's highest level, in its own frame
+
+    def tops(t: float) -> np.ndarray:
+        return np.einsum("nij,nj->ni", tree_matrices(inst, t / cam.fps, wind), local)[:, :3]
+
+    def pixels(state: CameraState, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        m = camera_matrices(state.position, state.target, state.up, state.fov, w, h)
+        z = (np.c_[points, np.ones(len(points))] @ m.world_to_camera.T)[:, 2]
+        return m.project(points)[:, :2] * (w, h), z
+
+    at = scene.camera_at(frame)
+    mid = tops(frame)
+    centre, depth = pixels(at, mid)
+    seen = (depth > 0.0) & (centre[:, 0] > -0.1 * w) & (centre[:, 0] < 1.1 * w)
+    seen &= (centre[:, 1] > -0.1 * h) & (centre[:, 1] < 1.1 * h)
+    if not seen.any():
+        return 1
+    mid = mid[seen]
+    sway = np.linalg.norm(pixels(at, tops(times[-1])[seen])[0] - pixels(at, tops(times[0])[seen])[0], axis=1)
+    moved = pixels(scene.camera_at(times[-1]), mid)[0] - pixels(scene.camera_at(times[0]), mid)[0]
+    step = np.linalg.norm(moved, axis=1) / (k - 1)
+    need = np.ceil(sway / np.maximum(POSE_PIXELS, step)).max()
+    return int(min(k, max(1, need)))
+
+
+def pose_times(scene: Scene, frame: float, times: list[float], width: int, height: int) -> list[float]:
+    """The wind pose (in frames) of each sub-frame at ``times`` (frames, in time order): the mean time of its run
+    of the :func:`pose_count` runs (step 2); the sub-frames' own times when each has its own pose."""
+    k = len(times)
+    m = pose_count(scene, frame, times, width, height)
+    if m >= k:
+        return list(times)
+    runs = [j * m // k for j in range(k)]
+    means = [float(np.mean([t for t, r in zip(times, runs) if r == g])) for g in range(m)]
+    return [means[r] for r in runs]
+
+
+def subframe_order(times: list[float], frame: float, poses: list[float] | None = None) -> list[int]:
+    """The order sub-frames are rendered in (step 2): their poses' runs farthest from the frame's centre first,
+    the centre's last; within a run, farthest first."""
+    poses = times if poses is None else poses
+    return sorted(range(len(times)), key=lambda k: (-abs(poses[k] - frame), -abs(times[k] - frame), k))
+
+
+def first_pose_time(scene: Scene, frame: float, subframes: int, width: int, height: int) -> float:
+    """Seconds of the first wind pose :func:`render_frame` loads for ``frame``: a backend that loads that pose
     when it is built has its first :meth:`Backend.pose` already done (one scene build fewer with wind)."""
-    times = subframe_times(frame, shutter, subframes)
-    return times[subframe_order(times, frame)[0]] / fps
+    cam = scene.config.camera
+    times = subframe_times(frame, cam.shutter, subframes)
+    poses = pose_times(scene, frame, times, width, height)
+    return poses[subframe_order(times, frame, poses)[0]] / cam.fps
 
 
 def render_frame(
@@ -229,7 +306,8 @@ def render_frame(
     w, h = backend.width, backend.height
     levels = scene.levels(frame) if len(scene.instances) else np.zeros(0, np.int64)
     times = subframe_times(frame, cam.shutter, backend.subframes)
-    order = subframe_order(times, frame)
+    poses = pose_times(scene, frame, times, w, h)
+    order = subframe_order(times, frame, poses)
     spp_sub = max(1, math.ceil(backend.spp / len(times)))
     total = len(times) * len(backend.passes(spp_sub))
     beauty = Beauty(h * w)
@@ -237,7 +315,7 @@ def render_frame(
     hits = FirstHits(scene, h, w)
     seed = frame_seed(config, frame)
     for k in order:
-        backend.pose(levels, times[k] / cam.fps)
+        backend.pose(levels, poses[k] / cam.fps)
         t0 = time.perf_counter()
         for p in backend.samples(times[k], spp_sub, seed + 101 * k):
             beauty.add(p)
