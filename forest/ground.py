@@ -394,9 +394,10 @@ def paint_rules(
         water = np.ones(shape, np.float64)
     if not rules and terrain.water is None:
         return _finish(rgb, water, extent, ground, config.seed)
-    # The dry layers' colour so far (what a water layer covers) and the water's share's bed B (module docstring).
-    bed = rgb.copy() if water is not None else None
-    water_bed = rgb * water[..., None] if water is not None else None
+    # The dry layers' colour so far (what a water layer covers) and the water's share's bed B (module docstring),
+    # in single precision: two more colour grids while painting, only for a ground with water rules.
+    bed = rgb.astype(np.float32) if water is not None else None
+    water_bed = (rgb * water[..., None]).astype(np.float32) if water is not None else None
     height = terrain.height_at(x.ravel(), z.ravel()).reshape(shape)
     hmin, hmax = terrain.height_range
     units = {"slope": 1.0, "altitude": max(hmax - hmin, 1.0), "moisture": 1.0, "canopy": 1.0, "relief": 1.0}

@@ -408,6 +408,21 @@ def test_leaf_card_alpha(tmp_path, library, variant):
         assert ground["true"] == ground["false"] and ground["true"] > 0.07 + 0.1 * 0.9
 
 
+def count_builds(monkeypatch) -> list[int]:
+    """A list that grows by one with every forest_path scene build (``TraversalScene``) from now on."""
+    import forest.render.path.frame as path_frame
+
+    builds: list[int] = []
+    build = path_frame.TraversalScene
+
+    def counted(*a, **kw):
+        builds.append(1)
+        return build(*a, **kw)
+
+    monkeypatch.setattr(path_frame, "TraversalScene", counted)
+    return builds
+
+
 def test_a_wind_blurred_frame_builds_one_scene_per_pose(tmp_path, library, monkeypatch):
     """When every sub-frame needs its own wind pose (here forced: no sway is small enough to share one),
     forest_path's renderer is built in the pose of the first sub-frame the frame loop renders (farthest from the
@@ -415,7 +430,6 @@ def test_a_wind_blurred_frame_builds_one_scene_per_pose(tmp_path, library, monke
     built in the centre's pose."""
     import forest.render.jit_frame as jit_frame
     import forest.render.loop as loop
-    import forest.render.path.frame as path_frame
     from forest.render.loop import first_pose_time, subframe_order
 
     monkeypatch.setattr(loop, "POSE_PIXELS", 1e-12)
@@ -432,14 +446,7 @@ def test_a_wind_blurred_frame_builds_one_scene_per_pose(tmp_path, library, monke
     scene = load_scene(cfg, inst, library=library)
     t = first_pose_time(scene, 1.0, 3, 40, 40)  # an end of the shutter (which end: the float tie-break of the order)
     assert t * 24.0 == pytest.approx(1.0 - 1.0 / 3.0) or t * 24.0 == pytest.approx(1.0 + 1.0 / 3.0)
-    builds = []
-    build = path_frame.TraversalScene
-
-    def counted(*a, **kw):
-        builds.append(1)
-        return build(*a, **kw)
-
-    monkeypatch.setattr(path_frame, "TraversalScene", counted)
+    builds = count_builds(monkeypatch)
     render_scene(scene, output=tmp_path / "now.exr", variant="llvm_ad_rgb")
     assert len(builds) == 3
     builds.clear()
@@ -477,7 +484,6 @@ def test_sub_frames_share_a_wind_pose_when_the_sway_is_small(tmp_path, library, 
     import math
 
     import forest.render.loop as loop
-    import forest.render.path.frame as path_frame
     from forest.camera import subframe_times
     from forest.render.loop import pose_count, pose_times, subframe_order
 
@@ -501,14 +507,7 @@ def test_sub_frames_share_a_wind_pose_when_the_sway_is_small(tmp_path, library, 
 
     _, weak = _sway_scene(tmp_path, library, strength=0.5, width=40)
     assert expected(0.5) * 40 / 400 < 1.0 and pose_times(weak, 1.0, times, 40, 40) == [1.0] * 5
-    builds = []
-    build = path_frame.TraversalScene
-
-    def counted(*a, **kw):
-        builds.append(1)
-        return build(*a, **kw)
-
-    monkeypatch.setattr(path_frame, "TraversalScene", counted)
+    builds = count_builds(monkeypatch)
     render_scene(weak, output=tmp_path / "one.exr", variant="llvm_ad_rgb")
     assert len(builds) == 1
     monkeypatch.setattr(loop, "POSE_PIXELS", 1e-12)
