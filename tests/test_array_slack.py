@@ -59,3 +59,22 @@ def test_arrays_ending_at_an_unmapped_page_are_read_safely():
     assert r.returncode == 0, r.stderr[-2000:]
     got = [float(v) for v in r.stdout.split()]
     assert got[0] == got[3] and got[1] == got[4] and got[2] == got[5]
+
+
+def test_no_numpy_array_reaches_drjit_without_slack():
+    """A guard on the source: no ``mi.Float(np.…)``, ``mi.TensorXf(x.astype(…))`` or the like outside
+    ``mappable`` / ``owned`` in the package (such a call aliases the numpy buffer with no slack after it)."""
+    import re
+    from pathlib import Path
+
+    import forest
+
+    pattern = re.compile(r"mi\.(Float|UInt32|Int32|UInt64|Float64|Bool|TensorXf)\((np\.|\w+\.astype\(|\w+\.ravel\(\))")
+    root = Path(forest.__file__).parent
+    found = [
+        f"{path.relative_to(root)}:{n}: {line.strip()}"
+        for path in sorted(root.rglob("*.py"))
+        for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+        if pattern.search(line)
+    ]
+    assert not found, "numpy arrays handed to drjit without forest.render.path.arrays.mappable:\n" + "\n".join(found)
