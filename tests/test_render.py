@@ -474,6 +474,27 @@ def _sway_scene(tmp_path, library, *, strength: float, camera_z1: float | None =
     return cfg, load_scene(cfg, trees([[0.0, 0.0, 0.0]], phase=np.array([0.3], np.float32)), library=library)
 
 
+def test_a_frame_rendered_alone_builds_its_scene_once(tmp_path, library, monkeypatch):
+    """A render of frame 5 alone (a render farm's task) builds forest_path's scene in frame 5's pose, once — it
+    had been built in frame 1's and then again — and the frame is the one a render of frames 4-5 writes."""
+    cam = (
+        "fov = 40.0\nkeys = [\n  { frame = 1, position = [0.0, 3.0, -40.0], target = [0.0, 3.0, 0.0] },\n"
+        "  { frame = 9, position = [0.0, 3.0, -8.0], target = [0.0, 3.0, 30.0] },\n]\n"
+    )
+    cfg = make_config(tmp_path, camera=cam, replace_camera=True, extra="[lod]\ndistances = [20.0, 60.0, 200.0]\n")
+    inst = trees([[0.0, 0.0, 0.0], [4.0, 0.0, 10.0], [-5.0, 0.0, 25.0]])
+    builds = count_builds(monkeypatch)
+    render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "one_####.exr", frames=[5],
+                 variant="llvm_ad_rgb")  # fmt: skip
+    assert len(builds) == 1
+    builds.clear()
+    render_scene(load_scene(cfg, inst, library=library), output=tmp_path / "two_####.exr", frames=[4, 5],
+                 variant="llvm_ad_rgb")  # fmt: skip
+    np.testing.assert_array_equal(
+        read_exr(tmp_path / "one_0005.exr")["rgb"], read_exr(tmp_path / "two_0005.exr")["rgb"]
+    )
+
+
 def test_sub_frames_share_a_wind_pose_when_the_sway_is_small(tmp_path, library, monkeypatch):
     """The sub-frames share m poses (forest.render.loop, step 2): the box's top sways across the view by
     f·H·2|sin(Δθ/2)|/d pixels between the first and last sub-frame (θ(t) = A sin(2πft + φ), a pinhole's

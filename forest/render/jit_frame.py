@@ -97,6 +97,7 @@ class PathFrameRenderer:
         *,
         preview: bool = False,
         progress: Callable[[float, str], None] | None = None,
+        frame: float = 1.0,
     ):
         self.scene = scene
         self.config = config = scene.config
@@ -110,13 +111,14 @@ class PathFrameRenderer:
         report(0.0, f"loading Mitsuba ({variant})")
         mitsuba(variant)
         report(0.15, f"levels of detail and wind of {len(self.instances):,} trees")
-        # The wind of the first sub-frame the frame loop poses for frame 1, so that pose is this one.
-        t_first = first_pose_time(scene, 1.0, self.subframes, self.width, self.height)
-        inputs = path_inputs(scene, frame=1.0, width=self.width, height=self.height, spp=self.spp, time_s=t_first)
+        # The levels and wind of the first pose the frame loop loads for ``frame`` (the first frame to render), so
+        # that pose is this one and the first frame costs no second build.
+        t_first = first_pose_time(scene, frame, self.subframes, self.width, self.height)
+        inputs = path_inputs(scene, frame=frame, width=self.width, height=self.height, spp=self.spp, time_s=t_first)
         report(0.25, f"Mitsuba scene of {len(self.instances):,} trees, {len(scene.species)} species")
         self.path = PathScene(inputs, variant, progress=lambda f, m: report(0.25 + 0.75 * f, m))
         report(1.0, "scene built")
-        self._frame = 1.0  # the frame being rendered, whose camera decides the solid cards (Scene.solid_cards)
+        self._frame = frame  # the frame being rendered, whose camera decides the solid cards (Scene.solid_cards)
         self._solid = inputs.solid  # the trees drawn with solid cards in the loaded pose
         self._pose_key = self._key(inputs.levels, t_first)
         self.aovs = tuple(config.render.aovs)

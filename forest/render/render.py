@@ -129,13 +129,15 @@ def make_renderer(
     *,
     preview: bool = False,
     progress: Callable[[float, str], None] | None = None,
+    frame: float = 1.0,
 ) -> Renderer:
     """The frame renderer of ``variant``: forest_path in the JIT variants, Mitsuba's integrators in scalar_rgb.
 
-    ``progress(fraction, step)`` follows forest_path's scene build step by step."""
+    ``progress(fraction, step)`` follows forest_path's scene build step by step; forest_path builds its scene in
+    the pose of ``frame``, the first frame it will render (scalar_rgb builds at its first frame anyway)."""
     if variant.startswith("scalar"):
         return FrameRenderer(scene, variant, size, preview=preview)
-    return PathFrameRenderer(scene, variant, size, preview=preview, progress=progress)
+    return PathFrameRenderer(scene, variant, size, preview=preview, progress=progress, frame=frame)
 
 
 def build_share(variant: str, trees: int, size: FrameSize, frames: int) -> float:
@@ -245,7 +247,7 @@ def render_scene(
     r = _kept(
         reuse,
         (scene, chosen, size, bool(preview)),
-        lambda: make_renderer(scene, chosen, size, preview=preview, progress=building),
+        lambda: make_renderer(scene, chosen, size, preview=preview, progress=building, frame=float(frame_list[0])),
     )
     n_sub = size.subframes
     per_frame = n_sub * len(r.passes(max(1, math.ceil(size.spp / n_sub))))
