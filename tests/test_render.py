@@ -495,6 +495,26 @@ def test_a_frame_rendered_alone_builds_its_scene_once(tmp_path, library, monkeyp
     )
 
 
+def test_a_frame_is_the_same_whatever_was_rendered_before_it(tmp_path):
+    """Frame 5 rendered alone and after frame 1 in the same process are the same bytes, though frame 1 sees the
+    broadleaves close (their highest level, single-leaf textures) and frame 5 from afar (other levels, other
+    textures): every texture of the scene is in the atlas from the start, in one order
+    (``forest.render.path.geometry``), so what was built before does not shift the atlas a frame reads."""
+    cam = (
+        "fov = 40.0\nkeys = [\n  { frame = 1, position = [0.0, 4.0, -25.0], target = [0.0, 4.0, 0.0] },\n"
+        "  { frame = 5, position = [0.0, 40.0, -400.0], target = [0.0, 4.0, 0.0] },\n]\n"
+    )
+    text = BASE.format(maps="", camera=cam, render="", ground="[0.1, 0.1, 0.1]").replace('"box"', '"broadleaf"')
+    text += "[lod]\ndistances = [60.0, 150.0, 300.0]\n"
+    cfg = parse_config(text, path=tmp_path / "scene.toml", base_dir=tmp_path)
+    inst = trees([[0.0, 0.0, 0.0], [8.0, 0.0, 12.0], [-9.0, 0.0, 20.0]], names=("broadleaf",))
+    render_scene(load_scene(cfg, inst), output=tmp_path / "alone_####.exr", frames=[5], variant="llvm_ad_rgb")
+    render_scene(load_scene(cfg, inst), output=tmp_path / "after_####.exr", frames=[1, 5], variant="llvm_ad_rgb")
+    first, alone = read_exr(tmp_path / "after_0001.exr"), read_exr(tmp_path / "alone_0005.exr")
+    assert first["attrs"]["forest:lod"] != alone["attrs"]["forest:lod"]  # other levels in the two frames
+    np.testing.assert_array_equal(alone["rgb"], read_exr(tmp_path / "after_0005.exr")["rgb"])
+
+
 def test_sub_frames_share_a_wind_pose_when_the_sway_is_small(tmp_path, library, monkeypatch):
     """The sub-frames share m poses (forest.render.loop, step 2): the box's top sways across the view by
     f·H·2|sin(Δθ/2)|/d pixels between the first and last sub-frame (θ(t) = A sin(2πft + φ), a pinhole's

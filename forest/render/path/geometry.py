@@ -191,6 +191,14 @@ class ForestGeometry:
                     self.world_parts.append(self.parts.add(mesh, mat))
         for srf in inputs.surfaces:
             self.world_parts.append(self.parts.add(srf.mesh, materials.add(srf.material)))
+        # Every species' materials — each individual, each level — in one fixed order before any prototype: the
+        # texture atlas (packed in the order textures arrive) is then the scene's, not the first frame's, so a
+        # frame's pixels do not depend on which frames the process built before it.
+        for s, lst in enumerate(self._species):
+            for sp in lst:
+                for lod in getattr(sp, "lods", ()):
+                    for part in lod.parts:
+                        materials.add(part, tint_row=s if getattr(part, "tinted", False) else -1)
 
     def prototype(self, s: int, k: int, level: int, solid: bool = False) -> Prototype:
         """The prototype of species ``s``, individual ``k``, level ``level`` (clamped to its last LOD), its
