@@ -456,7 +456,7 @@ def paint_rules(
         rgb += shallow(depth, ground.water_attenuation) * (water_bed - water[..., None] * deep)
     del bed, water_bed
     rgb, water = paint_still_water(
-        rgb, water, terrain, height, terrain.water_depth(x, z), palette[WATER_MATERIAL], ground.water_attenuation
+        rgb, water, terrain, height, (x, z), palette[WATER_MATERIAL], ground.water_attenuation
     )
     return _finish(rgb, water, extent, ground, config.seed)
 
@@ -488,7 +488,7 @@ def paint_still_water(
     water: np.ndarray | None,
     terrain: Terrain,
     height: np.ndarray,
-    depth: np.ndarray,
+    texels: tuple[np.ndarray, np.ndarray],
     colour: Sequence[float],
     attenuation: Sequence[float],
 ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -497,13 +497,14 @@ def paint_still_water(
 
         ρ ← (1 − W_lake)·ρ + W_lake·R(H),    W ← (1 − W_lake)·W + W_lake,
 
-    R(H) = c + (ρ − c)·exp(−2 K H) the water of ``colour`` c and ``attenuation`` K at ``depth`` H (H, W) over the
-    ground painted under it (module docstring, "Shallow water"); the grids unchanged without water."""
+    R(H) = c + (ρ − c)·exp(−2 K H) the water of ``colour`` c and ``attenuation`` K at the depth H of the texel
+    centres ``texels`` (world X, Z; :meth:`~forest.terrain.Terrain.water_depth`) over the ground painted under it
+    (module docstring, "Shallow water"); the grids unchanged without water."""
     lake = terrain.water_cover(height)
     if lake is None:
         return rgb, water
     c = np.asarray(colour, np.float64)
-    seen = c + (rgb - c) * shallow(depth, attenuation)
+    seen = c + (rgb - c) * shallow(terrain.water_depth(*texels), attenuation)
     rgb = rgb + lake[..., None] * (seen - rgb)
     water = lake if water is None else water + lake * (1.0 - water)
     return rgb, water
@@ -616,7 +617,7 @@ def terrain_albedo(
             None,
             terrain,
             height,
-            terrain.water_depth(x, z),
+            (x, z),
             ground.palette()[WATER_MATERIAL],
             ground.water_attenuation,
         )
