@@ -183,6 +183,20 @@ def mitsuba(variant: str = "scalar_rgb"):
     return mi
 
 
+#: Whether Mitsuba builds a scene's objects on its thread pool (``load_dict(..., parallel=...)``).  It
+#: does not pay: the objects of a forest's scene are thousands of small instances, and the threads
+#: contend for drjit's lock.  20 000 instances of a cube (``bench/bench_gpu.py --cases instances``) took
+#: 38 µs each in parallel and 27 serially on 2 CPU cores, 169 and 47 on 16; the fly-through's 130 000
+#: trees (about 69 000 instances) on an NVIDIA H200 in ``cuda_ad_rgb`` loaded in 35.1 s in parallel and
+#: 13.6 s serially (``bench/bench_scene_load.py`` measures it on the machine at hand).
+PARALLEL_LOAD = False
+
+
+def load_scene_dict(mi, entries: dict):
+    """``mi.load_dict(entries)`` for a whole scene, built serially (see :data:`PARALLEL_LOAD`)."""
+    return mi.load_dict(entries, parallel=PARALLEL_LOAD)
+
+
 @contextlib.contextmanager
 def captured_stderr() -> Iterator[list[str]]:
     """Redirect file descriptor 2 into a temporary file while the block runs.

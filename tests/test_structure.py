@@ -91,3 +91,25 @@ def test_the_preflight_lane_bound_is_forest_paths():
     from forest.render.path.frame import MAX_LANES
 
     assert JIT_LANES == MAX_LANES
+
+
+def test_scenes_are_loaded_through_forest_runtime():
+    """Every Mitsuba scene is built by :func:`forest.runtime.load_scene_dict`, which says whether Mitsuba
+    builds its objects on threads (it does not pay: ``forest.runtime.PARALLEL_LOAD``): no other module
+    calls ``load_dict`` on a ``{"type": "scene", ...}`` literal or passes ``parallel=``. The tree library's card
+    renders (``forest.library.preview``) load one tree's few PLY parts and keep Mitsuba's default."""
+    bad = []
+    for path, name, tree in _modules():
+        if name in ("forest.runtime", "forest.library.preview"):
+            continue
+        for node in ast.walk(tree):
+            if not (isinstance(node, ast.Call) and getattr(node.func, "attr", None) == "load_dict"):
+                continue
+            arg = node.args[0] if node.args else None
+            scene = isinstance(arg, ast.Dict) and any(
+                isinstance(k, ast.Constant) and k.value == "type" and isinstance(v, ast.Constant) and v.value == "scene"
+                for k, v in zip(arg.keys, arg.values)
+            )
+            if scene or any(k.arg == "parallel" for k in node.keywords):
+                bad.append(f"{path}:{node.lineno}")
+    assert not bad, "scenes loaded around forest.runtime.load_scene_dict:\n" + "\n".join(bad)

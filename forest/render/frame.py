@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ForestError
-from ..runtime import mitsuba
+from ..runtime import load_scene_dict, mitsuba
 from ..scene import Scene
 from ..skirt import hills, skirt_radius
 from ..wind import tree_matrices
@@ -183,7 +183,7 @@ class FrameRenderer:
             scene["water"] = self.water_obj
         scene.update(graph.entries or {})
         try:
-            self._scene = self.mi.load_dict(scene, parallel=True)
+            self._scene = load_scene_dict(self.mi, scene)
         except Exception as e:
             raise ForestError(f"{self.config.path}: cannot build the Mitsuba scene: {str(e).splitlines()[0]}") from None
         del scene

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from ...runtime import load_scene_dict
 from .arrays import mappable, opaque
 from .inputs import SkyLight, SunLight
 
@@ -334,7 +335,7 @@ class EmitterLight:
         self.mi = mi
         self.emitter = emitter
         # Infinite emitters sample directions from their scene's bounding sphere: give them one.
-        self._holder = mi.load_dict({"type": "scene", "light": emitter})
+        self._holder = load_scene_dict(mi, {"type": "scene", "light": emitter})
         self.param = param
         self.initial = np.asarray(initial, dtype=np.float64)
         self.direction = None if direction is None else np.asarray(direction, np.float64) / np.linalg.norm(direction)

@@ -55,6 +55,7 @@ from ...errors import ForestError
 from ...library.mesh import read_ply
 from ...memory import available_bytes as available_bytes  # MemAvailable and this process's cgroup limits
 from ...progress import ProgressFn, scaled
+from ...runtime import load_scene_dict
 from .arrays import mappable, owned
 from .inputs import Material, PathInputs
 from .materials import MaterialStore
@@ -410,7 +411,7 @@ class TraversalScene:
         report(0.6, f"Mitsuba scene: loading {len(entries) - 1:,} shapes and instances")
         t_load = time.perf_counter()
         try:
-            self.scene = mi.load_dict(entries, parallel=True)
+            self.scene = load_scene_dict(mi, entries)
         except Exception as e:
             raise ForestError(f"cannot build the Mitsuba scene: {str(e).splitlines()[0]}") from None
         del entries
