@@ -338,9 +338,11 @@ def worker_instances(variant: str, count: int = 20_000) -> dict:
     mitsuba(variant)
     T = mi.ScalarTransform4f
     pos = np.random.default_rng(0).uniform(-500.0, 500.0, (count, 3)).tolist()
-    group = mi.load_dict({"type": "shapegroup", "c": {"type": "cube"}})
     us: dict[str, float] = {}
     for parallel in (True, False):
+        # A shapegroup of its own for each scene: with one shared by all three the case died in cuda_ad_rgb
+        # (SIGSEGV, H200, Nov 28); whether the sharing was the cause is untested.
+        group = mi.load_dict({"type": "shapegroup", "c": {"type": "cube"}})
         entries = {"type": "scene", "g": group}
         entries.update({f"tree_{i}": {"type": "instance", "shapegroup": group, "to_world": T().translate(pos[i])}
                         for i in range(count)})  # fmt: skip
@@ -348,6 +350,7 @@ def worker_instances(variant: str, count: int = 20_000) -> dict:
         scene = mi.load_dict(entries, parallel=parallel)
         us[f"scene_dict_parallel_{parallel}"] = (time.perf_counter() - t0) / count * 1e6
         del scene, entries
+    group = mi.load_dict({"type": "shapegroup", "c": {"type": "cube"}})
     t0 = time.perf_counter()
     objects = [mi.load_dict({"type": "instance", "shapegroup": group, "to_world": T().translate(pos[i])})
                for i in range(count)]  # fmt: skip

@@ -1,13 +1,14 @@
 """Building forest_path's Mitsuba scene: Mitsuba's objects built on its thread pool against serially.
 
-    .venv/bin/python bench/bench_scene_load.py [--scenes demo,flythrough] [--variant llvm_ad_rgb] [--runs 2]
+    .venv/bin/python bench/bench_scene_load.py [--scenes demo,flythrough,case:100000] [--variant llvm_ad_rgb] [--runs 2]
 
 forest builds the traversal scene (a ``shapegroup`` per prototype, an ``instance`` per tree, merged far
-trees, the terrain) with one ``mi.load_dict``; ``parallel`` says whether Mitsuba builds the objects on its
+trees, the terrain) with one ``mi.load_dict``; ``case:N`` is the case study of ``bench/bench_render.py`` with N trees
+requested, every tree at its highest level (``[lod] auto = false``, as ``bench/bench_cycles.py`` renders it); ``parallel`` says whether Mitsuba builds the objects on its
 thread pool (``forest.runtime.PARALLEL_LOAD``, now off). Per example scene, frame 1's
 :class:`forest.render.path.PathScene` is built ``--runs`` times each way, alternating, in this process; printed:
 the Mitsuba objects in the scene, the seconds of ``load_dict`` and of the whole build (forest's own work
-included) of the fastest run each way and their ratio, and whether one pass of 2 samples renders the same
+included, wall and CPU) of the fastest run each way and their ratios, and whether one pass of 2 samples renders the same
 bytes both ways. The GPU figures (``cuda_ad_rgb`` on an NVIDIA H200: the fly-through's load 35.1 s parallel,
 13.6 s serial) came from ``forest render`` on a lent machine; ``--variant cuda_ad_rgb`` measures them here
 where there is a GPU.
@@ -18,6 +19,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -40,7 +42,7 @@ def main() -> None:
     from forest.scene import load_scene
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenes", default="demo,flythrough")
+    ap.add_argument("--scenes", default="demo,flythrough,case:100000")
     ap.add_argument("--variant", default="llvm_ad_rgb", choices=("llvm_ad_rgb", "cuda_ad_rgb"))
     ap.add_argument("--size", default="320x180", help="the image size the levels of detail are chosen for")
     ap.add_argument("--runs", type=int, default=2)
@@ -60,7 +62,14 @@ def main() -> None:
     default = runtime.PARALLEL_LOAD
     for name in args.scenes.split(","):
         sets = {"render.width": width, "render.height": height, "render.denoise": False}
-        config = load_config(ROOT / "configs" / f"{name}.toml", overrides=sets)
+        if name.startswith("case:"):
+            from bench_render import write_scene
+
+            folder = Path(tempfile.mkdtemp(prefix="bench_scene_load_"))
+            path = write_scene(folder, count=int(name[5:]), width=width, height=height, spp=2, lod=None, depth=None)
+            config = load_config(path, overrides={**sets, "lod": {"auto": False}})
+        else:
+            config = load_config(ROOT / "configs" / f"{name}.toml", overrides=sets)
         inst, _ = scatter(config)
         inputs = path_inputs(load_scene(config, inst), width=width, height=height, spp=2)
         best: dict[bool, tuple[float, float, float]] = {}
@@ -87,7 +96,8 @@ def main() -> None:
         s, p = best[False], best[True]
         print(
             f"scene load {name}: {len(inst):,} trees, {objects:,} top-level Mitsuba shapes; serial / parallel = "
-            f"{s[2] / p[2]:.2f}x load_dict, {s[0] / p[0]:.2f}x whole build wall; one pass the same bytes: "
+            f"{s[2] / p[2]:.2f}x load_dict, {s[0] / p[0]:.2f}x whole build wall, {s[1] / p[1]:.2f}x CPU; one pass the same "
+            f"bytes: "
             f"{np.array_equal(image[True], image[False])}"
         )
     print(f"scene load: {load_line()} at end")
