@@ -66,6 +66,8 @@ class FakePart:
     tinted: bool
     translucency: float
     mesh: MeshData
+    sheen: float = 0.0  # leaves: the cuticle lobe's weight s (0: none)
+    roughness: float = 0.0  # its GGX α
 
     def load(self) -> MeshData:
         return self.mesh

@@ -1,5 +1,7 @@
 """USD export with the look: materials read the per-tree colour and cut leaves by the texture's alpha."""
 
+import dataclasses
+import math
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +21,10 @@ from export_support import FakeLibrary, make_config, make_instances, validation_
 def exported(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("usdlook")
     lib = FakeLibrary(textures=tmp / "lib")
+    for lod in lib.species["oak"].lods:  # the oak's leaves have a cuticle lobe, the pine's none
+        lod.parts = tuple(
+            dataclasses.replace(p, sheen=0.7, roughness=0.35) if p.kind == "leaf" else p for p in lod.parts
+        )
     write_png(tmp / "colour.png", np.random.default_rng(2).uniform(0.3, 1.0, (6, 6, 3)))
     cfg = make_config(tmp, '\n[maps]\ncolour = "colour.png"\n', ground_material=False)
     inst = make_instances(300)
@@ -35,7 +41,7 @@ def source_shader(inp):
 def test_leaf_materials_read_display_colour_and_alpha(exported):
     scene, lib, res, stage = exported
     assert validation_errors(stage) == []
-    checked = 0
+    checked = sheens = 0
     for path in res.instancers.values():
         pi = UsdGeom.PointInstancer(stage.GetPrimAtPath(path))
         for target in pi.GetPrototypesRel().GetTargets():
@@ -46,6 +52,16 @@ def test_leaf_materials_read_display_colour_and_alpha(exported):
                 mat, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()  # bound in the composed stage
                 surf = mat.ComputeSurfaceSource()[0]
                 assert surf.GetIdAttr().Get() == "UsdPreviewSurface"
+                networks = [surf] + ([mat.ComputeSurfaceSource("mtlx")[0]] if part.tinted else [])
+                for sh in networks:  # the cuticle lobe: the clearcoat (index 1.5, white), the base specular off
+                    if part.sheen > 0:
+                        assert sh.GetInput("clearcoat").Get() == pytest.approx(part.sheen)
+                        assert sh.GetInput("clearcoatRoughness").Get() == pytest.approx(math.sqrt(part.roughness))
+                        assert sh.GetInput("useSpecularWorkflow").Get() == 1
+                        assert tuple(sh.GetInput("specularColor").Get()) == (0.0, 0.0, 0.0)
+                        sheens += 1
+                    else:
+                        assert not sh.GetInput("clearcoat") and not sh.GetInput("useSpecularWorkflow")
                 if not part.tinted:
                     continue
                 reader, out = source_shader(surf.GetInput("diffuseColor"))
@@ -74,7 +90,7 @@ def test_leaf_materials_read_display_colour_and_alpha(exported):
                 alpha, _ = source_shader(mx.GetInput("opacity"))
                 assert alpha.GetIdAttr().Get() == "ND_extract_color4" and alpha.GetInput("index").Get() == 3
                 checked += 1
-    assert checked >= 2
+    assert checked >= 2 and sheens >= 2
     # displayColor: the tint × base colour × the texture's mean detail over the leaf's opaque texels
     inst = scene.instances
     tex = lib.resolve("oak").lods[0].parts[1].texture

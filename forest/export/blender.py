@@ -29,7 +29,9 @@ base colour × texture × the tree's tint (an instance attribute) on tinted
 parts, × the tree's bark factor (the instance attribute ``bark_tint``,
 ``[[species]] bark``'s hue/value jitter and moss; written only when some
 tree's differs from 1) on bark parts, leaves
-(1 − τ)·diffuse + τ·translucent, the texture's alpha cutting leaf cards; the
+(1 − τ)·diffuse + τ·translucent under the cuticle's lobe (s·F̄·glossy + (1 − s·F̄)·leaf: a GGX gloss of the
+recipe's ``leaf_roughness``, F̄(μ) its mean Fresnel reflectance, :func:`~forest.export.common.cuticle_fresnel`),
+the texture's alpha cutting leaf cards; the
 terrain textured by the ground's albedo grid (or ``terrain_colour``); a Sun lamp of
 strength E (irradiance) turned so its −Z travels along −d; the World
 background of strength L (a constant sky's radiance) or an environment map
@@ -67,10 +69,12 @@ from . import radiometry
 from .common import (
     bark_factors,
     check_instances,
+    cuticle_fresnel,
     export_frames,
     ground_colour,
     horizon,
     is_bark,
+    leaf_cuticle,
     lod_mesh,
     look_instances,
     species_plans,
@@ -242,6 +246,9 @@ def write_manifest(scene: Scene, folder: Path, frames: list[int]) -> dict:
             )
             if bark is not None and is_bark(part):
                 entry["bark"] = True
+            sheen, alpha = leaf_cuticle(part)
+            if sheen > 0:
+                entry.update(sheen=sheen, sheen_roughness=alpha, sheen_fresnel=cuticle_fresnel(alpha))
             parts.append(entry)
         species.append(
             {"name": plan.name, "object": f"species_{plan.index:03d}_{plan.name}", "model": plan.model, "parts": parts}

@@ -18,8 +18,9 @@ datablocks:
   attribute, read with an Attribute node of type Instancer) where the part is
   tinted, × the bark factor (the ``bark_tint`` instance attribute, read the
   same way) where the manifest marks the part ``bark``; leaves mix a diffuse
-  and a translucent BSDF by their translucency share, and the texture's alpha
-  mixes in a transparent BSDF;
+  and a translucent BSDF by their translucency share, under the cuticle's
+  glossy lobe where the part has a sheen, and the texture's alpha mixes in a
+  transparent BSDF;
 * the terrain (textured by the colour map when there is one), the camera
   (animated over the exported frames), a Sun lamp and the World background;
 * Cycles settings from ``[render]`` and the Standard view transform, so an
@@ -119,9 +120,44 @@ def instancer_colour(nodes, name: str):
     return attr.outputs["Color"]
 
 
+def cuticle(nodes, links, leaf, sheen: float, alpha: float, fresnel: list[float]):
+    """The leaf cuticle's lobe over ``leaf`` (a shader output): s·F̄(μ)·glossy + (1 − s·F̄(μ))·leaf, returned.
+
+    The glossy is a white GGX lobe of Blender roughness √α (Cycles squares it); F̄(μ) the lobe's mean Fresnel
+    reflectance at μ = |cos θ| of the view (the manifest's table at μ = k/(n − 1), read by a linear Color Ramp of
+    a Layer Weight's Facing, 1 − |cos θ| at blend ½, the same on both sides of a leaf card).  So the mix
+    reflects s·E(μ), forest_path's lobe albedo, and takes it from the leaf's diffuse lobes as forest_path does
+    (docs/rendering.md, "Leaf sheen").
+    """
+    facing = nodes.new("ShaderNodeLayerWeight")
+    facing.inputs["Blend"].default_value = 0.5
+    ramp = nodes.new("ShaderNodeValToRGB")
+    ramp.color_ramp.interpolation = "LINEAR"
+    n = len(fresnel)
+    stops = ramp.color_ramp.elements
+    while len(stops) < n:
+        stops.new(0.5)
+    for k, (stop, value) in enumerate(zip(stops, reversed(fresnel))):  # facing 0 … 1 is μ 1 … 0
+        stop.position = k / (n - 1)
+        stop.color = (value, value, value, 1.0)
+    links.new(facing.outputs["Facing"], ramp.inputs["Fac"])
+    weight = nodes.new("ShaderNodeMath")
+    weight.operation = "MULTIPLY"
+    links.new(ramp.outputs["Color"], weight.inputs[0])
+    weight.inputs[1].default_value = sheen
+    gloss = nodes.new("ShaderNodeBsdfGlossy")
+    gloss.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    gloss.inputs["Roughness"].default_value = math.sqrt(alpha)
+    mix = nodes.new("ShaderNodeMixShader")
+    links.new(weight.outputs[0], mix.inputs["Fac"])
+    links.new(leaf, mix.inputs[1])
+    links.new(gloss.outputs["BSDF"], mix.inputs[2])
+    return mix.outputs["Shader"]
+
+
 def make_material(name: str, part: dict):
     """albedo = colour × texture × tint (tinted parts) × bark factor (bark parts); leaves: (1−τ)·diffuse +
-    τ·translucent; alpha cuts the card."""
+    τ·translucent, under the cuticle's lobe where the part has a sheen (:func:`cuticle`); alpha cuts the card."""
     mat = bpy.data.materials.new(name)
     mat.use_nodes = True
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
@@ -150,6 +186,10 @@ def make_material(name: str, part: dict):
         links.new(shader, mix.inputs[1])
         links.new(trans.outputs["BSDF"], mix.inputs[2])
         shader = mix.outputs["Shader"]
+    if float(part.get("sheen", 0.0)) > 0:
+        shader = cuticle(
+            nodes, links, shader, float(part["sheen"]), float(part["sheen_roughness"]), part["sheen_fresnel"]
+        )
     if tex is not None and part.get("alpha", False):
         transparent = nodes.new("ShaderNodeBsdfTransparent")
         mix = nodes.new("ShaderNodeMixShader")

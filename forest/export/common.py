@@ -298,6 +298,39 @@ def is_bark(part) -> bool:
     return getattr(part, "kind", "") == "bark"
 
 
+def leaf_cuticle(part) -> tuple[float, float]:
+    """(s, α) of a library part's leaf cuticle lobe: its sheen weight and GGX roughness, as forest_path reads
+    them (:func:`forest.render.path.materials.leaf_sheen`); (0, 0) for parts that are not leaves or have none.
+
+    The lobe is a rough dielectric of F₀ = 0.04 (n = 1.5) over the leaf's diffuse reflection and transmission,
+    which it takes its energy from (docs/rendering.md, "Leaf sheen").
+    """
+    if getattr(part, "kind", "") != "leaf":
+        return 0.0, 0.0
+    from ..render.path.materials import leaf_sheen
+
+    return leaf_sheen(part)
+
+
+#: Values of μ = |cos θ| at which :func:`cuticle_fresnel` tabulates the lobe's mean Fresnel reflectance.
+CUTICLE_TABLE_SIZE = 17
+
+
+def cuticle_fresnel(alpha: float, n: int = CUTICLE_TABLE_SIZE) -> list[float]:
+    """The cuticle lobe's mean Fresnel reflectance F̄(μ) = E(μ) / E₁(μ) at μ = k/(n − 1), k = 0 … n − 1.
+
+    E is forest_path's lobe albedo (Fresnel at each microfacet, :func:`forest.render.path.materials.
+    sheen_albedo_table`), E₁ the same GGX lobe's with F = 1: a white glossy BSDF of the same roughness weighted
+    by s·F̄(μ) reflects what forest_path's lobe of weight s does, for exporters whose materials mix a glossy
+    lobe over the leaf's diffuse ones.
+    """
+    from ..render.path.materials import sheen_albedo_table
+
+    e = sheen_albedo_table(alpha, n).astype(np.float64)
+    e1 = sheen_albedo_table(alpha, n, fresnel=False).astype(np.float64)
+    return [round(float(v), 6) for v in e / np.maximum(e1, 1e-9)]
+
+
 def bark_colour(lod) -> np.ndarray | None:
     """The colour of a level's first bark part before the bark factor: base colour × mean texture detail.
 

@@ -61,6 +61,7 @@ st = (u, 1 − v).
 from __future__ import annotations
 
 import errno
+import math
 import os
 import shutil
 import time
@@ -93,6 +94,7 @@ from .common import (
     ground_colour,
     horizon,
     is_bark,
+    leaf_cuticle,
     lod_mesh,
     look_instances,
     measured_bounds,
@@ -242,11 +244,30 @@ def part_material(stage, path: str, part, texture: str | None, canopy=None, bark
         _primvar_diffuse(stage, surf, f"{path}/BarkColor", BARK_COLOUR, part_albedo(part))
     elif not texture:
         _input(surf, "diffuseColor", T.Color3f, Gf.Vec3f(*colour))
+    _cuticle(surf, part)
     mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
     factors = ([("tint", "forest:tint")] if tinted else []) + ([("bark", BARK_TINT)] if barked else [])
     if factors:
-        _mtlx_network(stage, mat, path, colour, texture, factors)
+        _cuticle(_mtlx_network(stage, mat, path, colour, texture, factors), part)
     return mat
+
+
+def _cuticle(surf, part) -> None:
+    """A leaf's cuticle lobe on a UsdPreviewSurface (``surf``, either network): the clearcoat, UsdPreviewSurface's
+    white dielectric lobe of index 1.5 (forest_path's F₀ = 0.04), of weight s and roughness √α (α = roughness²),
+    with the base lobe's specular off (the specular workflow, ``specularColor`` 0), so the leaf reflects
+    specularly what forest_path's lobe reflects (docs/rendering.md, "Leaf sheen").  Parts without a sheen keep
+    UsdPreviewSurface's defaults."""
+    from pxr import Sdf
+
+    sheen, alpha = leaf_cuticle(part)
+    if sheen <= 0:
+        return
+    Gf, T = _pxr()[0], Sdf.ValueTypeNames
+    _input(surf, "useSpecularWorkflow", T.Int, 1)
+    _input(surf, "specularColor", T.Color3f, Gf.Vec3f(0.0, 0.0, 0.0))
+    _input(surf, "clearcoat", T.Float, float(sheen))
+    _input(surf, "clearcoatRoughness", T.Float, round(math.sqrt(alpha), 6))
 
 
 def _primvar_diffuse(stage, surf, path: str, varname: str, fallback) -> None:
@@ -266,7 +287,7 @@ def _primvar_diffuse(stage, surf, path: str, varname: str, fallback) -> None:
 def _mtlx_network(stage, mat, path: str, colour: list[float], texture: str | None, factors: list[tuple[str, str]]):
     """The exact network of a part multiplied by per-tree colours, in MaterialX standard-library nodes (see
     :func:`part_material`): base × image × each of ``factors`` = [(node name, primvar)], every factor read by
-    an ``ND_geompropvalue_color3`` of default 1."""
+    an ``ND_geompropvalue_color3`` of default 1; returns its surface shader."""
     from pxr import Sdf, UsdShade
 
     Gf = _pxr()[0]
@@ -319,6 +340,7 @@ def _mtlx_network(stage, mat, path: str, colour: list[float], texture: str | Non
         result = times.CreateOutput("out", T.Color3f)
     _input(surf, "diffuseColor", T.Color3f, source=result)
     mat.CreateSurfaceOutput("mtlx").ConnectToSource(surf.CreateOutput("out", T.Token))
+    return surf
 
 
 def write_species_layer(path: Path, plan: SpeciesPlan, bark: bool = False) -> dict:

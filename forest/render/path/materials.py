@@ -134,12 +134,13 @@ def _ggx_lambda(alpha: Any, mu: Any, sqrt: Any) -> Any:
     return 0.5 * (sqrt(1.0 + alpha * alpha * (1.0 - mu2) / (mu2 + 1e-12)) - 1.0)
 
 
-def sheen_albedo_table(alpha: float, n: int = SHEEN_TABLE_SIZE, grid: int = 96) -> np.ndarray:
+def sheen_albedo_table(alpha: float, n: int = SHEEN_TABLE_SIZE, grid: int = 96, *, fresnel: bool = True) -> np.ndarray:
     """E(μi) = ∫ F(ωi·h) D(h) G₂(ωi, ωo) / (4 μi) dωo at μi = k/(n − 1), k = 0 … n − 1 (float32).
 
     The integral is the expectation of F·G₂/G₁(ωi) over GGX's visible normals (Heitz 2018), taken
     on a deterministic ``grid`` × ``grid`` midpoint rule of the visible-normal warp (μi = 0 is
-    evaluated at μi = 10⁻³): a pure function of α, so renders stay byte-reproducible.
+    evaluated at μi = 10⁻³): a pure function of α, so renders stay byte-reproducible.  With
+    ``fresnel=False``, F = 1: the albedo of the bare GGX lobe (what a white glossy BSDF reflects).
     """
     mus = np.maximum(np.linspace(0.0, 1.0, n), 1e-3)
     u = (np.arange(grid) + 0.5) / grid
@@ -151,7 +152,7 @@ def sheen_albedo_table(alpha: float, n: int = SHEEN_TABLE_SIZE, grid: int = 96) 
         cos_im = m @ wi
         wo = 2.0 * cos_im[:, None] * m - wi
         mu_o = wo[:, 2]
-        f = CUTICLE_F0 + (1.0 - CUTICLE_F0) * np.clip(1.0 - cos_im, 0.0, 1.0) ** 5
+        f = CUTICLE_F0 + (1.0 - CUTICLE_F0) * np.clip(1.0 - cos_im, 0.0, 1.0) ** 5 if fresnel else 1.0
         lam_i = _ggx_lambda(alpha, mu, np.sqrt)
         lam_o = _ggx_lambda(alpha, np.maximum(mu_o, 1e-9), np.sqrt)
         g2_over_g1 = (1.0 + lam_i) / (1.0 + lam_i + lam_o)
