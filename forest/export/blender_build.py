@@ -134,11 +134,10 @@ def cuticle(nodes, links, leaf, sheen: float, alpha: float, fresnel: list[float]
     ramp = nodes.new("ShaderNodeValToRGB")
     ramp.color_ramp.interpolation = "LINEAR"
     n = len(fresnel)
-    stops = ramp.color_ramp.elements
-    while len(stops) < n:
-        stops.new(0.5)
-    for k, (stop, value) in enumerate(zip(stops, reversed(fresnel))):  # facing 0 … 1 is μ 1 … 0
-        stop.position = k / (n - 1)
+    stops = ramp.color_ramp.elements  # a new ramp's two stops are at 0 and 1: the others go between, in order
+    for k in range(1, n - 1):
+        stops.new(k / (n - 1))
+    for stop, value in zip(stops, reversed(fresnel)):  # facing 0 … 1 is μ 1 … 0
         stop.color = (value, value, value, 1.0)
     links.new(facing.outputs["Facing"], ramp.inputs["Fac"])
     weight = nodes.new("ShaderNodeMath")
