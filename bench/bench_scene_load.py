@@ -9,8 +9,8 @@ thread pool (``forest.runtime.PARALLEL_LOAD``, now off). Per example scene, fram
 :class:`forest.render.path.PathScene` is built ``--runs`` times each way, alternating, in this process; printed:
 the Mitsuba objects in the scene, the seconds of ``load_dict`` and of the whole build (forest's own work
 included, wall and CPU) of the fastest run each way and their ratios, and whether one pass of 2 samples renders the same
-bytes both ways. The GPU figures (``cuda_ad_rgb`` on an NVIDIA H200: the fly-through's load 35.1 s parallel,
-13.6 s serial) came from ``forest render`` on a lent machine; ``--variant cuda_ad_rgb`` measures them here
+bytes both ways. The GPU figures (``cuda_ad_rgb`` on an NVIDIA H200: the fly-through's load about 31 s in
+parallel, 13.6 s serially, with the same caches) came from ``forest render`` on a lent machine; ``--variant cuda_ad_rgb`` measures them here
 where there is a GPU.
 """
 

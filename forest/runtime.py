@@ -187,7 +187,7 @@ def mitsuba(variant: str = "scalar_rgb"):
 #: does not pay: the objects of a forest's scene are thousands of small instances, and the threads
 #: contend for drjit's lock.  20 000 instances of a cube (``bench/bench_gpu.py --cases instances``) took
 #: 38 µs each in parallel and 27 serially on 2 CPU cores, 169 and 47 on 16; the fly-through's 130 000
-#: trees (about 69 000 instances) on an NVIDIA H200 in ``cuda_ad_rgb`` loaded in 35.1 s in parallel and
+#: trees (about 69 000 instances) on an NVIDIA H200 in ``cuda_ad_rgb`` loaded in about 31 s in parallel and
 #: 13.6 s serially (``bench/bench_scene_load.py`` measures it on the machine at hand).
 PARALLEL_LOAD = False
 
