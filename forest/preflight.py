@@ -499,7 +499,8 @@ def check_generation(config, library) -> int:
     if len(new) > WARN_NEW_VARIANTS:
         warnings.warn(
             f"{config.path}: {len(new)} tree variants are not built yet and are generated first "
-            f"({_generation_cost(len(new))} in the tree library)",
+            f"({_generation_cost(len(new))} in the tree library; machines of a render farm share one: "
+            "$FOREST_LIBRARY)",
             ForestWarning,
             stacklevel=3,
         )
