@@ -474,6 +474,24 @@ def _sway_scene(tmp_path, library, *, strength: float, camera_z1: float | None =
     return cfg, load_scene(cfg, trees([[0.0, 0.0, 0.0]], phase=np.array([0.3], np.float32)), library=library)
 
 
+def test_a_frame_measures_its_wind_poses_once(tmp_path, library, monkeypatch):
+    """forest_path's renderer is built in the first pose its frame loads and the frame loop then poses the frame:
+    both ask :func:`forest.render.loop.pose_times` for that frame's poses, which projects every tree twice, and
+    the second asks again for nothing. Another frame size is another question."""
+    import forest.render.loop as loop
+    from forest.camera import subframe_times
+
+    _, scene = _sway_scene(tmp_path, library, strength=2.0, width=40)
+    calls: list[int] = []
+    real = loop.pose_count
+    monkeypatch.setattr(loop, "pose_count", lambda *a: calls.append(1) or real(*a))
+    render_scene(scene, output=tmp_path / "f.exr", variant="llvm_ad_rgb")
+    assert len(calls) == 1
+    times = subframe_times(1.0, 1.0, 5)
+    bigger = loop.pose_times(scene, 1.0, times, 80, 80)
+    assert len(calls) == 2 and loop.pose_times(scene, 1.0, times, 80, 80) == bigger and len(calls) == 2
+
+
 def test_a_frame_rendered_alone_builds_its_scene_once(tmp_path, library, monkeypatch):
     """A render of frame 5 alone (a render farm's task) builds forest_path's scene in frame 5's pose, once — it
     had been built in frame 1's and then again — and the frame is the one a render of frames 4-5 writes."""
