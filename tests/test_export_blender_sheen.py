@@ -14,7 +14,7 @@ import shutil
 
 import numpy as np
 import pytest
-from test_export_blender_look import block, read_layers
+from test_export_blender_look import BlockLibrary, block, read_layers
 
 from forest.config import parse_config
 from forest.export.blender import export_blender
@@ -59,22 +59,14 @@ view = "standard"
 """
 
 
-class SlabLibrary:
+class SlabLibrary(BlockLibrary):
     """``slab``: one flat leaf block 40 m square, with the cuticle lobe ``sheen`` (α 0.3) or without (0)."""
 
     def __init__(self, sheen: float):
         slab = block((-20, 0.0, -20), (20, 0.5, 20))
         part = FakePart("leaf", "slab_leaf.ply", (0.08, 0.2, 0.05), None, False, 0.3, slab, sheen, 0.3)
-        pts = slab.vertices.astype(np.float64)
-        self.species = {
-            "slab": FakeSpecies("slab", "generated", [FakeLod("high", 12, np.stack([pts.min(0), pts.max(0)]), (part,))])
-        }
-
-    def names(self):
-        return sorted(self.species)
-
-    def resolve(self, model, base_dir=None):
-        return self.species[model]
+        bounds = np.stack([slab.vertices.min(0), slab.vertices.max(0)]).astype(np.float64)
+        self.species = {"slab": FakeSpecies("slab", "generated", [FakeLod("high", 12, bounds, (part,))])}
 
 
 @pytest.fixture(scope="module")

@@ -28,6 +28,7 @@ Conventions (both exporters, and the same as the Mitsuba renderer):
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import re
 from dataclasses import dataclass, field
@@ -316,19 +317,20 @@ def leaf_cuticle(part) -> tuple[float, float]:
 CUTICLE_TABLE_SIZE = 17
 
 
-def cuticle_fresnel(alpha: float, n: int = CUTICLE_TABLE_SIZE) -> list[float]:
+@functools.lru_cache(maxsize=32)
+def cuticle_fresnel(alpha: float, n: int = CUTICLE_TABLE_SIZE) -> tuple[float, ...]:
     """The cuticle lobe's mean Fresnel reflectance F̄(μ) = E(μ) / E₁(μ) at μ = k/(n − 1), k = 0 … n − 1.
 
     E is forest_path's lobe albedo (Fresnel at each microfacet, :func:`forest.render.path.materials.
     sheen_albedo_table`), E₁ the same GGX lobe's with F = 1: a white glossy BSDF of the same roughness weighted
     by s·F̄(μ) reflects what forest_path's lobe of weight s does, for exporters whose materials mix a glossy
-    lobe over the leaf's diffuse ones.
+    lobe over the leaf's diffuse ones.  Kept per α (parts of one recipe share it).
     """
     from ..render.path.materials import sheen_albedo_table
 
     e = sheen_albedo_table(alpha, n).astype(np.float64)
     e1 = sheen_albedo_table(alpha, n, fresnel=False).astype(np.float64)
-    return [round(float(v), 6) for v in e / np.maximum(e1, 1e-9)]
+    return tuple(round(float(v), 6) for v in e / np.maximum(e1, 1e-9))
 
 
 def bark_colour(lod) -> np.ndarray | None:
